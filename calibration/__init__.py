@@ -1,0 +1,1 @@
+"""Free-motion trajectories, NEXT (data, model, training, streaming estimator), baselines, identification."""

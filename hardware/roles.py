@@ -1,0 +1,158 @@
+"""The two roles a device plays: Leader (human-driven, torque-commanded) and Follower (tracks targets).
+
+The public command methods are implemented here, once, and always go through the device's SafetyLayer;
+a driver only implements the wire side (_send_safe / _send_torque_safe), which accepts nothing but the
+safety layer's output types. Watchdog: every read() and command call checks it; real-time rigs also run
+WatchdogThread so a frozen loop still leaves the device safe.
+"""
+
+from __future__ import annotations
+
+import abc
+import threading
+
+import numpy as np
+
+from hardware.clock import Clock
+from hardware.safety import DEFAULT_WATCHDOG_S, SafeFollowerCommand, SafeLeaderTorque, SafetyLayer
+from hardware.types import FollowerCommand, JointLimits, JointState
+
+
+class Device(abc.ABC):
+    """Shared shell: connect/disconnect as a context manager, read() that feeds the watchdog."""
+
+    def __init__(self, name: str, limits: JointLimits, clock: Clock | None = None,
+                 watchdog_s: float = DEFAULT_WATCHDOG_S):
+        self.name = name
+        self.clock = clock or Clock()
+        self.safety = SafetyLayer(limits, watchdog_s=watchdog_s)
+        self.n_joints = limits.n
+        self._last_state = JointState.empty(limits.n)
+        self._lock = threading.RLock()  # one bus transaction at a time (loop vs watchdog thread)
+        self.in_safe_state = False
+
+    # -- wire side, per driver ---------------------------------------------------------------------
+    @abc.abstractmethod
+    def connect(self) -> None: ...
+
+    @abc.abstractmethod
+    def _disconnect_bus(self) -> None:
+        """Release the port/bus (the safe state was already commanded)."""
+
+    @abc.abstractmethod
+    def _read(self) -> JointState | None:
+        """One bus read; None when no fresh data arrived (the previous state stays)."""
+
+    @property
+    @abc.abstractmethod
+    def is_connected(self) -> bool: ...
+
+    @abc.abstractmethod
+    def _go_safe(self, reason: str) -> None:
+        """Command the device's safe state (through the safety layer)."""
+
+    # -- shared logic ------------------------------------------------------------------------------
+    def read(self) -> JointState:
+        with self._lock:
+            st = self._read()
+            if st is not None:
+                self._last_state = st
+                self.safety.watchdog.feed_feedback(st.t)
+            self.check_watchdog()
+            return self._last_state
+
+    @property
+    def last_state(self) -> JointState:
+        return self._last_state
+
+    def check_watchdog(self) -> str | None:
+        """Go safe if commands or feedback are stale; returns the reason (None when fine)."""
+        reason = self.safety.watchdog.stale(self.clock.now())
+        if reason is not None and not self.in_safe_state:
+            with self._lock:
+                self._go_safe(f"watchdog: {reason}")
+                self.in_safe_state = True
+        return reason
+
+    def disconnect(self) -> None:
+        with self._lock:
+            if self.is_connected:
+                try:
+                    self._go_safe("disconnect")
+                finally:
+                    self.in_safe_state = True
+                    self._disconnect_bus()
+
+    def __enter__(self):
+        self.connect()
+        return self
+
+    def __exit__(self, *exc):
+        self.disconnect()
+        return False
+
+
+class Leader(Device):
+    """A human-driven arm given joint torques [N*m] (current control)."""
+
+    @abc.abstractmethod
+    def _send_torque_safe(self, safe: SafeLeaderTorque) -> None:
+        """Write the currents for these (already limited) torques."""
+
+    def command_torque(self, tau: np.ndarray) -> np.ndarray:
+        """Ask for joint torques [N*m]; returns the torques actually sent after the limits."""
+        with self._lock:
+            safe = self.safety.leader(tau, self.clock.now())
+            self._send_torque_safe(safe)
+            self.in_safe_state = False
+            return safe.tau
+
+    def zero_torque(self, reason: str = "requested") -> None:
+        with self._lock:
+            self._send_torque_safe(self.safety.leader_zero(self.clock.now(), reason))
+            self.in_safe_state = True
+
+    def _go_safe(self, reason: str) -> None:
+        self._send_torque_safe(self.safety.leader_zero(self.clock.now(), reason))
+
+
+class Follower(Device):
+    """A robot arm that tracks joint position targets (optionally with feed-forward torque / MIT gains)."""
+
+    @abc.abstractmethod
+    def _send_safe(self, safe: SafeFollowerCommand) -> None:
+        """Encode and send an (already limited) command; safe.hold means the device's hold/damping state."""
+
+    def command(self, cmd: FollowerCommand) -> SafeFollowerCommand:
+        """Send a command through the limits; returns what was actually sent."""
+        with self._lock:
+            safe = self.safety.follower(cmd, self.clock.now(), self._last_state.q)
+            self._send_safe(safe)
+            self.in_safe_state = False
+            return safe
+
+    def hold(self, reason: str = "requested") -> None:
+        with self._lock:
+            self._go_safe(reason)
+            self.in_safe_state = True
+
+    def _go_safe(self, reason: str) -> None:
+        self._send_safe(self.safety.follower_hold(self.clock.now(), self._last_state.q, reason))
+
+
+class WatchdogThread(threading.Thread):
+    """Checks devices' watchdogs every period_s [s] of wall time (real-time rigs only)."""
+
+    def __init__(self, devices: list[Device], period_s: float = 0.005):
+        super().__init__(name="factr2-watchdog", daemon=True)
+        self.devices, self.period_s = devices, period_s
+        self._stop_evt = threading.Event()
+
+    def run(self) -> None:
+        while not self._stop_evt.wait(self.period_s):
+            for d in self.devices:
+                if d.is_connected:
+                    d.check_watchdog()
+
+    def stop(self) -> None:
+        self._stop_evt.set()

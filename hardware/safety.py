@@ -1,0 +1,213 @@
+"""The safety layer: every command to a motor passes here, and only its output types reach a wire.
+
+Pure functions (limit_position_target, limit_torque, limit_gains) do the math on numpy arrays;
+SafetyLayer is the stateful shell (previous safe command, watchdog, counters). Drivers accept only
+SafeFollowerCommand / SafeLeaderTorque, which nothing outside this module can construct, so there is no
+path from a loop to a motor that skips the limits (tests/test_safety.py checks that, hypothesis tries to
+break the limits).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hardware.types import FollowerCommand, JointLimits
+
+DEFAULT_WATCHDOG_S = 0.05  # s: commands or feedback older than this put the device in its safe state
+MAX_RATE_DT_S = DEFAULT_WATCHDOG_S  # s: a pause longer than this does not buy a larger target step
+HOLD_KD = 1.0  # N*m*s/rad: damping gain of the safe state for impedance (MIT) followers
+_TOKEN = object()  # only this module can build Safe* values
+
+
+def limit_position_target(q_target: np.ndarray, q_prev: np.ndarray, dt_s: float,
+                          lim: JointLimits) -> tuple[np.ndarray, int]:
+    """Position target inside [q_min, q_max], moving at most v_max*dt from q_prev [rad].
+
+    Non-finite entries keep q_prev (the joint holds). q_prev must be finite and inside the limits.
+    Returns (safe target, number of joints that were changed).
+    """
+    q = np.asarray(q_target, dtype=float)
+    q = np.where(np.isfinite(q), q, q_prev)
+    dt = float(np.clip(dt_s if np.isfinite(dt_s) else 0.0, 0.0, MAX_RATE_DT_S))
+    step = lim.v_max * dt
+    out = np.clip(np.clip(q, q_prev - step, q_prev + step), lim.q_min, lim.q_max)
+    changed = int(np.count_nonzero(out != np.asarray(q_target, dtype=float)))
+    return out, changed
+
+
+def limit_torque(tau: np.ndarray, tau_prev: np.ndarray, dt_s: float,
+                 lim: JointLimits) -> tuple[np.ndarray, int]:
+    """Torque [N*m] within +-tau_max whose magnitude grows at most tau_rate_max*dt per call.
+
+    Falling towards zero is never slowed (zero torque is the safe direction). Non-finite entries become 0.
+    Returns (safe torque, number of joints changed).
+    """
+    raw = np.asarray(tau, dtype=float)
+    t = np.where(np.isfinite(raw), raw, 0.0)
+    dt = float(np.clip(dt_s if np.isfinite(dt_s) else 0.0, 0.0, MAX_RATE_DT_S))
+    r = lim.tau_rate_max * dt
+    lo = np.minimum(tau_prev - r, np.minimum(tau_prev, 0.0))
+    hi = np.maximum(tau_prev + r, np.maximum(tau_prev, 0.0))
+    out = np.clip(np.clip(t, lo, hi), -lim.tau_max, lim.tau_max)
+    changed = int(np.count_nonzero(out != raw))
+    return out, changed
+
+
+def limit_gains(kp: np.ndarray, kd: np.ndarray, lim: JointLimits) -> tuple[np.ndarray, np.ndarray, int]:
+    """Impedance gains in [0, kp_max] / [0, kd_max]; non-finite kp -> 0 (no stiffness), kd -> HOLD_KD."""
+    kp_raw, kd_raw = np.asarray(kp, dtype=float), np.asarray(kd, dtype=float)
+    kp_o = np.clip(np.where(np.isfinite(kp_raw), kp_raw, 0.0), 0.0, lim.kp_max)
+    kd_o = np.clip(np.where(np.isfinite(kd_raw), kd_raw, HOLD_KD), 0.0, lim.kd_max)
+    changed = int(np.count_nonzero(kp_o != kp_raw) + np.count_nonzero(kd_o != kd_raw))
+    return kp_o, kd_o, changed
+
+
+def safe_start_target(q_meas: np.ndarray, lim: JointLimits) -> np.ndarray:
+    """A finite target inside the limits near the measured position (where holding starts) [rad]."""
+    q = np.asarray(q_meas, dtype=float)
+    mid = 0.5 * (lim.q_min + lim.q_max)
+    return np.clip(np.where(np.isfinite(q), q, mid), lim.q_min, lim.q_max)
+
+
+@dataclass(frozen=True)
+class SafeFollowerCommand:
+    """A follower command that passed the limits. Only SafetyLayer makes these."""
+
+    q: np.ndarray
+    tau_ff: np.ndarray
+    kp: np.ndarray | None
+    kd: np.ndarray | None
+    gripper: float | None
+    hold: bool
+    _token: object
+
+    def __post_init__(self):
+        if self._token is not _TOKEN:
+            raise TypeError("SafeFollowerCommand can only be made by hardware.safety.SafetyLayer")
+
+
+@dataclass(frozen=True)
+class SafeLeaderTorque:
+    """Leader joint torques [N*m] that passed the limits. Only SafetyLayer makes these."""
+
+    tau: np.ndarray
+    _token: object
+
+    def __post_init__(self):
+        if self._token is not _TOKEN:
+            raise TypeError("SafeLeaderTorque can only be made by hardware.safety.SafetyLayer")
+
+
+class Watchdog:
+    """Commands and feedback must both be fresher than timeout_s [s] (device clock)."""
+
+    def __init__(self, timeout_s: float = DEFAULT_WATCHDOG_S):
+        self.timeout_s = float(timeout_s)
+        self.last_command_t = float("nan")
+        self.last_feedback_t = float("nan")
+
+    def feed_command(self, t: float) -> None:
+        self.last_command_t = t
+
+    def feed_feedback(self, t: float) -> None:
+        self.last_feedback_t = t
+
+    def stale(self, now: float) -> str | None:
+        """Why the device must go safe now, or None. Nothing fed yet is not stale (not started)."""
+        if np.isfinite(self.last_command_t) and now - self.last_command_t > self.timeout_s:
+            return f"no command for {1e3 * (now - self.last_command_t):.0f} ms"
+        if np.isfinite(self.last_feedback_t) and now - self.last_feedback_t > self.timeout_s:
+            return f"no feedback for {1e3 * (now - self.last_feedback_t):.0f} ms"
+        return None
+
+
+class SafetyLayer:
+    """Stateful shell around the pure limits for one device.
+
+    Keeps the previous safe command (for rate limits), a watchdog and counters the UI and recordings show.
+    """
+
+    def __init__(self, limits: JointLimits, watchdog_s: float = DEFAULT_WATCHDOG_S,
+                 hold_kd: float = HOLD_KD):
+        self.limits = limits
+        self.watchdog = Watchdog(watchdog_s)
+        self.hold_kd = float(hold_kd)
+        self._q_prev: np.ndarray | None = None
+        self._tau_prev = np.zeros(limits.n)
+        self._t_prev = float("nan")
+        self.clipped = 0  # joints changed by a limit, cumulative
+        self.rejected = 0  # non-finite values replaced, cumulative
+        self.holds = 0  # times the safe state was entered
+        self.last_fault: str | None = None
+
+    def _dt(self, now: float) -> float:
+        dt = now - self._t_prev if np.isfinite(self._t_prev) else 0.0
+        self._t_prev = now
+        return dt
+
+    def _count(self, *values) -> None:
+        for v in values:
+            if v is not None:
+                self.rejected += int(np.count_nonzero(~np.isfinite(_vec(v, self.limits.n))))
+
+    def follower(self, cmd: FollowerCommand, now: float, q_meas: np.ndarray) -> SafeFollowerCommand:
+        """Limit a raw follower command. q_meas [rad] seeds the rate limit on the first command."""
+        lim, n = self.limits, self.limits.n
+        if self._q_prev is None:
+            self._q_prev = safe_start_target(q_meas, lim)
+        dt = self._dt(now)
+        self._count(cmd.q, cmd.tau_ff, cmd.kp, cmd.kd)
+        q, c1 = limit_position_target(_vec(cmd.q, n), self._q_prev, dt, lim)
+        tau, c2 = limit_torque(_vec(cmd.tau_ff, n, 0.0), self._tau_prev, dt, lim)
+        kp = kd = None
+        c3 = 0
+        if cmd.kp is not None or cmd.kd is not None:
+            kp, kd, c3 = limit_gains(_vec(cmd.kp, n, 0.0), _vec(cmd.kd, n, self.hold_kd), lim)
+        grip = cmd.gripper if cmd.gripper is None or np.isfinite(cmd.gripper) else None
+        self.clipped += c1 + c2 + c3
+        self._q_prev, self._tau_prev = q, tau
+        self.watchdog.feed_command(now)
+        return SafeFollowerCommand(q=q, tau_ff=tau, kp=kp, kd=kd, gripper=grip, hold=False, _token=_TOKEN)
+
+    def follower_hold(self, now: float, q_meas: np.ndarray, reason: str) -> SafeFollowerCommand:
+        """The safe state: hold the measured position (clipped into the limits), no feed-forward,
+        damping only for impedance followers (kp=0, kd=hold_kd) -- the driver picks which it sends."""
+        q = safe_start_target(q_meas if self._q_prev is None else
+                              np.where(np.isfinite(q_meas), q_meas, self._q_prev), self.limits)
+        self._q_prev, self._tau_prev, self._t_prev = q, np.zeros(self.limits.n), now
+        self.holds += 1
+        self.last_fault = reason
+        n = self.limits.n
+        return SafeFollowerCommand(q=q, tau_ff=np.zeros(n), kp=np.zeros(n),
+                                   kd=np.minimum(np.full(n, self.hold_kd), self.limits.kd_max),
+                                   gripper=None, hold=True, _token=_TOKEN)
+
+    def leader(self, tau: np.ndarray, now: float) -> SafeLeaderTorque:
+        """Limit leader joint torques [N*m]."""
+        dt = self._dt(now)
+        self._count(tau)
+        out, c = limit_torque(_vec(tau, self.limits.n, 0.0), self._tau_prev, dt, self.limits)
+        self.clipped += c
+        self._tau_prev = out
+        self.watchdog.feed_command(now)
+        return SafeLeaderTorque(tau=out, _token=_TOKEN)
+
+    def leader_zero(self, now: float, reason: str) -> SafeLeaderTorque:
+        """The leader's safe state: zero torque."""
+        self._tau_prev, self._t_prev = np.zeros(self.limits.n), now
+        self.holds += 1
+        self.last_fault = reason
+        return SafeLeaderTorque(tau=np.zeros(self.limits.n), _token=_TOKEN)
+
+
+def _vec(x, n: int, fill: float = np.nan) -> np.ndarray:
+    """Shape a user value to (n,) floats; wrong shapes become all-`fill` (rejected), never an exception."""
+    if x is None:
+        return np.full(n, fill)
+    try:
+        a = np.asarray(x, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return np.full(n, np.nan)
+    return a if a.shape == (n,) else np.full(n, np.nan)

@@ -1,0 +1,1 @@
+"""Phase labelling, FIRST sampling, ACT and flow-matching policies, training, rollout."""

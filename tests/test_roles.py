@@ -1,0 +1,105 @@
+"""Base roles: the command path passes the safety layer, the watchdog puts devices in their safe state."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hardware.clock import LockstepClock
+from hardware.roles import Follower, Leader
+from hardware.safety import SafeFollowerCommand, SafeLeaderTorque
+from hardware.sim.motors import IdealMotorBank
+from hardware.types import FollowerCommand, JointLimits, JointState
+
+N = 3
+LIM = JointLimits(q_min=-np.ones(N), q_max=np.ones(N), v_max=np.full(N, 2.0), tau_max=np.full(N, 1.0),
+                  tau_rate_max=np.full(N, 1000.0))
+
+
+class BankFollower(Follower):
+    """Test-only follower talking straight to an IdealMotorBank (no wire)."""
+
+    def __init__(self, bank, clock):
+        super().__init__("f", LIM, clock)
+        self.bank, self.connected, self.sent = bank, False, []
+
+    def connect(self):
+        self.connected = True
+
+    def _disconnect_bus(self):
+        self.connected = False
+
+    @property
+    def is_connected(self):
+        return self.connected
+
+    def _read(self):
+        r = self.bank.read()
+        return JointState(t=self.clock.now(), q=r.q, q_dot=r.q_dot, tau_m=r.tau_m, current=r.current,
+                          q_cmd=np.full(N, np.nan), temperature=r.temperature, status=np.zeros(N, np.uint32))
+
+    def _send_safe(self, safe: SafeFollowerCommand):
+        assert isinstance(safe, SafeFollowerCommand)
+        self.sent.append(safe)
+        self.bank.command_position(np.arange(N), safe.q)
+
+
+class BankLeader(Leader):
+    def __init__(self, bank, clock):
+        super().__init__("l", LIM, clock)
+        self.bank, self.connected = bank, False
+
+    def connect(self):
+        self.connected = True
+
+    def _disconnect_bus(self):
+        self.connected = False
+
+    @property
+    def is_connected(self):
+        return self.connected
+
+    def _read(self):
+        r = self.bank.read()
+        return JointState(t=self.clock.now(), q=r.q, q_dot=r.q_dot, tau_m=r.tau_m, current=r.current,
+                          q_cmd=np.full(N, np.nan), temperature=r.temperature, status=np.zeros(N, np.uint32))
+
+    def _send_torque_safe(self, safe: SafeLeaderTorque):
+        self.bank.command_current(np.arange(N), safe.tau / self.bank.torque_constant)
+
+
+def test_follower_commands_are_limited_and_watchdog_holds():
+    clock, bank = LockstepClock(), IdealMotorBank(N)
+    clock.attach(bank.advance)
+    with BankFollower(bank, clock) as f:
+        f.read()
+        for _ in range(400):  # 0.8 s: the target moves at most v_max = 2 rad/s
+            sent = f.command(FollowerCommand(q=np.array([5.0, -5.0, np.nan])))
+            clock.sleep(0.002)
+            f.read()
+        assert np.all(np.abs(sent.q) <= 1.0) and sent.q[2] == 0.0
+        assert np.allclose(bank.q, [1.0, -1.0, 0.0], atol=0.05)
+        n_before = len(f.sent)
+        clock.sleep(0.06)  # loop stalls: no command for 60 ms
+        f.read()
+        assert f.sent[-1].hold and len(f.sent) == n_before + 1 and f.in_safe_state
+        assert "watchdog" in f.safety.last_fault
+    assert f.sent[-1].hold  # disconnect leaves it holding
+
+
+def test_leader_torque_limited_and_zeroed_on_stale_feedback():
+    clock, bank = LockstepClock(), IdealMotorBank(N)
+    clock.attach(bank.advance)
+    lead = BankLeader(bank, clock)
+    lead.connect()
+    lead.read()
+    assert np.allclose(lead.command_torque(np.array([10.0, -0.5, np.inf])), 0.0)  # torque ramps from zero
+    for _ in range(5):
+        clock.sleep(0.002)
+        lead.read()
+        out = lead.command_torque(np.array([10.0, -0.5, np.inf]))
+    assert np.allclose(out, [1.0, -0.5, 0.0])
+    clock.sleep(0.03)
+    lead.command_torque(np.array([0.2, 0.2, 0.2]))
+    clock.sleep(0.03)
+    assert lead.check_watchdog() is not None  # feedback 60 ms old
+    assert np.all(bank.current_cmd == 0)
