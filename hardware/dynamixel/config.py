@@ -13,7 +13,11 @@ class DynamixelLeaderConfig:
     e.g. "XL330-M288", "XC330-M288", "XM430-W350". gripper_id: trigger servo id (None: no trigger);
     gripper_open_rad / gripper_closed_rad: trigger positions mapped to 0..1. read_current: add present
     current to the sync read. loop_hz: the rate the loop wants (start-up check warns below it).
-    arm: name of the leader's arm description (hardware/arms)."""
+    arm: name of the leader's arm description (hardware/arms).
+    torque_constant_nm_per_a: per-joint K override [N*m/A] (None: the model's stall torque / stall current,
+    see hardware/dynamixel/models.py). gripper_model: trigger servo model (None: the first joint's model).
+    rx_timeout_ms: how long one sync read waits for replies (None: 2 x USB latency timer + wire time
+    + 4 ms; + 10 ms on a pty, i.e. a twin)."""
 
     port: str
     ids: list[int]
@@ -28,4 +32,7 @@ class DynamixelLeaderConfig:
     loop_hz: float = 500.0
     arm: str = "gello_piper"
     name: str = "leader"
+    torque_constant_nm_per_a: list[float] | None = None
+    gripper_model: str | None = None
+    rx_timeout_ms: float | None = None
     extra: dict = field(default_factory=dict)

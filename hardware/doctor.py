@@ -1,0 +1,330 @@
+"""Hardware checks behind `factr2 doctor`: what is plugged in, and what is wrong with it, in plain words.
+
+Every check is a function returning data plus Findings (level, subject, message, fix); the command only
+prints them. Checks never write to a device (the doctor is read-only: a servo's mode, delays and torque
+are left as found).
+
+CAN hook: CAN probes live with their drivers (hardware/piper, hardware/damiao). A probe is a function
+`probe(interface: str) -> list[Finding]` registered with register_can_check(name, probe); run_can_checks()
+calls every registered probe for one interface. Modules listed in CAN_CHECK_MODULES are imported (if they
+exist) before the probes run, so a driver registers its probe at import time:
+
+    # hardware/piper/doctor.py
+    from hardware.doctor import Finding, register_can_check
+    def probe_piper(interface: str) -> list[Finding]: ...
+    register_can_check("piper", probe_piper)
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from hardware.dynamixel import protocol as p
+from hardware.dynamixel.bus import DynamixelBus
+from hardware.dynamixel.models import MODELS_BY_NUMBER, model_name
+from hardware.errors import UserError
+from hardware.serial_ports import SerialPortInfo, latency_timer_problem, list_serial_ports
+
+SYSFS_NET = "/sys/class/net"
+ARPHRD_CAN = 280  # /sys/class/net/<if>/type of a CAN interface
+HOT_C = 60  # degC: warn above this servo temperature
+SCAN_BAUDS = (57600, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 115200)
+CAN_CHECK_MODULES = ("hardware.piper.doctor", "hardware.damiao.doctor")
+
+
+@dataclass
+class Finding:
+    level: str  # "ok" | "info" | "warn" | "error"
+    subject: str
+    message: str
+    fix: str = ""
+
+    def line(self) -> str:
+        tag = {"ok": "OK   ", "info": "INFO ", "warn": "WARN ", "error": "ERROR"}.get(self.level, self.level)
+        return f"{tag} {self.subject}: {self.message}" + (f" -- fix: {self.fix}" if self.fix else "")
+
+
+# -- ports and interfaces ----------------------------------------------------------------------------
+def check_serial_ports(extra: list[str] | None = None) -> list[SerialPortInfo]:
+    return list_serial_ports(extra)
+
+
+@dataclass
+class CanInterface:
+    name: str
+    operstate: str
+    up: bool
+
+
+def check_can_interfaces(sysfs: str = SYSFS_NET) -> list[CanInterface]:
+    """Network interfaces whose type is CAN (280), with their link state."""
+    out = []
+    try:
+        names = sorted(os.listdir(sysfs))
+    except OSError:
+        return out
+    for name in names:
+        try:
+            with open(os.path.join(sysfs, name, "type")) as f:
+                if int(f.read().strip()) != ARPHRD_CAN:
+                    continue
+        except (OSError, ValueError):
+            continue
+        state = _read(os.path.join(sysfs, name, "operstate")) or "unknown"
+        try:
+            up = bool(int(_read(os.path.join(sysfs, name, "flags")) or "0", 16) & 0x1)
+        except ValueError:
+            up = False
+        out.append(CanInterface(name, state, up))
+    return out
+
+
+def _read(path: str) -> str | None:
+    try:
+        with open(path) as f:
+            return f.read().strip()
+    except OSError:
+        return None
+
+
+# -- CAN hook ----------------------------------------------------------------------------------------
+CanCheck = Callable[[str], list[Finding]]
+_CAN_CHECKS: dict[str, CanCheck] = {}
+
+
+def register_can_check(name: str, probe: CanCheck) -> None:
+    """Register a CAN probe (called by hardware/piper, hardware/damiao at import)."""
+    _CAN_CHECKS[name] = probe
+
+
+def run_can_checks(interface: str) -> list[Finding]:
+    """Every registered CAN probe on one interface; a probe that raises becomes an error finding."""
+    for mod in CAN_CHECK_MODULES:
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as e:
+            if e.name != mod:
+                raise
+    if not _CAN_CHECKS:
+        return [Finding("info", interface, "no CAN probe is installed (hardware.piper / hardware.damiao)")]
+    out: list[Finding] = []
+    for name, probe in _CAN_CHECKS.items():
+        try:
+            out += probe(interface)
+        except UserError as e:
+            out.append(Finding("error", f"{interface} {name}", str(e)))
+        except Exception as e:  # noqa: BLE001 -- a broken probe must not stop the other checks
+            out.append(Finding("error", f"{interface} {name}", f"probe failed: {type(e).__name__}: {e}"))
+    return out
+
+
+# -- Dynamixel ---------------------------------------------------------------------------------------
+@dataclass
+class ServoReport:
+    id: int
+    model_number: int
+    model: str
+    firmware: int
+    operating_mode: int
+    return_delay_us: int
+    temperature_c: int
+    torque_on: bool
+    hardware_error: int
+    current_limit_a: float
+
+
+@dataclass
+class DynamixelReport:
+    port: str
+    baud: int
+    latency_timer_ms: int | None = None
+    servos: list[ServoReport] = field(default_factory=list)
+    round_trip_s: float = float("nan")
+    findings: list[Finding] = field(default_factory=list)
+
+
+def probe_dynamixel(
+    port: str,
+    baud: int,
+    ids: list[int],
+    loop_hz: float = 500.0,
+    expect_model: str | None = None,
+    rounds: int = 50,
+) -> DynamixelReport:
+    """Ping ids on port and read each servo's state (read-only); measure the per-tick sync read."""
+    rep = DynamixelReport(port, baud)
+    bus = DynamixelBus(port, baud, where="doctor")
+    rep.latency_timer_ms = bus.latency_timer_ms
+    prob = latency_timer_problem(port, bus.latency_timer_ms)
+    if prob:
+        rep.findings.append(Finding("warn", port, *prob))
+    try:
+        bus.open()
+    except UserError as e:
+        rep.findings.append(Finding("error", port, e.what, e.fix))
+        return rep
+    try:
+        _probe_servos(bus, rep, ids, expect_model)
+        live = [s.id for s in rep.servos]
+        if live:
+            _measure(bus, rep, live, loop_hz, rounds)
+    finally:
+        bus.close()
+    return rep
+
+
+def _probe_servos(bus: DynamixelBus, rep: DynamixelReport, ids: list[int], expect_model: str | None) -> None:
+    missing = []
+    for i in ids:
+        pong = bus.ping(i)
+        if pong is None:
+            missing.append(i)
+            continue
+        number, fw = pong
+        m = MODELS_BY_NUMBER.get(number)
+        try:
+            s = ServoReport(
+                id=i,
+                model_number=number,
+                model=model_name(number),
+                firmware=fw,
+                operating_mode=bus.read(i, p.ADDR_OPERATING_MODE),
+                return_delay_us=int(bus.read(i, p.ADDR_RETURN_DELAY_TIME) * p.RETURN_DELAY_UNIT_S * 1e6),
+                temperature_c=bus.read(i, p.ADDR_PRESENT_TEMPERATURE),
+                torque_on=bool(bus.read(i, p.ADDR_TORQUE_ENABLE)),
+                hardware_error=bus.read(i, p.ADDR_HARDWARE_ERROR_STATUS),
+                current_limit_a=bus.read(i, p.ADDR_CURRENT_LIMIT) * (m.amps_per_unit if m else float("nan")),
+            )
+        except UserError as e:
+            rep.findings.append(Finding("error", f"servo {i}", e.what, e.fix))
+            continue
+        rep.servos.append(s)
+        _judge(s, rep, expect_model)
+    if missing:
+        found = bus.broadcast_ping()
+        if found:
+            rep.findings.append(
+                Finding(
+                    "error",
+                    bus.port_name,
+                    f"id(s) {missing} did not answer; ids that answered at {bus.baud} bit/s: {found}",
+                    "use the ids that answered in the rig file, or re-id the servos (Dynamixel Wizard)",
+                )
+            )
+        else:
+            rep.findings.append(_baud_scan(bus, missing))
+
+
+def _baud_scan(bus: DynamixelBus, missing: list[int]) -> Finding:
+    """Nothing answered: look for the servos at the other standard rates."""
+    for b in SCAN_BAUDS:
+        if b == bus.baud:
+            continue
+        bus.port.setBaudRate(b)
+        found = bus.broadcast_ping()
+        if found:
+            bus.port.setBaudRate(bus.baud)
+            return Finding(
+                "error",
+                bus.port_name,
+                f"no servo answered at {bus.baud} bit/s, but ids {found} answer at {b} bit/s",
+                f"set baud = {b} in the rig, or set the servos to {bus.baud} "
+                "(Dynamixel Wizard; 4000000 recommended)",
+            )
+    bus.port.setBaudRate(bus.baud)
+    return Finding(
+        "error",
+        bus.port_name,
+        f"no servo answered (ids {missing}) at any standard baud",
+        "check the servo power supply (XL330: 5 V) and the TTL cable; is this the right port?",
+    )
+
+
+def _judge(s: ServoReport, rep: DynamixelReport, expect_model: str | None) -> None:
+    subj = f"servo {s.id} ({s.model})"
+    if s.model_number not in MODELS_BY_NUMBER:
+        rep.findings.append(
+            Finding(
+                "warn",
+                subj,
+                "model not in hardware/dynamixel/models.py: no torque constant",
+                "add it there or use a supported model",
+            )
+        )
+    if expect_model and s.model.upper() != expect_model.upper():
+        rep.findings.append(
+            Finding("error", subj, f"rig expects {expect_model}", "fix `model` in the rig file")
+        )
+    if s.return_delay_us:
+        rep.findings.append(
+            Finding(
+                "info",
+                subj,
+                f"return delay {s.return_delay_us} us (costs that much per reply)",
+                "the leader sets it to 0 at connect",
+            )
+        )
+    if s.operating_mode != p.OP_MODE_CURRENT:
+        rep.findings.append(
+            Finding(
+                "info",
+                subj,
+                f"operating mode {p.OP_MODE_NAMES.get(s.operating_mode, '?')}",
+                "the leader switches joints to current mode at connect",
+            )
+        )
+    if s.hardware_error:
+        bits = [n for b, n in p.HW_ERROR_BITS.items() if s.hardware_error & (1 << b)]
+        rep.findings.append(
+            Finding(
+                "error",
+                subj,
+                f"hardware error: {', '.join(bits) or s.hardware_error}",
+                "remove the cause, then power-cycle or reboot the servo",
+            )
+        )
+    if s.temperature_c >= HOT_C:
+        rep.findings.append(
+            Finding("warn", subj, f"temperature {s.temperature_c} degC", "let it cool; lower gains")
+        )
+
+
+def _measure(bus: DynamixelBus, rep: DynamixelReport, ids: list[int], loop_hz: float, rounds: int) -> None:
+    field_ = (p.FEEDBACK_START, p.FEEDBACK_LEN)
+    delay_s = max(s.return_delay_us for s in rep.servos) * 1e-6
+    # generous timeout: the doctor reports replies that are truly lost, not ones a busy host was slow to take
+    timeout = max(
+        25.0, bus.rx_timeout_ms(len(ids) * (11 + p.FEEDBACK_LEN) + 14 + len(ids), len(ids), delay_s)
+    )
+    group = bus.make_sync_read(ids, field_)
+    t0 = time.perf_counter()
+    rep.round_trip_s, complete = bus.measure_round_trip(group, ids, timeout, n=rounds)
+    hz = 1.0 / rep.round_trip_s if rep.round_trip_s > 0 else float("inf")
+    msg = (
+        f"one sync read of {len(ids)} servos: {1e3 * rep.round_trip_s:.2f} ms median -> about {hz:.0f} Hz "
+        f"({complete}/{rounds} complete, {time.perf_counter() - t0:.2f} s)"
+    )
+    if complete < rounds:
+        rep.findings.append(
+            Finding(
+                "warn",
+                bus.port_name,
+                msg + ": replies were lost",
+                "check cabling/power; another program on the port?",
+            )
+        )
+    elif hz < loop_hz:
+        rep.findings.append(
+            Finding(
+                "warn",
+                bus.port_name,
+                msg + f", below the loop's {loop_hz:.0f} Hz",
+                "baud 4000000, return delay 0, USB latency timer 1 ms",
+            )
+        )
+    else:
+        rep.findings.append(Finding("ok", bus.port_name, msg))

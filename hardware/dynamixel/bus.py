@@ -1,0 +1,234 @@
+"""A thin shell over dynamixel-sdk (PortHandler, PacketHandler 2.0, GroupSyncRead/Write) for one port.
+
+Turns sdk result codes into UserErrors with a fix, recovers a port left busy by Ctrl-C (COMM_PORT_BUSY),
+and does sync reads whose per-servo replies are collected one by one so a lost reply only stales that
+servo. Used by DynamixelLeader and by `factr2 doctor`. No fake fallback: a missing port is an error.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import dynamixel_sdk as sdk
+import serial
+
+from hardware.dynamixel import protocol as p
+from hardware.errors import ConfigError, DeviceError, DeviceNotFound
+from hardware.serial_ports import read_latency_timer
+
+USB_DEFAULT_LATENCY_MS = 16  # FTDI default, assumed when sysfs cannot be read on a ttyUSB port
+READ_BLOCK_S = 0.001  # s: longest one sdk readPort() call may block (see open())
+RX_MARGIN_MS = 4.0
+# A pty is a twin/emulator on this host: its replies come late only when the OS starves a thread, not because
+# they were lost, so wait longer before calling them lost.
+RX_MARGIN_PTY_MS = 10.0  # ms added to the computed wire + latency time before a reply counts as lost
+
+
+def _port_fix(port: str) -> str:
+    return (
+        f"plug in the U2D2/adapter and check the path (`factr2 doctor` lists ports); "
+        f"permission denied means: sudo usermod -aG dialout $USER and log in again ({port})"
+    )
+
+
+class BufferedPortHandler(sdk.PortHandler):
+    """dynamixel-sdk's PortHandler whose readPort serves the sdk's many small reads (11 bytes, then the rest,
+    per status packet) from one larger read of everything waiting: two syscalls per sync read instead of ~4
+    per servo. Bytes and timeouts are unchanged; clearPort() drops the local buffer with the OS one."""
+
+    def __init__(self, port_name: str):
+        super().__init__(port_name)
+        self._rx = bytearray()
+
+    def readPort(self, length):  # noqa: N802 -- sdk name
+        if len(self._rx) < length:
+            want = length - len(self._rx)
+            self._rx += self.ser.read(max(want, self.ser.in_waiting))
+        out = bytes(self._rx[:length])
+        del self._rx[:length]
+        return out
+
+    def clearPort(self):  # noqa: N802 -- sdk name
+        self._rx.clear()
+        super().clearPort()
+
+    def getBytesAvailable(self):  # noqa: N802 -- sdk name
+        return len(self._rx) + self.ser.in_waiting
+
+
+class DynamixelBus:
+    """One open serial port speaking Protocol 2.0 through dynamixel-sdk."""
+
+    def __init__(self, port: str, baud: int, where: str = "dynamixel"):
+        self.port_name, self.baud, self.where = port, int(baud), where
+        self.port: BufferedPortHandler | None = None
+        self.ph = sdk.PacketHandler(2.0)
+        self.busy_recoveries = 0
+        self.latency_timer_ms = read_latency_timer(port)
+
+    # -- open / close ---------------------------------------------------------------------------------
+    def open(self) -> None:
+        if not os.path.exists(self.port_name):
+            raise DeviceNotFound(
+                f"serial port {self.port_name} does not exist",
+                where=self.where,
+                fix=_port_fix(self.port_name),
+            )
+        ph = BufferedPortHandler(self.port_name)
+        if ph.getCFlagBaud(self.baud) <= 0:
+            raise ConfigError(
+                f"baud {self.baud} is not a rate dynamixel-sdk can set",
+                where=self.where,
+                fix="use 57600, 1000000, 2000000, 3000000 or 4000000 (set the servos to match)",
+            )
+        ph.baudrate = self.baud
+        try:
+            ok = ph.openPort()
+        except (serial.SerialException, OSError) as e:
+            raise DeviceNotFound(
+                f"cannot open {self.port_name}: {e}", where=self.where, fix=_port_fix(self.port_name)
+            ) from None
+        if not ok:
+            raise DeviceNotFound(
+                f"cannot open {self.port_name}", where=self.where, fix=_port_fix(self.port_name)
+            )
+        # dynamixel-sdk opens the port with timeout=0 and spins on it while waiting for a reply, burning a
+        # core the servos' host (or a twin) needs; a short blocking read returns as soon as the bytes the sdk
+        # asked for are in, so latency is unchanged and the spin is gone.
+        ph.ser.timeout = READ_BLOCK_S
+        self.port = ph
+
+    def close(self) -> None:
+        if self.port is not None:
+            try:
+                self.port.closePort()
+            finally:
+                self.port = None
+
+    @property
+    def is_open(self) -> bool:
+        return self.port is not None and self.port.is_open
+
+    def _ready(self) -> sdk.PortHandler:
+        if self.port is None:
+            raise DeviceError("port is not open", where=self.where, fix="call connect() first")
+        if self.port.is_using:  # a Ctrl-C inside an sdk transaction leaves the flag set
+            self.port.is_using = False
+            self.port.clearPort()
+            self.busy_recoveries += 1
+        return self.port
+
+    # -- timing ---------------------------------------------------------------------------------------
+    def effective_latency_ms(self) -> float:
+        if self.latency_timer_ms is not None:
+            return float(self.latency_timer_ms)
+        return float(USB_DEFAULT_LATENCY_MS) if "ttyUSB" in self.port_name else 0.0
+
+    def rx_timeout_ms(self, n_bytes: int, n_servos: int, return_delay_s: float = 0.0) -> float:
+        """Reply wait [ms]: wire time (10 bits/byte) + 2 latency-timer periods + return delays + margin."""
+        wire_ms = n_bytes * 10.0 / self.baud * 1e3
+        margin = RX_MARGIN_PTY_MS if self.port_name.startswith("/dev/pts/") else RX_MARGIN_MS
+        return wire_ms + 2.0 * self.effective_latency_ms() + n_servos * return_delay_s * 1e3 + margin
+
+    # -- single-servo transactions ------------------------------------------------------------------
+    def ping(self, dxl_id: int) -> tuple[int, int] | None:
+        """(model number, firmware version) or None when the id does not answer."""
+        model, res, _err = self.ph.ping(self._ready(), dxl_id)
+        if res != sdk.COMM_SUCCESS:
+            return None
+        fw, res2, _ = self.ph.read1ByteTxRx(self._ready(), dxl_id, p.ADDR_FIRMWARE_VERSION[0])
+        return int(model), int(fw) if res2 == sdk.COMM_SUCCESS else -1
+
+    def broadcast_ping(self) -> list[int]:
+        """Ids that answer a broadcast ping (takes ~0.8 s: only on error paths and in the doctor)."""
+        data, res = self.ph.broadcastPing(self._ready())
+        return sorted(int(i) for i in data) if res == sdk.COMM_SUCCESS else []
+
+    def read(self, dxl_id: int, field: tuple[int, int], signed: bool = False) -> int:
+        addr, size = field
+        data, res, err = self.ph.readTxRx(self._ready(), dxl_id, addr, size)
+        self._check(dxl_id, f"read of address {addr}", res, err)
+        return p.from_le(bytes(data[:size]), signed)
+
+    def write(self, dxl_id: int, field: tuple[int, int], value: int) -> None:
+        addr, size = field
+        res, err = self.ph.writeTxRx(self._ready(), dxl_id, addr, size, list(p.le(int(value), size)))
+        self._check(dxl_id, f"write of address {addr}", res, err)
+
+    def _check(self, dxl_id: int, what: str, res: int, err: int) -> None:
+        if res != sdk.COMM_SUCCESS:
+            raise DeviceError(
+                f"servo {dxl_id}: {what} failed ({self.ph.getTxRxResult(res).strip('[]')})",
+                where=f"{self.where} {self.port_name}",
+                fix="check power, cabling and that no other program uses the port",
+            )
+        if err & 0x7F:
+            fix = (
+                "torque must be off to write EEPROM"
+                if err & 0x7F == p.ERR_ACCESS
+                else "check the value and the servo model"
+            )
+            raise DeviceError(
+                f"servo {dxl_id}: {what} answered {p.describe_error(err)}",
+                where=f"{self.where} {self.port_name}",
+                fix=fix,
+            )
+
+    # -- per-tick group transactions -------------------------------------------------------------------
+    def make_sync_read(self, ids: list[int], field: tuple[int, int]) -> sdk.GroupSyncRead:
+        g = sdk.GroupSyncRead(self.port, self.ph, field[0], field[1])
+        for i in ids:
+            g.addParam(i)
+        return g
+
+    def make_sync_write(self, ids: list[int], field: tuple[int, int]) -> sdk.GroupSyncWrite:
+        g = sdk.GroupSyncWrite(self.port, self.ph, field[0], field[1])
+        for i in ids:
+            g.addParam(i, [0] * field[1])
+        return g
+
+    def sync_read(
+        self, group: sdk.GroupSyncRead, ids: list[int], timeout_ms: float
+    ) -> dict[int, tuple[bytes, int]]:
+        """One sync read; {id: (data, status error byte)} for the servos that answered in time."""
+        port = self._ready()
+        if group.txPacket() != sdk.COMM_SUCCESS:
+            port.is_using = False
+            return {}
+        port.setPacketTimeoutMillis(timeout_ms)
+        out: dict[int, tuple[bytes, int]] = {}
+        n = group.data_length
+        for i in ids:  # after a timeout later ids are only taken if already buffered (the clock ran out)
+            data, res, err = self.ph.readRx(port, i, n)
+            if res == sdk.COMM_SUCCESS and len(data) == n:
+                out[i] = (bytes(data), int(err))
+        port.is_using = False
+        return out
+
+    def sync_write(self, group: sdk.GroupSyncWrite, values: dict[int, bytes]) -> bool:
+        self._ready()
+        for i, d in values.items():
+            group.changeParam(i, list(d))
+        return group.txPacket() == sdk.COMM_SUCCESS
+
+    def measure_round_trip(
+        self,
+        read_group: sdk.GroupSyncRead,
+        ids: list[int],
+        timeout_ms: float,
+        write_group: sdk.GroupSyncWrite | None = None,
+        values: dict[int, bytes] | None = None,
+        n: int = 20,
+    ) -> tuple[float, int]:
+        """Median seconds of one sync read (+ one sync write) over n tries, and how many were complete."""
+        times, complete = [], 0
+        for _ in range(n):
+            t0 = time.perf_counter()
+            got = self.sync_read(read_group, ids, timeout_ms)
+            if write_group is not None and values is not None:
+                self.sync_write(write_group, values)
+            times.append(time.perf_counter() - t0)
+            complete += len(got) == len(ids)
+        times.sort()
+        return times[len(times) // 2], complete

@@ -1,0 +1,402 @@
+"""A chain of Dynamixel X servos (Protocol 2.0) on a pseudo-terminal, driven by a MotorBank.
+
+SIMULATED DEVICE. dynamixel-sdk (and so DynamixelLeader and `factr2 doctor`) talk to `port_path`
+exactly as to /dev/ttyUSB0. Each servo has its own control table (EEPROM below address 64, RAM above);
+present current/velocity/position/temperature come from bank.read() at the moment a read is answered;
+goal current (torque on, current mode) goes to bank.command_current, goal position (position modes) to
+bank.command_position, torque off to bank.enable(False).
+
+Physical assembly: servo i drives bank motor indices[i] with servo_angle = sign*q_joint + offset_rad
+(the same convention as DynamixelLeaderConfig), so a twin passes the rig's signs/offsets and the leader
+reads back joint angles. Present position counts turns from power-on like a real servo (it starts in
+[0, 4096) and is unwrapped afterwards); reboot() resets that.
+
+Threading: one daemon thread reads the pty master, parses with protocol.PacketParser and answers.
+bank methods are called from that thread; pass bank_lock if the bank is stepped from another thread.
+drain(timeout) returns once every byte written to the port so far has been read and handled -- a lockstep
+twin calls it before stepping physics so that a sync write has landed.
+
+Faults: drop_prob ignores each instruction packet with that probability (no reply, no effect);
+set_silent(True) (or silent_ids) makes servos ignore everything, as if unpowered.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import termios
+import threading
+import time
+import tty
+
+import numpy as np
+
+from hardware.dynamixel import protocol as p
+from hardware.dynamixel.models import resolve_models
+from hardware.dynamixel.servo_table import FIRMWARE_VERSION, ServoTable
+from hardware.sim.motors import MotorBank
+
+PARTIAL_TIMEOUT_S = 0.05  # an incomplete packet older than this is dropped (the servo's rx timeout)
+# termios speed constant -> bit/s, to see the rate the client set on the port (baud mismatch = no answer)
+_TERMIOS_RATES = {
+    getattr(termios, f"B{r}"): r
+    for r in (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000)
+    if hasattr(termios, f"B{r}")
+}
+
+
+class DynamixelEmulator:
+    """Serve Protocol 2.0 for servos `ids` (one per bank motor in `indices`, default 0..n-1) on a pty.
+
+    models: one name for all or one per id. signs/offsets_rad: servo_angle = sign*q_joint + offset.
+    return_delay / operating_mode / baud: initial EEPROM values (factory: 250 = 500 us, 3 = position,
+    57600; the default baud is the rig's 4 Mbit/s). A servo ignores packets when the rate the client set on
+    the pty (termios) differs from its Baud Rate(8), as garbage on a real wire would be.
+    emulate_return_delay: sleep Return Delay Time(9) before each reply, like the firmware.
+    """
+
+    def __init__(
+        self,
+        bank: MotorBank,
+        ids: list[int],
+        models: str | list[str] = "XL330-M288",
+        *,
+        indices: list[int] | None = None,
+        signs: list[float] | None = None,
+        offsets_rad: list[float] | None = None,
+        return_delay: int = 250,
+        operating_mode: int = p.OP_MODE_POSITION,
+        baud: int = 4_000_000,
+        drop_prob: float = 0.0,
+        silent_ids: set[int] | None = None,
+        emulate_return_delay: bool = True,
+        bank_lock: threading.Lock | None = None,
+        seed: int | None = None,
+    ):
+        n = len(ids)
+        self.bank = bank
+        self.drop_prob = float(drop_prob)
+        self.silent_ids: set[int] = set(silent_ids or ())
+        self.silent = False
+        self.emulate_return_delay = emulate_return_delay
+        self._bank_lock = bank_lock or threading.Lock()
+        self._rng = np.random.default_rng(seed)
+        baud_code = {v: k for k, v in p.BAUD_CODES.items()}.get(baud, 1)
+        mods = resolve_models(models, n)
+        indices = list(range(n)) if indices is None else list(indices)
+        signs = [1.0] * n if signs is None else list(signs)
+        offsets = [0.0] * n if offsets_rad is None else list(offsets_rad)
+        self.servos: list[ServoTable] = [
+            ServoTable(i, m, idx, float(s), float(o), return_delay, operating_mode, baud_code)
+            for i, m, idx, s, o in zip(ids, mods, indices, signs, offsets)
+        ]
+        self.parser = p.PacketParser()
+        self.dropped = self.replies = self.instructions = self.write_overflows = 0
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self._path = os.ttyname(self._slave)
+        self._pending_current: list[tuple[int, float]] | None = None
+        self._line_rate: int | None = None
+        self._refresh_cache: dict[tuple, tuple] = {}
+        self._cv = threading.Condition()
+        self._busy = False
+        self._stop = threading.Event()
+        self._last_rx = time.monotonic()
+        self._refresh()  # power-on: latch each servo's turn base
+        self._thread = threading.Thread(target=self._run, name="dxl-emulator", daemon=True)
+        self._thread.start()
+
+    # -- public --------------------------------------------------------------------------------------
+    @property
+    def port_path(self) -> str:
+        return self._path
+
+    def servo(self, dxl_id: int) -> ServoTable:
+        return next(s for s in self.servos if s.id == dxl_id)
+
+    def set_silent(self, on: bool = True) -> None:
+        self.silent = bool(on)
+
+    def set_hardware_error(self, dxl_id: int, bits: int) -> None:
+        """Fault injection: Hardware Error Status(70) bits (e.g. 1 << 5 overload). Like the firmware, the
+        servo drops torque and flags the alert bit in every status until rebooted."""
+        s = self.servo(dxl_id)
+        s.table[p.ADDR_HARDWARE_ERROR_STATUS[0]] = bits & 0xFF
+        if bits:
+            self._write(s, p.ADDR_TORQUE_ENABLE[0], b"\x00")
+
+    def drain(self, timeout: float = 1.0) -> bool:
+        """True once every byte written to the port so far was read and handled; False on timeout [s]."""
+        deadline = time.monotonic() + timeout
+        poller = select.poll()
+        poller.register(self._master, select.POLLIN)
+        with self._cv:
+            while True:
+                if not self._busy and not poller.poll(0):
+                    return True  # poll() also flushes the tty layer's pending work, so this is exact
+                left = deadline - time.monotonic()
+                if left <= 0 or not self._thread.is_alive():
+                    return False
+                self._cv.wait(min(left, 0.002))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=1.0)
+        for fd in (self._master, self._slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    # -- thread --------------------------------------------------------------------------------------
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                ready, _, _ = select.select([self._master], [], [], 0.02)
+            except (OSError, ValueError):
+                return
+            with self._cv:
+                self._busy = True
+            try:
+                self._service(bool(ready))
+            except OSError:
+                pass  # the port went away (closed): keep going until stopped
+            finally:
+                with self._cv:
+                    self._busy = False
+                    self._cv.notify_all()
+
+    def _service(self, ready: bool) -> None:
+        now = time.monotonic()
+        data = b""
+        if ready:
+            try:
+                data = os.read(self._master, 65536)
+            except BlockingIOError:
+                data = b""
+        if data:
+            self._last_rx = now
+            try:
+                self._line_rate = _TERMIOS_RATES.get(termios.tcgetattr(self._slave)[4])
+            except termios.error:
+                self._line_rate = None
+            for pkt in self.parser.feed(data):
+                self._handle(pkt)
+        elif self.parser.buf and now - self._last_rx > PARTIAL_TIMEOUT_S:
+            self.parser.discard_partial()
+
+    def _send(self, servo: ServoTable, pkt: bytes) -> None:
+        if self.emulate_return_delay:
+            delay = servo.get(p.ADDR_RETURN_DELAY_TIME) * p.RETURN_DELAY_UNIT_S
+            if delay > 0:
+                time.sleep(delay)
+        try:
+            n = os.write(self._master, pkt)
+            if n < len(pkt):
+                self.write_overflows += 1
+        except BlockingIOError:
+            self.write_overflows += 1
+        self.replies += 1
+
+    def _live(self, dxl_id: int) -> list[ServoTable]:
+        if self.silent:
+            return []
+        rate = self._line_rate
+        return [
+            s
+            for s in self.servos
+            if (dxl_id == p.BROADCAST_ID or s.id == dxl_id)
+            and s.id not in self.silent_ids
+            and (rate is None or p.BAUD_CODES.get(s.table[p.ADDR_BAUD_RATE[0]]) == rate)
+        ]
+
+    def _refresh(self, servos: list[ServoTable] | None = None) -> None:
+        """Latch present values of these servos from one bank.read() (vectorised: this runs every tick)."""
+        servos = self.servos if servos is None else servos
+        with self._bank_lock:
+            r = self.bank.read()
+        key = tuple(s.index for s in servos)
+        if key not in self._refresh_cache:
+            self._refresh_cache[key] = (
+                np.array(key),
+                np.array([s.sign for s in servos]),
+                np.array([s.offset_rad for s in servos]),
+                np.array([s.model.amps_per_unit for s in servos]),
+            )
+        idx, sign, off, apu = self._refresh_cache[key]
+        raw = p.rad_to_ticks(sign * r.q[idx] + off).tolist()
+        qd = r.q_dot[idx]
+        vel = p.rad_s_to_velocity_units(sign * qd).tolist()
+        cur = p.amps_to_current_units(sign * r.current[idx], apu).tolist()
+        t = r.temperature[idx]
+        temp = np.rint(np.where(np.isfinite(t), t, 0.0)).astype(int).tolist()
+        moving = (np.abs(qd) > 0.01).tolist()
+        for k, s in enumerate(servos):
+            s.refresh(raw[k], vel[k], cur[k], temp[k], moving[k])
+
+    def _handle(self, pkt: p.Packet) -> None:
+        if pkt.is_status:
+            return  # another device's reply on the bus
+        self.instructions += 1
+        if self.drop_prob > 0 and self._rng.random() < self.drop_prob:
+            self.dropped += 1
+            return
+        inst, prm = pkt.instruction, pkt.params
+        if inst == p.INST_SYNC_READ or inst == p.INST_BULK_READ:
+            self._chain_read(inst, prm)
+            return
+        if inst == p.INST_SYNC_WRITE:
+            self._sync_write(prm)
+            return
+        for s in self._live(pkt.id):
+            err, data = self._execute(s, inst, prm)
+            if err is None:
+                continue
+            level = s.get(p.ADDR_STATUS_RETURN_LEVEL)
+            if pkt.id == p.BROADCAST_ID and inst != p.INST_PING:
+                continue
+            if inst == p.INST_PING or level == 2 or (level == 1 and inst == p.INST_READ):
+                self._send(s, p.build_status(s.id, err | s.alert, data))
+
+    def _execute(self, s: ServoTable, inst: int, prm: bytes) -> tuple[int | None, bytes]:
+        if inst == p.INST_PING:
+            return p.ERR_NONE, p.le(s.model.model_number, 2) + bytes([FIRMWARE_VERSION])
+        if inst == p.INST_READ:
+            if len(prm) != 4:
+                return p.ERR_DATA_LENGTH, b""
+            a, n = p.from_le(prm[:2]), p.from_le(prm[2:])
+            if a + n > p.CONTROL_TABLE_SIZE:
+                return p.ERR_DATA_RANGE, b""
+            self._refresh([s])
+            return p.ERR_NONE, bytes(s.table[a : a + n])
+        if inst == p.INST_WRITE:
+            if len(prm) < 3:
+                return p.ERR_DATA_LENGTH, b""
+            return self._write(s, p.from_le(prm[:2]), prm[2:]), b""
+        if inst == p.INST_REBOOT:
+            self._write(s, p.ADDR_TORQUE_ENABLE[0], b"\x00")
+            s.table[p.ADDR_HARDWARE_ERROR_STATUS[0]] = 0
+            s.turn_base = None
+            self._refresh([s])
+            return p.ERR_NONE, b""
+        return p.ERR_INSTRUCTION, b""
+
+    def _write(self, s: ServoTable, addr: int, data: bytes) -> int:
+        """Apply a write to the control table and the bank; returns the status error code."""
+        err = s.check_write(addr, data)
+        if err:
+            return err
+        torque_before = s.torque_on
+        s.store(addr, data)
+        self._apply(s, torque_before, addr, addr + len(data))
+        return p.ERR_NONE
+
+    def _apply(self, s: ServoTable, torque_before: bool, addr: int, end: int) -> None:
+        idx = np.array([s.index])
+        mode = s.table[p.ADDR_OPERATING_MODE[0]]
+        touched = range(addr, end).__contains__
+        with self._bank_lock:
+            if not s.torque_on:
+                if torque_before or touched(p.ADDR_TORQUE_ENABLE[0]):
+                    self.bank.enable(idx, False)
+                return
+            if mode == p.OP_MODE_CURRENT and (not torque_before or touched(p.ADDR_GOAL_CURRENT[0])):
+                amps = s.get(p.ADDR_GOAL_CURRENT, signed=True) * s.model.amps_per_unit
+                if self._pending_current is not None:  # inside a sync write: one bank call for all servos
+                    self._pending_current.append((s.index, s.sign * amps))
+                else:
+                    self.bank.command_current(idx, np.array([s.sign * amps]))
+            elif mode in (p.OP_MODE_POSITION, p.OP_MODE_EXTENDED_POSITION, p.OP_MODE_CURRENT_BASED_POSITION):
+                if not torque_before:  # torque on: hold where it is (goal := present)
+                    s.table[p.ADDR_GOAL_POSITION[0] : p.ADDR_GOAL_POSITION[0] + 4] = s.table[
+                        p.ADDR_PRESENT_POSITION[0] : p.ADDR_PRESENT_POSITION[0] + 4
+                    ]
+                if not torque_before or touched(p.ADDR_GOAL_POSITION[0]):
+                    q = s.joint_angle(s.get(p.ADDR_GOAL_POSITION, signed=True))
+                    self.bank.command_position(idx, np.array([q]))
+            elif not torque_before:
+                self.bank.command_current(idx, np.zeros(1))  # velocity/PWM modes: not modelled, no torque
+
+    def _chain_read(self, inst: int, prm: bytes) -> None:
+        """Sync read (addr, len, ids...) or bulk read ((id, addr, len)*): listed servos answer in order."""
+        if inst == p.INST_SYNC_READ:
+            if len(prm) < 5:
+                return
+            a, n = p.from_le(prm[:2]), p.from_le(prm[2:4])
+            plan = [(i, a, n) for i in prm[4:]]
+        else:
+            if len(prm) % 5:
+                return
+            plan = [
+                (prm[k], p.from_le(prm[k + 1 : k + 3]), p.from_le(prm[k + 3 : k + 5]))
+                for k in range(0, len(prm), 5)
+            ]
+        live = {s.id: s for s in self._live(p.BROADCAST_ID)}
+        targets = [(live[i], a, n) for i, a, n in plan if i in live]
+        if not targets:
+            return
+        self._refresh([t[0] for t in targets])
+        replies = [
+            p.build_status(s.id, p.ERR_DATA_RANGE | s.alert)
+            if a + n > p.CONTROL_TABLE_SIZE
+            else p.build_status(s.id, s.alert, bytes(s.table[a : a + n]))
+            for s, a, n in targets
+        ]
+        delays = self.emulate_return_delay and any(s.get(p.ADDR_RETURN_DELAY_TIME) for s, _, _ in targets)
+        if not delays:  # one write for the whole chain: what the wire would deliver back to back
+            self._send(targets[0][0], b"".join(replies))
+            return
+        for (s, _, _), r in zip(targets, replies):  # each answers after the previous, its return delay apart
+            self._send(s, r)
+
+    def _sync_write(self, prm: bytes) -> None:
+        if len(prm) < 4:
+            return
+        a, n = p.from_le(prm[:2]), p.from_le(prm[2:4])
+        body = prm[4:]
+        if n == 0 or len(body) % (n + 1):
+            return
+        live = {s.id: s for s in self._live(p.BROADCAST_ID)}
+        if (a, n) == p.ADDR_GOAL_CURRENT:
+            self._sync_write_goal_current(live, body)
+            return
+        self._pending_current = []
+        try:
+            for k in range(0, len(body), n + 1):
+                s = live.get(body[k])
+                if s is not None:
+                    self._write(s, a, bytes(body[k + 1 : k + 1 + n]))
+            pend = self._pending_current
+        finally:
+            self._pending_current = None
+        if pend:
+            with self._bank_lock:
+                self.bank.command_current(np.array([i for i, _ in pend]), np.array([c for _, c in pend]))
+
+    def _sync_write_goal_current(self, live: dict[int, ServoTable], body: bytes) -> None:
+        """The per-tick sync write, without the generic path's per-servo checks (same rules: RAM address,
+        range-checked against Current Limit(38), applied only with torque on in current mode)."""
+        g, lim = p.ADDR_GOAL_CURRENT[0], p.ADDR_CURRENT_LIMIT[0]
+        idx, amps = [], []
+        for k in range(0, len(body), 3):
+            s = live.get(body[k])
+            if s is None:
+                continue
+            t, raw = s.table, body[k + 1 : k + 3]
+            v = int.from_bytes(raw, "little", signed=True)
+            if abs(v) > t[lim] | (t[lim + 1] << 8):
+                continue  # data range error; a sync write has no status to carry it
+            t[g : g + 2] = raw
+            if t[p.ADDR_TORQUE_ENABLE[0]] == 1 and t[p.ADDR_OPERATING_MODE[0]] == p.OP_MODE_CURRENT:
+                idx.append(s.index)
+                amps.append(s.sign * v * s.model.amps_per_unit)
+        if idx:
+            with self._bank_lock:
+                self.bank.command_current(np.array(idx), np.array(amps))

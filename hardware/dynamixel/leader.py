@@ -1,0 +1,350 @@
+"""DynamixelLeader: a GELLO-style leader arm of Dynamixel X servos in current mode (dynamixel-sdk only).
+
+Per tick: ONE sync read of present current/velocity/position (addresses 126..135, 10 bytes; 8 from 128
+without current) and ONE sync write of goal current (102). Joint convention (config):
+q_joint = sign * (q_servo - offset_rad); joint torque tau = sign * K * servo current.
+
+Multi-turn: present position restarts within one turn at power-on, so at connect each servo's angle is
+moved by the 2*pi multiple that brings it closest to its stored offset (the joint then reads within
++-pi of zero); afterwards the driver integrates tick deltas (wrapped to +-half a turn), which also works
+when a servo is in single-turn position mode.
+
+The math (decode, unwrap, torque<->current, trigger mapping) is in pure functions below; the class is the
+I/O shell. It never falls back to a fake device: a missing port, id or wrong model is a UserError.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from hardware.clock import Clock
+from hardware.dynamixel import protocol as p
+from hardware.dynamixel.bus import DynamixelBus
+from hardware.dynamixel.config import DynamixelLeaderConfig
+from hardware.dynamixel.models import ServoModel, get_model, model_name, resolve_models
+from hardware.errors import ConfigError, DeviceError, DeviceNotFound
+from hardware.roles import Leader
+from hardware.safety import DEFAULT_WATCHDOG_S, SafeLeaderTorque
+from hardware.serial_ports import latency_timer_advice
+from hardware.types import STATUS_COMM_LOST, STATUS_DRIVER_ERROR, STATUS_ENABLED, STATUS_STALE, JointState
+
+log = logging.getLogger("factr2.dynamixel")
+TWO_PI = 2.0 * math.pi
+HALF_TURN_TICKS = p.TICKS_PER_REV // 2
+
+
+# -- pure math ---------------------------------------------------------------------------------------
+def decode_feedback(data: bytes, with_current: bool) -> tuple[int, int, int]:
+    """(current units, velocity units, position ticks), signed, from one servo's sync-read block."""
+    cur = p.from_le(data[0:2], True) if with_current else 0
+    k = 2 if with_current else 0
+    return cur, p.from_le(data[k : k + 4], True), p.from_le(data[k + 4 : k + 8], True)
+
+
+def wrap_to_offset(q_servo_rad: np.ndarray, offset_rad: np.ndarray) -> np.ndarray:
+    """q_servo + 2*pi*k with k chosen so the result is closest to offset (resolves power-on turns)."""
+    q, off = np.asarray(q_servo_rad, float), np.asarray(offset_rad, float)
+    return q + TWO_PI * np.round((off - q) / TWO_PI)
+
+
+def wrapped_tick_delta(ticks_now: np.ndarray, ticks_prev: np.ndarray) -> np.ndarray:
+    """Tick difference wrapped to [-2048, 2048): a servo cannot turn half a revolution in one tick."""
+    d = np.asarray(ticks_now, np.int64) - np.asarray(ticks_prev, np.int64)
+    return (d + HALF_TURN_TICKS) % p.TICKS_PER_REV - HALF_TURN_TICKS
+
+
+def servo_to_joint(q_servo_rad, signs, offsets_rad) -> np.ndarray:
+    return np.asarray(signs, float) * (np.asarray(q_servo_rad, float) - np.asarray(offsets_rad, float))
+
+
+def torque_to_current_units(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units) -> np.ndarray:
+    """Joint torques [N*m] -> servo goal-current units (sign applied, clipped to the Current Limit)."""
+    amps = np.asarray(signs, float) * np.asarray(tau_nm, float) / np.asarray(k_nm_per_a, float)
+    return p.amps_to_current_units(amps, amps_per_unit, limit_units)
+
+
+def trigger_fraction(q_servo_rad: float, open_rad: float, closed_rad: float) -> float:
+    """Trigger servo angle -> 0 (open) .. 1 (closed), clipped."""
+    span = closed_rad - open_rad
+    if span == 0 or not np.isfinite(q_servo_rad):
+        return float("nan")
+    return float(np.clip((q_servo_rad - open_rad) / span, 0.0, 1.0))
+
+
+# -- driver ----------------------------------------------------------------------------------------
+class DynamixelLeader(Leader):
+    """Leader role over a Dynamixel chain. warnings: start-up problems found by connect() (also logged)."""
+
+    def __init__(
+        self,
+        config: DynamixelLeaderConfig,
+        limits,
+        clock: Clock | None = None,
+        watchdog_s: float = DEFAULT_WATCHDOG_S,
+    ):
+        super().__init__(config.name, limits, clock, watchdog_s)
+        c, n = config, limits.n
+        for field_name in ("ids", "signs", "offsets_rad"):
+            if len(getattr(c, field_name)) != n:
+                raise ConfigError(
+                    f"{field_name} has {len(getattr(c, field_name))} entries, the arm has {n} joints",
+                    where=f"leader {c.name}",
+                    fix=f"give one {field_name} entry per joint",
+                )
+        if any(s not in (1, -1) for s in c.signs):
+            raise ConfigError("signs must be +1 or -1", where=f"leader {c.name}", fix="fix the signs list")
+        all_ids = list(c.ids) + ([c.gripper_id] if c.gripper_id is not None else [])
+        if len(set(all_ids)) != len(all_ids):
+            raise ConfigError(
+                f"servo ids repeat: {all_ids}", where=f"leader {c.name}", fix="ids must be unique"
+            )
+        self.config = c
+        self.models: list[ServoModel] = resolve_models(c.model, n)
+        self.gripper_model = get_model(c.gripper_model) if c.gripper_model else self.models[0]
+        self.k = np.array(
+            c.torque_constant_nm_per_a
+            if c.torque_constant_nm_per_a is not None
+            else [m.torque_constant for m in self.models],
+            float,
+        )
+        if self.k.shape != (n,) or np.any(~(self.k > 0)):
+            raise ConfigError(
+                "torque_constant_nm_per_a needs one positive value per joint",
+                where=f"leader {c.name}",
+                fix="fix or remove torque_constant_nm_per_a",
+            )
+        self.signs = np.array(c.signs, float)
+        self.offsets = np.array(c.offsets_rad, float)
+        self.amps_per_unit = np.array([m.amps_per_unit for m in self.models])
+        self.limit_units = np.array([m.current_limit_units for m in self.models], float)
+        self.read_ids = all_ids
+        self.field = (
+            (p.FEEDBACK_START, p.FEEDBACK_LEN)
+            if c.read_current
+            else (p.FEEDBACK_NO_CURRENT_START, p.FEEDBACK_NO_CURRENT_LEN)
+        )
+        self.bus: DynamixelBus | None = None
+        self.warnings: list[str] = []
+        self.round_trip_s = float("nan")
+        self.rx_timeout_ms = float("nan")
+        self.servo_info: dict[int, dict] = {}
+        self.lost_reads = 0  # sync reads where at least one servo did not answer
+        self.failed_writes = 0
+        self._ticks_prev: np.ndarray | None = None
+        self._q_servo: np.ndarray | None = None
+        self._torque_on = False
+
+    # -- connect -------------------------------------------------------------------------------------
+    @property
+    def is_connected(self) -> bool:
+        return self.bus is not None and self.bus.is_open
+
+    def _warn(self, msg: str) -> None:
+        self.warnings.append(msg)
+        log.warning(msg)
+
+    def connect(self) -> None:
+        c = self.config
+        bus = DynamixelBus(c.port, c.baud, where=f"leader {c.name}")
+        bus.open()
+        self.bus = bus
+        try:
+            self._setup(bus)
+        except BaseException:
+            self.bus = None
+            bus.close()
+            raise
+
+    def _setup(self, bus: DynamixelBus) -> None:
+        c = self.config
+        advice = latency_timer_advice(c.port, bus.latency_timer_ms)
+        if advice:
+            self._warn(advice)
+        self._check_ids_and_models(bus)
+        joint_ids = list(c.ids)
+        for i, dxl_id in enumerate(joint_ids):
+            bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 0)  # EEPROM is writable only with torque off
+            info = self.servo_info[dxl_id]
+            for field, want, key in (
+                (p.ADDR_RETURN_DELAY_TIME, 0, "return_delay"),
+                (p.ADDR_OPERATING_MODE, p.OP_MODE_CURRENT, "operating_mode"),
+            ):
+                have = bus.read(dxl_id, field)
+                if have != want:
+                    log.info("servo %d: %s %d -> %d", dxl_id, key, have, want)
+                    bus.write(dxl_id, field, want)
+                info[key] = want
+            self.limit_units[i] = bus.read(dxl_id, p.ADDR_CURRENT_LIMIT)
+            bus.write(dxl_id, p.ADDR_GOAL_CURRENT, 0)
+        if c.gripper_id is not None:
+            bus.write(c.gripper_id, p.ADDR_TORQUE_ENABLE, 0)  # the trigger is read only, free to move
+            delay = bus.read(c.gripper_id, p.ADDR_RETURN_DELAY_TIME)
+            if delay:
+                bus.write(c.gripper_id, p.ADDR_RETURN_DELAY_TIME, 0)
+        self._read_group = bus.make_sync_read(self.read_ids, self.field)
+        self._write_group = bus.make_sync_write(joint_ids, p.ADDR_GOAL_CURRENT)
+        n_bytes = len(self.read_ids) * (11 + self.field[1]) + 14 + len(self.read_ids)
+        self.rx_timeout_ms = (
+            c.rx_timeout_ms if c.rx_timeout_ms is not None else bus.rx_timeout_ms(n_bytes, len(self.read_ids))
+        )
+        self._init_positions(bus)
+        for dxl_id in joint_ids:
+            bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 1)
+        self._torque_on = True
+        zero = {i: p.le(0, 2) for i in joint_ids}
+        self.round_trip_s, complete = bus.measure_round_trip(
+            self._read_group, self.read_ids, self.rx_timeout_ms, self._write_group, zero
+        )
+        hz = 1.0 / self.round_trip_s if self.round_trip_s > 0 else float("inf")
+        if hz < c.loop_hz:
+            self._warn(
+                f"leader {c.name} on {c.port}: one sync read + write takes {1e3 * self.round_trip_s:.2f} ms "
+                f"-> at most {hz:.0f} Hz, below loop_hz {c.loop_hz:.0f} -- fix: baud 4000000 on servos "
+                "and rig, return delay 0, USB latency timer 1 ms"
+            )
+        if complete < 15:
+            self._warn(
+                f"leader {c.name}: only {complete}/20 sync reads were complete at start-up "
+                "(cabling, power or a second program on the port?)"
+            )
+        self.zero_torque("connected")  # known zero start; also starts the safety layer's rate-limit clock
+
+    def _check_ids_and_models(self, bus: DynamixelBus) -> None:
+        c = self.config
+        answered: dict[int, tuple[int, int]] = {}
+        for dxl_id in self.read_ids:
+            r = bus.ping(dxl_id)
+            if r is not None:
+                answered[dxl_id] = r
+        missing = [i for i in self.read_ids if i not in answered]
+        if missing:
+            on_bus = bus.broadcast_ping()
+            hint = (
+                "no servo answered: check the servo supply and that the servos' baud matches"
+                if not on_bus
+                else "set the rig's ids to the servos' ids (or change the servo ids with Dynamixel Wizard)"
+            )
+            raise DeviceNotFound(
+                f"servo id(s) {missing} did not answer at {c.baud} bit/s; ids that answered: "
+                f"{on_bus or 'none'}",
+                where=f"leader {c.name} {c.port}",
+                fix=hint,
+            )
+        wrong = []
+        expected = dict(zip(c.ids, self.models))
+        if c.gripper_id is not None:
+            expected[c.gripper_id] = self.gripper_model
+        for dxl_id, (number, fw) in answered.items():
+            self.servo_info[dxl_id] = {"model_number": number, "model": model_name(number), "firmware": fw}
+            if number != expected[dxl_id].model_number:
+                wrong.append(
+                    f"id {dxl_id} is {model_name(number)} (#{number}), config says "
+                    f"{expected[dxl_id].name} (#{expected[dxl_id].model_number})"
+                )
+        if wrong:
+            raise DeviceError(
+                "; ".join(wrong),
+                where=f"leader {c.name} {c.port}",
+                fix="set `model` in the rig file to the servos actually fitted",
+            )
+
+    def _init_positions(self, bus: DynamixelBus) -> None:
+        for _ in range(10):
+            got = bus.sync_read(self._read_group, self.read_ids, max(self.rx_timeout_ms, 20.0))
+            if len(got) == len(self.read_ids):
+                break
+        else:
+            raise DeviceError(
+                "no complete sync read of the servos' positions in 10 tries",
+                where=f"leader {self.config.name} {self.config.port}",
+                fix="check cabling and power; run `factr2 doctor --port ...`",
+            )
+        ticks = np.array([decode_feedback(got[i][0], self.config.read_current)[2] for i in self.read_ids])
+        offsets = (
+            np.append(self.offsets, 0.5 * (self.config.gripper_open_rad + self.config.gripper_closed_rad))
+            if self.config.gripper_id is not None
+            else self.offsets
+        )
+        self._q_servo = wrap_to_offset(p.ticks_to_rad(ticks), offsets)
+        self._ticks_prev = ticks
+
+    # -- per tick ------------------------------------------------------------------------------------
+    def _read(self) -> JointState | None:
+        if self.bus is None or self._q_servo is None:
+            raise DeviceError(
+                "leader is not connected", where=f"leader {self.config.name}", fix="call connect() first"
+            )
+        n, rc = self.n_joints, self.config.read_current
+        got = self.bus.sync_read(self._read_group, self.read_ids, self.rx_timeout_ms)
+        prev = self._last_state
+        st = JointState(
+            t=self.clock.now(),
+            q=prev.q.copy(),
+            q_dot=prev.q_dot.copy(),
+            tau_m=prev.tau_m.copy(),
+            current=prev.current.copy(),
+            q_cmd=np.full(n, np.nan),
+            temperature=np.full(n, np.nan),
+            status=np.zeros(n, np.uint32),
+            gripper_pos=prev.gripper_pos,
+            gripper_effort=prev.gripper_effort,
+        )
+        m = len(self.read_ids)  # joints, then the trigger (if any)
+        fresh = np.zeros(m, bool)
+        raw = np.zeros((m, 3), np.int64)  # current units, velocity units, position ticks
+        alert = np.zeros(m, bool)
+        for k, dxl_id in enumerate(self.read_ids):
+            if dxl_id in got:
+                data, err = got[dxl_id]
+                raw[k] = decode_feedback(data, rc)
+                fresh[k], alert[k] = True, bool(err & p.ERR_ALERT_BIT)
+        # vectorised over servos: this runs every tick
+        delta = np.where(fresh, wrapped_tick_delta(raw[:, 2], self._ticks_prev), 0)
+        self._q_servo += delta * p.RAD_PER_TICK
+        self._ticks_prev = np.where(fresh, raw[:, 2], self._ticks_prev)
+        j = fresh[:n]
+        st.q[j] = servo_to_joint(self._q_servo[:n], self.signs, self.offsets)[j]
+        st.q_dot[j] = (self.signs * p.velocity_units_to_rad_s(raw[:n, 1]))[j]
+        if rc:
+            cur = self.signs * raw[:n, 0] * self.amps_per_unit
+            st.current[j], st.tau_m[j] = cur[j], (self.k * cur)[j]
+        st.status[~j] |= np.uint32(STATUS_STALE | STATUS_COMM_LOST)
+        st.status[alert[:n]] |= np.uint32(STATUS_DRIVER_ERROR)
+        if m > n and fresh[n]:
+            c, g = self.config, self.gripper_model
+            st.gripper_pos = trigger_fraction(self._q_servo[n], c.gripper_open_rad, c.gripper_closed_rad)
+            st.gripper_effort = g.torque_constant * raw[n, 0] * g.amps_per_unit if rc else float("nan")
+        if self._torque_on:
+            st.status |= np.uint32(STATUS_ENABLED)
+        if not fresh.all():
+            self.lost_reads += 1
+            self._last_state = st  # fresh where not flagged stale; the watchdog is not fed
+            return None
+        return st
+
+    def _send_torque_safe(self, safe: SafeLeaderTorque) -> None:
+        if self.bus is None:
+            raise DeviceError(
+                "leader is not connected", where=f"leader {self.config.name}", fix="call connect() first"
+            )
+        units = torque_to_current_units(safe.tau, self.signs, self.k, self.amps_per_unit, self.limit_units)
+        values = {dxl_id: p.le(int(u), 2) for dxl_id, u in zip(self.config.ids, units)}
+        if not self.bus.sync_write(self._write_group, values):
+            self.failed_writes += 1
+
+    def _disconnect_bus(self) -> None:
+        bus, self.bus = self.bus, None
+        if bus is None:
+            return
+        try:
+            for dxl_id in self.config.ids:
+                try:
+                    bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 0)
+                except DeviceError as e:
+                    log.warning("leader %s: torque off failed: %s", self.config.name, e)
+        finally:
+            self._torque_on = False
+            bus.close()
