@@ -1,0 +1,191 @@
+"""Simulated Damiao MIT-mode motors on a python-can bus (SIMULATED: the motors are a MotorBank).
+
+    emu = DamiaoEmulator(bus, bank, ids=[1, 2, 3, 4, 5, 6, 7], models=["DM4340"] * 3 + ["DM4310"] * 4)
+    each step: emu.poll(); bank.advance(t); emu.emit(t)
+
+bank index i is the motor with slave id ids[i] (feedback on master_ids[i], default id + 0x10), rad and N*m.
+poll() answers every pending frame the way the firmware does: exactly one feedback frame per MIT command and
+per enable/disable frame, register reads/writes on 0x7FF answered on the master id, clear error, save zero.
+emit(t) sends nothing periodic (Damiao motors only answer) but runs each motor's own command timeout
+(register 9, units of 50 us; 0 = off): a motor without commands for that long drops to damping
+(kp=0, kd=timeout_kd, tau=0) until the next command. Fault injection: drop_prob (each frame in either
+direction lost with this probability), silent (answer nothing), err (per-motor ERR code forced into the
+feedback, e.g. protocol.ERR_COIL_OVERTEMP; cleared by the clear-error frame).
+"""
+
+from __future__ import annotations
+
+import random
+
+import can
+import numpy as np
+
+from hardware.damiao import protocol as D
+
+TIMEOUT_KD = 1.0  # N*m*s/rad: damping the emulated firmware applies after its command timeout
+CAN_BAUD_INDEX_1M = 4  # register 35 value reported for 1 Mbit/s (index table not verified)
+
+
+class DamiaoEmulator:
+    """DamiaoEmulator(bus, bank, ids, models, *, master_ids=None, drop_prob=0.0, seed=0, timeout_kd=1.0,
+    timeout_reg=0, ctrl_mode=1). Counters: rx_frames, tx_frames, dropped, ignored, timeouts,
+    decode_errors (garbage: wrong DLC, unknown id, non-data frames)."""
+
+    def __init__(self, bus: can.BusABC, bank, ids: list[int], models: list[str], *,
+                 master_ids: list[int] | None = None, drop_prob: float = 0.0, seed: int = 0,
+                 timeout_kd: float = TIMEOUT_KD, timeout_reg: int = 0, ctrl_mode: int = D.CTRL_MODE_MIT):
+        if len(ids) != bank.n or len(models) != bank.n:
+            raise ValueError(f"DamiaoEmulator: {len(ids)} ids / {len(models)} models for a bank of {bank.n}")
+        self.bus, self.bank = bus, bank
+        self.ids = list(ids)
+        self.master_ids = list(master_ids) if master_ids else [i + D.MASTER_ID_OFFSET for i in ids]
+        self._index = {sid: k for k, sid in enumerate(self.ids)}
+        self.ranges = [D.motor_model(m).ranges for m in models]
+        self.registers = [{D.RID_MASTER_ID: self.master_ids[k], D.RID_SLAVE_ID: sid,
+                           D.RID_TIMEOUT: timeout_reg, D.RID_CTRL_MODE: ctrl_mode, D.RID_PMAX: r.pmax,
+                           D.RID_VMAX: r.vmax, D.RID_TMAX: r.tmax, D.RID_CAN_BAUD: CAN_BAUD_INDEX_1M}
+                          for k, (sid, r) in enumerate(zip(self.ids, self.ranges, strict=True))]
+        self.drop_prob, self.timeout_kd = float(drop_prob), float(timeout_kd)
+        self.silent = False
+        self._rng = random.Random(seed)
+        self._send_fresh = getattr(bus, "send_fresh", None)  # FastVirtualBus shortcut (no extra Message)
+        n = bank.n
+        self.enabled = np.zeros(n, dtype=bool)
+        self.err = np.zeros(n, dtype=int)  # forced ERR codes (0: none)
+        self.zero_offset = np.zeros(n)  # rad, set by the save-zero frame
+        self.last_cmd_t = np.full(n, -np.inf)
+        self.timed_out = np.zeros(n, dtype=bool)
+        self.counters = D.RejectCounters()
+        self.rx_frames = self.tx_frames = self.dropped = self.ignored = self.timeouts = 0
+
+    @property
+    def decode_errors(self) -> int:
+        return self.counters.rejected
+
+    # -- host -> motors ----------------------------------------------------------------------------------
+    def poll(self) -> int:
+        """Handle every pending frame; returns how many arrived."""
+        recv, n = self.bus.recv, 0
+        replies: list[tuple[int, int | None, bytes | None]] = []  # (motor, None, None): feedback
+        mit_idx, mit_vals = [], []
+        while True:
+            msg = recv(0)
+            if msg is None:
+                break
+            n += 1
+            if self.drop_prob and self._rng.random() < self.drop_prob:
+                self.dropped += 1
+                continue
+            data, aid = msg.data, msg.arbitration_id
+            if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
+                self.counters.bad_frame += 1
+                continue
+            if len(data) != D.FRAME_DLC:
+                self.counters.bad_dlc += 1
+                continue
+            k = self._index.get(aid)
+            if k is not None:
+                self.counters.ok += 1
+                code = D.special_code(data)
+                if code is None:  # MIT command
+                    q, v, kp, kd, tau = D.decode_mit(bytes(data), self.ranges[k])
+                    if self.enabled[k] and self.registers[k][D.RID_CTRL_MODE] == D.CTRL_MODE_MIT:
+                        mit_idx.append(k)
+                        mit_vals.append((q + self.zero_offset[k], v, kp, kd, tau))
+                    replies.append((k, None, None))
+                else:  # commands are applied in arrival order: flush the batched MIT frames first
+                    self._flush_mit(mit_idx, mit_vals)
+                    if self._special(k, code):
+                        replies.append((k, None, None))
+            elif aid == D.ID_REGISTER:
+                self.counters.ok += 1
+                r = self._register(bytes(data))
+                if r is not None:
+                    replies.append(r)
+            else:
+                self.counters.unknown_id += 1
+        self.rx_frames += n
+        self._flush_mit(mit_idx, mit_vals)
+        if replies:
+            self._answer(replies)
+        return n
+
+    def _flush_mit(self, idx: list, vals: list) -> None:
+        if idx:
+            m = np.array(vals)
+            self.bank.command_mit(np.array(idx), m[:, 0], m[:, 1], m[:, 2], m[:, 3], m[:, 4])
+            idx.clear()
+            vals.clear()
+
+    def _special(self, k: int, code: int) -> bool:
+        """Apply a special frame; True when the firmware answers it with a feedback frame."""
+        if code in (D.CODE_ENABLE, D.CODE_DISABLE):
+            on = code == D.CODE_ENABLE
+            self.enabled[k] = on
+            self.bank.enable(np.array([k]), on)
+            return True
+        if code == D.CODE_CLEAR_ERROR:
+            self.err[k] = 0
+        elif code == D.CODE_SAVE_ZERO:
+            self.zero_offset[k] = self.bank.read().q[k]
+        return False
+
+    def _register(self, d: bytes):
+        sid, op, rid, value = D.decode_reg_request(d)
+        k = self._index.get(sid)
+        if k is None:
+            self.ignored += 1
+            return None
+        regs = self.registers[k]
+        if op == D.REG_SAVE:
+            return None  # flash write: no reply modelled
+        if rid not in regs:
+            self.ignored += 1
+            return None
+        if op == D.REG_WRITE:
+            regs[rid] = value
+            if rid in (D.RID_PMAX, D.RID_VMAX, D.RID_TMAX):
+                self.ranges[k] = D.MotorRanges(regs[D.RID_PMAX], regs[D.RID_VMAX], regs[D.RID_TMAX])
+        elif op != D.REG_READ:
+            self.ignored += 1
+            return None
+        return k, op, D.encode_reg_reply(sid, op, rid, regs[rid])
+
+    def _answer(self, replies) -> None:
+        r = self.bank.read()
+        q, v = (r.q - self.zero_offset).tolist(), r.q_dot.tolist()  # Python floats: cheaper to encode
+        tau, temp = r.tau_m.tolist(), r.temperature.tolist()
+        for k, op, raw in replies:
+            if op is None:
+                self.last_cmd_t[k] = r.t
+                self.timed_out[k] = False
+                err = self.err[k] or (D.ERR_ENABLED if self.enabled[k] else D.ERR_DISABLED)
+                raw = D.encode_feedback(self.ids[k], int(err), q[k], v[k], tau[k], temp[k], temp[k],
+                                        self.ranges[k])
+            self._send(self.master_ids[k], raw)
+
+    def _send(self, arb_id: int, data: bytes) -> None:
+        if self.silent:
+            return
+        if self.drop_prob and self._rng.random() < self.drop_prob:
+            self.dropped += 1
+            return
+        if self._send_fresh is not None:
+            self._send_fresh(arb_id, data)
+        else:
+            self.bus.send(can.Message(arbitration_id=arb_id, data=data, is_extended_id=False, check=False))
+        self.tx_frames += 1
+
+    # -- firmware timers ---------------------------------------------------------------------------------
+    def emit(self, t: float) -> int:
+        """Run the motors' command timeout at sim time t [s]; sends nothing (returns 0)."""
+        for k in range(len(self.ids)):
+            reg = self.registers[k][D.RID_TIMEOUT]
+            late = t - self.last_cmd_t[k] > reg * D.TIMEOUT_UNIT_S
+            if reg and late and self.enabled[k] and not self.timed_out[k]:
+                q = self.bank.read().q[k]
+                self.bank.command_mit(np.array([k]), np.array([q]), np.zeros(1), np.zeros(1),
+                                      np.array([self.timeout_kd]), np.zeros(1))
+                self.timed_out[k] = True
+                self.timeouts += 1
+        return 0
