@@ -9,6 +9,7 @@ break the limits).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,13 +29,20 @@ def limit_position_target(q_target: np.ndarray, q_prev: np.ndarray, dt_s: float,
     Non-finite entries keep q_prev (the joint holds). q_prev must be finite and inside the limits.
     Returns (safe target, number of joints that were changed).
     """
-    q = np.asarray(q_target, dtype=float)
-    q = np.where(np.isfinite(q), q, q_prev)
-    dt = float(np.clip(dt_s if np.isfinite(dt_s) else 0.0, 0.0, MAX_RATE_DT_S))
-    step = lim.v_max * dt
-    out = np.clip(np.clip(q, q_prev - step, q_prev + step), lim.q_min, lim.q_max)
-    changed = int(np.count_nonzero(out != np.asarray(q_target, dtype=float)))
-    return out, changed
+    raw = np.asarray(q_target, dtype=float)
+    finite = np.isfinite(raw)
+    q = raw if finite.all() else np.where(finite, raw, q_prev)
+    step = lim.v_max * _rate_dt(dt_s)
+    # q_prev is inside the limits, so lo <= hi on every joint
+    lo = np.maximum(q_prev - step, lim.q_min)
+    hi = np.minimum(q_prev + step, lim.q_max)
+    out = np.minimum(np.maximum(q, lo), hi)
+    return out, int(np.count_nonzero(out != raw))
+
+
+def _rate_dt(dt_s: float) -> float:
+    """dt [s] for rate limits: non-finite or negative -> 0, capped at MAX_RATE_DT_S."""
+    return min(max(dt_s, 0.0), MAX_RATE_DT_S) if math.isfinite(dt_s) else 0.0
 
 
 def limit_torque(tau: np.ndarray, tau_prev: np.ndarray, dt_s: float,
@@ -45,14 +53,13 @@ def limit_torque(tau: np.ndarray, tau_prev: np.ndarray, dt_s: float,
     Returns (safe torque, number of joints changed).
     """
     raw = np.asarray(tau, dtype=float)
-    t = np.where(np.isfinite(raw), raw, 0.0)
-    dt = float(np.clip(dt_s if np.isfinite(dt_s) else 0.0, 0.0, MAX_RATE_DT_S))
-    r = lim.tau_rate_max * dt
-    lo = np.minimum(tau_prev - r, np.minimum(tau_prev, 0.0))
-    hi = np.maximum(tau_prev + r, np.maximum(tau_prev, 0.0))
-    out = np.clip(np.clip(t, lo, hi), -lim.tau_max, lim.tau_max)
-    changed = int(np.count_nonzero(out != raw))
-    return out, changed
+    finite = np.isfinite(raw)
+    t = raw if finite.all() else np.where(finite, raw, 0.0)
+    r = lim.tau_rate_max * _rate_dt(dt_s)
+    lo = np.maximum(np.minimum(tau_prev - r, np.minimum(tau_prev, 0.0)), -lim.tau_max)
+    hi = np.minimum(np.maximum(tau_prev + r, np.maximum(tau_prev, 0.0)), lim.tau_max)
+    out = np.minimum(np.maximum(t, lo), hi)
+    return out, int(np.count_nonzero(out != raw))
 
 
 def limit_gains(kp: np.ndarray, kd: np.ndarray, lim: JointLimits) -> tuple[np.ndarray, np.ndarray, int]:
@@ -147,24 +154,22 @@ class SafetyLayer:
         self._t_prev = now
         return dt
 
-    def _count(self, *values) -> None:
-        for v in values:
-            if v is not None:
-                self.rejected += int(np.count_nonzero(~np.isfinite(_vec(v, self.limits.n))))
-
     def follower(self, cmd: FollowerCommand, now: float, q_meas: np.ndarray) -> SafeFollowerCommand:
         """Limit a raw follower command. q_meas [rad] seeds the rate limit on the first command."""
         lim, n = self.limits, self.limits.n
         if self._q_prev is None:
             self._q_prev = safe_start_target(q_meas, lim)
         dt = self._dt(now)
-        self._count(cmd.q, cmd.tau_ff, cmd.kp, cmd.kd)
-        q, c1 = limit_position_target(_vec(cmd.q, n), self._q_prev, dt, lim)
-        tau, c2 = limit_torque(_vec(cmd.tau_ff, n, 0.0), self._tau_prev, dt, lim)
+        qv, tv = _vec(cmd.q, n), _vec(cmd.tau_ff, n, 0.0)
+        q, c1 = limit_position_target(qv, self._q_prev, dt, lim)
+        tau, c2 = limit_torque(tv, self._tau_prev, dt, lim)
         kp = kd = None
-        c3 = 0
+        c3 = bad = 0
         if cmd.kp is not None or cmd.kd is not None:
-            kp, kd, c3 = limit_gains(_vec(cmd.kp, n, 0.0), _vec(cmd.kd, n, self.hold_kd), lim)
+            kpv, kdv = _vec(cmd.kp, n, 0.0), _vec(cmd.kd, n, self.hold_kd)
+            kp, kd, c3 = limit_gains(kpv, kdv, lim)
+            bad = _n_bad(kpv) + _n_bad(kdv)
+        self.rejected += _n_bad(qv) + _n_bad(tv) + bad
         grip = cmd.gripper if cmd.gripper is None or np.isfinite(cmd.gripper) else None
         self.clipped += c1 + c2 + c3
         self._q_prev, self._tau_prev = q, tau
@@ -187,8 +192,9 @@ class SafetyLayer:
     def leader(self, tau: np.ndarray, now: float) -> SafeLeaderTorque:
         """Limit leader joint torques [N*m]."""
         dt = self._dt(now)
-        self._count(tau)
-        out, c = limit_torque(_vec(tau, self.limits.n, 0.0), self._tau_prev, dt, self.limits)
+        tv = _vec(tau, self.limits.n, 0.0)
+        self.rejected += _n_bad(tv)
+        out, c = limit_torque(tv, self._tau_prev, dt, self.limits)
         self.clipped += c
         self._tau_prev = out
         self.watchdog.feed_command(now)
@@ -203,11 +209,18 @@ class SafetyLayer:
 
 
 def _vec(x, n: int, fill: float = np.nan) -> np.ndarray:
-    """Shape a user value to (n,) floats; wrong shapes become all-`fill` (rejected), never an exception."""
+    """Shape a user value to (n,) floats; wrong shapes become all-NaN (rejected), never an exception."""
     if x is None:
         return np.full(n, fill)
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (n,):
+        return x  # the hot path: already the right array
     try:
         a = np.asarray(x, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         return np.full(n, np.nan)
     return a if a.shape == (n,) else np.full(n, np.nan)
+
+
+def _n_bad(a: np.ndarray) -> int:
+    """Number of non-finite entries."""
+    return 0 if np.isfinite(a).all() else int(np.count_nonzero(~np.isfinite(a)))
