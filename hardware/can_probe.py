@@ -217,3 +217,35 @@ def probe_damiao(bus, config: DamiaoFollowerConfig, clock: Clock | None = None,
     else:
         rep.notes.append("ERR codes and temperatures need with_feedback=True (disables the motors)")
     return rep
+
+
+# -- `factr2 doctor` adapters: probe a bare interface with each follower's default config ------------------
+def _doctor_probe(kind: str):
+    def probe(interface: str):
+        from hardware.can_bus import open_bus
+        from hardware.doctor import Finding
+
+        if kind == "piper":
+            cfg = PiperFollowerConfig(channel=interface)
+        else:
+            cfg = DamiaoFollowerConfig(channel=interface, ids=[1, 2, 3, 4, 5, 6],
+                                       motor=["DM4340"] * 3 + ["DM4310"] * 3)
+        bus = open_bus(interface, cfg.interface, cfg.bitrate)
+        try:
+            rep = probe_piper(bus, cfg) if kind == "piper" else probe_damiao(bus, cfg)
+        finally:
+            bus.shutdown()
+        lines = rep.lines()
+        return [Finding("ok" if rep.ok else "error", f"{interface} {kind}", lines[0].split(": ", 1)[-1])] + [
+            Finding("info", f"{interface} {kind}", ln.strip()) for ln in lines[1:]]
+    return probe
+
+
+def register_doctor_checks() -> None:
+    from hardware.doctor import register_can_check
+
+    register_can_check("piper", _doctor_probe("piper"))
+    register_can_check("damiao", _doctor_probe("damiao"))
+
+
+register_doctor_checks()

@@ -9,7 +9,7 @@ CAN hook: CAN probes live with their drivers (hardware/piper, hardware/damiao). 
 calls every registered probe for one interface. Modules listed in CAN_CHECK_MODULES are imported (if they
 exist) before the probes run, so a driver registers its probe at import time:
 
-    # hardware/piper/doctor.py
+    # hardware/can_probe.py
     from hardware.doctor import Finding, register_can_check
     def probe_piper(interface: str) -> list[Finding]: ...
     register_can_check("piper", probe_piper)
@@ -33,7 +33,7 @@ SYSFS_NET = "/sys/class/net"
 ARPHRD_CAN = 280  # /sys/class/net/<if>/type of a CAN interface
 HOT_C = 60  # degC: warn above this servo temperature
 SCAN_BAUDS = (57600, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 115200)
-CAN_CHECK_MODULES = ("hardware.piper.doctor", "hardware.damiao.doctor")
+CAN_CHECK_MODULES = ("hardware.can_probe",)
 
 
 @dataclass
