@@ -1,0 +1,229 @@
+"""External-torque sources the loop can feed back, behind one call signature (the paper's comparison modes).
+
+An estimator is any callable  est(EstimatorInput) -> Estimate | None  (None: nothing this tick). Estimates are
+in the project convention: tau_ext [N*m] = tau_m - tau_free on the follower joints = minus the environment's
+torque on the follower (the paper's, NEXT's and the twin's GroundTruth.tau_ext). Modes:
+  none          no estimator, no feedback (GELLO-style)
+  dob           momentum disturbance observer on the follower model (MomentumObserver)
+  pp            position-position: tau_ext ~ K (q_leader_mapped - q_follower) (PositionPositionEstimator)
+  next          NEXT (calibration/next NextEstimator, via NextAdapter): its tau_m - tau_f_hat
+  ground_truth  a twin's true contact torque (GroundTruthEstimator; simulated, label it so)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from factr2_teleop.teleop.params import PerJoint, per_joint
+from hardware.types import JointState
+
+ESTIMATOR_MODES = ("none", "dob", "pp", "next", "ground_truth")
+NEXT_FLAG_WARMUP = 1  # = calibration.next.estimator.FLAG_WARMUP (not imported: torch stays out of teleop)
+
+
+@dataclass
+class EstimatorInput:
+    """t: loop time [s]; follower: latest follower state; q_leader_f: leader pose mapped onto the follower
+    joints [rad]; q_target_f: the follower target sent last tick [rad] (None before the first)."""
+
+    t: float
+    follower: JointState
+    q_leader_f: np.ndarray
+    q_target_f: np.ndarray | None = None
+
+
+@dataclass
+class Estimate:
+    """tau_ext [N*m] on the follower joints (tau_m - tau_free); t: time of the data it used [s];
+    fresh: the source's own validity flag (e.g. a NEXT history window that is full)."""
+
+    tau_ext: np.ndarray
+    t: float
+    fresh: bool = True
+
+
+Estimator = Callable[[EstimatorInput], "Estimate | None"]
+
+
+class PositionPositionEstimator:
+    """Bilateral position-position coupling expressed as an external torque: when the follower lags the leader
+    (blocked by a wall), its position loop pushes against the wall with about K * lag, which is tau_ext.
+    Use with gate_on_contact=False."""
+
+    def __init__(self, stiffness_nm_per_rad: PerJoint, n: int):
+        self.k = per_joint(stiffness_nm_per_rad, n, "estimator.pp.stiffness_nm_per_rad", nonneg=True)
+
+    def __call__(self, inp: EstimatorInput) -> Estimate:
+        lag = np.asarray(inp.q_leader_f, dtype=float) - inp.follower.q
+        return Estimate(tau_ext=self.k * lag, t=inp.follower.t, fresh=True)
+
+
+class GroundTruthEstimator:
+    """A twin's true external torque: truth() -> tau_ext [N*m] (GroundTruth.tau_ext). Simulated only.
+    n: keep the first n entries (the twin's bank appends the gripper after the arm joints)."""
+
+    def __init__(self, truth: Callable[[], np.ndarray], n: int | None = None):
+        self.truth, self.n = truth, n
+
+    def __call__(self, inp: EstimatorInput) -> Estimate:
+        tau = np.asarray(self.truth(), dtype=float).reshape(-1)
+        return Estimate(tau_ext=tau if self.n is None else tau[: self.n], t=inp.follower.t, fresh=True)
+
+
+class CallableEstimator:
+    """Wraps a source that already speaks tau_m - tau_f_hat (NEXT's streaming estimator):
+    source(inp) -> (tau_ext [N*m], t [s] of the data used, fresh) or None (nothing new this tick)."""
+
+    def __init__(self, source: Callable[[EstimatorInput], tuple[np.ndarray, float, bool] | None]):
+        self.source = source
+
+    def __call__(self, inp: EstimatorInput) -> Estimate | None:
+        r = self.source(inp)
+        if r is None:
+            return None
+        tau, t, fresh = r
+        return Estimate(tau_ext=np.asarray(tau, dtype=float), t=float(t), fresh=bool(fresh))
+
+
+class NextAdapter:
+    """Drives calibration.next.estimator.NextEstimator (duck-typed: update(q, q_dot, q_cmd, tau_m) -> object
+    with tau_ext, flags, valid, ood) from the loop. Its output is already tau_m - tau_f_hat. Call it at the
+    checkpoint's rate (PairConfig.estimator_period_s = 1 / rate_hz). q_cmd: the follower's reported target
+    (JointState.q_cmd) when it has one, else the target the loop sent last. Warm-up (flag bit 1, no estimate
+    yet) returns None, so feedback waits; a NaN estimate goes through (feedback off with a message); an
+    out-of-range input (ood) is counted, not gated: in contact q_cmd - q leaves the free-motion training range
+    by design."""
+
+    def __init__(self, next_estimator):
+        self.next = next_estimator
+        self.ood_count = 0
+
+    def __call__(self, inp: EstimatorInput) -> Estimate | None:
+        st = inp.follower
+        q_cmd = st.q_cmd
+        if not np.all(np.isfinite(q_cmd)):
+            q_cmd = inp.q_target_f if inp.q_target_f is not None else st.q
+        e = self.next.update(st.q, st.q_dot, q_cmd, st.tau_m)
+        if int(getattr(e, "flags", 0)) & NEXT_FLAG_WARMUP:
+            return None  # warming up (or restarting after a bad sample): no estimate yet
+        self.ood_count += int(bool(e.ood))
+        return Estimate(tau_ext=np.asarray(e.tau_ext, dtype=float), t=st.t, fresh=bool(e.valid))
+
+
+def momentum_observer_step(integral: np.ndarray, r: np.ndarray, p0: np.ndarray, q_dot: np.ndarray,
+                           tau_m: np.ndarray, dt_s: float, k_o: np.ndarray, M: np.ndarray, C: np.ndarray,
+                           g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One step of the generalised-momentum observer (De Luca; the paper's DO baseline).
+
+    Model: M q_ddot + C q_dot + g = tau_m + tau_env, p = M q_dot, p_dot = tau_m + C^T q_dot - g + tau_env.
+    integral += dt (tau_m + C^T q_dot - g + r);  r = K_o (p - p0 - integral) -> tau_env = -tau_ext
+    (first order, rate K_o [1/s]).
+    Returns (integral, r)."""
+    integral = integral + dt_s * (tau_m + C.T @ q_dot - g + r)
+    r = k_o * (M @ q_dot - p0 - integral)
+    return integral, r
+
+
+class MomentumObserver:
+    """Disturbance-observer estimator on the follower's dynamics model (callables in the follower's joint
+    frame): mass(q) -> M, coriolis(q, q_dot) -> C, gravity(q) -> g. k_o: observer gain [1/s] per joint.
+    Uses the follower's measured motor torque tau_m (current x torque constant). Returns tau_ext = -r."""
+
+    def __init__(self, mass: Callable, coriolis: Callable, gravity: Callable, k_o: PerJoint, n: int):
+        self.mass, self.coriolis, self.gravity = mass, coriolis, gravity
+        self.k_o = per_joint(k_o, n, "estimator.dob.k_o", positive=True)
+        self.n = n
+        self.reset()
+
+    @classmethod
+    def from_pinocchio(cls, model, k_o: PerJoint = 50.0, n: int | None = None) -> MomentumObserver:
+        import pinocchio as pin
+
+        n = n or model.nv
+        data, q0 = model.createData(), pin.neutral(model)
+
+        def full(q):
+            qm = q0.copy()
+            qm[:n] = q
+            return qm
+
+        def mass(q):
+            M = pin.crba(model, data, full(q))
+            M = np.triu(M) + np.triu(M, 1).T  # pinocchio fills the upper triangle
+            return M[:n, :n]
+
+        def coriolis(q, qd):
+            v = np.zeros(model.nv)
+            v[:n] = qd
+            return pin.computeCoriolisMatrix(model, data, full(q), v)[:n, :n].copy()
+
+        def gravity(q):
+            return pin.computeGeneralizedGravity(model, data, full(q))[:n].copy()
+
+        return cls(mass, coriolis, gravity, k_o, n)
+
+    @classmethod
+    def from_arm(cls, arm, k_o: PerJoint = 50.0) -> MomentumObserver:
+        """On a hardware.arms description (name or ArmDescription) of the FOLLOWER, own pinocchio Data."""
+        from hardware.arms.dynamics import ArmDynamics
+
+        dyn = ArmDynamics(arm)
+        return cls(dyn.mass_matrix, dyn.coriolis_matrix, dyn.gravity, k_o, dyn.n)
+
+    def reset(self) -> None:
+        self._integral = np.zeros(self.n)
+        self._r = np.zeros(self.n)
+        self._p0: np.ndarray | None = None
+        self._t_prev = float("nan")
+
+    def __call__(self, inp: EstimatorInput) -> Estimate | None:
+        st = inp.follower
+        q, qd, tau_m = st.q, st.q_dot, st.tau_m
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(tau_m))):
+            return None
+        M = self.mass(q)
+        if self._p0 is None:
+            self._p0, self._t_prev = M @ qd, st.t
+            return Estimate(tau_ext=-self._r, t=st.t, fresh=False)  # not converged yet
+        dt = st.t - self._t_prev
+        if dt <= 0:  # no new follower sample: same estimate, same data time
+            return Estimate(tau_ext=-self._r, t=self._t_prev, fresh=True)
+        self._t_prev = st.t
+        self._integral, self._r = momentum_observer_step(self._integral, self._r, self._p0, qd, tau_m, dt,
+                                                         self.k_o, M, self.coriolis(q, qd), self.gravity(q))
+        return Estimate(tau_ext=-self._r, t=st.t, fresh=True)
+
+
+def make_estimator(mode: str, n: int, *, follower_arm=None, dob_gain: PerJoint = 50.0,
+                   pp_stiffness_nm_per_rad: PerJoint | None = None,
+                   next_source: Callable | None = None,
+                   truth: Callable[[], np.ndarray] | None = None) -> Estimator | None:
+    """The estimator for a feedback mode (ESTIMATOR_MODES); None for "none". ConfigError when the mode's
+    ingredient is missing: follower_arm (hardware.arms name or ArmDescription, "dob"),
+    pp_stiffness_nm_per_rad ("pp"), next_source (a NextEstimator, or a callable for CallableEstimator,
+    "next"), truth (the twin's contact torque, "ground_truth")."""
+    from hardware.errors import ConfigError
+
+    need = {"dob": follower_arm, "pp": pp_stiffness_nm_per_rad, "next": next_source,
+            "ground_truth": truth}
+    if mode not in ESTIMATOR_MODES:
+        raise ConfigError(f"unknown feedback mode {mode!r}", where="teleop.feedback_mode",
+                          fix=f"use one of {', '.join(ESTIMATOR_MODES)}")
+    if mode == "none":
+        return None
+    if need[mode] is None:
+        what = {"dob": "the follower's dynamics model", "pp": "a position-position stiffness",
+                "next": "a trained NEXT model",
+                "ground_truth": "a twin (ground truth exists only in simulation)"}
+        raise ConfigError(f"feedback mode {mode!r} needs {what[mode]}", where="teleop.feedback_mode",
+                          fix="provide it, or pick another mode")
+    if mode == "dob":
+        return MomentumObserver.from_arm(follower_arm, k_o=dob_gain)
+    if mode == "pp":
+        return PositionPositionEstimator(pp_stiffness_nm_per_rad, n)
+    if mode == "next":
+        return NextAdapter(next_source) if hasattr(next_source, "update") else CallableEstimator(next_source)
+    return GroundTruthEstimator(truth, n)

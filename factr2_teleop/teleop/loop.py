@@ -1,0 +1,193 @@
+"""The teleop loop: a thin shell that ticks arm pairs at a fixed rate on a hardware.clock.Clock.
+
+One TeleopLoop runs its pairs in one thread, in order, at one rate (default 500 Hz). Bimanual: two pairs in
+one loop (required on a LockstepClock, whose sleep advances the whole twin), or one loop per pair on a real
+clock (two threads). Per tick and pair: read leader, read follower, estimator, leader law ->
+leader.command_torque, mapping -> follower.command (pair.ArmPair). The loop measures its timing
+(timing.LoopTiming), calls an optional recorder with each pair's flat record, and keeps a thread-safe snapshot
+for a UI. It always ends safe: stop(), Ctrl-C, an exception in a tick -> every leader zero torque, every
+follower on hold.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, STOPPED, ArmPair
+from factr2_teleop.teleop.timing import LoopTiming, TimingStats
+from hardware.clock import Clock
+
+log = logging.getLogger("factr2.teleop")
+
+DEFAULT_RATE_HZ = 500.0
+__all__ = ["TeleopLoop", "TeleopSnapshot", "DEFAULT_RATE_HZ", "SOFT_START", "COUPLED", "HOLD", "FAULT",
+           "STOPPED", "IDLE"]
+
+
+@dataclass(frozen=True)
+class TeleopSnapshot:
+    """What a UI shows: per-pair latest record (flat feature dict, see pair.ArmPair._record), phases, timing,
+    the last messages (t [s], pair, text), running flag and the error that stopped the loop (if any)."""
+
+    t: float
+    running: bool
+    phases: dict[str, str]
+    records: dict[str, dict]
+    timing: TimingStats
+    messages: tuple[tuple[float, str, str], ...]
+    error: str | None
+
+
+class TeleopLoop:
+    """TeleopLoop(pairs, clock, rate_hz=500, recorder=None, max_messages=100).
+
+    recorder: callable(record: dict) per pair per tick (duck-typed; an exception in it stops recording with a
+    message, never the arms). run() blocks (until stop(), duration_s or max_ticks); start() runs it in a
+    thread. snapshot() may be called from any thread.
+    """
+
+    def __init__(self, pairs: list[ArmPair], clock: Clock, rate_hz: float = DEFAULT_RATE_HZ,
+                 recorder: Callable[[dict], None] | None = None, max_messages: int = 100):
+        if not pairs:
+            raise ValueError("TeleopLoop needs at least one arm pair")
+        names = [p.cfg.name for p in pairs]
+        if len(set(names)) != len(names):
+            raise ValueError(f"arm pair names must differ, got {names}")
+        if not rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+        self.pairs, self.clock, self.rate_hz = pairs, clock, float(rate_hz)
+        self.period_s = 1.0 / self.rate_hz
+        self.recorder = recorder
+        self.timing = LoopTiming(self.rate_hz)
+        self.error: BaseException | None = None
+        self.recorder_errors = 0
+        self._messages: deque[tuple[float, str, str]] = deque(maxlen=max_messages)
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._running = False
+        self._thread: threading.Thread | None = None
+        self._t_pub = float("nan")
+        self._t_last_start = float("nan")
+        self._phases: dict[str, str] = {}
+        self._records: dict[str, dict] = {}
+        self._publish(float("nan"))
+
+    # -- public ---------------------------------------------------------------------------------------
+    def run(self, duration_s: float | None = None, max_ticks: int | None = None, *,
+            _keep_stop_request: bool = False) -> None:
+        """Start every pair (UserError on a refused start, both arms left safe), then tick until stopped.
+        Always leaves every arm safe; re-raises a tick's exception after making them safe."""
+        if not _keep_stop_request:  # start() clears it before the thread exists, so an early stop() counts
+            self._stop.clear()
+        self.error = None
+        self._running = True
+        try:
+            for p in self.pairs:
+                p.begin()
+            self._note_messages()
+            t0 = self.clock.now()
+            next_t, ticks = t0, 0
+            while not self._stop.is_set():
+                t_start = self.clock.now()
+                self._tick_all(t_start)
+                ticks += 1
+                with self._lock:
+                    self.timing.record(t_start, self.clock.now() - t_start)
+                self._publish(t_start)
+                if (max_ticks is not None and ticks >= max_ticks) or \
+                        (duration_s is not None and t_start - t0 + 1.5 * self.period_s >= duration_s):
+                    break
+                next_t += self.period_s
+                now = self.clock.now()
+                if now > next_t + self.period_s:  # fell behind by more than a period: do not try to catch up
+                    next_t = now
+                self.clock.sleep_until(next_t)
+        except BaseException as e:
+            self.error = e
+            self._message(self.clock.now(), "loop", f"stopped by {type(e).__name__}: {e}")
+            raise
+        finally:
+            self._running = False
+            fault = isinstance(self.error, Exception)
+            self._make_safe("teleop fault" if fault else "teleop stopped", FAULT if fault else STOPPED)
+            self._publish(self.clock.now())
+
+    def start(self, duration_s: float | None = None) -> threading.Thread:
+        """Run in a daemon thread (real-time clocks only; a LockstepClock is driven by run() itself)."""
+        if self._thread is not None and self._thread.is_alive():
+            raise RuntimeError("teleop loop already running")
+
+        def target():
+            try:
+                self.run(duration_s=duration_s, _keep_stop_request=True)
+            except BaseException:  # noqa: BLE001 -- kept in self.error, shown by snapshot()
+                log.exception("teleop loop stopped")
+
+        self._stop.clear()
+        self._thread = threading.Thread(target=target, name="factr2-teleop", daemon=True)
+        self._thread.start()
+        return self._thread
+
+    def stop(self, timeout_s: float = 1.0) -> None:
+        """Ask the loop to end; it leaves leaders at zero torque, followers on hold. Safe from any thread."""
+        self._stop.set()
+        t = self._thread
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout_s)
+            if t.is_alive():  # stuck in a driver call: command the safe states from here too
+                self._make_safe("teleop stop (loop thread not answering)", STOPPED)
+
+    @property
+    def running(self) -> bool:
+        return self._running
+
+    def snapshot(self) -> TeleopSnapshot:
+        with self._lock:
+            return TeleopSnapshot(
+                t=self._t_pub, running=self._running, phases=dict(self._phases), records=dict(self._records),
+                timing=self.timing.stats(), messages=tuple(self._messages),
+                error=None if self.error is None else f"{type(self.error).__name__}: {self.error}")
+
+    # -- internals ------------------------------------------------------------------------------------
+    def _tick_all(self, t_start: float) -> None:
+        period = t_start - self._t_last_start if np.isfinite(self._t_last_start) else float("nan")
+        self._t_last_start = t_start
+        for p in self.pairs:
+            rec = p.tick(self.clock.now())
+            rec["loop.period_s"], rec["loop.overruns"] = period, self.timing.overruns
+            if self.recorder is not None:
+                try:
+                    self.recorder(rec)
+                except Exception as e:  # noqa: BLE001 -- recording must never stop the arms
+                    self.recorder_errors += 1
+                    self.recorder = None
+                    self._message(t_start, p.cfg.name, f"recording stopped: recorder failed ({e})")
+        self._note_messages()
+
+    def _note_messages(self) -> None:
+        now = self.clock.now()
+        for p in self.pairs:
+            for m in p.messages:
+                self._message(now, p.cfg.name, m)
+            p.messages.clear()
+
+    def _message(self, t: float, who: str, text: str) -> None:
+        with self._lock:
+            self._messages.append((t, who, text))
+
+    def _make_safe(self, reason: str, phase: str) -> None:
+        for p in self.pairs:
+            p.make_safe(reason)
+            p.phase = phase
+
+    def _publish(self, t: float) -> None:
+        phases = {p.cfg.name: p.phase for p in self.pairs}
+        records = {p.cfg.name: p.last for p in self.pairs}  # each tick builds a new dict: no copy needed
+        with self._lock:
+            self._t_pub, self._phases, self._records = t, phases, records

@@ -1,0 +1,244 @@
+"""One leader/follower pair: the per-tick state machine the loop drives (thin shell over the pure laws).
+
+Phases: soft_start (follower moves to the leader's mapped pose, no feedback) -> coupled (follower tracks, the
+leader gets the full law) ; hold (leader or follower data stale, or a resumed leader too far away: follower
+holds, leader gets zero torque if its data is stale, gravity compensation otherwise) -> soft_start again once
+both are fresh and close enough ; fault / stopped (both safe: leader zero torque, follower hold).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factr2_teleop.teleop.estimators import Estimate, EstimatorInput
+from factr2_teleop.teleop.feedback import contact_score
+from factr2_teleop.teleop.leader_law import LeaderInputs, LeaderLaw, LeaderLawConfig
+from factr2_teleop.teleop.mapping import JointMap, JointMapConfig
+from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch_error, rate_limit
+from hardware.errors import ConfigError, DeviceError
+from hardware.roles import Follower, Leader
+from hardware.types import FollowerCommand, JointState
+
+log = logging.getLogger("factr2.teleop")
+
+SOFT_START, COUPLED, HOLD, FAULT, STOPPED, IDLE = "soft_start", "coupled", "hold", "fault", "stopped", "idle"
+DEFAULT_STALE_S = 0.02  # s: a leader/follower sample older than this puts the follower on hold (< 50 ms)
+
+
+@dataclass
+class PairConfig:
+    """name: prefix in records ("left"/"right" for bimanual). leader_stale_s / follower_stale_s: data older
+    than this holds the follower [s]. estimator_period_s: run the estimator at most this often [s] (0: every
+    tick; the paper ran NEXT at 100 Hz). start_timeout_s: wait this long for first data from both arms [s]."""
+
+    name: str = "arm"
+    law: LeaderLawConfig = field(default_factory=LeaderLawConfig)
+    mapping: JointMapConfig = field(default_factory=JointMapConfig)
+    soft_start: SoftStartConfig = field(default_factory=SoftStartConfig)
+    leader_stale_s: float = DEFAULT_STALE_S
+    follower_stale_s: float = DEFAULT_STALE_S
+    estimator_period_s: float = 0.0
+    start_timeout_s: float = 0.5
+
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "pairs") -> PairConfig:
+        """From a rig-file table: {name, law: {...}, mapping: {...}, soft_start: {...}, leader_stale_s..}."""
+        d = dict(d or {})
+        kw: dict = {}
+        try:
+            if "law" in d:
+                kw["law"] = LeaderLawConfig.from_dict(d.pop("law"), where=f"{where}.law")
+            if "mapping" in d:
+                kw["mapping"] = JointMapConfig(**d.pop("mapping"))
+            if "soft_start" in d:
+                kw["soft_start"] = SoftStartConfig(**d.pop("soft_start"))
+            return cls(**kw, **d)
+        except TypeError as e:
+            raise ConfigError(f"bad key: {e}", where=where, fix="see docs/teleop.md") from None
+
+
+def _fresh(st: JointState, now: float, max_age: float) -> bool:
+    return bool(np.all(np.isfinite(st.q))) and np.isfinite(st.t) and now - st.t <= max_age
+
+
+class ArmPair:
+    """Leader + follower + law + map + soft start + estimator. The loop calls begin() once, then tick()."""
+
+    def __init__(self, leader: Leader, follower: Follower, cfg: PairConfig, dt_s: float,
+                 gravity_fn: Callable | None = None, jacobian_fn: Callable | None = None,
+                 model_map: JointMap | None = None,
+                 estimator: Callable[[EstimatorInput], Estimate | None] | None = None):
+        self.leader, self.follower, self.cfg, self.dt_s = leader, follower, cfg, float(dt_s)
+        self.law = LeaderLaw(cfg.law, leader.safety.limits, gravity_fn, jacobian_fn, model_map)
+        self.map = JointMap(cfg.mapping, leader.n_joints, follower.n_joints, where=f"{cfg.name}.mapping")
+        self.soft = SoftStart(cfg.soft_start, follower.n_joints, dt_s)
+        self.estimator = estimator
+        self.phase = IDLE
+        self.q_target: np.ndarray | None = None
+        self.estimate: Estimate | None = None
+        self._t_est_run = -np.inf
+        self._t_prev = float("nan")
+        self.messages: list[str] = []  # drained by the loop each tick
+        self._last_msg = ""
+        self.estimator_errors = 0
+        self.last: dict = {}
+
+    # -- helpers -------------------------------------------------------------------------------------
+    def _say(self, text: str, level: int = logging.WARNING) -> None:
+        if text != self._last_msg:  # a repeated condition is said once
+            self._last_msg = text
+            self.messages.append(text)
+            log.log(level, "%s: %s", self.cfg.name, text)
+
+    def _enter_hold(self, reason: str, leader_ok: bool) -> None:
+        self.follower.hold(reason)
+        self.phase = HOLD
+        if not leader_ok:
+            try:  # a leader that stopped answering may also refuse the write; the follower is held already
+                self.leader.zero_torque(reason)
+            except Exception as e:  # noqa: BLE001
+                self._say(f"leader zero torque failed ({type(e).__name__}: {e})")
+        self._say(f"follower on hold: {reason}")
+
+    def _start_soft(self, ls: JointState, fs: JointState) -> bool:
+        err = mismatch_error(fs.q, self.map.forward(ls.q), self.soft.max_mismatch, where=self.cfg.name)
+        if err is not None:
+            self._say(str(err))
+            return False
+        self.soft.reset(fs.q)
+        self.law.feedback.reset()
+        self.q_target = None
+        self.phase = SOFT_START
+        return True
+
+    def make_safe(self, reason: str) -> None:
+        """Leader zero torque, follower hold; each attempted even if the other fails."""
+        errors = []
+        for act in (lambda: self.leader.zero_torque(reason), lambda: self.follower.hold(reason)):
+            try:
+                act()
+            except Exception as e:  # noqa: BLE001 -- the other arm must still be made safe
+                errors.append(e)
+        if errors:
+            log.error("%s: could not make an arm safe: %s", self.cfg.name, errors)
+
+    # -- lifecycle ------------------------------------------------------------------------------------
+    def begin(self) -> None:
+        """Wait for first data from both arms, refuse a large mismatch (UserError), start the soft start."""
+        clock = self.leader.clock
+        t_end = clock.now() + self.cfg.start_timeout_s
+        while True:
+            now = clock.now()
+            ls, fs = self.leader.read(), self.follower.read()
+            l_ok, f_ok = _fresh(ls, now, self.cfg.start_timeout_s), _fresh(fs, now, self.cfg.start_timeout_s)
+            if l_ok and f_ok:
+                break
+            if now >= t_end:
+                who = " and ".join(x for x, ok in (("leader", l_ok), ("follower", f_ok)) if not ok)
+                self.make_safe("no data at start")
+                raise DeviceError(f"no joint data from the {who} within {self.cfg.start_timeout_s:.1f} s",
+                                  where=self.cfg.name,
+                                  fix="check power, cables and the port/channel in the rig")
+            clock.sleep(self.dt_s)
+        self.law.reset(ls.q)  # null-space posture = the leader's start pose unless the rig sets one
+        err = mismatch_error(fs.q, self.map.forward(ls.q), self.soft.max_mismatch, where=self.cfg.name)
+        if err is not None:
+            self.make_safe("start refused: leader/follower mismatch")
+            self.phase = STOPPED
+            raise err
+        self._start_soft(ls, fs)
+
+    def tick(self, now: float) -> dict:
+        """One control period. Returns the flat record of this tick (also kept as self.last)."""
+        cfg = self.cfg
+        dt = now - self._t_prev if np.isfinite(self._t_prev) else self.dt_s
+        dt = min(max(dt, 0.0), 3.0 * self.dt_s)
+        self._t_prev = now
+        ls, fs = self.leader.read(), self.follower.read()
+        leader_ok, follower_ok = _fresh(ls, now, cfg.leader_stale_s), _fresh(fs, now, cfg.follower_stale_s)
+        q_leader_f = self.map.forward(ls.q)
+        if follower_ok:
+            self._tick_estimator(now, fs, q_leader_f)
+        if not (leader_ok and follower_ok):
+            if self.phase != HOLD:
+                who = "leader" if not leader_ok else "follower"
+                st = ls if not leader_ok else fs
+                age = (now - st.t) * 1e3 if np.isfinite(st.t) else float("inf")
+                self._enter_hold(f"{who} data stale ({age:.0f} ms old)", leader_ok)
+        elif self.phase == HOLD:
+            self._start_soft(ls, fs)
+        out = None
+        if leader_ok:  # the law needs a fresh leader pose; feedback only while coupled
+            out = self.law.step(self._leader_inputs(now, ls, fs), feedback_on=self.phase == COUPLED)
+            if out.message:
+                self._say(out.message)
+            tau_sent = self.leader.command_torque(out.tau)
+        else:
+            tau_sent = np.zeros(self.leader.n_joints)
+        if self.phase == SOFT_START:
+            self.q_target, done = self.soft.step(q_leader_f)
+            self.follower.command(FollowerCommand(q=self.q_target))
+            if done:
+                self.phase = COUPLED
+                self._say("coupled: follower tracks the leader", logging.INFO)
+        elif self.phase == COUPLED:
+            prev = self.q_target if self.q_target is not None else fs.q
+            self.q_target = rate_limit(q_leader_f, prev, self.soft.rate, dt)
+            grip = self.map.gripper_forward(ls.gripper_pos)
+            self.follower.command(FollowerCommand(q=self.q_target, gripper=grip))
+        self.last = self._record(now, ls, fs, tau_sent, out)
+        return self.last
+
+    # -- pieces ---------------------------------------------------------------------------------------
+    def _tick_estimator(self, now: float, fs: JointState, q_leader_f: np.ndarray) -> None:
+        if self.estimator is None or now - self._t_est_run < self.cfg.estimator_period_s:
+            return
+        self._t_est_run = now
+        try:
+            est = self.estimator(EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f,
+                                                q_target_f=self.q_target))
+        except Exception as e:  # noqa: BLE001 -- a failing estimator turns feedback off, not the arms
+            self.estimator_errors += 1
+            self.estimate = Estimate(tau_ext=np.full(self.follower.n_joints, np.nan), t=now, fresh=False)
+            self._say(f"feedback off: estimator failed ({type(e).__name__}: {e})")
+            return
+        if est is not None:
+            self.estimate = est
+
+    def _leader_inputs(self, now: float, ls: JointState, fs: JointState) -> LeaderInputs:
+        est = self.estimate
+        if self.estimator is None or est is None:
+            return LeaderInputs(t=now, q=ls.q, q_dot=ls.q_dot, gripper_effort=fs.gripper_effort)
+        tau_f = np.asarray(est.tau_ext, dtype=float)
+        if tau_f.shape != (self.follower.n_joints,):
+            tau_f = np.full(self.follower.n_joints, np.nan)
+        return LeaderInputs(t=now, q=ls.q, q_dot=ls.q_dot, tau_ext_leader=self.map.torque_back(tau_f),
+                            contact_score_nm=contact_score(tau_f), est_t=est.t, est_fresh=est.fresh,
+                            gripper_effort=fs.gripper_effort)
+
+    def _record(self, now: float, ls: JointState, fs: JointState, tau_sent: np.ndarray, out) -> dict:
+        nf = self.follower.n_joints
+        est = self.estimate
+        tau_ext = np.asarray(est.tau_ext, dtype=float) if est is not None else np.full(nf, np.nan)
+        rec = {
+            "t": now, "pair": self.cfg.name, "phase": self.phase,
+            "leader.joint.pos": ls.q, "leader.joint.vel": ls.q_dot, "leader.joint.tau_cmd": tau_sent,
+            "leader.gripper.pos": ls.gripper_pos,
+            "follower.joint.pos": fs.q, "follower.joint.vel": fs.q_dot, "follower.joint.tau": fs.tau_m,
+            "follower.joint.pos_cmd": self.q_target if self.q_target is not None else np.full(nf, np.nan),
+            "follower.joint.tau_ext": tau_ext, "follower.gripper.pos": fs.gripper_pos,
+            "follower.gripper.effort": fs.gripper_effort,
+            "feedback.gate": out.gate if out else 0.0,
+            "feedback.contact": bool(out.contact) if out else False,
+            "feedback.fresh": bool(out.fresh) if out else False,
+            "leader.gripper.tau_fb": out.gripper_tau if out else 0.0,
+        }
+        if out is not None:
+            for k, v in out.terms.items():
+                rec[f"leader.joint.tau_{k}"] = v
+        return rec

@@ -1,0 +1,104 @@
+"""Before coupling, bring the follower to the leader's mapped pose: refuse a large mismatch, else a
+jerk-limited (ruckig) move that tracks the leader if it moves meanwhile. Plus the coupled-phase rate limit.
+
+GELLO refuses to start beyond 1 rad of leader-follower difference; we do the same per joint and say which.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import ruckig
+
+from factr2_teleop.teleop.params import PerJoint, clamp, per_joint
+from hardware.errors import UserError
+
+DEFAULT_MAX_MISMATCH_RAD = 1.0
+
+
+@dataclass
+class SoftStartConfig:
+    """max_mismatch_rad: refuse to start when any follower joint is further than this from the leader's mapped
+    pose [rad]. v/a/j_max: limits of the soft-start move [rad/s, rad/s^2, rad/s^3]. done_tol_rad: coupling
+    starts once the move is within this of the (moving) goal on every joint [rad].
+    rate_limit_rad_s: coupled-phase limit on how fast the follower target may move [rad/s]."""
+
+    max_mismatch_rad: PerJoint = DEFAULT_MAX_MISMATCH_RAD
+    v_max_rad_s: PerJoint = 0.5
+    a_max_rad_s2: PerJoint = 2.0
+    j_max_rad_s3: PerJoint = 10.0
+    done_tol_rad: float = 0.02
+    rate_limit_rad_s: PerJoint = 3.0
+
+
+def start_mismatch(q_follower: np.ndarray, q_goal: np.ndarray) -> np.ndarray:
+    """|q_goal - q_follower| per joint [rad]; NaN stays NaN (an unread joint counts as too far)."""
+    return np.abs(np.asarray(q_goal, dtype=float) - np.asarray(q_follower, dtype=float))
+
+
+def mismatch_error(q_follower: np.ndarray, q_goal: np.ndarray, max_rad: np.ndarray,
+                   where: str = "teleop") -> UserError | None:
+    """A UserError listing the joints that are too far apart, or None when the start is allowed."""
+    d = start_mismatch(q_follower, q_goal)
+    bad = np.flatnonzero(~(d <= max_rad))
+    if bad.size == 0:
+        return None
+    parts = ", ".join(f"j{i + 1} {d[i]:.2f} rad" for i in bad)
+    return UserError(f"leader and follower differ too much to start ({parts}; limit "
+                     f"{float(np.min(max_rad[bad])):.2f} rad)", where=where,
+                     fix="move the leader to match the follower's pose (or check the joint offsets/signs "
+                     "in the rig file) and start again")
+
+
+def rate_limit(q_target: np.ndarray, q_prev: np.ndarray, v_max: np.ndarray, dt_s: float) -> np.ndarray:
+    """q_target moved at most v_max*dt from q_prev [rad]; non-finite targets keep q_prev."""
+    q = np.asarray(q_target, dtype=float)
+    if not np.all(np.isfinite(q)):
+        q = np.where(np.isfinite(q), q, q_prev)
+    step = v_max * max(float(dt_s), 0.0)
+    return clamp(q, q_prev - step, q_prev + step)
+
+
+class SoftStart:
+    """Online ruckig move toward a goal that may move (the leader is in a human hand). step() per tick."""
+
+    def __init__(self, cfg: SoftStartConfig, n: int, dt_s: float):
+        self.cfg, self.n, self.dt_s = cfg, n, float(dt_s)
+        self.max_mismatch = per_joint(cfg.max_mismatch_rad, n, "soft_start.max_mismatch_rad", positive=True)
+        self.v = per_joint(cfg.v_max_rad_s, n, "soft_start.v_max_rad_s", positive=True)
+        self.a = per_joint(cfg.a_max_rad_s2, n, "soft_start.a_max_rad_s2", positive=True)
+        self.j = per_joint(cfg.j_max_rad_s3, n, "soft_start.j_max_rad_s3", positive=True)
+        self.rate = per_joint(cfg.rate_limit_rad_s, n, "soft_start.rate_limit_rad_s", positive=True)
+        self._otg = ruckig.Ruckig(n, self.dt_s)
+        self._inp = ruckig.InputParameter(n)
+        self._out = ruckig.OutputParameter(n)
+        self.q = np.full(n, np.nan)
+
+    def reset(self, q_now: np.ndarray) -> None:
+        """Start from the follower's measured position, at rest."""
+        self.q = np.asarray(q_now, dtype=float).copy()
+        inp = self._inp
+        inp.current_position, inp.current_velocity = self.q.tolist(), [0.0] * self.n
+        inp.current_acceleration = [0.0] * self.n
+        inp.target_velocity, inp.target_acceleration = [0.0] * self.n, [0.0] * self.n
+        inp.max_velocity, inp.max_acceleration = self.v.tolist(), self.a.tolist()
+        inp.max_jerk = self.j.tolist()
+
+    def step(self, q_goal: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Next follower target [rad] toward q_goal, and whether it is there (within done_tol_rad, slow)."""
+        goal = np.asarray(q_goal, dtype=float)
+        if not np.all(np.isfinite(goal)):
+            return self.q.copy(), False  # no valid goal this tick: hold where the move is
+        self._inp.target_position = goal.tolist()
+        try:
+            res = self._otg.update(self._inp, self._out)
+        except RuntimeError:  # ruckig rejects the input: keep the last target, try again next tick
+            return self.q.copy(), False
+        if res not in (ruckig.Result.Working, ruckig.Result.Finished):
+            return self.q.copy(), False
+        self._out.pass_to_input(self._inp)
+        self.q = np.asarray(self._out.new_position, dtype=float)
+        near = bool(np.all(np.abs(goal - self.q) <= self.cfg.done_tol_rad))
+        slow = bool(np.all(np.abs(np.asarray(self._out.new_velocity)) <= self.v * 0.5))
+        return self.q.copy(), near and slow

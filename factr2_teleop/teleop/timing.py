@@ -1,0 +1,80 @@
+"""Measured loop timing as a pure ring-buffer statistics object (no clock of its own, no threads).
+
+The loop calls record(t_start, compute_s) once per tick with the tick's start time on the rig clock; the
+period is the difference of consecutive starts. stats() summarises the last `capacity` ticks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+OVERRUN_FACTOR = 1.5  # a period longer than this times the target period counts as an overrun
+
+
+@dataclass(frozen=True)
+class TimingStats:
+    """rate_hz: 1 / mean period over the window; period_p50_ms / p99 / max [ms]; compute_p99_ms: time spent
+    inside the tick [ms]; overruns: cumulative periods > OVERRUN_FACTOR x target; ticks: cumulative."""
+
+    target_hz: float
+    rate_hz: float
+    period_p50_ms: float
+    period_p99_ms: float
+    period_max_ms: float
+    compute_p99_ms: float
+    overruns: int
+    ticks: int
+
+    def line(self) -> str:
+        return (f"{self.rate_hz:6.1f} Hz (target {self.target_hz:.0f}), "
+                f"period p50 {self.period_p50_ms:.2f} ms "
+                f"p99 {self.period_p99_ms:.2f} ms max {self.period_max_ms:.2f} ms, compute p99 "
+                f"{self.compute_p99_ms:.2f} ms, {self.overruns} overruns / {self.ticks} ticks")
+
+
+class LoopTiming:
+    def __init__(self, target_hz: float, capacity: int = 4096, overrun_factor: float = OVERRUN_FACTOR):
+        if not target_hz > 0 or capacity < 2:
+            raise ValueError("LoopTiming needs target_hz > 0 and capacity >= 2")
+        self.target_hz, self.capacity, self.overrun_factor = float(target_hz), int(capacity), overrun_factor
+        self._periods = np.zeros(capacity)
+        self._compute = np.zeros(capacity)
+        self._n_periods = 0  # cumulative
+        self._n_compute = 0
+        self.ticks = 0
+        self.overruns = 0
+        self._t_last = float("nan")
+
+    def record(self, t_start: float, compute_s: float) -> None:
+        """One tick that started at t_start [s] and spent compute_s [s] in the loop body."""
+        self.ticks += 1
+        self._compute[self._n_compute % self.capacity] = compute_s
+        self._n_compute += 1
+        if np.isfinite(self._t_last):
+            period = t_start - self._t_last
+            self._periods[self._n_periods % self.capacity] = period
+            self._n_periods += 1
+            if period > self.overrun_factor / self.target_hz:
+                self.overruns += 1
+        self._t_last = t_start
+
+    def reset_phase(self) -> None:
+        """Forget the last start (after a deliberate pause) so the gap is not counted as a period."""
+        self._t_last = float("nan")
+
+    def stats(self) -> TimingStats:
+        p = self._periods[: min(self._n_periods, self.capacity)]
+        c = self._compute[: min(self._n_compute, self.capacity)]
+        if p.size == 0:
+            nan = float("nan")
+            return TimingStats(self.target_hz, nan, nan, nan, nan,
+                               float(np.percentile(c, 99) * 1e3) if c.size else nan, self.overruns,
+                               self.ticks)
+        mean = float(np.mean(p))
+        return TimingStats(
+            target_hz=self.target_hz, rate_hz=1.0 / mean if mean > 0 else float("inf"),
+            period_p50_ms=float(np.percentile(p, 50) * 1e3), period_p99_ms=float(np.percentile(p, 99) * 1e3),
+            period_max_ms=float(np.max(p) * 1e3), compute_p99_ms=float(np.percentile(c, 99) * 1e3),
+            overruns=self.overruns, ticks=self.ticks)
