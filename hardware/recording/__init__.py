@@ -1,2 +1,14 @@
 """Recording format, writer and readers (MCAP sessions and plain .npz logs). Lives in hardware/ so that
-calibration/ and policies/ can read recordings without depending on the app layer."""
+calibration/ and policies/ can read recordings without depending on the app layer.
+
+    from hardware.recording import Recorder, Recording, describe_session
+"""
+
+from hardware.recording.mcap_scan import RecordingError
+from hardware.recording.reader import Episode, Frames, Recording, hold_previous, interp_linear
+from hardware.recording.session import describe_session
+from hardware.recording.writer import Recorder, RecorderStatus
+
+__all__ = ["Episode", "Frames", "Recorder", "RecorderStatus", "Recording", "RecordingError",
+           "describe_session",
+           "hold_previous", "interp_linear"]

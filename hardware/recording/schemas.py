@@ -1,0 +1,215 @@
+"""The factr2 MCAP recording format: topics, message schemas (with units), payload codecs.
+
+Numeric channels are JSON (message encoding "json", JSON-schema schemas Foxglove can plot); NaN is written as
+null. Camera frames are foxglove.CompressedImage in protobuf (hand-written descriptor, see protobuf_wire.py).
+Every numeric payload carries `t` [s] on the rig clock (monotonic or simulated); an MCAP log_time is
+`round(t * 1e9) + round(clock_offset_s * 1e9)` ns, with clock_offset_s (wall time minus rig time at the
+start) in the session metadata, so Foxglove shows wall-clock times. docs/recording.md lists everything here.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from hardware.recording.protobuf_wire import IMAGE_SCHEMA_NAME, compressed_image_descriptor_set
+
+PROFILE = "factr2"
+FORMAT_VERSION = 1
+SESSION_METADATA = "factr2.session"  # MCAP metadata record name: rig, arms, software, operator ...
+STATS_METADATA = "factr2.recorder_stats"  # written on a clean close only
+
+TOPIC_EVENTS = "/events"
+TOPIC_LOOP = "/loop/timing"
+
+
+def joint_state_topic(arm: str) -> str:
+    return f"/{arm}/joint_state"
+
+
+def tau_ext_topic(arm: str) -> str:
+    return f"/{arm}/tau_ext"
+
+
+def tau_cmd_topic(arm: str) -> str:
+    return f"/{arm}/tau_cmd"
+
+
+def ground_truth_topic(arm: str) -> str:
+    return f"/{arm}/ground_truth"
+
+
+def camera_topic(camera: str) -> str:
+    return f"/camera/{camera}/image"
+
+
+def camera_name(topic: str) -> str:
+    return topic.split("/")[2] if topic.startswith("/camera/") else topic
+
+
+# Event kinds on /events. An episode runs from "start" to "stop"; "success"/"failure"/"discard" label it
+# (they may come after the stop); "progress" is a task-progress mark (value in [0, 1]); "note" is free text.
+EVENT_KINDS = ("start", "stop", "success", "failure", "discard", "progress", "note")
+OUTCOME_KINDS = ("success", "failure", "discard")
+
+
+@dataclass(frozen=True)
+class Field:
+    """One payload field. kind: "float" (linear interpolation when resampled), "bool"/"int" (previous-value
+    hold). vector: one value per joint (else scalar or fixed-length `size`). feature: flat signal name
+    under the arm prefix (LeRobot-like, matching JointState.features())."""
+
+    name: str
+    unit: str
+    kind: str
+    vector: bool
+    feature: str
+    doc: str
+
+
+@dataclass(frozen=True)
+class Schema:
+    name: str
+    doc: str
+    fields: tuple[Field, ...]
+
+    def json_schema(self) -> dict:
+        props: dict[str, dict] = {"t": {"type": "number", "description": "rig clock time [s]"}}
+        for f in self.fields:
+            base = {"float": {"type": ["number", "null"]}, "bool": {"type": "boolean"},
+                    "int": {"type": "integer"}}[f.kind]
+            desc = f"{f.doc} [{f.unit}]" if f.unit else f.doc
+            props[f.name] = ({"type": "array", "items": base, "description": desc} if f.vector
+                             else dict(base, description=desc))
+        return {"title": self.name, "description": self.doc, "type": "object", "properties": props}
+
+    def schema_bytes(self) -> bytes:
+        return json.dumps(self.json_schema()).encode()
+
+
+def _f(name, unit, kind, vector, feature, doc):
+    return Field(name, unit, kind, vector, feature, doc)
+
+
+JOINT_STATE = Schema("factr2.JointState", "one joint-state sample of an arm at loop rate", (
+    _f("q", "rad", "float", True, "joint.pos", "joint position"),
+    _f("q_dot", "rad/s", "float", True, "joint.vel", "joint velocity"),
+    _f("tau_m", "N*m", "float", True, "joint.tau", "measured motor torque (current x torque constant)"),
+    _f("current", "A", "float", True, "joint.current", "motor current"),
+    _f("q_cmd", "rad", "float", True, "joint.pos_cmd", "last commanded joint target (null: none)"),
+    _f("temperature", "degC", "float", True, "joint.temp", "motor temperature"),
+    _f("status", "", "int", True, "joint.status", "STATUS_* bit flags (hardware/types.py)"),
+    _f("gripper_pos", "m or rad", "float", False, "gripper.pos", "gripper stroke or leader trigger"),
+    _f("gripper_effort", "N*m or N", "float", False, "gripper.effort", "gripper effort as reported"),
+))
+EXTERNAL_TORQUE = Schema("factr2.ExternalTorque", "estimated external joint torque and contact state", (
+    _f("tau_ext", "N*m", "float", True, "joint.tau_ext", "estimated external torque"),
+    _f("contact", "", "bool", False, "contact", "contact detected (hysteresis output)"),
+))
+TORQUE_COMMAND = Schema("factr2.TorqueCommand", "torque commanded to an arm (leader force feedback)", (
+    _f("tau", "N*m", "float", True, "joint.tau_cmd", "commanded joint torque after the safety layer"),
+    _f("gate", "", "float", False, "feedback_gate", "force-feedback gate in [0, 1] (null: not used)"),
+))
+GROUND_TRUTH = Schema("factr2.GroundTruth", "twin ground truth (simulated: only recorded on a twin)", (
+    _f("tau_ext_true", "N*m", "float", True, "joint.tau_ext_true", "true external joint torque"),
+    _f("contact", "", "bool", False, "contact_true", "any contact on the arm"),
+    _f("force", "N", "float", True, "force_true", "net contact force on the arm, world frame (x, y, z)"),
+))
+LOOP_TIMING = Schema("factr2.LoopTiming", "control-loop timing, one sample per tick", (
+    _f("period_s", "s", "float", False, "period", "time since the previous tick"),
+    _f("busy_s", "s", "float", False, "busy", "compute time of this tick"),
+    _f("late_s", "s", "float", False, "late", "how late this tick started versus its deadline"),
+    _f("overruns", "", "int", False, "overruns", "ticks that missed their deadline so far"),
+))
+NUMERIC_SCHEMAS: dict[str, Schema] = {s.name: s for s in (JOINT_STATE, EXTERNAL_TORQUE, TORQUE_COMMAND,
+                                                           GROUND_TRUTH, LOOP_TIMING)}
+EVENT_SCHEMA_NAME = "factr2.Event"
+
+
+def event_json_schema() -> bytes:
+    props = {"t": {"type": "number", "description": "rig clock time [s]"},
+             "kind": {"type": "string", "enum": list(EVENT_KINDS)},
+             "episode": {"type": "integer", "description": "episode index in this file"},
+             "text": {"type": "string", "description": "task name, label or operator note"},
+             "value": {"type": ["number", "null"], "description": "task progress in [0, 1] (progress marks)"}}
+    return json.dumps({"title": EVENT_SCHEMA_NAME, "description": "episode event", "type": "object",
+                       "properties": props}).encode()
+
+
+def image_schema() -> tuple[str, str, bytes]:
+    """(name, encoding, data) of the camera schema."""
+    return IMAGE_SCHEMA_NAME, "protobuf", compressed_image_descriptor_set()
+
+
+# Non-finite numbers as %-formatting writes them, only in value position (after ':', '[' or ',').
+_NONFINITE = re.compile(r"(?<=[:\[,])(-?inf|nan)(?=[,\]}])")
+_TEMPLATES: dict[tuple, str] = {}
+
+
+def _template(schema: Schema, key: tuple) -> str:
+    parts, i = ['{"t":%r'], 1
+    for f in schema.fields:
+        spec = {"float": "%.9g", "int": "%d", "bool": "%s"}[f.kind]
+        if f.vector:
+            parts.append(f'"{f.name}":[' + ",".join([spec] * key[i]) + "]")
+            i += 1
+        else:
+            parts.append(f'"{f.name}":{spec}')
+    return ",".join(parts) + "}"
+
+
+def encode_numeric(schema: Schema, payload: dict) -> bytes:
+    """Fast JSON for a numeric schema (one %-format per message, ~3x faster than json.dumps): t exact (repr),
+    floats with 9 significant digits (relative error <= 5e-10), NaN/inf as null. Floats must be floats
+    (NaN, not None), ints ints, bools bools."""
+    vals = [payload["t"]]
+    key = [schema.name]
+    for f in schema.fields:
+        v = payload[f.name]
+        if f.vector:
+            key.append(len(v))
+            vals.extend(v)
+        else:
+            vals.append(("true" if v else "false") if f.kind == "bool" else v)
+    k = tuple(key)
+    fmt = _TEMPLATES.get(k)
+    if fmt is None:
+        fmt = _TEMPLATES[k] = _template(schema, k)
+    out = fmt % tuple(vals)
+    if "nan" in out or "inf" in out:
+        out = _NONFINITE.sub("null", out)
+    return out.encode()
+
+
+def encode_json(payload: dict) -> bytes:
+    """JSON payload with NaN/inf as null (JSON has no NaN; Foxglove would reject it)."""
+    s = json.dumps(payload, separators=(",", ":"))
+    if "NaN" in s or "Infinity" in s:
+        s = s.replace("-Infinity", "null").replace("Infinity", "null").replace("NaN", "null")
+    return s.encode()
+
+
+def encode_event(t: float, kind: str, episode: int, text: str = "", value: float = float("nan")) -> bytes:
+    v = float(value)
+    return json.dumps({"t": float(t), "kind": kind, "episode": int(episode), "text": str(text),
+                       "value": v if math.isfinite(v) else None}).encode()
+
+
+def log_time_ns(t: float, clock_offset_s: float) -> int:
+    """MCAP log_time [ns] of a rig-clock time t [s] (never negative)."""
+    return max(0, round(float(t) * 1e9) + offset_ns(clock_offset_s))
+
+
+def offset_ns(clock_offset_s: float) -> int:
+    """The clock offset in integer ns: adding in integers keeps log times exact to 1 ns (a float sum at
+    ~1.8e9 s would round to ~0.2 us)."""
+    return round(float(clock_offset_s) * 1e9)
+
+
+def rig_time_s(log_time: np.ndarray, clock_offset_s: float) -> np.ndarray:
+    """Rig clock time [s] of MCAP log times [ns] (inverse of log_time_ns)."""
+    return (np.asarray(log_time, dtype=np.int64) - offset_ns(clock_offset_s)) / 1e9

@@ -1,0 +1,218 @@
+"""Crash safety: SIGKILL mid-episode loses at most 0.5 s; truncated, corrupt, empty and foreign files;
+write errors stop the recorder cleanly."""
+
+from __future__ import annotations
+
+import errno
+import io
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from recording_helpers import record_session
+
+from factr2_teleop.cli import main as cli_main
+from hardware.recording import Recorder, Recording, RecordingError
+from hardware.recording.recover import recover
+
+REPO = Path(__file__).resolve().parents[1]
+
+CHILD = r"""
+import sys, time
+import numpy as np
+from hardware.recording import Recorder
+from hardware.types import JointState
+rec = Recorder(sys.argv[1], joint_names={"follower": list("abcdef")}, t0=time.monotonic())
+s = JointState.empty(6)
+frame = np.zeros((48, 64, 3), np.uint8)
+t = time.monotonic()
+rec.start_episode(t, "crash test")
+k = 0
+while True:
+    t = time.monotonic()
+    s.q[:] = k
+    rec.log_joint_state("follower", t, s)
+    if k % 33 == 0:
+        rec.log_image("cam", t, frame.copy())
+    if k % 10 == 0:
+        print(repr(t), flush=True)  # what the loop has handed to the recorder so far
+    k += 1
+    time.sleep(0.001)
+"""
+
+
+def test_sigkill_mid_episode_loses_at_most_half_a_second(tmp_path):
+    path = tmp_path / "killed.mcap"
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    proc = subprocess.Popen([sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE, text=True,
+                            env=env)
+    last = []
+
+    def reader():
+        for line in proc.stdout:
+            last.append(float(line))
+
+    th = threading.Thread(target=reader, daemon=True)
+    th.start()
+    deadline = time.monotonic() + 30
+    while (not last or last[-1] - last[0] < 1.5) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert last, "child never started recording"
+    t_handed = last[-1]
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    th.join(5)
+    t_handed = max(t_handed, last[-1])
+    assert path.stat().st_size > 0
+    with pytest.warns(UserWarning, match="truncated"):
+        rec = Recording(path, use_cache=False)
+    t_last = rec.topic("/follower/joint_state").t[-1]
+    print(f"SIGKILL lost {t_handed - t_last:.3f} s of joint states")
+    assert t_handed - t_last <= 0.5, f"lost {t_handed - t_last:.3f} s"
+    assert rec.truncated and rec.episodes[0].outcome == "incomplete" and rec.episodes[0].task == "crash test"
+    assert len(rec.frames("cam")) > 10
+    report = recover(path)
+    out = tmp_path / "killed.recovered.mcap"
+    assert report.was_truncated and out.exists()
+    with open(out, "rb") as f:  # a standard reader sees a complete, indexed file
+        summary = make_reader(f).get_summary()
+    n = len(rec.topic("/follower/joint_state"))
+    assert summary.statistics.channel_message_counts[
+        next(c.id for c in summary.channels.values() if c.topic == "/follower/joint_state")] == n
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rec2 = Recording(out)
+    assert not rec2.truncated and len(rec2.topic("/follower/joint_state")) == n
+
+
+def test_truncated_file_reads_with_warning_and_cli_recovers(tmp_path, capsys):
+    path = tmp_path / "s.mcap"
+    record_session(path, n=3000, flush_interval_s=0.05, chunk_size=32 * 1024).close()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size * 2 // 3])
+    with pytest.warns(UserWarning, match="truncated"):
+        rec = Recording(cut)
+    n = len(rec.topic("/follower/joint_state"))
+    assert 0 < n < 3000
+    assert cli_main(["recover", str(cut), "--in-place"]) == 0
+    assert "messages kept" in capsys.readouterr().out
+    rec2 = Recording(cut)
+    assert not rec2.truncated and not rec2.from_cache and len(rec2.topic("/follower/joint_state")) == n
+
+
+def test_corrupt_chunk_is_skipped_with_a_warning(tmp_path):
+    path = tmp_path / "s.mcap"
+    record_session(path, n=2000, cameras=False, chunk_size=16 * 1024, compression="").close()
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 64] = os.urandom(64)
+    path.write_bytes(bytes(data))
+    with pytest.warns(UserWarning, match="corrupt chunk"):
+        rec = Recording(path, use_cache=False)
+    assert 500 < len(rec.topic("/follower/joint_state")) < 2000
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"", "empty file"),
+    (b"hello, not a recording at all", "not an MCAP file"),
+    (b"\x89MCA", "too short"),
+])
+def test_bad_files_give_one_line_and_exit_2(tmp_path, capsys, content, message):
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(content)
+    with pytest.raises(RecordingError, match=message):
+        Recording(path)
+    for argv in (["episodes", "show", str(path)], ["recover", str(path)]):
+        assert cli_main(argv) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+def test_foreign_mcap_is_rejected(tmp_path, capsys):
+    from mcap.writer import Writer
+
+    path = tmp_path / "ros.mcap"
+    with open(path, "wb") as f:
+        w = Writer(f)
+        w.start(profile="ros2", library="someone else")
+        sid = w.register_schema("std_msgs/String", "ros2msg", b"string data")
+        cid = w.register_channel("/chatter", "cdr", sid)
+        w.add_message(cid, 1, b"\x00\x01", 1)
+        w.finish()
+    with pytest.raises(RecordingError, match="not a factr2 recording"):
+        Recording(path)
+    assert cli_main(["episodes", "show", str(path)]) == 2
+    assert "not a factr2 recording" in capsys.readouterr().err
+
+
+class _DiskFull(io.RawIOBase):
+    """A file that accepts `limit` bytes and then fails like a full disk."""
+
+    def __init__(self, limit: int):
+        self.buf, self.limit = bytearray(), limit
+
+    def writable(self):
+        return True
+
+    def tell(self):
+        return len(self.buf)
+
+    def write(self, b):
+        if len(self.buf) + len(b) > self.limit:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        self.buf += b
+        return len(b)
+
+
+def test_disk_full_stops_cleanly_and_keeps_what_was_written(tmp_path):
+    from recording_helpers import joint_state
+
+    raw = _DiskFull(200_000)
+    rec = Recorder(tmp_path / "full.mcap", stream=io.BufferedWriter(raw), t0=0.0, flush_interval_s=0.02,
+                   compression="", chunk_size=16 * 1024)  # small chunks: ~180 kB reach the "disk" first
+    accepted = []
+    for k in range(20000):
+        accepted.append(rec.log_joint_state("follower", k * 1e-3, joint_state(k)))  # never raises
+        if k % 200 == 0:
+            time.sleep(0.01)
+    st = rec.close()
+    assert st.error and "No space left on device" in st.error and "factr2 recover" in st.error
+    assert not st.recording and not accepted[-1]
+    kept = tmp_path / "kept.mcap"
+    kept.write_bytes(bytes(raw.buf))
+    with pytest.warns(UserWarning, match="truncated"):
+        got = Recording(kept, use_cache=False).topic("/follower/joint_state")
+    assert len(got) > 100
+    np.testing.assert_allclose(got.fields["q"][50], joint_state(50).q, rtol=1e-8)
+
+
+def test_recorder_refuses_to_overwrite_and_bad_folders(tmp_path):
+    from hardware.errors import UserError
+
+    path = tmp_path / "a.mcap"
+    path.write_bytes(b"x")
+    with pytest.raises(UserError, match="already exists"):
+        Recorder(path)
+    with pytest.raises(UserError, match="cannot create recording"):
+        Recorder("/proc/no/such/dir/x.mcap")
+
+
+def test_malformed_samples_are_counted_not_raised(tmp_path):
+    from recording_helpers import joint_state
+
+    rec = Recorder(tmp_path / "m.mcap", t0=0.0)
+    assert rec.log_joint_state("follower", 0.0, None) is False  # not a JointState
+    assert rec.log_external_torque("follower", 0.0, None, True) is False
+    assert rec.log_image("cam", 0.0, np.zeros((4, 4, 7), np.uint8)) is True  # rejected by the encoder thread
+    assert rec.log_joint_state("follower", 0.001, joint_state(1)) is True
+    st = rec.close()
+    assert st.error is None and st.warning and st.dropped_samples == 2 and st.dropped_frames == 1
+    assert len(Recording(tmp_path / "m.mcap").topic("/follower/joint_state")) == 1
