@@ -1,0 +1,59 @@
+"""`factr2 twin`: serve a rig's SIMULATED hardware (MuJoCo twin) on the real wire protocols until Ctrl-C.
+
+Another process (or `factr2 teleop --rig <the printed rig>` style tools) then talks to the printed pty
+paths and python-can virtual channels exactly as to real devices. Virtual CAN channels live inside one
+process, so CAN clients must run in this process (serve_twin) -- the pty paths work from anywhere.
+"""
+
+from __future__ import annotations
+
+import time
+
+HELP = "serve a sim rig's twin (Dynamixel on a pty, CAN on python-can virtual channels) until Ctrl-C"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--rig", default="sim-piper", help="built-in sim rig name or path to a rig .toml "
+                        "(default: sim-piper)")
+    parser.add_argument("--twin-effect", default=None, metavar="MODULE:FUNCTION",
+                        help="undeclared actuator effect f(t, q, q_dot) -> tau [N*m] added inside the "
+                        "followers' drives (shows in measured current only)")
+    parser.add_argument("--seed", type=int, default=None, help="noise seed (default: the rig's)")
+    parser.add_argument("--seconds", type=float, default=None,
+                        help="stop after this many seconds instead of waiting for Ctrl-C")
+    parser.add_argument("--list", action="store_true", help="list the built-in rigs and exit")
+
+
+def run(args) -> int:
+    from hardware.rigs import list_rigs, load_rig
+    from hardware.sim import serve_twin
+
+    if args.list:
+        for name in list_rigs():
+            r = load_rig(name)
+            print(f"{name:22s} {'sim ' if r.simulated else 'real'}  {r.description}")
+        return 0
+    server = serve_twin(args.rig, effect=args.twin_effect, seed=args.seed)
+    try:
+        rig = server.rig
+        print(f"twin of rig {rig.name} running in real time (SIMULATED hardware)", flush=True)
+        for name, path in server.serial_ports.items():
+            print(f"  {name}: Dynamixel Protocol 2.0 on {path}", flush=True)
+        for name, ch in server.can_channels.items():
+            print(f"  {name}: CAN (python-can interface 'virtual', this process only) channel {ch}",
+                  flush=True)
+        for d in rig.followers:
+            if d.driver == "sim":
+                print(f"  {d.name}: no wire protocol (driver 'sim': open the rig in-process with open_rig)",
+                      flush=True)
+        if server.twin.hook_spec:
+            print(f"  undeclared effect on the followers: {server.twin.hook_spec}", flush=True)
+        print("Ctrl-C to stop", flush=True)
+        t_end = None if args.seconds is None else time.monotonic() + args.seconds
+        while t_end is None or time.monotonic() < t_end:
+            time.sleep(0.1 if t_end is None else max(0.0, min(0.1, t_end - time.monotonic())))
+        print(f"stopped after {server.sim_time:.2f} s simulated ({server.twin.overruns} overruns)",
+              flush=True)
+    finally:
+        server.stop()
+    return 0

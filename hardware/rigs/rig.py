@@ -1,0 +1,385 @@
+"""Rig files: which leaders and followers a setup has, how to reach them, and (for twins) how to simulate
+them.
+
+A rig is a TOML file (built-in ones live next to this module; see docs/twin.md for the format):
+
+    [rig]            name, description, simulated (true: a MuJoCo twin serves the buses)
+    [[leaders]]      driver = "dynamixel", arm, port, + DynamixelLeaderConfig fields, [leaders.limits],
+                     [leaders.twin]
+    [[followers]]    driver = "piper" | "damiao" | "sim", arm, channel, + config fields, next_checkpoint,
+                     [followers.limits], [followers.twin]
+    [[cameras]]      name, source, width, height, fps
+    [twin]           seed, effect ("MODULE:FUNCTION"), [twin.effects] (bool per actuator effect)
+
+load_rig(name_or_path) validates everything up front; every problem is a ConfigError naming the file, the
+field and the fix. Ports and channels of simulated rigs are "twin": open_rig/serve_twin fill in the twin's
+pty paths and virtual CAN channels.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import sys
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from hardware.damiao.config import DamiaoFollowerConfig
+from hardware.dynamixel.config import DynamixelLeaderConfig
+from hardware.errors import ConfigError
+from hardware.piper.config import PiperFollowerConfig
+from hardware.sim.actuators import EFFECT_NAMES, ActuatorParams
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+RIG_DIR = Path(__file__).resolve().parent
+DEFAULT_RIG = "sim-piper"
+TWIN_PLACEHOLDER = "twin"  # port/channel value that the twin replaces with its own pty / virtual channel
+LEADER_DRIVERS = {"dynamixel": DynamixelLeaderConfig}
+FOLLOWER_DRIVERS = {"piper": PiperFollowerConfig, "damiao": DamiaoFollowerConfig, "sim": None}
+LIMIT_FIELDS = ("q_min", "q_max", "v_max", "tau_max", "tau_rate_max", "kp_max", "kd_max")
+DEVICE_KEYS = {"driver", "arm", "name", "limits", "twin", "next_checkpoint"}
+DEVICE_TWIN_KEYS = {"motors", "start_q", "params"}
+TOP_KEYS = {"rig", "leaders", "followers", "cameras", "twin", "pairs"}
+RIG_KEYS = {"name", "description", "simulated"}
+CAMERA_KEYS = {"name": str, "source": str, "width": int, "height": int, "fps": float}
+TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene"}
+
+
+@dataclass
+class DeviceSpec:
+    """One leader or follower of a rig. config: the driver's config dataclass (None for driver "sim")."""
+
+    name: str
+    role: str  # "leader" | "follower"
+    driver: str
+    arm: str
+    config: object | None
+    limits_override: dict[str, np.ndarray] = field(default_factory=dict)
+    next_checkpoint: str | None = None
+    twin_motors: list[str] | None = None
+    twin_start_q: list[float] | None = None
+    twin_params: dict[str, object] = field(default_factory=dict)
+
+    def limits(self):
+        """The arm description's JointLimits with this rig's overrides applied."""
+        from hardware.arms import load_arm
+
+        base = load_arm(self.arm).limits
+        kw = {f: getattr(base, f) for f in LIMIT_FIELDS}
+        for k, v in self.limits_override.items():
+            kw[k] = np.broadcast_to(v, (base.n,)).copy()
+        from hardware.types import JointLimits
+
+        try:
+            return JointLimits(**kw)
+        except ValueError as e:
+            raise ConfigError(str(e), where=f"rig device {self.name} limits",
+                              fix="check the override values") from None
+
+
+@dataclass
+class CameraSpec:
+    name: str
+    source: str  # "/dev/video0", an index, or "sim:<camera name>" for a twin camera
+    width: int = 640
+    height: int = 480
+    fps: float = 30.0
+
+
+@dataclass
+class TwinSpec:
+    """How the twin simulates the rig. effects: actuator effect name -> on/off; effect: undeclared-effect hook
+    "MODULE:FUNCTION" (applied to every follower); physics_hz: MuJoCo step rate (>= 1000); control_hz: rate of
+    the firmware laws, the Python-side effects and the emulators (<= physics_hz, which it must divide)."""
+
+    seed: int = 0
+    effect: str | None = None
+    effects: dict[str, bool] = field(default_factory=dict)
+    physics_hz: float = 1000.0
+    control_hz: float = 1000.0
+    scene: str = "table"
+
+
+@dataclass
+class Rig:
+    name: str
+    path: Path
+    description: str
+    simulated: bool
+    leaders: list[DeviceSpec]
+    followers: list[DeviceSpec]
+    cameras: list[CameraSpec]
+    twin: TwinSpec
+    pairs: list[tuple[str, str]]  # (leader name, follower name)
+
+    def device(self, name: str) -> DeviceSpec:
+        for d in self.leaders + self.followers:
+            if d.name == name:
+                return d
+        raise ConfigError(f"rig {self.name} has no device {name!r}", where=str(self.path),
+                          fix=f"use one of {[d.name for d in self.leaders + self.followers]}")
+
+    def with_endpoints(self, serial_ports: dict[str, str], can_channels: dict[str, str]) -> Rig:
+        """A copy whose "twin" ports/channels point at a running twin (and interface "virtual")."""
+        def fix(d: DeviceSpec) -> DeviceSpec:
+            c = d.config
+            if isinstance(c, DynamixelLeaderConfig) and d.name in serial_ports:
+                c = dataclasses.replace(c, port=serial_ports[d.name])
+            elif isinstance(c, PiperFollowerConfig | DamiaoFollowerConfig) and d.name in can_channels:
+                c = dataclasses.replace(c, channel=can_channels[d.name], interface="virtual")
+            return dataclasses.replace(d, config=c)
+        return dataclasses.replace(self, leaders=[fix(d) for d in self.leaders],
+                                   followers=[fix(d) for d in self.followers])
+
+
+# -- loading ---------------------------------------------------------------------------------------------
+def list_rigs() -> list[str]:
+    """Names of the built-in rigs."""
+    return sorted(p.stem for p in RIG_DIR.glob("*.toml"))
+
+
+def rig_path(name_or_path: str | os.PathLike) -> Path:
+    s = str(name_or_path)
+    p = Path(s).expanduser()
+    if p.suffix == ".toml" or os.sep in s:
+        if not p.is_file():
+            raise ConfigError(f"rig file {s} does not exist", where="--rig", fix="check the path")
+        return p
+    builtin = RIG_DIR / f"{s}.toml"
+    if not builtin.is_file():
+        raise ConfigError(f"unknown rig {s!r}", where="--rig",
+                          fix=f"use one of {', '.join(list_rigs())} or a path to a .toml file")
+    return builtin
+
+
+def load_rig(name_or_path: str | os.PathLike = DEFAULT_RIG) -> Rig:
+    """Parse and validate a rig (built-in name or path). ConfigError on any problem."""
+    path = rig_path(name_or_path)
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"not valid TOML ({e})", where=str(path),
+                          fix="fix the syntax at that line") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"cannot read ({e})", where=str(path), fix="check the file") from None
+    return parse_rig(doc, path)
+
+
+def parse_rig(doc: dict, path: Path) -> Rig:
+    f = str(path)
+    _unknown(doc, TOP_KEYS, f, "")
+    head = _table(doc.get("rig", {}), f, "rig")
+    _unknown(head, RIG_KEYS, f, "rig")
+    name = _typed(head.get("name", path.stem), str, f, "rig.name")
+    simulated = _typed(head.get("simulated", False), bool, f, "rig.simulated")
+    leaders = [_device(d, "leader", i, f, path)
+               for i, d in enumerate(_array(doc.get("leaders", []), f, "leaders"))]
+    followers = [_device(d, "follower", i, f, path)
+                 for i, d in enumerate(_array(doc.get("followers", []), f, "followers"))]
+    if not followers:
+        raise ConfigError("no [[followers]] table", where=f, fix="add at least one follower")
+    names = [d.name for d in leaders + followers]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise ConfigError(f"device names repeat: {sorted(dup)}", where=f,
+                          fix="give every device its own name")
+    cams = [_camera(c, i, f) for i, c in enumerate(_array(doc.get("cameras", []), f, "cameras"))]
+    twin = _twin(doc.get("twin", {}), f)
+    if not simulated:
+        for d in followers:
+            if d.driver == "sim":
+                raise ConfigError(f"follower {d.name} uses driver 'sim' on a rig that is not simulated",
+                                  where=f"{f}: followers.{d.name}.driver",
+                                  fix="set [rig] simulated = true or use driver piper/damiao")
+    pairs = _pairs(doc.get("pairs"), leaders, followers, f)
+    desc = _typed(head.get("description", ""), str, f, "rig.description")
+    return Rig(name=name, path=path, description=desc, simulated=simulated, leaders=leaders,
+               followers=followers, cameras=cams, twin=twin, pairs=pairs)
+
+
+def _device(d, role: str, i: int, f: str, path: Path) -> DeviceSpec:
+    where = f"{role}s[{i}]"
+    d = _table(d, f, where)
+    drivers = LEADER_DRIVERS if role == "leader" else FOLLOWER_DRIVERS
+    driver = _typed(_need(d, "driver", f, where, f"one of {sorted(drivers)}"), str, f, f"{where}.driver")
+    if driver not in drivers:
+        raise ConfigError(f"unknown driver {driver!r}", where=f"{f}: {where}.driver",
+                          fix=f"use one of {sorted(drivers)}")
+    arm = _typed(_need(d, "arm", f, where, "the arm description name, e.g. piper"), str, f, f"{where}.arm")
+    name = _typed(d.get("name", role if i == 0 else f"{role}{i}"), str, f, f"{where}.name")
+    cls = drivers[driver]
+    cfg_fields = {x.name: x for x in dataclasses.fields(cls)} if cls else {}
+    _unknown(d, DEVICE_KEYS | set(cfg_fields), f, where)
+    config = None
+    if cls is not None:
+        hints = typing.get_type_hints(cls)
+        kw = {"arm": arm, "name": name}
+        for k, v in d.items():
+            if k in cfg_fields and k not in ("arm", "name"):
+                kw[k] = _check_type(v, hints[k], f, f"{where}.{k}")
+        missing = [k for k, x in cfg_fields.items() if k not in kw and x.default is dataclasses.MISSING
+                   and x.default_factory is dataclasses.MISSING]
+        if missing:
+            raise ConfigError(f"missing field {missing[0]!r}", where=f"{f}: {where}",
+                              fix=f"add {missing[0]} = ... ({hints[missing[0]]}) to the table")
+        config = cls(**kw)
+    limits = {}
+    for k, v in _table(d.get("limits", {}), f, f"{where}.limits").items():
+        if k not in LIMIT_FIELDS:
+            raise ConfigError(f"unknown limit {k!r}", where=f"{f}: {where}.limits",
+                              fix=f"use one of {', '.join(LIMIT_FIELDS)}")
+        limits[k] = np.asarray(_check_type(v, "float | list[float]", f, f"{where}.limits.{k}"), dtype=float)
+    tw = _table(d.get("twin", {}), f, f"{where}.twin")
+    _unknown(tw, DEVICE_TWIN_KEYS, f, f"{where}.twin")
+    motors = _check_type(tw["motors"], "list[str]", f, f"{where}.twin.motors") if "motors" in tw else None
+    start = _check_type(tw["start_q"], "list[float]", f, f"{where}.twin.start_q") if "start_q" in tw else None
+    params = _table(tw.get("params", {}), f, f"{where}.twin.params")
+    for k, v in params.items():
+        if k not in ActuatorParams.ARRAY_FIELDS:
+            raise ConfigError(f"unknown actuator parameter {k!r}", where=f"{f}: {where}.twin.params",
+                              fix=f"use one of {', '.join(ActuatorParams.ARRAY_FIELDS)}")
+        _check_type(v, "float | list[float]", f, f"{where}.twin.params.{k}")
+    ckpt = d.get("next_checkpoint")
+    if ckpt is not None:
+        ckpt = _typed(ckpt, str, f, f"{where}.next_checkpoint")
+        p = Path(ckpt).expanduser()
+        ckpt = str(p if p.is_absolute() else (path.parent / p))
+    return DeviceSpec(name=name, role=role, driver=driver, arm=arm, config=config, limits_override=limits,
+                      next_checkpoint=ckpt, twin_motors=motors, twin_start_q=start, twin_params=params)
+
+
+def _camera(c, i: int, f: str) -> CameraSpec:
+    where = f"cameras[{i}]"
+    c = _table(c, f, where)
+    _unknown(c, set(CAMERA_KEYS), f, where)
+    kw = {k: _check_type(v, CAMERA_KEYS[k].__name__, f, f"{where}.{k}") for k, v in c.items()}
+    for k in ("name", "source"):
+        _need(c, k, f, where, "a string")
+    return CameraSpec(**kw)
+
+
+def _twin(t, f: str) -> TwinSpec:
+    t = _table(t, f, "twin")
+    _unknown(t, TWIN_KEYS, f, "twin")
+    effects = _table(t.get("effects", {}), f, "twin.effects")
+    for k, v in effects.items():
+        if k not in EFFECT_NAMES:
+            raise ConfigError(f"unknown effect {k!r}", where=f"{f}: twin.effects",
+                              fix=f"use one of {', '.join(EFFECT_NAMES)}")
+        _typed(v, bool, f, f"twin.effects.{k}")
+    hz = float(_check_type(t.get("physics_hz", 1000.0), "float", f, "twin.physics_hz"))
+    if hz < 1000.0:
+        raise ConfigError(f"physics_hz {hz:g} is below 1000", where=f"{f}: twin.physics_hz",
+                          fix="use 1000 or more (the firmware laws run at the physics rate)")
+    chz = float(_check_type(t.get("control_hz", min(hz, 1000.0)), "float", f, "twin.control_hz"))
+    k = hz / chz if chz > 0 else 0.0
+    if chz <= 0 or chz > hz or abs(k - round(k)) > 1e-9:
+        raise ConfigError(f"control_hz {chz:g} does not divide physics_hz {hz:g}",
+                          where=f"{f}: twin.control_hz",
+                          fix="use physics_hz / k for a whole k >= 1, e.g. 1000 or 500")
+    eff = t.get("effect")
+    return TwinSpec(seed=_typed(t.get("seed", 0), int, f, "twin.seed"),
+                    effect=None if eff is None else _typed(eff, str, f, "twin.effect"),
+                    effects=dict(effects), physics_hz=hz, control_hz=chz,
+                    scene=_typed(t.get("scene", "table"), str, f, "twin.scene"))
+
+
+def _pairs(raw, leaders, followers, f: str) -> list[tuple[str, str]]:
+    if raw is None:
+        return [(a.name, b.name) for a, b in zip(leaders, followers)]
+    out = []
+    names_l, names_f = {d.name for d in leaders}, {d.name for d in followers}
+    for i, p in enumerate(_array(raw, f, "pairs")):
+        p = _table(p, f, f"pairs[{i}]")
+        _unknown(p, {"leader", "follower"}, f, f"pairs[{i}]")
+        a, b = p.get("leader"), p.get("follower")
+        if a not in names_l or b not in names_f:
+            raise ConfigError(f"pair {a!r} -> {b!r} names an unknown device", where=f"{f}: pairs[{i}]",
+                              fix=f"leaders: {sorted(names_l)}, followers: {sorted(names_f)}")
+        out.append((a, b))
+    return out
+
+
+# -- small validators --------------------------------------------------------------------------------------
+def _unknown(d: dict, allowed: set, f: str, where: str) -> None:
+    for k in d:
+        if k not in allowed:
+            raise ConfigError(f"unknown key {k!r}", where=f"{f}: {where or 'top level'}",
+                              fix=f"remove it or use one of {', '.join(sorted(allowed))}")
+
+
+def _need(d: dict, key: str, f: str, where: str, what: str):
+    if key not in d:
+        raise ConfigError(f"missing field {key!r}", where=f"{f}: {where}", fix=f"add {key} = ... ({what})")
+    return d[key]
+
+
+def _table(v, f: str, where: str) -> dict:
+    if not isinstance(v, dict):
+        raise ConfigError(f"expected a table, got {type(v).__name__}", where=f"{f}: {where}",
+                          fix=f"write it as [{where}] or {{ key = value }}")
+    return v
+
+
+def _array(v, f: str, where: str) -> list:
+    if not isinstance(v, list):
+        raise ConfigError(f"expected an array of tables, got {type(v).__name__}", where=f"{f}: {where}",
+                          fix=f"write each entry as [[{where}]]")
+    return v
+
+
+def _typed(v, typ: type, f: str, where: str):
+    ok = isinstance(v, typ) and not (typ is int and isinstance(v, bool))
+    if typ is float and isinstance(v, int) and not isinstance(v, bool):
+        return float(v)
+    if not ok:
+        raise ConfigError(f"expected {typ.__name__}, got {type(v).__name__} {v!r}", where=f"{f}: {where}",
+                          fix=f"write a {typ.__name__}")
+    return v
+
+
+def _matches(v, t: str) -> bool:
+    t = t.strip()
+    if "|" in t and not t.startswith("list["):
+        return any(_matches(v, part) for part in t.split("|"))
+    if t == "None":
+        return v is None
+    if t.startswith("list[") and t.endswith("]"):
+        return isinstance(v, list) and all(_matches(x, t[5:-1]) for x in v)
+    if t == "dict":
+        return isinstance(v, dict)
+    scalar = {"str": str, "int": int, "float": (int, float), "bool": bool}.get(t)
+    if scalar is None:
+        return True
+    return isinstance(v, scalar) and (t == "bool" or not isinstance(v, bool))
+
+
+def _check_type(v, hint, f: str, where: str):
+    """Check a TOML value against a config field's annotation (str, int, float, bool, list[...], unions)."""
+    t = hint if isinstance(hint, str) else _hint_str(hint)
+    if not _matches(v, t):
+        raise ConfigError(f"expected {t}, got {type(v).__name__} {v!r}", where=f"{f}: {where}",
+                          fix=f"write a value of type {t}")
+    if t == "float" and isinstance(v, int):
+        return float(v)
+    return v
+
+
+def _hint_str(h) -> str:
+    origin, args = typing.get_origin(h), typing.get_args(h)
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        return " | ".join(_hint_str(a) for a in args)
+    if origin is list:
+        return f"list[{_hint_str(args[0])}]" if args else "list[str]"
+    if origin is dict or h is dict:
+        return "dict"
+    if h is type(None):
+        return "None"
+    return getattr(h, "__name__", str(h))

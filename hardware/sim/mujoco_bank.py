@@ -1,0 +1,323 @@
+"""MotorBank on a MuJoCo model: firmware control laws + actuator effects + rigid-body physics, no gravcomp.
+
+A MujocoWorld (hardware/sim/world.py) owns the MjModel/MjData; each control tick (1 ms by default) every
+bank computes its motor torques from the current command modes and writes them, minus the drive's internal
+loads (friction, ripple, the undeclared hook), into qfrc_applied; the firmware's damping and friction's
+slope go into dof_damping so MuJoCo integrates them implicitly; then mj_step. Gravity is never compensated
+inside the sim: the motors carry it. read() returns what the firmware reports (motor-side position after
+backlash, noisy velocity, quantised noisy current, tau_m = K * current). Ground truth lives in world.py.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import mujoco
+import numpy as np
+
+from hardware.sim import actuators as act
+from hardware.sim.motors import MODE_CURRENT, MODE_DISABLED, MODE_MIT, MODE_POSITION, MotorReading
+
+if TYPE_CHECKING:
+    from hardware.sim.world import MujocoWorld
+
+BRAKE_KP = 2000.0  # N*m/rad: holding brake of a disabled joint (arms with brakes only)
+BRAKE_KD = 50.0  # N*m*s/rad
+NOISE_BLOCK = 1024  # physics steps per block of pre-drawn sensor noise
+THERMAL_EVERY = 10  # physics steps between winding-temperature updates
+
+_ONE_DOF_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
+HookFn = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
+
+
+def _as_slice(idx: np.ndarray):
+    """A slice when the indices are consecutive (cheap numpy views), else the index array."""
+    if idx.size and np.all(np.diff(idx) == 1):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
+
+
+class MujocoBank:
+    """Motors on `joints` (names of 1-dof hinge/slide joints) of a MujocoWorld. Implements MotorBank."""
+
+    def __init__(self, world: MujocoWorld, joints: list[str], params: act.ActuatorParams, *,
+                 name: str = "bank", seed: int = 0, hook: HookFn | None = None):
+        m = world.model
+        self.world, self.name, self.n = world, name, len(joints)
+        ids = []
+        for j in joints:
+            jid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j)
+            if jid < 0:
+                raise ValueError(f"bank {name}: no joint {j!r} in the MuJoCo model")
+            if int(m.jnt_type[jid]) not in _ONE_DOF_JOINTS:
+                raise ValueError(f"bank {name}: joint {j!r} is not a hinge or slide joint")
+            ids.append(jid)
+        self.joint_names = list(joints)
+        self.qadr = np.array([m.jnt_qposadr[j] for j in ids])
+        self.dadr = np.array([m.jnt_dofadr[j] for j in ids])
+        self.p = params.sized(self.n)
+        self.torque_constant = self.p.kt.copy()
+        # The arm's MJCF gives armature / Coulomb / viscous unless the params override them; from here on the
+        # bank's friction model is the only friction on these joints, and MJCF actuators on them are inert.
+        from_model = (("armature", m.dof_armature), ("coulomb", m.dof_frictionloss),
+                      ("viscous", m.dof_damping))
+        for fld, src in from_model:
+            v = getattr(self.p, fld)
+            v[:] = np.where(np.isnan(v), src[self.dadr], v)
+        m.dof_armature[self.dadr] = self.p.armature
+        # Drive current limit: NaN -> the joint's actuatorfrcrange (the arm's tau_max) / kt.
+        frc = np.where(m.jnt_actfrclimited[ids] > 0, np.abs(m.jnt_actfrcrange[ids]).max(axis=1), 1e3)
+        self.p.i_max[:] = np.where(np.isnan(self.p.i_max), frc / self.p.kt, self.p.i_max)
+        m.dof_frictionloss[self.dadr] = 0.0
+        m.dof_damping[self.dadr] = 0.0
+        for a in range(m.nu):
+            if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and m.actuator_trnid[a, 0] in ids:
+                m.actuator_gainprm[a, :] = 0.0
+                m.actuator_biasprm[a, :] = 0.0
+        self.seed = int(seed)
+        self.hook = hook
+        self.hook_n = self.n  # the hook sees and loads the first hook_n joints (the arm, not the gripper)
+        self.hook_errors = 0
+        self.hook_last_error: str | None = None
+        d = world.data
+        q0 = d.qpos[self.qadr].copy()
+        self.mode = np.full(self.n, MODE_DISABLED, dtype=int)
+        self._masks()
+        self.q_goal, self.q_set, self.integ = q0.copy(), q0.copy(), np.zeros(self.n)
+        self.q_d, self.v_d = q0.copy(), np.zeros(self.n)
+        self.kp, self.kd, self.tau_ff = np.zeros(self.n), np.zeros(self.n), np.zeros(self.n)
+        self.i_cmd = np.zeros(self.n)
+        self.q_brake = q0.copy()
+        self.theta = q0.copy()  # motor-side (encoder) position [rad]
+        self.temp = np.full(self.n, float(self.p.ambient))
+        self.tau_ripple = np.zeros(self.n)  # position-periodic load [N*m]
+        self.tau_hook = np.zeros(self.n)  # undeclared-effect load [N*m]
+        self._fric = (np.zeros(self.n), np.zeros(self.n))
+        self.tau_e, self.kd_eff = np.zeros(self.n), np.zeros(self.n)  # firmware torque split (see _apply)
+        self.tau_hand = np.zeros(self.n)  # operator's hand on the joints (external) [N*m]
+        self.vel_scale = np.ones(self.n)  # firmware speed setting (0..1] scaling pos_vel_max
+        # per-step constants (the hot loop avoids fancy indexing and recomputation)
+        self.qsl, self.dsl = _as_slice(self.qadr), _as_slice(self.dadr)
+        self._zeros = np.zeros(self.n)
+        self._half_play = 0.5 * self.p.backlash
+        self._has_play = bool(np.any(self.p.backlash > 0))
+        self._inv_kt = 1.0 / self.p.kt
+        self._tau_lim = self.p.i_max * self.p.kt
+        self._neg_tau_lim = -self._tau_lim
+        self._neg_i_max = -self.p.pos_i_max
+        self._has_ki = bool(np.any(self.p.pos_ki > 0))
+        self._has_ripple = bool(np.any(self.p.ripple_amp != 0))
+        self._fric_k = act.friction_constants(self.p)
+        self._kt_scale = np.ones(self.n)
+        self.set_control_dt(world.dt)
+        self._thermal_count = 0
+        self._pos_lsb_on = bool(np.any(self.p.position_lsb > 0))
+        self._cur_lsb_on = bool(np.any(self.p.current_lsb > 0))
+        self._cur_lsb_all = bool(np.all(self.p.current_lsb > 0))
+        self._cur_lsb = self.p.current_lsb.copy()
+        self._inv_cur_lsb = 1.0 / np.where(self._cur_lsb > 0, self._cur_lsb, 1.0)
+        self._noise_buf, self._noise_block = np.zeros((NOISE_BLOCK, 2, self.n)), -1
+
+    # -- MotorBank ---------------------------------------------------------------------------------------
+    def read(self) -> MotorReading:
+        p, ef = self.p, self.p.effects
+        with self.world.lock:
+            d = self.world.data
+            q, v = d.qpos[self.qsl], d.qvel[self.dsl]
+            if ef.backlash and self._has_play:
+                theta = np.minimum(np.maximum(self.theta, q - self._half_play), q + self._half_play)
+            else:
+                theta = q.copy()
+            if ef.quantisation and self._pos_lsb_on:
+                theta = act.quantise(theta, p.position_lsb)
+            cur = self.current
+            if ef.velocity_noise or ef.current_noise:
+                z = self._noise()
+                if ef.velocity_noise:
+                    v = v + p.velocity_noise * z[0]
+                if ef.current_noise:
+                    cur = cur + p.current_noise * z[1]
+            if ef.quantisation and self._cur_lsb_on:
+                cur = np.rint(cur * self._inv_cur_lsb) * self._cur_lsb if self._cur_lsb_all \
+                    else act.quantise(cur, p.current_lsb)
+            return MotorReading(t=float(d.time), q=theta, q_dot=np.array(v), current=cur, tau_m=p.kt * cur,
+                                temperature=self.temp.copy(), enabled=self.mode != MODE_DISABLED)
+
+    def _noise(self) -> np.ndarray:
+        """Two standard-normal rows (velocity, current) for the current physics step. A function of (seed,
+        step) only, so every read within a step agrees and the values do not depend on how often or from
+        which thread the emulators read (lockstep runs stay deterministic)."""
+        k = self.world.steps
+        block, i = divmod(k, NOISE_BLOCK)
+        if block != self._noise_block:
+            rng = np.random.default_rng([self.seed, block])
+            self._noise_buf, self._noise_block = rng.standard_normal((NOISE_BLOCK, 2, self.n)), block
+        return self._noise_buf[i]
+
+    def command_position(self, idx, q) -> None:
+        with self.world.lock:
+            idx = np.atleast_1d(np.asarray(idx, dtype=int))
+            fresh = idx[self.mode[idx] != MODE_POSITION]
+            self.q_set[fresh], self.integ[fresh] = self.theta[fresh], 0.0  # bumpless switch
+            self.mode[idx], self.q_goal[idx] = MODE_POSITION, q
+            self._masks()
+
+    def command_mit(self, idx, q, v, kp, kd, tau_ff) -> None:
+        with self.world.lock:
+            idx = np.atleast_1d(np.asarray(idx, dtype=int))
+            self.mode[idx] = MODE_MIT
+            self.q_d[idx], self.v_d[idx], self.kp[idx], self.kd[idx], self.tau_ff[idx] = q, v, kp, kd, tau_ff
+            self._masks()
+
+    def command_current(self, idx, current_a) -> None:
+        with self.world.lock:
+            idx = np.atleast_1d(np.asarray(idx, dtype=int))
+            self.mode[idx], self.i_cmd[idx] = MODE_CURRENT, current_a
+            self._masks()
+
+    def enable(self, idx, on: bool) -> None:
+        """on: disabled joints start holding their current position; off: torque off (brake if fitted)."""
+        with self.world.lock:
+            idx = np.atleast_1d(np.asarray(idx, dtype=int))
+            if on:
+                off = idx[self.mode[idx] == MODE_DISABLED]
+                self.q_goal[off] = self.q_set[off] = self.theta[off]
+                self.integ[off] = 0.0
+                self.mode[off] = MODE_POSITION
+            else:
+                self.mode[idx] = MODE_DISABLED
+                self.q_brake[idx] = self.world.data.qpos[self.qadr[idx]]
+            self._masks()
+
+    def set_speed(self, idx, fraction: float) -> None:
+        """Firmware speed setting (Piper 0x151 speed %): scales the position loop's target ramp."""
+        with self.world.lock:
+            self.vel_scale[np.asarray(idx, dtype=int)] = float(np.clip(fraction, 0.01, 1.0))
+            self.set_control_dt(self._ctrl_dt)
+
+    def set_control_dt(self, dt: float) -> None:
+        """Period of the firmware law [s] (= the physics step unless the twin decimates control)."""
+        self._ctrl_dt = float(dt)
+        self._ramp_step = self.p.pos_vel_max * self.vel_scale * dt
+        self._ki_dt = self.p.pos_ki * dt
+
+    # -- stepping (called by MujocoWorld with its lock held) --------------------------------------------
+    def _masks(self) -> None:
+        m = self.mode
+        self._pos, self._mit, self._cur = m == MODE_POSITION, m == MODE_MIT, m == MODE_CURRENT
+        self._off = m == MODE_DISABLED
+        self._any = tuple(bool(x.any()) for x in (self._pos, self._mit, self._cur, self._off))
+        self._uniform = bool(np.all(m == m[0]))
+
+    def _apply(self, t: float, dt: float) -> None:
+        """Compute this control tick's motor torques and write them into the world.
+
+        The firmware law is split as tau = tau_e - kd_eff * v: the stiffness/feed-forward part tau_e is held
+        over the tick, the damping kd_eff (with the friction slope) goes into dof_damping so MuJoCo
+        integrates it implicitly -- stable for any MIT kd the safety layer allows. A joint whose torque would
+        exceed the drive limit is saturated explicitly instead (kd_eff = 0 there)."""
+        p, ef, d = self.p, self.p.effects, self.world.data
+        q, v = d.qpos[self.qsl], d.qvel[self.dsl]
+        if ef.backlash and self._has_play:
+            self.theta = th = np.minimum(np.maximum(self.theta, q - self._half_play), q + self._half_play)
+        else:
+            self.theta = th = q
+        any_pos, any_mit, any_cur, any_off = self._any
+        tau_e, kd = self._zeros, self._zeros
+        if any_pos:
+            self.q_set = self.q_set + np.minimum(np.maximum(self.q_goal - self.q_set, -self._ramp_step),
+                                                 self._ramp_step)
+            err = self.q_set - th
+            tau_e = p.pos_kp * err
+            if self._has_ki:
+                integ = np.minimum(np.maximum(self.integ + self._ki_dt * err, self._neg_i_max), p.pos_i_max)
+                self.integ = integ if self._uniform else np.where(self._pos, integ, 0.0)
+                tau_e = tau_e + self.integ
+            kd = p.pos_kd
+            if not self._uniform:
+                tau_e, kd = np.where(self._pos, tau_e, 0.0), np.where(self._pos, kd, 0.0)
+        if any_mit:
+            tm = self.kp * (self.q_d - th) + self.kd * self.v_d + self.tau_ff
+            tau_e, kd = (tm, self.kd) if self._uniform else (np.where(self._mit, tm, tau_e),
+                                                             np.where(self._mit, self.kd, kd))
+        if any_cur:
+            tc = self.i_cmd * p.kt
+            tau_e, kd = (tc, self._zeros) if self._uniform else (np.where(self._cur, tc, tau_e),
+                                                                 np.where(self._cur, 0.0, kd))
+        if ef.saturation:
+            est = tau_e - kd * v
+            lim = np.minimum(np.maximum(est, self._neg_tau_lim), self._tau_lim)
+            sat = lim != est
+            if sat.any():
+                tau_e, kd = np.where(sat, lim, tau_e), np.where(sat, 0.0, kd)
+        self.tau_e, self.kd_eff = tau_e, kd
+        ks = self._kt_scale
+        net = ks * tau_e + self.tau_hand
+        if ef.ripple and self._has_ripple:
+            self.tau_ripple = p.ripple_amp * np.sin(p.ripple_cycles * q + p.ripple_phase)
+            net = net - self.tau_ripple
+        if self.hook is not None:
+            self.tau_hook = self._call_hook(t, q, v)
+            net = net - self.tau_hook
+        damp, f0 = act.linearised_friction(v, p, self._fric_k)
+        self._fric = (damp, f0)
+        net = net - f0
+        damp = damp + ks * kd
+        if p.brake and any_off:
+            net = net - np.where(self._off, BRAKE_KP * (q - self.q_brake), 0.0)
+            damp = damp + np.where(self._off, BRAKE_KD, 0.0)
+        d.qfrc_applied[self.dsl] = net
+        self.world.model.dof_damping[self.dsl] = damp
+
+    @property
+    def tau_cmd(self) -> np.ndarray:
+        """Torque the firmware asks of the motor now [N*m] (implicit damping at the current velocity)."""
+        return self.tau_e - self.kd_eff * self.world.data.qvel[self.dsl]
+
+    @property
+    def current(self) -> np.ndarray:
+        """True winding current [A]."""
+        return self.tau_cmd * self._inv_kt
+
+    @property
+    def tau_act(self) -> np.ndarray:
+        """Torque the rotors make [N*m] (the torque constant drifts with temperature)."""
+        return self._kt_scale * self.tau_cmd
+
+    def _after_step(self, dt: float) -> None:
+        if self.p.effects.thermal:
+            self._thermal_count += 1
+            if self._thermal_count >= THERMAL_EVERY:  # exact discretisation: slow state, updated at 100 Hz
+                self.temp = act.thermal_step(self.temp, self.current, self.p.winding_ohm, self.p.thermal_res,
+                                             self.p.thermal_tau, self.p.ambient, dt * self._thermal_count)
+                self._thermal_count = 0
+                if self.p.effects.kt_temperature:
+                    self._kt_scale = act.kt_scale(self.temp, self.p.kt_temp_coeff)
+
+    @property
+    def tau_friction(self) -> np.ndarray:
+        """Friction load of the last step [N*m] (at its end velocity, as the implicit integrator used)."""
+        damp, f0 = self._fric
+        return f0 + damp * self.world.data.qvel[self.dsl]
+
+    @property
+    def tau_load(self) -> np.ndarray:
+        """Ripple + hook load of the last step [N*m]."""
+        return self.tau_ripple + self.tau_hook
+
+    def _call_hook(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        k = self.hook_n
+        try:
+            tau = np.asarray(self.hook(t, q[:k].copy(), v[:k].copy()), dtype=float).reshape(-1)
+            if tau.shape == (k,) and np.all(np.isfinite(tau)):
+                return tau if k == self.n else np.concatenate([tau, np.zeros(self.n - k)])
+            self.hook_last_error = f"returned shape {tau.shape} or non-finite values"
+        except Exception as e:  # a broken effect must not stop the physics; counted and shown
+            self.hook_last_error = f"{type(e).__name__}: {e}"
+        self.hook_errors += 1
+        return np.zeros(self.n)
+
+    def true_state(self) -> tuple[np.ndarray, np.ndarray]:
+        d = self.world.data
+        return d.qpos[self.qadr].copy(), d.qvel[self.dadr].copy()

@@ -1,0 +1,257 @@
+"""Public entry points: serve a rig's twin on its wire protocols, or open a rig with its drivers connected.
+
+    from hardware.sim import serve_twin, open_rig
+    twin = serve_twin("sim-piper", effect=None)     # real time, in this process (SIMULATED hardware)
+    twin.can_channels   # {"follower": "<virtual channel>"}   python-can interface "virtual"
+    twin.serial_ports   # {"leader": "/dev/pts/N"}            Dynamixel Protocol 2.0
+    twin.ground_truth() # {"follower": GroundTruth, ...}
+    twin.stop()
+
+    with open_rig("sim-piper", clock="lockstep") as s:   # twin + real drivers, lockstep clock
+        s.followers["follower"].command(...); s.clock.sleep(0.002)
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+
+from hardware.clock import Clock, LockstepClock
+from hardware.errors import ConfigError
+from hardware.rigs.rig import Rig, load_rig
+from hardware.roles import Follower, Leader, WatchdogThread
+from hardware.sim.twin import Twin
+
+
+class TwinServer:
+    """A twin running in real time in this process (returned by serve_twin)."""
+
+    def __init__(self, twin: Twin):
+        self.twin = twin
+
+    @property
+    def rig(self) -> Rig:
+        return self.twin.rig
+
+    @property
+    def can_channels(self) -> dict[str, str]:
+        """Device name -> python-can virtual channel (open with interface="virtual")."""
+        return self.twin.can_channels
+
+    @property
+    def serial_ports(self) -> dict[str, str]:
+        """Device name -> pseudo-terminal path (use like /dev/ttyUSB0)."""
+        return self.twin.serial_ports
+
+    def ground_truth(self):
+        return self.twin.ground_truth()
+
+    def push(self, link: str, force, duration_s: float, follower: str | None = None) -> None:
+        self.twin.push(link, force, duration_s, follower)
+
+    def apply_leader_hand_torque(self, tau, leader: str | None = None) -> None:
+        self.twin.apply_leader_hand_torque(tau, leader)
+
+    @property
+    def sim_time(self) -> float:
+        return self.twin.t
+
+    def stop(self) -> None:
+        self.twin.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+        return False
+
+
+def _as_rig(rig: str | os.PathLike | Rig) -> Rig:
+    return rig if isinstance(rig, Rig) else load_rig(rig)
+
+
+def serve_twin(rig: str | os.PathLike | Rig = "sim-piper", effect=None,
+               seed: int | None = None) -> TwinServer:
+    """Start a rig's twin in real time in the current process. effect: "MODULE:FUNCTION" or a callable
+    f(t, q, q_dot) -> tau [N*m] (undeclared effect on the followers). ConfigError for a non-simulated rig."""
+    r = _as_rig(rig)
+    if not r.simulated:
+        raise ConfigError(f"rig {r.name} is real hardware, there is no twin to serve", where=str(r.path),
+                          fix="use a sim-* rig (factr2 twin --rig sim-piper)")
+    twin = Twin(r, effect=effect, seed=seed)
+    twin.start_realtime()
+    return TwinServer(twin)
+
+
+@dataclass
+class RigSession:
+    """A rig's devices, connected through their real drivers (and its twin when simulated).
+
+    leaders / followers: name -> driver (hardware.roles Leader / Follower); pairs: (leader, follower) driver
+    pairs in the rig's pairing; clock: the session clock (LockstepClock or Clock); twin: the Twin or None;
+    simulated: True when the devices are the twin's."""
+
+    rig: Rig
+    clock: Clock
+    twin: Twin | None
+    leaders: dict[str, Leader] = field(default_factory=dict)
+    followers: dict[str, Follower] = field(default_factory=dict)
+    cameras: dict = field(default_factory=dict)  # name -> hardware.cameras Camera (not connected)
+    watchdog: WatchdogThread | None = None
+
+    @property
+    def simulated(self) -> bool:
+        return self.twin is not None
+
+    @property
+    def pairs(self) -> list[tuple[Leader, Follower]]:
+        return [(self.leaders[a], self.followers[b]) for a, b in self.rig.pairs
+                if a in self.leaders and b in self.followers]
+
+    @property
+    def leader(self) -> Leader:
+        return next(iter(self.leaders.values()))
+
+    @property
+    def follower(self) -> Follower:
+        return next(iter(self.followers.values()))
+
+    def ground_truth(self):
+        """SIMULATED ground truth per device (None on real hardware)."""
+        return self.twin.ground_truth() if self.twin else None
+
+    def close(self) -> None:
+        if self.watchdog is not None:
+            self.watchdog.stop()
+        for cam in self.cameras.values():
+            try:
+                cam.disconnect()
+            except Exception:  # closing must reach every device and the twin
+                pass
+        for d in list(self.followers.values()) + list(self.leaders.values()):
+            try:
+                d.disconnect()
+            except Exception:  # closing must reach every device and the twin
+                pass
+        if self.twin is not None:
+            self.twin.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+
+def make_driver(spec, clock: Clock, twin: Twin | None = None):
+    """The driver object for one rig device (not connected)."""
+    limits = spec.limits()
+    if spec.driver == "dynamixel":
+        from hardware.dynamixel.leader import DynamixelLeader
+        return DynamixelLeader(spec.config, limits, clock=clock)
+    if spec.driver == "piper":
+        from hardware.piper.follower import PiperFollower
+        return PiperFollower(spec.config, limits, clock=clock)
+    if spec.driver == "damiao":
+        from hardware.damiao.follower import DamiaoFollower
+        return DamiaoFollower(spec.config, limits, clock=clock)
+    if spec.driver == "sim":
+        if twin is None:
+            raise ConfigError(f"device {spec.name} has driver 'sim' but no twin runs",
+                              where=f"rig {spec.name}", fix="use a simulated rig")
+        from hardware.sim.direct import BankFollower
+        return BankFollower(spec.name, twin.bank(spec.name), limits, clock=clock)
+    raise ConfigError(f"unknown driver {spec.driver!r}", where=f"rig device {spec.name}",
+                      fix="use piper, damiao, dynamixel or sim")
+
+
+def make_cameras(rig: Rig, twin: Twin | None, clock: Clock) -> dict:
+    """Camera objects (not connected) for the rig's [[cameras]]: "sim:<camera>" (or "sim:<device>:<camera>")
+    renders an MJCF camera of a twin world (the first follower's by default); anything else is an OpenCV
+    device path or index."""
+    out = {}
+    for c in rig.cameras:
+        if c.source.startswith("sim:"):
+            from hardware.cameras.mujoco_camera import MujocoCameraConfig
+
+            if twin is None:
+                raise ConfigError(f"camera {c.name} renders the twin ({c.source}) on a real-hardware rig",
+                                  where=f"{rig.path}: cameras", fix="use a device path, e.g. /dev/video0")
+            dev, _, cam = c.source[4:].rpartition(":")
+            dev = dev or rig.followers[0].name
+            if dev not in twin.devices:
+                raise ConfigError(f"camera {c.name}: no twin device {dev!r}", where=f"{rig.path}: cameras",
+                                  fix=f"use one of {sorted(twin.devices)}")
+            world = twin.devices[dev].world
+            cfg = MujocoCameraConfig(name=c.name, width=c.width, height=c.height, fps=c.fps, camera=cam)
+            out[c.name] = _twin_camera(cfg, world, clock)
+        else:
+            from hardware.cameras.opencv_camera import OpenCVCamera, OpenCVCameraConfig
+
+            out[c.name] = OpenCVCamera(OpenCVCameraConfig(name=c.name, width=c.width, height=c.height,
+                                                          fps=c.fps, device=c.source), clock)
+    return out
+
+
+def _twin_camera(config, world, clock):
+    """A MujocoCamera on a twin world (the camera module is imported only when a rig has cameras)."""
+    from hardware.cameras.mujoco_camera import MujocoCamera
+
+    class TwinCamera(MujocoCamera):
+        """A MuJoCo camera rendering under the world's lock (safe against the real-time stepping thread)."""
+
+        def __init__(self, config, world, clock):
+            super().__init__(config, world.model, world.data, clock)
+            self._world_lock = world.lock
+
+        def _grab(self):
+            with self._world_lock:
+                return super()._grab()
+
+    return TwinCamera(config, world, clock)
+
+
+def open_rig(rig: str | os.PathLike | Rig = "sim-piper", clock: str = "lockstep", effect=None,
+             seed: int | None = None, connect: bool = True) -> RigSession:
+    """Build a rig's session. Simulated rigs get a Twin: clock="lockstep" (deterministic; the loop's
+    clock.sleep advances physics) or "realtime" (a thread steps physics to wall time). Real rigs need
+    clock="realtime". connect: connect every driver (leaders first). Cameras are built, not connected
+    (session.cameras[name].connect(); twin cameras need OpenGL). ConfigError on bad input."""
+    r = _as_rig(rig)
+    if clock not in ("lockstep", "realtime"):
+        raise ConfigError(f"unknown clock {clock!r}", where="open_rig", fix="use 'lockstep' or 'realtime'")
+    twin = None
+    if r.simulated:
+        twin = Twin(r, effect=effect, seed=seed)
+        r = r.with_endpoints(twin.serial_ports, twin.can_channels)
+    elif clock == "lockstep":
+        raise ConfigError(f"rig {r.name} is real hardware: it cannot run in lockstep", where=str(r.path),
+                          fix="use clock='realtime'")
+    elif effect is not None:
+        raise ConfigError("a twin effect needs a simulated rig", where="--twin-effect", fix="use a sim-* rig")
+    clk: Clock = LockstepClock() if clock == "lockstep" else Clock()
+    session = RigSession(rig=r, clock=clk, twin=twin)
+    try:
+        if twin is not None:
+            if clock == "lockstep":
+                twin.attach(clk)
+            else:
+                twin.start_realtime()
+        for spec in r.leaders:
+            session.leaders[spec.name] = make_driver(spec, clk, twin)
+        for spec in r.followers:
+            session.followers[spec.name] = make_driver(spec, clk, twin)
+        session.cameras = make_cameras(r, twin, clk)
+        if connect:
+            for d in list(session.leaders.values()) + list(session.followers.values()):
+                d.connect()
+            if clock == "realtime":
+                devices = list(session.leaders.values()) + list(session.followers.values())
+                session.watchdog = WatchdogThread(devices)
+                session.watchdog.start()
+    except BaseException:
+        session.close()
+        raise
+    return session
