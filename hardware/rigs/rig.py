@@ -46,7 +46,7 @@ FOLLOWER_DRIVERS = {"piper": PiperFollowerConfig, "damiao": DamiaoFollowerConfig
 LIMIT_FIELDS = ("q_min", "q_max", "v_max", "tau_max", "tau_rate_max", "kp_max", "kd_max")
 DEVICE_KEYS = {"driver", "arm", "name", "limits", "twin", "next_checkpoint"}
 DEVICE_TWIN_KEYS = {"motors", "start_q", "params"}
-TOP_KEYS = {"rig", "leaders", "followers", "cameras", "twin", "pairs"}
+TOP_KEYS = {"rig", "leaders", "followers", "cameras", "twin", "pairs", "teleop"}
 RIG_KEYS = {"name", "description", "simulated"}
 CAMERA_KEYS = {"name": str, "source": str, "width": int, "height": int, "fps": float}
 TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene"}
@@ -118,6 +118,9 @@ class Rig:
     cameras: list[CameraSpec]
     twin: TwinSpec
     pairs: list[tuple[str, str]]  # (leader name, follower name)
+    # [teleop] table, raw: leader law gains, mapping, soft start (factr2_teleop.teleop.PairConfig.from_dict
+    # validates it; the hardware layer does not know the teleop schema)
+    teleop: dict = field(default_factory=dict)
 
     def device(self, name: str) -> DeviceSpec:
         for d in self.leaders + self.followers:
@@ -200,8 +203,9 @@ def parse_rig(doc: dict, path: Path) -> Rig:
                                   fix="set [rig] simulated = true or use driver piper/damiao")
     pairs = _pairs(doc.get("pairs"), leaders, followers, f)
     desc = _typed(head.get("description", ""), str, f, "rig.description")
+    teleop = _table(doc.get("teleop", {}), f, "teleop")
     return Rig(name=name, path=path, description=desc, simulated=simulated, leaders=leaders,
-               followers=followers, cameras=cams, twin=twin, pairs=pairs)
+               followers=followers, cameras=cams, twin=twin, pairs=pairs, teleop=teleop)
 
 
 def _device(d, role: str, i: int, f: str, path: Path) -> DeviceSpec:
