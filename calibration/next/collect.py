@@ -1,0 +1,119 @@
+"""Collect NEXT's free-motion data on a rig: move to the start pose, replay a coverage trajectory, record.
+
+    run = collect_free_motion(session, "follower", trajectory, progress=callback)
+    save_plain_log("free.npz", **run.arrays())
+
+The follower is commanded through its driver (and so through the safety layer) at the trajectory's rate;
+every tick the state is read back and logged (t, q, qd, q_cmd, tau_m, current). On a twin the simulated
+ground truth (tau_ext_true, contact) is logged too and marked simulated in the log.
+
+Unexpected contact guard: the rigid-body residual r = tau_m - (M qdd_ref + C qd + g) with the trajectory's
+own acceleration qdd_ref (no differentiation); when |r_j| exceeds `contact_frac` x tau_max_j for
+`contact_ticks` ticks in a row the follower is put on hold and the run stops (ContactStop). It is a coarse
+guard against hitting something, not a force estimate: unmodelled friction sits below the threshold.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from calibration.trajectories import Trajectory, ruckig_move
+from hardware.errors import DeviceError
+from hardware.types import FollowerCommand
+
+
+class ContactStop(DeviceError):
+    """The arm met something during free-motion calibration; it is holding position."""
+
+
+@dataclass
+class CollectedRun:
+    t: list = field(default_factory=list)
+    q: list = field(default_factory=list)
+    qd: list = field(default_factory=list)
+    q_cmd: list = field(default_factory=list)
+    tau_m: list = field(default_factory=list)
+    current: list = field(default_factory=list)
+    tau_ext_true: list = field(default_factory=list)
+    contact: list = field(default_factory=list)
+    joint_names: list[str] = field(default_factory=list)
+    stopped: str = ""
+    wall_s: float = 0.0
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Keyword arrays for hardware.recording.plain_log.save_plain_log."""
+        out = {k: np.asarray(getattr(self, k), float) for k in ("t", "q", "qd", "q_cmd", "tau_m", "current")}
+        if self.tau_ext_true:
+            out["tau_ext_true"] = np.asarray(self.tau_ext_true, float)
+            out["contact"] = np.asarray(self.contact, bool)
+            out["simulated_ground_truth"] = np.array(True)
+        out["joint_names"] = np.array(self.joint_names)
+        return out
+
+
+def residual_exceeds(r: np.ndarray, tau_max: np.ndarray, frac: float) -> bool:
+    """True when any joint's rigid-body residual [N*m] is above frac x its torque limit."""
+    return bool(np.any(np.abs(r) > frac * tau_max))
+
+
+def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_speed: float = 0.3,
+                        contact_frac: float = 0.3, contact_ticks: int = 5,
+                        progress: Callable[[float, float], bool | None] | None = None) -> CollectedRun:
+    """Replay `traj` on the session's follower (RigSession of hardware.sim.open_rig). progress(done_s,
+    total_s) is called every tick; returning True stops the run (operator stop). Raises ContactStop."""
+    from hardware.arms import load_arm
+
+    spec = session.rig.device(follower_name)
+    arm = load_arm(spec.arm)
+    if list(arm.joint_names) != list(traj.joint_names):
+        raise DeviceError(f"trajectory joints {traj.joint_names} are not the arm's {list(arm.joint_names)}",
+                          where=follower_name, fix="generate the trajectory for this arm")
+    follower = session.followers[follower_name]
+    limits = spec.limits()
+    model = arm.pinocchio_model()
+    data = model.createData()
+    clock, dt = session.clock, 1.0 / traj.rate_hz
+    run = CollectedRun(joint_names=list(arm.joint_names))
+    truth = session.twin.ground_truth if session.twin is not None else None
+
+    st = follower.read()
+    s = move_speed
+    q0, _, _ = ruckig_move(st.q, traj.q[0], s * limits.v_max, 2 * s * limits.v_max, 20 * s * limits.v_max,
+                           traj.rate_hz)
+    plan = [(q, np.zeros_like(q), False) for q in q0] + [(traj.q[k], traj.qdd[k], True)
+                                                         for k in range(len(traj.t))]
+    over = 0
+    t_start = time.monotonic()
+    for k, (q_ref, qdd_ref, record) in enumerate(plan):
+        follower.command(FollowerCommand(q=q_ref))
+        clock.sleep(dt)
+        st = follower.read()
+        r = st.tau_m - pin.rnea(model, data, st.q, st.q_dot, qdd_ref)
+        over = over + 1 if np.all(np.isfinite(r)) and residual_exceeds(r, limits.tau_max, contact_frac) else 0
+        if over >= contact_ticks:
+            follower.hold("unexpected contact during calibration")
+            run.stopped = "contact"
+            raise ContactStop(f"unexpected contact at t={k * dt:.1f} s (residual {np.abs(r).max():.1f} N*m)",
+                              where=follower_name, fix="clear the workspace (or lower the speed) and rerun")
+        if record:
+            run.t.append(st.t)
+            run.q.append(st.q)
+            run.qd.append(st.q_dot)
+            run.q_cmd.append(q_ref)  # what was sent (the device's own q_cmd may lag a tick)
+            run.tau_m.append(st.tau_m)
+            run.current.append(st.current)
+            if truth is not None:
+                gt = truth()[follower_name]
+                run.tau_ext_true.append(np.asarray(gt.tau_ext)[: arm.n_joints])
+                run.contact.append(bool(gt.contact))
+        if progress is not None and progress((k + 1) * dt, len(plan) * dt):
+            follower.hold("operator stop")
+            run.stopped = "operator"
+            break
+    run.wall_s = time.monotonic() - t_start
+    return run

@@ -1,0 +1,216 @@
+"""NEXT data: plain logs -> fixed-rate segments -> normalised sliding windows.
+
+Pipeline, top to bottom:
+  1. resample_log(): irregular timestamps -> uniform grid at `rate_hz` (default 100 Hz, the paper's rate) by
+     linear interpolation. Gaps longer than `max_gap_s` are not bridged: the run is split there into segments,
+     and no window ever spans two segments.
+  2. make_inputs(): per-sample features. "q,qd,dq" = (q [rad], q_dot [rad/s], q_cmd - q [rad]) as in the
+     paper; "q" and "q,qd" reproduce the input ablation.
+  3. split_blocks(): each segment is cut into contiguous blocks (default 10 s); every k-th block goes to
+     validation. Windows are drawn entirely inside one block, so no train window shares a sample with a
+     validation window (neighbouring samples are nearly identical: a random split would leak).
+  4. Normalizer: per-feature mean/std of inputs and targets, fitted on the training blocks only; stored with
+     the model (checkpoint metadata) together with the training input range used for the OOD flag.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+INPUT_SETS = ("q", "q,qd", "q,qd,dq")
+
+
+@dataclass
+class Segment:
+    """Uniformly sampled stretch of one run. tau: measured torque signal [N*m or A]; rate in Hz."""
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    q_cmd: np.ndarray
+    tau: np.ndarray
+    rate_hz: float
+    source: str = ""
+    tau_ext_true: np.ndarray | None = None
+    contact: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+
+def _interp(t_new: np.ndarray, t: np.ndarray, a: np.ndarray) -> np.ndarray:
+    return np.stack([np.interp(t_new, t, a[:, j]) for j in range(a.shape[1])], axis=1)
+
+
+def resample_log(log, rate_hz: float = 100.0, max_gap_s: float = 0.1) -> list[Segment]:
+    """Resample a PlainLog (hardware.recording.plain_log) onto a `rate_hz` grid; split at gaps > max_gap_s.
+
+    Linear interpolation of q, qd, q_cmd, tau (and tau_ext_true); `contact` takes the nearest earlier sample.
+    Samples with any non-finite value are dropped first (treated as a gap).
+    """
+    t = np.asarray(log.t, float)
+    arrays = {"q": log.q, "qd": log.qd, "q_cmd": log.q_cmd, "tau": log.tau}
+    if log.tau_ext_true is not None:
+        arrays["tau_ext_true"] = log.tau_ext_true
+    finite = np.ones(len(t), bool)
+    for a in arrays.values():
+        finite &= np.all(np.isfinite(a), axis=1)
+    t = t[finite]
+    arrays = {k: np.asarray(v, float)[finite] for k, v in arrays.items()}
+    contact = None if log.contact is None else np.asarray(log.contact, bool)[finite]
+    if len(t) < 2:
+        return []
+    breaks = np.flatnonzero(np.diff(t) > max_gap_s) + 1
+    segments = []
+    for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, len(t)]):
+        ts = t[lo:hi]
+        if len(ts) < 2:
+            continue
+        grid = ts[0] + np.arange(int(np.floor((ts[-1] - ts[0]) * rate_hz)) + 1) / rate_hz
+        res = {k: _interp(grid, ts, v[lo:hi]) for k, v in arrays.items()}
+        seg_contact = None
+        if contact is not None:
+            idx = np.clip(np.searchsorted(ts, grid, side="right") - 1, 0, len(ts) - 1)
+            seg_contact = contact[lo:hi][idx]
+        segments.append(Segment(t=grid, q=res["q"], qd=res["qd"], q_cmd=res["q_cmd"], tau=res["tau"],
+                                rate_hz=rate_hz, source=str(getattr(log, "name", "")),
+                                tau_ext_true=res.get("tau_ext_true"), contact=seg_contact))
+    return segments
+
+
+def make_inputs(q: np.ndarray, qd: np.ndarray, q_cmd: np.ndarray, inputs: str = "q,qd,dq") -> np.ndarray:
+    """Per-sample network inputs (N, F): q [rad], q_dot [rad/s], q_cmd - q [rad] as `inputs` selects."""
+    if inputs not in INPUT_SETS:
+        raise ValueError(f"inputs must be one of {INPUT_SETS}, got {inputs!r}")
+    parts = [q]
+    if inputs in ("q,qd", "q,qd,dq"):
+        parts.append(qd)
+    if inputs == "q,qd,dq":
+        parts.append(q_cmd - q)
+    return np.concatenate([np.asarray(p, np.float64) for p in parts], axis=-1)
+
+
+def n_inputs(n_joints: int, inputs: str) -> int:
+    return n_joints * (1 + inputs.count(","))
+
+
+@dataclass
+class Normalizer:
+    """z = (x - mean) / std for inputs (x) and targets (y). Stored in checkpoints as plain lists."""
+
+    x_mean: np.ndarray
+    x_std: np.ndarray
+    y_mean: np.ndarray
+    y_std: np.ndarray
+
+    @classmethod
+    def fit(cls, x: np.ndarray, y: np.ndarray, eps: float = 1e-6) -> Normalizer:
+        return cls(x.mean(0), np.maximum(x.std(0), eps), y.mean(0), np.maximum(y.std(0), eps))
+
+    def norm_x(self, x):
+        return (x - self.x_mean) / self.x_std
+
+    def norm_y(self, y):
+        return (y - self.y_mean) / self.y_std
+
+    def denorm_y(self, z):
+        return z * self.y_std + self.y_mean
+
+    def to_dict(self) -> dict:
+        keys = ("x_mean", "x_std", "y_mean", "y_std")
+        return {k: np.asarray(getattr(self, k), float).tolist() for k in keys}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Normalizer:
+        return cls(*(np.asarray(d[k], float) for k in ("x_mean", "x_std", "y_mean", "y_std")))
+
+
+def split_blocks(lengths: list[int], block_len: int, val_every: int = 5, offset: int = 2
+                 ) -> tuple[list[tuple[int, int, int]], list[tuple[int, int, int]]]:
+    """Cut each segment (by length) into contiguous blocks of `block_len` samples; block b of the whole
+    sequence goes to validation when (b + offset) % val_every == 0. Returns (train, val) lists of
+    (segment index, start, stop). A segment shorter than a block is one block. The last partial block of a
+    segment joins the previous one so no tiny block is made."""
+    train, val = [], []
+    b = 0
+    for si, n in enumerate(lengths):
+        starts = list(range(0, n, block_len))
+        if len(starts) > 1 and n - starts[-1] < block_len // 2:
+            starts.pop()
+        stops = starts[1:] + [n]
+        for lo, hi in zip(starts, stops):
+            (val if (b + offset) % val_every == 0 else train).append((si, lo, hi))
+            b += 1
+    if not train and val:  # a single tiny run: keep something to train on
+        train, val = val, []
+    return train, val
+
+
+def window_ends(blocks: list[tuple[int, int, int]], offsets: list[int], history: int) -> np.ndarray:
+    """Global indices (into the concatenated segments) of the last sample of every full window that lies
+    entirely inside one block. `offsets[si]` is the start of segment si in the concatenation."""
+    ends = [offsets[si] + np.arange(lo + history - 1, hi) for si, lo, hi in blocks if hi - lo >= history]
+    return np.concatenate(ends) if ends else np.zeros(0, np.int64)
+
+
+@dataclass
+class WindowData:
+    """Everything training needs: normalised inputs/targets of all samples concatenated, and window ends."""
+
+    x: np.ndarray  # (N, F) normalised float32
+    y: np.ndarray  # (N, J) normalised float32
+    train_ends: np.ndarray
+    val_ends: np.ndarray
+    normalizer: Normalizer
+    x_min: np.ndarray  # raw training input range (for the OOD flag)
+    x_max: np.ndarray
+    history: int
+    inputs: str
+    data_hash: str
+    n_samples: int
+    meta: dict = field(default_factory=dict)
+
+
+def data_hash(segments: list[Segment]) -> str:
+    h = hashlib.sha256()
+    for s in segments:
+        for a in (s.q, s.qd, s.q_cmd, s.tau):
+            h.update(np.ascontiguousarray(a, np.float64).tobytes())
+    return h.hexdigest()[:16]
+
+
+def build_windows(segments: list[Segment], history: int = 50, inputs: str = "q,qd,dq",
+                  block_s: float = 10.0, val_every: int = 5) -> WindowData:
+    """Concatenate segments, split into train/validation blocks, fit the normaliser on the train blocks."""
+    if not segments:
+        raise ValueError("no data segments to train on")
+    rate = segments[0].rate_hz
+    x_raw = np.concatenate([make_inputs(s.q, s.qd, s.q_cmd, inputs) for s in segments])
+    y_raw = np.concatenate([s.tau for s in segments])
+    lengths = [len(s) for s in segments]
+    offsets = list(np.r_[0, np.cumsum(lengths)[:-1]].astype(int))
+    block_len = max(int(round(block_s * rate)), 2 * history)
+    train_b, val_b = split_blocks(lengths, block_len, val_every)
+    train_ends = window_ends(train_b, offsets, history)
+    val_ends = window_ends(val_b, offsets, history)
+    if len(train_ends) == 0:
+        raise ValueError(f"not enough data for one window of {history} samples")
+    train_rows = np.concatenate([offsets[si] + np.arange(lo, hi) for si, lo, hi in train_b])
+    norm = Normalizer.fit(x_raw[train_rows], y_raw[train_rows])
+    return WindowData(x=norm.norm_x(x_raw).astype(np.float32), y=norm.norm_y(y_raw).astype(np.float32),
+                      train_ends=train_ends, val_ends=val_ends, normalizer=norm,
+                      x_min=x_raw[train_rows].min(0), x_max=x_raw[train_rows].max(0), history=history,
+                      inputs=inputs, data_hash=data_hash(segments), n_samples=len(x_raw))
+
+
+def gather_windows(x: np.ndarray, ends: np.ndarray, history: int) -> np.ndarray:
+    """(B, H, F) windows ending (inclusive) at `ends`."""
+    return x[ends[:, None] + np.arange(-history + 1, 1)[None, :]]
+
+
+def sliding_windows(x: np.ndarray, history: int) -> np.ndarray:
+    """All full windows of a (N, F) array: (N - H + 1, H, F) view (no copy)."""
+    return np.lib.stride_tricks.sliding_window_view(x, history, axis=0).transpose(0, 2, 1)

@@ -1,0 +1,188 @@
+"""Streaming NEXT estimator for the control loop: tau_ext = tau_m - f(last H samples), once per tick.
+
+Exactness vs speed. NEXT's LSTM is stateless over its window: the estimate at tick n is the LSTM run from a
+zero state over samples n-H+1..n. Recomputing that run every tick costs H sequential steps of small
+matrix-vector products (slow in Python). Instead we keep H runs in flight, staggered by one tick: run r
+starts (zero state) at tick r, r+H, r+2H, ...  Every tick all H runs advance by one step on the *same* new
+sample -- two small matrix-matrix products (H x 128 @ 128 x 512 and H x 256 @ 256 x 512) -- and the run that
+has just seen H samples is exactly the stateless window model; its head output is the estimate, and it
+restarts from zero. Same arithmetic as the batch model (float32, differences ~1e-6), no approximation.
+The per-step layer-1 input projection is computed once per tick and shared by all runs.
+
+GRU/MLP checkpoints (ablation architectures) are evaluated with torch on a rolling buffer (exact, slower).
+
+Guards (never raise in the loop): non-finite q/q_dot/q_cmd -> NaN estimate, FLAG_NONFINITE, and the window
+restarts (FLAG_WARMUP until H clean samples are in); non-finite tau_m -> NaN estimate, FLAG_NONFINITE, window
+kept. FLAG_OOD when an input leaves the training range widened by `ood_margin` x its span.
+The estimator assumes one update per sample at the checkpoint's rate (ck.rate_hz, default 100 Hz).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from calibration.next.checkpoint import NextCheckpoint, weights_numpy
+from calibration.next.data import make_inputs
+from calibration.next.train import predict_series
+
+FLAG_OK = 0
+FLAG_WARMUP = 1  # fewer than H clean samples since start/restart: estimate is NaN
+FLAG_NONFINITE = 2  # an input was NaN/inf: estimate is NaN
+FLAG_OOD = 4  # inputs outside the training range: estimate may be unreliable
+
+
+@dataclass
+class Estimate:
+    tau_ext: np.ndarray  # (J,) external torque [units of the checkpoint]; NaN when not valid
+    tau_f: np.ndarray  # (J,) predicted free-space torque
+    flags: int
+
+    @property
+    def valid(self) -> bool:
+        return not (self.flags & (FLAG_WARMUP | FLAG_NONFINITE))
+
+    @property
+    def ood(self) -> bool:
+        return bool(self.flags & FLAG_OOD)
+
+
+def _lstm_layer_weights(w: dict[str, np.ndarray], layer: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(W_ih^T, W_hh^T, b) with the gates reordered from torch's (i, f, g, o) to (i, f, o, g) and the
+    sigmoid gates pre-scaled by 0.5, so one tanh over all columns gives every gate:
+    sigmoid(z) = 0.5 * (1 + tanh(z / 2)), and the three sigmoid gates are one contiguous block."""
+    w_ih, w_hh = w[f"rnn.weight_ih_l{layer}"], w[f"rnn.weight_hh_l{layer}"]
+    b = w[f"rnn.bias_ih_l{layer}"] + w[f"rnn.bias_hh_l{layer}"]
+    h = w_ih.shape[0] // 4
+    order = np.r_[np.arange(0, 2 * h), np.arange(3 * h, 4 * h), np.arange(2 * h, 3 * h)]
+    scale = np.r_[np.full(3 * h, 0.5), np.ones(h)].astype(np.float32)
+    return ((w_ih[order] * scale[:, None]).T.copy(), (w_hh[order] * scale[:, None]).T.copy(),
+            (b[order] * scale).astype(np.float32))
+
+
+class NextEstimator:
+    def __init__(self, ck: NextCheckpoint, ema_alpha: float | None = None, ood_margin: float = 0.1):
+        """ema_alpha: optional smoothing of tau_ext, y <- y + alpha (x - y), alpha in (0, 1]."""
+        if ema_alpha is not None and not 0.0 < ema_alpha <= 1.0:
+            raise ValueError("ema_alpha must be in (0, 1]")
+        self.ck = ck
+        self.cfg = ck.model.cfg
+        self.H = self.cfg.history
+        self.n_j = self.cfg.n_out
+        self.ema_alpha = ema_alpha
+        norm = ck.normalizer
+        self._x_mean = norm.x_mean.astype(np.float64)
+        self._x_inv_std = 1.0 / norm.x_std.astype(np.float64)
+        self._y_mean, self._y_std = norm.y_mean.astype(np.float64), norm.y_std.astype(np.float64)
+        span = np.maximum(ck.x_max - ck.x_min, 1e-9)
+        self._lo, self._hi = ck.x_min - ood_margin * span, ck.x_max + ood_margin * span
+        self._fast = self.cfg.arch == "lstm" and self.cfg.layers == 2
+        if self._fast:
+            w = weights_numpy(ck.model)
+            self._wih1, self._whh1, self._b1 = _lstm_layer_weights(w, 0)
+            wih2, whh2, self._b2 = _lstm_layer_weights(w, 1)
+            self._w2 = np.concatenate([wih2, whh2], axis=0)  # [h1, h2] @ W2 in one product
+            self._hw1, self._hb1 = w["head.0.weight"].T.copy(), w["head.0.bias"]
+            self._hw2, self._hb2 = w["head.3.weight"].T.copy(), w["head.3.bias"]
+            hid = self.cfg.hidden
+            self._hh = np.zeros((self.H, 2 * hid), np.float32)  # [h1 | h2] of every run
+            self._c1 = np.zeros((self.H, hid), np.float32)
+            self._c2 = np.zeros((self.H, hid), np.float32)
+            self._z = np.empty((self.H, 4 * hid), np.float32)
+        else:
+            self._buf = np.zeros((self.H, self.cfg.n_in), np.float32)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history (e.g. after a pause or a gap in the data)."""
+        self._n = 0  # clean samples since (re)start
+        self._ema = None
+        if self._fast:
+            self._hh[:] = 0.0
+            self._c1[:] = 0.0
+            self._c2[:] = 0.0
+
+    def _nan(self, flags: int) -> Estimate:
+        nan = np.full(self.n_j, np.nan)
+        return Estimate(nan, nan.copy(), flags)
+
+    def _step_lstm(self, x: np.ndarray) -> np.ndarray | None:
+        hid = self.cfg.hidden
+        r = self._n % self.H  # run r starts now from a zero state
+        self._hh[r] = 0.0
+        self._c1[r] = 0.0
+        self._c2[r] = 0.0
+        h1, h2 = self._hh[:, :hid], self._hh[:, hid:]
+        z = self._z
+        g1 = x @ self._wih1 + self._b1  # shared input projection of the new sample
+        np.dot(h1, self._whh1, out=z)
+        z += g1
+        self._cell(z, self._c1, h1)
+        np.dot(self._hh, self._w2, out=z)
+        z += self._b2
+        self._cell(z, self._c2, h2)
+        self._n += 1
+        if self._n < self.H:
+            return None
+        done = (r + 1) % self.H  # the run that started H-1 ticks ago has now seen H samples
+        a = np.maximum(h2[done] @ self._hw1 + self._hb1, 0.0)
+        return a @ self._hw2 + self._hb2
+
+    @staticmethod
+    def _cell(z: np.ndarray, c: np.ndarray, h_out: np.ndarray) -> None:
+        hid = c.shape[1]
+        np.tanh(z, out=z)
+        sig = z[:, :3 * hid]  # i, f, o were pre-scaled: sigmoid = 0.5 (1 + tanh), in place
+        sig *= 0.5
+        sig += 0.5
+        i, f, o, g = z[:, :hid], z[:, hid:2 * hid], z[:, 2 * hid:3 * hid], z[:, 3 * hid:]
+        c *= f
+        c += i * g
+        np.tanh(c, out=f)  # f is no longer needed: reuse it as scratch
+        np.multiply(o, f, out=h_out)
+
+    def _step_torch(self, x: np.ndarray) -> np.ndarray | None:
+        self._buf = np.roll(self._buf, -1, axis=0)
+        self._buf[-1] = x
+        self._n += 1
+        if self._n < self.H:
+            return None
+        with torch.no_grad():
+            return self.ck.model(torch.from_numpy(self._buf[None]))[0].numpy()
+
+    def update(self, q, q_dot, q_cmd, tau_m) -> Estimate:
+        """One control tick. q [rad], q_dot [rad/s], q_cmd [rad], tau_m [N*m or A as the checkpoint]."""
+        try:
+            x_raw = make_inputs(np.asarray(q, float), np.asarray(q_dot, float), np.asarray(q_cmd, float),
+                                self.ck.inputs)
+            tau = np.asarray(tau_m, float).reshape(self.n_j)
+        except (ValueError, TypeError):
+            self.reset()
+            return self._nan(FLAG_NONFINITE)
+        if x_raw.shape != (self.cfg.n_in,) or not np.all(np.isfinite(x_raw)):
+            self.reset()
+            return self._nan(FLAG_NONFINITE)
+        flags = FLAG_OOD if np.any((x_raw < self._lo) | (x_raw > self._hi)) else FLAG_OK
+        if not np.all(np.isfinite(tau)):
+            flags |= FLAG_NONFINITE
+        x = ((x_raw - self._x_mean) * self._x_inv_std).astype(np.float32)
+        out = self._step_lstm(x) if self._fast else self._step_torch(x)
+        if out is None:
+            return self._nan(flags | FLAG_WARMUP)
+        tau_f = out.astype(np.float64) * self._y_std + self._y_mean
+        if flags & FLAG_NONFINITE:
+            return Estimate(np.full(self.n_j, np.nan), tau_f, flags)
+        ext = tau - tau_f
+        if self.ema_alpha is not None:
+            self._ema = ext if self._ema is None else self._ema + self.ema_alpha * (ext - self._ema)
+            ext = self._ema.copy()
+        return Estimate(ext, tau_f, flags)
+
+
+def batch_tau_f(ck: NextCheckpoint, q, qd, q_cmd) -> np.ndarray:
+    """Offline: predicted free-space torque for every sample of one uniformly sampled stretch (N, J);
+    the first H-1 rows are NaN (no full window yet)."""
+    x = ck.normalizer.norm_x(make_inputs(q, qd, q_cmd, ck.inputs))
+    return ck.normalizer.denorm_y(predict_series(ck.model, x, ck.history).astype(np.float64))

@@ -1,0 +1,235 @@
+"""Calibration from logs: train NEXT, run every baseline on held-out data, write DIR/.
+
+DIR/next.safetensors + next.json   the NEXT checkpoint (calibration.next.checkpoint)
+DIR/report.json                    units, train_seconds, data_minutes, device, methods (+ files)
+DIR/report.md + DIR/plots/*.png    the table and estimate-vs-truth plots
+DIR/estimates/<name>.npz           t and tau_ext_<method> on the resampled grid
+
+Scoring: `free_l1` = per-joint mean |estimate| on free-motion samples (truth is 0 there); `contact_l1` =
+per-joint mean |estimate - tau_ext_true| on contact samples (null without ground truth). Free samples are:
+samples with contact == False when the log has a contact array; otherwise, the whole of an --eval file
+(declared free motion) and nothing of an --eval-unlabeled file. All methods are scored on the same samples
+(those where every available method has a finite estimate: NEXT needs H samples of history).
+Without --eval files, the top-level scores use the validation blocks of the training logs.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calibration import baselines
+from calibration.next.checkpoint import NextCheckpoint, save_checkpoint
+from calibration.next.data import Segment, build_windows, resample_log, split_blocks
+from calibration.next.estimator import batch_tau_f
+from calibration.next.train import TrainConfig, available_cores, train
+from hardware.errors import ConfigError
+from hardware.recording.plain_log import load_plain_log
+
+METHODS = ("next", "observer", "filic", "raw", "ridge")
+
+
+@dataclass
+class Evaluated:
+    name: str
+    t: np.ndarray
+    estimates: dict[str, np.ndarray | None]  # method -> (N, n) or None (not available)
+    truth: np.ndarray | None  # (N, n) tau_ext_true, or None
+    free: np.ndarray  # (N,) bool: free-motion samples scored against 0
+    contact: np.ndarray  # (N,) bool: contact samples scored against truth
+
+
+def estimate_segment(seg: Segment, ck: NextCheckpoint, ridge: baselines.RidgeModel | None, pin_model,
+                     observer_gain: float = 50.0) -> dict[str, np.ndarray | None]:
+    """Every method's tau_ext [ck.units] on one uniformly sampled segment."""
+    out: dict[str, np.ndarray | None] = {m: None for m in METHODS}
+    out["next"] = seg.tau - batch_tau_f(ck, seg.q, seg.qd, seg.q_cmd)
+    out["raw"] = baselines.raw_torque(seg.tau)
+    if ridge is not None:
+        out["ridge"] = baselines.ridge_residual(ridge, seg.q, seg.qd, seg.q_cmd, seg.tau)
+    if pin_model is not None and ck.units == "N*m":
+        out["filic"] = baselines.filic_residual(pin_model, seg.t, seg.q, seg.qd, seg.tau)
+        out["observer"] = baselines.momentum_observer(pin_model, seg.t, seg.q, seg.qd, seg.tau, observer_gain)
+    return out
+
+
+def _concat(segs: list[Segment], ests: list[dict], name: str, free_default: bool,
+            masks: list[np.ndarray] | None = None) -> Evaluated:
+    t = np.concatenate([s.t for s in segs])
+    estimates = {m: (np.concatenate([e[m] for e in ests]) if ests[0][m] is not None else None)
+                 for m in METHODS}
+    truth = (np.concatenate([s.tau_ext_true for s in segs]) if segs[0].tau_ext_true is not None else None)
+    if segs[0].contact is not None:
+        contact = np.concatenate([s.contact for s in segs])
+        free = ~contact
+    else:
+        contact = np.zeros(len(t), bool)
+        free = np.full(len(t), free_default)
+    if masks is not None:
+        keep = np.concatenate(masks)
+        free, contact = free & keep, contact & keep
+    return Evaluated(name, t, estimates, truth, free, contact)
+
+
+def score(ev: list[Evaluated]) -> dict:
+    """The `methods` object of report.json over one or more evaluated files."""
+    res = {}
+    ok_all = [np.all([np.all(np.isfinite(v), axis=1) for v in e.estimates.values() if v is not None], axis=0)
+              for e in ev]
+    for m in METHODS:
+        if any(e.estimates[m] is None for e in ev):
+            res[m] = {"free_l1": None, "contact_l1": None, "free_l1_mean": None, "contact_l1_mean": None}
+            continue
+        free_err = [np.abs(e.estimates[m][e.free & ok]) for e, ok in zip(ev, ok_all)]
+        free_err = np.concatenate(free_err)
+        con = [np.abs(e.estimates[m] - e.truth)[e.contact & ok] for e, ok in zip(ev, ok_all)
+               if e.truth is not None]
+        con = np.concatenate(con) if con else np.zeros((0, 0))
+        free_l1 = free_err.mean(0).tolist() if len(free_err) else None
+        con_l1 = con.mean(0).tolist() if con.size else None
+        res[m] = {"free_l1": free_l1, "contact_l1": con_l1,
+                  "free_l1_mean": float(np.mean(free_l1)) if free_l1 else None,
+                  "contact_l1_mean": float(np.mean(con_l1)) if con_l1 else None}
+    return res
+
+
+def _load_segments(paths, rate_hz: float, joint_names=None
+                   ) -> tuple[list[tuple[str, list[Segment]]], str, list]:
+    runs, units = [], None
+    for p in paths:
+        log = load_plain_log(p)
+        if units is None:
+            units, joint_names = log.units, joint_names or log.joint_names
+        if log.units != units:
+            raise ConfigError(f"torque signal in {log.units}, other logs in {units}", where=str(p),
+                              fix="give all logs the same signal (tau_m or current + torque_constant)")
+        if list(log.joint_names) != list(joint_names):
+            raise ConfigError(f"joints {log.joint_names} differ from {list(joint_names)}", where=str(p),
+                              fix="use logs of one arm (same joints, same order)")
+        segs = resample_log(log, rate_hz)
+        if not segs:
+            raise ConfigError("no usable samples after dropping NaN/inf", where=str(p), fix="check the log")
+        runs.append((log.name, segs))
+    return runs, units, list(joint_names)
+
+
+def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(), arm: str | None = None,
+                        cfg: TrainConfig | None = None, rate_hz: float = 100.0, observer_gain: float = 50.0,
+                        callback=None, plots: bool = True) -> dict:
+    """Train NEXT on free-motion plain logs, evaluate all, write out_dir; returns report.json's dict."""
+    cfg = cfg or TrainConfig()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    runs, units, joint_names = _load_segments(train_paths, rate_hz)
+    pin_model = None
+    if arm is not None:
+        from hardware.arms import load_arm
+
+        desc = load_arm(arm)
+        if list(desc.joint_names) != joint_names:
+            raise ConfigError(f"arm {arm} has joints {list(desc.joint_names)}, logs have {joint_names}",
+                              where=arm, fix="pass the --arm the logs were recorded on")
+        pin_model = desc.pinocchio_model()
+    segments = [s for _, segs in runs for s in segs]
+    data = build_windows(segments, cfg.history, cfg.inputs)
+    result = train(data, cfg, callback=callback)
+    ck = NextCheckpoint(model=result.model, normalizer=data.normalizer, arm=arm or "",
+                        joint_names=joint_names, units=units, inputs=cfg.inputs, rate_hz=rate_hz,
+                        x_min=data.x_min, x_max=data.x_max,
+                        data_hash=data.data_hash, train_config=cfg.to_dict(),
+                        metrics={"val_l1": result.val_l1, "best_val_mse_normalized": result.best_val_loss,
+                                 "epochs": result.epochs, "train_seconds": result.seconds})
+    save_checkpoint(ck, out / "next")
+    ridge = baselines.fit_ridge(*(np.concatenate([getattr(s, k) for s in segments]) for k in
+                                  ("q", "qd", "q_cmd", "tau")))
+    evaluated: list[Evaluated] = []
+    files = {}
+    for kind, paths in (("eval", eval_paths), ("unlabeled", unlabeled_paths)):
+        if not paths:
+            continue
+        eval_runs, eval_units, _ = _load_segments(paths, rate_hz, joint_names)
+        if eval_units != units:
+            raise ConfigError(f"evaluation logs are in {eval_units}, training logs in {units}",
+                              where=str(paths[0]), fix="evaluate on logs with the same torque signal")
+        for name, segs in eval_runs:
+            ev = _concat(segs, [estimate_segment(s, ck, ridge, pin_model, observer_gain) for s in segs], name,
+                         free_default=(kind == "eval"))
+            evaluated.append(ev)
+            files[name] = score([ev])
+    if evaluated:
+        top = score(evaluated)
+    else:  # the validation blocks of the training logs
+        lengths = [len(s) for s in segments]
+        _, val_blocks = split_blocks(lengths, max(int(10 * rate_hz), 2 * cfg.history))
+        masks = [np.zeros(n, bool) for n in lengths]
+        for si, lo, hi in val_blocks:
+            masks[si][lo:hi] = True
+        ests = [estimate_segment(s, ck, ridge, pin_model, observer_gain) for s in segments]
+        top = score([_concat(segments, ests, "validation", True, masks)])
+    report = {"units": units, "train_seconds": result.seconds,
+              "data_minutes": sum(len(s) for s in segments) / rate_hz / 60.0, "device": result.device,
+              "threads": cfg.threads or available_cores(), "epochs": result.epochs,
+              "arm": arm, "joint_names": joint_names, "rate_hz": rate_hz,
+              "train_logs": [Path(p).name for p in train_paths], "methods": top}
+    if files:
+        report["files"] = files
+    (out / "report.json").write_text(json.dumps(report, indent=1))
+    (out / "estimates").mkdir(exist_ok=True)
+    for ev in evaluated:
+        np.savez(out / "estimates" / f"{ev.name}.npz", t=ev.t,
+                 **{f"tau_ext_{m}": v for m, v in ev.estimates.items() if v is not None},
+                 **({"tau_ext_true": ev.truth} if ev.truth is not None else {}))
+    write_markdown(report, evaluated, out, plots)
+    return report
+
+
+def _fmt(x) -> str:
+    return "--" if x is None else f"{x:.3f}"
+
+
+def write_markdown(report: dict, evaluated: list[Evaluated], out: Path, plots: bool = True) -> None:
+    u = report["units"]
+    lines = [f"# NEXT calibration report ({'arm ' + report['arm'] if report['arm'] else 'no arm model'})", "",
+             f"Training: {report['data_minutes']:.1f} min of data, {report['train_seconds']:.0f} s on "
+             f"{report['device']} ({report['epochs']} epochs). Estimates in {u}.", "",
+             "Mean L1 over joints (free motion: vs 0; contact: vs ground truth; -- = no model/truth)", "",
+             "| method | free motion | contact |", "|---|---|---|"]
+    for m, v in report["methods"].items():
+        lines.append(f"| {m} | {_fmt(v['free_l1_mean'])} | {_fmt(v['contact_l1_mean'])} |")
+    for name, methods in report.get("files", {}).items():
+        lines += ["", f"## {name}", "", "| method | free motion | contact |", "|---|---|---|"]
+        lines += [f"| {m} | {_fmt(v['free_l1_mean'])} | {_fmt(v['contact_l1_mean'])} |"
+                  for m, v in methods.items()]
+        if plots:
+            lines += ["", f"![{name}](plots/{name}.png)"]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    if plots and evaluated:
+        _plots(evaluated, out / "plots", u, report["joint_names"])
+
+
+def _plots(evaluated: list[Evaluated], folder: Path, units: str, joint_names: list[str]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder.mkdir(exist_ok=True)
+    for ev in evaluated:
+        n = len(joint_names)
+        fig, axes = plt.subplots(n, 1, figsize=(10, 1.6 * n), sharex=True)
+        for j, ax in enumerate(np.atleast_1d(axes)):
+            for m, v in ev.estimates.items():
+                if v is not None and m != "raw":
+                    ax.plot(ev.t, v[:, j], lw=0.7, label=m)
+            truth = ev.truth[:, j] if ev.truth is not None else np.where(ev.free, 0.0, np.nan)
+            ax.plot(ev.t, truth, "k", lw=1.0, label="truth")
+            ax.set_ylabel(f"{joint_names[j]}\n[{units}]", fontsize=7)
+        np.atleast_1d(axes)[0].legend(fontsize=7, ncol=6, loc="upper right")
+        np.atleast_1d(axes)[-1].set_xlabel("t [s]")
+        fig.suptitle(f"{ev.name}: external torque estimates")
+        fig.tight_layout()
+        fig.savefig(folder / f"{ev.name}.png", dpi=80)
+        plt.close(fig)

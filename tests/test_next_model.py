@@ -1,0 +1,86 @@
+"""NEXT model, training loop (early stopping), checkpoint round trip and refusal."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from calibration.next.checkpoint import NextCheckpoint, load_checkpoint, save_checkpoint
+from calibration.next.data import Segment, build_windows
+from calibration.next.model import ModelConfig, NextModel
+from calibration.next.train import EarlyStopping, TrainConfig, train
+from hardware.errors import UserError
+
+torch.set_num_threads(1)
+
+
+@pytest.mark.parametrize("arch", ["lstm", "gru", "mlp"])
+def test_model_shapes(arch):
+    m = NextModel(ModelConfig(n_in=9, n_out=3, history=10, arch=arch, hidden=16, head_hidden=16))
+    assert m(torch.zeros(5, 10, 9)).shape == (5, 3)
+
+
+def test_early_stopping_logic():
+    es = EarlyStopping(patience=3, warmup=5, min_delta=0.1)
+    stops = [es.step(e, loss)[1] for e, loss in enumerate([1.0, 2, 2, 2, 2, 2, 2, 2])]
+    # no stop during warm-up even though epochs 1..4 did not improve; stop once 3 bad epochs after warm-up
+    assert stops == [False] * 7 + [True]
+    es = EarlyStopping(patience=2, warmup=0, min_delta=0.1)
+    assert es.step(0, 1.0) == (True, False)
+    assert es.step(1, 0.95) == (False, False)  # within min_delta: not an improvement
+    assert es.step(2, 0.5) == (True, False)
+    assert es.best == 0.5 and es.best_epoch == 2
+
+
+def _synthetic_segments(n=4000, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 100.0
+    q = np.stack([np.sin(0.7 * t + p) for p in (0.0, 1.0)], 1)
+    qd = np.stack([0.7 * np.cos(0.7 * t + p) for p in (0.0, 1.0)], 1)
+    tau = 2.0 * np.sin(q) + 0.5 * np.tanh(qd / 0.1) + 0.01 * rng.normal(size=q.shape)
+    return [Segment(t=t, q=q, qd=qd, q_cmd=q + 0.01 * qd, tau=tau, rate_hz=100.0)]
+
+
+def _small_cfg(**kw):
+    base = dict(history=10, hidden=16, head_hidden=32, lr=3e-3, batch_size=128, samples_per_epoch=1024,
+                max_epochs=8, patience=5, warmup=3, threads=1)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+def test_training_reduces_error_and_calls_back():
+    data = build_windows(_synthetic_segments(), history=10, block_s=5.0)
+    seen = []
+    res = train(data, _small_cfg(), callback=lambda p: seen.append(p.val_loss), progress_bar=False)
+    assert seen and res.epochs == len(seen)
+    assert min(seen) < 0.5 * seen[0]
+    assert res.best_val_loss == pytest.approx(min(seen), rel=1e-6) or res.best_val_loss <= min(seen)
+    assert len(res.val_l1) == 2 and res.device == "cpu"
+    stopped = train(data, _small_cfg(max_epochs=10), callback=lambda p: p.epoch >= 1, progress_bar=False)
+    assert stopped.epochs == 2
+
+
+def test_checkpoint_round_trip_and_refusal(tmp_path):
+    data = build_windows(_synthetic_segments(1500), history=10, block_s=5.0)
+    res = train(data, _small_cfg(max_epochs=2), progress_bar=False)
+    ck = NextCheckpoint(model=res.model, normalizer=data.normalizer, arm="piper", joint_names=["j1", "j2"],
+                        units="N*m", inputs="q,qd,dq", rate_hz=100.0, x_min=data.x_min, x_max=data.x_max,
+                        data_hash=data.data_hash, train_config=res.config.to_dict(), metrics={"x": 1})
+    path = save_checkpoint(ck, tmp_path / "next")
+    assert (tmp_path / "next.safetensors").exists() and path.suffix == ".json"
+    ck2 = load_checkpoint(tmp_path / "next", arm="piper", joint_names=["j1", "j2"])
+    x = torch.randn(3, 10, 6)
+    with torch.no_grad():
+        assert torch.allclose(ck.model(x), ck2.model(x))
+    assert np.allclose(ck2.normalizer.y_std, data.normalizer.y_std) and ck2.data_hash == data.data_hash
+    with pytest.raises(UserError, match="arm"):
+        load_checkpoint(tmp_path / "next.json", arm="yam")
+    with pytest.raises(UserError, match="joints"):
+        load_checkpoint(tmp_path / "next", joint_names=["j1", "j3"])
+    with pytest.raises(UserError, match="not found"):
+        load_checkpoint(tmp_path / "missing")
+    (tmp_path / "bad.json").write_text("{not json")
+    (tmp_path / "bad.safetensors").write_bytes(b"xx")
+    with pytest.raises(UserError, match="not a readable"):
+        load_checkpoint(tmp_path / "bad")
