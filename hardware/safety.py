@@ -123,9 +123,9 @@ class Watchdog:
 
     def stale(self, now: float) -> str | None:
         """Why the device must go safe now, or None. Nothing fed yet is not stale (not started)."""
-        if np.isfinite(self.last_command_t) and now - self.last_command_t > self.timeout_s:
+        if math.isfinite(self.last_command_t) and now - self.last_command_t > self.timeout_s:
             return f"no command for {1e3 * (now - self.last_command_t):.0f} ms"
-        if np.isfinite(self.last_feedback_t) and now - self.last_feedback_t > self.timeout_s:
+        if math.isfinite(self.last_feedback_t) and now - self.last_feedback_t > self.timeout_s:
             return f"no feedback for {1e3 * (now - self.last_feedback_t):.0f} ms"
         return None
 
@@ -150,7 +150,7 @@ class SafetyLayer:
         self.last_fault: str | None = None
 
     def _dt(self, now: float) -> float:
-        dt = now - self._t_prev if np.isfinite(self._t_prev) else 0.0
+        dt = now - self._t_prev if math.isfinite(self._t_prev) else 0.0
         self._t_prev = now
         return dt
 

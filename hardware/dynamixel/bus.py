@@ -3,6 +3,8 @@
 Turns sdk result codes into UserErrors with a fix, recovers a port left busy by Ctrl-C (COMM_PORT_BUSY),
 and does sync reads whose per-servo replies are collected one by one so a lost reply only stales that
 servo. Used by DynamixelLeader and by `factr2 doctor`. No fake fallback: a missing port is an error.
+A port named "inproc:..." is a lockstep twin's in-process emulator (hardware/dynamixel/inprocess.py): the
+same sdk calls run on an InProcessPortHandler; it exists only in the process that serves it.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import dynamixel_sdk as sdk
 import serial
 
 from hardware.dynamixel import protocol as p
+from hardware.dynamixel.inprocess import InProcessPortHandler, is_inprocess
 from hardware.errors import ConfigError, DeviceError, DeviceNotFound
 from hardware.serial_ports import read_latency_timer
 
@@ -26,6 +29,8 @@ RX_MARGIN_PTY_MS = 10.0  # ms added to the computed wire + latency time before a
 
 
 def _port_fix(port: str) -> str:
+    if is_inprocess(port):
+        return "an in-process twin port exists only in the process that serves it (use the twin's pty)"
     return (
         f"plug in the U2D2/adapter and check the path (`factr2 doctor` lists ports); "
         f"permission denied means: sudo usermod -aG dialout $USER and log in again ({port})"
@@ -62,20 +67,21 @@ class DynamixelBus:
 
     def __init__(self, port: str, baud: int, where: str = "dynamixel"):
         self.port_name, self.baud, self.where = port, int(baud), where
-        self.port: BufferedPortHandler | None = None
+        self.port: BufferedPortHandler | InProcessPortHandler | None = None
         self.ph = sdk.PacketHandler(2.0)
         self.busy_recoveries = 0
         self.latency_timer_ms = read_latency_timer(port)
 
     # -- open / close ---------------------------------------------------------------------------------
     def open(self) -> None:
-        if not os.path.exists(self.port_name):
+        inproc = is_inprocess(self.port_name)
+        if not inproc and not os.path.exists(self.port_name):
             raise DeviceNotFound(
                 f"serial port {self.port_name} does not exist",
                 where=self.where,
                 fix=_port_fix(self.port_name),
             )
-        ph = BufferedPortHandler(self.port_name)
+        ph = InProcessPortHandler(self.port_name) if inproc else BufferedPortHandler(self.port_name)
         if ph.getCFlagBaud(self.baud) <= 0:
             raise ConfigError(
                 f"baud {self.baud} is not a rate dynamixel-sdk can set",
@@ -96,7 +102,8 @@ class DynamixelBus:
         # dynamixel-sdk opens the port with timeout=0 and spins on it while waiting for a reply, burning a
         # core the servos' host (or a twin) needs; a short blocking read returns as soon as the bytes the sdk
         # asked for are in, so latency is unchanged and the spin is gone.
-        ph.ser.timeout = READ_BLOCK_S
+        if not inproc:
+            ph.ser.timeout = READ_BLOCK_S
         self.port = ph
 
     def close(self) -> None:

@@ -1,4 +1,4 @@
-"""A chain of Dynamixel X servos (Protocol 2.0) on a pseudo-terminal, driven by a MotorBank.
+"""A chain of Dynamixel X servos (Protocol 2.0) on a pseudo-terminal (or in-process), driven by a MotorBank.
 
 SIMULATED DEVICE. dynamixel-sdk (and so DynamixelLeader and `factr2 doctor`) talk to `port_path`
 exactly as to /dev/ttyUSB0. Each servo has its own control table (EEPROM below address 64, RAM above);
@@ -16,12 +16,17 @@ bank methods are called from that thread; pass bank_lock if the bank is stepped 
 drain(timeout) returns once every byte written to the port so far has been read and handled -- a lockstep
 twin calls it before stepping physics so that a sync write has landed.
 
+transport="inprocess": no pty and no thread; `port_path` is an "inproc:..." name that DynamixelBus opens
+with hardware.dynamixel.inprocess.InProcessPortHandler, whose writes call serve() on the caller's thread
+(lockstep twins: deterministic, no syscalls or thread hand-offs per packet).
+
 Faults: drop_prob ignores each instruction packet with that probability (no reply, no effect);
 set_silent(True) (or silent_ids) makes servos ignore everything, as if unpowered.
 """
 
 from __future__ import annotations
 
+import math
 import os
 import select
 import termios
@@ -36,6 +41,7 @@ from hardware.dynamixel.models import resolve_models
 from hardware.dynamixel.servo_table import FIRMWARE_VERSION, ServoTable
 from hardware.sim.motors import MotorBank
 
+SEEN_PACKETS_MAX = 16  # in-process: recent clean writes whose parse is reused (a parse is a pure function)
 PARTIAL_TIMEOUT_S = 0.05  # an incomplete packet older than this is dropped (the servo's rx timeout)
 # termios speed constant -> bit/s, to see the rate the client set on the port (baud mismatch = no answer)
 _TERMIOS_RATES = {
@@ -72,7 +78,10 @@ class DynamixelEmulator:
         emulate_return_delay: bool = True,
         bank_lock: threading.Lock | None = None,
         seed: int | None = None,
+        transport: str = "pty",
     ):
+        if transport not in ("pty", "inprocess"):
+            raise ValueError(f"transport must be 'pty' or 'inprocess', got {transport!r}")
         n = len(ids)
         self.bank = bank
         self.drop_prob = float(drop_prob)
@@ -92,18 +101,26 @@ class DynamixelEmulator:
         ]
         self.parser = p.PacketParser()
         self.dropped = self.replies = self.instructions = self.write_overflows = 0
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self._path = os.ttyname(self._slave)
+        self.transport, self.closed = transport, False
+        self._reply_buf: list[bytes] | None = None  # in-process: replies of the packet being served
+        self._seen: dict[bytes, list] = {}  # in-process: bytes served recently -> their parsed packets
         self._pending_current: list[tuple[int, float]] | None = None
         self._line_rate: int | None = None
-        self._refresh_cache: dict[tuple, tuple] = {}
         self._cv = threading.Condition()
         self._busy = False
         self._stop = threading.Event()
         self._last_rx = time.monotonic()
         self._refresh()  # power-on: latch each servo's turn base
+        self._thread: threading.Thread | None = None
+        if transport == "inprocess":
+            from hardware.dynamixel import inprocess
+
+            self._path = inprocess.register(self)
+            return
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self._path = os.ttyname(self._slave)
         self._thread = threading.Thread(target=self._run, name="dxl-emulator", daemon=True)
         self._thread.start()
 
@@ -126,8 +143,33 @@ class DynamixelEmulator:
         if bits:
             self._write(s, p.ADDR_TORQUE_ENABLE[0], b"\x00")
 
+    def serve(self, data: bytes, line_rate: int | None = None) -> bytes:
+        """In-process transport: handle these bytes from the host (at line_rate bit/s) now; returns the
+        status packets the servos answer, back to back as the wire would carry them."""
+        self._line_rate = line_rate
+        self._reply_buf = out = []
+        try:
+            parser = self.parser
+            pkts = self._seen.get(data) if not parser.buf else None
+            if pkts is not None:  # the per-tick sync read (and an unchanged sync write) repeat byte for byte
+                parser.packets += len(pkts)
+            else:
+                bad = parser.errors + parser.garbage_bytes
+                pkts = parser.feed(data)
+                if not parser.buf and parser.errors + parser.garbage_bytes == bad:  # parsed cleanly
+                    if len(self._seen) >= SEEN_PACKETS_MAX:
+                        self._seen.clear()
+                    self._seen[data] = pkts
+            for pkt in pkts:
+                self._handle(pkt)
+        finally:
+            self._reply_buf = None
+        return b"".join(out)
+
     def drain(self, timeout: float = 1.0) -> bool:
         """True once every byte written to the port so far was read and handled; False on timeout [s]."""
+        if self._thread is None:
+            return True  # in-process: every write was handled before it returned
         deadline = time.monotonic() + timeout
         poller = select.poll()
         poller.register(self._master, select.POLLIN)
@@ -141,7 +183,13 @@ class DynamixelEmulator:
                 self._cv.wait(min(left, 0.002))
 
     def close(self) -> None:
+        self.closed = True
         self._stop.set()
+        if self._thread is None:
+            from hardware.dynamixel import inprocess
+
+            inprocess.unregister(self._path)
+            return
         self._thread.join(timeout=1.0)
         for fd in (self._master, self._slave):
             try:
@@ -197,6 +245,10 @@ class DynamixelEmulator:
             delay = servo.get(p.ADDR_RETURN_DELAY_TIME) * p.RETURN_DELAY_UNIT_S
             if delay > 0:
                 time.sleep(delay)
+        if self._reply_buf is not None:
+            self._reply_buf.append(pkt)
+            self.replies += 1
+            return
         try:
             n = os.write(self._master, pkt)
             if n < len(pkt):
@@ -218,28 +270,19 @@ class DynamixelEmulator:
         ]
 
     def _refresh(self, servos: list[ServoTable] | None = None) -> None:
-        """Latch present values of these servos from one bank.read() (vectorised: this runs every tick)."""
+        """Latch present values of these servos from one bank.read(). This runs on every read: per servo in
+        Python floats (a handful of servos costs less so than ~30 small numpy calls); the rounding is
+        half-to-even like protocol's numpy converters, and non-finite values latch 0."""
         servos = self.servos if servos is None else servos
         with self._bank_lock:
             r = self.bank.read()
-        key = tuple(s.index for s in servos)
-        if key not in self._refresh_cache:
-            self._refresh_cache[key] = (
-                np.array(key),
-                np.array([s.sign for s in servos]),
-                np.array([s.offset_rad for s in servos]),
-                np.array([s.model.amps_per_unit for s in servos]),
-            )
-        idx, sign, off, apu = self._refresh_cache[key]
-        raw = p.rad_to_ticks(sign * r.q[idx] + off).tolist()
-        qd = r.q_dot[idx]
-        vel = p.rad_s_to_velocity_units(sign * qd).tolist()
-        cur = p.amps_to_current_units(sign * r.current[idx], apu).tolist()
-        t = r.temperature[idx]
-        temp = np.rint(np.where(np.isfinite(t), t, 0.0)).astype(int).tolist()
-        moving = (np.abs(qd) > 0.01).tolist()
-        for k, s in enumerate(servos):
-            s.refresh(raw[k], vel[k], cur[k], temp[k], moving[k])
+        q, qd, cur, temp = r.q.tolist(), r.q_dot.tolist(), r.current.tolist(), r.temperature.tolist()
+        tick = int(time.monotonic() * 1e3) % 32768
+        rad_tick, rad_s_unit = p.RAD_PER_TICK, p.RAD_S_PER_VELOCITY_UNIT
+        for s in servos:
+            i, sg = s.index, s.sign
+            s.refresh(_rint((sg * q[i] + s.offset_rad) / rad_tick), _rint(sg * qd[i] / rad_s_unit),
+                      _rint(sg * cur[i] / s.model.amps_per_unit), _rint(temp[i]), abs(qd[i]) > 0.01, tick)
 
     def _handle(self, pkt: p.Packet) -> None:
         if pkt.is_status:
@@ -400,3 +443,8 @@ class DynamixelEmulator:
         if idx:
             with self._bank_lock:
                 self.bank.command_current(np.array(idx), np.array(amps))
+
+
+def _rint(x: float) -> int:
+    """Nearest integer, halves to even (= numpy.rint); 0 for NaN / inf."""
+    return round(x) if math.isfinite(x) else 0

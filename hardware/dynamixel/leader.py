@@ -44,6 +44,20 @@ def decode_feedback(data: bytes, with_current: bool) -> tuple[int, int, int]:
     return cur, p.from_le(data[k : k + 4], True), p.from_le(data[k + 4 : k + 8], True)
 
 
+_FB_DTYPES = {True: np.dtype([("cur", "<i2"), ("vel", "<i4"), ("pos", "<i4")]),
+              False: np.dtype([("vel", "<i4"), ("pos", "<i4")])}
+
+
+def decode_feedback_blocks(data: bytes, with_current: bool) -> np.ndarray:
+    """decode_feedback for servo blocks back to back: (m, 3) int64 rows (current, velocity, position)."""
+    rec = np.frombuffer(data, dtype=_FB_DTYPES[with_current])
+    out = np.zeros((rec.shape[0], 3), np.int64)
+    if with_current:
+        out[:, 0] = rec["cur"]
+    out[:, 1], out[:, 2] = rec["vel"], rec["pos"]
+    return out
+
+
 def wrap_to_offset(q_servo_rad: np.ndarray, offset_rad: np.ndarray) -> np.ndarray:
     """q_servo + 2*pi*k with k chosen so the result is closest to offset (resolves power-on turns)."""
     q, off = np.asarray(q_servo_rad, float), np.asarray(offset_rad, float)
@@ -69,9 +83,9 @@ def torque_to_current_units(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_unit
 def trigger_fraction(q_servo_rad: float, open_rad: float, closed_rad: float) -> float:
     """Trigger servo angle -> 0 (open) .. 1 (closed), clipped."""
     span = closed_rad - open_rad
-    if span == 0 or not np.isfinite(q_servo_rad):
+    if span == 0 or not math.isfinite(q_servo_rad):
         return float("nan")
-    return float(np.clip((q_servo_rad - open_rad) / span, 0.0, 1.0))
+    return min(max((float(q_servo_rad) - open_rad) / span, 0.0), 1.0)
 
 
 # -- driver ----------------------------------------------------------------------------------------
@@ -280,10 +294,12 @@ class DynamixelLeader(Leader):
         n, rc = self.n_joints, self.config.read_current
         got = self.bus.sync_read(self._read_group, self.read_ids, self.rx_timeout_ms)
         prev = self._last_state
-        st = JointState(
+        m = len(self.read_ids)  # joints, then the trigger (if any)
+        all_fresh = len(got) == m
+        st = JointState(  # stale joints keep the previous sample (copied only when some are stale)
             t=self.clock.now(),
-            q=prev.q.copy(),
-            q_dot=prev.q_dot.copy(),
+            q=prev.q if all_fresh else prev.q.copy(),
+            q_dot=prev.q_dot if all_fresh else prev.q_dot.copy(),
             tau_m=prev.tau_m.copy(),
             current=prev.current.copy(),
             q_cmd=np.full(n, np.nan),
@@ -292,27 +308,40 @@ class DynamixelLeader(Leader):
             gripper_pos=prev.gripper_pos,
             gripper_effort=prev.gripper_effort,
         )
-        m = len(self.read_ids)  # joints, then the trigger (if any)
-        fresh = np.zeros(m, bool)
-        raw = np.zeros((m, 3), np.int64)  # current units, velocity units, position ticks
-        alert = np.zeros(m, bool)
-        for k, dxl_id in enumerate(self.read_ids):
-            if dxl_id in got:
-                data, err = got[dxl_id]
-                raw[k] = decode_feedback(data, rc)
-                fresh[k], alert[k] = True, bool(err & p.ERR_ALERT_BIT)
-        # vectorised over servos: this runs every tick
-        delta = np.where(fresh, wrapped_tick_delta(raw[:, 2], self._ticks_prev), 0)
+        if all_fresh:  # the usual case: every servo answered; decode all blocks at once
+            replies = [got[i] for i in self.read_ids]
+            raw = decode_feedback_blocks(b"".join(r[0] for r in replies), rc)
+            fresh = np.ones(m, bool)
+            alert = np.array([bool(r[1] & p.ERR_ALERT_BIT) for r in replies])
+            delta = wrapped_tick_delta(raw[:, 2], self._ticks_prev)
+            self._ticks_prev = raw[:, 2]
+        else:
+            fresh = np.zeros(m, bool)
+            raw = np.zeros((m, 3), np.int64)  # current units, velocity units, position ticks
+            alert = np.zeros(m, bool)
+            for k, dxl_id in enumerate(self.read_ids):
+                if dxl_id in got:
+                    data, err = got[dxl_id]
+                    raw[k] = decode_feedback(data, rc)
+                    fresh[k], alert[k] = True, bool(err & p.ERR_ALERT_BIT)
+            delta = np.where(fresh, wrapped_tick_delta(raw[:, 2], self._ticks_prev), 0)
+            self._ticks_prev = np.where(fresh, raw[:, 2], self._ticks_prev)
         self._q_servo += delta * p.RAD_PER_TICK
-        self._ticks_prev = np.where(fresh, raw[:, 2], self._ticks_prev)
         j = fresh[:n]
-        st.q[j] = servo_to_joint(self._q_servo[:n], self.signs, self.offsets)[j]
-        st.q_dot[j] = (self.signs * p.velocity_units_to_rad_s(raw[:n, 1]))[j]
-        if rc:
-            cur = self.signs * raw[:n, 0] * self.amps_per_unit
-            st.current[j], st.tau_m[j] = cur[j], (self.k * cur)[j]
-        st.status[~j] |= np.uint32(STATUS_STALE | STATUS_COMM_LOST)
-        st.status[alert[:n]] |= np.uint32(STATUS_DRIVER_ERROR)
+        q = servo_to_joint(self._q_servo[:n], self.signs, self.offsets)
+        qd = self.signs * p.velocity_units_to_rad_s(raw[:n, 1])
+        cur = self.signs * raw[:n, 0] * self.amps_per_unit if rc else None
+        if all_fresh:  # whole new arrays, no masked stores
+            st.q, st.q_dot = q, qd
+            if rc:
+                st.current, st.tau_m = cur, self.k * cur
+        else:
+            st.q[j], st.q_dot[j] = q[j], qd[j]
+            if rc:
+                st.current[j], st.tau_m[j] = cur[j], (self.k * cur)[j]
+            st.status[~j] |= np.uint32(STATUS_STALE | STATUS_COMM_LOST)
+        if alert.any():
+            st.status[alert[:n]] |= np.uint32(STATUS_DRIVER_ERROR)
         if m > n and fresh[n]:
             c, g = self.config, self.gripper_model
             st.gripper_pos = trigger_fraction(self._q_servo[n], c.gripper_open_rad, c.gripper_closed_rad)

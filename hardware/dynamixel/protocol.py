@@ -388,7 +388,7 @@ def amps_to_current_units(amps, amps_per_unit, limit_units=None):
     u = np.where(np.isfinite(u), u, 0.0)
     if limit_units is not None:
         lim = np.asarray(limit_units, dtype=float)
-        u = np.clip(u, -lim, lim)
+        u = np.minimum(np.maximum(u, -lim), lim)
     return np.rint(u).astype(np.int64)
 
 

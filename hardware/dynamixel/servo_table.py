@@ -6,12 +6,19 @@ except where the emulator's constructor says otherwise. Values are stored little
 
 from __future__ import annotations
 
+import struct
 import time
 
 from hardware.dynamixel import protocol as p
 from hardware.dynamixel.models import ServoModel
 
 FIRMWARE_VERSION = 52
+_U16 = struct.Struct("<H")
+_POS_VEL = struct.Struct("<II")  # Present Velocity(128) then Present Position(132): adjacent
+_PRESENT_VEL, _PRESENT_CUR = p.ADDR_PRESENT_VELOCITY[0], p.ADDR_PRESENT_CURRENT[0]
+_PRESENT_TEMP, _MOVING = p.ADDR_PRESENT_TEMPERATURE[0], p.ADDR_MOVING[0]
+_REALTIME_TICK = p.ADDR_REALTIME_TICK[0]
+assert p.ADDR_PRESENT_POSITION[0] == _PRESENT_VEL + 4
 READ_ONLY = (
     {p.ADDR_MODEL_NUMBER[0], p.ADDR_MODEL_NUMBER[0] + 1, p.ADDR_FIRMWARE_VERSION[0]}
     | set(range(p.ADDR_HARDWARE_ERROR_STATUS[0], p.ADDR_HARDWARE_ERROR_STATUS[0] + 1))
@@ -77,14 +84,21 @@ class ServoTable:
         base = self.turn_base or 0
         return float(self.sign * (p.ticks_to_rad(ticks - base) - self.offset_rad))
 
-    def refresh(self, raw_ticks: int, vel_units: int, cur_units: int, temp_c: int, moving: bool) -> None:
-        """Latch present values (raw encoder ticks, 0.229 rpm units, current units, degC)."""
-        self._put(p.ADDR_PRESENT_POSITION, self.servo_ticks(raw_ticks))
-        self._put(p.ADDR_PRESENT_VELOCITY, vel_units)
-        self._put(p.ADDR_PRESENT_CURRENT, max(-32768, min(32767, cur_units)))
-        self._put(p.ADDR_PRESENT_TEMPERATURE, max(0, min(255, temp_c)))
-        self._put(p.ADDR_MOVING, int(moving))
-        self._put(p.ADDR_REALTIME_TICK, int(time.monotonic() * 1e3) % 32768)
+    def refresh(self, raw_ticks: int, vel_units: int, cur_units: int, temp_c: int, moving: bool,
+                tick_ms: int | None = None) -> None:
+        """Latch present values (raw encoder ticks, 0.229 rpm units, current units, degC; tick_ms: Realtime
+        Tick, default now)."""
+        # one C call per field (this runs for every servo on every read); same bytes as _put
+        t = self.table
+        if self.turn_base is None:
+            self.servo_ticks(raw_ticks)
+        _POS_VEL.pack_into(t, _PRESENT_VEL, vel_units & 0xFFFFFFFF, (raw_ticks + self.turn_base) & 0xFFFFFFFF)
+        _U16.pack_into(t, _PRESENT_CUR, max(-32768, min(32767, cur_units)) & 0xFFFF)
+        t[_PRESENT_TEMP] = max(0, min(255, temp_c))
+        t[_MOVING] = 1 if moving else 0
+        if tick_ms is None:
+            tick_ms = int(time.monotonic() * 1e3) % 32768
+        _U16.pack_into(t, _REALTIME_TICK, tick_ms)
 
     def check_write(self, addr: int, data: bytes) -> int:
         """The status error a write would get (0: allowed): read-only or out of the table, EEPROM with

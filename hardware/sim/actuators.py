@@ -155,13 +155,15 @@ def linearised_friction(v: np.ndarray, p: ActuatorParams,
         z = np.zeros_like(v)
         return z, z
     inv_eps, neg_inv_vs2 = friction_constants(p) if k is None else k
-    th = np.tanh(v * inv_eps)
+    x = v * inv_eps
+    th = np.tanh(x)
     big_f = p.coulomb
     if ef.stribeck:
         big_f = big_f + p.stribeck * np.exp(v * v * neg_inv_vs2)
-    dc = big_f * (1.0 - th * th) * inv_eps  # slope of the smoothed Coulomb part, >= 0
-    # friction(v) = big_f th + Fv v = (big_f th - dc v) + (dc + Fv) v
-    return dc + p.viscous, big_f * th - dc * v
+    bs = big_f * (1.0 - th * th)
+    dc = bs * inv_eps  # slope of the smoothed Coulomb part, >= 0
+    # friction(v) = big_f th + Fv v = (big_f th - dc v) + (dc + Fv) v, and dc v = bs x
+    return dc + p.viscous, big_f * th - bs * x
 
 
 # -- transmission ----------------------------------------------------------------------------------

@@ -158,22 +158,29 @@ class MujocoBank:
     def command_position(self, idx, q) -> None:
         with self.world.lock:
             idx = np.atleast_1d(np.asarray(idx, dtype=int))
-            fresh = idx[self.mode[idx] != MODE_POSITION]
-            self.q_set[fresh], self.integ[fresh] = self.theta[fresh], 0.0  # bumpless switch
-            self.mode[idx], self.q_goal[idx] = MODE_POSITION, q
-            self._masks()
+            switch = self.mode[idx] != MODE_POSITION
+            if switch.any():
+                fresh = idx[switch]
+                self.q_set[fresh], self.integ[fresh] = self.theta[fresh], 0.0  # bumpless switch
+            self.q_goal[idx] = q
+            self._set_mode(idx, MODE_POSITION)
 
     def command_mit(self, idx, q, v, kp, kd, tau_ff) -> None:
         with self.world.lock:
             idx = np.atleast_1d(np.asarray(idx, dtype=int))
-            self.mode[idx] = MODE_MIT
             self.q_d[idx], self.v_d[idx], self.kp[idx], self.kd[idx], self.tau_ff[idx] = q, v, kp, kd, tau_ff
-            self._masks()
+            self._set_mode(idx, MODE_MIT)
 
     def command_current(self, idx, current_a) -> None:
         with self.world.lock:
             idx = np.atleast_1d(np.asarray(idx, dtype=int))
-            self.mode[idx], self.i_cmd[idx] = MODE_CURRENT, current_a
+            self.i_cmd[idx] = current_a
+            self._set_mode(idx, MODE_CURRENT)
+
+    def _set_mode(self, idx: np.ndarray, mode: int) -> None:
+        """Mode of these joints; the masks are rebuilt only when a mode changes (commands come every tick)."""
+        if not np.all(self.mode[idx] == mode):
+            self.mode[idx] = mode
             self._masks()
 
     def enable(self, idx, on: bool) -> None:
@@ -245,12 +252,16 @@ class MujocoBank:
             tc = self.i_cmd * p.kt
             tau_e, kd = (tc, self._zeros) if self._uniform else (np.where(self._cur, tc, tau_e),
                                                                  np.where(self._cur, 0.0, kd))
+        no_kd = kd is self._zeros  # current mode / disabled: no implicit damping from the law
         if ef.saturation:
-            est = tau_e - kd * v
-            lim = np.minimum(np.maximum(est, self._neg_tau_lim), self._tau_lim)
-            sat = lim != est
-            if sat.any():
-                tau_e, kd = np.where(sat, lim, tau_e), np.where(sat, 0.0, kd)
+            if no_kd:  # the request is tau_e itself: a plain clamp
+                tau_e = np.minimum(np.maximum(tau_e, self._neg_tau_lim), self._tau_lim)
+            else:
+                est = tau_e - kd * v
+                lim = np.minimum(np.maximum(est, self._neg_tau_lim), self._tau_lim)
+                sat = lim != est
+                if sat.any():
+                    tau_e, kd = np.where(sat, lim, tau_e), np.where(sat, 0.0, kd)
         self.tau_e, self.kd_eff = tau_e, kd
         ks = self._kt_scale
         net = ks * tau_e + self.tau_hand
@@ -263,7 +274,8 @@ class MujocoBank:
         damp, f0 = act.linearised_friction(v, p, self._fric_k)
         self._fric = (damp, f0)
         net = net - f0
-        damp = damp + ks * kd
+        if not no_kd:
+            damp = damp + ks * kd
         if p.brake and any_off:
             net = net - np.where(self._off, BRAKE_KP * (q - self.q_brake), 0.0)
             damp = damp + np.where(self._off, BRAKE_KD, 0.0)

@@ -214,17 +214,22 @@ def _twin_camera(config, world, clock):
 
 
 def open_rig(rig: str | os.PathLike | Rig = "sim-piper", clock: str = "lockstep", effect=None,
-             seed: int | None = None, connect: bool = True) -> RigSession:
+             seed: int | None = None, connect: bool = True,
+             dynamixel_transport: str | None = None) -> RigSession:
     """Build a rig's session. Simulated rigs get a Twin: clock="lockstep" (deterministic; the loop's
     clock.sleep advances physics) or "realtime" (a thread steps physics to wall time). Real rigs need
     clock="realtime". connect: connect every driver (leaders first). Cameras are built, not connected
-    (session.cameras[name].connect(); twin cameras need OpenGL). ConfigError on bad input."""
+    (session.cameras[name].connect(); twin cameras need OpenGL). dynamixel_transport: how a twin serves its
+    Dynamixel leaders -- None picks "inprocess" for lockstep (same sdk bytes, no pty thread: deterministic
+    and fast) and "pty" for realtime; "pty" in lockstep exercises the pseudo-terminal path.
+    ConfigError on bad input."""
     r = _as_rig(rig)
     if clock not in ("lockstep", "realtime"):
         raise ConfigError(f"unknown clock {clock!r}", where="open_rig", fix="use 'lockstep' or 'realtime'")
     twin = None
     if r.simulated:
-        twin = Twin(r, effect=effect, seed=seed)
+        transport = dynamixel_transport or ("inprocess" if clock == "lockstep" else "pty")
+        twin = Twin(r, effect=effect, seed=seed, dynamixel_transport=transport)
         r = r.with_endpoints(twin.serial_ports, twin.can_channels)
     elif clock == "lockstep":
         raise ConfigError(f"rig {r.name} is real hardware: it cannot run in lockstep", where=str(r.path),

@@ -8,7 +8,9 @@
 Each follower is its own MuJoCo world (its arm's scene, e.g. with a table) with one MujocoBank on the arm
 joints (+ gripper); it speaks its driver's protocol through PiperEmulator / DamiaoEmulator on a python-can
 virtual channel. Each leader (a GELLO arm) is a separate world without contacts, driven by goal currents
-through a DynamixelEmulator on a pseudo-terminal. Physics steps at the rig's physics_hz (1 kHz default):
+through a DynamixelEmulator on a pseudo-terminal (dynamixel_transport="pty", real time and serve_twin) or
+on an in-process port (dynamixel_transport="inprocess", lockstep rigs: hardware/dynamixel/inprocess.py, same
+sdk bytes without the pty and its thread). Physics steps at the rig's physics_hz (1 kHz default):
 per step the CAN emulators take pending commands (poll), every world steps, and the CAN emulators send
 the feedback due (emit). Dynamixel requests are answered by the emulator's thread from the latest state.
 """
@@ -34,6 +36,11 @@ from hardware.sim.world import GroundTruth, MujocoWorld
 
 GRIPPER_MOTOR = {"piper": "piper_gripper", "damiao": "DM4310", "dynamixel": "XL330-M288",
                  "sim": "piper_gripper"}
+# Hz: firmware-law rate of leader worlds. A GELLO leader runs in current mode (its law is K * i, the current
+# changes once per driver loop) and is light, so its bank math runs every 2 ms while MuJoCo still integrates
+# it at physics_hz (implicit damping + friction slope every physics step); tests/test_twin_speed.py checks the
+# motion against the leader stepped every 1 ms. None: the twin's control_hz.
+LEADER_CONTROL_HZ = 500.0
 REALTIME_SLEEP_S = 0.0005  # s: the real-time thread's nap between catch-ups
 REALTIME_MAX_LAG_S = 0.1  # s: a real-time twin further behind than this skips ahead (counted in .overruns)
 _SERIAL = itertools.count()
@@ -135,7 +142,8 @@ class GripperTransmission:
 class Twin:
     """Simulated rig. Device names are the rig's; see module doc for the stepping order."""
 
-    def __init__(self, rig: Rig, *, effect=None, seed: int | None = None):
+    def __init__(self, rig: Rig, *, effect=None, seed: int | None = None, dynamixel_transport: str = "pty",
+                 leader_control_hz: float | None = LEADER_CONTROL_HZ):
         from hardware.arms import load_arm
 
         self.rig = rig
@@ -147,6 +155,15 @@ class Twin:
             n_check = load_arm(rig.followers[0].arm).n_joints
             self.hook = load_hook(hook_spec, n_check=n_check)
         self.hook_spec = hook_spec
+        if dynamixel_transport not in ("pty", "inprocess"):
+            raise ConfigError(f"unknown Dynamixel transport {dynamixel_transport!r}", where="Twin",
+                              fix="use 'pty' or 'inprocess'")
+        self.dynamixel_transport = dynamixel_transport
+        # leader worlds take one control tick of leader_every twin ticks (at the end of each block, so at
+        # multiples of leader_every * dt they are exactly in time with the followers)
+        chz = rig.twin.control_hz
+        self.leader_every = max(1, int(chz // leader_control_hz)) if leader_control_hz else 1
+        self._every: list[int] = []  # per world: twin ticks per world control tick
         self.substeps = max(1, round(rig.twin.physics_hz / rig.twin.control_hz))
         self.dt = self.substeps / rig.twin.physics_hz  # control tick [s]: emulators and firmware laws run
         self.devices: dict[str, TwinDevice] = {}
@@ -186,7 +203,9 @@ class Twin:
         joints = list(arm.joint_names) + ([arm.gripper_joints[0]] if with_gripper else [])
         params = _device_params(dev, arm, with_gripper, self.effects)
         bank = world.add_bank(joints, params, name=dev.name, seed=seed)
-        world.set_substeps(self.substeps)
+        every = 1 if follower else self.leader_every
+        world.set_substeps(self.substeps * every)
+        self._every.append(every)
         if follower and self.hook is not None:
             bank.hook = self.hook
             bank.hook_n = arm.n_joints
@@ -218,7 +237,8 @@ class Twin:
         offsets += [float(cfg.gripper_open_rad)] if with_gripper else []
         emu = DynamixelEmulator(td.bank, ids, models, signs=signs, offsets_rad=offsets, return_delay=0,
                                 operating_mode=OP_MODE_CURRENT, baud=int(cfg.baud), bank_lock=td.world.lock,
-                                seed=self.seed, emulate_return_delay=False)
+                                seed=self.seed, emulate_return_delay=False,
+                                transport=self.dynamixel_transport)
         td.emulator, td.endpoint = emu, emu.port_path
         self._dxl_emus.append(emu)
 
@@ -267,10 +287,12 @@ class Twin:
         """One physics step of every world, with the CAN emulators' poll before and emit after."""
         for e in self._can_emus:
             e.poll()
-        for w in self.worlds:
-            w.step()
+        k = self.steps + 1
+        for w, every in zip(self.worlds, self._every):
+            if every == 1 or k % every == 0:
+                w.step()
         self.t += self.dt
-        self.steps += 1
+        self.steps = k
         for e in self._can_emus:
             e.emit(self.t)
 
