@@ -31,6 +31,8 @@ from hardware.safety import DEFAULT_WATCHDOG_S, SafeLeaderTorque
 from hardware.serial_ports import latency_timer_advice
 from hardware.types import STATUS_COMM_LOST, STATUS_DRIVER_ERROR, STATUS_ENABLED, STATUS_STALE, JointState
 
+PING_TRIES = 3  # pings per id at connect before the id counts as missing
+
 log = logging.getLogger("factr2.dynamixel")
 TWO_PI = 2.0 * math.pi
 HALF_TURN_TICKS = p.TICKS_PER_REV // 2
@@ -230,9 +232,11 @@ class DynamixelLeader(Leader):
         c = self.config
         answered: dict[int, tuple[int, int]] = {}
         for dxl_id in self.read_ids:
-            r = bus.ping(dxl_id)
-            if r is not None:
-                answered[dxl_id] = r
+            for _ in range(PING_TRIES):  # a single lost packet must not fail the start-up
+                r = bus.ping(dxl_id)
+                if r is not None:
+                    answered[dxl_id] = r
+                    break
         missing = [i for i in self.read_ids if i not in answered]
         if missing:
             on_bus = bus.broadcast_ping()
