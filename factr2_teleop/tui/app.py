@@ -1,0 +1,166 @@
+"""The factr2 terminal app: four screens (Rig, Calibrate, Teleop, Episodes) over one rig runtime.
+
+SPACE is the emergency stop on every screen (leaders torque off, followers hold, the running activity ends);
+in a text field (note, rig path) space types a space and ctrl+space is the emergency stop. Quitting (q,
+ctrl+q, ctrl+c) always stops teleop/calibration and leaves the arms safe before the app exits. Blocking work
+(connecting, the doctor, teleop start/stop, calibration, reading recordings) runs in threads; screens poll
+thread-safe snapshots a few times a second.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from pathlib import Path
+
+from textual.app import App
+from textual.binding import Binding
+from textual.widgets import Input
+
+from factr2_teleop.tui.calib_ctl import CalibrationRun
+from factr2_teleop.tui.calibration import CalibrationScreen
+from factr2_teleop.tui.episodes import EpisodesScreen
+from factr2_teleop.tui.rig import RigScreen
+from factr2_teleop.tui.runtime import RigRuntime
+from factr2_teleop.tui.teleop import TeleopScreen
+from factr2_teleop.tui.teleop_ctl import TeleopController
+
+
+class Factr2App(App):
+    CSS_PATH = "factr2.tcss"
+    TITLE = "factr2"
+    ENABLE_COMMAND_PALETTE = False
+    MODES = {
+        "rig": RigScreen,
+        "calibration": CalibrationScreen,
+        "teleop": TeleopScreen,
+        "episodes": EpisodesScreen,
+    }
+    DEFAULT_MODE = "rig"
+    BINDINGS = [
+        Binding("space", "estop", "E-STOP", priority=True),
+        Binding("ctrl+space,ctrl+@", "estop_always", "E-STOP", show=False, priority=True),
+        Binding("1", "switch_mode('rig')", "Rig", show=False),
+        Binding("2", "switch_mode('calibration')", "Calibrate", show=False),
+        Binding("3", "switch_mode('teleop')", "Teleop", show=False),
+        Binding("4", "switch_mode('episodes')", "Episodes", show=False),
+        Binding("q", "quit_safe", "Quit", show=False),
+        Binding("ctrl+q,ctrl+c", "quit_safe", "Quit", show=False, priority=True),
+    ]
+
+    def __init__(
+        self,
+        runtime: RigRuntime,
+        out_dir: str | Path = "factr2_out",
+        rate_hz: float = 500.0,
+        cal_minutes: float = 10.0,
+        cal_epochs: int = 400,
+        cal_samples_per_epoch: int = 16384,
+        connect: bool = False,
+        mode: str | None = None,
+        light: bool = False,
+    ):
+        super().__init__()
+        if light:
+            self.theme = "textual-light"
+        self.runtime = runtime
+        self.out_dir = Path(out_dir)
+        self.teleop = TeleopController(runtime, self.out_dir / "recordings", rate_hz=rate_hz, mode=mode)
+        self.calibration: CalibrationRun | None = None
+        self.calibration_thread: threading.Thread | None = None
+        self.cal_minutes, self.cal_epochs = float(cal_minutes), int(cal_epochs)
+        self.cal_samples_per_epoch = int(cal_samples_per_epoch)
+        self._connect_on_start = connect
+        self._closed = False
+
+    def on_mount(self) -> None:
+        self.say(
+            f"rig {self.runtime.rig.name}: press c on this screen to connect"
+            if not self._connect_on_start
+            else f"connecting to {self.runtime.rig.name} ..."
+        )
+        if self._connect_on_start:
+            self.run_worker(self._connect, thread=True, name="connect")
+
+    def _connect(self) -> None:
+        try:
+            self.runtime.connect()
+        except Exception as e:  # noqa: BLE001 -- one line on screen
+            self.call_from_thread(self.say, f"connect: {e}")
+
+    # -- shared helpers ------------------------------------------------------------------------------------
+    def say(self, text: str) -> None:
+        self.runtime.say(text)
+
+    def calibration_problem(self) -> str | None:
+        """Why a NEXT calibration cannot run now (None: it can)."""
+        rt = self.runtime
+        if not rt.connected:
+            return "no rig connected (Rig screen, key c)"
+        if rt.activity == "teleop":
+            return "teleop is running (stop it on the Teleop screen, key t)"
+        try:
+            import calibration.report  # noqa: F401
+            import calibration.trajectories  # noqa: F401
+        except ImportError as e:
+            return f"calibration pipeline not installed ({e})"
+        return None
+
+    def stop_activities(self) -> None:
+        """End teleop and calibration (each leaves the arms safe). Never raises."""
+        if self.teleop.running:
+            try:
+                self.teleop.stop()
+            except Exception as e:  # noqa: BLE001
+                self.say(f"teleop stop: {e}")
+        if self.calibration is not None:
+            self.calibration.abort("stopped")
+        if self.calibration_thread is not None:
+            self.calibration_thread.join(10.0)
+
+    # -- emergency stop -------------------------------------------------------------------------------------
+    def check_action(self, action: str, parameters: tuple) -> bool | None:
+        if action == "estop" and isinstance(self.focused, Input):
+            return False  # typing: space is a space here; ctrl+space is the e-stop
+        return True
+
+    def action_estop_always(self) -> None:
+        self.action_estop()
+
+    def action_estop(self) -> None:
+        def stop_activity() -> None:
+            if self.teleop.loop is not None:
+                self.teleop.stop_reason = "emergency stop"
+                self.teleop.loop.stop(timeout_s=0.0)  # non-blocking: the loop ends safe on its next tick
+            if self.calibration is not None:
+                self.calibration.abort("emergency stop")
+
+        line = self.runtime.estop(stop_activity)
+        self.notify(line, title="EMERGENCY STOP", severity="error", timeout=4)
+
+    # -- quitting -------------------------------------------------------------------------------------------
+    def shutdown_all(self) -> None:
+        """Stop everything, close the recording, leave the arms safe, close the rig. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self.stop_activities()
+        try:
+            self.teleop.close()
+        except Exception as e:  # noqa: BLE001
+            self.say(f"closing the recording: {e}")
+        self.runtime.shutdown()
+        # drop the loop's ruckig objects now, not at interpreter exit (nanobind then reports "leaks")
+        self.teleop.loop = None
+        self.calibration = None
+        import gc
+
+        gc.collect()
+
+    async def action_quit_safe(self) -> None:
+        self.say("quitting: stopping and leaving the arms safe ...")
+        await asyncio.to_thread(self.shutdown_all)
+        self.exit()
+
+    def on_unmount(self) -> None:
+        self.shutdown_all()
