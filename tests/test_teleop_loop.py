@@ -103,6 +103,7 @@ def test_follower_holds_within_50ms_of_leader_silence():
 def test_leader_back_after_silence_resumes_through_soft_start():
     rig = Rig()
     pair = rig.pair()
+    pair.cfg.soft_start.resume_direct_rad = 0.0  # always through the soft start (default: direct when close)
     loop = TeleopLoop([pair], rig.clock)
     seen = []
 
@@ -275,3 +276,20 @@ def test_threaded_loop_on_real_clock_stops_safe():
     assert not th.is_alive() and not loop.running
     assert lead.sent[-1].tau.tolist() == [0.0] * 3 and fol.sent[-1].hold
     assert loop.snapshot().timing.ticks > 10 and loop.error is None
+
+
+def test_leader_back_after_short_silence_recouples_directly_when_close():
+    rig = Rig()
+    pair = rig.pair()
+    loop = TeleopLoop([pair], rig.clock)
+    seen = []
+
+    def rec(r):
+        seen.append(r["phase"])
+        rig.leader.silent = 0.5 <= r["t"] < 0.55
+
+    loop.recorder = rec
+    loop.run(duration_s=1.0)
+    i_hold = seen.index(HOLD)
+    assert SOFT_START not in seen[i_hold:] and seen[-1] == COUPLED
+    assert "re-coupled after hold" in [m for _, _, m in loop.snapshot().messages]

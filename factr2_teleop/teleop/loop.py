@@ -91,6 +91,9 @@ class TeleopLoop:
             for p in self.pairs:
                 p.begin()
             self._note_messages()
+            # a clock that drives a simulation between ticks (demo.task.TwinDrivenClock) brings it up to now
+            # here, so the first tick does not see samples as old as the start-up; no-op on other clocks
+            self.clock.sleep_until(self.clock.now())
             t0 = self.clock.now()
             next_t, ticks = t0, 0
             while not self._stop.is_set():

@@ -21,11 +21,12 @@ from factr2_teleop.teleop.mapping import JointMap, JointMapConfig
 from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch_error, rate_limit
 from hardware.errors import ConfigError, DeviceError
 from hardware.roles import Follower, Leader
-from hardware.types import FollowerCommand, JointState
+from hardware.types import STATUS_COMM_LOST, STATUS_STALE, FollowerCommand, JointState
 
 log = logging.getLogger("factr2.teleop")
 
 SOFT_START, COUPLED, HOLD, FAULT, STOPPED, IDLE = "soft_start", "coupled", "hold", "fault", "stopped", "idle"
+_STALE_BITS = np.uint32(STATUS_STALE | STATUS_COMM_LOST)
 DEFAULT_STALE_S = 0.02  # s: a leader/follower sample older than this puts the follower on hold (< 50 ms)
 
 
@@ -66,6 +67,13 @@ def _fresh(st: JointState, now: float, max_age: float) -> bool:
     return bool(np.all(np.isfinite(st.q))) and np.isfinite(st.t) and now - st.t <= max_age
 
 
+def _complete(st: JointState) -> bool:
+    """A sample in which every joint is new: drivers re-stamp a partial/failed read with the read time and
+    flag the joints that kept old values (STATUS_STALE / STATUS_COMM_LOST), so age alone cannot tell."""
+    status = getattr(st, "status", None)
+    return status is None or not bool(np.any(np.asarray(status, dtype=np.uint32) & _STALE_BITS))
+
+
 class ArmPair:
     """Leader + follower + law + map + soft start + estimator. The loop calls begin() once, then tick()."""
 
@@ -87,6 +95,7 @@ class ArmPair:
         self._last_msg = ""
         self.estimator_errors = 0
         self.last: dict = {}
+        self._t_ok = {"leader": -np.inf, "follower": -np.inf}  # time of the last complete sample [s]
 
     # -- helpers -------------------------------------------------------------------------------------
     def _say(self, text: str, level: int = logging.WARNING) -> None:
@@ -105,13 +114,20 @@ class ArmPair:
                 self._say(f"leader zero torque failed ({type(e).__name__}: {e})")
         self._say(f"follower on hold: {reason}")
 
-    def _start_soft(self, ls: JointState, fs: JointState) -> bool:
-        err = mismatch_error(fs.q, self.map.forward(ls.q), self.soft.max_mismatch, where=self.cfg.name)
+    def _start_soft(self, ls: JointState, fs: JointState, resume: bool = False) -> bool:
+        goal = self.map.forward(ls.q)
+        err = mismatch_error(fs.q, goal, self.soft.max_mismatch, where=self.cfg.name)
         if err is not None:
             self._say(str(err))
             return False
-        self.soft.reset(fs.q)
         self.law.feedback.reset()
+        direct = self.cfg.soft_start.resume_direct_rad
+        if resume and direct > 0 and bool(np.all(np.abs(goal - fs.q) <= direct)):
+            self.q_target = np.asarray(fs.q, dtype=float).copy()  # rate_limit() closes the gap from here
+            self.phase = COUPLED
+            self._say("re-coupled after hold", logging.INFO)
+            return True
+        self.soft.reset(fs.q)
         self.q_target = None
         self.phase = SOFT_START
         return True
@@ -145,6 +161,7 @@ class ArmPair:
                                   where=self.cfg.name,
                                   fix="check power, cables and the port/channel in the rig")
             clock.sleep(self.dt_s)
+        self._t_ok = {"leader": ls.t, "follower": fs.t}
         self.law.reset(ls.q)  # null-space posture = the leader's start pose unless the rig sets one
         err = mismatch_error(fs.q, self.map.forward(ls.q), self.soft.max_mismatch, where=self.cfg.name)
         if err is not None:
@@ -160,18 +177,18 @@ class ArmPair:
         dt = min(max(dt, 0.0), 3.0 * self.dt_s)
         self._t_prev = now
         ls, fs = self.leader.read(), self.follower.read()
-        leader_ok, follower_ok = _fresh(ls, now, cfg.leader_stale_s), _fresh(fs, now, cfg.follower_stale_s)
+        leader_ok = self._ok("leader", ls, now, cfg.leader_stale_s)
+        follower_ok = self._ok("follower", fs, now, cfg.follower_stale_s)
         q_leader_f = self.map.forward(ls.q)
         if follower_ok:
             self._tick_estimator(now, fs, q_leader_f)
         if not (leader_ok and follower_ok):
             if self.phase != HOLD:
                 who = "leader" if not leader_ok else "follower"
-                st = ls if not leader_ok else fs
-                age = (now - st.t) * 1e3 if np.isfinite(st.t) else float("inf")
+                age = (now - self._t_ok[who]) * 1e3 if np.isfinite(self._t_ok[who]) else float("inf")
                 self._enter_hold(f"{who} data stale ({age:.0f} ms old)", leader_ok)
         elif self.phase == HOLD:
-            self._start_soft(ls, fs)
+            self._start_soft(ls, fs, resume=True)
         out = None
         if leader_ok:  # the law needs a fresh leader pose; feedback only while coupled
             out = self.law.step(self._leader_inputs(now, ls, fs), feedback_on=self.phase == COUPLED)
@@ -195,6 +212,13 @@ class ArmPair:
         return self.last
 
     # -- pieces ---------------------------------------------------------------------------------------
+    def _ok(self, who: str, st: JointState, now: float, max_age: float) -> bool:
+        """Fresh: finite, and a complete sample within max_age (a lost read now and then is tolerated,
+        silence is not: it holds the follower within max_age + one tick)."""
+        if _fresh(st, now, max_age) and _complete(st):
+            self._t_ok[who] = st.t
+        return bool(np.all(np.isfinite(st.q))) and now - self._t_ok[who] <= max_age
+
     def _tick_estimator(self, now: float, fs: JointState, q_leader_f: np.ndarray) -> None:
         if self.estimator is None or now - self._t_est_run < self.cfg.estimator_period_s:
             return

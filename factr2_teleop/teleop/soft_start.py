@@ -22,7 +22,10 @@ class SoftStartConfig:
     """max_mismatch_rad: refuse to start when any follower joint is further than this from the leader's mapped
     pose [rad]. v/a/j_max: limits of the soft-start move [rad/s, rad/s^2, rad/s^3]. done_tol_rad: coupling
     starts once the move is within this of the (moving) goal on every joint [rad].
-    rate_limit_rad_s: coupled-phase limit on how fast the follower target may move [rad/s]."""
+    rate_limit_rad_s: coupled-phase limit on how fast the follower target may move [rad/s].
+    resume_direct_rad: after a hold, re-couple at once (the coupled rate limit closes the gap) when every
+    follower joint is within this of the leader's mapped pose [rad]; the soft-start move cannot catch a leader
+    that keeps moving faster than v_max_rad_s (wiping) and cannot end in contact. 0 disables it."""
 
     max_mismatch_rad: PerJoint = DEFAULT_MAX_MISMATCH_RAD
     v_max_rad_s: PerJoint = 0.5
@@ -30,6 +33,7 @@ class SoftStartConfig:
     j_max_rad_s3: PerJoint = 10.0
     done_tol_rad: float = 0.02
     rate_limit_rad_s: PerJoint = 3.0
+    resume_direct_rad: float = 0.25
 
 
 def start_mismatch(q_follower: np.ndarray, q_goal: np.ndarray) -> np.ndarray:

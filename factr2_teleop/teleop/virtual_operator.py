@@ -126,7 +126,7 @@ class VirtualOperator:
     def __init__(self, script: OperatorScript, stiffness: PerJoint = 3.0, damping: PerJoint = 0.1,
                  tau_max_nm: PerJoint = 2.0, press_dir: np.ndarray | None = None,
                  jacobian_fn: Callable[[np.ndarray], np.ndarray] | None = None,
-                 surface_normal: np.ndarray | None = None, t0: float = 0.0):
+                 surface_normal: np.ndarray | None = None, t0: float = 0.0, defer_force: bool = False):
         n = len(script.q_start)
         self.script, self.n, self.t0 = script, n, float(t0)
         self.k = per_joint(stiffness, n, "virtual_operator.stiffness", nonneg=True)
@@ -137,13 +137,14 @@ class VirtualOperator:
         u = np.asarray(press_dir, dtype=float)
         self.press_dir = u / np.linalg.norm(u) if np.linalg.norm(u) > 0 else u
         self.jacobian_fn, self.normal = jacobian_fn, surface_normal
+        self.defer_force = defer_force  # True: force_n is computed in arrays() (batched), not per tick
         self.log: list[OperatorSample] = []
 
     def torque(self, t: float, q: np.ndarray, q_dot: np.ndarray) -> np.ndarray:
         q_ref, qd_ref, phase = scripted_target(t - self.t0, self.script)
         tau = hand_torque(q, q_dot, q_ref, qd_ref, self.k, self.d, self.tau_max)
         force = float("nan")
-        if self.jacobian_fn is not None and self.normal is not None:
+        if self.jacobian_fn is not None and self.normal is not None and not self.defer_force:
             J = np.asarray(self.jacobian_fn(np.asarray(q, dtype=float)), dtype=float)
             F = np.linalg.pinv(J.T) @ tau
             force = -float(np.dot(np.asarray(self.normal, dtype=float), F[:3]))
@@ -157,10 +158,17 @@ class VirtualOperator:
     def arrays(self) -> dict[str, np.ndarray]:
         """The log as arrays: t, phase (str), q_ref, q, tau_hand, press_nm, force_n."""
         L = self.log
-        return {"t": np.array([s.t for s in L]), "phase": np.array([s.phase for s in L]),
-                "q_ref": np.array([s.q_ref for s in L]), "q": np.array([s.q for s in L]),
-                "tau_hand": np.array([s.tau_hand for s in L]), "press_nm": np.array([s.press_nm for s in L]),
-                "force_n": np.array([s.force_n for s in L])}
+        out = {"t": np.array([s.t for s in L]), "phase": np.array([s.phase for s in L]),
+               "q_ref": np.array([s.q_ref for s in L]), "q": np.array([s.q for s in L]),
+               "tau_hand": np.array([s.tau_hand for s in L]), "press_nm": np.array([s.press_nm for s in L]),
+               "force_n": np.array([s.force_n for s in L])}
+        if self.defer_force and L and self.jacobian_fn is not None and self.normal is not None:
+            if not hasattr(self, "_force_cache") or len(self._force_cache) != len(L):
+                Jt = np.array([np.asarray(self.jacobian_fn(q), dtype=float).T for q in out["q"]])
+                F = np.einsum("tij,tj->ti", np.linalg.pinv(Jt), out["tau_hand"])  # batched pinv(J^T) tau
+                self._force_cache = -(F[:, :3] @ np.asarray(self.normal, dtype=float))
+            out["force_n"] = self._force_cache
+        return out
 
     def summary(self) -> dict[str, dict[str, float]]:
         """Per phase: mean ||tau_hand||_1 [N*m] (the user study's 'applied joint torque'), mean press [N*m],

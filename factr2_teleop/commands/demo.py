@@ -1,0 +1,206 @@
+"""`factr2 demo`: the main job on the built-in twin (SIMULATED): sim-piper + virtual operator + a table
+contact/wipe task with bilateral force feedback; NEXT from a checkpoint it finds cached or trains first.
+
+    factr2 demo [--headless] [--seconds 60] [--json FILE] [--record DIR]
+                [--mode auto|none|dob|pp|next|ground_truth]
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+import time
+from pathlib import Path
+
+from hardware.errors import UserError
+
+HELP = "SIMULATED bilateral teleop demo on the twin: virtual operator, table wipe, timing + feedback metrics"
+MODES = ("auto", "none", "dob", "pp", "next", "ground_truth")
+
+
+def add_arguments(p) -> None:
+    p.add_argument("--headless", action="store_true", help="no live view: run, then print a summary")
+    p.add_argument("--seconds", type=float, default=60.0, help="task length [s] (default 60)")
+    p.add_argument("--json", metavar="FILE", help="write the metrics as JSON (see docs/demo.md)")
+    p.add_argument("--record", metavar="DIR", help="record the run (MCAP) into this folder")
+    p.add_argument("--mode", choices=MODES, default="auto",
+                   help="feedback mode (default auto: NEXT, trained on the twin first if none is cached)")
+    p.add_argument("--checkpoint", metavar="NEXT.json", help="NEXT checkpoint to use instead of the cache")
+    p.add_argument("--no-calibrate", action="store_true",
+                   help="auto mode: do not train NEXT when none is cached (use the disturbance observer)")
+    p.add_argument("--rig", default="sim-piper", help="simulated rig (default sim-piper)")
+    p.add_argument("--rate", type=float, default=500.0, help="loop rate [Hz] (default 500)")
+    p.add_argument("--clock", choices=("realtime", "lockstep"), default="realtime",
+                   help="realtime (timing numbers mean something; default) or lockstep (deterministic)")
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def resolve_mode(args) -> tuple[str, object | None, str | None]:
+    """(mode, NEXT estimator or None, why NEXT is not used or None)."""
+    from factr2_teleop.demo import next_cache
+    from hardware.rigs.rig import load_rig
+
+    arm = load_rig(args.rig).followers[0].arm
+    if args.mode not in ("auto", "next"):
+        return args.mode, None, None
+    path = next_cache.find_checkpoint(args.rig, args.checkpoint)
+    if path is None and args.mode == "auto" and args.no_calibrate:
+        return "dob", None, "no cached NEXT checkpoint (--no-calibrate)"
+    if path is None:
+        _say(f"no NEXT checkpoint for {args.rig} yet: one-time set-up on the twin (about 2-3 min)")
+        show = sys.stderr.isatty()
+        last = [0.0]
+
+        def progress(done_s: float, total_s: float) -> None:
+            now = time.monotonic()
+            if show and now - last[0] > 0.5:
+                last[0] = now
+                print(f"\r  free motion {done_s:5.1f} / {total_s:.0f} s", end="", file=sys.stderr, flush=True)
+
+        try:
+            path = next_cache.create_checkpoint(args.rig, _say, progress=progress)
+        except Exception as e:  # noqa: BLE001 -- set-up failure: say it, then run with the observer
+            if show:
+                print(file=sys.stderr)
+            if args.mode == "next":
+                raise UserError(f"NEXT set-up failed ({type(e).__name__}: {e})", where="factr2 demo",
+                                fix="train one with `factr2 calibrate --rig sim-piper --out DIR` and pass "
+                                    "--checkpoint DIR/next.json") from None
+            return "dob", None, f"NEXT set-up failed ({type(e).__name__}: {str(e)[:120]})"
+        if show:
+            print(file=sys.stderr)
+    return "next", next_cache.load_estimator(path, arm), None
+
+
+def _live_text(run, stop: threading.Event) -> None:
+    """One status line, rewritten in place, until the run ends (the Textual app has no demo view yet)."""
+    while not stop.wait(0.5):
+        s = run.loop.snapshot()
+        rec = s.records.get("arm") or {}
+        phase = s.phases.get("arm", "?")
+        ops = run.operator.log
+        task = ops[-1].phase if ops else "-"
+        gate = rec.get("feedback.gate", 0.0)
+        print(f"\r[SIMULATED {run.cfg.mode}] t {s.t - run.operator.t0 if ops else 0.0:5.1f} s  {phase:10s} "
+              f"task {task:8s} gate {gate:4.2f} | {s.timing.line()}   ", end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
+
+
+def tui_view():
+    """The terminal app's demo view, when it provides one: factr2_teleop.tui.demo_view.show_demo(run,
+    worker) shows DemoRun `run` live (run.loop.snapshot(), run.operator.log) while thread `worker` runs it,
+    returns when the run ends or the user quits (then it calls run.loop.stop()). None until it exists."""
+    try:
+        from factr2_teleop.tui import demo_view
+    except ImportError:
+        return None
+    return getattr(demo_view, "show_demo", None)
+
+
+def _recorder(dir_: str, run):
+    from hardware.recording.session import describe_session
+    from hardware.recording.writer import Recorder
+
+    out = Path(dir_)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"demo-{run.cfg.rig}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+    meta = describe_session(rig_path=run.session.rig.path, twin=True, next_checkpoint="")
+    meta.update({"feedback_mode": run.cfg.mode, "demo": "table wipe, virtual operator (SIMULATED)"})
+    rec = Recorder(path, t0=run.session.clock.now(), metadata=meta)
+    rec.start_episode(run.session.clock.now(), "demo: press and wipe the table")
+
+    def log(r: dict, gt) -> None:
+        t = r["t"]
+        rec.log_joint_state("leader", t, run.leader.last_state)
+        rec.log_joint_state("follower", t, run.follower.last_state)
+        rec.log_external_torque("follower", t, r["follower.joint.tau_ext"], r["feedback.contact"])
+        rec.log_torque_command("leader", t, r["leader.joint.tau_cmd"], r["feedback.gate"])
+        if gt is not None:
+            rec.log_ground_truth("follower", t, gt.tau_ext[: run.n], gt.contact)
+
+    return rec, log
+
+
+def run(args) -> int:
+    from factr2_teleop.demo.task import DemoConfig, DemoRun
+    from hardware.rigs.rig import load_rig
+
+    if not args.seconds > 0 or not args.rate > 0:
+        raise UserError("--seconds and --rate must be > 0", where="factr2 demo", fix="e.g. --seconds 60")
+    if not load_rig(args.rig).simulated:
+        raise UserError(f"rig {args.rig} is real hardware; the demo runs on a twin", where="--rig",
+                        fix=f"use `factr2 teleop --rig {args.rig}` on real arms, or a sim-* rig here")
+    mode, next_est, why = resolve_mode(args)
+    if why:
+        _say(f"feedback mode {mode}: {why}")
+    demo = DemoRun(DemoConfig(rig=args.rig, seconds=args.seconds, mode=mode, rate_hz=args.rate,
+                              clock=args.clock), next_source=next_est)
+    rec = None
+    try:
+        if args.record:
+            rec, demo.recorder = _recorder(args.record, demo)
+        live = not args.headless and sys.stderr.isatty() and sys.stdout.isatty()
+        show_app = tui_view() if live else None
+        stop_view = threading.Event()
+        view = None
+        if live and show_app is None:
+            view = threading.Thread(target=_live_text, args=(demo, stop_view), daemon=True)
+            view.start()
+        _say(f"SIMULATED demo on {args.rig}: {args.seconds:g} s, feedback {mode}, {args.rate:g} Hz "
+             f"({args.clock}); Ctrl-C stops (leader zero torque, follower holds)")
+        worker = threading.Thread(target=demo.run, name="factr2-demo", daemon=True)
+        worker.start()
+        try:
+            if show_app is not None:
+                show_app(demo, worker)
+                if worker.is_alive():  # the user left the app early
+                    demo.loop.stop(timeout_s=2.0)
+            while worker.is_alive():
+                worker.join(0.2)
+        except KeyboardInterrupt:
+            demo.loop.stop(timeout_s=2.0)  # the loop leaves both arms safe
+            worker.join(2.0)
+            _say("stopped by Ctrl-C: leader at zero torque, follower holding")
+        finally:
+            stop_view.set()
+            if view is not None:
+                view.join(1.0)
+        if demo.loop.error is not None:
+            raise UserError(f"demo stopped: {demo.loop.error}", where="factr2 demo",
+                            fix="see the messages above")
+        res = demo.result()
+    finally:
+        if rec is not None:
+            rec.stop_episode(demo.session.clock.now(), None)
+            st = rec.close()
+            _say(f"recorded to {rec.path}" + (f" (error: {st.error})" if st.error else ""))
+        demo.close()
+    out = res.to_json()
+    if why:
+        out["next_unavailable"] = why
+    _print_summary(out)
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(out, indent=1))
+        _say(f"wrote {args.json}")
+    return 0
+
+
+def _print_summary(d: dict) -> None:
+    def f(x, fmt):
+        return "--" if x is None else format(x, fmt)
+
+    print(f"SIMULATED demo ({d['mode']}, {d['clock']} clock, {d['seconds']:g} s):")
+    print(f"  loop {f(d['loop_hz'], '.1f')} Hz, period p50 {f(d['period_p50_ms'], '.2f')} ms "
+          f"p99 {f(d['period_p99_ms'], '.2f')} ms, {d['overruns']} overruns / {d['ticks']} ticks, "
+          f"CPU {f(d['cpu_ms_per_tick'], '.2f')} ms/tick")
+    print(f"  feedback_corr {f(d['feedback_corr'], '.3f')}, "
+          f"feedback_lag {f(d['feedback_lag_ms'], '.1f')} ms, "
+          f"tau_ext L1 contact {f(d['tau_ext_l1_contact'], '.2f')} / "
+          f"free {f(d['tau_ext_l1_free'], '.2f')} N*m")
+    print(f"  hand push into the table {f(d['hand_push_n'], '.2f')} N, command violations "
+          f"{d['max_command_violation']}")

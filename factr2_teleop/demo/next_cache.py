@@ -1,0 +1,96 @@
+"""NEXT for the demo: find a cached checkpoint for the rig's follower, or make one on the twin.
+
+Cache: $FACTR2_CACHE (default ~/.cache/factr2) / next / <rig> / next.json (+ .safetensors), the same files
+`factr2 calibrate --out DIR` writes as DIR/next.json. Creation records free motion on the twin (SIMULATED,
+lockstep, as fast as the CPU goes) and trains with a time budget, then evaluates as `factr2 calibrate` does.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+from hardware.errors import UserError
+
+DEMO_MINUTES = 1.0  # simulated free motion for the demo's model [min] (the paper used 10 on hardware)
+DEMO_TRAIN_S = 45.0  # training time budget [s]: set-up measured 1 min 41 s in all on the shared machine
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get("FACTR2_CACHE") or Path.home() / ".cache" / "factr2")
+
+
+def cached_checkpoint(rig: str) -> Path:
+    """Where the demo's NEXT checkpoint for `rig` lives (may not exist)."""
+    return cache_dir() / "next" / Path(rig).stem / "next.json"
+
+
+def find_checkpoint(rig: str, explicit: str | None = None) -> Path | None:
+    """An existing checkpoint: `explicit` (must exist, else UserError), the rig's follower
+    next_checkpoint, or the cache; None when there is none."""
+    if explicit:
+        p = Path(explicit)
+        if p.suffix != ".json":
+            p = p / "next.json" if p.is_dir() else p.with_suffix(".json")
+        if not p.is_file():
+            raise UserError("NEXT checkpoint not found", where=str(p),
+                            fix="pass the next.json that `factr2 calibrate --out DIR` wrote")
+        return p
+    from hardware.rigs.rig import load_rig
+
+    spec = load_rig(rig).followers[0]
+    if spec.next_checkpoint and Path(spec.next_checkpoint).with_suffix(".json").is_file():
+        return Path(spec.next_checkpoint).with_suffix(".json")
+    p = cached_checkpoint(rig)
+    return p if p.is_file() else None
+
+
+def load_estimator(path: Path, arm: str):
+    """A streaming NextEstimator for the checkpoint (UserError if it was trained for another arm)."""
+    from calibration.next.checkpoint import load_checkpoint
+    from calibration.next.estimator import NextEstimator
+
+    return NextEstimator(load_checkpoint(path, arm=arm))
+
+
+def create_checkpoint(rig: str, say: Callable[[str], None], minutes: float = DEMO_MINUTES,
+                      train_s: float = DEMO_TRAIN_S, progress: Callable[[float, float], None] | None = None
+                      ) -> Path:
+    """Record `minutes` of free motion on the rig's twin, train NEXT for at most `train_s`, write the cache.
+    Raises what collection or training raises (ContactStop, UserError, ValueError)."""
+    from calibration.next.collect import collect_free_motion
+    from calibration.next.train import TrainConfig
+    from calibration.report import calibrate_from_logs
+    from calibration.trajectories import arm_coverage_trajectory
+    from hardware.recording.plain_log import save_plain_log
+    from hardware.rigs.rig import load_rig
+    from hardware.sim import open_rig
+
+    r = load_rig(rig)
+    if not r.simulated:
+        raise UserError(f"rig {r.name} is real hardware: the demo only calibrates twins", where="factr2 demo",
+                        fix="run `factr2 calibrate --rig R --out DIR`, then pass --checkpoint DIR/next.json")
+    spec = r.followers[0]
+    out = cached_checkpoint(rig).parent
+    (out / "data").mkdir(parents=True, exist_ok=True)
+    traj = arm_coverage_trajectory(spec.arm, minutes, 100.0, scene=r.twin.scene)
+    say(f"NEXT: recording {minutes:.1f} min of SIMULATED free motion on {r.name}/{spec.name}")
+    with open_rig(r, clock="lockstep") as session:
+        run = collect_free_motion(session, spec.name, traj, progress=progress)
+    arrays = run.arrays()
+    n = len(arrays["t"])
+    cut = int(n * 0.85)
+    per = {k: v for k, v in arrays.items() if v.ndim >= 1 and len(v) == n}
+    fixed = {k: v for k, v in arrays.items() if k not in per}
+    train = save_plain_log(out / "data" / "train.npz", **{k: v[:cut] for k, v in per.items()}, **fixed)
+    held = save_plain_log(out / "data" / "heldout.npz", **{k: v[cut:] for k, v in per.items()}, **fixed)
+    say(f"NEXT: training (at most {train_s:.0f} s)")
+    import torch
+
+    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
+    cfg = TrainConfig(max_seconds=train_s, device="cpu")
+    calibrate_from_logs([train], out, [held], arm=spec.arm, cfg=cfg, plots=False)
+    path = out / "next.json"
+    say(f"NEXT: checkpoint cached at {path}")
+    return path

@@ -1,0 +1,355 @@
+"""The demo task on a twin (SIMULATED): virtual operator presses the follower onto the table and wipes,
+bilateral feedback on, ground truth and wire-side commands logged for the metrics.
+
+    run = DemoRun(DemoConfig(seconds=60, mode="next", clock="realtime"), next_source=estimator)
+    run.run()                  # blocking; run.loop.snapshot() from another thread for a live view
+    result = run.result()      # DemoResult: the --json numbers + per-mode wipe numbers
+
+Wiring: open_rig(rig) -> ArmPair (leader gravity from its description, the mode's estimator) -> TeleopLoop.
+The virtual hand torque is applied from the loop's per-tick hook (held by the twin until the next tick).
+Commands are logged on the wire side (after the safety layer, where the driver sends them) and checked
+against the rig's limits by demo.metrics, independently of the safety layer's code.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factr2_teleop.demo import metrics as M
+from factr2_teleop.teleop.estimators import make_estimator
+from factr2_teleop.teleop.leader_law import arm_model_fns
+from factr2_teleop.teleop.loop import TeleopLoop
+from factr2_teleop.teleop.pair import ArmPair, PairConfig
+from factr2_teleop.teleop.rt import single_thread_blas
+from factr2_teleop.teleop.virtual_operator import OperatorScript, Segment, VirtualOperator, make_task_script
+from hardware.clock import Clock
+
+# Task on the sim-piper table scene, leader joints [rad]: above the table, and a press target beyond the
+# surface (the follower stops near j2 = 1.9 rad: 0.1 rad beyond) so the hand keeps pushing in contact.
+ABOVE = np.array([0.0, 1.6, -1.0, 0.0, 0.6, 0.0])
+PRESS = np.array([0.0, 2.0, -1.0, 0.0, 0.6, 0.0])
+WIPE_AMP = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])  # rad: wipe = base yaw oscillation while pressing
+CYCLE_S = {"free": 1.5, "reach": 2.0, "contact": 1.5, "wipe": 4.0, "release": 2.0}  # one task cycle [s]
+PIPER_GAINS = [0.06, 0.08, 0.08, 0.03, 0.03, 0.02]  # K_f, leader N*m per follower N*m (FACTR 2 magnitudes)
+SURFACE_NORMAL = np.array([0.0, 0.0, 1.0])  # table normal (world, up)
+MODES = ("none", "dob", "pp", "next", "ground_truth")
+LAG_GRID_S = 0.001  # s: feedback lag resolution
+SETTLE_S = 1.0  # s: the hand holds the leader still at the start (soft start)
+MAX_CATCH_UP_S = 0.05  # s: a driven twin further behind wall time than this skips ahead (Twin.overruns)
+
+
+@dataclass
+class DemoConfig:
+    """rig: a simulated rig; seconds: task length [s]; mode: feedback mode (MODES); rate_hz: loop rate;
+    clock: "realtime" (wall-clock timing; the loop thread steps the twin, TwinDrivenClock), "realtime-thread"
+    (the twin's own stepping thread) or "lockstep" (deterministic, as fast as the CPU goes);
+    gain: K_f per leader joint; clip_nm: feedback clip per joint [N*m]; hand_*: virtual operator."""
+
+    rig: str = "sim-piper"
+    seconds: float = 60.0
+    mode: str = "dob"
+    rate_hz: float = 500.0
+    clock: str = "realtime"
+    seed: int = 0
+    gain: list = field(default_factory=lambda: list(PIPER_GAINS))
+    clip_nm: float = 1.0
+    t_high_nm: float = 2.0
+    t_low_nm: float = 1.0
+    dob_gain: float = 50.0
+    pp_stiffness: float = 40.0
+    hand_stiffness: float = 3.0
+    hand_damping: float = 0.1
+    hand_tau_max_nm: float = 2.0
+    contact_force: bool = False  # log the follower's total contact force per tick (wipe table; costs time)
+    # "inprocess": the leader's Dynamixel packets (same bytes, sdk unchanged) go to the emulator on the loop's
+    # thread, no pty and no emulator thread; "pty": through a pseudo-terminal as for a real USB adapter
+    dynamixel_transport: str = "inprocess"
+    # ground truth (0.3 ms per read) every this many ticks for the metrics; 0: 2 in real time, 1 in lockstep
+    truth_every: int = 0
+
+
+def task_script(q_home: np.ndarray, seconds: float) -> OperatorScript:
+    """Task cycles (free, reach, contact, wipe, release) filling `seconds`; shorter runs get one scaled
+    cycle (>= 5 s recommended so that there is contact)."""
+    cycle = sum(CYCLE_S.values())
+    seconds = max(seconds - SETTLE_S, 1.0)
+    n = max(1, int(seconds // cycle))
+    scale = seconds / (n * cycle)
+    one = make_task_script(q_home, ABOVE, PRESS, WIPE_AMP, free_s=CYCLE_S["free"] * scale,
+                           reach_s=CYCLE_S["reach"] * scale, contact_s=CYCLE_S["contact"] * scale,
+                           wipe_s=CYCLE_S["wipe"] * scale, release_s=CYCLE_S["release"] * scale)
+    # the hand holds still first, as an operator does while the soft start brings the follower over
+    hold = Segment("free", SETTLE_S, np.asarray(q_home, dtype=float).copy())
+    return OperatorScript(q_start=one.q_start, segments=[hold] + one.segments * n)
+
+
+def contact_force_n(world) -> float:
+    """Sum of contact normal forces [N] in a twin world right now (SIMULATED ground truth)."""
+    import mujoco
+
+    m, d = world.model, world.data
+    f6, total = np.zeros(6), 0.0
+    with world.lock:
+        for i in range(d.ncon):
+            mujoco.mj_contactForce(m, d, i, f6)
+            total += abs(f6[0])
+    return total
+
+
+class TwinDrivenClock(Clock):
+    """Real time, but the loop thread steps the twin: after each sleep the twin's physics catches up to
+    wall time (Twin.advance), so physics, emulators and the loop run in ONE thread in a fixed order with no
+    GIL hand-offs between a stepping thread and the loop (the jitter source of an in-process real-time
+    twin). Same time base as hardware.clock.Clock (the drivers' clock)."""
+
+    def __init__(self, twin):
+        self.twin = twin
+
+    def resync(self) -> None:
+        """Sim time continues from now (set-up time is not simulated: the leader would fall meanwhile),
+        then one step so that fresh samples exist. Twin has no public re-base (start_realtime does this
+        inside); asked for in the report."""
+        self.twin._t_offset = self.now() - self.twin.t
+        self.twin.advance(self.now() + self.twin.dt)
+        self.twin._t_offset = self.now() - self.twin.t
+
+    def _catch_up(self) -> None:
+        now = self.now()
+        lag = now - self.twin._t_offset - self.twin.t
+        if lag > MAX_CATCH_UP_S:  # a stall (swap, suspend): skip ahead rather than spiral (counted)
+            self.twin._t_offset += lag - self.twin.dt
+            self.twin.overruns += 1
+        self.twin.advance(now)
+
+    def sleep(self, dt_s: float) -> None:
+        super().sleep(dt_s)
+        self._catch_up()
+
+    def sleep_until(self, t: float) -> None:
+        super().sleep_until(t)
+        self._catch_up()
+
+
+class _WireLog:
+    """Logs what a driver instance puts on the wire (its _send_safe / _send_torque_safe, after the safety
+    layer): (t, values, hold). t is when the command was issued (clock read on entry to the public command
+    method, wrapped too), so rate checks use the commanding thread's timeline, not send-time jitter."""
+
+    def __init__(self, device, method: str, attr: str, clock, public: str | None = None):
+        self.t: list[float] = []
+        self.v: list[np.ndarray] = []
+        self.hold: list[bool] = []
+        self._issued = float("nan")
+        inner = getattr(device, method)
+
+        def send(safe):
+            t = self._issued if np.isfinite(self._issued) else clock.now()
+            self._issued = float("nan")
+            self.t.append(t)
+            self.v.append(np.array(getattr(safe, attr), dtype=float))
+            self.hold.append(bool(getattr(safe, "hold", False)))
+            return inner(safe)
+
+        setattr(device, method, send)
+        if public is not None:
+            outer = getattr(device, public)
+
+            def issue(*a, **kw):
+                self._issued = clock.now()
+                try:
+                    return outer(*a, **kw)
+                finally:
+                    self._issued = float("nan")
+
+            setattr(device, public, issue)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        return np.array(self.t), (np.array(self.v) if self.v else np.zeros((0, 0)))
+
+
+@dataclass
+class DemoResult:
+    mode: str
+    simulated: bool
+    clock: str
+    seconds: float
+    loop_hz: float
+    period_p50_ms: float
+    period_p99_ms: float
+    overruns: int
+    ticks: int
+    feedback_corr: float
+    feedback_corr_per_joint: list
+    feedback_lag_ms: float
+    tau_ext_l1_contact: float
+    tau_ext_l1_free: float
+    max_command_violation: int
+    wall_s: float
+    cpu_ms_per_tick: float  # process CPU time per tick (all threads; twin included): load-independent cost
+    hand_push_n: float = float("nan")  # mean Cartesian force the virtual hand pushes into the table [N]
+    hand_tau_l1_wipe_nm: float = float("nan")
+    peak_contact_force_n: float = float("nan")
+    mean_contact_force_n: float = float("nan")
+    messages: list = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        def num(x):
+            return None if isinstance(x, float) and not np.isfinite(x) else x
+        return {k: ([num(v) for v in val] if isinstance(val, list) and k != "messages" else num(val))
+                for k, val in self.__dict__.items()}
+
+
+class DemoRun:
+    """Builds the session, pair and operator; run() ticks the loop; result() computes the metrics."""
+
+    def __init__(self, cfg: DemoConfig, next_source=None, recorder=None):
+        from hardware.sim.serve import open_rig
+
+        if cfg.mode not in MODES:
+            raise ValueError(f"unknown mode {cfg.mode!r}")
+        single_thread_blas()  # process-wide: multi-threaded BLAS makes NEXT 10x slower on a busy machine
+        self.cfg, self.recorder = cfg, recorder
+        self.session = open_rig(cfg.rig, clock="lockstep" if cfg.clock == "lockstep" else "realtime",
+                                seed=cfg.seed, dynamixel_transport=cfg.dynamixel_transport)
+        try:
+            self.clock = self.session.clock
+            if cfg.clock == "realtime":  # the loop thread steps the twin from here on (set-up not simulated)
+                self.session.twin.stop_realtime()
+                self.clock = TwinDrivenClock(self.session.twin)
+            self._build(next_source)
+        except BaseException:
+            self.session.close()
+            raise
+
+    def _build(self, next_source) -> None:
+        cfg, s = self.cfg, self.session
+        self.leader, self.follower = s.pairs[0]
+        lspec, fspec = s.rig.leaders[0], s.rig.followers[0]
+        g, jac = arm_model_fns(lspec.arm)
+        pc = PairConfig(name="arm")
+        fb = pc.law.feedback
+        fb.gain, fb.clip_nm = list(cfg.gain), cfg.clip_nm
+        fb.t_high_nm, fb.t_low_nm = cfg.t_high_nm, cfg.t_low_nm
+        if cfg.mode == "pp":
+            fb.gate_on_contact = False
+        if cfg.mode == "next" and next_source is not None and hasattr(next_source, "ck"):
+            pc.estimator_period_s = 1.0 / next_source.ck.rate_hz - 0.25 / cfg.rate_hz
+        self.n = n = self.follower.n_joints
+        world = s.twin.devices[fspec.name].world
+        self._gt_world, self._gt_bank = world, world.banks.index(s.twin.bank(fspec.name))
+        est = make_estimator(cfg.mode, n, follower_arm=fspec.arm, dob_gain=cfg.dob_gain,
+                             pp_stiffness_nm_per_rad=cfg.pp_stiffness, next_source=next_source,
+                             truth=lambda: world.ground_truth()[self._gt_bank].tau_ext)
+        self._model_fns = (g, jac)
+        self.pair = ArmPair(self.leader, self.follower, pc, 1.0 / cfg.rate_hz, gravity_fn=g, jacobian_fn=jac,
+                            estimator=est)
+        self.script = task_script(self.leader.read().q, cfg.seconds)
+        self.operator = VirtualOperator(self.script, cfg.hand_stiffness, cfg.hand_damping,
+                                        cfg.hand_tau_max_nm,
+                                        jacobian_fn=jac, surface_normal=SURFACE_NORMAL, t0=s.clock.now(),
+                                        defer_force=True)
+        self.wire_f = _WireLog(self.follower, "_send_safe", "q", s.clock, public="command")
+        self.wire_l = _WireLog(self.leader, "_send_torque_safe", "tau", s.clock)
+        self.loop = TeleopLoop([self.pair], self.clock, rate_hz=cfg.rate_hz, recorder=self._on_tick)
+        self._rows: list[tuple] = []  # per ground-truth tick: t, phase, fb, est, true, contact, force, task
+        self._tick_n = 0
+        self._truth_every = cfg.truth_every or (1 if cfg.clock == "lockstep" else 2)
+        self.wall_s = self.cpu_s = float("nan")
+
+    def _on_tick(self, rec: dict) -> None:
+        ls = self.leader.last_state
+        tau_hand = self.operator.torque(rec["t"], ls.q, np.nan_to_num(ls.q_dot))
+        self.session.twin.apply_leader_hand_torque(tau_hand)
+        self._tick_n += 1
+        gt = None
+        if self._tick_n % self._truth_every == 0:
+            gt = self._gt_world.ground_truth()[self._gt_bank]
+            f = contact_force_n(self._gt_world) if self.cfg.contact_force else float("nan")
+            self._rows.append((rec["t"], rec["phase"], rec.get("leader.joint.tau_feedback"),
+                               rec["follower.joint.tau_ext"], gt.tau_ext[: self.n].copy(), gt.contact, f,
+                               self.operator.log[-1].phase))
+        if self.recorder is not None:
+            self.recorder(rec, gt)  # gt None on ticks without a ground-truth read
+
+    def run(self) -> None:
+        self._warm_up()
+        t0, c0 = time.perf_counter(), time.process_time()
+        if isinstance(self.clock, TwinDrivenClock):
+            self.clock.resync()
+        try:
+            self.loop.run(duration_s=self.cfg.seconds)
+        finally:
+            self.wall_s = time.perf_counter() - t0
+            self.cpu_s = time.process_time() - c0
+
+    def _warm_up(self) -> None:
+        """First calls of the per-tick pieces (numpy/pinocchio/BLAS first-use costs, up to tens of ms)
+        happen here, not in the first real-time ticks where they read as stale data."""
+        from factr2_teleop.teleop.estimators import EstimatorInput
+
+        ls, fs = self.leader.read(), self.follower.read()
+        self.operator.torque(self.operator.t0, ls.q, np.nan_to_num(ls.q_dot))
+        self.operator.log.clear()
+        self._gt_world.ground_truth()
+        if self.cfg.contact_force:
+            contact_force_n(self._gt_world)
+        g, jac = self._model_fns
+        g(ls.q)
+        jac(ls.q)
+        est = self.pair.estimator
+        if self.cfg.mode == "dob":  # not est(): its first call sets the momentum origin
+            est.mass(fs.q), est.coriolis(fs.q, np.zeros_like(fs.q)), est.gravity(fs.q)
+        elif est is not None:
+            est(EstimatorInput(t=self.clock.now(), follower=fs, q_leader_f=self.pair.map.forward(ls.q)))
+
+    def close(self) -> None:
+        self.session.close()
+
+    def result(self) -> DemoResult:
+        cfg, rows = self.cfg, self._rows
+        st = self.loop.timing.stats()
+        nl = self.leader.n_joints
+        coupled = np.array([r[1] == "coupled" for r in rows])
+        fb = np.array([r[2] if r[2] is not None else np.zeros(nl) for r in rows])
+        est = np.array([r[3] for r in rows])
+        true = np.array([r[4] for r in rows])
+        contact = np.array([r[5] for r in rows]) & coupled
+        force = np.array([r[6] for r in rows])
+        mp = self.pair.map
+        gain = np.asarray(self.pair.law.cfg.feedback.gain, dtype=float) * np.ones(nl)
+        fb_f = M.feedback_on_follower(fb, gain, mp.index, mp.k)
+        corr = M.per_joint_corr(fb_f, true, contact)
+        lag = float("nan")
+        if cfg.mode != "none" and np.sum(coupled) > 10:  # on a 1 ms grid: real-time ticks are not uniform
+            tc = np.array([r[0] for r in rows])[coupled]
+            lag = M.lag_by_xcorr(M.resample(tc, fb_f[coupled], LAG_GRID_S),
+                                 M.resample(tc, true[coupled], LAG_GRID_S), LAG_GRID_S)
+        lim_f, lim_l = self.follower.safety.limits, self.leader.safety.limits
+        tf, qf = self.wire_f.arrays()
+        tl, taul = self.wire_l.arrays()
+        viol = M.command_violations(qf, tf, lim_f.q_min, lim_f.q_max, lim_f.v_max, 1.0 / cfg.rate_hz,
+                                    hold=np.array(self.wire_f.hold, dtype=bool)) \
+            + M.torque_violations(taul, lim_l.tau_max)
+        summ = self.operator.summary()
+        wipe = summ.get("wipe", {})
+        wipe_rows = np.array([r[7] == "wipe" for r in rows], dtype=bool)
+        fw = force[wipe_rows] if len(rows) else force[:0]
+        fw = fw[np.isfinite(fw)]
+        return DemoResult(
+            mode=cfg.mode, simulated=True, clock=cfg.clock, seconds=cfg.seconds, loop_hz=st.rate_hz,
+            period_p50_ms=st.period_p50_ms, period_p99_ms=st.period_p99_ms, overruns=st.overruns,
+            ticks=st.ticks,
+            feedback_corr=float(np.nanmean(corr)) if np.any(np.isfinite(corr)) else float("nan"),
+            feedback_corr_per_joint=[float(c) for c in corr],
+            feedback_lag_ms=lag * 1e3, tau_ext_l1_contact=M.l1_mean(est, contact),
+            tau_ext_l1_free=M.l1_mean(est, coupled & ~np.array([r[5] for r in rows])),
+            max_command_violation=int(viol), wall_s=self.wall_s,
+            cpu_ms_per_tick=self.cpu_s / max(st.ticks, 1) * 1e3,
+            hand_push_n=float(wipe.get("force_n", float("nan"))),
+            hand_tau_l1_wipe_nm=float(wipe.get("tau_l1_nm", float("nan"))),
+            peak_contact_force_n=float(np.max(fw)) if fw.size else float("nan"),
+            mean_contact_force_n=float(np.mean(fw)) if fw.size else float("nan"),
+            messages=[m[2] for m in self.loop.snapshot().messages])

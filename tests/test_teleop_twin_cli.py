@@ -1,0 +1,24 @@
+"""`factr2 teleop` on the twin (SIMULATED, real time, 1 s): runs, ends safe, prints timing; bad input."""
+
+from __future__ import annotations
+
+from factr2_teleop.cli import main
+from factr2_teleop.commands.teleop import pair_configs
+from hardware.rigs.rig import load_rig
+
+
+def test_teleop_runs_on_the_twin_and_reports_timing(capsys):
+    assert main(["teleop", "--rig", "sim-piper", "--seconds", "1", "--mode", "dob"]) == 0
+    out = capsys.readouterr()
+    assert "Hz (target 500)" in out.out and "feedback dob (SIMULATED twin)" in out.err
+
+
+def test_bimanual_rig_gets_one_pair_config_per_pair():
+    cfgs, _ = pair_configs(load_rig("sim-bimanual-piper"))
+    assert len(cfgs) == 2 and len(set(cfgs)) == 2
+
+
+def test_teleop_ground_truth_on_real_rig_is_refused(capsys):
+    assert main(["teleop", "--rig", "piper", "--mode", "ground_truth", "--seconds", "0.1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "only on simulated rigs" in err[0]
