@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
+import tempfile
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -213,10 +213,10 @@ def decode(path: str | Path) -> Decoded:
 def save(dec: Decoded, key: dict) -> Path | None:
     """Write the cache atomically; returns its folder, or None (with a warning) when it cannot be written."""
     final = cache_dir(dec.path)
-    tmp = final.with_name(final.name + f".tmp-{os.getpid()}")
+    tmp = None
     try:
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir()
+        # unique per writer: two readers of one file (threads of one process too) may cache it at once
+        tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=final.name + ".tmp-"))
         manifest = {"key": key, "truncated": dec.truncated, "warnings": dec.warnings, "events": dec.events,
                     "metadata": dec.metadata, "topics": {}, "frames": {}}
         for i, (name, ta) in enumerate(dec.topics.items()):
@@ -233,13 +233,22 @@ def save(dec: Decoded, key: dict) -> Path | None:
             manifest["frames"][cam] = stem
         (tmp / "manifest.json").write_text(json.dumps(manifest))
         if final.exists():
-            old = final.with_name(final.name + f".old-{os.getpid()}")
-            final.rename(old)
+            old = Path(tempfile.mkdtemp(dir=final.parent, prefix=final.name + ".old-"))
+            try:
+                final.rename(old / "cache")
+            except FileNotFoundError:
+                pass  # another writer replaced it meanwhile
             shutil.rmtree(old, ignore_errors=True)
-        tmp.rename(final)
+        try:
+            tmp.rename(final)
+        except OSError:
+            if not final.exists():
+                raise
+            shutil.rmtree(tmp, ignore_errors=True)  # another writer put an equal cache in place first
         return final
     except OSError as e:
-        shutil.rmtree(tmp, ignore_errors=True)
+        if tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
         warnings.warn(f"{dec.path}: array cache not written ({e.strerror or e}); reading stays uncached",
                       stacklevel=3)
         return None
