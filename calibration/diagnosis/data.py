@@ -1,0 +1,170 @@
+"""Logs as segments (one contiguous run each) and the held-out split.
+
+A Segment holds one run: t [s], q [rad], qd [rad/s], qdd [rad/s^2] (differentiated from qd, smoothed),
+y = the quantity the model predicts (motor torque [N*m] or motor current [A], see `units`), optional
+temperature [degC]. Held-out data is always whole runs or contiguous blocks, never random samples:
+neighbouring samples of a 125 Hz log are nearly identical, so a random split would measure interpolation,
+not prediction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hardware.errors import UserError
+
+
+@dataclass
+class Segment:
+    name: str
+    t: np.ndarray  # (N,) s, from the start of the run
+    q: np.ndarray  # (N, n) rad
+    qd: np.ndarray  # (N, n) rad/s
+    qdd: np.ndarray  # (N, n) rad/s^2
+    y: np.ndarray  # (N, n) N*m or A
+    units: str  # "N*m" or "A"
+    temperature: np.ndarray | None = None  # (N, n) degC
+    joint_names: tuple[str, ...] = ()
+    q_cmd: np.ndarray | None = None  # (N, n) rad, commanded position (NEXT's third input); None = unknown
+
+    @property
+    def n(self) -> int:
+        return self.q.shape[1]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def slice(self, a: int, b: int, name: str) -> Segment:
+        temp = None if self.temperature is None else self.temperature[a:b]
+        qc = None if self.q_cmd is None else self.q_cmd[a:b]
+        return Segment(name, self.t[a:b], self.q[a:b], self.qd[a:b], self.qdd[a:b], self.y[a:b], self.units,
+                       temp, self.joint_names, qc)
+
+
+def smooth(x: np.ndarray, width: int) -> np.ndarray:
+    """Centred moving average along axis 0 (edges use the available samples)."""
+    if width <= 1:
+        return x
+    k = np.ones(width) / width
+    num = np.apply_along_axis(lambda c: np.convolve(c, k, mode="same"), 0, x)
+    den = np.convolve(np.ones(len(x)), k, mode="same")
+    return num / den[:, None]
+
+
+def differentiate(t: np.ndarray, x: np.ndarray, smooth_width: int = 7) -> np.ndarray:
+    """d/dt of x (N, n) on a possibly irregular clock t, low-passed by a moving average."""
+    if len(t) < 3:
+        return np.zeros_like(x)
+    return smooth(np.gradient(x, t, axis=0), smooth_width)
+
+
+def make_segment(name: str, t, q, qd, y, units: str, temperature=None, joint_names=(), qdd=None,
+                 q_cmd=None) -> Segment:
+    t = np.asarray(t, float).ravel()
+    q = np.atleast_2d(np.asarray(q, float))
+    if q.shape[0] != len(t):
+        q = q.T
+    qd = differentiate(t, q, 1) if qd is None else np.asarray(qd, float).reshape(q.shape)
+    y = np.asarray(y, float).reshape(q.shape)
+    keep = np.all(np.isfinite(q), 1) & np.all(np.isfinite(qd), 1) & np.all(np.isfinite(y), 1) & np.isfinite(t)
+    if keep.sum() < 20:
+        raise UserError(f"only {int(keep.sum())} finite samples", where=name,
+                        fix="record a longer run (diagnosis needs at least a few seconds)")
+    t, q, qd, y = t[keep], q[keep], qd[keep], y[keep]
+    order = np.argsort(t, kind="stable")
+    t, q, qd, y = t[order], q[order], qd[order], y[order]
+    uniq = np.concatenate([[True], np.diff(t) > 0])
+    t, q, qd, y = t[uniq], q[uniq], qd[uniq], y[uniq]
+    if q_cmd is not None:
+        q_cmd = np.asarray(q_cmd, float).reshape(-1, q.shape[1])[keep][order][uniq]
+        if not np.all(np.isfinite(q_cmd)):
+            q_cmd = None
+    if qdd is None:
+        qdd = differentiate(t, qd)
+    else:
+        qdd = np.asarray(qdd, float)[keep][order][uniq]
+    temp = None
+    if temperature is not None:
+        temp = np.asarray(temperature, float).reshape(-1, q.shape[1])[keep][order][uniq]
+        if not np.all(np.isfinite(temp)):
+            temp = None
+    return Segment(name, t - t[0], q, qd, qdd, y, units, temp, tuple(joint_names), q_cmd)
+
+
+def _from_plain_log(path: Path) -> Segment | None:
+    """The lead's plain-log loader (hardware.recording.plain_log) when it is installed. Where the log carries
+    the true external torque (twin logs), it is subtracted: diagnosis models the free-space dynamics."""
+    try:
+        from hardware.recording.plain_log import load_plain_log
+    except ImportError:
+        return None
+    log = load_plain_log(path)
+    y = log.tau if log.tau_ext_true is None or log.units != "N*m" else log.tau - log.tau_ext_true
+    return make_segment(path.stem, log.t, log.q, log.qd, y, log.units, log.temperature, log.joint_names,
+                        q_cmd=log.q_cmd)
+
+
+def _lenient_npz(path: Path) -> Segment:
+    """Fallback for .npz logs without q_cmd (t, q, [qd], tau_m or current, [temperature], [joint_names])."""
+    try:
+        d = np.load(path, allow_pickle=False)
+    except Exception as e:  # noqa: BLE001 - any unreadable file is one user-facing line
+        raise UserError(f"cannot read ({type(e).__name__})", where=str(path),
+                        fix="pass a .npz written by numpy.savez") from None
+    keys = set(d.files)
+    if not {"t", "q"} <= keys or not ({"tau_m", "current"} & keys):
+        raise UserError(f"missing arrays (has {sorted(keys)})", where=str(path),
+                        fix="a plain log needs t, q and tau_m [N*m] or current [A]")
+    units = "N*m" if "tau_m" in keys else "A"
+    y = d["tau_m"] if units == "N*m" else d["current"]
+    names = tuple(str(x) for x in d["joint_names"]) if "joint_names" in keys else ()
+    try:
+        return make_segment(path.stem, d["t"], d["q"], d["qd"] if "qd" in keys else None, y, units,
+                            d["temperature"] if "temperature" in keys else None, names,
+                            q_cmd=d["q_cmd"] if "q_cmd" in keys else None)
+    except ValueError as e:
+        raise UserError(f"inconsistent array shapes ({e})", where=str(path),
+                        fix="t is (N,), q, qd, tau_m/current are (N, n_joints)") from None
+
+
+def load_segment(path: str | Path) -> Segment:
+    """One run: a plain .npz log (see hardware/recording/plain_log.py) -> Segment."""
+    path = Path(path)
+    if not path.exists():
+        raise UserError("file not found", where=str(path), fix="give the path of a plain .npz log")
+    if path.suffix != ".npz":
+        raise UserError("not a plain .npz log", where=str(path),
+                        fix="export the recording as a plain log (t, q, qd, q_cmd, tau_m or current)")
+    try:
+        seg = _from_plain_log(path)
+    except UserError:
+        seg = None
+    return seg if seg is not None else _lenient_npz(path)
+
+
+def resample(seg: Segment, rate_hz: float) -> Segment:
+    """The segment on a uniform `rate_hz` grid (linear interpolation; qdd re-differentiated)."""
+    grid = np.arange(0.0, seg.t[-1], 1.0 / rate_hz)
+
+    def lerp(a):
+        if a is None:
+            return None
+        return np.stack([np.interp(grid, seg.t, a[:, j]) for j in range(a.shape[1])], 1)
+
+    return make_segment(seg.name, grid, lerp(seg.q), lerp(seg.qd), lerp(seg.y), seg.units,
+                        lerp(seg.temperature), seg.joint_names, q_cmd=lerp(seg.q_cmd))
+
+
+def split_heldout(segments: list[Segment], heldout: list[Segment] | None, frac: float = 0.25):
+    """(train, heldout) segments. Given held-out files win; else the last run is held out when there are
+    several; a single run is cut into a training head and a contiguous held-out tail (`frac` of it)."""
+    if heldout:
+        return list(segments), list(heldout)
+    if len(segments) >= 2:
+        return list(segments[:-1]), [segments[-1]]
+    s = segments[0]
+    cut = int(len(s) * (1 - frac))
+    return [s.slice(0, cut, s.name + "[train]")], [s.slice(cut, len(s), s.name + "[heldout]")]

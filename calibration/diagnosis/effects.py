@@ -1,0 +1,182 @@
+"""The library of declared effects. Each is linear in its coefficients once its few nonlinear settings
+(`hyper`: a period, a Stribeck velocity, a backlash width, the other joint of a coupling) are fixed; the trace
+finds those settings from the residual, the least-squares fit finds the coefficients.
+
+All effects act on the equation of one joint j (0-based) and are in the units of the data (N*m or A).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+FAMILIES = ("coulomb_friction", "viscous_friction", "stribeck_friction", "position_periodic", "backlash",
+            "position_spring", "drift", "current_offset", "torque_constant_scale", "delay", "coupling")
+
+SIGN_EPS = 0.01  # rad/s: tanh(qd / SIGN_EPS) stands for sign(qd) without the jump at qd = 0
+
+
+@dataclass
+class Effect:
+    family: str
+    joint: int
+    hyper: dict = field(default_factory=dict)
+    coef: np.ndarray | None = None
+    ref: np.ndarray | None = None  # frozen rigid-part parameters (torque_constant_scale, delay)
+
+    @property
+    def key(self) -> tuple:
+        return (self.family, self.joint, tuple(sorted((k, round(v, 9) if isinstance(v, float) else v)
+                                                      for k, v in self.hyper.items())))
+
+    @property
+    def slot(self) -> tuple:
+        """Two effects with the same slot are the same thing: only one of them is kept in a model."""
+        return (self.family, self.joint, self.hyper.get("other_joint"), self.hyper.get("source"))
+
+    def features(self, d) -> np.ndarray:
+        """(N, k) columns on a Design `d` (stacked segments, see greybox.Design)."""
+        return np.atleast_2d(_FEATURES[self.family](self, d).T).T
+
+    def params(self) -> dict:
+        """Human-readable parameters (units of the data; rad, s)."""
+        c = [float(x) for x in (self.coef if self.coef is not None else [np.nan] * 3)]
+        h, f = self.hyper, self.family
+        if f == "coulomb_friction":
+            return {"fc": c[0]}
+        if f == "viscous_friction":
+            return {"fv": c[0]}
+        if f == "stribeck_friction":
+            return {"fs_extra": c[0], "v_stribeck_rad_s": h["vs"]}
+        if f == "position_periodic":
+            return {"amplitude": float(np.hypot(c[0], c[1])), "period_rad": h["period_rad"],
+                    "phase": float(np.arctan2(c[1], c[0]))}
+        if f == "backlash":
+            return {"offset": c[0], "width_rad": h["width_rad"]}
+        if f == "position_spring":
+            k = c[0]
+            q0 = h["q_ref"] - c[1] / k if abs(k) > 1e-12 else float("nan")
+            return {"stiffness_per_rad": k, "rest_position_rad": q0}
+        if f == "drift":
+            unit = "per_min" if h["source"] == "time" else "per_degC"
+            return {"source": h["source"], f"rate_{unit}": c[0]}
+        if f == "current_offset":
+            return {"offset": c[0]}
+        if f == "torque_constant_scale":
+            return {"scale": 1.0 + c[0]}
+        if f == "delay":
+            return {"delay_s": -c[0]}
+        if f == "coupling":
+            return {"other_joint": h["other_joint"], "viscous": c[0], "coulomb": c[1]}
+        return {"coef": c}
+
+    def to_json(self) -> dict:
+        return {"effect": self.family, "joint": self.joint, "params": self.params(),
+                "hyper": {k: v for k, v in self.hyper.items()}}
+
+
+def play_operator(q: np.ndarray, width: float) -> np.ndarray:
+    """Backlash (play) hysteresis: (q - p) / width in [-1, 1], p dragged along when q moves more than
+    `width` [rad] away. +1 while moving up, -1 while moving down, ramping over 2*width after a reversal and
+    holding its value while the joint stands still (unlike Coulomb friction, which follows sign(qd))."""
+    out = np.empty_like(q)
+    p = q[0]
+    for i, x in enumerate(q):
+        if x - p > width:
+            p = x - width
+        elif p - x > width:
+            p = x + width
+        out[i] = (x - p) / width
+    return out
+
+
+def _per_segment(d, fn) -> np.ndarray:
+    return np.concatenate([fn(a, b) for a, b in d.bounds])
+
+
+def _sincos(x: np.ndarray) -> np.ndarray:
+    return np.stack([np.sin(x), np.cos(x)], 1)
+
+
+def _rigid(e: Effect, d) -> np.ndarray:
+    idx, cols = d.base[e.joint]
+    return cols @ e.ref[idx]
+
+
+_FEATURES = {
+    "coulomb_friction": lambda e, d: np.tanh(d.qd[:, e.joint] / SIGN_EPS),
+    "viscous_friction": lambda e, d: d.qd[:, e.joint],
+    "stribeck_friction": lambda e, d: np.tanh(d.qd[:, e.joint] / SIGN_EPS)
+    * np.exp(-((d.qd[:, e.joint] / e.hyper["vs"]) ** 2)),
+    "position_periodic": lambda e, d: _sincos(2 * np.pi * d.q[:, e.joint] / e.hyper["period_rad"]),
+    "backlash": lambda e, d: _per_segment(
+        d, lambda a, b: play_operator(d.q[a:b, e.joint], e.hyper["width_rad"])),
+    "position_spring": lambda e, d: np.stack([d.q[:, e.joint] - e.hyper["q_ref"], np.ones(len(d.t))], 1),
+    "drift": lambda e, d: (d.t / 60.0 if e.hyper["source"] == "time"
+                           else d.temp[:, e.joint] - e.hyper["temp_ref"]),
+    "current_offset": lambda e, d: np.ones(len(d.t)),
+    "torque_constant_scale": _rigid,
+    "delay": lambda e, d: _per_segment(d, lambda a, b: _smoothed_grad(d.t[a:b], _rigid(e, d)[a:b])),
+    "coupling": lambda e, d: np.stack([d.qd[:, e.hyper["other_joint"]],
+                                       np.tanh(d.qd[:, e.hyper["other_joint"]] / SIGN_EPS)], 1),
+}
+
+
+def _smoothed_grad(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    if len(t) < 3:
+        return np.zeros_like(x)
+    g = np.gradient(x, t)
+    k = np.ones(5) / 5
+    return np.convolve(g, k, mode="same") / np.convolve(np.ones(len(g)), k, mode="same")
+
+
+def periodogram(q: np.ndarray, r: np.ndarray, periods: np.ndarray, weights: np.ndarray | None = None
+                ) -> np.ndarray:
+    """Fraction of sum(w r^2) explained by a*sin(2 pi q / P) + b*cos(2 pi q / P) for each period P [rad].
+    A least-squares (Lomb-Scargle-like) periodogram of the residual against joint position: q is irregular
+    (it follows the motion), so no FFT; each period gets its own weighted 2-parameter fit."""
+    w8 = np.ones_like(r) if weights is None else weights
+    rr = float(np.sum(w8 * r * r)) or 1.0
+    out = np.empty(len(periods))
+    for s in range(0, len(periods), 64):
+        w = 2 * np.pi / periods[s:s + 64]
+        ph = np.outer(q, w)
+        c, sn = np.cos(ph), np.sin(ph)
+        wc, ws = w8[:, None] * c, w8[:, None] * sn
+        cc, ss, cs = np.sum(wc * c, 0), np.sum(ws * sn, 0), np.sum(wc * sn, 0)
+        cr, sr = r @ wc, r @ ws
+        det = np.maximum(cc * ss - cs * cs, 1e-12)
+        a = (ss * cr - cs * sr) / det
+        b = (cc * sr - cs * cr) / det
+        out[s:s + 64] = (a * cr + b * sr) / rr
+    return out
+
+
+def bin_by_position(q: np.ndarray, r: np.ndarray, width: float):
+    """(bin centres, mean residual, counts) of r in bins of q `width` [rad] wide: a periodic effect in q
+    survives the averaging when width << period, and the periodogram gets many times cheaper."""
+    k = np.floor((q - q.min()) / width).astype(int)
+    counts = np.bincount(k)
+    sums = np.bincount(k, weights=r)
+    qs = np.bincount(k, weights=q)
+    keep = counts > 0
+    return qs[keep] / counts[keep], sums[keep] / counts[keep], counts[keep].astype(float)
+
+
+def find_period(q: np.ndarray, r: np.ndarray, p_min: float = 0.02, p_max: float | None = None):
+    """(best period [rad], explained fraction, peak-to-median ratio of the periodogram) or None when the
+    joint moved too little for a period to be resolved."""
+    span = float(np.ptp(q))
+    p_max = min(span / 2.0, np.pi) if p_max is None else p_max
+    if p_max <= 2 * p_min:
+        return None
+    # frequency grid fine enough that neighbouring frequencies differ by a quarter cycle over the span
+    f = np.arange(1.0 / p_max, 1.0 / p_min, 1.0 / (4.0 * span))
+    qb, rb, wb = bin_by_position(q, r, p_min / 20.0)
+    power = periodogram(qb, rb, 1.0 / f, wb)
+    k = int(np.argmax(power))
+    f_fine = np.linspace(f[max(k - 1, 0)], f[min(k + 1, len(f) - 1)], 41)
+    p_fine = periodogram(q, r, 1.0 / f_fine)
+    kf = int(np.argmax(p_fine))
+    return float(1.0 / f_fine[kf]), float(p_fine[kf]), float(power[k] / max(np.median(power), 1e-12))

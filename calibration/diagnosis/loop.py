@@ -1,0 +1,139 @@
+"""The diagnose loop: fit, held-out error, trace, add the best candidate, refit, until nothing helps.
+
+A candidate is accepted only when it lowers the held-out mean absolute error of its joint by more than
+max(rel_gain * that error, abs_gain * RMS of that joint's held-out target) and does not raise the mean over
+joints. Candidates are tried in trace-score order (at most `tries` per step); the first that passes is kept.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .basis import select_ridge
+from .greybox import Design, GreyBox, errors
+from .trace import candidates, rank
+
+
+@dataclass
+class LoopConfig:
+    rel_gain: float = 0.02
+    abs_gain: float = 0.005
+    tries: int = 4
+    max_effects: int = 20
+    min_score: float = 1e-3
+
+
+@dataclass
+class Step:
+    added: dict | None
+    heldout_l1: list
+    heldout_rms: list
+    train_l1: list
+    model: GreyBox = field(repr=False)
+    residual_before: tuple | None = field(default=None, repr=False)  # (train residual, heldout residual)
+
+
+@dataclass
+class Diagnosis:
+    steps: list[Step]
+    model: GreyBox
+    train: Design
+    heldout: Design
+    config: LoopConfig
+    rejected: list = field(default_factory=list)
+    pruned: list = field(default_factory=list)
+
+
+def _eval(model: GreyBox, train: Design, held: Design):
+    ltr, _ = errors(train.y, model.predict(train))
+    l1, rms = errors(held.y, model.predict(held))
+    return l1, rms, ltr
+
+
+def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None = None,
+             log=lambda s: None) -> Diagnosis:
+    cfg = config or LoopConfig()
+    if hasattr(basis, "per_joint"):
+        ridge = select_ridge(basis, train_segments)
+        log(f"ridge per joint (leave-one-fold-out on the training data): {ridge}")
+    train, held = Design(basis, train_segments), Design(basis, heldout_segments)
+    model = GreyBox(basis).fit(train)
+    l1, rms, ltr = _eval(model, train, held)
+    steps = [Step(None, l1.tolist(), rms.tolist(), ltr.tolist(), model)]
+    floor = cfg.abs_gain * np.sqrt(np.mean(held.y ** 2, 0))
+    log(f"rigid part only: held-out L1 {np.round(l1, 4).tolist()} (mean {l1.mean():.4f})")
+    rejected = []
+    pool: list = []  # candidates of joints whose fit has not changed since they were scored
+    changed = list(range(model.n))
+    while len(model.effects) < cfg.max_effects:
+        res_train = train.y - model.predict(train)
+        if not getattr(basis, "separable", False):
+            changed = list(range(model.n))
+        taken = {e.slot for e in model.effects}
+        pool = [c for c in pool if c.effect.joint not in changed and c.effect.slot not in taken]
+        pool += candidates(model, train, res_train, joints=changed)
+        pool.sort(key=rank)
+        cands = [c for c in pool if c.score >= cfg.min_score]
+        accepted = None
+        for c in cands[: cfg.tries]:
+            trial = model.with_effect(c.effect).fit(train)
+            t_l1, t_rms, t_ltr = _eval(trial, train, held)
+            j = c.effect.joint
+            gain = l1[j] - t_l1[j]
+            need = max(cfg.rel_gain * l1[j], floor[j])
+            c.evidence.update({"heldout_l1_joint_before": round(float(l1[j]), 6),
+                               "heldout_l1_joint_after": round(float(t_l1[j]), 6)})
+            if gain > need and t_l1.mean() <= l1.mean():
+                accepted = (c, trial, t_l1, t_rms, t_ltr)
+                break
+            rejected.append({"effect": c.effect.family, "joint": j, "hyper": c.effect.hyper,
+                             "score": round(c.score, 4), "heldout_gain": float(gain), "needed": float(need)})
+            log(f"  rejected {c.effect.family} on joint {j}: held-out gain {gain:.4g} <= {need:.4g}")
+        if accepted is None:
+            break
+        c, trial, l1_new, rms_new, ltr_new = accepted
+        added = c.effect.__class__(c.effect.family, c.effect.joint, dict(c.effect.hyper))
+        final = next(e for e in trial.effects if e.key == c.effect.key)
+        added.coef = final.coef
+        held_res = held.y - model.predict(held)
+        steps.append(Step({**final.to_json(), "evidence": c.evidence}, l1_new.tolist(), rms_new.tolist(),
+                          ltr_new.tolist(), trial, (res_train, held_res)))
+        log(f"added {c.effect.family} on joint {c.effect.joint} {final.params()}: held-out L1 joint "
+            f"{c.effect.joint} {l1[c.effect.joint]:.4f} -> {l1_new[c.effect.joint]:.4f}")
+        changed = [c.effect.joint]
+        if hasattr(basis, "per_joint"):  # re-choose the ridge of that joint now that the effect is known
+            def effects_of(seg, trial=trial):
+                ds = Design(basis, [seg])
+                return trial.predict(ds) - trial.rigid(ds)
+
+            select_ridge(basis, train_segments, joints=changed, effects_of=effects_of)
+            trial.fit(train)
+            l1_new, rms_new, ltr_new = _eval(trial, train, held)
+            steps[-1] = Step(steps[-1].added, l1_new.tolist(), rms_new.tolist(), ltr_new.tolist(), trial,
+                             steps[-1].residual_before)
+        model, l1, rms = trial, l1_new, rms_new
+    model, pruned = _prune(model, train, held, l1, floor, cfg, log)
+    return Diagnosis(steps, model, train, held, cfg, rejected, pruned)
+
+
+def _prune(model: GreyBox, train: Design, held: Design, l1, floor, cfg: LoopConfig, log):
+    """Backward pass: greedy forward selection can add an effect early that a later one makes redundant
+    (with shared rigid parameters a scale error on one joint first leaks into the others). Drop every effect
+    whose removal does not raise its joint's held-out error by more than the acceptance threshold."""
+    pruned = []
+    for e in list(model.effects):
+        if len(model.effects) <= 1:
+            break
+        trial = GreyBox(model.basis, [x for x in model.effects if x is not e]).fit(train)
+        t_l1, _, _ = _eval(trial, train, held)
+        j = e.joint
+        harmless = t_l1.mean() <= l1.mean() * (1 + cfg.rel_gain)
+        if t_l1[j] - l1[j] <= max(cfg.rel_gain * l1[j], floor[j]) and harmless:
+            pruned.append({**e.to_json(), "heldout_l1_joint_with": float(l1[j]), "heldout_l1_joint_without":
+                           float(t_l1[j])})
+            log(f"pruned {e.family} on joint {j}: held-out L1 joint {j} {l1[j]:.4f} -> {t_l1[j]:.4f} "
+                "without it")
+            model, l1 = trial, t_l1
+    return model, pruned

@@ -1,0 +1,138 @@
+"""The diagnose loop around NEXT (calibration/next): NEXT's prediction is the "rigid part" -- one column
+per joint with a gain held near 1 -- and the loop traces NEXT's held-out residual to what the network cannot
+see (time/temperature drift, another joint's motion, a position-periodic term finer than it resolves) and
+adds grey-box terms on that residual. Also: NEXT trained on top of a grey-box prior (residual learning).
+
+NEXT works on a uniform clock (the checkpoint's rate) with a window of H samples, so segments are resampled
+to that rate and their first H-1 samples (no full window yet) are dropped before anything is compared.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from hardware.errors import UserError
+
+from .data import Segment, resample
+
+
+class NextBasis:
+    """One column per joint: a fixed predictor's output (NEXT). Gain prior 1 with a strong ridge, so the
+    rigid part stays NEXT's prediction and the effects model only what NEXT leaves."""
+
+    kind = "next"
+    separable = True
+
+    def __init__(self, n: int, predictions: dict[int, np.ndarray], label: str):
+        self.n, self.preds, self.label = n, predictions, label
+        self.n_params = n
+        self.prior = np.ones(n)
+        self.ridge = np.full(n, 1e3)
+
+    def describe(self) -> str:
+        return self.label
+
+    def blocks(self, seg: Segment):
+        p = self.preds[id(seg)]
+        return [(np.array([j]), p[:, [j]]) for j in range(self.n)]
+
+
+def _next_inputs(seg: Segment, inputs: str) -> np.ndarray:
+    from calibration.next.data import make_inputs
+
+    q_cmd = seg.q if seg.q_cmd is None else seg.q_cmd
+    return make_inputs(seg.q, seg.qd, q_cmd, inputs)
+
+
+def predict_next(model, normalizer, history: int, inputs: str, seg: Segment) -> np.ndarray:
+    """(N, n) NEXT prediction in the data's units; the first history-1 rows are NaN."""
+    import torch
+
+    from calibration.next.train import predict_series
+
+    torch.set_num_threads(1)
+    z = predict_series(model, normalizer.norm_x(_next_inputs(seg, inputs)).astype(np.float32), history)
+    return normalizer.denorm_y(z.astype(np.float64))
+
+
+def prepare(segments: list[Segment], rate_hz: float, history: int) -> list[Segment]:
+    """Resampled to NEXT's rate, first history-1 samples dropped (no full window)."""
+    out = []
+    for s in segments:
+        r = resample(s, rate_hz)
+        if len(r) > history + 20:
+            out.append(r.slice(history - 1, len(r), r.name))
+    if not out:
+        raise UserError("runs are shorter than one NEXT window", where=", ".join(s.name for s in segments),
+                        fix="diagnose longer runs")
+    return out
+
+
+def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments) -> tuple[list[Segment], dict]:
+    preds, out = {}, []
+    for s in segments:
+        r = resample(s, rate_hz)
+        if len(r) <= history + 20:
+            continue
+        p = predict_next(ck_model, normalizer, history, inputs, r)
+        cut = r.slice(history - 1, len(r), r.name)
+        preds[id(cut)] = p[history - 1:]
+        out.append(cut)
+    if not out:
+        raise UserError("runs are shorter than one NEXT window", where=", ".join(s.name for s in segments),
+                        fix="diagnose longer runs")
+    return out, preds
+
+
+def diagnose_next(ckpt: str, train: list[Segment], heldout: list[Segment], cfg, log=print):
+    """Load a NEXT checkpoint and run the diagnose loop with it as the base model."""
+    from .loop import diagnose
+
+    try:
+        from calibration.next.checkpoint import load_checkpoint
+    except ImportError:
+        raise UserError("NEXT is not available in this install (calibration.next.checkpoint missing)",
+                        where="--model", fix="diagnose the physics model instead (drop --model)") from None
+    ck = load_checkpoint(ckpt)
+    if ck.units != train[0].units:
+        raise UserError(f"checkpoint predicts {ck.units}, the logs are in {train[0].units}", where=ckpt,
+                        fix="diagnose logs of the kind the model was trained on")
+    if ck.normalizer.y_mean.shape[0] != train[0].n:
+        raise UserError(f"checkpoint has {ck.normalizer.y_mean.shape[0]} joints, logs {train[0].n}",
+                        where=ckpt, fix="use the checkpoint of this arm")
+    tr, p_tr = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, train)
+    ho, p_ho = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, heldout)
+    basis = NextBasis(train[0].n, {**p_tr, **p_ho}, f"NEXT checkpoint {ckpt} ({ck.model.cfg.arch}, "
+                      f"history {ck.history}, inputs {ck.inputs}) + grey-box terms on its residual")
+    dg = diagnose(basis, tr, ho, cfg, log=log)
+    return dg, {"basis": basis.describe(), "title": "NEXT + grey-box terms on its residual",
+                "next_checkpoint": str(ckpt)}
+
+
+def train_next(segments: list[Segment], seconds: float, residual_of=None, seed: int = 0,
+               rate_hz: float = 100.0, history: int = 50, max_epochs: int = 400):
+    """Train NEXT (calibration.next) on segments; with `residual_of(seg) -> (N, n)` on y - residual_of
+    (grey-box prior: NEXT learns what the physics model leaves). Returns (predict(seg)->(N,n), seconds)."""
+    from calibration.next.data import Segment as NSeg
+    from calibration.next.data import build_windows
+    from calibration.next.train import TrainConfig, train
+
+    nsegs = []
+    for s in segments:
+        r = resample(s, rate_hz)
+        y = r.y - (residual_of(r) if residual_of is not None else 0.0)
+        nsegs.append(NSeg(t=r.t, q=r.q, qd=r.qd, q_cmd=r.q if r.q_cmd is None else r.q_cmd, tau=y,
+                          rate_hz=rate_hz, source=r.name))
+    t0 = time.perf_counter()
+    data = build_windows(nsegs, history=history, inputs="q,qd,dq")
+    res = train(data, TrainConfig(history=history, max_seconds=seconds, threads=1, device="cpu", seed=seed,
+                                  max_epochs=max_epochs), progress_bar=False)
+    took = time.perf_counter() - t0
+
+    def predict(seg: Segment) -> np.ndarray:
+        p = predict_next(res.model, data.normalizer, history, "q,qd,dq", seg)
+        return p + (residual_of(seg) if residual_of is not None else 0.0)
+
+    return predict, took, res

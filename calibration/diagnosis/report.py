@@ -1,0 +1,162 @@
+"""report.json + report.md + evidence plots (matplotlib Agg PNGs) for a Diagnosis."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from .greybox import errors
+from .loop import Diagnosis
+from .trace import trace_feature
+
+
+def _mean_l1(x) -> float:
+    return float(np.mean(x))
+
+
+def to_json(dg: Diagnosis, meta: dict) -> dict:
+    n = dg.model.n
+    names = list(meta.get("joint_names") or [f"joint{j}" for j in range(n)])
+    l1_after, rms_after = errors(dg.heldout.y, dg.model.predict(dg.heldout))
+    first = dg.steps[0]
+    steps = [{"added": s.added, "heldout_l1": s.heldout_l1, "heldout_rms": s.heldout_rms,
+              "heldout_l1_mean": _mean_l1(s.heldout_l1), "train_l1": s.train_l1} for s in dg.steps]
+    effects = [e.to_json() for e in dg.model.effects]
+    if not effects:
+        verdict = ("the model explains the data: no candidate effect lowers held-out error by more than "
+                   f"{100 * dg.config.rel_gain:.0f} % (and the absolute floor) on any joint")
+    else:
+        verdict = (f"added {len(effects)} effect(s); mean held-out L1 {_mean_l1(first.heldout_l1):.4g} -> "
+                   f"{_mean_l1(l1_after):.4g} {meta.get('units', '')}")
+    return {
+        **meta, "joints": names, "verdict": verdict,
+        "config": {"rel_gain": dg.config.rel_gain, "abs_gain_of_target_rms": dg.config.abs_gain,
+                   "tries_per_step": dg.config.tries, "max_effects": dg.config.max_effects},
+        "samples": {"train": len(dg.train), "heldout": len(dg.heldout)},
+        "steps": steps, "pruned": dg.pruned, "effects": effects,
+        "rejected_last": dg.rejected[-20:],
+        "before": {"heldout_l1": first.heldout_l1, "heldout_rms": first.heldout_rms,
+                   "heldout_l1_mean": _mean_l1(first.heldout_l1)},
+        "after": {"heldout_l1": l1_after.tolist(), "heldout_rms": rms_after.tolist(),
+                  "heldout_l1_mean": _mean_l1(l1_after)},
+    }
+
+
+def _binned(x, y, bins=50):
+    edges = np.quantile(x, np.linspace(0, 1, bins + 1))
+    edges = np.unique(edges)
+    k = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, len(edges) - 2)
+    cnt = np.bincount(k, minlength=len(edges) - 1)
+    keep = cnt > 0
+    mx = np.bincount(k, weights=x, minlength=len(cnt))[keep] / cnt[keep]
+    my = np.bincount(k, weights=y, minlength=len(cnt))[keep] / cnt[keep]
+    return mx, my
+
+
+def plot_step(dg: Diagnosis, k: int, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    step, prev = dg.steps[k], dg.steps[k - 1]
+    e = next(x for x in step.model.effects if x.key[:2] == (step.added["effect"], step.added["joint"]))
+    j = e.joint
+    d = dg.heldout
+    before = d.y[:, j] - prev.model.predict(d)[:, j]
+    after = d.y[:, j] - step.model.predict(d)[:, j]
+    label, x = trace_feature(e, d)
+    contrib = d.features(e) @ e.coef
+    if e.family == "position_periodic":
+        period = e.hyper["period_rad"]
+        x, label = np.mod(d.q[:, j], period) / period, f"phase of q[{j}] modulo {period:.4g} rad"
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    rng = np.random.default_rng(0)
+    sub = rng.choice(len(x), min(len(x), 4000), replace=False)
+    for a, r, title in ((ax[0], before, "before"), (ax[1], after, "after")):
+        a.scatter(x[sub], r[sub], s=2, alpha=0.25, color="0.5", label="held-out residual")
+        a.plot(*_binned(x, r), color="C0", lw=2, label="binned mean")
+        if title == "before":
+            a.plot(*_binned(x, contrib), color="C3", lw=1.5, ls="--", label=f"fitted {e.family}")
+        a.axhline(0, color="k", lw=0.5)
+        a.set_xlabel(label)
+        a.set_title(f"joint {j} {title}: L1 {np.mean(np.abs(r)):.4g}")
+    ax[0].set_ylabel(f"residual [{dg.train.segments[0].units}]")
+    ax[0].legend(fontsize=7, loc="best")
+    fig.suptitle(f"step {k}: {e.family} on joint {j}", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def plot_summary(report: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    l1 = np.array([s["heldout_l1"] for s in report["steps"]])
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    for j in range(l1.shape[1]):
+        ax.plot(l1[:, j], marker="o", label=report["joints"][j])
+    ax.set_xlabel("step (0 = rigid part only)")
+    ax.set_ylabel(f"held-out L1 [{report.get('units', '')}]")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _fmt(v) -> str:
+    return ", ".join(f"{k}={x:.4g}" if isinstance(x, float) else f"{k}={x}" for k, x in v.items())
+
+
+def write(dg: Diagnosis, out: Path, meta: dict, plots: bool = True) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    rep = to_json(dg, meta)
+    (out / "report.json").write_text(json.dumps(rep, indent=1, default=float))
+    u = rep.get("units", "")
+    lines = [f"# Diagnosis: {meta.get('title', 'grey-box model')}", "",
+             f"Data: {meta.get('data_source', '')}", "",
+             f"Training runs: {', '.join(meta.get('train_runs', []))}; held-out: "
+             f"{', '.join(meta.get('heldout_runs', []))} ({rep['samples']['train']} / "
+             f"{rep['samples']['heldout']} samples). Rigid part: {meta.get('basis', '')}. Units: {u}.", "",
+             f"**Verdict:** {rep['verdict']}.", "",
+             "| joint | held-out L1 before | after | held-out RMS before | after |", "|---|---|---|---|---|"]
+    for j, name in enumerate(rep["joints"]):
+        b, a = rep["before"], rep["after"]
+        lines.append(f"| {name} | {b['heldout_l1'][j]:.4g} | {a['heldout_l1'][j]:.4g} | "
+                     f"{b['heldout_rms'][j]:.4g} | {a['heldout_rms'][j]:.4g} |")
+    lines.append(f"| mean | {rep['before']['heldout_l1_mean']:.4g} | "
+                 f"{rep['after']['heldout_l1_mean']:.4g} | | |")
+    lines += ["", "## Steps", ""]
+    if plots:
+        plot_summary(rep, out / "heldout_l1.png")
+        lines += ["![held-out L1 per step](heldout_l1.png)", ""]
+    for k, s in enumerate(rep["steps"]):
+        if s["added"] is None:
+            lines.append(f"0. rigid part only: mean held-out L1 {s['heldout_l1_mean']:.4g} {u}")
+            continue
+        a = s["added"]
+        ev = a["evidence"]
+        lines.append(f"{k}. **{a['effect']}** on joint {a['joint']} ({rep['joints'][a['joint']]}): "
+                     f"{_fmt(a['params'])}. Evidence: explains "
+                     f"{100 * ev['explains_train_residual']:.1f} % of the joint's training residual; "
+                     f"held-out L1 of the joint {ev['heldout_l1_joint_before']:.4g} -> "
+                     f"{ev['heldout_l1_joint_after']:.4g}"
+                     + (f"; periodogram peak/median {ev['periodogram_peak_over_median']}"
+                        if "periodogram_peak_over_median" in ev else "") + ".")
+        if plots:
+            name = f"step{k:02d}_{a['effect']}_j{a['joint']}.png"
+            plot_step(dg, k, out / name)
+            lines += ["", f"   ![step {k}]({name})", ""]
+    if rep["pruned"]:
+        lines += ["", "Pruned afterwards (removing them did not raise held-out error beyond the threshold): "
+                  + "; ".join(f"{p['effect']} on joint {p['joint']}" for p in rep["pruned"]) + "."]
+    lines += ["", "## Final effects", ""]
+    finals = [f"- {e['effect']} on joint {e['joint']}: {_fmt(e['params'])}" for e in rep["effects"]]
+    lines += finals or ["- none"]
+    (out / "report.md").write_text("\n".join(lines) + "\n")
+    return rep

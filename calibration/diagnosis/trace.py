@@ -1,0 +1,133 @@
+"""Trace a residual to an effect: every candidate effect on every joint is scored by the fraction of that
+joint's training residual its features explain after projecting out what the current model can already
+represent (rigid part + effects on that joint). Nonlinear settings are searched here: the period of
+position_periodic from the periodogram of the residual against joint position, the Stribeck velocity and
+the backlash width over short grids, the other joint of a coupling over all joints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .effects import Effect, find_period
+from .greybox import Design, GreyBox
+
+STRIBECK_VS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)  # rad/s
+BACKLASH_WIDTH = (0.002, 0.005, 0.01, 0.02, 0.05)  # rad
+MOVING = 1e-3  # rad/s: a joint whose velocity RMS is below this did not move; no velocity-driven effects
+PARSIMONY = 0.005  # ranking penalty per extra column: of two effects explaining the same, the simpler first
+
+
+@dataclass
+class Candidate:
+    effect: Effect
+    score: float  # fraction of the joint's training residual (sum of squares) explained
+    evidence: dict
+
+
+class _Projector:
+    """Removes from a feature what the current model's columns on joint j already span."""
+
+    def __init__(self, model: GreyBox, d: Design, j: int, extra: list | None = None):
+        idx, cols = d.base[j]
+        mine = [d.features(e) for e in model.effects if e.joint == j]
+        # With parameters shared across joints (an arm description) joint j's own regressor row spans far
+        # more than the shared fit can use on joint j alone, so only the effects are projected out there.
+        own = [cols] if getattr(model.basis, "separable", False) else []
+        self.m = np.concatenate(own + mine + list(extra or []) + [np.zeros((len(d), 0))], 1)
+        if self.m.shape[1] == 0:
+            self.m = np.zeros((len(d), 1))
+        gram = self.m.T @ self.m
+        self.gi = np.linalg.pinv(gram + 1e-9 * np.diag(np.maximum(np.diag(gram), 1e-12)))
+
+    def __call__(self, f: np.ndarray) -> np.ndarray:
+        return f - self.m @ (self.gi @ (self.m.T @ f))
+
+
+def explained(f: np.ndarray, r: np.ndarray) -> float:
+    rr = float(r @ r)
+    if rr <= 0:
+        return 0.0
+    c, *_ = np.linalg.lstsq(f, r, rcond=None)
+    return float(max(0.0, (r @ (f @ c)) / rr))
+
+
+def candidates(model: GreyBox, d: Design, residual: np.ndarray, joints=None) -> list[Candidate]:
+    """All candidate effects, best first."""
+    taken = {e.slot for e in model.effects}
+    out: list[Candidate] = []
+    for j in range(model.n) if joints is None else joints:
+        r = residual[:, j]
+        if float(r @ r) <= 0:
+            continue
+        proj = _Projector(model, d, j)
+        moving = float(np.sqrt(np.mean(d.qd[:, j] ** 2))) > MOVING
+
+        def score(e: Effect, evidence: dict | None = None, proj=proj, r=r) -> Candidate:
+            f = d.features(e)
+            return Candidate(e, explained(proj(f), r), {**(evidence or {}), "columns": f.shape[1]})
+
+        trials: list[Candidate] = [score(Effect("current_offset", j)),
+                                   score(Effect("drift", j, {"source": "time"}))]
+        if d.temp is not None and np.ptp(d.temp[:, j]) > 0.2:
+            trials.append(score(Effect("drift", j, {"source": "temperature",
+                                                    "temp_ref": float(np.mean(d.temp[:, j]))})))
+        ref = model.theta.copy()
+        if not getattr(model.basis, "separable", False):
+            # with free per-joint coefficients (data-only basis) a scale of the rigid part is the rigid part:
+            # not identifiable, and it would only undo the ridge's shrinkage
+            trials.append(score(Effect("torque_constant_scale", j, ref=ref)))
+        if moving:
+            trials += [score(Effect("coulomb_friction", j)), score(Effect("viscous_friction", j)),
+                       score(Effect("delay", j, ref=ref)),
+                       score(Effect("position_spring", j, {"q_ref": float(np.mean(d.q[:, j]))}))]
+            trials.append(max((score(Effect("stribeck_friction", j, {"vs": v})) for v in STRIBECK_VS),
+                              key=lambda c: c.score))
+            trials.append(max((score(Effect("backlash", j, {"width_rad": w})) for w in BACKLASH_WIDTH),
+                              key=lambda c: c.score))
+            found = find_period(d.q[:, j], r)
+            if found is not None:
+                period, frac, peak = found
+                trials.append(score(Effect("position_periodic", j, {"period_rad": period}),
+                                    {"periodogram_peak_over_median": round(peak, 2),
+                                     "periodogram_explained": round(frac, 4)}))
+        # another joint gets credit only for what joint j's own velocity cannot explain: in coordinated
+        # motions qd_k correlates with qd_j, and a coupling would otherwise stand in for j's own friction
+        own_motion = _Projector(model, d, j, [d.features(Effect("coulomb_friction", j)),
+                                              d.features(Effect("viscous_friction", j))])
+        for k in range(model.n):
+            if k != j and float(np.sqrt(np.mean(d.qd[:, k] ** 2))) > MOVING:
+                trials.append(score(Effect("coupling", j, {"other_joint": k}), proj=own_motion))
+        for c in trials:
+            if c.effect.slot in taken:
+                continue
+            c.evidence["explains_train_residual"] = round(c.score, 4)
+            out.append(c)
+    out.sort(key=rank)
+    return out
+
+
+def rank(c: Candidate) -> float:
+    return -(c.score - PARSIMONY * (c.evidence.get("columns", 1) - 1))
+
+
+def trace_feature(e: Effect, d: Design) -> tuple[str, np.ndarray]:
+    """The signal the residual is plotted against as evidence for an effect (axis label, values)."""
+    j = e.joint
+    if e.family in ("position_periodic", "position_spring"):
+        return f"q[{j}] [rad]", d.q[:, j]
+    if e.family == "backlash":
+        return f"play state of q[{j}] (-1 after moving down, +1 after moving up)", d.features(e)[:, 0]
+    if e.family == "drift":
+        return ("t [s]", d.t) if e.hyper["source"] == "time" else (f"temperature[{j}] [degC]", d.temp[:, j])
+    if e.family == "current_offset":
+        return "t [s]", d.t
+    if e.family in ("torque_constant_scale", "delay"):
+        label = "rigid-part prediction" + (" rate" if e.family == "delay" else "")
+        return label, d.features(e)[:, 0]
+    if e.family == "coupling":
+        k = e.hyper["other_joint"]
+        return f"qd[{k}] [rad/s]", d.qd[:, k]
+    return f"qd[{j}] [rad/s]", d.qd[:, j]
