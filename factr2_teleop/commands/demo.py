@@ -93,7 +93,8 @@ def _live_text(run, stop: threading.Event) -> None:
 def tui_view():
     """The terminal app's demo view, when it provides one: factr2_teleop.tui.demo_view.show_demo(run,
     worker) shows DemoRun `run` live (run.loop.snapshot(), run.operator.log) while thread `worker` runs it,
-    returns when the run ends or the user quits (then it calls run.loop.stop()). None until it exists."""
+    returns when the run ends or the user quits (then it calls run.loop.stop()), with a line
+    saying how the run ended ("finished", "emergency stop: ...", ...). None until it exists."""
     try:
         from factr2_teleop.tui import demo_view
     except ImportError:
@@ -135,6 +136,9 @@ def run(args) -> int:
         raise UserError(f"rig {args.rig} is real hardware; the demo runs on a twin", where="--rig",
                         fix=f"use `factr2 teleop --rig {args.rig}` on real arms, or a sim-* rig here")
     mode, next_est, why = resolve_mode(args)
+    live = not args.headless and sys.stderr.isatty() and sys.stdout.isatty()
+    # imported before the rig opens: a real-time run must start right after DemoRun() (its twin waits)
+    show_app = tui_view() if live else None
     if why:
         _say(f"feedback mode {mode}: {why}")
     demo = DemoRun(DemoConfig(rig=args.rig, seconds=args.seconds, mode=mode, rate_hz=args.rate,
@@ -143,8 +147,6 @@ def run(args) -> int:
     try:
         if args.record:
             rec, demo.recorder = _recorder(args.record, demo)
-        live = not args.headless and sys.stderr.isatty() and sys.stdout.isatty()
-        show_app = tui_view() if live else None
         stop_view = threading.Event()
         view = None
         if live and show_app is None:
@@ -156,14 +158,17 @@ def run(args) -> int:
         worker.start()
         try:
             if show_app is not None:
-                show_app(demo, worker)
+                how = show_app(demo, worker)
                 if worker.is_alive():  # the user left the app early
                     demo.loop.stop(timeout_s=2.0)
+                if isinstance(how, str) and how != "finished":
+                    _say(f"live view: {how}")
             while worker.is_alive():
                 worker.join(0.2)
         except KeyboardInterrupt:
             demo.loop.stop(timeout_s=2.0)  # the loop leaves both arms safe
-            worker.join(2.0)
+            if worker.ident is not None:
+                worker.join(2.0)
             _say("stopped by Ctrl-C: leader at zero torque, follower holding")
         finally:
             stop_view.set()
