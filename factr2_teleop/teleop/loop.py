@@ -89,7 +89,7 @@ class TeleopLoop:
         self._running = True
         try:
             for p in self.pairs:
-                p.begin()
+                p.begin(self.clock)
             self._note_messages()
             # a clock that drives a simulation between ticks (demo.task.TwinDrivenClock) brings it up to now
             # here, so the first tick does not see samples as old as the start-up; no-op on other clocks

@@ -19,6 +19,7 @@ from factr2_teleop.teleop.feedback import contact_score
 from factr2_teleop.teleop.leader_law import LeaderInputs, LeaderLaw, LeaderLawConfig
 from factr2_teleop.teleop.mapping import JointMap, JointMapConfig
 from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch_error, rate_limit
+from hardware.clock import Clock
 from hardware.errors import ConfigError, DeviceError
 from hardware.roles import Follower, Leader
 from hardware.types import STATUS_COMM_LOST, STATUS_STALE, FollowerCommand, JointState
@@ -144,9 +145,11 @@ class ArmPair:
             log.error("%s: could not make an arm safe: %s", self.cfg.name, errors)
 
     # -- lifecycle ------------------------------------------------------------------------------------
-    def begin(self) -> None:
-        """Wait for first data from both arms, refuse a large mismatch (UserError), start the soft start."""
-        clock = self.leader.clock
+    def begin(self, clock: Clock | None = None) -> None:
+        """Wait for first data from both arms, refuse a large mismatch (UserError), start the soft start.
+
+        clock: the loop's clock (it may be the one that steps a twin); default the leader driver's."""
+        clock = clock or self.leader.clock
         t_end = clock.now() + self.cfg.start_timeout_s
         while True:
             now = clock.now()
