@@ -13,6 +13,7 @@ from __future__ import annotations
 import errno
 import os
 import queue
+import random
 import time
 
 import can
@@ -260,3 +261,34 @@ class CanLink:
             self.bus.shutdown()
         except (can.CanError, OSError):
             pass
+
+
+class CanEmulatorIO:
+    """Wire side shared by the CAN emulators (Piper, Damiao): fault injection and counters.
+
+    drop_prob: each frame in either direction is lost with this probability (seeded, deterministic);
+    silent: the device sends nothing (a device that stopped answering)."""
+
+    def _init_io(self, bus, drop_prob: float, seed: int) -> None:
+        self.bus = bus
+        self.drop_prob = float(drop_prob)
+        self.silent = False
+        self._rng = random.Random(seed)
+        self._send_fresh = getattr(bus, "send_fresh", None)  # FastVirtualBus shortcut (no extra Message)
+        self.rx_frames = self.tx_frames = self.dropped = self.ignored = 0
+
+    def _lost(self) -> bool:
+        """True when the frame at hand is dropped by the injected loss (counted)."""
+        if self.drop_prob and self._rng.random() < self.drop_prob:
+            self.dropped += 1
+            return True
+        return False
+
+    def _send(self, arb_id: int, data: bytes) -> None:
+        if self.silent or self._lost():
+            return
+        if self._send_fresh is not None:
+            self._send_fresh(arb_id, data)
+        else:
+            self.bus.send(can.Message(arbitration_id=arb_id, data=data, is_extended_id=False, check=False))
+        self.tx_frames += 1

@@ -15,18 +15,17 @@ feedback, e.g. protocol.ERR_COIL_OVERTEMP; cleared by the clear-error frame).
 
 from __future__ import annotations
 
-import random
-
 import can
 import numpy as np
 
+from hardware.can_bus import CanEmulatorIO
 from hardware.damiao import protocol as D
 
 TIMEOUT_KD = 1.0  # N*m*s/rad: damping the emulated firmware applies after its command timeout
 CAN_BAUD_INDEX_1M = 4  # register 35 value reported for 1 Mbit/s (index table not verified)
 
 
-class DamiaoEmulator:
+class DamiaoEmulator(CanEmulatorIO):
     """DamiaoEmulator(bus, bank, ids, models, *, master_ids=None, drop_prob=0.0, seed=0, timeout_kd=1.0,
     timeout_reg=0, ctrl_mode=1). Counters: rx_frames, tx_frames, dropped, ignored, timeouts,
     decode_errors (garbage: wrong DLC, unknown id, non-data frames)."""
@@ -36,7 +35,8 @@ class DamiaoEmulator:
                  timeout_kd: float = TIMEOUT_KD, timeout_reg: int = 0, ctrl_mode: int = D.CTRL_MODE_MIT):
         if len(ids) != bank.n or len(models) != bank.n:
             raise ValueError(f"DamiaoEmulator: {len(ids)} ids / {len(models)} models for a bank of {bank.n}")
-        self.bus, self.bank = bus, bank
+        self._init_io(bus, drop_prob, seed)
+        self.bank = bank
         self.ids = list(ids)
         self.master_ids = list(master_ids) if master_ids else [i + D.MASTER_ID_OFFSET for i in ids]
         self._index = {sid: k for k, sid in enumerate(self.ids)}
@@ -45,10 +45,7 @@ class DamiaoEmulator:
                            D.RID_TIMEOUT: timeout_reg, D.RID_CTRL_MODE: ctrl_mode, D.RID_PMAX: r.pmax,
                            D.RID_VMAX: r.vmax, D.RID_TMAX: r.tmax, D.RID_CAN_BAUD: CAN_BAUD_INDEX_1M}
                           for k, (sid, r) in enumerate(zip(self.ids, self.ranges, strict=True))]
-        self.drop_prob, self.timeout_kd = float(drop_prob), float(timeout_kd)
-        self.silent = False
-        self._rng = random.Random(seed)
-        self._send_fresh = getattr(bus, "send_fresh", None)  # FastVirtualBus shortcut (no extra Message)
+        self.timeout_kd = float(timeout_kd)
         n = bank.n
         self.enabled = np.zeros(n, dtype=bool)
         self.err = np.zeros(n, dtype=int)  # forced ERR codes (0: none)
@@ -56,7 +53,7 @@ class DamiaoEmulator:
         self.last_cmd_t = np.full(n, -np.inf)
         self.timed_out = np.zeros(n, dtype=bool)
         self.counters = D.RejectCounters()
-        self.rx_frames = self.tx_frames = self.dropped = self.ignored = self.timeouts = 0
+        self.timeouts = 0
 
     @property
     def decode_errors(self) -> int:
@@ -73,8 +70,7 @@ class DamiaoEmulator:
             if msg is None:
                 break
             n += 1
-            if self.drop_prob and self._rng.random() < self.drop_prob:
-                self.dropped += 1
+            if self._lost():
                 continue
             data, aid = msg.data, msg.arbitration_id
             if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
@@ -163,18 +159,6 @@ class DamiaoEmulator:
                 raw = D.encode_feedback(self.ids[k], int(err), q[k], v[k], tau[k], temp[k], temp[k],
                                         self.ranges[k])
             self._send(self.master_ids[k], raw)
-
-    def _send(self, arb_id: int, data: bytes) -> None:
-        if self.silent:
-            return
-        if self.drop_prob and self._rng.random() < self.drop_prob:
-            self.dropped += 1
-            return
-        if self._send_fresh is not None:
-            self._send_fresh(arb_id, data)
-        else:
-            self.bus.send(can.Message(arbitration_id=arb_id, data=data, is_extended_id=False, check=False))
-        self.tx_frames += 1
 
     # -- firmware timers ---------------------------------------------------------------------------------
     def emit(self, t: float) -> int:

@@ -20,12 +20,12 @@ arm_status (0x2A1 byte 1, e.g. protocol.ARM_STATUS_ESTOP).
 
 from __future__ import annotations
 
-import random
 from collections.abc import Callable
 
 import can
 import numpy as np
 
+from hardware.can_bus import CanEmulatorIO
 from hardware.piper import protocol as P
 
 FAST_HZ = 200.0  # Hz per feedback id: status, joint angles, gripper, high-speed, end pose
@@ -38,7 +38,7 @@ GRIPPER_ENABLED_BIT = 0x40  # 0x2A8 status byte bit we set while the gripper is 
 SIM_FIRMWARE, SIM_FIRMWARE_OLD = "S-V1.8-3-SIM", "S-V1.6-3-SIM"
 
 
-class PiperEmulator:
+class PiperEmulator(CanEmulatorIO):
     """PiperEmulator(bus, bank, *, fk=None, old_firmware_effort=False, mit_torque_gain=4.0, drop_prob=0.0,
     seed=0, firmware=None, joint_limits_rad=None). firmware: version text answered on 0x4AF (default: a
     made-up SIM version consistent with old_firmware_effort).
@@ -54,14 +54,11 @@ class PiperEmulator:
                  firmware: str | None = None, joint_limits_rad=None):
         if bank.n < 6:
             raise ValueError(f"PiperEmulator needs a bank with >= 6 motors, got {bank.n}")
-        self.bus, self.bank, self.fk = bus, bank, fk
+        self._init_io(bus, drop_prob, seed)
+        self.bank, self.fk = bank, fk
         self.has_gripper = bank.n > 6
         self.mit_torque_gain = float(mit_torque_gain)
-        self.drop_prob = float(drop_prob)
-        self.silent = False
         self.firmware = firmware or (SIM_FIRMWARE_OLD if old_firmware_effort else SIM_FIRMWARE)
-        self._rng = random.Random(seed)
-        self._send_fresh = getattr(bus, "send_fresh", None)  # FastVirtualBus shortcut (no extra Message)
         self.decoder = P.PiperCommandDecoder()
         scale = np.ones(6)
         if old_firmware_effort:
@@ -80,7 +77,6 @@ class PiperEmulator:
         self._all6 = np.arange(6)
         self._pos_dirty = self._mit_dirty = 0  # bit masks of joints with a batched command
         self._next_fast = self._next_slow = -np.inf
-        self.rx_frames = self.tx_frames = self.dropped = self.ignored = 0
 
     # -- host -> arm -------------------------------------------------------------------------------------
     def poll(self) -> int:
@@ -91,8 +87,7 @@ class PiperEmulator:
             if msg is None:
                 break
             n += 1
-            if self.drop_prob and self._rng.random() < self.drop_prob:
-                self.dropped += 1
+            if self._lost():
                 continue
             r = decode(msg.arbitration_id, msg.data, msg.is_extended_id,
                        msg.is_remote_frame or msg.is_error_frame)
@@ -189,18 +184,6 @@ class PiperEmulator:
             self.ignored += 1
 
     # -- arm -> host -------------------------------------------------------------------------------------
-    def _send(self, arb_id: int, data: bytes) -> None:
-        if self.silent:
-            return
-        if self.drop_prob and self._rng.random() < self.drop_prob:
-            self.dropped += 1
-            return
-        if self._send_fresh is not None:
-            self._send_fresh(arb_id, data)
-        else:
-            self.bus.send(can.Message(arbitration_id=arb_id, data=data, is_extended_id=False, check=False))
-        self.tx_frames += 1
-
     def emit(self, t: float) -> int:
         """Send the feedback frames due at sim time t [s]; returns how many were due."""
         fast, slow = t >= self._next_fast, t >= self._next_slow
