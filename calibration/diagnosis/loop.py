@@ -7,6 +7,7 @@ joints. Candidates are tried in trace-score order (at most `tries` per step); th
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,6 +45,12 @@ class Diagnosis:
     config: LoopConfig
     rejected: list = field(default_factory=list)
     pruned: list = field(default_factory=list)
+    declared: list = field(default_factory=list)  # effects given up front (a first pass), not found here
+
+    def found(self) -> list:
+        """The effects this run added (declared ones excluded)."""
+        keys = {e.key for e in self.declared}
+        return [e for e in self.model.effects if e.key not in keys]
 
 
 def _eval(model: GreyBox, train: Design, held: Design):
@@ -53,13 +60,17 @@ def _eval(model: GreyBox, train: Design, held: Design):
 
 
 def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None = None,
-             log=lambda s: None) -> Diagnosis:
+             log=lambda s: None, declared=None) -> Diagnosis:
+    """declared: effects (effects.Effect; family, joint, hyper) known before this run -- e.g. a first pass
+    on other data that explained the arm's own friction -- fitted with the rigid part from the start; the loop
+    looks for what is missing on top of them."""
     cfg = config or LoopConfig()
+    declared = [copy.copy(e) for e in (declared or [])]
     if hasattr(basis, "per_joint"):
         ridge = select_ridge(basis, train_segments)
         log(f"ridge per joint (leave-one-fold-out on the training data): {ridge}")
     train, held = Design(basis, train_segments), Design(basis, heldout_segments)
-    model = GreyBox(basis).fit(train)
+    model = GreyBox(basis, [copy.copy(e) for e in declared]).fit(train)
     l1, rms, ltr = _eval(model, train, held)
     steps = [Step(None, l1.tolist(), rms.tolist(), ltr.tolist(), model)]
     floor = cfg.abs_gain * np.sqrt(np.mean(held.y ** 2, 0))
@@ -115,7 +126,7 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
                              steps[-1].residual_before)
         model, l1, rms = trial, l1_new, rms_new
     model, pruned = _prune(model, train, held, l1, floor, cfg, log)
-    return Diagnosis(steps, model, train, held, cfg, rejected, pruned)
+    return Diagnosis(steps, model, train, held, cfg, rejected, pruned, declared)
 
 
 def _prune(model: GreyBox, train: Design, held: Design, l1, floor, cfg: LoopConfig, log):
@@ -123,7 +134,7 @@ def _prune(model: GreyBox, train: Design, held: Design, l1, floor, cfg: LoopConf
     (with shared rigid parameters a scale error on one joint first leaks into the others). Drop every effect
     whose removal does not raise its joint's held-out error by more than the acceptance threshold."""
     pruned = []
-    for e in list(model.effects):
+    for e in list(model.effects):  # declared effects too: one the data does not need is reported as pruned
         if len(model.effects) <= 1:
             break
         trial = GreyBox(model.basis, [x for x in model.effects if x is not e]).fit(train)

@@ -24,11 +24,12 @@ def to_json(dg: Diagnosis, meta: dict) -> dict:
     steps = [{"added": s.added, "heldout_l1": s.heldout_l1, "heldout_rms": s.heldout_rms,
               "heldout_l1_mean": _mean_l1(s.heldout_l1), "train_l1": s.train_l1} for s in dg.steps]
     effects = [e.to_json() for e in dg.model.effects]
-    if not effects:
+    found = dg.found() if hasattr(dg, "found") else dg.model.effects
+    if not found:
         verdict = ("the model explains the data: no candidate effect lowers held-out error by more than "
                    f"{100 * dg.config.rel_gain:.0f} % (and the absolute floor) on any joint")
     else:
-        verdict = (f"added {len(effects)} effect(s); mean held-out L1 {_mean_l1(first.heldout_l1):.4g} -> "
+        verdict = (f"added {len(found)} effect(s); mean held-out L1 {_mean_l1(first.heldout_l1):.4g} -> "
                    f"{_mean_l1(l1_after):.4g} {meta.get('units', '')}")
     return {
         **meta, "joints": names, "verdict": verdict,
@@ -36,6 +37,7 @@ def to_json(dg: Diagnosis, meta: dict) -> dict:
                    "tries_per_step": dg.config.tries, "max_effects": dg.config.max_effects},
         "samples": {"train": len(dg.train), "heldout": len(dg.heldout)},
         "steps": steps, "pruned": dg.pruned, "effects": effects,
+        "declared": [e.to_json() for e in getattr(dg, "declared", [])],
         "rejected_last": dg.rejected[-20:],
         "before": {"heldout_l1": first.heldout_l1, "heldout_rms": first.heldout_rms,
                    "heldout_l1_mean": _mean_l1(first.heldout_l1)},
