@@ -8,7 +8,11 @@
    reach within 5 % of the best validation loss of the run (the run's best stands in for "converged" -- run
    with a large --max-seconds for a real convergence point).
 
-    python bench/bench_next.py [--threads 2] [--max-seconds 600] [--skip-train]
+3. Twin (SIMULATED, optional): `--twin-data DIR` = the data/ folder of a `factr2 calibrate --rig sim-piper`
+   run (train.npz, heldout.npz, contact_eval.npz): train NEXT on train.npz, score held-out free motion and
+   the pushed contact replay against the disturbance observer and FILIC (ratios printed).
+
+    python bench/bench_next.py [--threads 2] [--max-seconds 600] [--skip-train] [--twin-data DIR]
 Writes bench/out/next.json.
 """
 
@@ -105,17 +109,47 @@ def bench_ur5(threads: int, max_seconds: float, out_dir: Path) -> dict:
     return res
 
 
+def bench_twin(data_dir: Path, threads: int, max_seconds: float, out_dir: Path) -> dict:
+    from calibration.next.train import TrainConfig
+    from calibration.report import calibrate_from_logs
+
+    evals = [data_dir / "heldout.npz"] + [p for p in [data_dir / "contact_eval.npz"] if p.is_file()]
+    curve = []
+    cfg = TrainConfig(threads=threads, max_seconds=max_seconds, device="cpu")
+    rep = calibrate_from_logs([data_dir / "train.npz"], out_dir, evals, arm="piper", cfg=cfg,
+                              callback=lambda p: curve.append((p.elapsed_s, p.val_loss)))
+    best = min(v for _, v in curve)
+    m = rep["methods"]
+    res = {"simulated": True, "threads": threads, "train_seconds": rep["train_seconds"],
+           "epochs": rep["epochs"],
+           "data_minutes": rep["data_minutes"], "best_val_mse_normalized": best,
+           "seconds_to_within_5pct_of_best": next(t for t, v in curve if v <= 1.05 * best),
+           "free_l1_Nm": {k: v["free_l1_mean"] for k, v in m.items()},
+           "contact_l1_Nm": {k: v["contact_l1_mean"] for k, v in m.items()}, "curve": curve}
+    for kind in ("free", "contact"):
+        d = res[f"{kind}_l1_Nm"]
+        if d["next"] is not None and d["observer"]:
+            res[f"{kind}_ratio_next_vs_observer"] = d["next"] / d["observer"]
+    print("twin (SIMULATED) " + ", ".join(f"{k} {json.dumps(res[k])}" for k in
+                                          ("free_l1_Nm", "contact_l1_Nm") if k in res))
+    print({k: v for k, v in res.items() if k.endswith("observer")})
+    return res
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--max-seconds", type=float, default=600.0)
     ap.add_argument("--skip-train", action="store_true")
+    ap.add_argument("--twin-data", type=Path, help="data/ folder of a factr2 calibrate --rig sim-piper run")
     args = ap.parse_args()
     out = ROOT / "bench" / "out"
     out.mkdir(parents=True, exist_ok=True)
     results = {"estimator": bench_estimator()}
     if not args.skip_train:
         results["ur5"] = bench_ur5(args.threads, args.max_seconds, out / "next_ur5")
+        if args.twin_data is not None:
+            results["twin"] = bench_twin(args.twin_data, args.threads, args.max_seconds, out / "next_twin")
     (out / "next.json").write_text(json.dumps(results, indent=1))
     return 0
 

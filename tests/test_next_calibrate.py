@@ -89,3 +89,14 @@ def test_ur5_logs_in_current_units(tmp_path):
     assert m["observer"]["free_l1"] is None and m["filic"]["free_l1"] is None
     assert m["ridge"]["free_l1_mean"] < m["raw"]["free_l1_mean"]  # the fit explains part of the current
     assert np.isfinite(m["next"]["free_l1_mean"])
+
+
+def test_heldout_blocks_spread_over_the_run():
+    from factr2_teleop.commands.calibrate import heldout_blocks
+
+    m = heldout_blocks(70_000, 0.15, 2000)  # 35 blocks of 20 s at 100 Hz, every 7th held out
+    assert 0.12 < m.mean() < 0.18 and not m[:2000].any()
+    starts = np.flatnonzero(np.diff(m.astype(int)) == 1) + 1
+    assert len(starts) == 5 and starts[-1] > 0.8 * len(m)  # held-out blocks reach the end of the run
+    short = heldout_blocks(6000, 0.15, 2000)  # 1 min: shorter blocks, still ~1/7 held out
+    assert 0.1 < short.mean() < 0.2 and not short[:800].any()

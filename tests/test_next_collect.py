@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibration.next.collect import ContactStop, collect_free_motion, residual_exceeds
+from calibration.next.collect import ContactStop, Push, collect_free_motion, residual_exceeds
 from calibration.trajectories import PHASES, Trajectory, ruckig_move
 
 
@@ -51,6 +51,23 @@ def test_contact_guard_stops_and_holds():
     traj = _short_traj(arm)
     with sim.open_rig("sim-piper", clock="lockstep") as session:
         # a guard so tight that ordinary free-motion residuals trip it: proves the stop path holds the arm
-        with pytest.raises(ContactStop):
+        with pytest.raises(ContactStop) as err:
             collect_free_motion(session, "follower", traj, contact_frac=1e-6, contact_ticks=2)
         assert session.followers["follower"].in_safe_state
+    assert err.value.run is not None and err.value.run.stopped == "contact"  # the partial run is kept
+
+
+def test_scripted_push_is_labelled_contact_with_ground_truth():
+    sim = pytest.importorskip("hardware.sim")
+    from hardware.arms import load_arm
+
+    arm = load_arm("piper")
+    traj = _short_traj(arm)
+    with sim.open_rig("sim-piper", clock="lockstep") as session:
+        push = Push(0.3, "link6", (0.0, 0.0, -30.0), 0.2)
+        run = collect_free_motion(session, "follower", traj, pushes=[push])
+    a = run.arrays()
+    t = a["t"] - a["t"][0]
+    pushed = (t > 0.32) & (t < 0.48)
+    assert a["contact"][pushed].all() and not a["contact"][t < 0.25].any() and not a["contact"][t > 0.6].any()
+    assert np.abs(a["tau_ext_true"][pushed]).max() > 1.0  # the push shows in the twin's ground truth [N*m]

@@ -9,7 +9,7 @@ import torch
 from calibration.next.checkpoint import NextCheckpoint, load_checkpoint, save_checkpoint
 from calibration.next.data import Segment, build_windows
 from calibration.next.model import ModelConfig, NextModel
-from calibration.next.train import EarlyStopping, TrainConfig, train
+from calibration.next.train import EarlyStopping, TrainConfig, lr_at, train
 from hardware.errors import UserError
 
 torch.set_num_threads(1)
@@ -84,3 +84,12 @@ def test_checkpoint_round_trip_and_refusal(tmp_path):
     (tmp_path / "bad.safetensors").write_bytes(b"xx")
     with pytest.raises(UserError, match="not a readable"):
         load_checkpoint(tmp_path / "bad")
+
+
+def test_lr_schedule_warmup_cosine_floor():
+    cfg = TrainConfig(lr=1e-3, lr_peak=5e-3, lr_warmup_windows=100, lr_decay_windows=200, lr_final=1e-4)
+    assert lr_at(cfg, 0) == pytest.approx(1e-3) and lr_at(cfg, 50) == pytest.approx(3e-3)
+    assert lr_at(cfg, 100) == pytest.approx(5e-3) and lr_at(cfg, 200) == pytest.approx(0.5 * (5e-3 + 1e-4))
+    assert lr_at(cfg, 300) == pytest.approx(1e-4) and lr_at(cfg, 10**6) == pytest.approx(1e-4)
+    flat = TrainConfig(lr=1e-3, lr_peak=1e-3, lr_warmup_windows=0, lr_decay_windows=0)
+    assert lr_at(flat, 0) == lr_at(flat, 10**6) == pytest.approx(1e-3)

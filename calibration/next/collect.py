@@ -11,6 +11,11 @@ Unexpected contact guard: the rigid-body residual r = tau_m - (M qdd_ref + C qd 
 own acceleration qdd_ref (no differentiation); when |r_j| exceeds `contact_frac` x tau_max_j for
 `contact_ticks` ticks in a row the follower is put on hold and the run stops (ContactStop). It is a coarse
 guard against hitting something, not a force estimate: unmodelled friction sits below the threshold.
+ContactStop carries what was recorded before the stop (`err.run`), so a long run is not lost to a late graze.
+
+Scripted pushes (twins only, for contact evaluation with ground truth): `pushes=[Push(t_s, link, force_n,
+duration_s), ...]` applies each world-frame force through the twin at t_s into the recorded part; the guard
+is off in such a run (the contact is intended), and a sample counts as contact while a push or a touch acts.
 """
 
 from __future__ import annotations
@@ -28,7 +33,20 @@ from hardware.types import FollowerCommand
 
 
 class ContactStop(DeviceError):
-    """The arm met something during free-motion calibration; it is holding position."""
+    """The arm met something during free-motion calibration; it is holding position. `run`: the data
+    recorded before the stop (CollectedRun), or None."""
+
+    run = None
+
+
+@dataclass
+class Push:
+    """A scripted push on a twin: world-frame force [N] on `link`'s centre of mass from t_s for duration_s."""
+
+    t_s: float
+    link: str
+    force_n: tuple[float, float, float]
+    duration_s: float
 
 
 @dataclass
@@ -63,9 +81,11 @@ def residual_exceeds(r: np.ndarray, tau_max: np.ndarray, frac: float) -> bool:
 
 def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_speed: float = 0.3,
                         contact_frac: float = 0.3, contact_ticks: int = 5,
-                        progress: Callable[[float, float], bool | None] | None = None) -> CollectedRun:
+                        progress: Callable[[float, float], bool | None] | None = None,
+                        pushes: list[Push] | None = None) -> CollectedRun:
     """Replay `traj` on the session's follower (RigSession of hardware.sim.open_rig). progress(done_s,
-    total_s) is called every tick; returning True stops the run (operator stop). Raises ContactStop."""
+    total_s) is called every tick; returning True stops the run (operator stop). Raises ContactStop (with
+    the partial run attached) unless `pushes` are given (twin only; guard off)."""
     from hardware.arms import load_arm
 
     spec = session.rig.device(follower_name)
@@ -80,6 +100,9 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
     clock, dt = session.clock, 1.0 / traj.rate_hz
     run = CollectedRun(joint_names=list(arm.joint_names))
     truth = session.twin.ground_truth if session.twin is not None else None
+    if pushes and session.twin is None:
+        raise DeviceError("scripted pushes need a simulated rig", where=follower_name, fix="use a sim-* rig")
+    todo = sorted(pushes or [], key=lambda p: p.t_s)
 
     st = follower.read()
     s = move_speed
@@ -89,17 +112,24 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
                                                          for k in range(len(traj.t))]
     over = 0
     t_start = time.monotonic()
+    n_move = len(q0)
     for k, (q_ref, qdd_ref, record) in enumerate(plan):
+        while todo and record and (k - n_move) * dt >= todo[0].t_s:
+            p = todo.pop(0)
+            session.twin.push(p.link, np.asarray(p.force_n, float), p.duration_s, follower_name)
         follower.command(FollowerCommand(q=q_ref))
         clock.sleep(dt)
         st = follower.read()
         r = st.tau_m - pin.rnea(model, data, st.q, st.q_dot, qdd_ref)
         over = over + 1 if np.all(np.isfinite(r)) and residual_exceeds(r, limits.tau_max, contact_frac) else 0
-        if over >= contact_ticks:
+        if over >= contact_ticks and not pushes:
             follower.hold("unexpected contact during calibration")
             run.stopped = "contact"
-            raise ContactStop(f"unexpected contact at t={k * dt:.1f} s (residual {np.abs(r).max():.1f} N*m)",
+            run.wall_s = time.monotonic() - t_start
+            err = ContactStop(f"unexpected contact at t={k * dt:.1f} s (residual {np.abs(r).max():.1f} N*m)",
                               where=follower_name, fix="clear the workspace (or lower the speed) and rerun")
+            err.run = run
+            raise err
         if record:
             run.t.append(st.t)
             run.q.append(st.q)
@@ -110,7 +140,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
             if truth is not None:
                 gt = truth()[follower_name]
                 run.tau_ext_true.append(np.asarray(gt.tau_ext)[: arm.n_joints])
-                run.contact.append(bool(gt.contact))
+                run.contact.append(bool(gt.contact) or bool(np.any(np.asarray(gt.tau_push) != 0.0)))
         if progress is not None and progress((k + 1) * dt, len(plan) * dt):
             follower.hold("operator stop")
             run.stopped = "operator"

@@ -11,6 +11,8 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from hardware.errors import UserError
 
 HELP = "train NEXT external-torque estimation from free-motion logs and compare it with baselines"
@@ -29,7 +31,14 @@ def add_arguments(p) -> None:
     p.add_argument("--minutes", type=float, default=10.0, help="length of the recorded free motion [min]")
     p.add_argument("--twin-effect", metavar="MOD:FN", help="twin effect hook (simulated rigs only)")
     p.add_argument("--heldout-frac", type=float, default=0.15,
-                   help="last fraction of the recorded motion kept for evaluation (default 0.15)")
+                   help="fraction of the recorded motion kept for evaluation, as 20 s blocks spread over the "
+                        "run (default 0.15)")
+    p.add_argument("--contact-eval-s", type=float, default=60.0,
+                   help="simulated rigs: length [s] of an extra held-out replay with scripted pushes (ground "
+                        "truth logged) used to score contact L1; 0 to skip (default 60)")
+    p.add_argument("--min-minutes", type=float, default=2.0,
+                   help="keep the data and train when an unexpected contact stops the replay after at least "
+                        "this long [min] (default 2)")
     p.add_argument("--rate-hz", type=float, default=100.0, help="resampling rate [Hz] (default 100)")
     p.add_argument("--arch", choices=("lstm", "gru", "mlp"), default="lstm", help="network (ablation)")
     p.add_argument("--history", type=int, default=50, help="window length H in samples (default 50)")
@@ -47,7 +56,7 @@ def _run_on_rig(args, cfg) -> int:
 
     from tqdm import tqdm
 
-    from calibration.next.collect import collect_free_motion
+    from calibration.next.collect import ContactStop, collect_free_motion
     from calibration.report import calibrate_from_logs
     from calibration.trajectories import arm_coverage_trajectory
     from hardware.recording.plain_log import save_plain_log
@@ -75,25 +84,76 @@ def _run_on_rig(args, cfg) -> int:
         bar.n = round(done_s)
         bar.refresh()
 
+    contact_eval = None
     with open_rig(rig, clock="lockstep" if rig.simulated else "realtime", effect=args.twin_effect) as session:
-        run = collect_free_motion(session, spec.name, traj, progress=progress)
+        try:
+            run = collect_free_motion(session, spec.name, traj, progress=progress)
+        except ContactStop as e:
+            run = e.run
+            keep = 0 if run is None else max(0, len(run.t) - int(2.0 * args.rate_hz))  # drop the last 2 s
+            if keep < args.min_minutes * 60.0 * args.rate_hz:
+                raise
+            for k in ("t", "q", "qd", "q_cmd", "tau_m", "current", "tau_ext_true", "contact"):
+                setattr(run, k, getattr(run, k)[:keep])
+            run.stopped = f"contact: {e.what}"
+            minutes = keep / args.rate_hz / 60.0
+            print(f"warning: {e.what}; training on the {minutes:.1f} min recorded before it", file=sys.stderr)
+        if rig.simulated and args.contact_eval_s > 0:
+            contact_eval = _record_contact_eval(session, spec, args)
     bar.close()
     arrays = run.arrays()
     n = len(arrays["t"])
-    cut = int(n * (1.0 - args.heldout_frac))
+    held_mask = heldout_blocks(n, args.heldout_frac, int(round(HELDOUT_BLOCK_S * args.rate_hz)))
     per_sample = {k: v for k, v in arrays.items() if v.ndim >= 1 and len(v) == n}
     fixed = {k: v for k, v in arrays.items() if k not in per_sample}
     save_plain_log(out / "data" / "free_motion.npz", **arrays)
     data = out / "data"
-    train = save_plain_log(data / "train.npz", **{k: v[:cut] for k, v in per_sample.items()}, **fixed)
-    held = save_plain_log(data / "heldout.npz", **{k: v[cut:] for k, v in per_sample.items()}, **fixed)
-    report = calibrate_from_logs([train], out, [held], arm=spec.arm, cfg=cfg, rate_hz=args.rate_hz,
+    train = save_plain_log(data / "train.npz", **{k: v[~held_mask] for k, v in per_sample.items()}, **fixed)
+    held = save_plain_log(data / "heldout.npz", **{k: v[held_mask] for k, v in per_sample.items()}, **fixed)
+    evals = [held]
+    if contact_eval is not None:
+        evals.append(save_plain_log(data / "contact_eval.npz", **contact_eval.arrays()))
+    report = calibrate_from_logs([train], out, evals, arm=spec.arm, cfg=cfg, rate_hz=args.rate_hz,
                                  observer_gain=args.observer_gain, plots=not args.no_plots)
     report.update(rig=rig.name, follower=spec.name, simulated=rig.simulated,
                   collision_checked=traj.collision_checked, stopped=run.stopped or None)
     (out / "report.json").write_text(json.dumps(report, indent=1))
     _print_summary(report, out)
     return 0
+
+
+HELDOUT_BLOCK_S = 20.0  # held-out free motion comes in blocks of this length [s]
+
+
+def heldout_blocks(n: int, frac: float, block: int) -> np.ndarray:
+    """(n,) bool: which samples are held out -- every k-th block of `block` samples (k = round(1 / frac),
+    the first block always trains). Blocks spread over the whole recording, so the held-out part has every
+    phase of the trajectory (slow, multi-joint, fast); a held-out tail would be the fast phase only, which
+    the model never saw. Runs shorter than k blocks get blocks of n // k samples. The time gaps left in
+    both files make resampling split them into segments, so no training window ever spans a cut."""
+    k = max(2, int(round(1.0 / frac)))
+    block = max(1, min(block, n // k))  # a short run gets shorter blocks, so something is held out
+    idx = np.arange(n) // block
+    return (idx % k) == k - 1
+
+
+def _record_contact_eval(session, spec, args):
+    """SIMULATED: replay a fresh coverage trajectory (other seed: not in the training data) while the twin
+    pushes links 3-6 (10-40 N, 0.5-1.5 s, one every ~3 s); the log carries the twin's ground truth."""
+    from calibration.next.collect import Push, collect_free_motion
+    from calibration.trajectories import arm_coverage_trajectory
+
+    traj = arm_coverage_trajectory(spec.arm, args.contact_eval_s / 60.0, args.rate_hz,
+                                   scene=session.rig.twin.scene, seed=1)
+    rng = np.random.default_rng(1)
+    pushes, t = [], 2.0
+    while t < traj.duration_s - 2.0:
+        d = rng.uniform(0.5, 1.5)
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        pushes.append(Push(t, f"link{rng.integers(3, 7)}", tuple(rng.uniform(10, 40) * direction), d))
+        t += d + rng.uniform(1.0, 3.0)
+    return collect_free_motion(session, spec.name, traj, pushes=pushes)
 
 
 def _print_summary(report: dict, out: Path) -> None:
