@@ -69,6 +69,19 @@ def filic_residual(model: pin.Model, t: np.ndarray, q: np.ndarray, qd: np.ndarra
     return np.asarray(tau_m, float) - rigid_body_torque(model, q, qd, qdd)
 
 
+def momentum_observer_step(integral: np.ndarray, r: np.ndarray, p: np.ndarray, p0: np.ndarray,
+                           tau_m: np.ndarray, beta: np.ndarray, dt_s: float,
+                           k_o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One step of the generalised-momentum observer (De Luca; the paper's DO baseline), shared by the batch
+    baseline below and the streaming teleop estimator.
+
+    Model: M q_ddot + C q_dot + g = tau_m + tau_env, p = M q_dot, p_dot = tau_m - beta + tau_env with
+    beta = g - C^T q_dot. integral += dt (tau_m - beta + r); r = K_o (p - p0 - integral) -> tau_env, i.e.
+    tau_ext = -r (first order, rate K_o [1/s]). Returns (integral, r)."""
+    integral = integral + dt_s * (tau_m - beta + r)
+    return integral, k_o * (p - p0 - integral)
+
+
 def momentum_observer(model: pin.Model, t: np.ndarray, q: np.ndarray, qd: np.ndarray, tau_m: np.ndarray,
                       gain: float | np.ndarray = 50.0) -> np.ndarray:
     """Discrete momentum observer; returns tau_ext = -r_k [N*m] (sign convention above); gain K_o [1/s]
@@ -86,10 +99,10 @@ def momentum_observer(model: pin.Model, t: np.ndarray, q: np.ndarray, qd: np.nda
         c = pin.computeCoriolisMatrix(model, data, q[k], qd[k])
         beta[k] = pin.computeGeneralizedGravity(model, data, q[k]) - c.T @ qd[k]
     r = np.zeros_like(q)
-    p_hat = p[0].copy()
-    for k in range(1, len(t)):
-        p_hat += (t[k] - t[k - 1]) * (tau_m[k - 1] - beta[k - 1] + r[k - 1])
-        r[k] = k_o * (p[k] - p_hat)
+    integral = np.zeros(q.shape[1])
+    for k in range(1, len(t)):  # explicit Euler: the integrand of the previous sample
+        integral, r[k] = momentum_observer_step(integral, r[k - 1], p[k], p[0], tau_m[k - 1], beta[k - 1],
+                                                t[k] - t[k - 1], k_o)
     return -r
 
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from calibration.baselines import momentum_observer_step
 from factr2_teleop.teleop.params import PerJoint, per_joint
 from hardware.types import JointState
 
@@ -113,20 +114,6 @@ class NextAdapter:
         return Estimate(tau_ext=np.asarray(e.tau_ext, dtype=float), t=st.t, fresh=bool(e.valid))
 
 
-def momentum_observer_step(integral: np.ndarray, r: np.ndarray, p0: np.ndarray, q_dot: np.ndarray,
-                           tau_m: np.ndarray, dt_s: float, k_o: np.ndarray, M: np.ndarray, C: np.ndarray,
-                           g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One step of the generalised-momentum observer (De Luca; the paper's DO baseline).
-
-    Model: M q_ddot + C q_dot + g = tau_m + tau_env, p = M q_dot, p_dot = tau_m + C^T q_dot - g + tau_env.
-    integral += dt (tau_m + C^T q_dot - g + r);  r = K_o (p - p0 - integral) -> tau_env = -tau_ext
-    (first order, rate K_o [1/s]).
-    Returns (integral, r)."""
-    integral = integral + dt_s * (tau_m + C.T @ q_dot - g + r)
-    r = k_o * (M @ q_dot - p0 - integral)
-    return integral, r
-
-
 class MomentumObserver:
     """Disturbance-observer estimator on the follower's dynamics model (callables in the follower's joint
     frame): mass(q) -> M, coriolis(q, q_dot) -> C, gravity(q) -> g. k_o: observer gain [1/s] per joint.
@@ -192,8 +179,9 @@ class MomentumObserver:
         if dt <= 0:  # no new follower sample: same estimate, same data time
             return Estimate(tau_ext=-self._r, t=self._t_prev, fresh=True)
         self._t_prev = st.t
-        self._integral, self._r = momentum_observer_step(self._integral, self._r, self._p0, qd, tau_m, dt,
-                                                         self.k_o, M, self.coriolis(q, qd), self.gravity(q))
+        beta = self.gravity(q) - self.coriolis(q, qd).T @ qd
+        self._integral, self._r = momentum_observer_step(self._integral, self._r, M @ qd, self._p0, tau_m,
+                                                         beta, dt, self.k_o)
         return Estimate(tau_ext=-self._r, t=st.t, fresh=True)
 
 
