@@ -61,9 +61,8 @@ def _estimator(mode: str, spec, follower, session, checkpoint: str | None, rate_
         period = 1.0 / src.ck.rate_hz - 0.25 / rate_hz
     truth = None
     if session.twin is not None:
-        world = session.twin.devices[spec.name].world
-        k = world.banks.index(session.twin.bank(spec.name))
-        truth = lambda: world.ground_truth()[k].tau_ext  # noqa: E731
+        twin, name = session.twin, spec.name
+        truth = lambda: twin.device_ground_truth(name).tau_ext  # noqa: E731
     est = make_estimator(mode, follower.n_joints, follower_arm=spec.arm, next_source=src, truth=truth,
                          pp_stiffness_nm_per_rad=PP_STIFFNESS_NM_PER_RAD)
     return est, period

@@ -350,7 +350,12 @@ class Twin:
 
     def ground_truth(self) -> dict[str, GroundTruth]:
         """Ground truth per device (SIMULATED; see mujoco_bank.GroundTruth)."""
-        return {n: d.world.ground_truth()[0] for n, d in self.devices.items()}
+        return {n: self.device_ground_truth(n) for n in self.devices}
+
+    def device_ground_truth(self, name: str) -> GroundTruth:
+        """Ground truth of one device: computes only its world (what a per-tick caller needs)."""
+        d = self.devices[name]
+        return d.world.ground_truth()[d.world.banks.index(d.bank)]
 
     def close(self) -> None:
         self.stop_realtime()
