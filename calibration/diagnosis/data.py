@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from hardware.errors import UserError
+from hardware.recording.plain_log import load_plain_log
 
 
 @dataclass
@@ -94,13 +95,9 @@ def make_segment(name: str, t, q, qd, y, units: str, temperature=None, joint_nam
     return Segment(name, t - t[0], q, qd, qdd, y, units, temp, tuple(joint_names), q_cmd)
 
 
-def _from_plain_log(path: Path) -> Segment | None:
-    """The lead's plain-log loader (hardware.recording.plain_log) when it is installed. Where the log carries
-    the true external torque (twin logs), it is subtracted: diagnosis models the free-space dynamics."""
-    try:
-        from hardware.recording.plain_log import load_plain_log
-    except ImportError:
-        return None
+def _from_plain_log(path: Path) -> Segment:
+    """A log through the project's plain-log loader. Where the log carries the true external torque (twin
+    logs), it is subtracted: diagnosis models the free-space dynamics."""
     log = load_plain_log(path)
     y = log.tau if log.tau_ext_true is None or log.units != "N*m" else log.tau - log.tau_ext_true
     return make_segment(path.stem, log.t, log.q, log.qd, y, log.units, log.temperature, log.joint_names,
@@ -139,10 +136,9 @@ def load_segment(path: str | Path) -> Segment:
         raise UserError("not a plain .npz log", where=str(path),
                         fix="export the recording as a plain log (t, q, qd, q_cmd, tau_m or current)")
     try:
-        seg = _from_plain_log(path)
-    except UserError:
-        seg = None
-    return seg if seg is not None else _lenient_npz(path)
+        return _from_plain_log(path)
+    except UserError:  # e.g. no q_cmd: diagnosis does not need it
+        return _lenient_npz(path)
 
 
 def resample(seg: Segment, rate_hz: float) -> Segment:
