@@ -50,6 +50,26 @@ def test_cli_no_effect_says_the_model_explains_the_data(tmp_path):
     assert rep["effects"] == [] and "explains the data" in rep["verdict"]
 
 
+def test_cli_declared_report_is_fitted_not_found_again(tmp_path, capsys):
+    runs = _write_runs(tmp_path, "coulomb_friction", 1, fc=0.8)
+    first = tmp_path / "first"
+    assert main(["diagnose", *runs, "--out", str(first), "--no-plots"]) == 0
+    found = json.loads((first / "report.json").read_text())["effects"]
+    assert ("coulomb_friction", 1) in [(e["effect"], e["joint"]) for e in found]
+    second = tmp_path / "second"
+    assert main(["diagnose", *runs, "--declared", str(first / "report.json"), "--out", str(second),
+                 "--no-plots"]) == 0
+    rep = json.loads((second / "report.json").read_text())
+    assert [(e["effect"], e["joint"]) for e in rep["declared"]] == [(e["effect"], e["joint"]) for e in found]
+    assert "explains the data" in rep["verdict"]
+    capsys.readouterr()
+    (tmp_path / "junk.json").write_text("{\"effects\": [{\"effect\": \"warp_drive\", \"joint\": 0}]}")
+    junk = str(tmp_path / "junk.json")
+    assert main(["diagnose", *runs, "--declared", junk, "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "junk.json" in err[0], err
+
+
 def test_cli_bad_inputs_are_one_line_errors(tmp_path, capsys):
     assert main(["diagnose", str(tmp_path / "missing.npz"), "--out", str(tmp_path / "o")]) == 2
     bad = tmp_path / "bad.npz"

@@ -88,7 +88,7 @@ def sample_arm():
 
 
 @pytest.mark.parametrize("family,joint", [("torque_constant_scale", 1), ("position_periodic", 3),
-                                          (None, 0)])
+                                          ("current_offset", 2), (None, 0)])
 def test_pinocchio_regressor_basis(sample_arm, family, joint):
     model, basis = sample_arm
     runs = [pinocchio_arm(model, family, joint, 15.0, seed=s, name=f"run{s}") for s in range(3)]
@@ -102,6 +102,9 @@ def test_pinocchio_regressor_basis(sample_arm, family, joint):
     e = dg.model.effects[0]
     if family == "torque_constant_scale":
         assert e.params()["scale"] == pytest.approx(1.15, rel=0.02)
+    elif family == "current_offset":  # not a spring: its slope does not earn the threshold (Occam)
+        assert dg.steps[1].added["effect"] == "current_offset"
+        assert e.params()["offset"] == pytest.approx(0.7, rel=0.1)
     else:
         assert e.params()["period_rad"] == pytest.approx(0.25, rel=0.05)
     before = dg.steps[0].heldout_l1[joint]
@@ -119,3 +122,37 @@ def test_base_parameter_reduction_is_exact(sample_arm):
     q, v, a = rng.normal(size=(3, model.nv))
     full = np.array(pin.computeJointTorqueRegressor(model, data, q, v, a))[:, basis.cols] @ basis.prior
     assert np.allclose(full, pin.rnea(model, data, q, v, a), atol=1e-8)
+
+
+def test_final_model_holds_the_fit_of_its_own_effects():
+    """The backward pass fits trial models without each effect; those fits must not overwrite the kept
+    model's coefficients (they did once: the trial shared the effect objects)."""
+    import copy
+
+    from calibration.diagnosis.effects import Effect
+    from calibration.diagnosis.greybox import GreyBox
+
+    runs = _runs("coulomb_friction", 1, fc=0.8)
+    for r in runs:  # a second effect on the same joint, declared up front
+        r.y[:, 1] += 1.5 * r.qd[:, 1]
+    dg = diagnose(DataBasis(3), runs[:2], runs[2:], declared=[Effect("viscous_friction", 1)])
+    kept = [(e.family, e.joint) for e in dg.model.effects]
+    assert kept == [("viscous_friction", 1), ("coulomb_friction", 1)]
+    refit = GreyBox(dg.model.basis, [copy.copy(e) for e in dg.model.effects]).fit(dg.train)
+    for a, b in zip(dg.model.effects, refit.effects):
+        assert np.allclose(a.coef, b.coef, rtol=1e-6, atol=1e-9), (a.family, a.coef, b.coef)
+
+
+def test_cleaner_velocity_takes_the_smoother_signal():
+    from calibration.diagnosis.data import cleaner_velocity
+
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 20, 0.01)
+    q = np.stack([np.sin(t), np.sin(0.5 * t)], 1)
+    qd_true = np.stack([np.cos(t), 0.5 * np.cos(0.5 * t)], 1)
+    noisy_qd = qd_true + 0.01 * rng.standard_normal(qd_true.shape)
+    v, used = cleaner_velocity(t, q, noisy_qd)  # a fine encoder, a noisy speed estimate: differentiate q
+    assert used.all() and np.abs(v - qd_true)[1:-1].max() < 1e-3
+    noisy_q = q + 1e-3 * rng.standard_normal(q.shape)  # a coarse encoder, a clean speed: keep the speed
+    v, used = cleaner_velocity(t, noisy_q, qd_true)
+    assert not used.any() and np.array_equal(v, qd_true)

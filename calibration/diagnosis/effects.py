@@ -65,11 +65,33 @@ class Effect:
             return {"offset": c[0]}
         if f == "torque_constant_scale":
             return {"scale": 1.0 + c[0]}
-        if f == "delay":
-            return {"delay_s": -c[0]}
+        if f == "delay":  # c * (pred(t - s) - pred(t)) ~ -c * s * pred'(t): a lag of c * s
+            return {"delay_s": c[0] * h["shift_s"], "shift_s": h["shift_s"]}
         if f == "coupling":
             return {"other_joint": h["other_joint"], "viscous": c[0], "coulomb": c[1]}
         return {"coef": c}
+
+    def implausible(self) -> str:
+        """Why the fitted parameters are not physical ("" when they are): a torque-constant scale outside
+        0.5-2 or a negative / over-half-second delay is another effect fitted through the wrong feature."""
+        if self.coef is None:
+            return ""
+        p = self.params()
+        if self.family == "torque_constant_scale" and not 0.5 <= p["scale"] <= 2.0:
+            return f"scale {p['scale']:.3g} outside 0.5..2"
+        if self.family == "delay" and not 0.0 <= p["delay_s"] <= 0.5:
+            return f"delay {p['delay_s']:.3g} s outside 0..0.5 s"
+        return ""
+
+    @classmethod
+    def from_json(cls, d: dict, ref: np.ndarray | None = None) -> Effect:
+        """An effect from a report's `effects` entry ({effect, joint, hyper}); coefficients are refitted.
+        ref: the rigid parameters torque_constant_scale and delay scale (their feature is the rigid part)."""
+        fam, joint = d.get("effect"), d.get("joint")
+        if fam not in FAMILIES or not isinstance(joint, int) or joint < 0:
+            raise ValueError(f"not an effect: {d!r}")
+        return cls(fam, joint, dict(d.get("hyper") or {}), None,
+                   ref if fam in ("torque_constant_scale", "delay") else None)
 
     def to_json(self) -> dict:
         return {"effect": self.family, "joint": self.joint, "params": self.params(),
@@ -117,18 +139,18 @@ _FEATURES = {
                            else d.temp[:, e.joint] - e.hyper["temp_ref"]),
     "current_offset": lambda e, d: np.ones(len(d.t)),
     "torque_constant_scale": _rigid,
-    "delay": lambda e, d: _per_segment(d, lambda a, b: _smoothed_grad(d.t[a:b], _rigid(e, d)[a:b])),
+    "delay": lambda e, d: _per_segment(
+        d, lambda a, b: _lagged(d.t[a:b], _rigid(e, d)[a:b], e.hyper["shift_s"])),
     "coupling": lambda e, d: np.stack([d.qd[:, e.hyper["other_joint"]],
                                        np.tanh(d.qd[:, e.hyper["other_joint"]] / SIGN_EPS)], 1),
 }
 
 
-def _smoothed_grad(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    if len(t) < 3:
-        return np.zeros_like(x)
-    g = np.gradient(x, t)
-    k = np.ones(5) / 5
-    return np.convolve(g, k, mode="same") / np.convolve(np.ones(len(g)), k, mode="same")
+def _lagged(t: np.ndarray, x: np.ndarray, shift_s: float) -> np.ndarray:
+    """x(t - shift) - x(t) on a possibly irregular clock (held at the first value before the start). A shift
+    rather than a derivative: the rigid prediction carries M(q) qdd, and differentiating that noise would bias
+    the fitted lag toward zero (errors in the regressor)."""
+    return np.interp(t - shift_s, t, x) - x
 
 
 def periodogram(q: np.ndarray, r: np.ndarray, periods: np.ndarray, weights: np.ndarray | None = None

@@ -2,7 +2,13 @@
 
 A candidate is accepted only when it lowers the held-out mean absolute error of its joint by more than
 max(rel_gain * that error, abs_gain * RMS of that joint's held-out target) and does not raise the mean over
-joints. Candidates are tried in trace-score order (at most `tries` per step); the first that passes is kept.
+joints. Candidates are tried in trace-score order (at most `tries` per step). With an arm description,
+those whose trace score is within `close` of the best are all fitted, and a lower-ranked one replaces a
+higher-ranked one only when its held-out gain is larger by the acceptance threshold (the trace ranks on the
+training residual before the refit; two near-ties are told apart by what they do after it). With the
+data-only basis the trial fits keep the ridge chosen before the effect, so there the first that passes is
+kept. Of nested families (an offset inside a spring) the simpler is kept unless the extra parameter earns the
+acceptance threshold on its own.
 """
 
 from __future__ import annotations
@@ -13,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .basis import select_ridge
+from .effects import Effect
 from .greybox import Design, GreyBox, errors
 from .trace import candidates, rank
 
@@ -22,6 +29,7 @@ class LoopConfig:
     rel_gain: float = 0.02
     abs_gain: float = 0.005
     tries: int = 4
+    close: float = 0.5  # candidates scoring >= close x the best trace score are compared on held-out gain
     max_effects: int = 20
     min_score: float = 1e-3
 
@@ -88,22 +96,30 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
         pool.sort(key=rank)
         cands = [c for c in pool if c.score >= cfg.min_score]
         accepted = None
+        # With a data-only basis the trial fits use the ridge chosen before the effect (it is re-chosen only
+        # for the effect kept), so their held-out gains are not comparable: the trace order decides there.
+        close = cfg.close if not hasattr(basis, "per_joint") else np.inf
         for c in cands[: cfg.tries]:
-            trial = model.with_effect(c.effect).fit(train)
-            t_l1, t_rms, t_ltr = _eval(trial, train, held)
-            j = c.effect.joint
-            gain = l1[j] - t_l1[j]
-            need = max(cfg.rel_gain * l1[j], floor[j])
-            c.evidence.update({"heldout_l1_joint_before": round(float(l1[j]), 6),
-                               "heldout_l1_joint_after": round(float(t_l1[j]), 6)})
-            if gain > need and t_l1.mean() <= l1.mean():
-                accepted = (c, trial, t_l1, t_rms, t_ltr)
-                break
-            rejected.append({"effect": c.effect.family, "joint": j, "hyper": c.effect.hyper,
-                             "score": round(c.score, 4), "heldout_gain": float(gain), "needed": float(need)})
-            log(f"  rejected {c.effect.family} on joint {j}: held-out gain {gain:.4g} <= {need:.4g}")
+            if accepted is not None and c.score < close * cands[0].score:
+                break  # a close candidate passed; the weaker ones are not compared
+            tried = _try(model, c, train, held, l1, floor, cfg)
+            if tried is None:
+                j = c.effect.joint
+                rejected.append({"effect": c.effect.family, "joint": j, "hyper": c.effect.hyper,
+                                 "score": round(c.score, 4), **c.evidence.get("heldout_check", {})})
+                chk = c.evidence["heldout_check"]
+                log(f"  rejected {c.effect.family} on joint {j}: " + (chk.get("implausible") or
+                    f"held-out gain {chk['heldout_gain']:.4g} <= {chk['needed']:.4g}"))
+                continue
+            # a later (lower-ranked) close candidate must beat the kept one by the acceptance threshold too
+            if accepted is None or tried[-1] > accepted[-1] + accepted[0].evidence["heldout_check"]["needed"]:
+                accepted = tried
+            if c.score < close * cands[0].score:
+                break  # outside the close group the first that passes is kept
         if accepted is None:
             break
+        accepted = _simpler(model, accepted, train, held, l1, floor, cfg, log)
+        accepted = accepted[:5]
         c, trial, l1_new, rms_new, ltr_new = accepted
         added = c.effect.__class__(c.effect.family, c.effect.joint, dict(c.effect.hyper))
         final = next(e for e in trial.effects if e.key == c.effect.key)
@@ -129,6 +145,52 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
     return Diagnosis(steps, model, train, held, cfg, rejected, pruned, declared)
 
 
+def _try(model: GreyBox, c, train: Design, held: Design, l1, floor, cfg: LoopConfig):
+    """Fit the model with candidate c -> (c, trial, l1, rms, train l1, margin) when its joint's held-out L1
+    drops by more than the threshold (margin = drop - threshold) and the mean does not rise; else None."""
+    trial = model.with_effect(c.effect).fit(train)
+    t_l1, t_rms, t_ltr = _eval(trial, train, held)
+    j = c.effect.joint
+    gain = float(l1[j] - t_l1[j])
+    need = float(max(cfg.rel_gain * l1[j], floor[j]))
+    c.evidence.update({"heldout_l1_joint_before": round(float(l1[j]), 6),
+                       "heldout_l1_joint_after": round(float(t_l1[j]), 6)})
+    c.evidence["heldout_check"] = {"heldout_gain": gain, "needed": need}
+    why = next(e for e in trial.effects if e.key == c.effect.key).implausible()
+    if why:
+        c.evidence["heldout_check"]["implausible"] = why
+        return None
+    if gain > need and t_l1.mean() <= l1.mean():
+        return c, trial, t_l1, t_rms, t_ltr, gain - need
+    return None
+
+
+SIMPLER = {"position_spring": "current_offset"}  # family -> the nested family with fewer parameters
+
+
+def _simpler(model: GreyBox, accepted, train: Design, held: Design, l1, floor, cfg: LoopConfig, log):
+    """Occam between nested families: a spring k*(q - q_ref) + c whose slope does not lower the held-out
+    error by the acceptance threshold is an offset."""
+    c = accepted[0]
+    fam = SIMPLER.get(c.effect.family)
+    if fam is None:
+        return accepted
+    alt = Effect(fam, c.effect.joint)
+    if alt.slot in {e.slot for e in model.effects}:
+        return accepted
+    from .trace import Candidate
+
+    cand = Candidate(alt, c.score, {**c.evidence, "columns": 1, "simpler_than": c.effect.family})
+    tried = _try(model, cand, train, held, l1, floor, cfg)
+    j = c.effect.joint
+    need = max(cfg.rel_gain * accepted[2][j], floor[j])
+    if tried is not None and tried[2][j] - accepted[2][j] <= need:
+        log(f"  {fam} on joint {j} explains as much as {c.effect.family} (held-out L1 {tried[2][j]:.4f} vs "
+            f"{accepted[2][j]:.4f}): the simpler one is kept")
+        return tried
+    return accepted
+
+
 def _prune(model: GreyBox, train: Design, held: Design, l1, floor, cfg: LoopConfig, log):
     """Backward pass: greedy forward selection can add an effect early that a later one makes redundant
     (with shared rigid parameters a scale error on one joint first leaks into the others). Drop every effect
@@ -137,7 +199,8 @@ def _prune(model: GreyBox, train: Design, held: Design, l1, floor, cfg: LoopConf
     for e in list(model.effects):  # declared effects too: one the data does not need is reported as pruned
         if len(model.effects) <= 1:
             break
-        trial = GreyBox(model.basis, [x for x in model.effects if x is not e]).fit(train)
+        # copies: a trial fit must not overwrite the coefficients of the effects the kept model shares
+        trial = GreyBox(model.basis, [copy.copy(x) for x in model.effects if x is not e]).fit(train)
         t_l1, _, _ = _eval(trial, train, held)
         j = e.joint
         harmless = t_l1.mean() <= l1.mean() * (1 + cfg.rel_gain)

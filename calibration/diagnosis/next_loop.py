@@ -112,9 +112,10 @@ def diagnose_next(ckpt: str, train: list[Segment], heldout: list[Segment], cfg, 
 
 
 def train_next(segments: list[Segment], seconds: float, residual_of=None, seed: int = 0,
-               rate_hz: float = 100.0, history: int = 50, max_epochs: int = 400):
+               rate_hz: float = 100.0, history: int = 50, max_epochs: int = 400, threads: int = 1):
     """Train NEXT (calibration.next) on segments; with `residual_of(seg) -> (N, n)` on y - residual_of
-    (grey-box prior: NEXT learns what the physics model leaves). Returns (predict(seg)->(N,n), seconds)."""
+    (grey-box prior: NEXT learns what the physics model leaves). Returns (predict(seg)->(N,n), seconds,
+    the training result)."""
     from calibration.next.data import Segment as NSeg
     from calibration.next.data import build_windows
     from calibration.next.train import TrainConfig, train
@@ -127,8 +128,8 @@ def train_next(segments: list[Segment], seconds: float, residual_of=None, seed: 
                           rate_hz=rate_hz, source=r.name))
     t0 = time.perf_counter()
     data = build_windows(nsegs, history=history, inputs="q,qd,dq")
-    res = train(data, TrainConfig(history=history, max_seconds=seconds, threads=1, device="cpu", seed=seed,
-                                  max_epochs=max_epochs), progress_bar=False)
+    res = train(data, TrainConfig(history=history, max_seconds=seconds, threads=threads, device="cpu",
+                                  seed=seed, max_epochs=max_epochs), progress_bar=False)
     took = time.perf_counter() - t0
 
     def predict(seg: Segment) -> np.ndarray:

@@ -15,6 +15,7 @@ from .effects import Effect, find_period
 from .greybox import Design, GreyBox
 
 STRIBECK_VS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)  # rad/s
+DELAY_SHIFT = tuple(np.round(np.geomspace(0.004, 0.256, 13), 4))  # s: the lag is shift x fitted gain
 BACKLASH_WIDTH = (0.002, 0.005, 0.01, 0.02, 0.05)  # rad
 MOVING = 1e-3  # rad/s: a joint whose velocity RMS is below this did not move; no velocity-driven effects
 PARSIMONY = 0.005  # ranking penalty per extra column: of two effects explaining the same, the simpler first
@@ -81,12 +82,13 @@ def candidates(model: GreyBox, d: Design, residual: np.ndarray, joints=None) -> 
             trials.append(score(Effect("torque_constant_scale", j, ref=ref)))
         if moving:
             trials += [score(Effect("coulomb_friction", j)), score(Effect("viscous_friction", j)),
-                       score(Effect("delay", j, ref=ref)),
                        score(Effect("position_spring", j, {"q_ref": float(np.mean(d.q[:, j]))}))]
             trials.append(max((score(Effect("stribeck_friction", j, {"vs": v})) for v in STRIBECK_VS),
                               key=lambda c: c.score))
             trials.append(max((score(Effect("backlash", j, {"width_rad": w})) for w in BACKLASH_WIDTH),
                               key=lambda c: c.score))
+            trials.append(max((score(Effect("delay", j, {"shift_s": float(s)}, ref=ref))
+                               for s in DELAY_SHIFT), key=lambda c: c.score))
             found = find_period(d.q[:, j], r)
             if found is not None:
                 period, frac, peak = found
@@ -125,7 +127,8 @@ def trace_feature(e: Effect, d: Design) -> tuple[str, np.ndarray]:
     if e.family == "current_offset":
         return "t [s]", d.t
     if e.family in ("torque_constant_scale", "delay"):
-        label = "rigid-part prediction" + (" rate" if e.family == "delay" else "")
+        label = "rigid-part prediction" + (f" {e.hyper['shift_s']} s ago minus now" if e.family == "delay"
+                                           else "")
         return label, d.features(e)[:, 0]
     if e.family == "coupling":
         k = e.hyper["other_joint"]

@@ -157,7 +157,7 @@ TWIN_CASES: dict[str, TwinCase] = {
     "position_spring": TwinCase("position_spring", 3, _spring(3, 0.5, 0.2), params={"k": 0.5, "q0": 0.2}),
     "drift": TwinCase("drift", 1, _drift(1, 0.5 / 60), params={"rate_nm_per_s": 0.5 / 60}),
     "current_offset": TwinCase("current_offset", 4, _offset(4, 0.3), params={"offset": 0.3}),
-    "delay": TwinCase("delay", 1, lambda: _RigidLoad(1, "delay", 0.05), params={"delay_s": 0.05}),
+    "delay": TwinCase("delay", 1, lambda: _RigidLoad(1, "delay", 0.1), params={"delay_s": 0.1}),
     "torque_constant_scale": TwinCase("torque_constant_scale", 2, lambda: _RigidLoad(2, "scale", 1.15),
                                       params={"scale": 1.15}),
     "coupling": TwinCase("coupling", 2, _coupling(2, 1, 1.0), params={"source_joint": 1, "fv": 1.0}),
@@ -235,6 +235,31 @@ def diagnose_logs(train_paths, heldout_paths, declared=None, log=lambda s: None)
     held = [load_segment(p) for p in heldout_paths] or None
     train, held = split_heldout(train, held)
     return diagnose(piper_basis(), train, held, log=log, declared=declared)
+
+
+def twin_own(effect) -> bool:
+    """Whether an effect found with no injection is one the shipped sim-piper twin really has on that joint
+    (its actuator presets): friction always; Stribeck, backlash where configured; position_periodic at the
+    configured ripple period (within 5 %); drift / torque-constant scale where heating changes K(T). Such a
+    find is right, not spurious."""
+    from hardware.sim.presets import arm_params
+
+    p, j = arm_params("piper", n=None), effect.joint
+    if j >= len(p.kt):
+        return False
+    fam = effect.family
+    if fam in ("coulomb_friction", "viscous_friction"):
+        return True
+    if fam == "stribeck_friction":
+        return bool(p.stribeck[j] > 0)
+    if fam == "backlash":
+        return bool(p.backlash[j] > 0)
+    if fam == "position_periodic":
+        period = 2 * np.pi / p.ripple_cycles[j]
+        return bool(p.ripple_amp[j] > 0 and abs(effect.hyper["period_rad"] / period - 1) <= 0.05)
+    if fam in ("drift", "torque_constant_scale"):
+        return bool(p.kt_temp_coeff[j] != 0)
+    return False
 
 
 def first_pass(dg) -> list:

@@ -33,6 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--prior-weight", type=float, default=1.0,
                    help="with --arm: ridge weight pulling base parameters toward the description's (1.0)")
     p.add_argument("--max-effects", type=int, default=20)
+    p.add_argument("--declared", metavar="REPORT.json",
+                   help="effects already known (a first pass: the `effects` of an earlier report.json); "
+                        "fitted from the start, not counted as found")
     p.add_argument("--no-plots", action="store_true")
 
 
@@ -78,6 +81,31 @@ def _apply_kt(segments, kt: str | None, n: int):
     return segments
 
 
+def _declared(path: str, basis, n: int) -> list:
+    """The `effects` of an earlier report.json as declared effects (their coefficients are refitted)."""
+    import json
+
+    from calibration.diagnosis.effects import Effect
+
+    fix = "pass the report.json an earlier `factr2 diagnose` wrote"
+    try:
+        items = json.loads(Path(path).read_text())["effects"]
+        effects = [Effect.from_json(d, ref=basis.prior.copy()) for d in items]
+    except OSError as e:
+        raise UserError(f"cannot read it: {e.strerror}", where=path, fix=fix) from None
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        raise UserError(f"not a diagnosis report ({str(e)[:80]})", where=path, fix=fix) from None
+    bad = [e for e in effects if e.joint >= n or e.hyper.get("other_joint", 0) >= n]
+    if bad:
+        raise UserError(f"{bad[0].family} on joint {bad[0].joint}: the logs have {n} joints", where=path,
+                        fix="declare effects of the arm these logs come from")
+    scaled = [e for e in effects if e.ref is not None]
+    if scaled and hasattr(basis, "per_joint"):  # the data-only basis has no nominal rigid part to scale
+        raise UserError(f"{scaled[0].family} needs an arm description (its feature is the rigid part)",
+                        where=path, fix="add --arm, or remove that effect from the declared report")
+    return effects
+
+
 def _short(path: str) -> str:
     p = Path(path)
     return f"{p.parent.name}/{p.name}" if p.parent.name else p.name
@@ -111,7 +139,8 @@ def run(args) -> int:
     else:
         basis = _basis(args, n, every[0].units)
         meta.update({"basis": basis.describe(), "title": "grey-box physics model"})
-        dg = diagnose(basis, train, heldout, cfg, log=print)
+        declared = _declared(args.declared, basis, n) if args.declared else None
+        dg = diagnose(basis, train, heldout, cfg, log=print, declared=declared)
     meta["seconds"] = round(time.perf_counter() - t0, 2)
     rep = write(dg, Path(args.out), meta, plots=not args.no_plots)
     print(f"{rep['verdict']}")
