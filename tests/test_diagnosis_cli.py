@@ -142,3 +142,26 @@ def test_real_ur5_friction_is_found_and_lowers_heldout_error():
     j = first["joint"]
     assert dg.steps[1].heldout_l1[j] < 0.9 * dg.steps[0].heldout_l1[j]
     assert np.mean(dg.steps[-1].heldout_l1) < np.mean(dg.steps[0].heldout_l1)
+
+
+def test_cli_reads_recordings_one_run_per_episode(tmp_path, capsys):
+    from calibration.diagnosis.data import load_segments
+    from recording_helpers import record_session
+
+    path = tmp_path / "session.mcap"
+    record_session(path, n=1500, dt=0.01, episodes=2, cameras=False).close()
+    segs = load_segments(path)
+    assert [s.name for s in segs] == ["session#ep0", "session#ep1"]
+    assert all(len(s) == 1500 and s.units == "N*m" and s.n == 6 for s in segs)
+    # tau_m minus the recorded ground truth (0.1 N*m): diagnosis models free-space dynamics
+    assert np.allclose(segs[0].y[:, 0], np.arange(1500) * 0.01 - 0.1, atol=1e-9)
+    out = tmp_path / "diag"
+    assert main(["diagnose", str(path), "--out", str(out), "--no-plots"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["train_runs"] == ["session#ep0"] and rep["heldout_runs"] == ["session#ep1"]
+    capsys.readouterr()
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"\x89MCAP0\r\n" + b"garbage" * 50)
+    assert main(["diagnose", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "bad.mcap" in err[0], err

@@ -121,12 +121,39 @@ def make_segment(name: str, t, q, qd, y, units: str, temperature=None, joint_nam
 
 
 def _from_plain_log(path: Path) -> Segment:
-    """A log through the project's plain-log loader. Where the log carries the true external torque (twin
-    logs), it is subtracted: diagnosis models the free-space dynamics."""
-    log = load_plain_log(path)
+    return _segment_of(load_plain_log(path), path.stem)
+
+
+def _segment_of(log, name: str) -> Segment:
+    """A PlainLog as a Segment. Where the log carries the true external torque (twin logs), it is
+    subtracted: diagnosis models the free-space dynamics."""
     y = log.tau if log.tau_ext_true is None or log.units != "N*m" else log.tau - log.tau_ext_true
-    return make_segment(path.stem, log.t, log.q, log.qd, y, log.units, log.temperature, log.joint_names,
+    return make_segment(name, log.t, log.q, log.qd, y, log.units, log.temperature, log.joint_names,
                         q_cmd=log.q_cmd)
+
+
+def load_segments(path: str | Path, arm: str = "follower") -> list[Segment]:
+    """Runs in a file: a plain .npz log is one run; an MCAP recording (hardware.recording) gives one run per
+    episode of `arm`. Episodes with contact and no ground truth to subtract bias a free-space model: diagnose
+    free-motion recordings (calibration replays), or twin recordings."""
+    path = Path(path)
+    if path.suffix != ".mcap":
+        return [load_segment(path)]
+    from hardware.recording.reader import Recording
+
+    if not path.exists():
+        raise UserError("file not found", where=str(path), fix="give the path of a recording (.mcap)")
+    try:
+        rec = Recording(path)
+        logs = [(ep.index, ep.to_plain(arm)) for ep in rec.episodes]
+    except (ValueError, KeyError, OSError) as e:
+        raise UserError(f"cannot read the {arm} joint states ({str(e)[:80]})", where=str(path),
+                        fix="pass a factr2 recording (teleop/demo --record) or a plain .npz log") from None
+    segs = [_segment_of(log, f"{path.stem}#ep{i}") for i, log in logs if len(log.t) >= 20]
+    if not segs:
+        raise UserError(f"no episode with {arm} joint states", where=str(path),
+                        fix="record at least a few seconds of motion")
+    return segs
 
 
 def _lenient_npz(path: Path) -> Segment:

@@ -17,7 +17,8 @@ HELP = "find what a dynamics model misses: trace held-out residuals to friction,
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("inputs", nargs="+", metavar="INPUT", help="plain .npz logs (one run each) to fit on")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="plain .npz logs (one run each) or .mcap recordings (one run per episode) to fit on")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--physics", action="store_true", help="grey-box physics model (the default)")
     src.add_argument("--model", metavar="CKPT", help="diagnose a trained NEXT checkpoint instead")
@@ -112,12 +113,12 @@ def _short(path: str) -> str:
 
 
 def run(args) -> int:
-    from calibration.diagnosis.data import load_segment, split_heldout
+    from calibration.diagnosis.data import load_segments, split_heldout
     from calibration.diagnosis.loop import LoopConfig, diagnose
     from calibration.diagnosis.report import write
 
-    segs = [load_segment(p) for p in args.inputs]
-    held = [load_segment(p) for p in args.heldout] if args.heldout else None
+    segs = [s for p in args.inputs for s in load_segments(p)]
+    held = [s for p in args.heldout for s in load_segments(p)] if args.heldout else None
     every = segs + (held or [])
     n = every[0].n
     if any(s.n != n for s in every) or len({s.units for s in every}) != 1:
