@@ -145,8 +145,9 @@ def test_real_ur5_friction_is_found_and_lowers_heldout_error():
 
 
 def test_cli_reads_recordings_one_run_per_episode(tmp_path, capsys):
-    from calibration.diagnosis.data import load_segments
     from recording_helpers import record_session
+
+    from calibration.diagnosis.data import load_segments
 
     path = tmp_path / "session.mcap"
     record_session(path, n=1500, dt=0.01, episodes=2, cameras=False).close()
