@@ -24,6 +24,12 @@ import ruckig
 PHASES = ("single", "multi", "slow", "fast")
 PHASE_SPEED = {"single": 0.5, "multi": 0.6, "slow": 0.2, "fast": 1.0}  # fraction of v_max / a_max
 PHASE_SHARE = {"multi": 0.4, "slow": 0.3, "fast": 0.3}  # of the time left after the single-joint sweeps
+# Extra clearance [m] at full speed (|qd_j| = v_max_j), scaled per sample by the path's speed: the follower's
+# position loop lags its command in proportion to velocity (the Piper twin's shoulder by 0.12 rad in the fast
+# phase, ~6 cm at the gripper), so a fast stretch needs more room than a slow one, while the ends of a move
+# (at rest, no lag) need only the base clearance. With 5 cm everywhere the 10-minute replay touched the table
+# 52 times (twin ground truth).
+LAG_CLEARANCE_M = 0.08
 
 
 @dataclass
@@ -87,15 +93,24 @@ class CollisionChecker:
     The clearance covers the follower's tracking lag (a replayed path that only grazes the table on paper
     does touch it on the arm). Pairs already that close at the home pose are allowed."""
 
-    def __init__(self, arm, scene: str = "table", clearance_m: float = 0.05):
+    def __init__(self, arm, scene: str = "table", clearance_m: float = 0.05,
+                 max_extra_m: float = LAG_CLEARANCE_M):
         import mujoco
 
         self._mj = mujoco
-        self.clearance = clearance_m
+        self.base = clearance_m
         self.model = mujoco.MjModel.from_xml_path(str(arm.scene_path(scene)))
-        self.model.geom_margin[:] = clearance_m  # report pairs within the clearance, not just touching
         self.data = mujoco.MjData(self.model)
         self.qadr, _ = arm.mujoco_indices(self.model)
+        # The gripper is not on the path but its fingers can stand anywhere in their travel (the twin's Piper
+        # fingers hang open at ~3 cm and touched the table where the closed-finger check saw room): check the
+        # arm with the fingers closed and fully open.
+        self.rest_poses = [self.model.qpos0.copy() for _ in range(2)]
+        for g in arm.gripper_joints:
+            jid = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, g)
+            adr = self.model.jnt_qposadr[jid]
+            for pose, end in zip(self.rest_poses, self.model.jnt_range[jid]):
+                pose[adr] = end
         moving = {int(self.model.jnt_bodyid[mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_JOINT, j)])
                   for j in arm.joint_names}
         self.arm_bodies = set()
@@ -106,24 +121,42 @@ class CollisionChecker:
             if a in moving:
                 self.arm_bodies.add(b)
         self.allowed: set[tuple[int, int]] = set()
+        self._set_clearance(clearance_m + max_extra_m)  # pairs that close at home stay allowed at any speed
         self.allowed = set(self.pairs(np.asarray(arm.q_home, float)))
+        self._set_clearance(clearance_m)
+
+    def _set_clearance(self, clearance_m: float) -> None:
+        self.clearance = clearance_m
+        self.model.geom_margin[:] = clearance_m  # report pairs within the clearance, not just touching
 
     def pairs(self, q: np.ndarray) -> list[tuple[int, int]]:
-        self.data.qpos[:] = self.model.qpos0
-        self.data.qpos[self.qadr] = q
-        self._mj.mj_forward(self.model, self.data)
-        out = []
-        for c in self.data.contact[: self.data.ncon]:
-            b1, b2 = int(self.model.geom_bodyid[c.geom1]), int(self.model.geom_bodyid[c.geom2])
-            if (b1 in self.arm_bodies or b2 in self.arm_bodies) and c.dist < self.clearance:
-                pair = (min(c.geom1, c.geom2), max(c.geom1, c.geom2))
-                if pair not in self.allowed:
-                    out.append(pair)
+        """(geom, geom) pairs closer than the clearance at arm pose q [rad], fingers closed or open."""
+        out: list[tuple[int, int]] = []
+        for rest in self.rest_poses:
+            self.data.qpos[:] = rest
+            self.data.qpos[self.qadr] = q
+            self._mj.mj_forward(self.model, self.data)
+            for c in self.data.contact[: self.data.ncon]:
+                b1, b2 = int(self.model.geom_bodyid[c.geom1]), int(self.model.geom_bodyid[c.geom2])
+                if (b1 in self.arm_bodies or b2 in self.arm_bodies) and c.dist < self.clearance:
+                    pair = (min(c.geom1, c.geom2), max(c.geom1, c.geom2))
+                    if pair not in self.allowed and pair not in out:
+                        out.append(pair)
         return out
 
-    def collides(self, q_path: np.ndarray, stride: int = 5) -> bool:
+    def collides(self, q_path: np.ndarray, stride: int = 5, extra_m=0.0) -> bool:
+        """Any sampled configuration closer than the clearance + extra_m [m] (the lag allowance: a scalar,
+        or one value per sample of q_path)."""
+        extra = np.broadcast_to(np.asarray(extra_m, float), (len(q_path),))
         idx = np.r_[np.arange(0, len(q_path), stride), len(q_path) - 1]
-        return any(self.pairs(q_path[i]) for i in idx)
+        try:
+            for i in idx:
+                self._set_clearance(self.base + extra[i])
+                if self.pairs(q_path[i]):
+                    return True
+            return False
+        finally:
+            self._set_clearance(self.base)
 
 
 def coverage_trajectory(q_min, q_max, v_max, q_home, minutes: float = 10.0, rate_hz: float = 100.0,
@@ -147,7 +180,8 @@ def coverage_trajectory(q_min, q_max, v_max, q_home, minutes: float = 10.0, rate
     def move_to(target: np.ndarray, phase: str) -> bool:
         s = PHASE_SPEED[phase]
         q, qd, qdd = ruckig_move(state["q"], target, s * v_max, s * a_max, s * j_max, rate_hz)
-        if checker is not None and checker.collides(q):
+        lag_m = LAG_CLEARANCE_M * np.max(np.abs(qd) / v_max, axis=1)  # room for the follower's lag
+        if checker is not None and checker.collides(q, extra_m=lag_m):
             return False
         pieces.append((q[1:], qd[1:], qdd[1:], PHASES.index(phase)))
         state["q"], state["time"] = target, state["time"] + (len(q) - 1) / rate_hz

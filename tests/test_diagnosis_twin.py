@@ -3,8 +3,9 @@ hook is found on the right joint with the right period and halves that joint's h
 injected, nothing is added. sim-piper in lockstep through the real Piper driver (calibration/diagnosis/
 twin_data.py); the full family table is bench/bench_diagnosis_twin.py -> docs/diagnosis_twin.md.
 
-Data (generated once per session, ~60 s on 2 shared cores): a first-pass pair with nothing injected
-(train seed 0, held out seed 100, 30 s each) whose findings are declared for the later runs, the same
+Data (generated once per session, ~75 s on 2 shared cores): a first-pass pair with nothing injected
+(train seed 0, 60 s -- 30 s is almost all single-joint sweeps, too little multi-joint motion to pin a
+period down; held out seed 100, 30 s) whose findings are declared for the later runs, the same
 trajectories with a position-periodic load 0.3 N*m * sin(2 pi q2 / 0.35 + 0.4) on joint 2, and a fresh
 40 s run (seed 1, last quarter held out) with nothing injected.
 """
@@ -31,8 +32,8 @@ def twin_logs(tmp_path_factory):
     from hardware.recording.plain_log import save_plain_log
 
     root = tmp_path_factory.mktemp("diag_twin")
-    base = generate(root / "none", TWIN_CASES["none"], seconds=30, heldout_seconds=30)
-    periodic = generate(root / "periodic", TWIN_CASES["position_periodic"], seconds=30, heldout_seconds=30)
+    base = generate(root / "none", TWIN_CASES["none"], seconds=60, heldout_seconds=30)
+    periodic = generate(root / "periodic", TWIN_CASES["position_periodic"], seconds=60, heldout_seconds=30)
     fresh = save_plain_log(root / "fresh.npz", **record(40, 1, None, CLEAN_EFFECTS, twin_seed=1))
     return {"base": base, "periodic": periodic, "fresh": fresh}
 

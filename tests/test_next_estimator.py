@@ -90,3 +90,22 @@ def test_ema_smoothing():
     assert np.abs(np.diff(b, axis=0)).mean() < np.abs(np.diff(a, axis=0)).mean()
     with pytest.raises(ValueError):
         NextEstimator(ck, ema_alpha=0.0)
+
+
+@pytest.mark.parametrize("works", [0, 1, 3, 10])
+def test_deferred_work_gives_the_same_estimates(works):
+    """defer=True: update() steps only the run that completes (and the one that starts); work() calls in
+    between step the rest -- any number of them, including none, must give the same numbers."""
+    ck = _ck("lstm")
+    q, qd, qc, tau = _stream(n=60)
+    ref = batch_tau_f(ck, q, qd, qc)
+    est = NextEstimator(ck, defer=True, parts=3)
+    out = []
+    for k in range(len(q)):
+        out.append(est.update(q[k], qd[k], qc[k], tau[k]).tau_f)
+        for _ in range(works):
+            est.work()
+    out = np.array(out)
+    h = ck.model.cfg.history
+    assert np.all(np.isnan(out[: h - 1]))
+    assert np.allclose(out[h - 1:], ref[h - 1:], atol=1e-5)

@@ -28,7 +28,8 @@ from .trace import candidates, rank
 class LoopConfig:
     rel_gain: float = 0.02
     abs_gain: float = 0.005
-    tries: int = 4
+    tries: int = 4  # trial fits per round
+    tries_per_joint: int = 2
     close: float = 0.5  # candidates scoring >= close x the best trace score are compared on held-out gain
     max_effects: int = 20
     min_score: float = 1e-3
@@ -99,9 +100,18 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
         # With a data-only basis the trial fits use the ridge chosen before the effect (it is re-chosen only
         # for the effect kept), so their held-out gains are not comparable: the trace order decides there.
         close = cfg.close if not hasattr(basis, "per_joint") else np.inf
-        for c in cands[: cfg.tries]:
+        tries: dict[int, int] = {}
+        for c in cands:
             if accepted is not None and c.score < close * cands[0].score:
                 break  # a close candidate passed; the weaker ones are not compared
+            if sum(tries.values()) >= cfg.tries:
+                break
+            # at most `tries_per_joint` of them on one joint: the score is a fraction of each joint's
+            # own residual, so a small joint with a structured but unexplainable residual must not use up
+            # the tries of a joint with a real effect
+            if tries.get(c.effect.joint, 0) >= cfg.tries_per_joint:
+                continue
+            tries[c.effect.joint] = tries.get(c.effect.joint, 0) + 1
             tried = _try(model, c, train, held, l1, floor, cfg)
             if tried is None:
                 j = c.effect.joint

@@ -9,6 +9,12 @@ has just seen H samples is exactly the stateless window model; its head output i
 restarts from zero. Same arithmetic as the batch model (float32, differences ~1e-6), no approximation.
 The per-step layer-1 input projection is computed once per tick and shared by all runs.
 
+Spreading the work (`defer=True`): of the H runs only the one that completes its window is needed for this
+tick's estimate. update() steps that run (and the one that starts) and returns the estimate; the other H-2
+runs may be stepped later by work() calls on the control ticks between two samples (a 500 Hz loop with a
+100 Hz model has four), so no single tick carries the whole product. update() first finishes whatever is
+still pending, so the result is the same arithmetic in any case.
+
 GRU/MLP checkpoints (ablation architectures) are evaluated with torch on a rolling buffer (exact, slower).
 
 Guards (never raise in the loop): non-finite q/q_dot/q_cmd -> NaN estimate, FLAG_NONFINITE, and the window
@@ -64,8 +70,10 @@ def _lstm_layer_weights(w: dict[str, np.ndarray], layer: int) -> tuple[np.ndarra
 
 
 class NextEstimator:
-    def __init__(self, ck: NextCheckpoint, ema_alpha: float | None = None, ood_margin: float = 0.1):
-        """ema_alpha: optional smoothing of tau_ext, y <- y + alpha (x - y), alpha in (0, 1]."""
+    def __init__(self, ck: NextCheckpoint, ema_alpha: float | None = None, ood_margin: float = 0.1,
+                 defer: bool = False, parts: int = 4):
+        """ema_alpha: optional smoothing of tau_ext, y <- y + alpha (x - y), alpha in (0, 1]. defer: leave
+        the runs this tick's estimate does not need to work() (each call steps 1/parts of them)."""
         if ema_alpha is not None and not 0.0 < ema_alpha <= 1.0:
             raise ValueError("ema_alpha must be in (0, 1]")
         self.ck = ck
@@ -94,6 +102,9 @@ class NextEstimator:
             self._z = np.empty((self.H, 4 * hid), np.float32)
             self._tmp = np.empty((self.H, hid), np.float32)
             self._z_t, self._tmp_t = torch.from_numpy(self._z), torch.from_numpy(self._tmp)  # shared memory
+            self._g1 = np.zeros(4 * hid, np.float32)  # input projection of the sample the pending runs need
+            self._pending: list[int] = []  # runs not yet stepped on the latest sample (oldest first)
+            self.defer, self._chunk = defer, max(1, -(-(self.H - 2) // max(1, parts)))
         else:
             self._buf = np.zeros((self.H, self.cfg.n_in), np.float32)
         self.reset()
@@ -106,37 +117,69 @@ class NextEstimator:
             self._hh[:] = 0.0
             self._c1[:] = 0.0
             self._c2[:] = 0.0
+            self._pending = []
 
     def _nan(self, flags: int) -> Estimate:
         nan = np.full(self.n_j, np.nan)
         return Estimate(nan, nan.copy(), flags)
 
     def _step_lstm(self, x: np.ndarray) -> np.ndarray | None:
-        hid = self.cfg.hidden
-        r = self._n % self.H  # run r starts now from a zero state
+        self.work(all_pending=True)  # every run must have seen the previous sample
+        hid, H = self.cfg.hidden, self.H
+        r = self._n % H  # run r starts now from a zero state
         self._hh[r] = 0.0
         self._c1[r] = 0.0
         self._c2[r] = 0.0
-        h1, h2 = self._hh[:, :hid], self._hh[:, hid:]
-        z = self._z
-        g1 = x @ self._wih1 + self._b1  # shared input projection of the new sample
-        np.dot(h1, self._whh1, out=z)
-        z += g1
-        self._cell(self._c1, h1)
-        np.dot(self._hh, self._w2, out=z)
-        z += self._b2
-        self._cell(self._c2, h2)
+        np.add(x @ self._wih1, self._b1, out=self._g1)  # shared input projection of the new sample
         self._n += 1
-        if self._n < self.H:
+        done = (r + 1) % H  # the run that started H-1 ticks ago completes its window with this sample
+        if self._n < H:  # warm-up: no window complete yet, step every run now
+            self._pending = [(r + 1 + k) % H for k in range(H)]
+            self.work(all_pending=True)
             return None
-        done = (r + 1) % self.H  # the run that started H-1 ticks ago has now seen H samples
-        a = np.maximum(h2[done] @ self._hw1 + self._hb1, 0.0)
+        others = [(done + k) % H for k in range(1, H)]  # every run but `done`, r last
+        if self.defer:
+            self._steps([done])
+            if r != done:
+                self._steps([r])
+            self._pending = others[:-1] if r != done else others  # consecutive runs done+1 .. r-1
+        else:
+            self._pending = [done] + others
+            self.work(all_pending=True)
+        a = np.maximum(self._hh[done, hid:] @ self._hw1 + self._hb1, 0.0)
         return a @ self._hw2 + self._hb2
 
-    def _cell(self, c: np.ndarray, h_out: np.ndarray) -> None:
-        """LSTM cell on the pre-activations in self._z (gate order i, f, o, g; g pre-scaled by 2)."""
-        hid, z, tmp = c.shape[1], self._z, self._tmp
-        self._z_t.sigmoid_()  # in place on self._z
+    def work(self, all_pending: bool = False) -> None:
+        """Step pending runs on the latest sample: 1/parts of them, or all. Cheap no-op when none."""
+        if not self._fast or not self._pending:
+            return
+        k = len(self._pending) if all_pending else self._chunk
+        todo, self._pending = self._pending[:k], self._pending[k:]
+        self._steps(todo)
+
+    def _steps(self, runs: list[int]) -> None:
+        """One LSTM step of the given runs (row indices, consecutive modulo H) on the latest sample."""
+        a = runs[0]
+        for lo, n in ((a, min(len(runs), self.H - a)), (0, len(runs) - min(len(runs), self.H - a))):
+            if n > 0:
+                self._rows(lo, lo + n)
+
+    def _rows(self, lo: int, hi: int) -> None:
+        hid = self.cfg.hidden
+        hh, z = self._hh[lo:hi], self._z[lo:hi]
+        h1, h2 = hh[:, :hid], hh[:, hid:]
+        np.dot(h1, self._whh1, out=z)
+        z += self._g1
+        self._cell(self._c1[lo:hi], h1, lo, hi)
+        np.dot(hh, self._w2, out=z)
+        z += self._b2
+        self._cell(self._c2[lo:hi], h2, lo, hi)
+
+    def _cell(self, c: np.ndarray, h_out: np.ndarray, lo: int, hi: int) -> None:
+        """LSTM cell on the pre-activations in rows lo:hi of self._z (gate order i, f, o, g; g pre-scaled
+        by 2)."""
+        hid, z, tmp = c.shape[1], self._z[lo:hi], self._tmp[lo:hi]
+        self._z_t[lo:hi].sigmoid_()  # in place on self._z
         g = z[:, 3 * hid:]
         g *= 2.0
         g -= 1.0  # tanh of the unscaled g pre-activation
@@ -144,7 +187,7 @@ class NextEstimator:
         np.multiply(z[:, :hid], g, out=tmp)
         c += tmp
         np.multiply(c, 2.0, out=tmp)
-        self._tmp_t.sigmoid_()
+        self._tmp_t[lo:hi].sigmoid_()
         tmp *= 2.0
         tmp -= 1.0  # tanh(c)
         np.multiply(z[:, 2 * hid:3 * hid], tmp, out=h_out)

@@ -47,11 +47,12 @@ def find_checkpoint(rig: str, explicit: str | None = None) -> Path | None:
 
 
 def load_estimator(path: Path, arm: str):
-    """A streaming NextEstimator for the checkpoint (UserError if it was trained for another arm)."""
+    """A streaming NextEstimator for the checkpoint (UserError if it was trained for another arm). Its work
+    is spread over the control ticks between two samples (defer; the loop calls idle() -> work())."""
     from calibration.next.checkpoint import load_checkpoint
     from calibration.next.estimator import NextEstimator
 
-    return NextEstimator(load_checkpoint(path, arm=arm))
+    return NextEstimator(load_checkpoint(path, arm=arm), defer=True)
 
 
 def create_checkpoint(rig: str, say: Callable[[str], None], minutes: float = DEMO_MINUTES,

@@ -113,6 +113,12 @@ class NextAdapter:
         self.ood_count += int(bool(e.ood))
         return Estimate(tau_ext=np.asarray(e.tau_ext, dtype=float), t=st.t, fresh=bool(e.valid))
 
+    def idle(self) -> None:
+        """A control tick without a new sample: let a deferring estimator step some of its pending runs."""
+        work = getattr(self.next, "work", None)
+        if work is not None:
+            work()
+
 
 class MomentumObserver:
     """Disturbance-observer estimator on the follower's dynamics model (callables in the follower's joint

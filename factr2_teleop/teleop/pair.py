@@ -223,7 +223,15 @@ class ArmPair:
         return bool(np.all(np.isfinite(st.q))) and now - self._t_ok[who] <= max_age
 
     def _tick_estimator(self, now: float, fs: JointState, q_leader_f: np.ndarray) -> None:
-        if self.estimator is None or now - self._t_est_run < self.cfg.estimator_period_s:
+        if self.estimator is None:
+            return
+        if now - self._t_est_run < self.cfg.estimator_period_s:
+            idle = getattr(self.estimator, "idle", None)
+            if idle is not None:  # spread the estimator's work over the ticks between its samples
+                try:
+                    idle()
+                except Exception:  # noqa: BLE001 -- the next real call reports a broken estimator
+                    pass
             return
         self._t_est_run = now
         try:
