@@ -30,6 +30,17 @@ PHASE_SHARE = {"multi": 0.4, "slow": 0.3, "fast": 0.3}  # of the time left after
 # (at rest, no lag) need only the base clearance. With 5 cm everywhere the 10-minute replay touched the table
 # 52 times (twin ground truth).
 LAG_CLEARANCE_M = 0.08
+# The lag outlasts the motion: the arm is still settling (0.15 rad behind on the shoulder) when a fast move's
+# command has stopped, so each sample gets the allowance of the fastest sample in the preceding LAG_SETTLE_S.
+LAG_SETTLE_S = 0.5
+
+
+def lag_speed(qd: np.ndarray, v_max: np.ndarray, window: int) -> np.ndarray:
+    """Per sample of a path: the largest max_j |qd_j| / v_max_j over that sample and the `window` - 1 before
+    it (0 before the path starts: a move starts from rest, where the previous move's end was checked)."""
+    s = np.max(np.abs(qd) / v_max, axis=1)
+    w = max(int(window), 1)
+    return np.lib.stride_tricks.sliding_window_view(np.r_[np.zeros(w - 1), s], w).max(axis=1)
 
 
 @dataclass
@@ -180,7 +191,7 @@ def coverage_trajectory(q_min, q_max, v_max, q_home, minutes: float = 10.0, rate
     def move_to(target: np.ndarray, phase: str) -> bool:
         s = PHASE_SPEED[phase]
         q, qd, qdd = ruckig_move(state["q"], target, s * v_max, s * a_max, s * j_max, rate_hz)
-        lag_m = LAG_CLEARANCE_M * np.max(np.abs(qd) / v_max, axis=1)  # room for the follower's lag
+        lag_m = LAG_CLEARANCE_M * lag_speed(qd, v_max, int(LAG_SETTLE_S * rate_hz))
         if checker is not None and checker.collides(q, extra_m=lag_m):
             return False
         pieces.append((q[1:], qd[1:], qdd[1:], PHASES.index(phase)))
@@ -203,8 +214,9 @@ def coverage_trajectory(q_min, q_max, v_max, q_home, minutes: float = 10.0, rate
             for _ in range(max_tries):
                 if move_to(rng.uniform(lo, hi), phase):
                     break
-            else:
-                raise ValueError(f"no collision-free {phase} move found in {max_tries} tries")
+            else:  # boxed in (near the table, every fast path needs more room): back home slowly, go on
+                if np.allclose(state["q"], home) or not move_to(home, "slow"):
+                    raise ValueError(f"no collision-free {phase} move found in {max_tries} tries")
     if not np.allclose(state["q"], home):
         move_to(home, "slow")
     q = np.concatenate([home[None]] + [p[0] for p in pieces])

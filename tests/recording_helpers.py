@@ -31,8 +31,9 @@ def gradient_frame(h: int = 48, w: int = 64, shift: int = 0) -> np.ndarray:
 
 
 def record_session(path, n: int = 2000, dt: float = 1e-3, episodes: int = 1, cameras: bool = True,
-                   **kw) -> Recorder:
-    """n ticks per episode: leader/follower state, tau_ext, tau_cmd, ground truth, timing, frames, events."""
+                   contact: bool = True, **kw) -> Recorder:
+    """n ticks per episode: leader/follower state, tau_ext, tau_cmd, ground truth (in contact the first 25
+    of every 100 ticks, or never with contact=False), timing, frames, events."""
     rec = Recorder(path, joint_names={"leader": NAMES, "follower": NAMES}, t0=0.0, **kw)
     k = 0
     for e in range(episodes):
@@ -43,7 +44,8 @@ def record_session(path, n: int = 2000, dt: float = 1e-3, episodes: int = 1, cam
             rec.log_joint_state("follower", t, joint_state(k, dt))
             rec.log_external_torque("follower", t, np.full(N_JOINTS, 0.2 * (k % 10)), k % 100 < 30)
             rec.log_torque_command("leader", t, -0.01 * np.arange(N_JOINTS), gate=0.5)
-            rec.log_ground_truth("follower", t, np.full(N_JOINTS, 0.1), k % 100 < 25, [1.0, 2.0, 3.0])
+            rec.log_ground_truth("follower", t, np.full(N_JOINTS, 0.1), contact and k % 100 < 25,
+                                 [1.0, 2.0, 3.0])
             rec.log_loop_timing(t, dt, 2e-4, 0.0, 0)
             if cameras and k % 33 == 0:
                 rec.log_image("wrist", t, gradient_frame(shift=k % 256))

@@ -150,7 +150,7 @@ def test_cli_reads_recordings_one_run_per_episode(tmp_path, capsys):
     from calibration.diagnosis.data import load_segments
 
     path = tmp_path / "session.mcap"
-    record_session(path, n=1500, dt=0.01, episodes=2, cameras=False).close()
+    record_session(path, n=1500, dt=0.01, episodes=2, cameras=False, contact=False).close()
     segs = load_segments(path)
     assert [s.name for s in segs] == ["session#ep0", "session#ep1"]
     assert all(len(s) == 1500 and s.units == "N*m" and s.n == 6 for s in segs)
@@ -161,8 +161,27 @@ def test_cli_reads_recordings_one_run_per_episode(tmp_path, capsys):
     rep = json.loads((out / "report.json").read_text())
     assert rep["train_runs"] == ["session#ep0"] and rep["heldout_runs"] == ["session#ep1"]
     capsys.readouterr()
+    # with ground-truth contact (0.25 s of every second) only stretches 0.3 s clear of it are kept
+    touchy = tmp_path / "touchy.mcap"
+    record_session(touchy, n=1500, dt=0.01, episodes=1, cameras=False).close()
+    kept = load_segments(touchy)  # the last touch ends at 14.24 s: only the tail from ~14.54 s is kept
+    assert [s.name for s in kept] == ["touchy#ep0#0"] and 44 <= len(kept[0]) <= 46
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"garbage" * 50)
     assert main(["diagnose", str(bad), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.mcap" in err[0], err
+
+
+def test_free_runs_leave_out_the_samples_near_contact():
+    from calibration.diagnosis.data import free_runs
+
+    t = np.arange(1000) * 0.01
+    c = np.zeros(1000, bool)
+    c[500:505] = True
+    assert free_runs(t, c) == [(0, 470), (535, 1000)]  # 0.3 s either side of the touch
+    assert free_runs(t, None) == [(0, 1000)] and free_runs(t, np.zeros(1000, bool)) == [(0, 1000)]
+    c[:] = False
+    c[-1] = True
+    assert free_runs(t, c) == [(0, 970)]
+    assert free_runs(t[:10], None) == []  # too short to be a run

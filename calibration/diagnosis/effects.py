@@ -73,7 +73,9 @@ class Effect:
 
     def implausible(self) -> str:
         """Why the fitted parameters are not physical ("" when they are): a torque-constant scale outside
-        0.5-2 or a negative / over-half-second delay is another effect fitted through the wrong feature."""
+        0.5-2, a negative / over-half-second delay, or a spring of negative stiffness (a passive elastic
+        element restores; an anti-spring is a gravity or K error fitted through the wrong feature) is another
+        effect fitted through the wrong feature."""
         if self.coef is None:
             return ""
         p = self.params()
@@ -81,6 +83,8 @@ class Effect:
             return f"scale {p['scale']:.3g} outside 0.5..2"
         if self.family == "delay" and not 0.0 <= p["delay_s"] <= 0.5:
             return f"delay {p['delay_s']:.3g} s outside 0..0.5 s"
+        if self.family == "position_spring" and p["stiffness_per_rad"] < 0.0:
+            return f"negative stiffness {p['stiffness_per_rad']:.3g} N*m/rad"
         return ""
 
     @classmethod

@@ -228,11 +228,11 @@ def piper_basis():
 def diagnose_logs(train_paths, heldout_paths, declared=None, log=lambda s: None):
     """`factr2 diagnose TRAIN --heldout HELD --arm piper` as a function (plus `declared` first-pass effects;
     with no held-out paths the last quarter of the single training run is held out)."""
-    from calibration.diagnosis.data import load_segment, split_heldout
+    from calibration.diagnosis.data import load_segments, split_heldout
     from calibration.diagnosis.loop import diagnose
 
-    train = [load_segment(p) for p in train_paths]
-    held = [load_segment(p) for p in heldout_paths] or None
+    train = [seg for p in train_paths for seg in load_segments(p)]  # contact-free stretches
+    held = [seg for p in heldout_paths for seg in load_segments(p)] or None
     train, held = split_heldout(train, held)
     return diagnose(piper_basis(), train, held, log=log, declared=declared)
 
