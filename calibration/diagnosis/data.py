@@ -10,7 +10,6 @@ not prediction.
 from __future__ import annotations
 
 import copy
-
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -146,7 +145,8 @@ def free_runs(t: np.ndarray, contact: np.ndarray | None, margin_s: float = CONTA
         return [(0, n)] if n >= min_samples else []
     tc = t[np.asarray(contact, bool)]
     i = np.searchsorted(tc, t)
-    gap = np.minimum(np.abs(t - tc[np.clip(i - 1, 0, len(tc) - 1)]), np.abs(tc[np.clip(i, 0, len(tc) - 1)] - t))
+    before, after = tc[np.clip(i - 1, 0, len(tc) - 1)], tc[np.clip(i, 0, len(tc) - 1)]
+    gap = np.minimum(np.abs(t - before), np.abs(after - t))
     near = gap <= margin_s
     edges = np.flatnonzero(np.diff(np.r_[0, (~near).astype(int), 0]))
     return [(int(lo), int(hi)) for lo, hi in zip(edges[::2], edges[1::2]) if hi - lo >= min_samples]

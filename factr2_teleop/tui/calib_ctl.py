@@ -145,7 +145,8 @@ class CalibrationRun:
 
     def replay(self) -> None:
         """Move to the start pose and replay the trajectory with calibration.next.collect.collect_free_motion
-        (its momentum-observer guard stops on unexpected contact); logs saved as plain logs (train / held-out)."""
+        (its momentum-observer guard stops on unexpected contact); logs saved as plain logs (train /
+        held-out)."""
         from calibration.next.collect import ContactStop, collect_free_motion
         from hardware.arms.dynamics import ArmDynamics
         from hardware.recording.plain_log import save_plain_log
