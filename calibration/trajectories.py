@@ -26,9 +26,8 @@ PHASE_SPEED = {"single": 0.5, "multi": 0.6, "slow": 0.2, "fast": 1.0}  # fractio
 PHASE_SHARE = {"multi": 0.4, "slow": 0.3, "fast": 0.3}  # of the time left after the single-joint sweeps
 # Extra clearance [m] at full speed (|qd_j| = v_max_j), scaled per sample by the path's speed: the follower's
 # position loop lags its command in proportion to velocity (the Piper twin's shoulder by 0.12 rad in the fast
-# phase, ~6 cm at the gripper), so a fast stretch needs more room than a slow one, while the ends of a move
-# (at rest, no lag) need only the base clearance. With 5 cm everywhere the 10-minute replay touched the table
-# 52 times (twin ground truth).
+# phase, ~6 cm at the gripper), so a fast stretch needs more room than a slow one. With 5 cm everywhere the
+# 10-minute replay touched the table 52 times (twin ground truth).
 LAG_CLEARANCE_M = 0.08
 # The lag outlasts the motion: the arm is still settling (0.15 rad behind on the shoulder) when a fast move's
 # command has stopped, so each sample gets the allowance of the fastest sample in the preceding LAG_SETTLE_S.
@@ -191,8 +190,8 @@ def coverage_trajectory(q_min, q_max, v_max, q_home, minutes: float = 10.0, rate
     def move_to(target: np.ndarray, phase: str) -> bool:
         s = PHASE_SPEED[phase]
         q, qd, qdd = ruckig_move(state["q"], target, s * v_max, s * a_max, s * j_max, rate_hz)
-        lag_m = LAG_CLEARANCE_M * lag_speed(qd, v_max, int(LAG_SETTLE_S * rate_hz))
-        if checker is not None and checker.collides(q, extra_m=lag_m):
+        if checker is not None and checker.collides(
+                q, extra_m=LAG_CLEARANCE_M * lag_speed(qd, v_max, int(LAG_SETTLE_S * rate_hz))):
             return False
         pieces.append((q[1:], qd[1:], qdd[1:], PHASES.index(phase)))
         state["q"], state["time"] = target, state["time"] + (len(q) - 1) / rate_hz

@@ -29,7 +29,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-import pinocchio as pin
 
 from calibration.baselines import momentum_observer_step
 from calibration.trajectories import Trajectory, ruckig_move
@@ -81,26 +80,21 @@ class CollectedRun:
 
 class _ContactGuard:
     """Streaming momentum observer -> estimated external torque [N*m] per tick (thin shell around
-    calibration.baselines.momentum_observer_step)."""
+    calibration.baselines.momentum_observer_step on hardware.arms.dynamics.ArmDynamics)."""
 
-    def __init__(self, model, q0: np.ndarray, qd0: np.ndarray, dt_s: float, k_o: float = 50.0):
-        self.model, self.data, self.dt = model, model.createData(), dt_s
-        self.k_o = np.full(model.nv, k_o)
-        self.p0 = self._momentum(q0, qd0)
-        self.integral, self.r = np.zeros(model.nv), np.zeros(model.nv)
-
-    def _momentum(self, q, qd) -> np.ndarray:
-        m = pin.crba(self.model, self.data, q)
-        return (np.triu(m) + np.triu(m, 1).T) @ qd  # pinocchio fills the upper triangle only
+    def __init__(self, dyn, q0: np.ndarray, qd0: np.ndarray, dt_s: float, k_o: float = 50.0):
+        self.dyn, self.dt = dyn, dt_s
+        self.k_o = np.full(dyn.n, k_o)
+        self.p0 = dyn.mass_matrix(q0) @ qd0
+        self.integral, self.r = np.zeros(dyn.n), np.zeros(dyn.n)
 
     def step(self, q, qd, tau_m) -> np.ndarray:
         q, qd, tau_m = (np.asarray(a, float) for a in (q, qd, tau_m))
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(tau_m))):
-            return np.full(self.model.nv, np.nan)
-        c = pin.computeCoriolisMatrix(self.model, self.data, q, qd)
-        beta = pin.computeGeneralizedGravity(self.model, self.data, q) - c.T @ qd
-        self.integral, self.r = momentum_observer_step(self.integral, self.r, self._momentum(q, qd), self.p0,
-                                                       tau_m, beta, self.dt, self.k_o)
+            return np.full(self.dyn.n, np.nan)
+        beta = self.dyn.gravity(q) - self.dyn.coriolis_matrix(q, qd).T @ qd
+        self.integral, self.r = momentum_observer_step(self.integral, self.r, self.dyn.mass_matrix(q) @ qd,
+                                                       self.p0, tau_m, beta, self.dt, self.k_o)
         return -self.r
 
 
@@ -117,6 +111,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
     total_s) is called every tick; returning True stops the run (operator stop). Raises ContactStop (with
     the partial run attached) unless `pushes` are given (twin only; guard off)."""
     from hardware.arms import load_arm
+    from hardware.arms.dynamics import ArmDynamics
 
     spec = session.rig.device(follower_name)
     arm = load_arm(spec.arm)
@@ -125,7 +120,6 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
                           where=follower_name, fix="generate the trajectory for this arm")
     follower = session.followers[follower_name]
     limits = spec.limits()
-    model = arm.pinocchio_model()
     clock, dt = session.clock, 1.0 / traj.rate_hz
     run = CollectedRun(joint_names=list(arm.joint_names))
     truth = session.twin.ground_truth if session.twin is not None else None
@@ -139,7 +133,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
                            traj.rate_hz)
     plan = [(q, False) for q in q0] + [(traj.q[k], True) for k in range(len(traj.t))]
     over = 0
-    guard = _ContactGuard(model, st.q, st.q_dot, dt)
+    guard = _ContactGuard(ArmDynamics(arm), st.q, st.q_dot, dt)
     t_start = time.monotonic()
     n_move = len(q0)
     for k, (q_ref, record) in enumerate(plan):
