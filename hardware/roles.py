@@ -101,8 +101,9 @@ class Leader(Device):
 
     def command_torque(self, tau: np.ndarray) -> np.ndarray:
         """Ask for joint torques [N*m]; returns the torques actually sent after the limits."""
+        now = self.clock.now()  # the time the command is issued (read before waiting for the device lock)
         with self._lock:
-            safe = self.safety.leader(tau, self.clock.now())
+            safe = self.safety.leader(tau, now)
             self._send_torque_safe(safe)
             self.in_safe_state = False
             return safe.tau
@@ -125,8 +126,9 @@ class Follower(Device):
 
     def command(self, cmd: FollowerCommand) -> SafeFollowerCommand:
         """Send a command through the limits; returns what was actually sent."""
+        now = self.clock.now()  # the time the command is issued (read before waiting for the device lock)
         with self._lock:
-            safe = self.safety.follower(cmd, self.clock.now(), self._last_state.q)
+            safe = self.safety.follower(cmd, now, self._last_state.q)
             self._send_safe(safe)
             self.in_safe_state = False
             return safe

@@ -54,6 +54,18 @@ def test_command_violations_counts_range_and_speed_but_not_holds():
     assert M.command_violations(np.array([[np.nan, 0.0]]), t[:1], q_min, q_max, v_max, 0.002) == 1
 
 
+def test_command_violations_bracket_issue_and_send_times():
+    """A thread preempted between issuing a command and the safety layer's clock read: by issue times the
+    step looks too fast (0.012 rad in 2 ms at 1 rad/s), but it went on the wire 14 ms after the previous
+    command was issued, which the layer's budget may use. A step too fast even for that bracket counts."""
+    lim = (np.array([-1.0]), np.array([1.0]), np.array([1.0]))
+    t = np.array([0.0, 0.002])
+    q = np.array([[0.0], [0.012]])
+    assert M.command_violations(q, t, *lim, 0.0) == 1  # issue times only, no slack
+    assert M.command_violations(q, t, *lim, 0.0, t_sent=np.array([0.0001, 0.014])) == 0
+    assert M.command_violations(q, t, *lim, 0.0, t_sent=np.array([0.0001, 0.010])) == 1
+
+
 def test_torque_violations_and_l1():
     assert M.torque_violations(np.array([[0.5, -0.9], [0.91, np.nan]]), np.array([0.9, 0.9])) == 2
     tau = np.array([[1.0, -1.0], [2.0, 0.0], [np.nan, 0.0]])

@@ -244,6 +244,35 @@ def test_loop_timing_on_lockstep_clock_is_exact():
     assert rec["loop.period_s"] == pytest.approx(0.004) and rec["loop.overruns"] == 0
 
 
+def test_loop_makes_up_a_late_tick_but_not_a_long_stall():
+    """A tick that ends 7 ms late is made up (back-to-back ticks keep the average rate: 500 ticks in 1 s);
+    after a 50 ms stall (beyond CATCH_UP_S) the schedule restarts from now and those ticks are lost."""
+    from factr2_teleop.teleop.loop import CATCH_UP_S
+
+    assert 0.007 < CATCH_UP_S < 0.05
+    for stall_s, made_up in ((0.007, True), (0.05, False)):
+        rig = Rig()
+        pair = rig.pair()
+        tick, count = pair.tick, [0]
+
+        def slow_tick(now, tick=tick, count=count, rig=rig, stall_s=stall_s):
+            count[0] += 1
+            rec = tick(now)
+            if count[0] == 100:
+                rig.clock.sleep(stall_s)  # this tick took stall_s longer
+            return rec
+
+        pair.tick = slow_tick
+        loop = TeleopLoop([pair], rig.clock, rate_hz=500.0)
+        loop.run(duration_s=1.0)
+        s = loop.snapshot().timing
+        assert s.overruns == 1
+        if made_up:
+            assert s.ticks == 500 and s.rate_hz == pytest.approx(500.0, rel=1e-6)
+        else:
+            assert 470 <= s.ticks <= 477  # ~stall_s x 500 ticks lost
+
+
 def test_threaded_loop_on_real_clock_stops_safe():
     """start() in a thread on the real clock; stop() from this thread leaves both arms safe."""
     import time

@@ -70,12 +70,14 @@ def resample(t: np.ndarray, x: np.ndarray, dt_s: float) -> np.ndarray:
 
 def command_violations(q_cmd: np.ndarray, t: np.ndarray, q_min: np.ndarray, q_max: np.ndarray,
                        v_max: np.ndarray, min_dt_s: float, hold: np.ndarray | None = None,
-                       tol: float = 1e-9) -> int:
+                       tol: float = 1e-9, t_sent: np.ndarray | None = None) -> int:
     """Follower position commands outside the limits, counted per (command, joint): q outside
-    [q_min, q_max], or a step larger than v_max * (time between sends + min_dt_s). min_dt_s (one loop
-    period) is the timing slack: the safety layer reads the clock at its own call, a little before the send,
-    so under scheduling jitter the send-to-send interval can be shorter than the interval the layer
-    budgeted (e.g. a late tick followed by an on-time one).
+    [q_min, q_max], or a step larger than v_max * (the longest time the commands can have been apart +
+    min_dt_s). t [s]: when each command was issued (entry to Follower.command); t_sent [s]: when it went on
+    the wire. The safety layer reads the clock somewhere in between, so with both the interval it budgeted
+    is at most t_sent[k] - t[k-1]: a step beyond v_max times that is a violation whatever the thread's
+    scheduling (a thread preempted between the two reads moved its command no faster on the wire). Without
+    t_sent the interval is t[k] - t[k-1], and min_dt_s (e.g. one loop period) is the slack for that jitter.
     hold: per command, True for the safe state (target = where the arm is): no rate check into or out of
     it, since a hold stops the arm where it stands rather than moving the target."""
     q = np.asarray(q_cmd, dtype=float)
@@ -84,7 +86,9 @@ def command_violations(q_cmd: np.ndarray, t: np.ndarray, q_min: np.ndarray, q_ma
     bad = (~np.isfinite(q)) | (q < q_min - tol) | (q > q_max + tol)
     n = int(np.sum(bad))
     if len(q) > 1:
-        dt = (np.maximum(np.diff(np.asarray(t, dtype=float)), 0.0) + min_dt_s)[:, None]
+        t = np.asarray(t, dtype=float)
+        later = t[1:] if t_sent is None else np.asarray(t_sent, dtype=float)[1:]
+        dt = (np.maximum(later - t[:-1], 0.0) + min_dt_s)[:, None]
         step = np.abs(np.diff(q, axis=0))
         fast = np.isfinite(v_max) & (step > v_max * dt * 1.05 + 1e-6)
         if hold is not None and len(hold) == len(q):

@@ -135,20 +135,24 @@ class TwinDrivenClock(Clock):
 
 class _WireLog:
     """Logs what a driver instance puts on the wire (its _send_safe / _send_torque_safe, after the safety
-    layer): (t, values, hold). t is when the command was issued (clock read on entry to the public command
-    method, wrapped too), so rate checks use the commanding thread's timeline, not send-time jitter."""
+    layer): (t, t_sent, values, hold). t is when the command was issued (clock read on entry to the public
+    command method, wrapped too), t_sent when it reached the wire: the safety layer's own clock read lies
+    between the two, so a rate check on [t, t_sent] brackets needs no trust in the layer's timing."""
 
     def __init__(self, device, method: str, attr: str, clock, public: str | None = None):
         self.t: list[float] = []
+        self.t_sent: list[float] = []
         self.v: list[np.ndarray] = []
         self.hold: list[bool] = []
         self._issued = float("nan")
         inner = getattr(device, method)
 
         def send(safe):
-            t = self._issued if np.isfinite(self._issued) else clock.now()
+            sent = clock.now()
+            t = self._issued if np.isfinite(self._issued) else sent
             self._issued = float("nan")
             self.t.append(t)
+            self.t_sent.append(sent)
             self.v.append(np.array(getattr(safe, attr), dtype=float))
             self.hold.append(bool(getattr(safe, "hold", False)))
             return inner(safe)
@@ -330,8 +334,9 @@ class DemoRun:
         lim_f, lim_l = self.follower.safety.limits, self.leader.safety.limits
         tf, qf = self.wire_f.arrays()
         tl, taul = self.wire_l.arrays()
-        viol = M.command_violations(qf, tf, lim_f.q_min, lim_f.q_max, lim_f.v_max, 1.0 / cfg.rate_hz,
-                                    hold=np.array(self.wire_f.hold, dtype=bool)) \
+        viol = M.command_violations(qf, tf, lim_f.q_min, lim_f.q_max, lim_f.v_max, 0.0,
+                                    hold=np.array(self.wire_f.hold, dtype=bool),
+                                    t_sent=np.array(self.wire_f.t_sent)) \
             + M.torque_violations(taul, lim_l.tau_max)
         summ = self.operator.summary()
         wipe = summ.get("wipe", {})

@@ -101,6 +101,7 @@ class NextAdapter:
     def __init__(self, next_estimator):
         self.next = next_estimator
         self.ood_count = 0
+        self._tau_f: np.ndarray | None = None  # free-space torque of the last valid estimate [N*m]
 
     def __call__(self, inp: EstimatorInput) -> Estimate | None:
         st = inp.follower
@@ -109,9 +110,21 @@ class NextAdapter:
             q_cmd = inp.q_target_f if inp.q_target_f is not None else st.q
         e = self.next.update(st.q, st.q_dot, q_cmd, st.tau_m)
         if int(getattr(e, "flags", 0)) & NEXT_FLAG_WARMUP:
+            self._tau_f = None
             return None  # warming up (or restarting after a bad sample): no estimate yet
         self.ood_count += int(bool(e.ood))
+        tau_f = getattr(e, "tau_f", None)
+        self._tau_f = np.asarray(tau_f, dtype=float) if e.valid and tau_f is not None else None
         return Estimate(tau_ext=np.asarray(e.tau_ext, dtype=float), t=st.t, fresh=bool(e.valid))
+
+    def refresh(self, inp: EstimatorInput) -> Estimate | None:
+        """A control tick between two model samples: tau_ext = this tick's tau_m - the last predicted free
+        torque. The free torque changes slowly; contact shows in tau_m at once, so feedback does not wait up
+        to a model period (10 ms at 100 Hz) for it. None when there is no valid prediction to use."""
+        tau_m = np.asarray(inp.follower.tau_m, dtype=float)
+        if self._tau_f is None or tau_m.shape != self._tau_f.shape or not np.all(np.isfinite(tau_m)):
+            return None
+        return Estimate(tau_ext=tau_m - self._tau_f, t=inp.follower.t, fresh=True)
 
     def idle(self) -> None:
         """A control tick without a new sample: let a deferring estimator step some of its pending runs."""

@@ -27,6 +27,11 @@ from hardware.clock import Clock
 log = logging.getLogger("factr2.teleop")
 
 DEFAULT_RATE_HZ = 500.0
+# s: a loop that fell behind its schedule by up to this much makes the ticks up (they run back to back until
+# it is on time again), so a single late tick (a GC pause, the OS scheduling another process) costs no ticks
+# and the rate holds on average; further behind, the schedule restarts from now. Back-to-back ticks are safe:
+# the safety layer's rate limits use the real time between commands.
+CATCH_UP_S = 0.02
 __all__ = ["TeleopLoop", "TeleopSnapshot", "DEFAULT_RATE_HZ", "SOFT_START", "COUPLED", "HOLD", "FAULT",
            "STOPPED", "IDLE"]
 
@@ -113,7 +118,7 @@ class TeleopLoop:
                     break
                 next_t += self.period_s
                 now = self.clock.now()
-                if now > next_t + self.period_s:  # fell behind by more than a period: do not try to catch up
+                if now > next_t + CATCH_UP_S:  # too far behind to make up: restart the schedule from now
                     next_t = now
                 self.clock.sleep_until(next_t)
         except BaseException as e:

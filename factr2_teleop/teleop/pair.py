@@ -227,11 +227,17 @@ class ArmPair:
             return
         if now - self._t_est_run < self.cfg.estimator_period_s:
             idle = getattr(self.estimator, "idle", None)
-            if idle is not None:  # spread the estimator's work over the ticks between its samples
-                try:
+            refresh = getattr(self.estimator, "refresh", None)
+            try:
+                if idle is not None:  # spread the estimator's work over the ticks between its samples
                     idle()
-                except Exception:  # noqa: BLE001 -- the next real call reports a broken estimator
-                    pass
+                if refresh is not None and self.estimate is not None and self.estimate.fresh:
+                    est = refresh(EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f,
+                                                 q_target_f=self.q_target))
+                    if est is not None:  # the latest measured torque against the last model output
+                        self.estimate = est
+            except Exception:  # noqa: BLE001 -- the next real call reports a broken estimator
+                pass
             return
         self._t_est_run = now
         try:

@@ -65,7 +65,9 @@ class ActuatorParams:
     current_noise [A] and velocity_noise [rad/s] standard deviations; current_lsb [A] and position_lsb [rad]
     reporting resolution (0: continuous);
     position loop of the firmware: pos_kp [N*m/rad], pos_kd [N*m*s/rad], pos_ki [N*m/(rad*s)],
-    pos_i_max [N*m] integrator clamp, pos_vel_max [rad/s] target ramp speed at 100 %;
+    pos_i_max [N*m] integrator clamp, pos_vel_max [rad/s] target ramp speed at 100 %, pos_interp_max_s [s]
+    longest command period over which streamed position targets are interpolated (0: each target applies at
+    once, a staircase at the command rate);
     brake: joints hold with a brake while disabled (Panda) instead of falling (Piper, Damiao, Dynamixel)."""
 
     kt: np.ndarray | float = 1.0
@@ -94,13 +96,15 @@ class ActuatorParams:
     pos_ki: np.ndarray | float = 0.0
     pos_i_max: np.ndarray | float = 1.0
     pos_vel_max: np.ndarray | float = 3.0
+    pos_interp_max_s: np.ndarray | float = 0.05
     brake: bool = False
     effects: Effects = field(default_factory=Effects)
 
     ARRAY_FIELDS = ("kt", "i_max", "armature", "coulomb", "viscous", "stribeck", "stribeck_vel", "smooth_vel",
                     "backlash", "ripple_amp", "ripple_cycles", "ripple_phase", "winding_ohm", "thermal_res",
                     "thermal_tau", "kt_temp_coeff", "current_noise", "velocity_noise", "current_lsb",
-                    "position_lsb", "pos_kp", "pos_kd", "pos_ki", "pos_i_max", "pos_vel_max")
+                    "position_lsb", "pos_kp", "pos_kd", "pos_ki", "pos_i_max", "pos_vel_max",
+                    "pos_interp_max_s")
 
     def sized(self, n: int) -> ActuatorParams:
         """A copy with every per-joint field broadcast to shape (n,); raises ValueError on a wrong length."""

@@ -3,7 +3,9 @@
 A MujocoWorld (hardware/sim/world.py) owns the MjModel/MjData; each control tick (1 ms by default) every
 bank computes its motor torques from the current command modes and writes them, minus the drive's internal
 loads (friction, ripple, the undeclared hook), into qfrc_applied; the firmware's damping and friction's
-slope go into dof_damping so MuJoCo integrates them implicitly; then mj_step. Gravity is never compensated
+slope go into dof_damping so MuJoCo integrates them implicitly; then mj_step. Position targets streamed at a
+steady rate are interpolated over the measured command period (as servo drives do in cyclic position
+mode), so a 100 Hz stream gives a smooth setpoint rather than a staircase. Gravity is never compensated
 inside the sim: the motors carry it. read() returns what the firmware reports (motor-side position after
 backlash, noisy velocity, quantised noisy current, tau_m = K * current). Ground truth lives in world.py.
 """
@@ -85,6 +87,9 @@ class MujocoBank:
         self.mode = np.full(self.n, MODE_DISABLED, dtype=int)
         self._masks()
         self.q_goal, self.q_set, self.integ = q0.copy(), q0.copy(), np.zeros(self.n)
+        # streamed-target interpolation: the setpoint goes q_from -> q_goal over interp_s from t_from [s]
+        self.q_from, self.t_from = q0.copy(), np.zeros(self.n)
+        self.t_last_cmd, self.interp_s = np.full(self.n, -np.inf), np.ones(self.n)
         self.q_d, self.v_d = q0.copy(), np.zeros(self.n)
         self.kp, self.kd, self.tau_ff = np.zeros(self.n), np.zeros(self.n), np.zeros(self.n)
         self.i_cmd = np.zeros(self.n)
@@ -162,8 +167,27 @@ class MujocoBank:
             if switch.any():
                 fresh = idx[switch]
                 self.q_set[fresh], self.integ[fresh] = self.theta[fresh], 0.0  # bumpless switch
-            self.q_goal[idx] = q
+                self.q_goal[fresh] = self.theta[fresh]
+                self.t_last_cmd[fresh] = -np.inf
+            self._new_targets(idx, np.broadcast_to(np.asarray(q, dtype=float), idx.shape))
             self._set_mode(idx, MODE_POSITION)
+
+    def _new_targets(self, idx: np.ndarray, q: np.ndarray) -> None:
+        """Firmware interpolation: a target that comes pos_interp_max_s [s] or less after the previous one is
+        reached linearly over that measured period, starting from where the setpoint path is now; a first
+        target, or one after a longer pause, applies at once (the velocity ramp still limits the move)."""
+        now = float(self.world.data.time)
+        period = now - self.t_last_cmd[idx]
+        stream = (period > 0) & (period <= self.p.pos_interp_max_s[idx])
+        self.q_from[idx] = np.where(stream, self._interp_target(now)[idx], q)
+        self.interp_s[idx] = np.where(stream, period, 1.0)
+        self.t_from[idx], self.t_last_cmd[idx] = now, now
+        self.q_goal[idx] = q
+
+    def _interp_target(self, t: float) -> np.ndarray:
+        """Where the interpolated target path is at time t [s]."""
+        s = np.minimum(np.maximum((t - self.t_from) / self.interp_s, 0.0), 1.0)
+        return self.q_from + s * (self.q_goal - self.q_from)
 
     def command_mit(self, idx, q, v, kp, kd, tau_ff) -> None:
         with self.world.lock:
@@ -189,7 +213,7 @@ class MujocoBank:
             idx = np.atleast_1d(np.asarray(idx, dtype=int))
             if on:
                 off = idx[self.mode[idx] == MODE_DISABLED]
-                self.q_goal[off] = self.q_set[off] = self.theta[off]
+                self.q_goal[off] = self.q_set[off] = self.q_from[off] = self.theta[off]
                 self.integ[off] = 0.0
                 self.mode[off] = MODE_POSITION
             else:
@@ -233,8 +257,8 @@ class MujocoBank:
         any_pos, any_mit, any_cur, any_off = self._any
         tau_e, kd = self._zeros, self._zeros
         if any_pos:
-            self.q_set = self.q_set + np.minimum(np.maximum(self.q_goal - self.q_set, -self._ramp_step),
-                                                 self._ramp_step)
+            self.q_set = self.q_set + np.minimum(np.maximum(self._interp_target(t) - self.q_set,
+                                                            -self._ramp_step), self._ramp_step)
             err = self.q_set - th
             tau_e = p.pos_kp * err
             if self._has_ki:
