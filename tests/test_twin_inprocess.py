@@ -102,13 +102,14 @@ def test_leader_law_at_500_hz_moves_like_1_khz(mode, tol):
 
 
 def test_leader_rate_follows_the_rig_control_rate():
+    import dataclasses
+
     rig = load_rig("sim-piper")
+    assert rig.twin.control_hz == 500.0  # the default firmware-law rate (physics 1 kHz)
     with Twin(rig, dynamixel_transport="inprocess") as tw:
+        assert tw.leader_every == 1 and tw.substeps == 2
+    fast = dataclasses.replace(rig, twin=dataclasses.replace(rig.twin, control_hz=1000.0))
+    with Twin(fast, dynamixel_transport="inprocess") as tw:
         assert tw.leader_every == 2
         tw.advance(0.004)
         assert tw.devices["leader"].world.t == pytest.approx(tw.devices["follower"].world.t)
-    import dataclasses
-
-    slow = dataclasses.replace(rig, twin=dataclasses.replace(rig.twin, control_hz=500.0))
-    with Twin(slow, dynamixel_transport="inprocess") as tw:
-        assert tw.leader_every == 1

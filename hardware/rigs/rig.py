@@ -93,6 +93,14 @@ class CameraSpec:
     fps: float = 30.0
 
 
+# Hz: default rate of the twin's firmware laws, Python-side actuator effects and wire emulators. MuJoCo
+# still integrates at physics_hz (>= 1 kHz) with the laws' damping and the friction slope implicit at every
+# physics step; against 1 kHz laws on a 1-minute Piper replay the reported torque differs by 0.007-0.015 N*m
+# (J1-J3) and 0.001-0.002 N*m (J4-J6) mean, below the current noise, and it halves the twin's Python cost
+# (docs/twin.md "Speed"). Set control_hz = 1000 in a rig for 1 kHz laws.
+CONTROL_HZ_DEFAULT = 500.0
+
+
 @dataclass
 class TwinSpec:
     """How the twin simulates the rig. effects: actuator effect name -> on/off; effect: undeclared-effect hook
@@ -103,7 +111,7 @@ class TwinSpec:
     effect: str | None = None
     effects: dict[str, bool] = field(default_factory=dict)
     physics_hz: float = 1000.0
-    control_hz: float = 1000.0
+    control_hz: float = CONTROL_HZ_DEFAULT
     scene: str = "table"
 
 
@@ -281,8 +289,8 @@ def _twin(t, f: str) -> TwinSpec:
     hz = float(_check_type(t.get("physics_hz", 1000.0), "float", f, "twin.physics_hz"))
     if hz < 1000.0:
         raise ConfigError(f"physics_hz {hz:g} is below 1000", where=f"{f}: twin.physics_hz",
-                          fix="use 1000 or more (the firmware laws run at the physics rate)")
-    chz = float(_check_type(t.get("control_hz", min(hz, 1000.0)), "float", f, "twin.control_hz"))
+                          fix="use 1000 or more (control_hz sets the firmware laws' rate)")
+    chz = float(_check_type(t.get("control_hz", CONTROL_HZ_DEFAULT), "float", f, "twin.control_hz"))
     k = hz / chz if chz > 0 else 0.0
     if chz <= 0 or chz > hz or abs(k - round(k)) > 1e-9:
         raise ConfigError(f"control_hz {chz:g} does not divide physics_hz {hz:g}",

@@ -159,15 +159,26 @@ def linearised_friction(v: np.ndarray, p: ActuatorParams,
         z = np.zeros_like(v)
         return z, z
     inv_eps, neg_inv_vs2 = friction_constants(p) if k is None else k
+    # in place where possible: this runs at every control tick of every bank
     x = v * inv_eps
     th = np.tanh(x)
     big_f = p.coulomb
     if ef.stribeck:
-        big_f = big_f + p.stribeck * np.exp(v * v * neg_inv_vs2)
-    bs = big_f * (1.0 - th * th)
-    dc = bs * inv_eps  # slope of the smoothed Coulomb part, >= 0
+        big_f = v * v
+        big_f *= neg_inv_vs2
+        np.exp(big_f, out=big_f)
+        big_f *= p.stribeck
+        big_f += p.coulomb  # Fc + Fs exp(-(v/vs)^2)
+    bs = th * th
+    np.subtract(1.0, bs, out=bs)
+    bs *= big_f  # big_f (1 - th^2)
+    damp = bs * inv_eps  # slope of the smoothed Coulomb part, >= 0
+    damp += p.viscous
     # friction(v) = big_f th + Fv v = (big_f th - dc v) + (dc + Fv) v, and dc v = bs x
-    return dc + p.viscous, big_f * th - bs * x
+    np.multiply(big_f, th, out=th)
+    x *= bs
+    th -= x
+    return damp, th
 
 
 # -- transmission ----------------------------------------------------------------------------------

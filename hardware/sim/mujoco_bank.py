@@ -85,11 +85,12 @@ class MujocoBank:
         d = world.data
         q0 = d.qpos[self.qadr].copy()
         self.mode = np.full(self.n, MODE_DISABLED, dtype=int)
+        self._sel_cache: dict[tuple[int, ...], slice | np.ndarray] = {}
         self._masks()
         self.q_goal, self.q_set, self.integ = q0.copy(), q0.copy(), np.zeros(self.n)
-        # streamed-target interpolation: the setpoint goes q_from -> q_goal over interp_s from t_from [s]
-        self.q_from, self.t_from = q0.copy(), np.zeros(self.n)
-        self.t_last_cmd, self.interp_s = np.full(self.n, -np.inf), np.ones(self.n)
+        # streamed-target interpolation: the target path is q_goal - irate * max(t_end - t, 0) [rad]
+        self.t_last_cmd = np.full(self.n, -np.inf)
+        self._irate, self._t_end, self._t_end_max = np.zeros(self.n), np.zeros(self.n), -np.inf
         self.q_d, self.v_d = q0.copy(), np.zeros(self.n)
         self.kp, self.kd, self.tau_ff = np.zeros(self.n), np.zeros(self.n), np.zeros(self.n)
         self.i_cmd = np.zeros(self.n)
@@ -160,51 +161,76 @@ class MujocoBank:
             self._noise_buf, self._noise_block = rng.standard_normal((NOISE_BLOCK, 2, self.n)), block
         return self._noise_buf[i]
 
+    def _sel(self, idx) -> tuple[slice | np.ndarray, tuple[int, ...]]:
+        """(selector, joint tuple) for joint indices idx: a slice for a contiguous run (numpy views, cheaper
+        than fancy indexing on every command), else the index array. Cached per index set; an index outside
+        the bank raises IndexError as fancy indexing would."""
+        key = tuple(np.atleast_1d(idx).tolist())
+        sel = self._sel_cache.get(key)
+        if sel is None:
+            a = np.asarray(key, dtype=int)
+            if a.size and (a.min() < 0 or a.max() >= self.n):
+                raise IndexError(f"bank {self.name}: joint index out of range in {list(key)}")
+            run = a.size > 0 and np.array_equal(a, np.arange(a[0], a[0] + a.size))
+            sel = self._sel_cache[key] = slice(int(a[0]), int(a[0]) + a.size) if run else a
+        return sel, key
+
     def command_position(self, idx, q) -> None:
         with self.world.lock:
-            idx = np.atleast_1d(np.asarray(idx, dtype=int))
-            switch = self.mode[idx] != MODE_POSITION
-            if switch.any():
-                fresh = idx[switch]
-                self.q_set[fresh], self.integ[fresh] = self.theta[fresh], 0.0  # bumpless switch
-                self.q_goal[fresh] = self.theta[fresh]
+            sel, key = self._sel(idx)
+            modes = self._mode_list
+            if any(modes[j] != MODE_POSITION for j in key):  # bumpless switch into position mode
+                fresh = np.array([j for j in key if modes[j] != MODE_POSITION])
+                self.q_set[fresh], self.integ[fresh] = self.theta[fresh], 0.0
+                self._reset_targets(fresh, self.theta[fresh])
                 self.t_last_cmd[fresh] = -np.inf
-            self._new_targets(idx, np.broadcast_to(np.asarray(q, dtype=float), idx.shape))
-            self._set_mode(idx, MODE_POSITION)
+                self._new_targets(sel, q)
+                self._set_mode(sel, MODE_POSITION)
+            else:
+                self._new_targets(sel, q)
 
-    def _new_targets(self, idx: np.ndarray, q: np.ndarray) -> None:
+    def _new_targets(self, sel, q) -> None:
         """Firmware interpolation: a target that comes pos_interp_max_s [s] or less after the previous one is
         reached linearly over that measured period, starting from where the setpoint path is now; a first
         target, or one after a longer pause, applies at once (the velocity ramp still limits the move)."""
         now = float(self.world.data.time)
-        period = now - self.t_last_cmd[idx]
-        stream = (period > 0) & (period <= self.p.pos_interp_max_s[idx])
-        self.q_from[idx] = np.where(stream, self._interp_target(now)[idx], q)
-        self.interp_s[idx] = np.where(stream, period, 1.0)
-        self.t_from[idx], self.t_last_cmd[idx] = now, now
-        self.q_goal[idx] = q
+        period = now - self.t_last_cmd[sel]
+        stream = (period > 0) & (period <= self.p.pos_interp_max_s[sel])
+        start = self.q_goal[sel] - self._irate[sel] * np.maximum(self._t_end[sel] - now, 0.0)  # path now
+        span = np.where(stream, period, 1.0)
+        self._irate[sel] = np.where(stream, (q - start) / span, 0.0)
+        self._t_end[sel] = np.where(stream, now + span, now)
+        self._t_end_max = float(self._t_end.max())
+        self.t_last_cmd[sel] = now
+        self.q_goal[sel] = q
 
     def _interp_target(self, t: float) -> np.ndarray:
         """Where the interpolated target path is at time t [s]."""
-        s = np.minimum(np.maximum((t - self.t_from) / self.interp_s, 0.0), 1.0)
-        return self.q_from + s * (self.q_goal - self.q_from)
+        return self.q_goal - self._irate * np.maximum(self._t_end - t, 0.0)
+
+    def _reset_targets(self, idx, q) -> None:
+        """Targets (and setpoints) of joints idx jump to q [rad]: no interpolation in progress."""
+        self.q_goal[idx] = self.q_set[idx] = q
+        self._irate[idx] = 0.0
 
     def command_mit(self, idx, q, v, kp, kd, tau_ff) -> None:
         with self.world.lock:
-            idx = np.atleast_1d(np.asarray(idx, dtype=int))
-            self.q_d[idx], self.v_d[idx], self.kp[idx], self.kd[idx], self.tau_ff[idx] = q, v, kp, kd, tau_ff
-            self._set_mode(idx, MODE_MIT)
+            sel, key = self._sel(idx)
+            self.q_d[sel], self.v_d[sel], self.kp[sel], self.kd[sel], self.tau_ff[sel] = q, v, kp, kd, tau_ff
+            self._set_mode(sel, MODE_MIT, key)
 
     def command_current(self, idx, current_a) -> None:
         with self.world.lock:
-            idx = np.atleast_1d(np.asarray(idx, dtype=int))
-            self.i_cmd[idx] = current_a
-            self._set_mode(idx, MODE_CURRENT)
+            sel, key = self._sel(idx)
+            self.i_cmd[sel] = current_a
+            self._set_mode(sel, MODE_CURRENT, key)
 
-    def _set_mode(self, idx: np.ndarray, mode: int) -> None:
+    def _set_mode(self, sel, mode: int, key: tuple[int, ...] | None = None) -> None:
         """Mode of these joints; the masks are rebuilt only when a mode changes (commands come every tick)."""
-        if not np.all(self.mode[idx] == mode):
-            self.mode[idx] = mode
+        if key is not None and all(self._mode_list[j] == mode for j in key):
+            return
+        if not np.all(self.mode[sel] == mode):
+            self.mode[sel] = mode
             self._masks()
 
     def enable(self, idx, on: bool) -> None:
@@ -213,7 +239,7 @@ class MujocoBank:
             idx = np.atleast_1d(np.asarray(idx, dtype=int))
             if on:
                 off = idx[self.mode[idx] == MODE_DISABLED]
-                self.q_goal[off] = self.q_set[off] = self.q_from[off] = self.theta[off]
+                self._reset_targets(off, self.theta[off])
                 self.integ[off] = 0.0
                 self.mode[off] = MODE_POSITION
             else:
@@ -227,6 +253,11 @@ class MujocoBank:
             self.vel_scale[np.asarray(idx, dtype=int)] = float(np.clip(fraction, 0.01, 1.0))
             self.set_control_dt(self._ctrl_dt)
 
+    def set_hand_torque(self, tau, n: int | None = None) -> None:
+        """An operator's hand on the first n joints [N*m] (external to the motors; held until changed)."""
+        with self.world.lock:
+            self.tau_hand[: self.n if n is None else n] = tau
+
     def set_control_dt(self, dt: float) -> None:
         """Period of the firmware law [s] (= the physics step unless the twin decimates control)."""
         self._ctrl_dt = float(dt)
@@ -235,11 +266,17 @@ class MujocoBank:
 
     # -- stepping (called by MujocoWorld with its lock held) --------------------------------------------
     def _masks(self) -> None:
+        """Per-mode masks, rebuilt only when a mode changes. Float masks (1.0 where a joint is in that mode)
+        select each law's share with one multiply instead of np.where (a bank often mixes modes: a disabled
+        gripper or trigger motor next to the arm's joints)."""
         m = self.mode
+        self._mode_list = m.tolist()
         self._pos, self._mit, self._cur = m == MODE_POSITION, m == MODE_MIT, m == MODE_CURRENT
         self._off = m == MODE_DISABLED
         self._any = tuple(bool(x.any()) for x in (self._pos, self._mit, self._cur, self._off))
         self._uniform = bool(np.all(m == m[0]))
+        self._fpos, self._fmit, self._fcur = (x.astype(float) for x in (self._pos, self._mit, self._cur))
+        self._kd_pos = self.p.pos_kd * self._fpos
 
     def _apply(self, t: float, dt: float) -> None:
         """Compute this control tick's motor torques and write them into the world.
@@ -255,28 +292,31 @@ class MujocoBank:
         else:
             self.theta = th = q
         any_pos, any_mit, any_cur, any_off = self._any
+        uniform = self._uniform
         tau_e, kd = self._zeros, self._zeros
         if any_pos:
-            self.q_set = self.q_set + np.minimum(np.maximum(self._interp_target(t) - self.q_set,
-                                                            -self._ramp_step), self._ramp_step)
+            tgt = self.q_goal if t >= self._t_end_max else \
+                self.q_goal - self._irate * np.maximum(self._t_end - t, 0.0)
+            self.q_set = self.q_set + np.minimum(np.maximum(tgt - self.q_set, -self._ramp_step),
+                                                 self._ramp_step)
             err = self.q_set - th
             tau_e = p.pos_kp * err
             if self._has_ki:
                 integ = np.minimum(np.maximum(self.integ + self._ki_dt * err, self._neg_i_max), p.pos_i_max)
-                self.integ = integ if self._uniform else np.where(self._pos, integ, 0.0)
-                tau_e = tau_e + self.integ
-            kd = p.pos_kd
-            if not self._uniform:
-                tau_e, kd = np.where(self._pos, tau_e, 0.0), np.where(self._pos, kd, 0.0)
+                if not uniform:
+                    integ *= self._fpos
+                self.integ = integ
+                tau_e += integ
+            if not uniform:
+                tau_e *= self._fpos
+            kd = self._kd_pos
         if any_mit:
             tm = self.kp * (self.q_d - th) + self.kd * self.v_d + self.tau_ff
-            tau_e, kd = (tm, self.kd) if self._uniform else (np.where(self._mit, tm, tau_e),
-                                                             np.where(self._mit, self.kd, kd))
+            tau_e, kd = (tm, self.kd) if uniform else (tau_e + tm * self._fmit, kd + self.kd * self._fmit)
         if any_cur:
             tc = self.i_cmd * p.kt
-            tau_e, kd = (tc, self._zeros) if self._uniform else (np.where(self._cur, tc, tau_e),
-                                                                 np.where(self._cur, 0.0, kd))
-        no_kd = kd is self._zeros  # current mode / disabled: no implicit damping from the law
+            tau_e = tc if uniform else tau_e + tc * self._fcur
+        no_kd = not (any_pos or any_mit)  # current mode / disabled only: no implicit damping from the law
         if ef.saturation:
             if no_kd:  # the request is tau_e itself: a plain clamp
                 tau_e = np.minimum(np.maximum(tau_e, self._neg_tau_lim), self._tau_lim)
@@ -284,7 +324,7 @@ class MujocoBank:
                 est = tau_e - kd * v
                 lim = np.minimum(np.maximum(est, self._neg_tau_lim), self._tau_lim)
                 sat = lim != est
-                if sat.any():
+                if np.count_nonzero(sat):  # (ndarray.any costs ~3 us on a 7-vector here)
                     tau_e, kd = np.where(sat, lim, tau_e), np.where(sat, 0.0, kd)
         self.tau_e, self.kd_eff = tau_e, kd
         ks = self._kt_scale

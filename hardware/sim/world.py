@@ -111,8 +111,8 @@ class MujocoWorld:
             self.data.qvel[bank.dadr] = 0.0
             mujoco.mj_forward(self.model, self.data)
             bank.theta = np.asarray(q, float).copy()
-            bank.q_goal, bank.q_set, bank.q_d, bank.q_brake = (bank.theta.copy() for _ in range(4))
-            bank.q_from = bank.theta.copy()
+            bank.q_d, bank.q_brake = bank.theta.copy(), bank.theta.copy()
+            bank._reset_targets(slice(None), bank.theta)
 
     def push(self, body: str, force: np.ndarray, duration_s: float, torque: np.ndarray | None = None) -> None:
         """Apply a world-frame force [N] (and torque [N*m]) at a body's centre of mass for duration_s [s]."""
