@@ -201,7 +201,8 @@ def _print_summary(d: dict) -> None:
 
     print(f"SIMULATED demo ({d['mode']}, {d['clock']} clock, {d['seconds']:g} s):")
     print(f"  loop {f(d['loop_hz'], '.1f')} Hz, period p50 {f(d['period_p50_ms'], '.2f')} ms "
-          f"p99 {f(d['period_p99_ms'], '.2f')} ms, {d['overruns']} overruns / {d['ticks']} ticks, "
+          f"p99 {f(d['period_p99_ms'], '.2f')} ms max {f(d['period_max_ms'], '.1f')} ms, "
+          f"{d['overruns']} overruns / {d['ticks']} ticks, "
           f"CPU {f(d['cpu_ms_per_tick'], '.2f')} ms/tick")
     print(f"  feedback_corr {f(d['feedback_corr'], '.3f')}, "
           f"feedback_lag {f(d['feedback_lag_ms'], '.1f')} ms, "
