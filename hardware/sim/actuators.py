@@ -174,7 +174,7 @@ def linearised_friction(v: np.ndarray, p: ActuatorParams,
     bs *= big_f  # big_f (1 - th^2)
     damp = bs * inv_eps  # slope of the smoothed Coulomb part, >= 0
     damp += p.viscous
-    # friction(v) = big_f th + Fv v = (big_f th - dc v) + (dc + Fv) v, and dc v = bs x
+    # friction(v) = big_f th + Fv v = (big_f th - D_c v) + (D_c + Fv) v, D_c = bs / v_eps, so D_c v = bs x
     np.multiply(big_f, th, out=th)
     x *= bs
     th -= x

@@ -178,16 +178,13 @@ class MujocoBank:
     def command_position(self, idx, q) -> None:
         with self.world.lock:
             sel, key = self._sel(idx)
-            modes = self._mode_list
-            if any(modes[j] != MODE_POSITION for j in key):  # bumpless switch into position mode
-                fresh = np.array([j for j in key if modes[j] != MODE_POSITION])
-                self.q_set[fresh], self.integ[fresh] = self.theta[fresh], 0.0
+            fresh = [j for j in key if self._mode_list[j] != MODE_POSITION]
+            if fresh:  # bumpless switch into position mode: setpoint and target at the motor, no integral
+                self.integ[fresh] = 0.0
                 self._reset_targets(fresh, self.theta[fresh])
                 self.t_last_cmd[fresh] = -np.inf
-                self._new_targets(sel, q)
-                self._set_mode(sel, MODE_POSITION)
-            else:
-                self._new_targets(sel, q)
+            self._new_targets(sel, q)
+            self._set_mode(sel, MODE_POSITION, key)
 
     def _new_targets(self, sel, q) -> None:
         """Firmware interpolation: a target that comes pos_interp_max_s [s] or less after the previous one is
@@ -196,7 +193,7 @@ class MujocoBank:
         now = float(self.world.data.time)
         period = now - self.t_last_cmd[sel]
         stream = (period > 0) & (period <= self.p.pos_interp_max_s[sel])
-        start = self.q_goal[sel] - self._irate[sel] * np.maximum(self._t_end[sel] - now, 0.0)  # path now
+        start = self._interp_target(now)[sel]  # where the target path is now
         span = np.where(stream, period, 1.0)
         self._irate[sel] = np.where(stream, (q - start) / span, 0.0)
         self._t_end[sel] = np.where(stream, now + span, now)
@@ -205,7 +202,9 @@ class MujocoBank:
         self.q_goal[sel] = q
 
     def _interp_target(self, t: float) -> np.ndarray:
-        """Where the interpolated target path is at time t [s]."""
+        """Where the interpolated target path is at time t [s] (q_goal itself once every joint got there)."""
+        if t >= self._t_end_max:
+            return self.q_goal
         return self.q_goal - self._irate * np.maximum(self._t_end - t, 0.0)
 
     def _reset_targets(self, idx, q) -> None:
@@ -225,11 +224,10 @@ class MujocoBank:
             self.i_cmd[sel] = current_a
             self._set_mode(sel, MODE_CURRENT, key)
 
-    def _set_mode(self, sel, mode: int, key: tuple[int, ...] | None = None) -> None:
-        """Mode of these joints; the masks are rebuilt only when a mode changes (commands come every tick)."""
-        if key is not None and all(self._mode_list[j] == mode for j in key):
-            return
-        if not np.all(self.mode[sel] == mode):
+    def _set_mode(self, sel, mode: int, key: tuple[int, ...]) -> None:
+        """Mode of joints sel (key: the same joints as a tuple); the masks are rebuilt only when a mode
+        changes (commands come every tick)."""
+        if not all(self._mode_list[j] == mode for j in key):
             self.mode[sel] = mode
             self._masks()
 
@@ -295,10 +293,8 @@ class MujocoBank:
         uniform = self._uniform
         tau_e, kd = self._zeros, self._zeros
         if any_pos:
-            tgt = self.q_goal if t >= self._t_end_max else \
-                self.q_goal - self._irate * np.maximum(self._t_end - t, 0.0)
-            self.q_set = self.q_set + np.minimum(np.maximum(tgt - self.q_set, -self._ramp_step),
-                                                 self._ramp_step)
+            step = self._interp_target(t) - self.q_set
+            self.q_set = self.q_set + np.minimum(np.maximum(step, -self._ramp_step), self._ramp_step)
             err = self.q_set - th
             tau_e = p.pos_kp * err
             if self._has_ki:

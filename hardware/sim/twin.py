@@ -349,8 +349,7 @@ class Twin:
     def apply_leader_hand_torque(self, tau: np.ndarray, leader: str | None = None) -> None:
         """A virtual operator's hand on a leader's arm joints [N*m] (held until changed)."""
         d = self.devices[leader or self.rig.leaders[0].name]
-        with d.world.lock:
-            d.bank.set_hand_torque(np.asarray(tau, dtype=float).reshape(d.n_arm), d.n_arm)
+        d.bank.set_hand_torque(np.asarray(tau, dtype=float).reshape(d.n_arm), d.n_arm)
 
     def push(self, link: str, force, duration_s: float, follower: str | None = None) -> None:
         """Push a follower's body `link` with a world-frame force [N] at its centre of mass for duration_s."""
