@@ -9,10 +9,12 @@
    with a large --max-seconds for a real convergence point).
 
 3. Twin (SIMULATED, optional): `--twin-data DIR` = the data/ folder of a `factr2 calibrate --rig sim-piper`
-   run (train.npz, heldout.npz, contact_eval.npz): train NEXT on train.npz, score held-out free motion and
-   the pushed contact replay against the disturbance observer and FILIC (ratios printed).
+   run (train.npz, heldout.npz, contact_eval.npz): train NEXT on train.npz once per `--twin-priors` entry
+   (default: the paper's plain NEXT, then NEXT on the identified physics prior), score held-out free motion
+   and the pushed contact replay against the disturbance observer and FILIC (ratios printed).
 
     python bench/bench_next.py [--threads 2] [--max-seconds 600] [--skip-train] [--twin-data DIR]
+                               [--twin-priors none,identified]
 Writes bench/out/next.json.
 """
 
@@ -69,10 +71,20 @@ def bench_estimator(ticks: int = 2000) -> dict:
             ref[i] = model(torch.from_numpy(x[i - h + 1:i + 1][None]))[0].numpy()
     t_torch = (time.perf_counter() - t0) / (ticks - h + 1)
     diff = float(np.nanmax(np.abs(fast[h - 1:] - ref[h - 1:])))
+    # the same network on top of a physics prior (the Piper description): what the prior adds per tick
+    from calibration.next.prior import description_prior
+
+    with_prior = {**ck.__dict__, "arm": "piper", "prior": description_prior("piper")}
+    est_p = NextEstimator(NextCheckpoint(**with_prior))
+    t0 = time.perf_counter()
+    for i in range(ticks):
+        est_p.update(q[i], qd[i], qc[i], tau[i])
+    t_prior = (time.perf_counter() - t0) / ticks
     out = {"estimator_ms": t_fast * 1e3, "torch_window_forward_ms": t_torch * 1e3,
-           "speedup": t_torch / t_fast, "max_abs_diff": diff}
+           "speedup": t_torch / t_fast, "max_abs_diff": diff, "estimator_with_prior_ms": t_prior * 1e3}
     print(f"estimator {out['estimator_ms']:.3f} ms/tick, plain torch LSTM window forward "
-          f"{out['torch_window_forward_ms']:.3f} ms -> {out['speedup']:.2f}x faster; max |diff| {diff:.2e}")
+          f"{out['torch_window_forward_ms']:.3f} ms -> {out['speedup']:.2f}x faster; max |diff| {diff:.2e}; "
+          f"with the physics prior {t_prior * 1e3:.3f} ms/tick")
     return out
 
 
@@ -109,18 +121,19 @@ def bench_ur5(threads: int, max_seconds: float, out_dir: Path) -> dict:
     return res
 
 
-def bench_twin(data_dir: Path, threads: int, max_seconds: float, out_dir: Path) -> dict:
+def bench_twin(data_dir: Path, threads: int, max_seconds: float, out_dir: Path, prior: str = "none") -> dict:
     from calibration.next.train import TrainConfig
     from calibration.report import calibrate_from_logs
 
     evals = [data_dir / "heldout.npz"] + [p for p in [data_dir / "contact_eval.npz"] if p.is_file()]
     curve = []
-    cfg = TrainConfig(threads=threads, max_seconds=max_seconds, device="cpu")
+    cfg = TrainConfig(threads=threads, max_seconds=max_seconds, device="cpu", prior=prior)
     rep = calibrate_from_logs([data_dir / "train.npz"], out_dir, evals, arm="piper", cfg=cfg,
                               callback=lambda p: curve.append((p.elapsed_s, p.val_loss)))
     best = min(v for _, v in curve)
     m = rep["methods"]
-    res = {"simulated": True, "threads": threads, "train_seconds": rep["train_seconds"],
+    res = {"simulated": True, "prior": rep["prior"], "threads": threads,
+           "train_seconds": rep["train_seconds"],
            "epochs": rep["epochs"],
            "data_minutes": rep["data_minutes"], "best_val_mse_normalized": best,
            "seconds_to_within_5pct_of_best": next(t for t, v in curve if v <= 1.05 * best),
@@ -130,7 +143,7 @@ def bench_twin(data_dir: Path, threads: int, max_seconds: float, out_dir: Path) 
         d = res[f"{kind}_l1_Nm"]
         if d["next"] is not None and d["observer"]:
             res[f"{kind}_ratio_next_vs_observer"] = d["next"] / d["observer"]
-    print("twin (SIMULATED) " + ", ".join(f"{k} {json.dumps(res[k])}" for k in
+    print(f"twin (SIMULATED, prior {rep['prior']}) " + ", ".join(f"{k} {json.dumps(res[k])}" for k in
                                           ("free_l1_Nm", "contact_l1_Nm") if k in res))
     print({k: v for k, v in res.items() if k.endswith("observer")})
     return res
@@ -142,6 +155,8 @@ def main() -> int:
     ap.add_argument("--max-seconds", type=float, default=600.0)
     ap.add_argument("--skip-train", action="store_true")
     ap.add_argument("--twin-data", type=Path, help="data/ folder of a factr2 calibrate --rig sim-piper run")
+    ap.add_argument("--twin-priors", default="none,identified",
+                    help="physics priors to train the twin part with (comma separated)")
     args = ap.parse_args()
     out = ROOT / "bench" / "out"
     out.mkdir(parents=True, exist_ok=True)
@@ -149,7 +164,8 @@ def main() -> int:
     if not args.skip_train:
         results["ur5"] = bench_ur5(args.threads, args.max_seconds, out / "next_ur5")
         if args.twin_data is not None:
-            results["twin"] = bench_twin(args.twin_data, args.threads, args.max_seconds, out / "next_twin")
+            results["twin"] = {p: bench_twin(args.twin_data, args.threads, args.max_seconds,
+                                             out / f"next_twin_{p}", p) for p in args.twin_priors.split(",")}
     (out / "next.json").write_text(json.dumps(results, indent=1))
     return 0
 

@@ -16,7 +16,7 @@ Without --eval files, the top-level scores use the validation blocks of the trai
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,11 +25,12 @@ from calibration import baselines
 from calibration.next.checkpoint import NextCheckpoint, save_checkpoint
 from calibration.next.data import Segment, build_windows, resample_log, split_blocks
 from calibration.next.estimator import batch_tau_f
+from calibration.next.prior import PRIOR_KINDS, fit_prior, prior_torque
 from calibration.next.train import TrainConfig, available_cores, train
 from hardware.errors import ConfigError
 from hardware.recording.plain_log import load_plain_log
 
-METHODS = ("next", "observer", "filic", "raw", "ridge")
+METHODS = ("next", "prior", "observer", "filic", "raw", "ridge")  # prior: NEXT's physics prior alone
 
 
 @dataclass
@@ -47,6 +48,8 @@ def estimate_segment(seg: Segment, ck: NextCheckpoint, ridge: baselines.RidgeMod
     """Every method's tau_ext [ck.units] on one uniformly sampled segment."""
     out: dict[str, np.ndarray | None] = {m: None for m in METHODS}
     out["next"] = seg.tau - batch_tau_f(ck, seg.q, seg.qd, seg.q_cmd)
+    if ck.prior is not None:
+        out["prior"] = seg.tau - prior_torque(ck.prior, seg.t, seg.q, seg.qd)
     out["raw"] = baselines.raw_torque(seg.tau)
     if ridge is not None:
         out["ridge"] = baselines.ridge_residual(ridge, seg.q, seg.qd, seg.q_cmd, seg.tau)
@@ -116,6 +119,22 @@ def _load_segments(paths, rate_hz: float, joint_names=None
     return runs, units, list(joint_names)
 
 
+def _fit_prior(kind: str, arm: str | None, units: str, segments: list[Segment]):
+    """The physics prior NEXT trains on top of (None: the paper's plain NEXT); "auto" = identified when the
+    arm and a torque signal in N*m are known, else none."""
+    if kind == "auto":
+        kind = "identified" if arm is not None and units == "N*m" else "none"
+    if kind not in PRIOR_KINDS:
+        raise ConfigError(f"unknown prior {kind!r}", where="--prior", fix=f"use one of {PRIOR_KINDS} or auto")
+    if kind == "none":
+        return None
+    if arm is None or units != "N*m":
+        raise ConfigError(f"the {kind} prior needs the arm description and torque in N*m (have arm={arm}, "
+                          f"units={units})", where="--prior",
+                          fix="pass --arm and logs with tau_m or a torque constant, or use --prior none")
+    return fit_prior(kind, arm, [(s.t, s.q, s.qd, s.tau) for s in segments])
+
+
 def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(), arm: str | None = None,
                         cfg: TrainConfig | None = None, rate_hz: float = 100.0, observer_gain: float = 50.0,
                         callback=None, plots: bool = True) -> dict:
@@ -134,14 +153,16 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
                               where=arm, fix="pass the --arm the logs were recorded on")
         pin_model = desc.pinocchio_model()
     segments = [s for _, segs in runs for s in segs]
-    data = build_windows(segments, cfg.history, cfg.inputs)
+    prior = _fit_prior(cfg.prior, arm, units, segments)
+    data = build_windows([s if prior is None else replace(s, tau=s.tau - prior_torque(prior, s.t, s.q, s.qd))
+                          for s in segments], cfg.history, cfg.inputs)
     result = train(data, cfg, callback=callback)
     ck = NextCheckpoint(model=result.model, normalizer=data.normalizer, arm=arm or "",
                         joint_names=joint_names, units=units, inputs=cfg.inputs, rate_hz=rate_hz,
                         x_min=data.x_min, x_max=data.x_max,
                         data_hash=data.data_hash, train_config=cfg.to_dict(),
                         metrics={"val_l1": result.val_l1, "best_val_mse_normalized": result.best_val_loss,
-                                 "epochs": result.epochs, "train_seconds": result.seconds})
+                                 "epochs": result.epochs, "train_seconds": result.seconds}, prior=prior)
     save_checkpoint(ck, out / "next")
     ridge = baselines.fit_ridge(*(np.concatenate([getattr(s, k) for s in segments]) for k in
                                   ("q", "qd", "q_cmd", "tau")))
@@ -173,6 +194,7 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
               "data_minutes": sum(len(s) for s in segments) / rate_hz / 60.0, "device": result.device,
               "threads": cfg.threads or available_cores(), "epochs": result.epochs,
               "arm": arm, "joint_names": joint_names, "rate_hz": rate_hz,
+              "prior": prior.kind if prior is not None else "none",
               "train_logs": [Path(p).name for p in train_paths], "methods": top}
     if files:
         report["files"] = files

@@ -70,13 +70,18 @@ def prepare(segments: list[Segment], rate_hz: float, history: int) -> list[Segme
     return out
 
 
-def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments) -> tuple[list[Segment], dict]:
+def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments, prior=None
+                 ) -> tuple[list[Segment], dict]:
     preds, out = {}, []
     for s in segments:
         r = resample(s, rate_hz)
         if len(r) <= history + 20:
             continue
         p = predict_next(ck_model, normalizer, history, inputs, r)
+        if prior is not None:  # the checkpoint's physics prior is part of its model
+            from calibration.next.prior import prior_torque
+
+            p = p + prior_torque(prior, r.t, r.q, r.qd)
         cut = r.slice(history - 1, len(r), r.name)
         preds[id(cut)] = p[history - 1:]
         out.append(cut)
@@ -102,8 +107,8 @@ def diagnose_next(ckpt: str, train: list[Segment], heldout: list[Segment], cfg, 
     if ck.normalizer.y_mean.shape[0] != train[0].n:
         raise UserError(f"checkpoint has {ck.normalizer.y_mean.shape[0]} joints, logs {train[0].n}",
                         where=ckpt, fix="use the checkpoint of this arm")
-    tr, p_tr = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, train)
-    ho, p_ho = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, heldout)
+    tr, p_tr = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, train, ck.prior)
+    ho, p_ho = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, heldout, ck.prior)
     basis = NextBasis(train[0].n, {**p_tr, **p_ho}, f"NEXT checkpoint {ckpt} ({ck.model.cfg.arch}, "
                       f"history {ck.history}, inputs {ck.inputs}) + grey-box terms on its residual")
     dg = diagnose(basis, tr, ho, cfg, log=log)

@@ -1,6 +1,7 @@
 """NEXT checkpoints: weights in `<stem>.safetensors` (no pickle), everything else in `<stem>.json`:
 arm, joint names, units, data hash, normalisation, training input range (OOD flag), model + train config,
-metrics. Loading a checkpoint for another arm or joint set is refused with a UserError.
+metrics, and the physics prior the network was trained on top of (calibration.next.prior; null = none).
+Loading a checkpoint for another arm or joint set is refused with a UserError.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from safetensors.torch import load_file, save_file
 
 from calibration.next.data import Normalizer
 from calibration.next.model import ModelConfig, NextModel
+from calibration.next.prior import Prior
 from hardware.errors import ConfigError, UserError
 
 FORMAT = "factr2-next/1"
@@ -34,6 +36,7 @@ class NextCheckpoint:
     data_hash: str = ""
     train_config: dict | None = None
     metrics: dict | None = None
+    prior: Prior | None = None  # tau_f = prior + network; None: the network alone (the paper's NEXT)
 
     @property
     def history(self) -> int:
@@ -57,7 +60,7 @@ def save_checkpoint(ck: NextCheckpoint, path: str | Path) -> Path:
             "model": ck.model.cfg.to_dict(), "normalization": ck.normalizer.to_dict(),
             "input_range": {"min": np.asarray(ck.x_min).tolist(), "max": np.asarray(ck.x_max).tolist()},
             "train_config": ck.train_config or {}, "metrics": ck.metrics or {},
-            "weights": w_path.name}
+            "prior": ck.prior.to_dict() if ck.prior is not None else None, "weights": w_path.name}
     j_path.write_text(json.dumps(meta, indent=1))
     return j_path
 
@@ -77,6 +80,7 @@ def load_checkpoint(path: str | Path, arm: str | None = None, joint_names: list[
         cfg = ModelConfig(**meta["model"])
         model = NextModel(cfg)
         model.load_state_dict(load_file(str(w_path)))
+        prior = Prior.from_dict(meta["prior"]) if meta.get("prior") else None
     except (ValueError, KeyError, TypeError, RuntimeError, OSError) as e:
         raise ConfigError(f"not a readable NEXT checkpoint ({type(e).__name__}: {str(e)[:80]})",
                           where=str(j_path), fix="retrain with `factr2 calibrate`") from None
@@ -93,7 +97,7 @@ def load_checkpoint(path: str | Path, arm: str | None = None, joint_names: list[
                           inputs=meta["inputs"],
                           rate_hz=float(meta["rate_hz"]), x_min=np.asarray(meta["input_range"]["min"]),
                           x_max=np.asarray(meta["input_range"]["max"]), data_hash=meta.get("data_hash", ""),
-                          train_config=meta.get("train_config"), metrics=meta.get("metrics"))
+                          train_config=meta.get("train_config"), metrics=meta.get("metrics"), prior=prior)
 
 
 def weights_numpy(model: NextModel) -> dict[str, np.ndarray]:

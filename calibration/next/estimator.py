@@ -15,6 +15,10 @@ runs may be stepped later by work() calls on the control ticks between two sampl
 100 Hz model has four), so no single tick carries the whole product. update() first finishes whatever is
 still pending, so the result is the same arithmetic in any case.
 
+Physics prior (checkpoints trained with `prior`, calibration.next.prior): tau_f = prior + network; the prior
+runs one sample at a time (PriorStream, the same causal acceleration filter as training) and restarts with
+the window.
+
 GRU/MLP checkpoints (ablation architectures) are evaluated with torch on a rolling buffer (exact, slower).
 
 Guards (never raise in the loop): non-finite q/q_dot/q_cmd -> NaN estimate, FLAG_NONFINITE, and the window
@@ -32,6 +36,7 @@ import torch
 
 from calibration.next.checkpoint import NextCheckpoint, weights_numpy
 from calibration.next.data import make_inputs
+from calibration.next.prior import PriorStream, prior_torque
 from calibration.next.train import predict_series
 
 FLAG_OK = 0
@@ -107,12 +112,15 @@ class NextEstimator:
             self.defer, self._chunk = defer, max(1, -(-(self.H - 2) // max(1, parts)))
         else:
             self._buf = np.zeros((self.H, self.cfg.n_in), np.float32)
+        self._prior = PriorStream(ck.prior, ck.rate_hz) if ck.prior is not None else None
         self.reset()
 
     def reset(self) -> None:
         """Forget the history (e.g. after a pause or a gap in the data)."""
         self._n = 0  # clean samples since (re)start
         self._ema = None
+        if self._prior is not None:
+            self._prior.reset()
         if self._fast:
             self._hh[:] = 0.0
             self._c1[:] = 0.0
@@ -217,10 +225,11 @@ class NextEstimator:
         if not np.all(np.isfinite(tau)):
             flags |= FLAG_NONFINITE
         x = ((x_raw - self._x_mean) * self._x_inv_std).astype(np.float32)
+        prior = self._prior.update(np.asarray(q, float), np.asarray(q_dot, float)) if self._prior else 0.0
         out = self._step_lstm(x) if self._fast else self._step_torch(x)
         if out is None:
             return self._nan(flags | FLAG_WARMUP)
-        tau_f = out.astype(np.float64) * self._y_std + self._y_mean
+        tau_f = out.astype(np.float64) * self._y_std + self._y_mean + prior
         if flags & FLAG_NONFINITE:
             return Estimate(np.full(self.n_j, np.nan), tau_f, flags)
         ext = tau - tau_f
@@ -231,7 +240,11 @@ class NextEstimator:
 
 
 def batch_tau_f(ck: NextCheckpoint, q, qd, q_cmd) -> np.ndarray:
-    """Offline: predicted free-space torque for every sample of one uniformly sampled stretch (N, J);
-    the first H-1 rows are NaN (no full window yet)."""
+    """Offline: predicted free-space torque for every sample of one uniformly sampled stretch at ck.rate_hz
+    (N, J); the first H-1 rows are NaN (no full window yet)."""
     x = ck.normalizer.norm_x(make_inputs(q, qd, q_cmd, ck.inputs))
-    return ck.normalizer.denorm_y(predict_series(ck.model, x, ck.history).astype(np.float64))
+    tau_f = ck.normalizer.denorm_y(predict_series(ck.model, x, ck.history).astype(np.float64))
+    if ck.prior is not None:
+        tau_f += prior_torque(ck.prior, np.arange(len(x)) / ck.rate_hz, np.asarray(q, float),
+                              np.asarray(qd, float))
+    return tau_f

@@ -56,6 +56,8 @@ class TrainConfig:
     threads: int = 0  # 0: every core this process may use
     device: str = "auto"  # "auto": cuda when available, else cpu
     seed: int = 0
+    prior: str = "none"  # physics prior under the network (calibration.next.prior): none, description,
+    # identified, or auto (identified when the arm and a torque signal in N*m are known, else none)
 
     def to_dict(self) -> dict:
         d = asdict(self)

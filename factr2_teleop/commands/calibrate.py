@@ -43,6 +43,11 @@ def add_arguments(p) -> None:
     p.add_argument("--arch", choices=("lstm", "gru", "mlp"), default="lstm", help="network (ablation)")
     p.add_argument("--history", type=int, default=50, help="window length H in samples (default 50)")
     p.add_argument("--inputs", choices=("q", "q,qd", "q,qd,dq"), default="q,qd,dq", help="inputs (ablation)")
+    p.add_argument("--prior", choices=("auto", "none", "description", "identified"), default="auto",
+                   help="physics prior under the network: identified = the arm description corrected by "
+                        "least squares on this data (+ friction); description = as described; none = the "
+                        "paper's plain NEXT; auto (default) = identified when the arm is known and torque is "
+                        "in N*m")
     p.add_argument("--max-epochs", type=int, default=400)
     p.add_argument("--max-seconds", type=float, default=math.inf, help="stop training after this long")
     p.add_argument("--device", default="auto", help="torch device: auto (cuda if present), cpu, cuda")
@@ -160,7 +165,8 @@ def _print_summary(report: dict, out: Path) -> None:
     u = report["units"]
     sim = " (SIMULATED twin)" if report.get("simulated") else ""
     print(f"trained on {report['data_minutes']:.1f} min{sim} in {report['train_seconds']:.0f} s "
-          f"({report['device']}); estimates in {u}", file=sys.stderr)
+          f"({report['device']}); estimates in {u}; physics prior: {report.get('prior', 'none')}",
+          file=sys.stderr)
     for m, v in report["methods"].items():
         free, con = v["free_l1_mean"], v["contact_l1_mean"]
         print(f"  {m:9s} free L1 {'--' if free is None else f'{free:.4f}'}  "
@@ -185,7 +191,7 @@ def run(args) -> int:
     if args.rig:
         return _run_on_rig(args, TrainConfig(arch=args.arch, history=args.history, inputs=args.inputs,
                                              max_epochs=args.max_epochs, max_seconds=args.max_seconds,
-                                             device=args.device))
+                                             device=args.device, prior=args.prior))
     if not args.from_logs:
         raise UserError("nothing to train on", where="factr2 calibrate",
                         fix="pass --from-logs FREE_MOTION.npz ... (plain logs)")
@@ -195,7 +201,7 @@ def run(args) -> int:
     eval_paths = _check_files(args.eval, "--eval")
     unlabeled = _check_files(args.eval_unlabeled, "--eval-unlabeled")
     cfg = TrainConfig(arch=args.arch, history=args.history, inputs=args.inputs, max_epochs=args.max_epochs,
-                      max_seconds=args.max_seconds, device=args.device)
+                      max_seconds=args.max_seconds, device=args.device, prior=args.prior)
     try:
         report = calibrate_from_logs(train_paths, args.out, eval_paths, unlabeled, arm=args.arm, cfg=cfg,
                                      rate_hz=args.rate_hz, observer_gain=args.observer_gain,

@@ -90,7 +90,7 @@ def create_checkpoint(rig: str, say: Callable[[str], None], minutes: float = DEM
     import torch
 
     torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
-    cfg = TrainConfig(max_seconds=train_s, device="cpu")
+    cfg = TrainConfig(max_seconds=train_s, device="cpu", prior="auto")  # as `factr2 calibrate`
     calibrate_from_logs([train], out, [held], arm=spec.arm, cfg=cfg, plots=False)
     path = out / "next.json"
     say(f"NEXT: checkpoint cached at {path}")

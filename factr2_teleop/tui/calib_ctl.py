@@ -219,6 +219,7 @@ class CalibrationRun:
             threads=1,
             device="cpu",
             warmup=min(10, self.epochs),
+            prior="auto",  # as `factr2 calibrate`
         )
 
         def cb(p) -> bool:

@@ -1,0 +1,37 @@
+"""Example undeclared effects for the twin's hook (`--twin-effect hardware.sim.example_effects:NAME`).
+
+piper_payload: a 300 g payload 5 cm beyond the Piper's last link that the arm description does not know
+(a tool, a camera, cables): its gravity torque J^T m g [N*m] per joint, inside the drives. SIMULATED: it
+tests calibration when the description is wrong, as it is on a real arm (the paper's baselines use the
+vendor URDF). It is a static load only (no inertia), so it looks like a description error in free motion.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+PAYLOAD_KG = 0.3
+PAYLOAD_OFFSET_M = np.array([0.0, 0.0, 0.05])  # in the last joint's frame
+GRAVITY_M_S2 = 9.81
+
+
+@lru_cache(maxsize=1)
+def _piper():
+    import pinocchio as pin
+
+    from hardware.arms import load_arm
+
+    m = load_arm("piper").pinocchio_model()
+    with_load = m.copy()
+    last = m.njoints - 1
+    with_load.inertias[last] = m.inertias[last] + pin.Inertia(PAYLOAD_KG, PAYLOAD_OFFSET_M, np.eye(3) * 1e-5)
+    return pin, m, m.createData(), with_load, with_load.createData()
+
+
+def piper_payload(t: float, q: np.ndarray, q_dot: np.ndarray) -> np.ndarray:
+    """Gravity torque [N*m] of the undeclared payload at joint positions q [rad] (t, q_dot unused)."""
+    pin, m, d, ml, dl = _piper()
+    q = np.asarray(q, float)
+    return pin.computeGeneralizedGravity(ml, dl, q) - pin.computeGeneralizedGravity(m, d, q)
