@@ -103,6 +103,19 @@ def _ck_with_prior(tmp_path):
     return load_checkpoint(save_checkpoint(ck, tmp_path / "next"), arm="piper")
 
 
+def test_a_damaged_prior_in_a_checkpoint_is_one_clear_error(tmp_path):
+    import json
+
+    from hardware.errors import ConfigError
+
+    _ck_with_prior(tmp_path)
+    meta = json.loads((tmp_path / "next.json").read_text())
+    for bad in ({"coulomb": [0.1, 0.2]}, {"viscous": [float("nan")] * 6}, {"kind": "oracle"}):
+        (tmp_path / "next.json").write_text(json.dumps({**meta, "prior": {**meta["prior"], **bad}}))
+        with pytest.raises(ConfigError, match="not a readable NEXT checkpoint"):
+            load_checkpoint(tmp_path / "next")
+
+
 def test_estimator_adds_the_prior_as_batch_does(tmp_path):
     ck = _ck_with_prior(tmp_path)
     assert ck.prior is not None and ck.prior.kind == "description"

@@ -80,7 +80,7 @@ def load_checkpoint(path: str | Path, arm: str | None = None, joint_names: list[
         cfg = ModelConfig(**meta["model"])
         model = NextModel(cfg)
         model.load_state_dict(load_file(str(w_path)))
-        prior = Prior.from_dict(meta["prior"]) if meta.get("prior") else None
+        prior = Prior.from_dict(meta["prior"], len(meta["joint_names"])) if meta.get("prior") else None
     except (ValueError, KeyError, TypeError, RuntimeError, OSError) as e:
         raise ConfigError(f"not a readable NEXT checkpoint ({type(e).__name__}: {str(e)[:80]})",
                           where=str(j_path), fix="retrain with `factr2 calibrate`") from None

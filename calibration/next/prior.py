@@ -55,12 +55,18 @@ class Prior:
                    for k in ("d_theta", "d_armature", "coulomb", "viscous")}}
 
     @classmethod
-    def from_dict(cls, d: dict) -> Prior:
+    def from_dict(cls, d: dict, n_joints: int | None = None) -> Prior:
+        """Inverse of to_dict; ValueError on an unknown kind, or (with n_joints) arrays of the wrong size or
+        non-finite values."""
         if d.get("kind") not in PRIOR_KINDS[1:]:
             raise ValueError(f"prior kind {d.get('kind')!r}")
-        return cls(d["kind"], d["arm"], *(np.asarray(d[k], float) for k in
-                                          ("d_theta", "d_armature", "coulomb", "viscous")),
-                   float(d["friction_vel"]), float(d["accel_cutoff_hz"]))
+        keys = ("d_theta", "d_armature", "coulomb", "viscous")
+        arrays = [np.asarray(d[k], float).reshape(-1) for k in keys]
+        if n_joints is not None and [len(a) for a in arrays] != [10 * n_joints] + [n_joints] * 3:
+            raise ValueError(f"prior arrays of sizes {[len(a) for a in arrays]} for {n_joints} joints")
+        if not all(np.all(np.isfinite(a)) for a in arrays):
+            raise ValueError("prior has non-finite parameters")
+        return cls(d["kind"], d["arm"], *arrays, float(d["friction_vel"]), float(d["accel_cutoff_hz"]))
 
 
 @lru_cache(maxsize=4)
@@ -118,7 +124,6 @@ def fit_prior(kind: str, arm: str, runs: list[tuple[np.ndarray, np.ndarray, np.n
     m = pinocchio_model(arm)
     d = m.createData()
     n = m.nv
-    base = description_prior(arm)
     p = 13 * n
     ata, atb = np.zeros((p, p)), np.zeros(p)
     for t, q, qd, tau in runs:
@@ -135,8 +140,11 @@ def fit_prior(kind: str, arm: str, runs: list[tuple[np.ndarray, np.ndarray, np.n
     lam = np.full(p, PARAM_RIDGE)
     lam[11 * n:] = FRICTION_RIDGE
     sol = np.linalg.lstsq(ata + np.diag(lam * energy), atb, rcond=None)[0]
+    if not np.all(np.isfinite(sol)):
+        raise ValueError("the identified prior's least squares gave non-finite parameters (non-finite "
+                         "data?); use --prior description or none")
     return Prior("identified", arm, sol[:10 * n], sol[10 * n:11 * n], sol[11 * n:12 * n], sol[12 * n:],
-                 FRICTION_VEL, ACCEL_CUTOFF_HZ) if np.all(np.isfinite(sol)) else base
+                 FRICTION_VEL, ACCEL_CUTOFF_HZ)
 
 
 class PriorStream:
