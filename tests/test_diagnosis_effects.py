@@ -156,3 +156,18 @@ def test_cleaner_velocity_takes_the_smoother_signal():
     noisy_q = q + 1e-3 * rng.standard_normal(q.shape)  # a coarse encoder, a clean speed: keep the speed
     v, used = cleaner_velocity(t, noisy_q, qd_true)
     assert not used.any() and np.array_equal(v, qd_true)
+
+
+def test_segments_keep_the_logged_velocity_through_resampling():
+    from calibration.diagnosis.data import make_segment, resample
+
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 10, 0.008)
+    q = np.stack([np.sin(t), np.cos(t)], 1)
+    noisy_qd = np.stack([np.cos(t), -np.sin(t)], 1) + 0.01 * rng.standard_normal((len(t), 2))
+    seg = make_segment("s", t, q, noisy_qd, np.zeros_like(q), "N*m")
+    assert not np.array_equal(seg.qd, noisy_qd) and np.array_equal(seg.qd_logged, noisy_qd)
+    r = resample(seg, 100.0)  # what a NEXT checkpoint is scored on: the velocity it was trained on
+    ref = np.stack([np.interp(r.t, t, noisy_qd[:, j]) for j in range(2)], 1)
+    np.testing.assert_allclose(r.qd_logged, ref)
+    assert np.array_equal(seg.slice(5, 50, "c").qd_logged, noisy_qd[5:50])

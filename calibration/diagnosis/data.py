@@ -31,6 +31,7 @@ class Segment:
     temperature: np.ndarray | None = None  # (N, n) degC
     joint_names: tuple[str, ...] = ()
     q_cmd: np.ndarray | None = None  # (N, n) rad, commanded position (NEXT's third input); None = unknown
+    qd_logged: np.ndarray | None = None  # (N, n) rad/s as logged, before cleaner_velocity (what NEXT saw)
 
     @property
     def n(self) -> int:
@@ -42,8 +43,9 @@ class Segment:
     def slice(self, a: int, b: int, name: str) -> Segment:
         temp = None if self.temperature is None else self.temperature[a:b]
         qc = None if self.q_cmd is None else self.q_cmd[a:b]
+        qdl = None if self.qd_logged is None else self.qd_logged[a:b]
         return Segment(name, self.t[a:b], self.q[a:b], self.qd[a:b], self.qdd[a:b], self.y[a:b], self.units,
-                       temp, self.joint_names, qc)
+                       temp, self.joint_names, qc, qdl)
 
 
 def smooth(x: np.ndarray, width: int) -> np.ndarray:
@@ -89,7 +91,8 @@ def cleaner_velocity(t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> tuple[np.n
 
 
 def make_segment(name: str, t, q, qd, y, units: str, temperature=None, joint_names=(), qdd=None,
-                 q_cmd=None) -> Segment:
+                 q_cmd=None, qd_logged=None) -> Segment:
+    """qd_logged: the logged velocity when qd has been processed already (resampling); default: qd."""
     t = np.asarray(t, float).ravel()
     q = np.atleast_2d(np.asarray(q, float))
     if q.shape[0] != len(t):
@@ -109,6 +112,12 @@ def make_segment(name: str, t, q, qd, y, units: str, temperature=None, joint_nam
         q_cmd = np.asarray(q_cmd, float).reshape(-1, q.shape[1])[keep][order][uniq]
         if not np.all(np.isfinite(q_cmd)):
             q_cmd = None
+    if qd_logged is None:
+        qd_logged = qd.copy()
+    else:  # given separately (resampling): the same rows as the other arrays
+        qd_logged = np.asarray(qd_logged, float).reshape(-1, q.shape[1])[keep][order][uniq]
+        if not np.all(np.isfinite(qd_logged)):
+            qd_logged = None
     qd, _ = cleaner_velocity(t, q, qd)
     if qdd is None:
         qdd = differentiate(t, qd)
@@ -119,7 +128,7 @@ def make_segment(name: str, t, q, qd, y, units: str, temperature=None, joint_nam
         temp = np.asarray(temperature, float).reshape(-1, q.shape[1])[keep][order][uniq]
         if not np.all(np.isfinite(temp)):
             temp = None
-    return Segment(name, t - t[0], q, qd, qdd, y, units, temp, tuple(joint_names), q_cmd)
+    return Segment(name, t - t[0], q, qd, qdd, y, units, temp, tuple(joint_names), q_cmd, qd_logged)
 
 
 def _from_plain_log(path: Path) -> Segment:
@@ -244,7 +253,8 @@ def resample(seg: Segment, rate_hz: float) -> Segment:
         return np.stack([np.interp(grid, seg.t, a[:, j]) for j in range(a.shape[1])], 1)
 
     return make_segment(seg.name, grid, lerp(seg.q), lerp(seg.qd), lerp(seg.y), seg.units,
-                        lerp(seg.temperature), seg.joint_names, q_cmd=lerp(seg.q_cmd))
+                        lerp(seg.temperature), seg.joint_names, q_cmd=lerp(seg.q_cmd),
+                        qd_logged=lerp(seg.qd_logged))
 
 
 def split_heldout(segments: list[Segment], heldout: list[Segment] | None, frac: float = 0.25):

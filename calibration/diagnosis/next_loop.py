@@ -9,6 +9,7 @@ to that rate and their first H-1 samples (no full window yet) are dropped before
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -77,11 +78,13 @@ def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments, prior
         r = resample(s, rate_hz)
         if len(r) <= history + 20:
             continue
-        p = predict_next(ck_model, normalizer, history, inputs, r)
+        # the checkpoint was trained on the logged velocity, not on diagnosis's cleaner one
+        seen = r if r.qd_logged is None else dataclasses.replace(r, qd=r.qd_logged)
+        p = predict_next(ck_model, normalizer, history, inputs, seen)
         if prior is not None:  # the checkpoint's physics prior is part of its model
             from calibration.next.prior import prior_torque
 
-            p = p + prior_torque(prior, r.t, r.q, r.qd)
+            p = p + prior_torque(prior, seen.t, seen.q, seen.qd)
         cut = r.slice(history - 1, len(r), r.name)
         preds[id(cut)] = p[history - 1:]
         out.append(cut)
