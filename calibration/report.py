@@ -47,9 +47,10 @@ def estimate_segment(seg: Segment, ck: NextCheckpoint, ridge: baselines.RidgeMod
                      observer_gain: float = 50.0) -> dict[str, np.ndarray | None]:
     """Every method's tau_ext [ck.units] on one uniformly sampled segment."""
     out: dict[str, np.ndarray | None] = {m: None for m in METHODS}
-    out["next"] = seg.tau - batch_tau_f(ck, seg.q, seg.qd, seg.q_cmd)
-    if ck.prior is not None:
-        out["prior"] = seg.tau - prior_torque(ck.prior, seg.t, seg.q, seg.qd)
+    prior_tau = prior_torque(ck.prior, seg.t, seg.q, seg.qd) if ck.prior is not None else None
+    out["next"] = seg.tau - batch_tau_f(ck, seg.q, seg.qd, seg.q_cmd, prior_tau)
+    if prior_tau is not None:
+        out["prior"] = seg.tau - prior_tau
     out["raw"] = baselines.raw_torque(seg.tau)
     if ridge is not None:
         out["ridge"] = baselines.ridge_residual(ridge, seg.q, seg.qd, seg.q_cmd, seg.tau)

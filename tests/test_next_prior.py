@@ -46,10 +46,9 @@ def _motion(seconds=60.0, seed=0):
 
 def _true_arm_torque(q, qd, qdd, coulomb, viscous, extra_mass_kg):
     """The 'real' arm: the description with a payload on the last link that nobody declared, and friction."""
-    m = pinocchio_model("piper").copy()
-    last = m.njoints - 1
-    m.inertias[last] = m.inertias[last] + pin.Inertia(extra_mass_kg, np.array([0.0, 0.0, 0.05]),
-                                                     np.eye(3) * 1e-4)
+    from hardware.sim.example_effects import with_payload
+
+    m = with_payload(pinocchio_model("piper"), extra_mass_kg, [0.0, 0.0, 0.05], 1e-4)
     d = m.createData()
     rb = np.stack([pin.rnea(m, d, q[k], qd[k], qdd[k]) for k in range(len(q))])
     return rb + coulomb * np.tanh(qd / 0.02) + viscous * qd

@@ -239,12 +239,15 @@ class NextEstimator:
         return Estimate(ext, tau_f, flags)
 
 
-def batch_tau_f(ck: NextCheckpoint, q, qd, q_cmd) -> np.ndarray:
+def batch_tau_f(ck: NextCheckpoint, q, qd, q_cmd, prior_tau: np.ndarray | None = None) -> np.ndarray:
     """Offline: predicted free-space torque for every sample of one uniformly sampled stretch at ck.rate_hz
-    (N, J); the first H-1 rows are NaN (no full window yet)."""
+    (N, J); the first H-1 rows are NaN (no full window yet). prior_tau: the checkpoint's prior on these
+    samples when the caller has it already (calibration.next.prior.prior_torque); computed otherwise."""
     x = ck.normalizer.norm_x(make_inputs(q, qd, q_cmd, ck.inputs))
     tau_f = ck.normalizer.denorm_y(predict_series(ck.model, x, ck.history).astype(np.float64))
     if ck.prior is not None:
-        tau_f += prior_torque(ck.prior, np.arange(len(x)) / ck.rate_hz, np.asarray(q, float),
-                              np.asarray(qd, float))
+        if prior_tau is None:
+            prior_tau = prior_torque(ck.prior, np.arange(len(x)) / ck.rate_hz, np.asarray(q, float),
+                                     np.asarray(qd, float))
+        tau_f += prior_tau
     return tau_f

@@ -126,16 +126,20 @@ def fit_prior(kind: str, arm: str, runs: list[tuple[np.ndarray, np.ndarray, np.n
     n = m.nv
     p = 13 * n
     ata, atb = np.zeros((p, p)), np.zeros(p)
+    chunk = 2048  # samples per normal-equation update: memory stays small however long the run
+    a = np.empty((chunk, n, p))
+    y = np.empty((chunk, n))
     for t, q, qd, tau in runs:
         qdd = finite_difference_acceleration(t, qd, ACCEL_CUTOFF_HZ)
-        a = np.empty((len(t), n, p))
-        y = np.empty((len(t), n))
-        for k in range(len(t)):
-            rn, a[k] = _features(m, d, q[k], qd[k], qdd[k], FRICTION_VEL)
-            y[k] = tau[k] - rn
-        a = a.reshape(-1, p)
-        ata += a.T @ a
-        atb += a.T @ y.ravel()
+        for lo in range(0, len(t), chunk):
+            k_n = min(chunk, len(t) - lo)
+            for i in range(k_n):
+                k = lo + i
+                rn, a[i] = _features(m, d, q[k], qd[k], qdd[k], FRICTION_VEL)
+                y[i] = tau[k] - rn
+            a_k = a[:k_n].reshape(-1, p)
+            ata += a_k.T @ a_k
+            atb += a_k.T @ y[:k_n].ravel()
     energy = np.maximum(np.diag(ata), 1e-12)
     lam = np.full(p, PARAM_RIDGE)
     lam[11 * n:] = FRICTION_RIDGE

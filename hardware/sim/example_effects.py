@@ -14,7 +14,18 @@ import numpy as np
 
 PAYLOAD_KG = 0.3
 PAYLOAD_OFFSET_M = np.array([0.0, 0.0, 0.05])  # in the last joint's frame
-GRAVITY_M_S2 = 9.81
+
+
+def with_payload(model, mass_kg: float, offset_m=PAYLOAD_OFFSET_M, inertia_kg_m2: float = 1e-5):
+    """A copy of a pinocchio model with a point-like payload (mass [kg] at offset [m] in the last joint's
+    frame, rotational inertia [kg*m^2] about its centre) added to the last link."""
+    import pinocchio as pin
+
+    out = model.copy()
+    last = model.njoints - 1
+    out.inertias[last] = model.inertias[last] + pin.Inertia(mass_kg, np.asarray(offset_m, float),
+                                                            np.eye(3) * inertia_kg_m2)
+    return out
 
 
 @lru_cache(maxsize=1)
@@ -24,9 +35,7 @@ def _piper():
     from hardware.arms import load_arm
 
     m = load_arm("piper").pinocchio_model()
-    with_load = m.copy()
-    last = m.njoints - 1
-    with_load.inertias[last] = m.inertias[last] + pin.Inertia(PAYLOAD_KG, PAYLOAD_OFFSET_M, np.eye(3) * 1e-5)
+    with_load = with_payload(m, PAYLOAD_KG)
     return pin, m, m.createData(), with_load, with_load.createData()
 
 
