@@ -47,8 +47,9 @@ def estimate_segment(seg: Segment, ck: NextCheckpoint, ridge: baselines.RidgeMod
                      observer_gain: float = 50.0) -> dict[str, np.ndarray | None]:
     """Every method's tau_ext [ck.units] on one uniformly sampled segment."""
     out: dict[str, np.ndarray | None] = {m: None for m in METHODS}
-    prior_tau = prior_torque(ck.prior, seg.t, seg.q, seg.qd) if ck.prior is not None else None
-    out["next"] = seg.tau - batch_tau_f(ck, seg.q, seg.qd, seg.q_cmd, prior_tau)
+    prior_tau = (prior_torque(ck.prior, seg.t, seg.q, seg.qd, seg.tau, seg.temperature)
+                 if ck.prior is not None else None)
+    out["next"] = seg.tau - batch_tau_f(ck, seg.q, seg.qd, seg.q_cmd, prior_tau=prior_tau)
     if prior_tau is not None:
         out["prior"] = seg.tau - prior_tau
     out["raw"] = baselines.raw_torque(seg.tau)
@@ -133,7 +134,7 @@ def _fit_prior(kind: str, arm: str | None, units: str, segments: list[Segment]):
         raise ConfigError(f"the {kind} prior needs the arm description and torque in N*m (have arm={arm}, "
                           f"units={units})", where="--prior",
                           fix="pass --arm and logs with tau_m or a torque constant, or use --prior none")
-    return fit_prior(kind, arm, [(s.t, s.q, s.qd, s.tau) for s in segments])
+    return fit_prior(kind, arm, [(s.t, s.q, s.qd, s.tau, s.temperature) for s in segments])
 
 
 def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(), arm: str | None = None,
@@ -155,7 +156,8 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
         pin_model = desc.pinocchio_model()
     segments = [s for _, segs in runs for s in segs]
     prior = _fit_prior(cfg.prior, arm, units, segments)
-    data = build_windows([s if prior is None else replace(s, tau=s.tau - prior_torque(prior, s.t, s.q, s.qd))
+    data = build_windows([s if prior is None else
+                          replace(s, tau=s.tau - prior_torque(prior, s.t, s.q, s.qd, s.tau, s.temperature))
                           for s in segments], cfg.history, cfg.inputs)
     result = train(data, cfg, callback=callback)
     ck = NextCheckpoint(model=result.model, normalizer=data.normalizer, arm=arm or "",

@@ -161,7 +161,7 @@ def test_next_adapter_warmup_valid_and_nan():
         def __init__(self):
             self.calls = []
 
-        def update(self, q, q_dot, q_cmd, tau_m):
+        def update(self, q, q_dot, q_cmd, tau_m, temperature=None):
             self.calls.append(np.array(q_cmd))
             k = len(self.calls)
             if k < 3:  # warm-up

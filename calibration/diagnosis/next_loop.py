@@ -84,7 +84,7 @@ def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments, prior
         if prior is not None:  # the checkpoint's physics prior is part of its model
             from calibration.next.prior import prior_torque
 
-            p = p + prior_torque(prior, seen.t, seen.q, seen.qd)
+            p = p + prior_torque(prior, seen.t, seen.q, seen.qd, seen.y, seen.temperature)
         cut = r.slice(history - 1, len(r), r.name)
         preds[id(cut)] = p[history - 1:]
         out.append(cut)

@@ -11,7 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .effects import Effect, find_period
+from calibration.periodic import find_period
+
+from .effects import Effect
 from .greybox import Design, GreyBox
 
 STRIBECK_VS = (0.01, 0.02, 0.05, 0.1, 0.2, 0.5)  # rad/s

@@ -4,8 +4,9 @@
     save_plain_log("free.npz", **run.arrays())
 
 The follower is commanded through its driver (and so through the safety layer) at the trajectory's rate;
-every tick the state is read back and logged (t, q, qd, q_cmd, tau_m, current). On a twin the simulated
-ground truth (tau_ext_true, contact) is logged too and marked simulated in the log.
+every tick the state is read back and logged (t, q, qd, q_cmd, tau_m, current, and the motor temperature
+when the driver reports one: the identified prior corrects the torque constant's drift with it). On a twin
+the simulated ground truth (tau_ext_true, contact) is logged too and marked simulated in the log.
 
 Unexpected contact guard: a generalised-momentum observer on the arm description (calibration.baselines,
 K_o = 50/s) estimates the external torque from measured q, qd and tau_m; when |r_j| exceeds `contact_frac` x
@@ -61,6 +62,7 @@ class CollectedRun:
     q_cmd: list = field(default_factory=list)
     tau_m: list = field(default_factory=list)
     current: list = field(default_factory=list)
+    temperature: list = field(default_factory=list)  # [degC] per joint (NaN where not reported)
     tau_ext_true: list = field(default_factory=list)
     contact: list = field(default_factory=list)
     joint_names: list[str] = field(default_factory=list)
@@ -70,6 +72,9 @@ class CollectedRun:
     def arrays(self) -> dict[str, np.ndarray]:
         """Keyword arrays for hardware.recording.plain_log.save_plain_log."""
         out = {k: np.asarray(getattr(self, k), float) for k in ("t", "q", "qd", "q_cmd", "tau_m", "current")}
+        temp = np.asarray(self.temperature, float)
+        if temp.shape == out["q"].shape and np.all(np.isfinite(temp)):  # only a complete temperature log
+            out["temperature"] = temp
         if self.tau_ext_true:
             out["tau_ext_true"] = np.asarray(self.tau_ext_true, float)
             out["contact"] = np.asarray(self.contact, bool)
@@ -160,6 +165,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
             run.q_cmd.append(q_ref)  # what was sent (the device's own q_cmd may lag a tick)
             run.tau_m.append(st.tau_m)
             run.current.append(st.current)
+            run.temperature.append(np.asarray(st.temperature, float)[: arm.n_joints])
             if truth is not None:
                 gt = truth()[follower_name]
                 run.tau_ext_true.append(np.asarray(gt.tau_ext)[: arm.n_joints])

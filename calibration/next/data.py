@@ -36,6 +36,7 @@ class Segment:
     source: str = ""
     tau_ext_true: np.ndarray | None = None
     contact: np.ndarray | None = None
+    temperature: np.ndarray | None = None  # motor temperature [degC] (N, n), when the log has it
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -48,8 +49,8 @@ def _interp(t_new: np.ndarray, t: np.ndarray, a: np.ndarray) -> np.ndarray:
 def resample_log(log, rate_hz: float = 100.0, max_gap_s: float = 0.1) -> list[Segment]:
     """Resample a PlainLog (hardware.recording.plain_log) onto a `rate_hz` grid; split at gaps > max_gap_s.
 
-    Linear interpolation of q, qd, q_cmd, tau (and tau_ext_true); `contact` takes the nearest earlier sample.
-    Samples with any non-finite value are dropped first (treated as a gap).
+    Linear interpolation of q, qd, q_cmd, tau (and tau_ext_true, temperature); `contact` takes the nearest
+    earlier sample. Samples with any non-finite value are dropped first (treated as a gap).
     """
     t = np.asarray(log.t, float)
     arrays = {"q": log.q, "qd": log.qd, "q_cmd": log.q_cmd, "tau": log.tau}
@@ -58,6 +59,9 @@ def resample_log(log, rate_hz: float = 100.0, max_gap_s: float = 0.1) -> list[Se
     finite = np.ones(len(t), bool)
     for a in arrays.values():
         finite &= np.all(np.isfinite(a), axis=1)
+    temp = getattr(log, "temperature", None)
+    if temp is not None and np.all(np.isfinite(np.asarray(temp, float)[finite])):  # partial: not used
+        arrays["temperature"] = temp
     t = t[finite]
     arrays = {k: np.asarray(v, float)[finite] for k, v in arrays.items()}
     contact = None if log.contact is None else np.asarray(log.contact, bool)[finite]
@@ -77,7 +81,8 @@ def resample_log(log, rate_hz: float = 100.0, max_gap_s: float = 0.1) -> list[Se
             seg_contact = contact[lo:hi][idx]
         segments.append(Segment(t=grid, q=res["q"], qd=res["qd"], q_cmd=res["q_cmd"], tau=res["tau"],
                                 rate_hz=rate_hz, source=str(getattr(log, "name", "")),
-                                tau_ext_true=res.get("tau_ext_true"), contact=seg_contact))
+                                tau_ext_true=res.get("tau_ext_true"), contact=seg_contact,
+                                temperature=res.get("temperature")))
     return segments
 
 

@@ -15,15 +15,17 @@ runs may be stepped later by work() calls on the control ticks between two sampl
 100 Hz model has four), so no single tick carries the whole product. update() first finishes whatever is
 still pending, so the result is the same arithmetic in any case.
 
-Physics prior (checkpoints trained with `prior`, calibration.next.prior): tau_f = prior + network; the prior
-runs one sample at a time (PriorStream, the same causal acceleration filter as training) and restarts with
-the window.
+Physics prior (checkpoints trained with `prior`, calibration.next.prior): tau_f = prior part + network; the
+prior runs one sample at a time (PriorStream: the same midpoint acceleration and low-pass of measured and
+predicted torque as training) and restarts with the window. It needs tau_m, and the motor temperature when
+it has a temperature term (without one it uses the reference temperature and sets FLAG_NO_TEMPERATURE).
 
 GRU/MLP checkpoints (ablation architectures) are evaluated with torch on a rolling buffer (exact, slower).
 
 Guards (never raise in the loop): non-finite q/q_dot/q_cmd -> NaN estimate, FLAG_NONFINITE, and the window
 restarts (FLAG_WARMUP until H clean samples are in); non-finite tau_m -> NaN estimate, FLAG_NONFINITE, window
-kept. FLAG_OOD when an input leaves the training range widened by `ood_margin` x its span.
+kept (the prior's filters restart, and tau_f is NaN for that tick when there is a prior). FLAG_OOD when an
+input leaves the training range widened by `ood_margin` x its span.
 The estimator assumes one update per sample at the checkpoint's rate (ck.rate_hz, default 100 Hz).
 """
 
@@ -43,6 +45,7 @@ FLAG_OK = 0
 FLAG_WARMUP = 1  # fewer than H clean samples since start/restart: estimate is NaN
 FLAG_NONFINITE = 2  # an input was NaN/inf: estimate is NaN
 FLAG_OOD = 4  # inputs outside the training range: estimate may be unreliable
+FLAG_NO_TEMPERATURE = 8  # the prior has a temperature term but no finite temperature came: not corrected
 
 
 @dataclass
@@ -209,8 +212,9 @@ class NextEstimator:
         with torch.no_grad():
             return self.ck.model(torch.from_numpy(self._buf[None]))[0].numpy()
 
-    def update(self, q, q_dot, q_cmd, tau_m) -> Estimate:
-        """One control tick. q [rad], q_dot [rad/s], q_cmd [rad], tau_m [N*m or A as the checkpoint]."""
+    def update(self, q, q_dot, q_cmd, tau_m, temperature=None) -> Estimate:
+        """One control tick. q [rad], q_dot [rad/s], q_cmd [rad], tau_m [N*m or A as the checkpoint],
+        temperature [degC] per joint (used by a prior with a temperature term)."""
         try:
             x_raw = make_inputs(np.asarray(q, float), np.asarray(q_dot, float), np.asarray(q_cmd, float),
                                 self.ck.inputs)
@@ -225,7 +229,16 @@ class NextEstimator:
         if not np.all(np.isfinite(tau)):
             flags |= FLAG_NONFINITE
         x = ((x_raw - self._x_mean) * self._x_inv_std).astype(np.float32)
-        prior = self._prior.update(np.asarray(q, float), np.asarray(q_dot, float)) if self._prior else 0.0
+        prior = 0.0
+        if self._prior is not None:
+            if flags & FLAG_NONFINITE:
+                self._prior.reset()
+                prior = np.full(self.n_j, np.nan)
+            else:
+                self._prior.missing_temperature = False
+                prior = self._prior.update(np.asarray(q, float), np.asarray(q_dot, float), tau, temperature)
+                if self._prior.missing_temperature:
+                    flags |= FLAG_NO_TEMPERATURE
         out = self._step_lstm(x) if self._fast else self._step_torch(x)
         if out is None:
             return self._nan(flags | FLAG_WARMUP)
@@ -239,15 +252,19 @@ class NextEstimator:
         return Estimate(ext, tau_f, flags)
 
 
-def batch_tau_f(ck: NextCheckpoint, q, qd, q_cmd, prior_tau: np.ndarray | None = None) -> np.ndarray:
+def batch_tau_f(ck: NextCheckpoint, q, qd, q_cmd, tau=None, temperature=None,
+                prior_tau: np.ndarray | None = None) -> np.ndarray:
     """Offline: predicted free-space torque for every sample of one uniformly sampled stretch at ck.rate_hz
-    (N, J); the first H-1 rows are NaN (no full window yet). prior_tau: the checkpoint's prior on these
-    samples when the caller has it already (calibration.next.prior.prior_torque); computed otherwise."""
+    (N, J); the first H-1 rows are NaN (no full window yet). A checkpoint with a prior needs tau (and
+    temperature when the prior uses it), or prior_tau: the prior's part on these samples when the caller has
+    it already (calibration.next.prior.prior_torque)."""
     x = ck.normalizer.norm_x(make_inputs(q, qd, q_cmd, ck.inputs))
     tau_f = ck.normalizer.denorm_y(predict_series(ck.model, x, ck.history).astype(np.float64))
     if ck.prior is not None:
         if prior_tau is None:
+            if tau is None:
+                raise ValueError("this checkpoint has a physics prior: batch_tau_f needs tau")
             prior_tau = prior_torque(ck.prior, np.arange(len(x)) / ck.rate_hz, np.asarray(q, float),
-                                     np.asarray(qd, float))
+                                     np.asarray(qd, float), np.asarray(tau, float), temperature)
         tau_f += prior_tau
     return tau_f

@@ -1,5 +1,4 @@
-"""A physics prior under NEXT: tau_f = prior(q, q_dot, q_ddot) + f_theta(history), the network trained on
-what the prior leaves.
+"""A physics prior under NEXT: the network is trained on what the prior leaves.
 
 Why: from ~10 minutes of free motion the plain LSTM memorises the trajectories it saw instead of learning the
 arm's structure (docs/next.md, "What limits NEXT on the twin"): it does not carry the gravity map over to
@@ -9,15 +8,22 @@ carry both. Kinds:
 - "none": the paper's plain NEXT (f_theta learns everything).
 - "description": RNEA of the arm description (masses, inertias, rotor armature) plus its joint friction
   (MJCF frictionloss as Coulomb, damping as viscous) -- what FILIC uses, with friction.
-- "identified": the description corrected on the calibration data itself: a regularised least-squares fit of
-  the inertial parameters' correction (pinocchio's joint-torque regressor, pulled toward zero correction, i.e.
-  toward the description, where the motion does not excite a parameter), the armature's correction and a
-  Coulomb + viscous friction per joint. Linear in its parameters, so it is one solve, no training.
+- "identified": the description corrected on the calibration data itself, by one regularised least-squares
+  solve (no training): the inertial parameters' correction (pinocchio's joint-torque regressor, pulled
+  toward the description where the motion does not excite a parameter) and per joint the armature, Coulomb
+  friction (a smooth and a sharp sign), Stribeck break-away, the torque constant's drift with motor
+  temperature (when the log has temperature) and a position-periodic ripple whose period is found in the
+  residual (calibration.periodic.find_period) and kept only where it explains enough of it.
 
-Acceleration: the causal filtered finite difference of q_dot (calibration.baselines, cut-off
-`ACCEL_CUTOFF_HZ`), offline and online alike (`PriorStream` runs the same filter one sample at a time), so
-training, evaluation and the control loop see the same prior. The prior needs N*m (a torque signal); logs in
-A without a torque constant get "none".
+Filtering, the same everywhere (fit, offline evaluation, the control loop's PriorStream). The acceleration is
+the backward difference of q_dot, so every other signal is taken at the same half-sample midpoint; then the
+measured torque and the prior's prediction pass the same low-pass (`FILTER_ORDER` first-order sections at
+`ACCEL_CUTOFF_HZ`). Filtering only the acceleration (as FILIC does) leaves M(q) (qdd - qdd_filtered) -- the
+filter's lag times the jerk -- in the residual; filtering both sides equally removes it (docs/next.md).
+The estimate is therefore band-limited: NEXT with a prior gives tau_ext = LP(tau_m) - LP(prior) - f_theta,
+written here as a prediction of tau_m: prior_torque = tau_m - LP(tau_m) + LP(prior), so callers keep
+tau_ext = tau_m - tau_f. The prior needs N*m (a torque signal); logs in A without a torque constant get
+"none".
 """
 
 from __future__ import annotations
@@ -28,45 +34,75 @@ from functools import lru_cache
 import numpy as np
 import pinocchio as pin
 
-from calibration.baselines import finite_difference_acceleration
-
 PRIOR_KINDS = ("none", "description", "identified")
-ACCEL_CUTOFF_HZ = 20.0  # low-pass on the finite-difference acceleration [Hz] (docs/next.md: 10 -> 20 Hz)
-FRICTION_VEL = 0.02  # tanh width of the identified Coulomb term [rad/s] (above the velocity noise)
-PARAM_RIDGE = 1e-3  # ridge on the inertial/armature correction, relative to each column's energy
-FRICTION_RIDGE = 1e-9  # friction coefficients: nearly free
+ACCEL_CUTOFF_HZ = 20.0  # low-pass on measured torque and prediction alike [Hz]
+FILTER_ORDER = 2  # first-order sections in cascade (2: half the noise of 1 at a few ms more lag)
+FRICTION_VEL = 0.02  # tanh width of the smooth Coulomb term [rad/s] (above typical velocity noise)
+SHARP_VEL = 0.005  # tanh width of the sharp Coulomb and the Stribeck terms [rad/s]
+STRIBECK_VEL = 0.05  # decay speed of the Stribeck break-away torque [rad/s] (typical 0.01-0.1)
+PARAM_RIDGE = 1e-3  # ridge on the inertial/armature/temperature terms, relative to each column's energy
+FRICTION_RIDGE = 1e-9  # friction and ripple coefficients: nearly free
+RIPPLE_MIN_PERIOD = 2 * np.pi / 200  # shortest ripple period searched [rad] (200 cycles per revolution)
+RIPPLE_MIN_FRACTION = 0.02  # a ripple is kept when it explains this much of its joint's residual ...
+RIPPLE_MIN_PEAK = 20.0  # ... and stands this far above the periodogram's median
+N_JOINT_TERMS = 8  # per-joint columns: armature, coulomb, viscous, sharp, stribeck, temperature, sin, cos
+JOINT_TERMS = ("d_armature", "coulomb", "viscous", "coulomb_sharp", "stribeck", "kt_temp", "ripple_sin",
+               "ripple_cos")
 
 
 @dataclass
 class Prior:
+    """Coefficients: d_theta (10 per body, the inertial correction), then per joint d_armature [kg*m^2],
+    coulomb, coulomb_sharp, stribeck [N*m], viscous [N*m*s/rad], kt_temp [1/K] (relative torque-constant
+    drift times the description torque), ripple_sin/ripple_cos [N*m] at ripple_period [rad] (0: none);
+    temp_ref [degC] (NaN: no temperature term)."""
+
     kind: str
     arm: str  # hardware.arms name or MJCF path (pinocchio model of the description)
-    d_theta: np.ndarray = field(default_factory=lambda: np.zeros(0))  # inertial parameter correction, 10/body
-    d_armature: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [kg*m^2] per joint
-    coulomb: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [N*m] per joint
-    viscous: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [N*m*s/rad] per joint
-    friction_vel: float = FRICTION_VEL  # [rad/s]
-    accel_cutoff_hz: float = ACCEL_CUTOFF_HZ
+    d_theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    joint: dict[str, np.ndarray] = field(default_factory=dict)  # JOINT_TERMS -> (n,)
+    ripple_period: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    temp_ref: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    cutoff_hz: float = ACCEL_CUTOFF_HZ
+    order: int = FILTER_ORDER
+
+    @property
+    def uses_temperature(self) -> bool:
+        return bool(np.any(np.isfinite(self.temp_ref)))
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "arm": self.arm, "friction_vel": self.friction_vel,
-                "accel_cutoff_hz": self.accel_cutoff_hz,
-                **{k: np.asarray(getattr(self, k)).tolist()
-                   for k in ("d_theta", "d_armature", "coulomb", "viscous")}}
+        return {"kind": self.kind, "arm": self.arm, "version": 2, "cutoff_hz": self.cutoff_hz,
+                "order": self.order, "d_theta": np.asarray(self.d_theta).tolist(),
+                "ripple_period": np.asarray(self.ripple_period).tolist(),
+                "temp_ref": [None if not np.isfinite(x) else float(x) for x in self.temp_ref],
+                **{k: np.asarray(self.joint[k]).tolist() for k in JOINT_TERMS}}
 
     @classmethod
     def from_dict(cls, d: dict, n_joints: int | None = None) -> Prior:
-        """Inverse of to_dict; ValueError on an unknown kind, or (with n_joints) arrays of the wrong size or
-        non-finite values."""
+        """Inverse of to_dict; ValueError on an unknown kind or version, or (with n_joints) arrays of the
+        wrong size or non-finite values."""
         if d.get("kind") not in PRIOR_KINDS[1:]:
             raise ValueError(f"prior kind {d.get('kind')!r}")
-        keys = ("d_theta", "d_armature", "coulomb", "viscous")
-        arrays = [np.asarray(d[k], float).reshape(-1) for k in keys]
-        if n_joints is not None and [len(a) for a in arrays] != [10 * n_joints] + [n_joints] * 3:
+        if d.get("version") != 2:
+            raise ValueError("prior from an older version of factr2 (retrain it)")
+        joint = {k: np.asarray(d[k], float).reshape(-1) for k in JOINT_TERMS}
+        theta = np.asarray(d["d_theta"], float).reshape(-1)
+        period = np.asarray(d["ripple_period"], float).reshape(-1)
+        temp_ref = np.array([np.nan if x is None else x for x in d["temp_ref"]], float)
+        arrays = [theta, period, *joint.values()]
+        n = len(period)
+        sizes = [len(a) for a in arrays] + [len(temp_ref)]
+        if n_joints is not None and sizes != [10 * n_joints] + [n_joints] * (len(sizes) - 1):
             raise ValueError(f"prior arrays of sizes {[len(a) for a in arrays]} for {n_joints} joints")
-        if not all(np.all(np.isfinite(a)) for a in arrays):
-            raise ValueError("prior has non-finite parameters")
-        return cls(d["kind"], d["arm"], *arrays, float(d["friction_vel"]), float(d["accel_cutoff_hz"]))
+        if not all(np.all(np.isfinite(a)) for a in arrays) or len(temp_ref) != n:
+            raise ValueError("prior has non-finite or inconsistent parameters")
+        order, cutoff = int(d["order"]), float(d["cutoff_hz"])
+        if not (1 <= order <= 4 and cutoff > 0):
+            raise ValueError(f"prior filter order {order}, cut-off {cutoff} Hz")
+        return cls(d["kind"], d["arm"], theta, joint, period, temp_ref, cutoff, order)
+
+    def coefficients(self) -> np.ndarray:
+        return np.concatenate([self.d_theta] + [self.joint[k] for k in JOINT_TERMS])
 
 
 @lru_cache(maxsize=4)
@@ -76,105 +112,194 @@ def pinocchio_model(arm: str) -> pin.Model:
     return load_arm(arm).pinocchio_model()
 
 
+def _empty(kind: str, arm: str, n: int) -> Prior:
+    return Prior(kind, arm, np.zeros(10 * n), {k: np.zeros(n) for k in JOINT_TERMS}, np.zeros(n),
+                 np.full(n, np.nan))
+
+
 def description_prior(arm: str) -> Prior:
     """RNEA + the description's joint friction (frictionloss -> Coulomb, damping -> viscous)."""
     m = pinocchio_model(arm)
-    n = m.nv
-    return Prior("description", arm, np.zeros(10 * n), np.zeros(n), np.asarray(m.friction, float).copy(),
-                 np.asarray(m.damping, float).copy())
+    p = _empty("description", arm, m.nv)
+    p.joint["coulomb"] = np.asarray(m.friction, float).copy()
+    p.joint["viscous"] = np.asarray(m.damping, float).copy()
+    return p
 
 
-def _features(m: pin.Model, d: pin.Data, q, qd, qdd, friction_vel: float) -> tuple[np.ndarray, np.ndarray]:
-    """(rnea (n,), columns (n, 10 n + 3 n)): regressor | armature qdd | tanh(qd / v) | qd, per joint."""
+def _row(m: pin.Model, d: pin.Data, p: Prior, q, qd, qdd, temp) -> tuple[np.ndarray, np.ndarray]:
+    """(rnea (n,), columns (n, 10 n + 8 n)) at one sample: regressor | per-joint terms (JOINT_TERMS)."""
     n = m.nv
-    cols = np.zeros((n, 13 * n))
+    cols = np.zeros((n, (10 + N_JOINT_TERMS) * n))
     cols[:, :10 * n] = pin.computeJointTorqueRegressor(m, d, q, qd, qdd)
+    rn = pin.rnea(m, d, q, qd, qdd).copy()
+    sharp = np.tanh(qd / SHARP_VEL)
+    has_period = p.ripple_period > 0
+    phase = 2 * np.pi * q / np.where(has_period, p.ripple_period, 1.0)
+    dtemp = np.where(np.isfinite(p.temp_ref), temp - p.temp_ref, 0.0) if temp is not None else 0.0
+    stribeck = np.exp(-(qd / STRIBECK_VEL) ** 2) * sharp
+    terms = (qdd, np.tanh(qd / FRICTION_VEL), qd, sharp, stribeck, rn * dtemp,
+             np.where(has_period, np.sin(phase), 0.0), np.where(has_period, np.cos(phase), 0.0))
     idx = np.arange(n)
-    cols[idx, 10 * n + idx] = qdd
-    cols[idx, 11 * n + idx] = np.tanh(qd / friction_vel)
-    cols[idx, 12 * n + idx] = qd
-    return pin.rnea(m, d, q, qd, qdd).copy(), cols
+    for k, x in enumerate(terms):
+        cols[idx, (10 + k) * n + idx] = x
+    return rn, cols
 
 
-def _coefs(p: Prior) -> np.ndarray:
-    return np.concatenate([p.d_theta, p.d_armature, p.coulomb, p.viscous])
+class _Lowpass:
+    """`order` first-order sections at one cut-off, state started at the first input (no start transient)."""
+
+    def __init__(self, cutoff_hz: float, order: int):
+        self.tc, self.order, self.state = 1.0 / (2 * np.pi * cutoff_hz), order, None
+
+    def __call__(self, x: np.ndarray, dt: float) -> np.ndarray:
+        if self.state is None:
+            self.state = [np.array(x, float) for _ in range(self.order)]
+            return self.state[-1].copy()
+        a = dt / (dt + self.tc)
+        for s in self.state:
+            s += a * (x - s)
+            x = s
+        return x.copy()
 
 
-def prior_torque(p: Prior, t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-    """The prior's torque [N*m] for every sample of one run (N, n) (causal acceleration from its start)."""
-    m = pinocchio_model(p.arm)
-    d = m.createData()
-    qdd = finite_difference_acceleration(t, qd, p.accel_cutoff_hz)
-    coef = _coefs(p)
-    out = np.empty_like(np.asarray(q, float))
-    for k in range(len(q)):
-        rn, cols = _features(m, d, q[k], qd[k], qdd[k], p.friction_vel)
-        out[k] = rn + cols @ coef
-    return out
+class PriorStream:
+    """The prior one sample at a time: update(q, qd, tau_m[, temperature]) -> this sample's tau_f part
+    [N*m] = tau_m - LP(tau_m) + LP(prior) (module docstring). Over a run it equals prior_torque to
+    rounding. A prior with a temperature term and no temperature given uses the reference temperature and
+    sets `missing_temperature`."""
+
+    def __init__(self, p: Prior, rate_hz: float | None = None):
+        self.p = p
+        self.m = pinocchio_model(p.arm)
+        self.d = self.m.createData()
+        self.coef = p.coefficients()
+        self.dt = None if rate_hz is None else 1.0 / rate_hz
+        self.missing_temperature = False
+        self.reset()
+
+    def reset(self) -> None:
+        self._prev = None
+        self._lp = _Lowpass(self.p.cutoff_hz, self.p.order)
+
+    def _midpoint(self, q, qd, tau, temp, dt):
+        """(q, qd, qdd, tau, temp) half a sample back: the backward difference's own time."""
+        cur = (np.asarray(q, float), np.asarray(qd, float), np.asarray(tau, float), temp)
+        prev, self._prev = self._prev, cur
+        if prev is None:
+            return cur[0], cur[1], np.zeros_like(cur[1]), cur[2], temp
+        mid = [0.5 * (a + b) for a, b in zip(cur[:3], prev[:3])]
+        t_mid = None if temp is None or prev[3] is None else 0.5 * (temp + prev[3])
+        return mid[0], mid[1], (cur[1] - prev[1]) / dt, mid[2], t_mid
+
+    def update(self, q, qd, tau, temperature=None, dt: float | None = None) -> np.ndarray:
+        dt = self.dt if dt is None else dt
+        temp = None if temperature is None else np.asarray(temperature, float)
+        if temp is not None and not np.all(np.isfinite(temp)):
+            temp = None
+        if temp is None and self.p.uses_temperature:
+            self.missing_temperature = True
+        qm, qdm, qdd, taum, tm = self._midpoint(q, qd, tau, temp, dt)
+        rn, cols = _row(self.m, self.d, self.p, qm, qdm, qdd, tm)
+        lp = self._lp(np.concatenate([taum, rn + cols @ self.coef]), dt)
+        n = len(rn)
+        return np.asarray(tau, float) - lp[:n] + lp[n:]
 
 
-def fit_prior(kind: str, arm: str, runs: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]
-              ) -> Prior:
+def prior_torque(p: Prior, t: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray,
+                 temperature: np.ndarray | None = None) -> np.ndarray:
+    """The prior's part of tau_f [N*m] for every sample of one run (N, n), filters started at its first
+    sample: tau_m - LP(tau_m) + LP(prior)."""
+    s = PriorStream(p)
+    dts = np.diff(np.asarray(t, float), prepend=t[0] - (t[1] - t[0]) if len(t) > 1 else t[0] - 0.01)
+    return np.array([s.update(q[k], qd[k], tau[k], None if temperature is None else temperature[k], dts[k])
+                     for k in range(len(t))])
+
+
+def _filtered_rows(m, d, p: Prior, run, chunk: int = 2048):
+    """Yield (LP(rows) (k, n, P), LP(tau_m - rnea) (k, n), q (k, n)) in chunks over one run: the fit's
+    design, filtered as PriorStream filters the prediction (linear: LP(rows) @ c = LP(rows @ c))."""
+    t, q, qd, tau, temp = run
+    n = m.nv
+    s = PriorStream(p)
+    lp = _Lowpass(p.cutoff_hz, p.order)
+    dts = np.diff(t, prepend=t[0] - (t[1] - t[0]))
+    for lo in range(0, len(t), chunk):
+        k_n = min(chunk, len(t) - lo)
+        a = np.empty((k_n, n, (10 + N_JOINT_TERMS) * n))
+        y = np.empty((k_n, n))
+        for i in range(k_n):
+            k = lo + i
+            tk = None if temp is None else temp[k]
+            qm, qdm, qdd, taum, tm = s._midpoint(q[k], qd[k], tau[k], tk, dts[k])
+            rn, cols = _row(m, d, p, qm, qdm, qdd, tm)
+            f = lp(np.concatenate([cols.ravel(), taum - rn]), dts[k])
+            a[i] = f[:cols.size].reshape(cols.shape)
+            y[i] = f[cols.size:]
+        yield a, y, q[lo:lo + k_n]
+
+
+def _solve(m, d, p: Prior, runs, want_residual: bool = False):
+    n = m.nv
+    npar = (10 + N_JOINT_TERMS) * n
+    ata, atb = np.zeros((npar, npar)), np.zeros(npar)
+    for run in runs:
+        for a, y, _ in _filtered_rows(m, d, p, run):
+            a2 = a.reshape(-1, npar)
+            ata += a2.T @ a2
+            atb += a2.T @ y.ravel()
+    energy = np.maximum(np.diag(ata), 1e-12)
+    lam = np.full(npar, FRICTION_RIDGE)
+    lam[:11 * n] = PARAM_RIDGE  # inertial correction and armature
+    lam[(10 + 5) * n:(10 + 6) * n] = PARAM_RIDGE  # temperature drift
+    unused = np.diag(ata) <= 1e-12  # e.g. no ripple on a joint: coefficient 0
+    sol = np.linalg.lstsq(ata + np.diag(lam * energy), atb, rcond=None)[0]
+    sol[unused] = 0.0
+    if not np.all(np.isfinite(sol)):
+        raise ValueError("the identified prior's least squares gave non-finite parameters (non-finite "
+                         "data?); use --prior description or none")
+    p.d_theta = sol[:10 * n]
+    for k, name in enumerate(JOINT_TERMS):
+        p.joint[name] = sol[(10 + k) * n:(11 + k) * n]
+    return p
+
+
+def _find_ripple(m, d, p: Prior, runs) -> np.ndarray:
+    """Per joint, the period [rad] of a position-periodic residual worth modelling (0: none)."""
+    from calibration.periodic import find_period
+
+    coef = p.coefficients()
+    qs, rs = [], []
+    for run in runs:
+        for a, y, q in _filtered_rows(m, d, p, run):
+            qs.append(q)
+            rs.append(y - a @ coef)
+    q, r = np.concatenate(qs), np.concatenate(rs)
+    period = np.zeros(m.nv)
+    for j in range(m.nv):
+        found = find_period(q[:, j], r[:, j], p_min=RIPPLE_MIN_PERIOD)
+        if found is not None and found[1] >= RIPPLE_MIN_FRACTION and found[2] >= RIPPLE_MIN_PEAK:
+            period[j] = found[0]
+    return period
+
+
+def fit_prior(kind: str, arm: str, runs: list[tuple]) -> Prior:
     """The prior of `kind` for `arm`, fitted (for "identified") on free-motion runs (t [s], q [rad],
-    qd [rad/s], tau_m [N*m])."""
+    qd [rad/s], tau_m [N*m][, temperature [degC] or None]). Three passes: fit, find ripple periods in the
+    residual, refit with them."""
     if kind == "description":
         return description_prior(arm)
     if kind != "identified":
         raise ValueError(f"prior must be one of {PRIOR_KINDS[1:]}, got {kind!r}")
     m = pinocchio_model(arm)
     d = m.createData()
-    n = m.nv
-    p = 13 * n
-    ata, atb = np.zeros((p, p)), np.zeros(p)
-    chunk = 2048  # samples per normal-equation update: memory stays small however long the run
-    a = np.empty((chunk, n, p))
-    y = np.empty((chunk, n))
-    for t, q, qd, tau in runs:
-        qdd = finite_difference_acceleration(t, qd, ACCEL_CUTOFF_HZ)
-        for lo in range(0, len(t), chunk):
-            k_n = min(chunk, len(t) - lo)
-            for i in range(k_n):
-                k = lo + i
-                rn, a[i] = _features(m, d, q[k], qd[k], qdd[k], FRICTION_VEL)
-                y[i] = tau[k] - rn
-            a_k = a[:k_n].reshape(-1, p)
-            ata += a_k.T @ a_k
-            atb += a_k.T @ y[:k_n].ravel()
-    energy = np.maximum(np.diag(ata), 1e-12)
-    lam = np.full(p, PARAM_RIDGE)
-    lam[11 * n:] = FRICTION_RIDGE
-    sol = np.linalg.lstsq(ata + np.diag(lam * energy), atb, rcond=None)[0]
-    if not np.all(np.isfinite(sol)):
-        raise ValueError("the identified prior's least squares gave non-finite parameters (non-finite "
-                         "data?); use --prior description or none")
-    return Prior("identified", arm, sol[:10 * n], sol[10 * n:11 * n], sol[11 * n:12 * n], sol[12 * n:],
-                 FRICTION_VEL, ACCEL_CUTOFF_HZ)
-
-
-class PriorStream:
-    """The prior one sample at a time at a fixed rate (the estimator's): the same causal acceleration filter
-    as `prior_torque` on a uniform grid, so both agree to rounding."""
-
-    def __init__(self, p: Prior, rate_hz: float):
-        self.p = p
-        self.m = pinocchio_model(p.arm)
-        self.d = self.m.createData()
-        self.coef = _coefs(p)
-        dt = 1.0 / rate_hz
-        self.alpha = dt / (dt + 1.0 / (2 * np.pi * p.accel_cutoff_hz))
-        self.inv_dt = rate_hz
-        self.reset()
-
-    def reset(self) -> None:
-        self._qd_prev = None
-        self._qdd = None
-
-    def update(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
-        """Prior torque [N*m] (n,) for this sample."""
-        if self._qd_prev is None:
-            self._qdd = np.zeros_like(qd)
-        else:
-            self._qdd = self._qdd + self.alpha * ((qd - self._qd_prev) * self.inv_dt - self._qdd)
-        self._qd_prev = np.array(qd, float)
-        rn, cols = _features(self.m, self.d, q, qd, self._qdd, self.p.friction_vel)
-        return rn + cols @ self.coef
+    runs = [tuple(np.asarray(x, float) for x in r[:4]) + (None if len(r) < 5 or r[4] is None
+                                                           else np.asarray(r[4], float),)
+            for r in runs if len(r[0]) >= 2]
+    p = _empty("identified", arm, m.nv)
+    if runs and all(r[4] is not None for r in runs):
+        p.temp_ref = np.concatenate([r[4] for r in runs]).mean(0)
+    p = _solve(m, d, p, runs)
+    p.ripple_period = _find_ripple(m, d, p, runs)
+    if np.any(p.ripple_period > 0):
+        p = _solve(m, d, p, runs)
+    return p

@@ -98,7 +98,7 @@ def _run_on_rig(args, cfg) -> int:
             keep = 0 if run is None else max(0, len(run.t) - int(2.0 * args.rate_hz))  # drop the last 2 s
             if keep < args.min_minutes * 60.0 * args.rate_hz:
                 raise
-            for k in ("t", "q", "qd", "q_cmd", "tau_m", "current", "tau_ext_true", "contact"):
+            for k in ("t", "q", "qd", "q_cmd", "tau_m", "current", "temperature", "tau_ext_true", "contact"):
                 setattr(run, k, getattr(run, k)[:keep])
             run.stopped = f"contact: {e.what}"
             minutes = keep / args.rate_hz / 60.0

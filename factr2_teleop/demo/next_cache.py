@@ -1,8 +1,9 @@
 """NEXT for the demo: find a cached checkpoint for the rig's follower, or make one on the twin.
 
-Cache: $FACTR2_CACHE (default ~/.cache/factr2) / next / <rig> / next.json (+ .safetensors), the same files
-`factr2 calibrate --out DIR` writes as DIR/next.json. Creation records free motion on the twin (SIMULATED,
-lockstep, as fast as the CPU goes) and trains with a time budget, then evaluates as `factr2 calibrate` does.
+Cache: $FACTR2_CACHE (default ~/.cache/factr2) / next-v<CACHE_VERSION> / <rig> / next.json (+ .safetensors),
+the same files `factr2 calibrate --out DIR` writes as DIR/next.json. Creation records free motion on the twin
+(SIMULATED, lockstep, as fast as the CPU goes) and trains with a time budget, then evaluates as
+`factr2 calibrate` does.
 """
 
 from __future__ import annotations
@@ -17,13 +18,16 @@ DEMO_MINUTES = 1.0  # simulated free motion for the demo's model [min] (the pape
 DEMO_TRAIN_S = 45.0  # training time budget [s]: set-up measured 1 min 41 s in all on the shared machine
 
 
+CACHE_VERSION = 2  # bumped when checkpoints change format (2: prior with filtering, temperature, ripple)
+
+
 def cache_dir() -> Path:
     return Path(os.environ.get("FACTR2_CACHE") or Path.home() / ".cache" / "factr2")
 
 
 def cached_checkpoint(rig: str) -> Path:
     """Where the demo's NEXT checkpoint for `rig` lives (may not exist)."""
-    return cache_dir() / "next" / Path(rig).stem / "next.json"
+    return cache_dir() / f"next-v{CACHE_VERSION}" / Path(rig).stem / "next.json"
 
 
 def find_checkpoint(rig: str, explicit: str | None = None) -> Path | None:

@@ -108,7 +108,7 @@ class NextAdapter:
         q_cmd = st.q_cmd
         if not np.all(np.isfinite(q_cmd)):
             q_cmd = inp.q_target_f if inp.q_target_f is not None else st.q
-        e = self.next.update(st.q, st.q_dot, q_cmd, st.tau_m)
+        e = self.next.update(st.q, st.q_dot, q_cmd, st.tau_m, temperature=st.temperature)
         if int(getattr(e, "flags", 0)) & NEXT_FLAG_WARMUP:
             self._tau_f = None
             return None  # warming up (or restarting after a bad sample): no estimate yet

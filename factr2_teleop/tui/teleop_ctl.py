@@ -375,7 +375,7 @@ def _next_source(follower_spec, flags_out: dict):
             return None
         state["t"] = st.t
         q_cmd = inp.q_target_f if inp.q_target_f is not None else st.q
-        e = est.update(st.q, st.q_dot, q_cmd, st.tau_m)
+        e = est.update(st.q, st.q_dot, q_cmd, st.tau_m, temperature=st.temperature)
         flags_out[follower_spec.name] = (
             "out of training range (OOD)" if e.ood else ("warming up" if not e.valid else "ok")
         )
