@@ -85,12 +85,14 @@ def test_identified_prior_finds_ripple_break_away_and_thermal_drift_nobody_decla
     t, q, qd, qdd = _motion(120.0)
     coulomb, viscous, stribeck = np.full(6, 0.3), np.full(6, 0.1), np.full(6, 0.15)
     ripple = (np.array([0.06, 0.06, 0.06, 0.02, 0.02, 0.02]), np.array([36, 36, 36, 25, 25, 25.0]))
-    temp = 25.0 + 30.0 * (1 - np.exp(-t / 60.0))[:, None] * np.linspace(0.3, 1.0, 6)  # heating up [degC]
+    heating = np.r_[0.0, np.linspace(0.3, 1.0, 5)]  # J1 stays at 25 degC: its drift is not identifiable
+    temp = 25.0 + 30.0 * (1 - np.exp(-t / 60.0))[:, None] * heating  # heating up [degC]
     tau = _true_arm_torque(q, qd, qdd, coulomb, viscous, 0.3, stribeck, ripple, temp)
     p = fit_prior("identified", "piper", [(t, q, qd, tau, temp)])
     np.testing.assert_allclose(2 * np.pi / p.ripple_period, ripple[1], rtol=0.01)  # periods found
     np.testing.assert_allclose(np.hypot(p.joint["ripple_sin"], p.joint["ripple_cos"]), ripple[0], atol=0.01)
     np.testing.assert_allclose(p.joint["kt_temp"][1:3], 0.001, atol=0.0003)  # the joints that carry load
+    assert np.isnan(p.temp_ref[0]) and p.joint["kt_temp"][0] == 0.0 and np.all(np.isfinite(p.temp_ref[1:]))
     assert np.all(p.joint["stribeck"] > 0.08), p.joint["stribeck"]
     t2, q2, qd2, qdd2 = _motion(30.0, seed=5)
     temp2 = np.full_like(q2, 60.0)  # hotter than anything in the calibration

@@ -12,8 +12,9 @@ carry both. Kinds:
   solve (no training): the inertial parameters' correction (pinocchio's joint-torque regressor, pulled
   toward the description where the motion does not excite a parameter) and per joint the armature, Coulomb
   friction (a smooth and a sharp sign), Stribeck break-away, the torque constant's drift with motor
-  temperature (when the log has temperature) and a position-periodic ripple whose period is found in the
-  residual (calibration.periodic.find_period) and kept only where it explains enough of it.
+  temperature (when the log has temperature and the joint heated by >= 5 K) and a position-periodic
+  ripple whose period is found in the residual (calibration.periodic.find_period) and kept only where it
+  explains enough of it.
 
 Filtering, the same everywhere (fit, offline evaluation, the control loop's PriorStream). The acceleration is
 the backward difference of q_dot, so every other signal is taken at the same half-sample midpoint; then the
@@ -42,6 +43,7 @@ SHARP_VEL = 0.005  # tanh width of the sharp Coulomb and the Stribeck terms [rad
 STRIBECK_VEL = 0.05  # decay speed of the Stribeck break-away torque [rad/s] (typical 0.01-0.1)
 PARAM_RIDGE = 1e-3  # ridge on the inertial/armature/temperature terms, relative to each column's energy
 FRICTION_RIDGE = 1e-9  # friction and ripple coefficients: nearly free
+TEMP_MIN_SPAN_K = 5.0  # a joint gets a temperature term only when its calibration spans this much [K]
 RIPPLE_MIN_PERIOD = 2 * np.pi / 200  # shortest ripple period searched [rad] (200 cycles per revolution)
 RIPPLE_MIN_FRACTION = 0.02  # a ripple is kept when it explains this much of its joint's residual ...
 RIPPLE_MIN_PEAK = 20.0  # ... and stands this far above the periodogram's median
@@ -297,7 +299,9 @@ def fit_prior(kind: str, arm: str, runs: list[tuple]) -> Prior:
             for r in runs if len(r[0]) >= 2]
     p = _empty("identified", arm, m.nv)
     if runs and all(r[4] is not None for r in runs):
-        p.temp_ref = np.concatenate([r[4] for r in runs]).mean(0)
+        temps = np.concatenate([r[4] for r in runs])
+        heated = np.ptp(temps, axis=0) >= TEMP_MIN_SPAN_K  # no drift is identifiable without heating
+        p.temp_ref = np.where(heated, temps.mean(0), np.nan)
     p = _solve(m, d, p, runs)
     p.ripple_period = _find_ripple(m, d, p, runs)
     if np.any(p.ripple_period > 0):
