@@ -128,23 +128,29 @@ def description_prior(arm: str) -> Prior:
     return p
 
 
-def _row(m: pin.Model, d: pin.Data, p: Prior, q, qd, qdd, temp) -> tuple[np.ndarray, np.ndarray]:
-    """(rnea (n,), columns (n, 10 n + 8 n)) at one sample: regressor | per-joint terms (JOINT_TERMS)."""
-    n = m.nv
-    cols = np.zeros((n, (10 + N_JOINT_TERMS) * n))
-    cols[:, :10 * n] = pin.computeJointTorqueRegressor(m, d, q, qd, qdd)
+def _parts(m: pin.Model, d: pin.Data, p: Prior, q, qd, qdd, temp):
+    """(rnea (n,), joint-torque regressor (n, 10 n), per-joint terms (8, n) in JOINT_TERMS order) at one
+    sample."""
     rn = pin.rnea(m, d, q, qd, qdd).copy()
     sharp = np.tanh(qd / SHARP_VEL)
     has_period = p.ripple_period > 0
     phase = 2 * np.pi * q / np.where(has_period, p.ripple_period, 1.0)
     dtemp = np.where(np.isfinite(p.temp_ref), temp - p.temp_ref, 0.0) if temp is not None else 0.0
     stribeck = np.exp(-(qd / STRIBECK_VEL) ** 2) * sharp
-    terms = (qdd, np.tanh(qd / FRICTION_VEL), qd, sharp, stribeck, rn * dtemp,
-             np.where(has_period, np.sin(phase), 0.0), np.where(has_period, np.cos(phase), 0.0))
+    terms = np.stack((qdd, np.tanh(qd / FRICTION_VEL), qd, sharp, stribeck, rn * dtemp,
+                      np.where(has_period, np.sin(phase), 0.0), np.where(has_period, np.cos(phase), 0.0)))
+    return rn, pin.computeJointTorqueRegressor(m, d, q, qd, qdd), terms
+
+
+def _columns(regressor: np.ndarray, terms: np.ndarray) -> np.ndarray:
+    """The fit's design row (n, 10 n + 8 n): regressor | each per-joint term on its own joint's column."""
+    n = regressor.shape[0]
+    cols = np.zeros((n, (10 + N_JOINT_TERMS) * n))
+    cols[:, :10 * n] = regressor
     idx = np.arange(n)
     for k, x in enumerate(terms):
         cols[idx, (10 + k) * n + idx] = x
-    return rn, cols
+    return cols
 
 
 class _Lowpass:
@@ -174,7 +180,7 @@ class PriorStream:
         self.p = p
         self.m = pinocchio_model(p.arm)
         self.d = self.m.createData()
-        self.coef = p.coefficients()
+        self._joint = np.stack([p.joint[k] for k in JOINT_TERMS])  # (8, n), as _parts' terms
         self.dt = None if rate_hz is None else 1.0 / rate_hz
         self.missing_temperature = False
         self.reset()
@@ -183,26 +189,29 @@ class PriorStream:
         self._prev = None
         self._lp = _Lowpass(self.p.cutoff_hz, self.p.order)
 
-    def _midpoint(self, q, qd, tau, temp, dt):
-        """(q, qd, qdd, tau, temp) half a sample back: the backward difference's own time."""
-        cur = (np.asarray(q, float), np.asarray(qd, float), np.asarray(tau, float), temp)
-        prev, self._prev = self._prev, cur
-        if prev is None:
-            return cur[0], cur[1], np.zeros_like(cur[1]), cur[2], temp
-        mid = [0.5 * (a + b) for a, b in zip(cur[:3], prev[:3])]
-        t_mid = None if temp is None or prev[3] is None else 0.5 * (temp + prev[3])
-        return mid[0], mid[1], (cur[1] - prev[1]) / dt, mid[2], t_mid
-
-    def update(self, q, qd, tau, temperature=None, dt: float | None = None) -> np.ndarray:
-        dt = self.dt if dt is None else dt
+    def _midpoint_parts(self, q, qd, tau, temperature, dt: float):
+        """(rnea, regressor, terms, tau_m) of this sample taken half a sample back, at the backward
+        difference's own time (the first sample of a run: as is, zero acceleration)."""
         temp = None if temperature is None else np.asarray(temperature, float)
         if temp is not None and not np.all(np.isfinite(temp)):
             temp = None
         if temp is None and self.p.uses_temperature:
             self.missing_temperature = True
-        qm, qdm, qdd, taum, tm = self._midpoint(q, qd, tau, temp, dt)
-        rn, cols = _row(self.m, self.d, self.p, qm, qdm, qdd, tm)
-        lp = self._lp(np.concatenate([taum, rn + cols @ self.coef]), dt)
+        cur = (np.asarray(q, float), np.asarray(qd, float), np.asarray(tau, float), temp)
+        prev, self._prev = self._prev, cur
+        if prev is None:
+            q_m, qd_m, qdd, tau_m, temp_m = cur[0], cur[1], np.zeros_like(cur[1]), cur[2], temp
+        else:
+            q_m, qd_m, tau_m = (0.5 * (a + b) for a, b in zip(cur[:3], prev[:3]))
+            qdd = (cur[1] - prev[1]) / dt
+            temp_m = None if temp is None or prev[3] is None else 0.5 * (temp + prev[3])
+        return *_parts(self.m, self.d, self.p, q_m, qd_m, qdd, temp_m), tau_m
+
+    def update(self, q, qd, tau, temperature=None, dt: float | None = None) -> np.ndarray:
+        dt = self.dt if dt is None else dt
+        rn, reg, terms, tau_m = self._midpoint_parts(q, qd, tau, temperature, dt)
+        pred = rn + reg @ self.p.d_theta + np.einsum("kj,kj->j", terms, self._joint)  # = rn + columns @ coef
+        lp = self._lp(np.concatenate([tau_m, pred]), dt)
         n = len(rn)
         return np.asarray(tau, float) - lp[:n] + lp[n:]
 
@@ -212,47 +221,49 @@ def prior_torque(p: Prior, t: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np
     """The prior's part of tau_f [N*m] for every sample of one run (N, n), filters started at its first
     sample: tau_m - LP(tau_m) + LP(prior)."""
     s = PriorStream(p)
-    dts = np.diff(np.asarray(t, float), prepend=t[0] - (t[1] - t[0]) if len(t) > 1 else t[0] - 0.01)
+    dts = np.diff(np.asarray(t, float), prepend=t[0])  # the first sample starts the filters: its step unused
     return np.array([s.update(q[k], qd[k], tau[k], None if temperature is None else temperature[k], dts[k])
                      for k in range(len(t))])
 
 
-def _filtered_rows(m, d, p: Prior, run, chunk: int = 2048):
+def _filtered_rows(p: Prior, run, chunk: int = 2048):
     """Yield (LP(rows) (k, n, P), LP(tau_m - rnea) (k, n), q (k, n)) in chunks over one run: the fit's
     design, filtered as PriorStream filters the prediction (linear: LP(rows) @ c = LP(rows @ c))."""
     t, q, qd, tau, temp = run
-    n = m.nv
+    n = len(p.ripple_period)
     s = PriorStream(p)
     lp = _Lowpass(p.cutoff_hz, p.order)
-    dts = np.diff(t, prepend=t[0] - (t[1] - t[0]))
+    dts = np.diff(t, prepend=t[0])
     for lo in range(0, len(t), chunk):
         k_n = min(chunk, len(t) - lo)
         a = np.empty((k_n, n, (10 + N_JOINT_TERMS) * n))
         y = np.empty((k_n, n))
         for i in range(k_n):
             k = lo + i
-            tk = None if temp is None else temp[k]
-            qm, qdm, qdd, taum, tm = s._midpoint(q[k], qd[k], tau[k], tk, dts[k])
-            rn, cols = _row(m, d, p, qm, qdm, qdd, tm)
-            f = lp(np.concatenate([cols.ravel(), taum - rn]), dts[k])
+            rn, reg, terms, tau_m = s._midpoint_parts(q[k], qd[k], tau[k], None if temp is None else temp[k],
+                                                      dts[k])
+            cols = _columns(reg, terms)
+            f = lp(np.concatenate([cols.ravel(), tau_m - rn]), dts[k])
             a[i] = f[:cols.size].reshape(cols.shape)
             y[i] = f[cols.size:]
         yield a, y, q[lo:lo + k_n]
 
 
-def _solve(m, d, p: Prior, runs, want_residual: bool = False):
-    n = m.nv
+def _solve(p: Prior, runs) -> Prior:
+    """Fit p's coefficients (in place) by regularised least squares on the runs' filtered rows."""
+    n = len(p.ripple_period)
     npar = (10 + N_JOINT_TERMS) * n
     ata, atb = np.zeros((npar, npar)), np.zeros(npar)
     for run in runs:
-        for a, y, _ in _filtered_rows(m, d, p, run):
+        for a, y, _ in _filtered_rows(p, run):
             a2 = a.reshape(-1, npar)
             ata += a2.T @ a2
             atb += a2.T @ y.ravel()
     energy = np.maximum(np.diag(ata), 1e-12)
     lam = np.full(npar, FRICTION_RIDGE)
     lam[:11 * n] = PARAM_RIDGE  # inertial correction and armature
-    lam[(10 + 5) * n:(10 + 6) * n] = PARAM_RIDGE  # temperature drift
+    k_temp = 10 + JOINT_TERMS.index("kt_temp")
+    lam[k_temp * n:(k_temp + 1) * n] = PARAM_RIDGE  # temperature drift
     unused = np.diag(ata) <= 1e-12  # e.g. no ripple on a joint: coefficient 0
     sol = np.linalg.lstsq(ata + np.diag(lam * energy), atb, rcond=None)[0]
     sol[unused] = 0.0
@@ -265,19 +276,19 @@ def _solve(m, d, p: Prior, runs, want_residual: bool = False):
     return p
 
 
-def _find_ripple(m, d, p: Prior, runs) -> np.ndarray:
+def _find_ripple(p: Prior, runs) -> np.ndarray:
     """Per joint, the period [rad] of a position-periodic residual worth modelling (0: none)."""
     from calibration.periodic import find_period
 
     coef = p.coefficients()
     qs, rs = [], []
     for run in runs:
-        for a, y, q in _filtered_rows(m, d, p, run):
+        for a, y, q in _filtered_rows(p, run):
             qs.append(q)
             rs.append(y - a @ coef)
     q, r = np.concatenate(qs), np.concatenate(rs)
-    period = np.zeros(m.nv)
-    for j in range(m.nv):
+    period = np.zeros(q.shape[1])
+    for j in range(q.shape[1]):
         found = find_period(q[:, j], r[:, j], p_min=RIPPLE_MIN_PERIOD)
         if found is not None and found[1] >= RIPPLE_MIN_FRACTION and found[2] >= RIPPLE_MIN_PEAK:
             period[j] = found[0]
@@ -293,7 +304,6 @@ def fit_prior(kind: str, arm: str, runs: list[tuple]) -> Prior:
     if kind != "identified":
         raise ValueError(f"prior must be one of {PRIOR_KINDS[1:]}, got {kind!r}")
     m = pinocchio_model(arm)
-    d = m.createData()
     runs = [tuple(np.asarray(x, float) for x in r[:4]) + (None if len(r) < 5 or r[4] is None
                                                            else np.asarray(r[4], float),)
             for r in runs if len(r[0]) >= 2]
@@ -302,8 +312,8 @@ def fit_prior(kind: str, arm: str, runs: list[tuple]) -> Prior:
         temps = np.concatenate([r[4] for r in runs])
         heated = np.ptp(temps, axis=0) >= TEMP_MIN_SPAN_K  # no drift is identifiable without heating
         p.temp_ref = np.where(heated, temps.mean(0), np.nan)
-    p = _solve(m, d, p, runs)
-    p.ripple_period = _find_ripple(m, d, p, runs)
+    p = _solve(p, runs)
+    p.ripple_period = _find_ripple(p, runs)
     if np.any(p.ripple_period > 0):
-        p = _solve(m, d, p, runs)
+        p = _solve(p, runs)
     return p

@@ -45,9 +45,9 @@ def add_arguments(p) -> None:
     p.add_argument("--inputs", choices=("q", "q,qd", "q,qd,dq"), default="q,qd,dq", help="inputs (ablation)")
     p.add_argument("--prior", choices=("auto", "none", "description", "identified"), default="auto",
                    help="physics prior under the network: identified = the arm description corrected by "
-                        "least squares on this data (+ friction); description = as described; none = the "
-                        "paper's plain NEXT; auto (default) = identified when the arm is known and torque is "
-                        "in N*m")
+                        "least squares on this data (+ friction, thermal drift of the torque constant, "
+                        "ripple); description = as described; none = the paper's plain NEXT; auto (default) "
+                        "= identified when the arm is known and torque is in N*m")
     p.add_argument("--max-epochs", type=int, default=400)
     p.add_argument("--max-seconds", type=float, default=math.inf, help="stop training after this long")
     p.add_argument("--device", default="auto", help="torch device: auto (cuda if present), cpu, cuda")
