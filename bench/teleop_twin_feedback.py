@@ -40,7 +40,7 @@ def run_mode(mode: str, scale: float) -> dict:
             cfg.law.feedback.gate_on_contact = False
         fspec = s.rig.followers[0]
         est = make_estimator(mode, fol.n_joints, follower_arm=fspec.arm, pp_stiffness_nm_per_rad=40.0,
-                             truth=lambda: s.twin.ground_truth()[fspec.name].tau_ext)
+                             truth=lambda: s.twin.device_ground_truth(fspec.name, 1 / 500).tau_ext)
         pair = ArmPair(lead, fol, cfg, 1 / 500, gravity_fn=g, jacobian_fn=jac, estimator=est)
         q0 = lead.read().q
         script = make_task_script(q0, ABOVE, PRESS, [0.3, 0, 0, 0, 0, 0], free_s=1 * scale,

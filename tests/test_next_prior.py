@@ -103,9 +103,9 @@ def test_identified_prior_finds_ripple_break_away_and_thermal_drift_nobody_decla
 
 
 def test_filtering_both_sides_removes_the_acceleration_filters_lag():
-    """The prior filters measured and predicted torque alike; FILIC filters only the acceleration, and keeps
-    M(q) (qdd - qdd_filtered) in its residual. Same exact model, fast motion: the prior's error is far
-    smaller."""
+    """The prior filters the residual (measured minus predicted torque, both at the same midpoint); FILIC
+    filters only the acceleration, and keeps M(q) (qdd - qdd_filtered) in its residual. Same exact model,
+    fast motion: the prior's error is far smaller."""
     from calibration.baselines import filic_residual
 
     t, q, qd, qdd = _motion(20.0)
@@ -121,6 +121,38 @@ def test_filtering_both_sides_removes_the_acceleration_filters_lag():
     err = np.abs(tau - prior_torque(p, t, q, qd, tau))[20:].mean()
     err_filic = np.abs(filic_residual(m, t, q, qd, tau))[20:].mean()
     assert err < 0.2 * err_filic, (err, err_filic)
+
+
+def test_adaptive_estimate_filter_follows_contact_edges_without_more_noise():
+    """The estimate's low-pass with the shipped constants, on a residual with 0.05 N*m noise and a contact
+    from 1 s to 2 s (10 N*m on J1-J2 down to 0.5 on J6): in the 50 ms after each edge its error is under a
+    tenth of the fixed 20 Hz low-pass's for the 5-10 N*m steps and under 0.4 of it for the small ones; while
+    nothing happens its noise is within 10 % of it."""
+    from calibration.next.prior import (
+        ACCEL_CUTOFF_HZ,
+        EST_BETA,
+        EST_DERIV_HZ,
+        EST_MIN_HZ,
+        FILTER_ORDER,
+        _Lowpass,
+    )
+
+    t = np.arange(300) / RATE
+    truth = np.where((t >= 1) & (t < 2), 1.0, 0.0)[:, None] * np.array([10, 10, 5, 1, 1, 0.5])
+    r = truth + 0.05 * np.random.default_rng(0).normal(size=truth.shape)
+
+    def err(f):
+        return np.abs(np.array([f(x, 1 / RATE) for x in r]) - truth)
+
+    fixed = err(_Lowpass(ACCEL_CUTOFF_HZ, FILTER_ORDER))
+    adaptive = err(_Lowpass(EST_MIN_HZ, FILTER_ORDER, EST_BETA, EST_DERIV_HZ))
+    edges = ((t >= 1) & (t < 1.05)) | ((t >= 2) & (t < 2.05))
+    quiet = ((t > 0.3) & (t < 0.95)) | (t > 2.3)
+    ratio = adaptive[edges].mean(0) / fixed[edges].mean(0)
+    assert np.all(ratio[:3] < 0.1) and np.all(ratio < 0.4), ratio  # the cut-off rises with the step's size
+    assert np.all(adaptive[quiet].mean(0) < 1.1 * fixed[quiet].mean(0))
+    # beta 0 is the fixed low-pass
+    np.testing.assert_allclose(err(_Lowpass(ACCEL_CUTOFF_HZ, FILTER_ORDER, 0.0, EST_DERIV_HZ)), fixed)
 
 
 def test_stream_equals_batch_and_restarts():
@@ -151,6 +183,12 @@ def test_prior_round_trips_and_rejects_unknown_kinds_and_old_versions():
     np.testing.assert_array_equal(back.coefficients(), p.coefficients())
     np.testing.assert_array_equal(back.ripple_period, p.ripple_period)
     np.testing.assert_array_equal(back.temp_ref, p.temp_ref)  # NaN (no temperature) survives JSON as null
+    assert (back.est_min_hz, back.est_beta, back.est_deriv_hz) == (p.est_min_hz, p.est_beta, p.est_deriv_hz)
+    # saved before the adaptive estimate: evaluated as then, the fixed low-pass at the fit's cut-off
+    old = Prior.from_dict({k: v for k, v in p.to_dict().items() if not k.startswith("est_")}, 6)
+    assert (old.est_min_hz, old.est_beta) == (p.cutoff_hz, 0.0)
+    with pytest.raises(ValueError):
+        Prior.from_dict({**p.to_dict(), "est_beta": -1.0}, 6)
     with pytest.raises(ValueError):
         Prior.from_dict({**p.to_dict(), "kind": "magic"})
     with pytest.raises(ValueError, match="older version"):

@@ -126,6 +126,48 @@ def test_push_shows_in_ground_truth_and_in_measured_torque():
     assert np.all(world.ground_truth()[0].tau_push == 0.0)  # the push ended
 
 
+def test_ground_truth_is_the_mean_over_the_sample_period():
+    """A push lasting 4 of the last 10 physics steps: the 10-step mean is 0.4 of it, the last step 0."""
+    eff = dataclasses.replace(Effects.none(), quantisation=False)
+    _, world, bank = _piper_world(eff)
+    world.set_substeps(2)
+    _hold(world, bank, POSES[0], 0.5)
+    world.push("link6", [0.0, 0.0, -15.0], duration_s=0.004)
+    full = world.ground_truth()[0].tau_push  # the push as it acts now
+    assert np.max(np.abs(full)) > 1.0
+    for _ in range(5):  # 5 control ticks = 10 physics steps of 1 ms; the push acts in the first 4
+        world.step()
+    step = float(world.model.opt.timestep)
+    mean = world.ground_truth(average_s=10 * step)[0]
+    np.testing.assert_allclose(mean.tau_push, 0.4 * full, rtol=0.02, atol=1e-3)  # the pose barely moves
+    np.testing.assert_allclose(mean.tau_ext, mean.tau_push)
+    np.testing.assert_array_equal(world.ground_truth()[0].tau_push, 0.0)
+    np.testing.assert_array_equal(world.ground_truth(average_s=4 * step)[0].tau_push, 0.0)
+
+
+def test_averaged_truth_of_a_table_impact_is_the_mean_of_its_physics_steps():
+    """The gripper driven 4 cm into the table: the impact is a few physics steps long. Each 10 ms mean equals
+    the mean of its physics steps' contact torque (what a drive feels); the last step alone, read at the
+    same instants, is off from it by tens of N*m during the impact (aliasing)."""
+    eff = dataclasses.replace(Effects.none(), quantisation=False)
+    _, world, bank = _piper_world(eff, scene="table")
+    world.set_substeps(2)
+    q_up = np.array([0.0, 1.6, -1.0, 0.0, 0.9, 0.0])
+    _hold(world, bank, q_up, 0.5)
+    bank.command_position(np.arange(6), q_up + np.array([0, 0.4, 0, 0, 0, 0]))
+    per_step, means, points = [], [], []
+    for tick in range(1000):
+        world.step()
+        per_step.extend(-s[1][bank.dadr] for s in list(world._truth)[-2:])
+        if tick % 5 == 4:
+            means.append(world.ground_truth(average_s=0.01)[0].tau_contact)
+            points.append(world.ground_truth()[0].tau_contact)
+    per_step, means, points = np.array(per_step), np.array(means), np.array(points)
+    np.testing.assert_allclose(means, per_step.reshape(-1, 10, 6).mean(axis=1), atol=1e-9)
+    assert np.abs(means).max() > 1.0  # it pressed on the table
+    assert np.abs(means - points).max() > 5.0
+
+
 def test_table_contact_is_external_and_flagged():
     eff = dataclasses.replace(Effects.none(), quantisation=False)
     _, world, bank = _piper_world(eff, scene="table")

@@ -127,7 +127,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
     limits = spec.limits()
     clock, dt = session.clock, 1.0 / traj.rate_hz
     run = CollectedRun(joint_names=list(arm.joint_names))
-    truth = session.twin.ground_truth if session.twin is not None else None
+    truth = session.twin.device_ground_truth if session.twin is not None else None
     if pushes and session.twin is None:
         raise DeviceError("scripted pushes need a simulated rig", where=follower_name, fix="use a sim-* rig")
     todo = sorted(pushes or [], key=lambda p: p.t_s)
@@ -167,7 +167,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
             run.current.append(st.current)
             run.temperature.append(np.asarray(st.temperature, float)[: arm.n_joints])
             if truth is not None:
-                gt = truth()[follower_name]
+                gt = truth(follower_name, average_s=dt)  # the mean over this sample period
                 run.tau_ext_true.append(np.asarray(gt.tau_ext)[: arm.n_joints])
                 run.contact.append(bool(gt.contact) or bool(np.any(np.asarray(gt.tau_push) != 0.0)))
         if progress is not None and progress((k + 1) * dt, len(plan) * dt):

@@ -17,14 +17,22 @@ carry both. Kinds:
   explains enough of it.
 
 Filtering, the same everywhere (fit, offline evaluation, the control loop's PriorStream). The acceleration is
-the backward difference of q_dot, so every other signal is taken at the same half-sample midpoint; then the
-measured torque and the prior's prediction pass the same low-pass (`FILTER_ORDER` first-order sections at
-`ACCEL_CUTOFF_HZ`). Filtering only the acceleration (as FILIC does) leaves M(q) (qdd - qdd_filtered) -- the
-filter's lag times the jerk -- in the residual; filtering both sides equally removes it (docs/next.md).
-The estimate is therefore band-limited: NEXT with a prior gives tau_ext = LP(tau_m) - LP(prior) - f_theta,
-written here as a prediction of tau_m: prior_torque = tau_m - LP(tau_m) + LP(prior), so callers keep
-tau_ext = tau_m - tau_f. The prior needs N*m (a torque signal); logs in A without a torque constant get
-"none".
+the backward difference of q_dot, so every other signal is taken at the same half-sample midpoint, where
+tau_m - prior is an estimate of the external torque's mean over the last sample period. Filtering only the
+acceleration (as FILIC does) leaves M(q) (qdd - qdd_filtered) -- the filter's lag times the jerk -- in the
+residual; so the filter acts on the residual r = tau_m - prior itself (docs/next.md):
+
+- the fit weighs the residual through a fixed low-pass (`FILTER_ORDER` first-order sections at
+  `ACCEL_CUTOFF_HZ`, linear, so the least-squares design is filtered column by column);
+- the estimate passes an adaptive low-pass (the "1-euro" filter, Casiez et al., CHI 2012): per joint the
+  cut-off is EST_MIN_HZ + EST_BETA |dr/dt| (the rate of change low-passed at EST_DERIV_HZ). In free motion
+  the residual is noise around 0 and the cut-off stays low; when a contact starts or ends the residual
+  moves fast and the cut-off rises, so the edge is not smeared over tens of ms. With EST_BETA = 0 it is the
+  fixed low-pass (how priors saved before these fields were estimated).
+
+NEXT with a prior gives tau_ext = F(tau_m - prior) - f_theta, written here as a prediction of tau_m:
+prior_torque = tau_m - F(tau_m - prior), so callers keep tau_ext = tau_m - tau_f. The prior needs N*m (a
+torque signal); logs in A without a torque constant get "none".
 """
 
 from __future__ import annotations
@@ -36,8 +44,14 @@ import numpy as np
 import pinocchio as pin
 
 PRIOR_KINDS = ("none", "description", "identified")
-ACCEL_CUTOFF_HZ = 20.0  # low-pass on measured torque and prediction alike [Hz]
-FILTER_ORDER = 2  # first-order sections in cascade (2: half the noise of 1 at a few ms more lag)
+ACCEL_CUTOFF_HZ = 20.0  # the fit's low-pass on the residual [Hz]
+FILTER_ORDER = 2  # first-order sections in cascade, fit and estimate (2: half the noise of 1, a bit more lag)
+# The estimate's adaptive low-pass, chosen by bench/tune_next_filter.py on pushed twin runs that are not the
+# calibration's evaluation (contact error within 1 % of the best with free-motion error no worse than the
+# fixed 20 Hz low-pass; of those the lowest free-motion error):
+EST_MIN_HZ = 8.0  # cut-off while the residual is steady [Hz]
+EST_BETA = 4.0  # cut-off rise per unit rate of change of the residual [Hz per N*m/s]
+EST_DERIV_HZ = 5.0  # low-pass on that rate of change [Hz]
 FRICTION_VEL = 0.02  # tanh width of the smooth Coulomb term [rad/s] (above typical velocity noise)
 SHARP_VEL = 0.005  # tanh width of the sharp Coulomb and the Stribeck terms [rad/s]
 STRIBECK_VEL = 0.05  # decay speed of the Stribeck break-away torque [rad/s] (typical 0.01-0.1)
@@ -67,6 +81,9 @@ class Prior:
     temp_ref: np.ndarray = field(default_factory=lambda: np.zeros(0))
     cutoff_hz: float = ACCEL_CUTOFF_HZ
     order: int = FILTER_ORDER
+    est_min_hz: float = EST_MIN_HZ  # the estimate's adaptive low-pass (module docstring)
+    est_beta: float = EST_BETA
+    est_deriv_hz: float = EST_DERIV_HZ
 
     @property
     def uses_temperature(self) -> bool:
@@ -74,7 +91,8 @@ class Prior:
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "arm": self.arm, "version": 2, "cutoff_hz": self.cutoff_hz,
-                "order": self.order, "d_theta": np.asarray(self.d_theta).tolist(),
+                "order": self.order, "est_min_hz": self.est_min_hz, "est_beta": self.est_beta,
+                "est_deriv_hz": self.est_deriv_hz, "d_theta": np.asarray(self.d_theta).tolist(),
                 "ripple_period": np.asarray(self.ripple_period).tolist(),
                 "temp_ref": [None if not np.isfinite(x) else float(x) for x in self.temp_ref],
                 **{k: np.asarray(self.joint[k]).tolist() for k in JOINT_TERMS}}
@@ -99,9 +117,13 @@ class Prior:
         if not all(np.all(np.isfinite(a)) for a in arrays) or len(temp_ref) != n:
             raise ValueError("prior has non-finite or inconsistent parameters")
         order, cutoff = int(d["order"]), float(d["cutoff_hz"])
-        if not (1 <= order <= 4 and cutoff > 0):
-            raise ValueError(f"prior filter order {order}, cut-off {cutoff} Hz")
-        return cls(d["kind"], d["arm"], theta, joint, period, temp_ref, cutoff, order)
+        # saved without the adaptive estimate: the fixed low-pass it was evaluated with
+        est = [float(d.get("est_min_hz", cutoff)), float(d.get("est_beta", 0.0)),
+               float(d.get("est_deriv_hz", EST_DERIV_HZ))]
+        if not (1 <= order <= 4 and cutoff > 0 and est[0] > 0 and est[1] >= 0 and est[2] > 0
+                and np.all(np.isfinite(est))):
+            raise ValueError(f"prior filter order {order}, cut-offs {cutoff} Hz, {est}")
+        return cls(d["kind"], d["arm"], theta, joint, period, temp_ref, cutoff, order, *est)
 
     def coefficients(self) -> np.ndarray:
         return np.concatenate([self.d_theta] + [self.joint[k] for k in JOINT_TERMS])
@@ -154,16 +176,27 @@ def _columns(regressor: np.ndarray, terms: np.ndarray) -> np.ndarray:
 
 
 class _Lowpass:
-    """`order` first-order sections at one cut-off, state started at the first input (no start transient)."""
+    """`order` first-order sections, state started at the first input (no start transient). Cut-off
+    [Hz] = cutoff_hz + beta |dx/dt| per element, dx/dt low-passed at deriv_hz (beta 0: fixed)."""
 
-    def __init__(self, cutoff_hz: float, order: int):
-        self.tc, self.order, self.state = 1.0 / (2 * np.pi * cutoff_hz), order, None
+    def __init__(self, cutoff_hz: float, order: int, beta: float = 0.0, deriv_hz: float = EST_DERIV_HZ):
+        self.fc, self.order, self.beta, self.tc_d = cutoff_hz, order, beta, 1.0 / (2 * np.pi * deriv_hz)
+        self.state = self.prev = self.rate = None
 
     def __call__(self, x: np.ndarray, dt: float) -> np.ndarray:
+        x = np.asarray(x, float)
         if self.state is None:
-            self.state = [np.array(x, float) for _ in range(self.order)]
+            self.state = [x.copy() for _ in range(self.order)]
+            self.prev, self.rate = x.copy(), np.zeros_like(x)
+            return x.copy()
+        if not dt > 0.0:  # a repeated time stamp: nothing elapsed
             return self.state[-1].copy()
-        a = dt / (dt + self.tc)
+        fc = self.fc
+        if self.beta > 0.0:
+            self.rate += dt / (dt + self.tc_d) * ((x - self.prev) / dt - self.rate)
+            self.prev = x.copy()
+            fc = self.fc + self.beta * np.abs(self.rate)
+        a = dt / (dt + 1.0 / (2 * np.pi * fc))
         for s in self.state:
             s += a * (x - s)
             x = s
@@ -172,7 +205,7 @@ class _Lowpass:
 
 class PriorStream:
     """The prior one sample at a time: update(q, qd, tau_m[, temperature]) -> this sample's tau_f part
-    [N*m] = tau_m - LP(tau_m) + LP(prior) (module docstring). Over a run it equals prior_torque to
+    [N*m] = tau_m - F(tau_m - prior) (module docstring). Over a run it equals prior_torque to
     rounding. A prior with a temperature term and no temperature given uses the reference temperature and
     sets `missing_temperature`."""
 
@@ -187,7 +220,7 @@ class PriorStream:
 
     def reset(self) -> None:
         self._prev = None
-        self._lp = _Lowpass(self.p.cutoff_hz, self.p.order)
+        self._lp = _Lowpass(self.p.est_min_hz, self.p.order, self.p.est_beta, self.p.est_deriv_hz)
 
     def _midpoint_parts(self, q, qd, tau, temperature, dt: float):
         """(rnea, regressor, terms, tau_m) of this sample taken half a sample back, at the backward
@@ -211,15 +244,13 @@ class PriorStream:
         dt = self.dt if dt is None else dt
         rn, reg, terms, tau_m = self._midpoint_parts(q, qd, tau, temperature, dt)
         pred = rn + reg @ self.p.d_theta + np.einsum("kj,kj->j", terms, self._joint)  # = rn + columns @ coef
-        lp = self._lp(np.concatenate([tau_m, pred]), dt)
-        n = len(rn)
-        return np.asarray(tau, float) - lp[:n] + lp[n:]
+        return np.asarray(tau, float) - self._lp(tau_m - pred, dt)
 
 
 def prior_torque(p: Prior, t: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray,
                  temperature: np.ndarray | None = None) -> np.ndarray:
     """The prior's part of tau_f [N*m] for every sample of one run (N, n), filters started at its first
-    sample: tau_m - LP(tau_m) + LP(prior)."""
+    sample: tau_m - F(tau_m - prior)."""
     s = PriorStream(p)
     dts = np.diff(np.asarray(t, float), prepend=t[0])  # the first sample starts the filters: its step unused
     return np.array([s.update(q[k], qd[k], tau[k], None if temperature is None else temperature[k], dts[k])
@@ -228,7 +259,8 @@ def prior_torque(p: Prior, t: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np
 
 def _filtered_rows(p: Prior, run, chunk: int = 2048):
     """Yield (LP(rows) (k, n, P), LP(tau_m - rnea) (k, n), q (k, n)) in chunks over one run: the fit's
-    design, filtered as PriorStream filters the prediction (linear: LP(rows) @ c = LP(rows @ c))."""
+    design through the fit's fixed low-pass (linear: LP(rows) @ c = LP(rows @ c)), at the midpoints
+    PriorStream uses."""
     t, q, qd, tau, temp = run
     n = len(p.ripple_period)
     s = PriorStream(p)

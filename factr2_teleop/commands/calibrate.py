@@ -143,14 +143,19 @@ def heldout_blocks(n: int, frac: float, block: int) -> np.ndarray:
 
 
 def _record_contact_eval(session, spec, args):
-    """SIMULATED: replay a fresh coverage trajectory (other seed: not in the training data) while the twin
-    pushes links 3-6 (10-40 N, 0.5-1.5 s, one every ~3 s); the log carries the twin's ground truth."""
+    return record_pushed_replay(session, spec, args.contact_eval_s, args.rate_hz, seed=1)
+
+
+def record_pushed_replay(session, spec, seconds: float, rate_hz: float, seed: int = 1):
+    """SIMULATED: replay a fresh coverage trajectory (seed >= 1: not the training data's) while the twin
+    pushes links 3-6 (10-40 N, 0.5-1.5 s, one every ~3 s); the log carries the twin's ground truth (the mean
+    over each sample period). The calibration's contact evaluation is seed 1; other seeds give independent
+    runs (bench/tune_next_filter.py)."""
     from calibration.next.collect import Push, collect_free_motion
     from calibration.trajectories import arm_coverage_trajectory
 
-    traj = arm_coverage_trajectory(spec.arm, args.contact_eval_s / 60.0, args.rate_hz,
-                                   scene=session.rig.twin.scene, seed=1)
-    rng = np.random.default_rng(1)
+    traj = arm_coverage_trajectory(spec.arm, seconds / 60.0, rate_hz, scene=session.rig.twin.scene, seed=seed)
+    rng = np.random.default_rng(seed)
     pushes, t = [], 2.0
     while t < traj.duration_s - 2.0:
         d = rng.uniform(0.5, 1.5)

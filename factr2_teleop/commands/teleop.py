@@ -62,7 +62,7 @@ def _estimator(mode: str, spec, follower, session, checkpoint: str | None, rate_
     truth = None
     if session.twin is not None:
         twin, name = session.twin, spec.name
-        truth = lambda: twin.device_ground_truth(name).tau_ext  # noqa: E731
+        truth = lambda: twin.device_ground_truth(name, 1.0 / rate_hz).tau_ext  # noqa: E731  (tick mean)
     est = make_estimator(mode, follower.n_joints, follower_arm=spec.arm, next_source=src, truth=truth,
                          pp_stiffness_nm_per_rad=PP_STIFFNESS_NM_PER_RAD)
     return est, period

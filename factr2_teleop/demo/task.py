@@ -248,7 +248,7 @@ class DemoRun:
         self._gt_world, self._gt_bank = world, world.banks.index(s.twin.bank(fspec.name))
         est = make_estimator(cfg.mode, n, follower_arm=fspec.arm, dob_gain=cfg.dob_gain,
                              pp_stiffness_nm_per_rad=cfg.pp_stiffness, next_source=next_source,
-                             truth=lambda: world.ground_truth()[self._gt_bank].tau_ext)
+                             truth=lambda: world.ground_truth(1.0 / cfg.rate_hz)[self._gt_bank].tau_ext)
         self._model_fns = (g, jac)
         self.pair = ArmPair(self.leader, self.follower, pc, 1.0 / cfg.rate_hz, gravity_fn=g, jacobian_fn=jac,
                             estimator=est)
@@ -272,7 +272,7 @@ class DemoRun:
         self._tick_n += 1
         gt = None
         if self._tick_n % self._truth_every == 0:
-            gt = self._gt_world.ground_truth()[self._gt_bank]
+            gt = self._gt_world.ground_truth(self._truth_every / self.cfg.rate_hz)[self._gt_bank]
             f = contact_force_n(self._gt_world) if self.cfg.contact_force else float("nan")
             self._rows.append((rec["t"], rec["phase"], rec.get("leader.joint.tau_feedback"),
                                rec["follower.joint.tau_ext"], gt.tau_ext[: self.n].copy(), gt.contact, f,

@@ -112,7 +112,8 @@ class TeleopController:
         kw: dict = {"follower_arm": follower_spec.arm, "pp_stiffness_nm_per_rad": 20.0}
         if self.mode == "ground_truth" and twin is not None:
             name = follower_spec.name
-            kw["truth"] = lambda: twin.device_ground_truth(name).tau_ext[:n]
+            period = 1.0 / self.rate_hz
+            kw["truth"] = lambda: twin.device_ground_truth(name, period).tau_ext[:n]
         if self.mode == "next":
             problem = next_checkpoint_problem(self.rt)
             if problem:
@@ -256,7 +257,7 @@ class TeleopController:
         r.log_external_torque(f"{prefix}follower", t, rec["follower.joint.tau_ext"], rec["feedback.contact"])
         r.log_torque_command(f"{prefix}leader", t, rec["leader.joint.tau_cmd"], rec["feedback.gate"])
         if s.twin is not None:
-            gt = s.twin.device_ground_truth(pair.follower.name)
+            gt = s.twin.device_ground_truth(pair.follower.name, 1.0 / self.rate_hz)  # mean over the tick
             n = pair.follower.n_joints
             r.log_ground_truth(f"{prefix}follower", t, gt.tau_ext[:n], gt.contact)
         self._ticks += 1

@@ -43,8 +43,8 @@ class TwinServer:
         """Device name -> pseudo-terminal path (use like /dev/ttyUSB0)."""
         return self.twin.serial_ports
 
-    def ground_truth(self):
-        return self.twin.ground_truth()
+    def ground_truth(self, average_s: float = 0.0):
+        return self.twin.ground_truth(average_s)
 
     def push(self, link: str, force, duration_s: float, follower: str | None = None) -> None:
         self.twin.push(link, force, duration_s, follower)
@@ -117,9 +117,9 @@ class RigSession:
     def follower(self) -> Follower:
         return next(iter(self.followers.values()))
 
-    def ground_truth(self):
-        """SIMULATED ground truth per device (None on real hardware)."""
-        return self.twin.ground_truth() if self.twin else None
+    def ground_truth(self, average_s: float = 0.0):
+        """SIMULATED ground truth per device (None on real hardware); average_s: see Twin.ground_truth."""
+        return self.twin.ground_truth(average_s) if self.twin else None
 
     def close(self) -> None:
         if self.watchdog is not None:

@@ -356,14 +356,15 @@ class Twin:
         d = self.devices[follower or self.rig.followers[0].name]
         d.world.push(link, np.asarray(force, dtype=float), duration_s)
 
-    def ground_truth(self) -> dict[str, GroundTruth]:
-        """Ground truth per device (SIMULATED; see mujoco_bank.GroundTruth)."""
-        return {n: self.device_ground_truth(n) for n in self.devices}
+    def ground_truth(self, average_s: float = 0.0) -> dict[str, GroundTruth]:
+        """Ground truth per device (SIMULATED; see world.GroundTruth); average_s [s]: mean over the physics
+        steps of that last stretch -- pass the caller's sample period (world.MujocoWorld.ground_truth)."""
+        return {n: self.device_ground_truth(n, average_s) for n in self.devices}
 
-    def device_ground_truth(self, name: str) -> GroundTruth:
+    def device_ground_truth(self, name: str, average_s: float = 0.0) -> GroundTruth:
         """Ground truth of one device: computes only its world (what a per-tick caller needs)."""
         d = self.devices[name]
-        return d.world.ground_truth()[d.world.banks.index(d.bank)]
+        return d.world.ground_truth(average_s)[d.world.banks.index(d.bank)]
 
     def close(self) -> None:
         self.stop_realtime()

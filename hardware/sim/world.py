@@ -5,11 +5,19 @@ step() runs one control tick: every bank writes its motor torques (hardware/sim/
 external joint torque from contacts (constraint rows of contact type only; joint-limit rows are reported
 apart), pushes (xfrc_applied -> J^T F) and the operator's hand, in the paper's convention
 tau_ext = tau_m - tau_free, i.e. the torque the joints exert against the environment.
+
+Sampling. A stiff contact is a train of impacts a few physics steps long (a wrist pushed onto the table hops:
+~4 ms pulses of 100-800 N every ~10 ms). One physics step's constraint force, read every 10 ms, aliases that
+train into isolated spikes of tens of N*m; a drive, an F/T sensor's anti-alias filter and every estimator see
+its mean. So every physics step's external torque is kept (GT_HISTORY_S), and ground_truth(average_s=T)
+returns the mean over the physics steps of the last T seconds: a recorder sampling every T seconds passes T
+(the mean over its sample period, like an integrating sensor); average_s=0 is the last step alone.
 """
 
 from __future__ import annotations
 
 import threading
+from collections import deque
 from dataclasses import dataclass
 
 import mujoco
@@ -22,6 +30,9 @@ _CONTACT_TYPES = (int(mujoco.mjtConstraint.mjCNSTR_CONTACT_FRICTIONLESS),
                   int(mujoco.mjtConstraint.mjCNSTR_CONTACT_PYRAMIDAL),
                   int(mujoco.mjtConstraint.mjCNSTR_CONTACT_ELLIPTIC))
 _LIMIT_TYPES = (int(mujoco.mjtConstraint.mjCNSTR_LIMIT_JOINT), int(mujoco.mjtConstraint.mjCNSTR_LIMIT_TENDON))
+_IS_CONTACT = np.isin(np.arange(64), _CONTACT_TYPES)  # constraint type -> is a contact row
+_IS_LIMIT = np.isin(np.arange(64), _LIMIT_TYPES)
+GT_HISTORY_S = 0.1  # s: physics steps of ground truth kept for ground_truth(average_s=...)
 
 
 @dataclass
@@ -63,6 +74,9 @@ class MujocoWorld:
         self._geom_bank: np.ndarray | None = None
         self.steps = 0
         mujoco.mj_forward(model, self.data)
+        # per physics step: (t, contact, limit, push [N*m, model dofs], hand per bank, banks touching)
+        self._truth: deque = deque([self._instant_truth()],
+                                   maxlen=max(1, round(GT_HISTORY_S / float(model.opt.timestep))))
 
     @property
     def t(self) -> float:
@@ -72,6 +86,7 @@ class MujocoWorld:
         bank = MujocoBank(self, joints, params, **kw)
         self.banks.append(bank)
         self._geom_bank = None
+        self._truth.clear()  # entries carry one hand torque per bank
         return bank
 
     def set_substeps(self, k: int) -> None:
@@ -83,7 +98,7 @@ class MujocoWorld:
             b.set_control_dt(self.dt)
 
     def step(self) -> None:
-        """One control tick: banks compute torques, then `substeps` physics steps."""
+        """One control tick: banks compute torques, then `substeps` physics steps (truth kept for each)."""
         with self.lock:
             t, dt = self.t, self.dt
             if self._push_until >= 0 and t >= self._push_until:
@@ -91,7 +106,9 @@ class MujocoWorld:
                 self._push_until = -1.0
             for b in self.banks:
                 b._apply(t, dt)
-            mujoco.mj_step(self.model, self.data, self.substeps)
+            for _ in range(self.substeps):
+                mujoco.mj_step(self.model, self.data)
+                self._truth.append(self._instant_truth())
             self.steps += 1
             for b in self.banks:
                 b._after_step(dt)
@@ -144,38 +161,47 @@ class MujocoWorld:
             self._geom_bank = body_bank[m.geom_bodyid]
         return self._geom_bank
 
-    def ground_truth(self) -> list[GroundTruth]:
-        """Ground truth per bank from the last step's constraint forces and the current pushes."""
+    def _instant_truth(self) -> tuple:
+        """This physics step's external joint torques (model dofs) from its constraint forces and push."""
         m, d = self.model, self.data
-        with self.lock:
-            nefc = d.nefc
-            etype = d.efc_type[:nefc]
-            force = d.efc_force[:nefc]
-            is_contact = np.isin(etype, _CONTACT_TYPES)
-            qfrc_contact, qfrc_limit = np.zeros(m.nv), np.zeros(m.nv)
-            if nefc:
-                mujoco.mj_mulJacTVec(m, d, qfrc_contact, np.where(is_contact, force, 0.0))
-                mujoco.mj_mulJacTVec(m, d, qfrc_limit, np.where(np.isin(etype, _LIMIT_TYPES), force, 0.0))
+        nefc = d.nefc
+        etype, force = d.efc_type[:nefc], d.efc_force[:nefc]
+        is_contact, is_limit = _IS_CONTACT[etype], _IS_LIMIT[etype]
+        qfrc_contact, qfrc_limit = np.zeros(m.nv), np.zeros(m.nv)
+        touching: set[int] = set()
+        if is_contact.any():
+            mujoco.mj_mulJacTVec(m, d, qfrc_contact, np.where(is_contact, force, 0.0))
             gb = self._bank_of_geom()
-            touching = set()
-            active = np.unique(d.efc_id[:nefc][is_contact & (np.abs(force) > 1e-9)])
-            for c in active:
-                g1, g2 = d.contact.geom1[c], d.contact.geom2[c]
-                touching.update(int(k) for k in (gb[g1], gb[g2]) if k >= 0)
-            qfrc_push = np.zeros(m.nv)
-            if self._push_until >= 0:
-                jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
-                mujoco.mj_jacBodyCom(m, d, jacp, jacr, self._push_body)
-                qfrc_push = jacp.T @ self._push_force[:3] + jacr.T @ self._push_force[3:]
+            for c in np.unique(d.efc_id[:nefc][is_contact & (np.abs(force) > 1e-9)]):
+                touching.update(int(k) for k in (gb[d.contact.geom1[c]], gb[d.contact.geom2[c]]) if k >= 0)
+        if is_limit.any():
+            mujoco.mj_mulJacTVec(m, d, qfrc_limit, np.where(is_limit, force, 0.0))
+        qfrc_push = np.zeros(m.nv)
+        if self._push_until >= 0:
+            jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
+            mujoco.mj_jacBodyCom(m, d, jacp, jacr, self._push_body)
+            qfrc_push = jacp.T @ self._push_force[:3] + jacr.T @ self._push_force[3:]
+        hands = [b.tau_hand.copy() for b in self.banks]
+        return (self.t, qfrc_contact, qfrc_limit, qfrc_push, hands, touching)
+
+    def ground_truth(self, average_s: float = 0.0) -> list[GroundTruth]:
+        """Ground truth per bank: the mean over the physics steps of the last average_s seconds (at least the
+        state now; up to GT_HISTORY_S) of the external torques; q, q_dot and drive torques as of now."""
+        with self.lock:
+            t_from = self.t - average_s + 0.5 * float(self.model.opt.timestep)  # steps ending in (t - T, t]
+            recent = [s for s in self._truth if s[0] > t_from] if average_s > 0 else []
+            recent = recent or [self._instant_truth()]  # the state now (and a push or hand set since)
+            qfrc_contact, qfrc_limit, qfrc_push = (np.mean([s[k] for s in recent], axis=0) for k in (1, 2, 3))
+            touching = set().union(*(s[5] for s in recent))
             out = []
             for k, b in enumerate(self.banks):
                 dd = b.dadr
                 tc, tp = -qfrc_contact[dd], -qfrc_push[dd]
-                th = -b.tau_hand
+                th = -np.mean([s[4][k] for s in recent], axis=0)
                 out.append(GroundTruth(t=self.t, tau_ext=tc + tp + th, tau_contact=tc, tau_push=tp,
                                        tau_hand=th,
                                        tau_limit=-qfrc_limit[dd], contact=k in touching,
-                                       q=d.qpos[b.qadr].copy(), q_dot=d.qvel[dd].copy(),
+                                       q=self.data.qpos[b.qadr].copy(), q_dot=self.data.qvel[dd].copy(),
                                        tau_motor=b.tau_act.copy(), tau_friction=b.tau_friction,
                                        tau_load=b.tau_load))
             return out
