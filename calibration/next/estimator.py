@@ -16,9 +16,10 @@ runs may be stepped later by work() calls on the control ticks between two sampl
 still pending, so the result is the same arithmetic in any case.
 
 Physics prior (checkpoints trained with `prior`, calibration.next.prior): tau_f = prior part + network; the
-prior runs one sample at a time (PriorStream: the same midpoint acceleration and low-pass of measured and
-predicted torque as training) and restarts with the window. It needs tau_m, and the motor temperature when
-it has a temperature term (without one it uses the reference temperature and sets FLAG_NO_TEMPERATURE).
+prior runs one sample at a time (PriorStream: the same midpoint acceleration as training, and the
+checkpoint's low-pass of the residual measured - predicted torque) and restarts with the window. It needs
+tau_m, and the motor temperature when it has a temperature term (without one it uses the reference
+temperature and sets FLAG_NO_TEMPERATURE).
 
 GRU/MLP checkpoints (ablation architectures) are evaluated with torch on a rolling buffer (exact, slower).
 
