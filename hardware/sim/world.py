@@ -106,9 +106,10 @@ class MujocoWorld:
                 self._push_until = -1.0
             for b in self.banks:
                 b._apply(t, dt)
+            hands = self._hands()  # the hand torques hold over the tick
             for _ in range(self.substeps):
                 mujoco.mj_step(self.model, self.data)
-                self._truth.append(self._instant_truth())
+                self._truth.append(self._instant_truth(hands))
             self.steps += 1
             for b in self.banks:
                 b._after_step(dt)
@@ -161,28 +162,38 @@ class MujocoWorld:
             self._geom_bank = body_bank[m.geom_bodyid]
         return self._geom_bank
 
-    def _instant_truth(self) -> tuple:
-        """This physics step's external joint torques (model dofs) from its constraint forces and push."""
+    def _hands(self) -> tuple:
+        return tuple(b.tau_hand.copy() if np.count_nonzero(b.tau_hand) else None for b in self.banks)
+
+    def _instant_truth(self, hands: tuple | None = None) -> tuple:
+        """This physics step's external joint torques (model dofs) from its constraint forces and push:
+        (t, contact, limit, push, hand per bank, banks touching); None for a part that is zero (most steps,
+        so the per-step cost stays small: count_nonzero, not any(), on these few-element arrays)."""
         m, d = self.model, self.data
+        contact = limit = push = None
+        touching: tuple = ()
         nefc = d.nefc
-        etype, force = d.efc_type[:nefc], d.efc_force[:nefc]
-        is_contact, is_limit = _IS_CONTACT[etype], _IS_LIMIT[etype]
-        qfrc_contact, qfrc_limit = np.zeros(m.nv), np.zeros(m.nv)
-        touching: set[int] = set()
-        if is_contact.any():
-            mujoco.mj_mulJacTVec(m, d, qfrc_contact, np.where(is_contact, force, 0.0))
-            gb = self._bank_of_geom()
-            for c in np.unique(d.efc_id[:nefc][is_contact & (np.abs(force) > 1e-9)]):
-                touching.update(int(k) for k in (gb[d.contact.geom1[c]], gb[d.contact.geom2[c]]) if k >= 0)
-        if is_limit.any():
-            mujoco.mj_mulJacTVec(m, d, qfrc_limit, np.where(is_limit, force, 0.0))
-        qfrc_push = np.zeros(m.nv)
+        if nefc:
+            etype = d.efc_type[:nefc]
+            is_contact, is_limit = _IS_CONTACT[etype], _IS_LIMIT[etype]
+            # a contact between two bodies no bank moves (an object resting on the table) loads no bank joint
+            arm_contact = np.count_nonzero(self._bank_of_geom()[d.contact.geom[:d.ncon]] >= 0)
+            if np.count_nonzero(is_contact) and arm_contact:
+                force = d.efc_force[:nefc]
+                contact = np.zeros(m.nv)
+                mujoco.mj_mulJacTVec(m, d, contact, np.where(is_contact, force, 0.0))
+                gb = self._bank_of_geom()
+                active = np.unique(d.efc_id[:nefc][is_contact & (np.abs(force) > 1e-9)])
+                touching = tuple({int(k) for c in active
+                                  for k in (gb[d.contact.geom1[c]], gb[d.contact.geom2[c]]) if k >= 0})
+            if np.count_nonzero(is_limit):
+                limit = np.zeros(m.nv)
+                mujoco.mj_mulJacTVec(m, d, limit, np.where(is_limit, d.efc_force[:nefc], 0.0))
         if self._push_until >= 0:
             jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
             mujoco.mj_jacBodyCom(m, d, jacp, jacr, self._push_body)
-            qfrc_push = jacp.T @ self._push_force[:3] + jacr.T @ self._push_force[3:]
-        hands = [b.tau_hand.copy() for b in self.banks]
-        return (self.t, qfrc_contact, qfrc_limit, qfrc_push, hands, touching)
+            push = jacp.T @ self._push_force[:3] + jacr.T @ self._push_force[3:]
+        return (d.time, contact, limit, push, self._hands() if hands is None else hands, touching)
 
     def ground_truth(self, average_s: float = 0.0) -> list[GroundTruth]:
         """Ground truth per bank: the mean over the physics steps of the last average_s seconds (at least the
@@ -191,13 +202,18 @@ class MujocoWorld:
             t_from = self.t - average_s + 0.5 * float(self.model.opt.timestep)  # steps ending in (t - T, t]
             recent = [s for s in self._truth if s[0] > t_from] if average_s > 0 else []
             recent = recent or [self._instant_truth()]  # the state now (and a push or hand set since)
-            qfrc_contact, qfrc_limit, qfrc_push = (np.mean([s[k] for s in recent], axis=0) for k in (1, 2, 3))
+            nv = self.model.nv
+
+            def mean(parts) -> np.ndarray:
+                return sum((x for x in parts if x is not None), np.zeros(nv)) / len(recent)
+
+            qfrc_contact, qfrc_limit, qfrc_push = (mean(s[k] for s in recent) for k in (1, 2, 3))
             touching = set().union(*(s[5] for s in recent))
             out = []
             for k, b in enumerate(self.banks):
                 dd = b.dadr
                 tc, tp = -qfrc_contact[dd], -qfrc_push[dd]
-                th = -np.mean([s[4][k] for s in recent], axis=0)
+                th = -sum((s[4][k] for s in recent if s[4][k] is not None), np.zeros(b.n)) / len(recent)
                 out.append(GroundTruth(t=self.t, tau_ext=tc + tp + th, tau_contact=tc, tau_push=tp,
                                        tau_hand=th,
                                        tau_limit=-qfrc_limit[dd], contact=k in touching,
