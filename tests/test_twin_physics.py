@@ -131,6 +131,9 @@ def test_ground_truth_is_the_mean_over_the_sample_period():
     eff = dataclasses.replace(Effects.none(), quantisation=False)
     _, world, bank = _piper_world(eff)
     world.set_substeps(2)
+    assert not world.keep_truth  # no per-step history until someone asks for a mean
+    world.ground_truth(average_s=0.01)
+    assert world.keep_truth
     _hold(world, bank, POSES[0], 0.5)
     world.push("link6", [0.0, 0.0, -15.0], duration_s=0.004)
     full = world.ground_truth()[0].tau_push  # the push as it acts now
@@ -152,6 +155,7 @@ def test_averaged_truth_of_a_table_impact_is_the_mean_of_its_physics_steps():
     eff = dataclasses.replace(Effects.none(), quantisation=False)
     _, world, bank = _piper_world(eff, scene="table")
     world.set_substeps(2)
+    world.keep_truth = True  # keep every physics step (a first averaged read does the same)
     q_up = np.array([0.0, 1.6, -1.0, 0.0, 0.9, 0.0])
     _hold(world, bank, q_up, 0.5)
     bank.command_position(np.arange(6), q_up + np.array([0, 0.4, 0, 0, 0, 0]))

@@ -131,6 +131,8 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
     if pushes and session.twin is None:
         raise DeviceError("scripted pushes need a simulated rig", where=follower_name, fix="use a sim-* rig")
     todo = sorted(pushes or [], key=lambda p: p.t_s)
+    if truth is not None:
+        truth(follower_name, average_s=dt)  # starts the twin's per-step history: every sample gets its mean
 
     st = follower.read()
     s = move_speed

@@ -299,7 +299,7 @@ class DemoRun:
         ls, fs = self.leader.read(), self.follower.read()
         self.operator.torque(self.operator.t0, ls.q, np.nan_to_num(ls.q_dot))
         self.operator.log.clear()
-        self._gt_world.ground_truth()
+        self._gt_world.ground_truth(self._truth_every / self.cfg.rate_hz)  # also starts the per-step history
         if self.cfg.contact_force:
             contact_force_n(self._gt_world)
         g, jac = self._model_fns

@@ -9,9 +9,10 @@ tau_ext = tau_m - tau_free, i.e. the torque the joints exert against the environ
 Sampling. A stiff contact is a train of impacts a few physics steps long (a wrist pushed onto the table hops:
 ~4 ms pulses of 100-800 N every ~10 ms). One physics step's constraint force, read every 10 ms, aliases that
 train into isolated spikes of tens of N*m; a drive, an F/T sensor's anti-alias filter and every estimator see
-its mean. So every physics step's external torque is kept (GT_HISTORY_S), and ground_truth(average_s=T)
-returns the mean over the physics steps of the last T seconds: a recorder sampling every T seconds passes T
-(the mean over its sample period, like an integrating sensor); average_s=0 is the last step alone.
+its mean. So every physics step's external torque is kept (GT_HISTORY_S; from the first averaged read on,
+`keep_truth`, ~5 us per physics step), and ground_truth(average_s=T) returns the mean over the physics steps
+of the last T seconds: a recorder sampling every T seconds passes T (the mean over its sample period, like an
+integrating sensor); average_s=0 is the state now.
 """
 
 from __future__ import annotations
@@ -74,9 +75,10 @@ class MujocoWorld:
         self._geom_bank: np.ndarray | None = None
         self.steps = 0
         mujoco.mj_forward(model, self.data)
-        # per physics step: (t, contact, limit, push [N*m, model dofs], hand per bank, banks touching)
-        self._truth: deque = deque([self._instant_truth()],
-                                   maxlen=max(1, round(GT_HISTORY_S / float(model.opt.timestep))))
+        # per physics step: (t, contact, limit, push [N*m, model dofs], hand per bank, banks touching); kept
+        # from the first averaged read on (keep_truth), so a world nobody asks costs nothing extra per step
+        self.keep_truth = False
+        self._truth: deque = deque(maxlen=max(1, round(GT_HISTORY_S / float(model.opt.timestep))))
 
     @property
     def t(self) -> float:
@@ -106,10 +108,13 @@ class MujocoWorld:
                 self._push_until = -1.0
             for b in self.banks:
                 b._apply(t, dt)
-            hands = self._hands()  # the hand torques hold over the tick
-            for _ in range(self.substeps):
-                mujoco.mj_step(self.model, self.data)
-                self._truth.append(self._instant_truth(hands))
+            if self.keep_truth:
+                hands = self._hands()  # the hand torques hold over the tick
+                for _ in range(self.substeps):
+                    mujoco.mj_step(self.model, self.data)
+                    self._truth.append(self._instant_truth(hands))
+            else:
+                mujoco.mj_step(self.model, self.data, self.substeps)
             self.steps += 1
             for b in self.banks:
                 b._after_step(dt)
@@ -168,27 +173,25 @@ class MujocoWorld:
     def _instant_truth(self, hands: tuple | None = None) -> tuple:
         """This physics step's external joint torques (model dofs) from its constraint forces and push:
         (t, contact, limit, push, hand per bank, banks touching); None for a part that is zero (most steps,
-        so the per-step cost stays small: count_nonzero, not any(), on these few-element arrays)."""
+        so the per-step cost stays small: MuJoCo's contact and limit counts first)."""
         m, d = self.model, self.data
         contact = limit = push = None
         touching: tuple = ()
-        nefc = d.nefc
-        if nefc:
-            etype = d.efc_type[:nefc]
-            is_contact, is_limit = _IS_CONTACT[etype], _IS_LIMIT[etype]
-            # a contact between two bodies no bank moves (an object resting on the table) loads no bank joint
-            arm_contact = np.count_nonzero(self._bank_of_geom()[d.contact.geom[:d.ncon]] >= 0)
-            if np.count_nonzero(is_contact) and arm_contact:
-                force = d.efc_force[:nefc]
-                contact = np.zeros(m.nv)
-                mujoco.mj_mulJacTVec(m, d, contact, np.where(is_contact, force, 0.0))
-                gb = self._bank_of_geom()
-                active = np.unique(d.efc_id[:nefc][is_contact & (np.abs(force) > 1e-9)])
-                touching = tuple({int(k) for c in active
-                                  for k in (gb[d.contact.geom1[c]], gb[d.contact.geom2[c]]) if k >= 0})
-            if np.count_nonzero(is_limit):
-                limit = np.zeros(m.nv)
-                mujoco.mj_mulJacTVec(m, d, limit, np.where(is_limit, d.efc_force[:nefc], 0.0))
+        ncon = d.ncon
+        # a contact between two bodies no bank moves (an object resting on the table) loads no bank joint
+        if ncon and np.count_nonzero(self._bank_of_geom()[d.contact.geom[:ncon]] >= 0):
+            nefc = d.nefc
+            is_contact, force = _IS_CONTACT[d.efc_type[:nefc]], d.efc_force[:nefc]
+            contact = np.zeros(m.nv)
+            mujoco.mj_mulJacTVec(m, d, contact, np.where(is_contact, force, 0.0))
+            gb = self._bank_of_geom()
+            active = np.unique(d.efc_id[:nefc][is_contact & (np.abs(force) > 1e-9)])
+            touching = tuple({int(k) for c in active
+                              for k in (gb[d.contact.geom1[c]], gb[d.contact.geom2[c]]) if k >= 0})
+        if d.nl:  # joint or tendon limit rows
+            nefc = d.nefc
+            limit = np.zeros(m.nv)
+            mujoco.mj_mulJacTVec(m, d, limit, np.where(_IS_LIMIT[d.efc_type[:nefc]], d.efc_force[:nefc], 0.0))
         if self._push_until >= 0:
             jacp, jacr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
             mujoco.mj_jacBodyCom(m, d, jacp, jacr, self._push_body)
@@ -197,8 +200,12 @@ class MujocoWorld:
 
     def ground_truth(self, average_s: float = 0.0) -> list[GroundTruth]:
         """Ground truth per bank: the mean over the physics steps of the last average_s seconds (at least the
-        state now; up to GT_HISTORY_S) of the external torques; q, q_dot and drive torques as of now."""
+        state now; up to GT_HISTORY_S) of the external torques; q, q_dot and drive torques as of now. The
+        first call with average_s > 0 starts the per-step history (keep_truth): read once before a run."""
         with self.lock:
+            if average_s > 0 and not self.keep_truth:
+                self.keep_truth = True
+                self._truth.clear()
             t_from = self.t - average_s + 0.5 * float(self.model.opt.timestep)  # steps ending in (t - T, t]
             recent = [s for s in self._truth if s[0] > t_from] if average_s > 0 else []
             recent = recent or [self._instant_truth()]  # the state now (and a push or hand set since)
