@@ -214,6 +214,7 @@ class PriorStream:
         self.m = pinocchio_model(p.arm)
         self.d = self.m.createData()
         self._joint = np.stack([p.joint[k] for k in JOINT_TERMS])  # (8, n), as _parts' terms
+        self._needs_temperature = p.uses_temperature  # fixed for the stream: not re-derived per tick
         self.dt = None if rate_hz is None else 1.0 / rate_hz
         self.missing_temperature = False
         self.reset()
@@ -228,7 +229,7 @@ class PriorStream:
         temp = None if temperature is None else np.asarray(temperature, float)
         if temp is not None and not np.all(np.isfinite(temp)):
             temp = None
-        if temp is None and self.p.uses_temperature:
+        if temp is None and self._needs_temperature:
             self.missing_temperature = True
         cur = (np.asarray(q, float), np.asarray(qd, float), np.asarray(tau, float), temp)
         prev, self._prev = self._prev, cur

@@ -104,7 +104,7 @@ def _run_on_rig(args, cfg) -> int:
             minutes = keep / args.rate_hz / 60.0
             print(f"warning: {e.what}; training on the {minutes:.1f} min recorded before it", file=sys.stderr)
         if rig.simulated and args.contact_eval_s > 0:
-            contact_eval = _record_contact_eval(session, spec, args)
+            contact_eval = record_pushed_replay(session, spec, args.contact_eval_s, args.rate_hz, seed=1)
     bar.close()
     arrays = run.arrays()
     n = len(arrays["t"])
@@ -140,10 +140,6 @@ def heldout_blocks(n: int, frac: float, block: int) -> np.ndarray:
     block = max(1, min(block, n // k))  # a short run gets shorter blocks, so something is held out
     idx = np.arange(n) // block
     return (idx % k) == k - 1
-
-
-def _record_contact_eval(session, spec, args):
-    return record_pushed_replay(session, spec, args.contact_eval_s, args.rate_hz, seed=1)
 
 
 def record_pushed_replay(session, spec, seconds: float, rate_hz: float, seed: int = 1):
