@@ -2,7 +2,9 @@
 
 1. Streaming estimator speed: NextEstimator.update (6 joints, H=50, 2x128 LSTM) vs a plain torch forward of
    the same model on the same 50-step window, same run, one thread; prints the ratio and the largest
-   difference between the two outputs.
+   difference between the two outputs. `--checkpoint DIR/next.json`: the same on a trained checkpoint fed
+   its held-out recording, in the mode the estimator picks (carried state when the training measured fading
+   memory) and with exact windows, the physics prior included or not.
 2. UR5 real logs (../shared/data/ur5_kufieta2014, current in A): train NEXT on the free-motion runs, score
    held-out runs (free motion: L1 vs 0, in A) against the ridge baseline and raw current; report the time to
    reach within 5 % of the best validation loss of the run (the run's best stands in for "converged" -- run
@@ -13,7 +15,8 @@
    (default: the paper's plain NEXT, then NEXT on the identified physics prior), score held-out free motion
    and the pushed contact replay against the disturbance observer and FILIC (ratios printed).
 
-    python bench/bench_next.py [--threads 2] [--max-seconds 600] [--skip-train] [--twin-data DIR]
+    python bench/bench_next.py [--threads 2] [--max-seconds 600] [--skip-train] [--checkpoint DIR/next.json]
+                               [--twin-data DIR]
                                [--twin-priors none,identified]
 Writes bench/out/next.json.
 """
@@ -88,6 +91,62 @@ def bench_estimator(ticks: int = 2000) -> dict:
     return out
 
 
+def bench_checkpoint(path: Path, ticks: int = 3000) -> dict:
+    """The streaming estimator on a trained checkpoint (next.json of `factr2 calibrate --rig`), fed the
+    held-out recording next to it (data/heldout.npz): per tick, in the mode the estimator picks and with
+    the exact windows; the network alone vs a plain torch forward on the same windows (ratio, largest
+    difference), and the whole estimate (physics prior included)."""
+    from dataclasses import replace
+
+    from calibration.next.checkpoint import load_checkpoint
+    from calibration.next.data import make_inputs
+    from calibration.next.estimator import NextEstimator
+
+    torch.set_num_threads(1)
+    ck = load_checkpoint(path)
+    d = np.load(path.parent / "data" / "heldout.npz")
+    n = min(ticks, len(d["t"]))
+    q, qd, qc, tau, temp = (d[k][:n] for k in ("q", "qd", "q_cmd", "tau_m", "temperature"))
+
+    def run(est) -> tuple[float, np.ndarray]:
+        out = np.empty((n, len(ck.joint_names)))
+        t0 = time.perf_counter()
+        for i in range(n):
+            out[i] = est.update(q[i], qd[i], qc[i], tau[i], temp[i]).tau_f
+        return (time.perf_counter() - t0) / n, out
+
+    h, norm = ck.history, ck.normalizer
+    x = torch.from_numpy(norm.norm_x(make_inputs(q, qd, qc, ck.inputs)).astype(np.float32))
+    ref = np.full((n, len(ck.joint_names)), np.nan)
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        for i in range(h - 1, n):
+            ref[i] = ck.model(x[None, i - h + 1:i + 1])[0].numpy()
+    t_torch = (time.perf_counter() - t0) / (n - h + 1)
+    ref = ref * norm.y_std + norm.y_mean
+    net = replace(ck, prior=None)
+    auto = NextEstimator(net)
+    rows = {}
+    exact = (NextEstimator(net, carried=False), NextEstimator(ck, carried=False))
+    for name, est_net, est_all in (("auto", auto, NextEstimator(ck)), ("exact", *exact)):
+        t_net, f = run(est_net)
+        t_all, _ = run(est_all)
+        rows[name] = {"mode": est_net.mode, "network_ms": t_net * 1e3, "estimate_ms": t_all * 1e3,
+                      "speedup_vs_torch": t_torch / t_net, "max_abs_diff": float(np.nanmax(np.abs(f - ref)))}
+    out = {"checkpoint": str(path), "ticks": n, "torch_window_forward_ms": t_torch * 1e3, **rows,
+           "carried_max_diff_at_training": (ck.metrics or {}).get("carried_max_diff"),
+           "audits": auto.audits_done, "audit_max_diff": auto.audit_max_diff.tolist()}
+    print(f"{path}: plain torch LSTM window forward {t_torch * 1e3:.3f} ms")
+    for name, r in rows.items():
+        print(f"  {name:5s} ({r['mode']}): network {r['network_ms']:.3f} ms/tick -> "
+              f"{r['speedup_vs_torch']:.1f}x faster, max |diff| {r['max_abs_diff']:.2e} [{ck.units}]; "
+              "whole estimate with prior "
+              f"{r['estimate_ms']:.3f} ms/tick")
+    print(f"  audits {auto.audits_done}, largest audit difference {auto.audit_max_diff.max():.2e} "
+          f"[{ck.units}]")
+    return out
+
+
 def bench_ur5(threads: int, max_seconds: float, out_dir: Path) -> dict:
     from calibration.next.train import TrainConfig
     from calibration.report import calibrate_from_logs
@@ -154,6 +213,8 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--max-seconds", type=float, default=600.0)
     ap.add_argument("--skip-train", action="store_true")
+    ap.add_argument("--checkpoint", type=Path, help="next.json of a `factr2 calibrate --rig` run: time the "
+                    "estimator on it, fed DIR/data/heldout.npz")
     ap.add_argument("--twin-data", type=Path, help="data/ folder of a factr2 calibrate --rig sim-piper run")
     ap.add_argument("--twin-priors", default="none,identified",
                     help="physics priors to train the twin part with (comma separated)")
@@ -161,6 +222,8 @@ def main() -> int:
     out = ROOT / "bench" / "out"
     out.mkdir(parents=True, exist_ok=True)
     results = {"estimator": bench_estimator()}
+    if args.checkpoint is not None:
+        results["checkpoint_estimator"] = bench_checkpoint(args.checkpoint)
     if not args.skip_train:
         results["ur5"] = bench_ur5(args.threads, args.max_seconds, out / "next_ur5")
         if args.twin_data is not None:

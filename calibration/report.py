@@ -165,7 +165,8 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
                         x_min=data.x_min, x_max=data.x_max,
                         data_hash=data.data_hash, train_config=cfg.to_dict(),
                         metrics={"val_l1": result.val_l1, "best_val_mse_normalized": result.best_val_loss,
-                                 "epochs": result.epochs, "train_seconds": result.seconds}, prior=prior)
+                                 "epochs": result.epochs, "train_seconds": result.seconds,
+                                 "carried_max_diff": result.carried_max_diff}, prior=prior)
     save_checkpoint(ck, out / "next")
     ridge = baselines.fit_ridge(*(np.concatenate([getattr(s, k) for s in segments]) for k in
                                   ("q", "qd", "q_cmd", "tau")))

@@ -1,4 +1,4 @@
-"""Streaming estimator: equals the batch model exactly, NaN guard, OOD flag, EMA."""
+"""Streaming estimator: equals the batch model exactly, NaN guard, OOD flag, EMA; carried state + audits."""
 
 from __future__ import annotations
 
@@ -7,9 +7,17 @@ import pytest
 import torch
 
 from calibration.next.checkpoint import NextCheckpoint
-from calibration.next.data import Normalizer
-from calibration.next.estimator import FLAG_NONFINITE, FLAG_OOD, FLAG_WARMUP, NextEstimator, batch_tau_f
+from calibration.next.data import Normalizer, make_inputs
+from calibration.next.estimator import (
+    FLAG_NONFINITE,
+    FLAG_OOD,
+    FLAG_UNVERIFIED,
+    FLAG_WARMUP,
+    NextEstimator,
+    batch_tau_f,
+)
 from calibration.next.model import ModelConfig, NextModel
+from calibration.next.train import carried_state_diff
 
 torch.set_num_threads(1)
 
@@ -109,3 +117,73 @@ def test_deferred_work_gives_the_same_estimates(works):
     h = ck.model.cfg.history
     assert np.all(np.isnan(out[: h - 1]))
     assert np.allclose(out[h - 1:], ref[h - 1:], atol=1e-5)
+
+
+def _long_memory(ck):
+    """The same checkpoint with every forget gate saturated open: its cell state never forgets, so a carried
+    run and a window run drift apart."""
+    for layer in (0, 1):
+        b = getattr(ck.model.rnn, f"bias_ih_l{layer}")
+        h = b.shape[0] // 4
+        with torch.no_grad():
+            b[h:2 * h] = 30.0
+    return ck
+
+
+def _measured(ck, n=200):
+    q, qd, qc, _ = _stream(n=n)
+    x = torch.as_tensor(ck.normalizer.norm_x(make_inputs(q, qd, qc, ck.inputs)).astype(np.float32))
+    return carried_state_diff(ck.model, x, np.arange(ck.history - 1, n), ck.history) * ck.normalizer.y_std
+
+
+def test_carried_state_diff_tells_fading_from_long_memory():
+    fading, long = _measured(_ck()), _measured(_long_memory(_ck()))
+    assert np.all(fading < 1e-3)  # a freshly initialised LSTM forgets within H = 12 samples
+    assert np.all(long > 20 * fading) and np.max(long) > 1e-2
+
+
+def test_carried_mode_follows_the_window_model_and_audits_it():
+    ck = _ck()
+    ck.metrics = {"val_l1": [0.1] * 3, "carried_max_diff": list(_measured(ck))}
+    q, qd, qc, tau = _stream(n=120, seed=3)
+    ref = batch_tau_f(ck, q, qd, qc)
+    est = NextEstimator(ck)
+    assert est.mode == "carried"
+    outs = [est.update(q[i], qd[i], qc[i], tau[i]) for i in range(len(q))]
+    h = ck.history
+    assert all(o.flags & FLAG_WARMUP for o in outs[:h - 1]) and all(o.valid for o in outs[h - 1:])
+    np.testing.assert_allclose(np.array([o.tau_f for o in outs[h - 1:]]), ref[h - 1:], atol=2e-3)
+    assert est.mode == "carried" and est.audits_done >= (len(q) - h) // (h // 2)
+    assert np.all(est.audit_max_diff <= 1e-3) and not est.audit_failed
+
+
+def test_failed_audit_switches_to_exact_windows_for_good():
+    ck = _long_memory(_ck())
+    q, qd, qc, tau = _stream(n=120, seed=4)
+    ref = batch_tau_f(ck, q, qd, qc)
+    est = NextEstimator(ck, carried=True, audit_tol=1e-4)
+    outs = [est.update(q[i], qd[i], qc[i], tau[i]) for i in range(len(q))]
+    assert est.audit_failed and est.mode == "exact"
+    h = ck.history
+    # the failing tick returns the audit's (exact) output; the exact windows' first comes H - 1 ticks later
+    unverified = [i for i, o in enumerate(outs) if o.flags & FLAG_UNVERIFIED]
+    assert len(unverified) == h - 2 and all(outs[i].valid for i in unverified)
+    after = unverified[-1] + 1  # exact windows from here on, equal to the batch model
+    np.testing.assert_allclose(np.array([o.tau_f for o in outs[after:]]), ref[after:], atol=1e-4)
+    est.reset()
+    assert est.mode == "exact"
+
+
+def test_mode_choice():
+    ck = _ck()
+    assert NextEstimator(ck).mode == "exact"  # nothing measured: exact windows
+    ck.metrics = {"val_l1": [0.1] * 3, "carried_max_diff": [1e-4, 1e-4, 5e-3]}  # one joint above 1 % of L1
+    assert NextEstimator(ck).mode == "exact"
+    ck.metrics["carried_max_diff"][2] = 1e-4
+    assert NextEstimator(ck).mode == "carried"
+    assert NextEstimator(ck, carried=False).mode == "exact"
+    with pytest.raises(ValueError):
+        NextEstimator(_ck(), carried=True)  # no validation L1 to set the audit's tolerance
+    with pytest.raises(ValueError):
+        NextEstimator(_ck("gru"), carried=True)
+    assert NextEstimator(_ck("gru")).mode == "torch"

@@ -57,6 +57,7 @@ def test_training_reduces_error_and_calls_back():
     assert min(seen) < 0.5 * seen[0]
     assert res.best_val_loss == pytest.approx(min(seen), rel=1e-6) or res.best_val_loss <= min(seen)
     assert len(res.val_l1) == 2 and res.device == "cpu"
+    assert len(res.carried_max_diff) == 2 and all(0.0 <= d < np.inf for d in res.carried_max_diff)
     stopped = train(data, _small_cfg(max_epochs=10), callback=lambda p: p.epoch >= 1, progress_bar=False)
     assert stopped.epochs == 2
 

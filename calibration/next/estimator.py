@@ -1,19 +1,17 @@
 """Streaming NEXT estimator for the control loop: tau_ext = tau_m - f(last H samples), once per tick.
 
-Exactness vs speed. NEXT's LSTM is stateless over its window: the estimate at tick n is the LSTM run from a
-zero state over samples n-H+1..n. Recomputing that run every tick costs H sequential steps of small
-matrix-vector products (slow in Python). Instead we keep H runs in flight, staggered by one tick: run r
-starts (zero state) at tick r, r+H, r+2H, ...  Every tick all H runs advance by one step on the *same* new
-sample -- two small matrix-matrix products (H x 128 @ 128 x 512 and H x 256 @ 256 x 512) -- and the run that
-has just seen H samples is exactly the stateless window model; its head output is the estimate, and it
-restarts from zero. Same arithmetic as the batch model (float32, differences ~1e-6), no approximation.
-The per-step layer-1 input projection is computed once per tick and shared by all runs.
-
-Spreading the work (`defer=True`): of the H runs only the one that completes its window is needed for this
-tick's estimate. update() steps that run (and the one that starts) and returns the estimate; the other H-2
-runs may be stepped later by work() calls on the control ticks between two samples (a 500 Hz loop with a
-100 Hz model has four), so no single tick carries the whole product. update() first finishes whatever is
-still pending, so the result is the same arithmetic in any case.
+Two ways to run the LSTM (calibration.next.lstm_runs), chosen per checkpoint:
+- exact windows (the default): NEXT's LSTM is stateless over its window, so H runs are kept in flight,
+  staggered by one tick, all advanced one step per sample; the one that has seen H samples is the batch
+  model's output (float32, ~4e-8 from torch.nn.LSTM). H LSTM steps per tick. `defer=True` leaves the runs
+  this tick does not need to work() calls on the control ticks between two samples; update() finishes
+  what is pending first, so the arithmetic is the same.
+- carried state (when the checkpoint's training measured fading memory, `carried_allowed`): one run that
+  never restarts, one LSTM step per tick, plus `audits` exact window runs; every H/audits ticks one of them
+  completes a window and is compared with the carried output. Above the tolerance (1 % of the network's
+  validation L1 per joint) the estimator switches to the exact windows for good: that tick returns the
+  audit's window output, and until the exact windows have filled (H - 2 ticks) the carried estimate comes
+  with FLAG_UNVERIFIED. `mode` says which is running.
 
 Physics prior (checkpoints trained with `prior`, calibration.next.prior): tau_f = prior part + network; the
 prior runs one sample at a time (PriorStream: the same midpoint acceleration as training, and the
@@ -39,6 +37,7 @@ import torch
 
 from calibration.next.checkpoint import NextCheckpoint, weights_numpy
 from calibration.next.data import make_inputs
+from calibration.next.lstm_runs import CarriedRun, ExactWindows, LstmWeights
 from calibration.next.prior import PriorStream, prior_torque
 from calibration.next.train import predict_series
 
@@ -47,6 +46,8 @@ FLAG_WARMUP = 1  # fewer than H clean samples since start/restart: estimate is N
 FLAG_NONFINITE = 2  # an input was NaN/inf: estimate is NaN
 FLAG_OOD = 4  # inputs outside the training range: estimate may be unreliable
 FLAG_NO_TEMPERATURE = 8  # the prior has a temperature term but no finite temperature came: not corrected
+FLAG_UNVERIFIED = 16  # carried-state estimate while the exact windows refill after a failed audit
+CARRIED_TOL = 0.01  # the carried state may move the network output by <= 1 % of its validation L1, per joint
 
 
 @dataclass
@@ -64,25 +65,34 @@ class Estimate:
         return bool(self.flags & FLAG_OOD)
 
 
-def _lstm_layer_weights(w: dict[str, np.ndarray], layer: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(W_ih^T, W_hh^T, b) with the gates reordered from torch's (i, f, g, o) to (i, f, o, g) and the cell
-    gate g pre-scaled by 2, so one sigmoid over all columns gives every gate: tanh(z) = 2 sigmoid(2 z) - 1.
-    (One in-place torch sigmoid over 50x512 floats is ~4x cheaper than numpy's float32 tanh, which is not
-    vectorised; the identity is exact up to float32 rounding.)"""
-    w_ih, w_hh = w[f"rnn.weight_ih_l{layer}"], w[f"rnn.weight_hh_l{layer}"]
-    b = w[f"rnn.bias_ih_l{layer}"] + w[f"rnn.bias_hh_l{layer}"]
-    h = w_ih.shape[0] // 4
-    order = np.r_[np.arange(0, 2 * h), np.arange(3 * h, 4 * h), np.arange(2 * h, 3 * h)]
-    scale = np.r_[np.ones(3 * h), np.full(h, 2.0)].astype(np.float32)
-    return ((w_ih[order] * scale[:, None]).T.copy(), (w_hh[order] * scale[:, None]).T.copy(),
-            (b[order] * scale).astype(np.float32))
+def carried_allowed(ck: NextCheckpoint) -> bool:
+    """Whether the checkpoint's network has fading memory enough for the carried state: measured at training
+    (metrics["carried_max_diff"], calibration.next.train.carried_state_diff) within CARRIED_TOL of its own
+    validation L1 on every joint. Checkpoints without the measurement use the exact windows."""
+    tol = carried_tolerance(ck)
+    diff = (ck.metrics or {}).get("carried_max_diff")
+    if tol is None or diff is None or len(diff) != len(tol):
+        return False
+    return bool(np.all(np.asarray(diff, float) <= tol))
+
+
+def carried_tolerance(ck: NextCheckpoint) -> np.ndarray | None:
+    """Per-joint tolerance [checkpoint units] for carried vs window outputs: CARRIED_TOL x validation L1."""
+    l1 = (ck.metrics or {}).get("val_l1")
+    if not l1 or len(l1) != ck.model.cfg.n_out or not np.all(np.isfinite(l1)):
+        return None
+    return CARRIED_TOL * np.asarray(l1, float)
 
 
 class NextEstimator:
     def __init__(self, ck: NextCheckpoint, ema_alpha: float | None = None, ood_margin: float = 0.1,
-                 defer: bool = False, parts: int = 4):
+                 defer: bool = False, parts: int = 4, carried: bool | None = None, audits: int = 3,
+                 audit_tol: np.ndarray | float | None = None):
         """ema_alpha: optional smoothing of tau_ext, y <- y + alpha (x - y), alpha in (0, 1]. defer: leave
-        the runs this tick's estimate does not need to work() (each call steps 1/parts of them)."""
+        the exact runs this tick's estimate does not need to work() (each call steps 1/parts of them).
+        carried: None = when the checkpoint measured fading memory (carried_allowed), True/False to force;
+        audits: exact window runs checking the carried one (one completes every H/audits ticks);
+        audit_tol: per-joint tolerance of that check [checkpoint units] (default carried_tolerance)."""
         if ema_alpha is not None and not 0.0 < ema_alpha <= 1.0:
             raise ValueError("ema_alpha must be in (0, 1]")
         self.ck = ck
@@ -97,27 +107,38 @@ class NextEstimator:
         span = np.maximum(ck.x_max - ck.x_min, 1e-9)
         self._lo, self._hi = ck.x_min - ood_margin * span, ck.x_max + ood_margin * span
         self._fast = self.cfg.arch == "lstm" and self.cfg.layers == 2
+        self.defer, self._parts = defer, parts
+        use_carried = carried_allowed(ck) if carried is None else carried
+        self._carried = self._exact = None
+        self.audit_max_diff = np.zeros(self.n_j)  # largest |carried - window| an audit saw [ck units]
+        self.audits_done = 0
+        self.audit_failed = False
         if self._fast:
-            w = weights_numpy(ck.model)
-            self._wih1, self._whh1, self._b1 = _lstm_layer_weights(w, 0)
-            wih2, whh2, self._b2 = _lstm_layer_weights(w, 1)
-            self._w2 = np.concatenate([wih2, whh2], axis=0)  # [h1, h2] @ W2 in one product
-            self._hw1, self._hb1 = w["head.0.weight"].T.copy(), w["head.0.bias"]
-            self._hw2, self._hb2 = w["head.3.weight"].T.copy(), w["head.3.bias"]
-            hid = self.cfg.hidden
-            self._hh = np.zeros((self.H, 2 * hid), np.float32)  # [h1 | h2] of every run
-            self._c1 = np.zeros((self.H, hid), np.float32)
-            self._c2 = np.zeros((self.H, hid), np.float32)
-            self._z = np.empty((self.H, 4 * hid), np.float32)
-            self._tmp = np.empty((self.H, hid), np.float32)
-            self._z_t, self._tmp_t = torch.from_numpy(self._z), torch.from_numpy(self._tmp)  # shared memory
-            self._g1 = np.zeros(4 * hid, np.float32)  # input projection of the sample the pending runs need
-            self._pending: list[int] = []  # runs not yet stepped on the latest sample (oldest first)
-            self.defer, self._chunk = defer, max(1, -(-(self.H - 2) // max(1, parts)))
+            self._wt = LstmWeights(weights_numpy(ck.model))
+            if use_carried:
+                tol = carried_tolerance(ck) if audit_tol is None else np.broadcast_to(audit_tol, (self.n_j,))
+                if tol is None:
+                    raise ValueError("carried=True needs audit_tol: the checkpoint has no validation L1")
+                self._tol = np.asarray(tol, float)
+                self._carried = CarriedRun(self._wt, self.H, audits)
+            else:
+                self._exact = ExactWindows(self._wt, self.H, defer, parts)
+        elif carried:
+            raise ValueError("the carried state needs a 2-layer LSTM checkpoint")
         else:
             self._buf = np.zeros((self.H, self.cfg.n_in), np.float32)
         self._prior = PriorStream(ck.prior, ck.rate_hz) if ck.prior is not None else None
         self.reset()
+
+    @property
+    def mode(self) -> str:
+        """"exact" (H runs in flight), "carried" (audited carried state), "refilling" (an audit failed: the
+        exact windows fill while the carried state is used, FLAG_UNVERIFIED) or "torch" (GRU/MLP)."""
+        if not self._fast:
+            return "torch"
+        if self._carried is None:
+            return "exact"
+        return "refilling" if self._exact is not None else "carried"
 
     def reset(self) -> None:
         """Forget the history (e.g. after a pause or a gap in the data)."""
@@ -125,84 +146,44 @@ class NextEstimator:
         self._ema = None
         if self._prior is not None:
             self._prior.reset()
-        if self._fast:
-            self._hh[:] = 0.0
-            self._c1[:] = 0.0
-            self._c2[:] = 0.0
-            self._pending = []
+        if self._fast and self.audit_failed:  # memory was longer than measured: exact from now on
+            self._carried = None
+        if self._carried is not None:
+            self._carried.reset()
+        if self._exact is not None:
+            self._exact.reset()
 
     def _nan(self, flags: int) -> Estimate:
         nan = np.full(self.n_j, np.nan)
         return Estimate(nan, nan.copy(), flags)
 
-    def _step_lstm(self, x: np.ndarray) -> np.ndarray | None:
-        self.work(all_pending=True)  # every run must have seen the previous sample
-        hid, H = self.cfg.hidden, self.H
-        r = self._n % H  # run r starts now from a zero state
-        self._hh[r] = 0.0
-        self._c1[r] = 0.0
-        self._c2[r] = 0.0
-        np.add(x @ self._wih1, self._b1, out=self._g1)  # shared input projection of the new sample
-        self._n += 1
-        done = (r + 1) % H  # the run that started H-1 ticks ago completes its window with this sample
-        if self._n < H:  # warm-up: no window complete yet, step every run now
-            self._pending = [(r + 1 + k) % H for k in range(H)]
-            self.work(all_pending=True)
-            return None
-        others = [(done + k) % H for k in range(1, H)]  # every run but `done`, r last
-        if self.defer:
-            self._steps([done])
-            if r != done:
-                self._steps([r])
-            self._pending = others[:-1] if r != done else others  # consecutive runs done+1 .. r-1
-        else:
-            self._pending = [done] + others
-            self.work(all_pending=True)
-        a = np.maximum(self._hh[done, hid:] @ self._hw1 + self._hb1, 0.0)
-        return a @ self._hw2 + self._hb2
+    def work(self) -> None:
+        """Between samples (defer=True): step 1/parts of the exact runs still pending. Cheap no-op else."""
+        if self._exact is not None:
+            self._exact.work()
 
-    def work(self, all_pending: bool = False) -> None:
-        """Step pending runs on the latest sample: 1/parts of them, or all. Cheap no-op when none."""
-        if not self._fast or not self._pending:
-            return
-        k = len(self._pending) if all_pending else self._chunk
-        todo, self._pending = self._pending[:k], self._pending[k:]
-        self._steps(todo)
-
-    def _steps(self, runs: list[int]) -> None:
-        """One LSTM step of the given runs (row indices, consecutive modulo H) on the latest sample."""
-        a = runs[0]
-        for lo, n in ((a, min(len(runs), self.H - a)), (0, len(runs) - min(len(runs), self.H - a))):
-            if n > 0:
-                self._rows(lo, lo + n)
-
-    def _rows(self, lo: int, hi: int) -> None:
-        hid = self.cfg.hidden
-        hh, z = self._hh[lo:hi], self._z[lo:hi]
-        h1, h2 = hh[:, :hid], hh[:, hid:]
-        np.dot(h1, self._whh1, out=z)
-        z += self._g1
-        self._cell(self._c1[lo:hi], h1, lo, hi)
-        np.dot(hh, self._w2, out=z)
-        z += self._b2
-        self._cell(self._c2[lo:hi], h2, lo, hi)
-
-    def _cell(self, c: np.ndarray, h_out: np.ndarray, lo: int, hi: int) -> None:
-        """LSTM cell on the pre-activations in rows lo:hi of self._z (gate order i, f, o, g; g pre-scaled
-        by 2)."""
-        hid, z, tmp = c.shape[1], self._z[lo:hi], self._tmp[lo:hi]
-        self._z_t[lo:hi].sigmoid_()  # in place on self._z
-        g = z[:, 3 * hid:]
-        g *= 2.0
-        g -= 1.0  # tanh of the unscaled g pre-activation
-        c *= z[:, hid:2 * hid]
-        np.multiply(z[:, :hid], g, out=tmp)
-        c += tmp
-        np.multiply(c, 2.0, out=tmp)
-        self._tmp_t[lo:hi].sigmoid_()
-        tmp *= 2.0
-        tmp -= 1.0  # tanh(c)
-        np.multiply(z[:, 2 * hid:3 * hid], tmp, out=h_out)
+    def _step_lstm(self, x: np.ndarray) -> tuple[np.ndarray | None, int]:
+        """Normalised network output for this sample (None in warm-up) and flags to add."""
+        if self._carried is None:
+            return self._exact.push(x), FLAG_OK
+        out, audit = self._carried.push(x)
+        if self._exact is not None:  # refilling after a failed audit
+            exact = self._exact.push(x)
+            if exact is not None:
+                self._carried = None
+                return exact, FLAG_OK
+            return out, (FLAG_UNVERIFIED if out is not None else FLAG_OK)
+        if audit is None:
+            return out, FLAG_OK
+        diff = np.abs(out - audit) * self._y_std
+        np.maximum(self.audit_max_diff, diff, out=self.audit_max_diff)
+        self.audits_done += 1
+        if np.any(diff > self._tol):  # this input's memory is longer than H: switch to the exact windows
+            self.audit_failed = True
+            self._exact = ExactWindows(self._wt, self.H, self.defer, self._parts)
+            self._exact.push(x)
+            return audit, FLAG_OK
+        return out, FLAG_OK
 
     def _step_torch(self, x: np.ndarray) -> np.ndarray | None:
         self._buf = np.roll(self._buf, -1, axis=0)
@@ -240,7 +221,8 @@ class NextEstimator:
                 prior = self._prior.update(np.asarray(q, float), np.asarray(q_dot, float), tau, temperature)
                 if self._prior.missing_temperature:
                     flags |= FLAG_NO_TEMPERATURE
-        out = self._step_lstm(x) if self._fast else self._step_torch(x)
+        out, more = self._step_lstm(x) if self._fast else (self._step_torch(x), FLAG_OK)
+        flags |= more
         if out is None:
             return self._nan(flags | FLAG_WARMUP)
         tau_f = out.astype(np.float64) * self._y_std + self._y_mean + prior

@@ -109,6 +109,7 @@ class TrainResult:
     best_val_loss: float
     curve: list[tuple[float, float]] = field(default_factory=list)  # (elapsed s, val loss) per epoch
     val_l1: list[float] = field(default_factory=list)  # per joint, in the data's units
+    carried_max_diff: list[float] | None = None  # per joint, data units (carried_state_diff); None: no RNN
 
 
 def lr_at(cfg: TrainConfig, windows_seen: int) -> float:
@@ -224,9 +225,35 @@ def train(data: WindowData, cfg: TrainConfig | None = None,
     model.eval()
     pred = predict_windows(model, x, val_ends, cfg.history)
     l1 = ((pred - val_y).abs().mean(0).cpu().numpy() * data.normalizer.y_std).tolist()
+    seconds = time.perf_counter() - t0
+    carried = None
+    if model.rnn is not None:  # not training time: measured once on the trained model
+        ends = data.val_ends if len(data.val_ends) else data.train_ends
+        carried = (carried_state_diff(model, x, ends, cfg.history) * data.normalizer.y_std).tolist()
     return TrainResult(model=model.cpu(), model_config=mcfg, config=cfg, device=str(dev),
-                       seconds=time.perf_counter() - t0, epochs=epoch + 1, best_epoch=stopper.best_epoch,
-                       best_val_loss=stopper.best, curve=curve, val_l1=l1)
+                       seconds=seconds, epochs=epoch + 1, best_epoch=stopper.best_epoch,
+                       best_val_loss=stopper.best, curve=curve, val_l1=l1, carried_max_diff=carried)
+
+
+@torch.no_grad()
+def carried_state_diff(model: NextModel, x: torch.Tensor, ends: np.ndarray, history: int) -> np.ndarray:
+    """Fading memory of a recurrent NEXT model: per output, the largest |carried - window| (normalised) over
+    the windows ending at `ends`, where `window` is the model's stateless output and `carried` the output of
+    one run carried from the start of the contiguous stretch of window ends it belongs to (runs of
+    consecutive `ends`, e.g. the validation blocks). Small: the model forgets within H samples, so the
+    streaming estimator may carry its state (calibration.next.lstm_runs.CarriedRun)."""
+    model.eval()
+    ends = np.asarray(ends)
+    worst = torch.zeros(model.cfg.n_out, device=x.device)
+    for run in np.split(ends, np.flatnonzero(np.diff(ends) != 1) + 1):
+        if len(run) == 0:
+            continue
+        start = int(run[0]) - history + 1
+        out, _ = model.rnn(x[start:int(run[-1]) + 1][None])
+        carried = model.head(out[0, history - 1:])
+        window = predict_windows(model, x, run, history)
+        worst = torch.maximum(worst, (carried - window).abs().amax(0))
+    return worst.cpu().numpy()
 
 
 @torch.no_grad()
