@@ -74,8 +74,24 @@ def test_single_run_is_split_into_contiguous_blocks():
     from calibration.diagnosis.data import split_heldout
 
     run = analytic_arm("coulomb_friction", 1, 40.0, seed=3)
-    train, held = split_heldout([run], None)
+    train, held = split_heldout([[run]], None)
     assert train[0].t[-1] < held[0].t[0] + 1e-9 and len(held[0]) == len(run) - len(train[0])
+
+
+def test_heldout_is_the_last_file_or_a_quarter_of_a_split_one():
+    """A file whose contacts were cut out is many segments: all of the last file is held out, and a single
+    such file holds out trailing segments worth at least a quarter of it (not just its last piece)."""
+    from calibration.diagnosis.data import split_heldout
+
+    run = analytic_arm("coulomb_friction", 1, 40.0, seed=3)
+    step = len(run) // 10
+    pieces = [run.slice(i, i + step, f"r#{k}") for k, i in enumerate(range(0, len(run), step))]
+    pieces = [p for p in pieces if len(p)]
+    train, held = split_heldout([pieces[:3], pieces[3:]], None)
+    assert [p.name for p in held] == [p.name for p in pieces[3:]] and len(train) == 3
+    train, held = split_heldout([pieces], None)
+    n_held = sum(len(p) for p in held)
+    assert n_held >= 0.25 * len(run) and len(train) + len(held) == len(pieces) and held[-1] is pieces[-1]
     dg = diagnose(DataBasis(3), train, held)
     _check(dg, "coulomb_friction", 1)
 

@@ -257,13 +257,22 @@ def resample(seg: Segment, rate_hz: float) -> Segment:
                         qd_logged=lerp(seg.qd_logged))
 
 
-def split_heldout(segments: list[Segment], heldout: list[Segment] | None, frac: float = 0.25):
-    """(train, heldout) segments. Given held-out files win; else the last run is held out when there are
-    several; a single run is cut into a training head and a contiguous held-out tail (`frac` of it)."""
+def split_heldout(runs: list[list[Segment]], heldout: list[Segment] | None, frac: float = 0.25):
+    """(train, heldout) segments from `runs` (one list of segments per input file: a log whose contacts were
+    cut out is several segments). Given held-out segments win; else the last file is held out when there
+    are several; a single file of several segments holds out its trailing segments, at least `frac` of its
+    samples; a single segment is cut into a training head and a contiguous held-out tail (`frac` of it)."""
+    segments = [s for run in runs for s in run]
     if heldout:
-        return list(segments), list(heldout)
+        return segments, list(heldout)
+    runs = [run for run in runs if run]
+    if len(runs) >= 2:
+        return [s for run in runs[:-1] for s in run], list(runs[-1])
     if len(segments) >= 2:
-        return list(segments[:-1]), [segments[-1]]
+        need, k = frac * sum(len(s) for s in segments), len(segments) - 1
+        while k > 1 and sum(len(s) for s in segments[k:]) < need:
+            k -= 1
+        return segments[:k], segments[k:]
     s = segments[0]
     cut = int(len(s) * (1 - frac))
     return [s.slice(0, cut, s.name + "[train]")], [s.slice(cut, len(s), s.name + "[heldout]")]

@@ -231,9 +231,9 @@ def diagnose_logs(train_paths, heldout_paths, declared=None, log=lambda s: None)
     from calibration.diagnosis.data import load_segments, split_heldout
     from calibration.diagnosis.loop import diagnose
 
-    train = [seg for p in train_paths for seg in load_segments(p)]  # contact-free stretches
+    runs = [load_segments(p) for p in train_paths]  # per file, its contact-free stretches
     held = [seg for p in heldout_paths for seg in load_segments(p)] or None
-    train, held = split_heldout(train, held)
+    train, held = split_heldout(runs, held)
     return diagnose(piper_basis(), train, held, log=log, declared=declared)
 
 

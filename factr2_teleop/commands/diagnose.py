@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "regressor as the rigid part; 'pinocchio-sample' = pinocchio's sample manipulator")
     p.add_argument("--kt", help="torque constants N*m/A per joint, comma separated (current logs with --arm)")
     p.add_argument("--heldout", nargs="+", metavar="FILE", help="held-out runs (default: the last INPUT, or "
-                   "the last quarter of a single run)")
+                   "the last quarter of a single INPUT)")
     p.add_argument("--out", required=True, help="output folder for report.json, report.md and plots")
     p.add_argument("--rel-gain", type=float, default=0.02, help="minimum relative held-out L1 gain (0.02)")
     p.add_argument("--abs-gain", type=float, default=0.005,
@@ -117,7 +117,8 @@ def run(args) -> int:
     from calibration.diagnosis.loop import LoopConfig, diagnose
     from calibration.diagnosis.report import write
 
-    segs = [s for p in args.inputs for s in load_segments(p)]
+    runs = [load_segments(p) for p in args.inputs]
+    segs = [s for run in runs for s in run]
     held = [s for p in args.heldout for s in load_segments(p)] if args.heldout else None
     every = segs + (held or [])
     n = every[0].n
@@ -125,7 +126,7 @@ def run(args) -> int:
         raise UserError("the logs differ in joint count or units", where=", ".join(args.inputs),
                         fix="diagnose runs of one arm at a time")
     _apply_kt(every, args.kt, n)
-    train, heldout = split_heldout(segs, held)
+    train, heldout = split_heldout(runs, held)
     cfg = LoopConfig(rel_gain=args.rel_gain, abs_gain=args.abs_gain, max_effects=args.max_effects)
     meta = {"units": every[0].units, "joint_names": list(every[0].joint_names) or None,
             "train_runs": [s.name for s in train], "heldout_runs": [s.name for s in heldout],
