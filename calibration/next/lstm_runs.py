@@ -69,7 +69,8 @@ class LstmRuns:
         self._tmp = np.empty((rows, hid), np.float32)
         self._z_t, self._tmp_t = torch.from_numpy(self._z), torch.from_numpy(self._tmp)  # shared memory
 
-    def zero(self, row: int) -> None:
+    def zero(self, row: int | slice = slice(None)) -> None:
+        """Zero the state of one row (a run restarts), or of all."""
         self.hh[row] = 0.0
         self.c1[row] = 0.0
         self.c2[row] = 0.0
@@ -119,9 +120,7 @@ class ExactWindows:
 
     def reset(self) -> None:
         self.n = 0  # samples since (re)start
-        self.runs.hh[:] = 0.0
-        self.runs.c1[:] = 0.0
-        self.runs.c2[:] = 0.0
+        self.runs.zero()
         self._pending: list[int] = []  # runs not yet stepped on the latest sample (oldest first)
 
     def push(self, x: np.ndarray) -> np.ndarray | None:
@@ -179,9 +178,7 @@ class CarriedRun:
 
     def reset(self) -> None:
         self.n = 0
-        self.runs.hh[:] = 0.0
-        self.runs.c1[:] = 0.0
-        self.runs.c2[:] = 0.0
+        self.runs.zero()
 
     def push(self, x: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
         """Feed one normalised sample: (carried output, exact window output of an audit that completed its

@@ -130,8 +130,6 @@ def _run_on_rig(args, cfg) -> int:
     return 0
 
 
-
-
 def heldout_blocks(n: int, frac: float, block: int) -> np.ndarray:
     """(n,) bool: which samples are held out -- every k-th block of `block` samples (k = round(1 / frac),
     the first block always trains). Blocks spread over the whole recording, so the held-out part has every

@@ -178,13 +178,13 @@ class MujocoWorld:
         contact = limit = push = None
         touching: tuple = ()
         ncon = d.ncon
+        gb = self._bank_of_geom() if ncon else None  # physics steps without contacts skip even this
         # a contact between two bodies no bank moves (an object resting on the table) loads no bank joint
-        if ncon and np.count_nonzero(self._bank_of_geom()[d.contact.geom[:ncon]] >= 0):
+        if ncon and np.count_nonzero(gb[d.contact.geom[:ncon]] >= 0):
             nefc = d.nefc
             is_contact, force = _IS_CONTACT[d.efc_type[:nefc]], d.efc_force[:nefc]
             contact = np.zeros(m.nv)
             mujoco.mj_mulJacTVec(m, d, contact, np.where(is_contact, force, 0.0))
-            gb = self._bank_of_geom()
             active = np.unique(d.efc_id[:nefc][is_contact & (np.abs(force) > 1e-9)])
             touching = tuple({int(k) for c in active
                               for k in (gb[d.contact.geom1[c]], gb[d.contact.geom2[c]]) if k >= 0})
