@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hardware.features import signal_name
 from hardware.recording import schemas as S
 from hardware.recording.cache import Decoded, FrameIndex, LazyFields, TopicArrays, load_or_decode
 from hardware.recording.mcap_scan import open_buffer, read_message_data
@@ -110,9 +111,8 @@ class Episode:
         for name in self.recording.topics:
             ta = self.topic(name)
             schema = S.NUMERIC_SCHEMAS[ta.schema]
-            prefix = name.split("/")[1]
             for f in schema.fields:
-                out[f"{prefix}.{f.feature}"] = (ta.t, ta.fields[f.name])
+                out[signal_name(name, schema.name, f.feature)] = (ta.t, ta.fields[f.name])
         return out
 
     def resample(self, t_grid: np.ndarray | None = None,
@@ -126,9 +126,9 @@ class Episode:
         t_grid = np.asarray(t_grid, dtype=float)
         kinds = {}
         for name in self.recording.topics:
-            prefix = name.split("/")[1]
-            for f in S.NUMERIC_SCHEMAS[self.recording.topic(name).schema].fields:
-                kinds[f"{prefix}.{f.feature}"] = f.kind
+            schema = S.NUMERIC_SCHEMAS[self.recording.topic(name).schema]
+            for f in schema.fields:
+                kinds[signal_name(name, schema.name, f.feature)] = f.kind
         out: dict[str, np.ndarray] = {"t": t_grid}
         for sig, (t, y) in self.signals().items():
             out[sig] = interp_linear(t, y, t_grid) if kinds[sig] == "float" else hold_previous(t, y, t_grid)

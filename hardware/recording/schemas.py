@@ -39,6 +39,10 @@ def tau_cmd_topic(arm: str) -> str:
     return f"/{arm}/tau_cmd"
 
 
+def command_topic(arm: str) -> str:
+    return f"/{arm}/command"
+
+
 def ground_truth_topic(arm: str) -> str:
     return f"/{arm}/ground_truth"
 
@@ -114,6 +118,12 @@ TORQUE_COMMAND = Schema("factr2.TorqueCommand", "torque commanded to an arm (lea
     _f("tau", "N*m", "float", True, "joint.tau_cmd", "commanded joint torque after the safety layer"),
     _f("gate", "", "float", False, "feedback_gate", "force-feedback gate in [0, 1] (null: not used)"),
 ))
+FOLLOWER_COMMAND = Schema("factr2.FollowerCommand",
+                          "position target sent to a follower, as it left the safety layer (the action)", (
+    _f("q", "rad", "float", True, "joint.pos", "joint position target after the safety layer"),
+    _f("gripper", "m", "float", False, "gripper.pos", "gripper stroke target (null: none sent)"),
+    _f("hold", "", "bool", False, "hold", "the safety layer turned this command into a hold"),
+))
 GROUND_TRUTH = Schema("factr2.GroundTruth", "twin ground truth (simulated: only recorded on a twin)", (
     _f("tau_ext_true", "N*m", "float", True, "joint.tau_ext_true", "true external joint torque"),
     _f("contact", "", "bool", False, "contact_true", "any contact on the arm"),
@@ -126,7 +136,7 @@ LOOP_TIMING = Schema("factr2.LoopTiming", "control-loop timing, one sample per t
     _f("overruns", "", "int", False, "overruns", "ticks that missed their deadline so far"),
 ))
 NUMERIC_SCHEMAS: dict[str, Schema] = {s.name: s for s in (JOINT_STATE, EXTERNAL_TORQUE, TORQUE_COMMAND,
-                                                           GROUND_TRUTH, LOOP_TIMING)}
+                                                           FOLLOWER_COMMAND, GROUND_TRUTH, LOOP_TIMING)}
 EVENT_SCHEMA_NAME = "factr2.Event"
 
 

@@ -173,6 +173,14 @@ class Recorder:
                           {"t": float(t), "tau": _vec(tau), "gate": _num(gate)}))
 
     @_never_raises
+    def log_follower_command(self, arm: str, t: float, q, gripper: float = float("nan"),
+                             hold: bool = False) -> bool:
+        """The position target [rad] and gripper target [m] a follower was sent after the safety layer (the
+        policy's action), and whether the layer turned it into a hold."""
+        return self._put((S.FOLLOWER_COMMAND, S.command_topic(arm),
+                          {"t": float(t), "q": _vec(q), "gripper": _num(gripper), "hold": bool(hold)}))
+
+    @_never_raises
     def log_ground_truth(self, arm: str, t: float, tau_ext_true, contact: bool, force=None) -> bool:
         """Twin only: true external torque [N*m], contact flag, net contact force [N] (x, y, z)."""
         f = _vec(force) if force is not None else [float("nan")] * 3
