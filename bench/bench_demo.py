@@ -34,6 +34,7 @@ def demo_run(seconds: float, out: Path) -> dict:
 def wipe_table(seconds: float, out: Path) -> list[dict]:
     from factr2_teleop.demo import next_cache
     from factr2_teleop.demo.task import DemoConfig, DemoRun
+    from factr2_teleop.session.pairs import load_next
 
     rows = []
     for mode in TABLE_MODES:
@@ -43,7 +44,7 @@ def wipe_table(seconds: float, out: Path) -> list[dict]:
             if path is None:
                 print("next: no cached checkpoint (run `factr2 demo` once first); skipped", flush=True)
                 continue
-            src = next_cache.load_estimator(path, "piper")
+            src = load_next(path, "piper")
         run = DemoRun(DemoConfig(seconds=seconds, mode=mode, clock="lockstep", contact_force=True),
                       next_source=src)
         try:

@@ -74,7 +74,7 @@ def main() -> int:
     data = Path(args.data)
     held_raw = [load_segment(twin_log(data, "heldout", HELD_MINUTES, HELD_SEED))]
     held = prepare(held_raw, 100.0, HISTORY)  # the samples every method is scored on
-    y = np.concatenate([s.y for s in held])
+    y = np.concatenate([s.tau for s in held])
     rows = []
     for minutes in args.minutes:
         train = [load_segment(twin_log(data, f"train_{minutes}min", minutes, TRAIN_SEEDS[minutes]))]

@@ -41,7 +41,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hardware.rigs import Rig, load_rig  # noqa: E402
-from hardware.sim import open_rig, serve_twin  # noqa: E402
+from hardware.connect import open_rig, serve_twin  # noqa: E402
 from hardware.types import FollowerCommand  # noqa: E402
 
 
@@ -97,7 +97,7 @@ def step_costs(rig: Rig, n: int = 500) -> dict:
             costs[f"bank_math_{w.name}"] = c / n * 1e6
             _, c = _timed(lambda w=w: [mujoco.mj_step(w.model, w.data, w.substeps) for _ in range(n)])
             costs[f"mj_step_{w.name}"] = c / n * 1e6
-        for e in tw._can_emus:
+        for e in tw.can_emulators:
             t = tw.t
             _, c = _timed(lambda e=e, t=t: [(e.poll(), e.emit(t + tw.dt * (k + 1))) for k in range(n)])
             costs[f"{type(e).__name__}_poll_emit"] = c / n * 1e6
@@ -164,7 +164,7 @@ def _lag_probe(twin, seconds: float, body=None) -> dict:
             time.sleep(0.01)
         else:
             body()
-        lags.append(time.monotonic() - twin._t_offset - twin.t)
+        lags.append(twin.lag(time.monotonic()))
     wall, cpu = time.monotonic() - t_wall0, time.process_time() - c0
     return {"sim_per_wall": round((twin.t - t_sim0) / wall, 4), "worst_lag_ms": round(1e3 * max(lags), 2),
             "median_lag_ms": round(1e3 * float(np.median(lags)), 2), "cpu_share": round(cpu / wall, 2)}

@@ -21,7 +21,7 @@ from factr2_teleop.teleop.leader_law import arm_model_fns
 from factr2_teleop.teleop.loop import TeleopLoop
 from factr2_teleop.teleop.pair import ArmPair, PairConfig
 from factr2_teleop.teleop.virtual_operator import VirtualOperator, make_task_script
-from hardware.sim.serve import open_rig
+from hardware.connect import open_rig
 
 PIPER_GAINS = [0.06, 0.08, 0.08, 0.03, 0.03, 0.02]  # leader N*m per follower N*m (FACTR 2 code's magnitudes)
 ABOVE = np.array([0, 1.6, -1.0, 0, 0.6, 0])  # rad, leader joints: above the table

@@ -44,7 +44,7 @@ CONTACT_TIE = 1.01  # contact L1 within 1 % of the best counts as equal
 def record(seeds: list[int], seconds: float, out: Path) -> list[Path]:
     from factr2_teleop.commands.calibrate import record_pushed_replay
     from hardware.rigs.rig import load_rig
-    from hardware.sim import open_rig
+    from hardware.connect import open_rig
 
     rig = load_rig("sim-piper")
     paths = []

@@ -15,6 +15,7 @@ import os
 import queue
 import random
 import time
+from collections.abc import Callable
 
 import can
 from can.interfaces.virtual import VirtualBus, channels_lock
@@ -44,18 +45,24 @@ class FastVirtualBus(VirtualBus):
     non-blocking recv(timeout=0) fast path. Frames are delivered in order to every other bus on the channel.
     Its receive queue is a queue.SimpleQueue (C implementation, cheaper put/get) instead of queue.Queue;
     python-can's own VirtualBus.send into it still works (same put/get signature).
-    rx_queue_size is not supported."""
+    rx_queue_size is not supported. clock: () -> s stamping the frames it sends (default the wall clock,
+    time.time, as python-can does); a twin and its drivers pass the rig clock, so that a lockstep run never
+    reads the wall clock (set_clock changes it later)."""
 
-    def __init__(self, channel="channel-0", **kwargs):
+    def __init__(self, channel="channel-0", clock: Callable[[], float] | None = None, **kwargs):
         super().__init__(channel=channel, **kwargs)
+        self._stamp = clock or time.time
         with channels_lock:
             i = next(i for i, q in enumerate(self.channel) if q is self.queue)
             self.queue = queue.SimpleQueue()  # type: ignore[assignment]
             self.channel[i] = self.queue
 
+    def set_clock(self, clock: Callable[[], float]) -> None:
+        self._stamp = clock
+
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self._check_if_open()
-        ts = msg.timestamp if self.preserve_timestamps else time.time()
+        ts = msg.timestamp if self.preserve_timestamps else self._stamp()
         data = bytes(msg.data)  # immutable snapshot: the sender may reuse its buffer
         for q in self.channel:
             own = q is self.queue
@@ -69,7 +76,7 @@ class FastVirtualBus(VirtualBus):
     def send_fresh(self, arb_id: int, data: bytes) -> None:
         """Send a standard data frame built here (one Message per receiver, no intermediate Message)."""
         self._check_if_open()
-        ts = time.time()
+        ts = self._stamp()
         for q in self.channel:
             own = q is self.queue
             if own and not self.receive_own_messages:
@@ -209,6 +216,8 @@ class CanLink:
         self.tx_errors = 0  # transient send failures (tx buffer full), cumulative
         self.rx_frames = 0
         self._send_fresh = getattr(bus, "send_fresh", None)  # FastVirtualBus shortcut
+        if hasattr(bus, "set_clock"):  # a virtual bus stamps frames with the driver's clock, not wall time
+            bus.set_clock(clock.now)
 
     def send(self, arb_id: int, data: bytes) -> bool:
         try:

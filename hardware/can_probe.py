@@ -219,33 +219,54 @@ def probe_damiao(bus, config: DamiaoFollowerConfig, clock: Clock | None = None,
     return rep
 
 
-# -- `factr2 doctor` adapters: probe a bare interface with each follower's default config ------------------
-def _doctor_probe(kind: str):
-    def probe(interface: str):
-        from hardware.can_bus import open_bus
-        from hardware.doctor import Finding
+# -- `factr2 doctor` adapters (declared by hardware/piper and hardware/damiao KIND, hardware/registry.py) ----
+def _findings(rep: ProbeReport, subject: str) -> list:
+    from hardware.doctor import Finding
 
-        if kind == "piper":
-            cfg = PiperFollowerConfig(channel=interface)
-        else:
-            cfg = DamiaoFollowerConfig(channel=interface, ids=[1, 2, 3, 4, 5, 6],
-                                       motor=["DM4340"] * 3 + ["DM4310"] * 3)
-        bus = open_bus(interface, cfg.interface, cfg.bitrate)
-        try:
-            rep = probe_piper(bus, cfg) if kind == "piper" else probe_damiao(bus, cfg)
-        finally:
-            bus.shutdown()
-        lines = rep.lines()
-        return [Finding("ok" if rep.ok else "error", f"{interface} {kind}", lines[0].split(": ", 1)[-1])] + [
-            Finding("info", f"{interface} {kind}", ln.strip()) for ln in lines[1:]]
-    return probe
+    lines = rep.lines()
+    return [Finding("ok" if rep.ok else "error", subject, lines[0].split(": ", 1)[-1])] + [
+        Finding("info", subject, ln.strip()) for ln in lines[1:]]
 
 
-def register_doctor_checks() -> None:
-    from hardware.doctor import register_can_check
+def _run(kind: str, cfg, subject: str) -> list:
+    from hardware.can_bus import open_bus
 
-    register_can_check("piper", _doctor_probe("piper"))
-    register_can_check("damiao", _doctor_probe("damiao"))
+    bus = open_bus(cfg.channel, cfg.interface, cfg.bitrate)
+    try:
+        rep = probe_piper(bus, cfg) if kind == "piper" else probe_damiao(bus, cfg)
+    finally:
+        bus.shutdown()
+    return _findings(rep, subject)
 
 
-register_doctor_checks()
+def _check(kind: str, cfg) -> list:
+    from hardware.doctor import DeviceCheck, Finding
+    from hardware.errors import UserError
+
+    title = f"CAN {cfg.interface}:{cfg.channel} ({kind} {cfg.name})"
+    try:
+        return [DeviceCheck(title, findings=_run(kind, cfg, f"{cfg.channel} {kind}"))]
+    except UserError as e:
+        return [DeviceCheck(title, findings=[Finding("error", f"{cfg.channel} {kind}", e.what, e.fix)])]
+
+
+def piper_checks(config: PiperFollowerConfig, loop_hz: float) -> list:
+    """A rig's Piper, probed with its own config (read-only)."""
+    return _check("piper", config)
+
+
+def damiao_checks(config: DamiaoFollowerConfig, loop_hz: float) -> list:
+    """A rig's Damiao chain, probed with its own ids and motors (read-only)."""
+    return _check("damiao", config)
+
+
+def piper_bare(interface: str) -> list:
+    """`factr2 doctor --can IFACE`: a Piper with the default config on this interface."""
+    return _run("piper", PiperFollowerConfig(channel=interface), f"{interface} piper")
+
+
+def damiao_bare(interface: str) -> list:
+    """`factr2 doctor --can IFACE`: a 6-motor YAM-style Damiao chain (ids 1-6) on this interface."""
+    cfg = DamiaoFollowerConfig(channel=interface, ids=[1, 2, 3, 4, 5, 6],
+                               motor=["DM4340"] * 3 + ["DM4310"] * 3)
+    return _run("damiao", cfg, f"{interface} damiao")

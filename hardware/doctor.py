@@ -4,20 +4,14 @@ Every check is a function returning data plus Findings (level, subject, message,
 prints them. Checks never write to a device (the doctor is read-only: a servo's mode, delays and torque
 are left as found).
 
-CAN hook: CAN probes live with their drivers (hardware/piper, hardware/damiao). A probe is a function
-`probe(interface: str) -> list[Finding]` registered with register_can_check(name, probe); run_can_checks()
-calls every registered probe for one interface. Modules listed in CAN_CHECK_MODULES are imported (if they
-exist) before the probes run, so a driver registers its probe at import time:
-
-    # hardware/can_probe.py
-    from hardware.doctor import Finding, register_can_check
-    def probe_piper(interface: str) -> list[Finding]: ...
-    register_can_check("piper", probe_piper)
+Device probes are declared by each device kind (hardware/registry.py: probe_ref for a rig's device,
+bare_probe_ref for `--can IFACE`): rig_checks() probes every device of a rig with its own config,
+run_can_checks() runs every kind's bare CAN probe on one interface, plus any probe registered with
+register_can_check(name, probe) (probe(interface) -> list[Finding]).
 """
 
 from __future__ import annotations
 
-import importlib
 import os
 import time
 from collections.abc import Callable
@@ -27,13 +21,13 @@ from hardware.dynamixel import protocol as p
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.models import MODELS_BY_NUMBER, model_name
 from hardware.errors import UserError
+from hardware.registry import device_kind, device_kinds
 from hardware.serial_ports import SerialPortInfo, latency_timer_problem, list_serial_ports
 
 SYSFS_NET = "/sys/class/net"
 ARPHRD_CAN = 280  # /sys/class/net/<if>/type of a CAN interface
 HOT_C = 60  # degC: warn above this servo temperature
 SCAN_BAUDS = (57600, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 115200)
-CAN_CHECK_MODULES = ("hardware.can_probe",)
 
 
 @dataclass
@@ -46,6 +40,44 @@ class Finding:
     def line(self) -> str:
         tag = {"ok": "OK   ", "info": "INFO ", "warn": "WARN ", "error": "ERROR"}.get(self.level, self.level)
         return f"{tag} {self.subject}: {self.message}" + (f" -- fix: {self.fix}" if self.fix else "")
+
+
+@dataclass
+class DeviceCheck:
+    """One probed device: a title line, detail lines (e.g. a servo table) and the findings."""
+
+    title: str
+    details: list[str] = field(default_factory=list)
+    findings: list[Finding] = field(default_factory=list)
+
+    @property
+    def failed(self) -> bool:
+        return any(f.level == "error" for f in self.findings)
+
+
+def rig_serial_ports(rig) -> list[str]:
+    """The serial ports a rig's real devices name (listed before they are probed)."""
+    out = []
+    for d in rig.leaders + rig.followers:
+        kind = device_kind(d.driver, where=f"{rig.path}: {d.name}")
+        port = kind.endpoint_of(d.config) if kind.wire == "serial" and d.config is not None else None
+        if port and port != "twin":
+            out.append(port)
+    return out
+
+
+def rig_checks(rig, loop_hz: float = 500.0) -> tuple[list[DeviceCheck], list[str]]:
+    """Probe every device of a rig with its kind's probe (read-only); (checks, notes). Devices a twin
+    simulates (port/channel "twin", or a simulated-only kind) are noted, not probed."""
+    checks, notes = [], []
+    for d in rig.leaders + rig.followers:
+        kind = device_kind(d.driver, where=f"{rig.path}: {d.name}")
+        if kind.simulated_only or d.config is None or kind.endpoint_of(d.config) == "twin":
+            notes.append(f"{d.name}: simulated by the twin (its pty / virtual bus exists only while the twin "
+                         "runs); probe a running twin with --port PTY")
+            continue
+        checks += kind.doctor_probe(d.config, loop_hz)
+    return checks, notes
 
 
 # -- ports and interfaces ----------------------------------------------------------------------------
@@ -97,22 +129,18 @@ _CAN_CHECKS: dict[str, CanCheck] = {}
 
 
 def register_can_check(name: str, probe: CanCheck) -> None:
-    """Register a CAN probe (called by hardware/piper, hardware/damiao at import)."""
+    """Register an extra CAN probe (the device kinds' own probes need no registration)."""
     _CAN_CHECKS[name] = probe
 
 
 def run_can_checks(interface: str) -> list[Finding]:
-    """Every registered CAN probe on one interface; a probe that raises becomes an error finding."""
-    for mod in CAN_CHECK_MODULES:
-        try:
-            importlib.import_module(mod)
-        except ModuleNotFoundError as e:
-            if e.name != mod:
-                raise
-    if not _CAN_CHECKS:
-        return [Finding("info", interface, "no CAN probe is installed (hardware.piper / hardware.damiao)")]
+    """Every device kind's bare CAN probe and every registered one on one interface; a probe that raises
+    becomes an error finding."""
+    probes = {k.driver: k.bare_probe for k in device_kinds() if k.bare_probe_ref} | _CAN_CHECKS
+    if not probes:
+        return [Finding("info", interface, "no CAN probe is declared (hardware/registry.py)")]
     out: list[Finding] = []
-    for name, probe in _CAN_CHECKS.items():
+    for name, probe in probes.items():
         try:
             out += probe(interface)
         except UserError as e:
@@ -175,6 +203,31 @@ def probe_dynamixel(
     finally:
         bus.close()
     return rep
+
+
+def dynamixel_check(port: str, baud: int, ids: list[int], loop_hz: float = 500.0,
+                    expect_model: str | None = None) -> DeviceCheck:
+    """probe_dynamixel as a DeviceCheck: the servo table as detail lines."""
+    rep = probe_dynamixel(port, baud, ids, loop_hz, expect_model)
+    chk = DeviceCheck(f"dynamixel {rep.port} @ {rep.baud} bit/s, ids {ids}:", findings=list(rep.findings))
+    if rep.latency_timer_ms is not None:
+        chk.details.append(f"latency timer: {rep.latency_timer_ms} ms")
+    if rep.servos:
+        chk.details.append("id  model        fw  mode                    delay  temp  torque  hw-error")
+    for s in rep.servos:
+        mode = p.OP_MODE_NAMES.get(s.operating_mode, str(s.operating_mode))
+        chk.details.append(f"{s.id:<3} {s.model:<12} {s.firmware:<3} {mode:<23} {s.return_delay_us:>4}us "
+                           f"{s.temperature_c:>3}C  {'on' if s.torque_on else 'off':<6}  {s.hardware_error}")
+    if rep.round_trip_s == rep.round_trip_s:
+        chk.details.append(f"round trip (sync read): {1e3 * rep.round_trip_s:.2f} ms")
+    return chk
+
+
+def dynamixel_checks(config, loop_hz: float) -> list[DeviceCheck]:
+    """A rig's Dynamixel leader (its DynamixelLeaderConfig): the joints' and the trigger's servos."""
+    ids = list(config.ids) + ([config.gripper_id] if config.gripper_id is not None else [])
+    model = config.model if isinstance(config.model, str) else None
+    return [dynamixel_check(config.port, int(config.baud), ids, loop_hz, model)]
 
 
 def _probe_servos(bus: DynamixelBus, rep: DynamixelReport, ids: list[int], expect_model: str | None) -> None:

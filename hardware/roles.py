@@ -2,8 +2,11 @@
 
 The public command methods are implemented here, once, and always go through the device's SafetyLayer;
 a driver only implements the wire side (_send_safe / _send_torque_safe), which accepts nothing but the
-safety layer's output types. Watchdog: every read() and command call checks it; real-time rigs also run
-WatchdogThread so a frozen loop still leaves the device safe.
+safety layer's output types. Every safe command reaches it through one method, _to_wire (drivers re-send
+a hold through it too), where command observers see it: add_command_observer(fn) calls
+fn(t_issued [s], t_sent [s], safe) with the SafeFollowerCommand / SafeLeaderTorque about to be sent (for
+logs and recordings of what was really commanded). Watchdog: every read() and command call checks it;
+real-time rigs also run WatchdogThread so a frozen loop still leaves the device safe.
 """
 
 from __future__ import annotations
@@ -30,6 +33,23 @@ class Device(abc.ABC):
         self._last_state = JointState.empty(limits.n)
         self._lock = threading.RLock()  # one bus transaction at a time (loop vs watchdog thread)
         self.in_safe_state = False
+        self._observers: list = []
+
+    def add_command_observer(self, fn) -> None:
+        """fn(t_issued, t_sent, safe) for every safe command before it goes on the wire, on the sending
+        thread with the device lock held (keep it short: the teleop loop runs at 500 Hz). t_issued: when
+        the command was asked for (clock read on entry, before the lock), t_sent: when it reached the wire
+        side; a re-sent hold has t_issued == t_sent."""
+        self._observers.append(fn)
+
+    def remove_command_observer(self, fn) -> None:
+        if fn in self._observers:
+            self._observers.remove(fn)
+
+    def _observe(self, safe, t_issued: float | None) -> None:
+        t_sent = self.clock.now()
+        for fn in self._observers:
+            fn(t_sent if t_issued is None else t_issued, t_sent, safe)
 
     # -- wire side, per driver ---------------------------------------------------------------------
     @abc.abstractmethod
@@ -99,22 +119,30 @@ class Leader(Device):
     def _send_torque_safe(self, safe: SafeLeaderTorque) -> None:
         """Write the currents for these (already limited) torques."""
 
+    def _to_wire(self, safe: SafeLeaderTorque, t_issued: float | None = None) -> None:
+        """The one way a safe torque reaches the driver (observers first; none: one list check)."""
+        if self._observers:
+            self._observe(safe, t_issued)
+        self._send_torque_safe(safe)
+
     def command_torque(self, tau: np.ndarray) -> np.ndarray:
         """Ask for joint torques [N*m]; returns the torques actually sent after the limits."""
         now = self.clock.now()  # the time the command is issued (read before waiting for the device lock)
         with self._lock:
             safe = self.safety.leader(tau, now)
-            self._send_torque_safe(safe)
+            self._to_wire(safe, now)
             self.in_safe_state = False
             return safe.tau
 
     def zero_torque(self, reason: str = "requested") -> None:
+        now = self.clock.now()
         with self._lock:
-            self._send_torque_safe(self.safety.leader_zero(self.clock.now(), reason))
+            self._to_wire(self.safety.leader_zero(now, reason), now)
             self.in_safe_state = True
 
     def _go_safe(self, reason: str) -> None:
-        self._send_torque_safe(self.safety.leader_zero(self.clock.now(), reason))
+        now = self.clock.now()
+        self._to_wire(self.safety.leader_zero(now, reason), now)
 
 
 class Follower(Device):
@@ -124,12 +152,19 @@ class Follower(Device):
     def _send_safe(self, safe: SafeFollowerCommand) -> None:
         """Encode and send an (already limited) command; safe.hold means the device's hold/damping state."""
 
+    def _to_wire(self, safe: SafeFollowerCommand, t_issued: float | None = None) -> None:
+        """The one way a safe command reaches the driver (observers first; none: one list check). Drivers
+        re-send their hold through here too."""
+        if self._observers:
+            self._observe(safe, t_issued)
+        self._send_safe(safe)
+
     def command(self, cmd: FollowerCommand) -> SafeFollowerCommand:
         """Send a command through the limits; returns what was actually sent."""
         now = self.clock.now()  # the time the command is issued (read before waiting for the device lock)
         with self._lock:
             safe = self.safety.follower(cmd, now, self._last_state.q)
-            self._send_safe(safe)
+            self._to_wire(safe, now)
             self.in_safe_state = False
             return safe
 
@@ -139,7 +174,8 @@ class Follower(Device):
             self.in_safe_state = True
 
     def _go_safe(self, reason: str) -> None:
-        self._send_safe(self.safety.follower_hold(self.clock.now(), self._last_state.q, reason))
+        now = self.clock.now()
+        self._to_wire(self.safety.follower_hold(now, self._last_state.q, reason), now)
 
 
 class WatchdogThread(threading.Thread):

@@ -21,7 +21,7 @@ def _write_runs(tmp_path, effect, joint, n=3, seconds=30.0, **params):
     for s in range(n):
         g = analytic_arm(effect, joint, seconds, seed=s, **params)
         p = tmp_path / f"run{s}.npz"
-        np.savez(p, t=g.t, q=g.q, qd=g.qd, q_cmd=g.q, tau_m=g.y)
+        np.savez(p, t=g.t, q=g.q, qd=g.qd, q_cmd=g.q, tau_m=g.tau)
         paths.append(str(p))
     return paths
 
@@ -95,7 +95,7 @@ def test_cli_next_checkpoint_runs_the_loop_on_its_residual(tmp_path):
     from calibration.next.train import TrainConfig, train
 
     base = [analytic_arm(None, 0, 10.0, seed=s) for s in range(2)]
-    data = build_windows([NSeg(t=g.t, q=g.q, qd=g.qd, q_cmd=g.q, tau=g.y, rate_hz=100.0) for g in base],
+    data = build_windows([NSeg(t=g.t, q=g.q, qd=g.qd, q_cmd=g.q, tau=g.tau, rate_hz=100.0) for g in base],
                          history=10, inputs="q,qd,dq")
     res = train(data, TrainConfig(arch="mlp", history=10, head_hidden=32, max_epochs=2, threads=1,
                                   device="cpu", samples_per_epoch=1024), progress_bar=False)
@@ -155,7 +155,7 @@ def test_cli_reads_recordings_one_run_per_episode(tmp_path, capsys):
     assert [s.name for s in segs] == ["session#ep0", "session#ep1"]
     assert all(len(s) == 1500 and s.units == "N*m" and s.n == 6 for s in segs)
     # tau_m minus the recorded ground truth (0.1 N*m): diagnosis models free-space dynamics
-    assert np.allclose(segs[0].y[:, 0], np.arange(1500) * 0.01 - 0.1, atol=1e-9)
+    assert np.allclose(segs[0].tau[:, 0], np.arange(1500) * 0.01 - 0.1, atol=1e-9)
     out = tmp_path / "diag"
     assert main(["diagnose", str(path), "--out", str(out), "--no-plots"]) == 0
     rep = json.loads((out / "report.json").read_text())

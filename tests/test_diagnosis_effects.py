@@ -150,7 +150,7 @@ def test_final_model_holds_the_fit_of_its_own_effects():
 
     runs = _runs("coulomb_friction", 1, fc=0.8)
     for r in runs:  # a second effect on the same joint, declared up front
-        r.y[:, 1] += 1.5 * r.qd[:, 1]
+        r.tau[:, 1] += 1.5 * r.qd[:, 1]
     dg = diagnose(DataBasis(3), runs[:2], runs[2:], declared=[Effect("viscous_friction", 1)])
     kept = [(e.family, e.joint) for e in dg.model.effects]
     assert kept == [("viscous_friction", 1), ("coulomb_friction", 1)]

@@ -27,7 +27,7 @@ def _short_traj(arm, seconds_per_move=1.0):
 
 
 def test_collect_on_twin_records_free_motion():
-    sim = pytest.importorskip("hardware.sim")
+    sim = pytest.importorskip("hardware.connect")
     from hardware.arms import load_arm
 
     arm = load_arm("piper")
@@ -44,7 +44,7 @@ def test_collect_on_twin_records_free_motion():
 
 
 def test_contact_guard_stops_and_holds():
-    sim = pytest.importorskip("hardware.sim")
+    sim = pytest.importorskip("hardware.connect")
     from hardware.arms import load_arm
 
     arm = load_arm("piper")
@@ -58,7 +58,7 @@ def test_contact_guard_stops_and_holds():
 
 
 def test_scripted_push_is_labelled_contact_with_ground_truth():
-    sim = pytest.importorskip("hardware.sim")
+    sim = pytest.importorskip("hardware.connect")
     from hardware.arms import load_arm
 
     arm = load_arm("piper")

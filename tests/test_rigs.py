@@ -74,7 +74,7 @@ def test_custom_rig_fields_and_limits(tmp_path):
     assert rig.twin.seed == 7 and rig.twin.effect == "mypkg:fn" and rig.twin.effects == {"ripple": False}
     assert np.all(f.limits().v_max == 1.0)
     assert rig.leaders[0].config.signs[-1] == -1
-    moved = rig.with_endpoints({"leader": "/dev/pts/9"}, {"follower": "vcan-x"})
+    moved = rig.with_endpoints({"leader": "/dev/pts/9", "follower": "vcan-x"})
     assert moved.leaders[0].config.port == "/dev/pts/9"
     assert moved.followers[0].config.channel == "vcan-x" and moved.followers[0].config.interface == "virtual"
 

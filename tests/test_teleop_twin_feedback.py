@@ -17,7 +17,7 @@ from factr2_teleop.teleop.estimators import make_estimator
 from factr2_teleop.teleop.leader_law import arm_model_fns
 from factr2_teleop.teleop.pair import COUPLED, ArmPair, PairConfig
 from factr2_teleop.teleop.virtual_operator import OperatorScript, Segment, VirtualOperator
-from hardware.sim import open_rig
+from hardware.connect import open_rig
 
 RATE = 250.0  # Hz: half the demo rate keeps the test fast; the laws are rate-independent
 GAINS = [0.06, 0.08, 0.08, 0.03, 0.03, 0.02]

@@ -11,7 +11,7 @@ import pytest
 from factr2_teleop.cli import main as cli_main
 from hardware.arms.dynamics import gravity
 from hardware.errors import ConfigError
-from hardware.sim import open_rig, serve_twin
+from hardware.connect import open_rig, serve_twin
 from hardware.types import FollowerCommand
 
 TARGET = np.array([0.3, 0.8, -0.6, 0.1, 0.3, -0.2])

@@ -41,9 +41,25 @@ def independent_columns(a: np.ndarray, rtol: float = 1e-8) -> np.ndarray:
     return np.sort(np.array(chosen, int))
 
 
+def payload_columns(model, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+    """(N, n, 4) joint torques [N*m] per unit of a point payload's parameters on the last link: mass m [kg],
+    first moment m*c [kg*m] (c: its centre in the last joint's frame [m]) -- pinocchio's joint-torque
+    regressor columns of the last body's mass and first moment, so gravity, inertia and Coriolis of the mass
+    all go through the arm's kinematics. Linear in (m, m*c); the payload's own rotational inertia (about
+    m |c|^2, 1e-3 kg*m^2 for 0.3 kg at 5 cm) is left out."""
+    import pinocchio as pin
+
+    data = model.createData()
+    k = 10 * (model.njoints - 2)  # dynamic parameters of the last joint's body: m, m*c (3), inertia (6)
+    return np.stack([np.asarray(pin.computeJointTorqueRegressor(model, data, q[i], qd[i], qdd[i]))[:, k:k + 4]
+                     for i in range(len(q))])
+
+
 class DataBasis:
     kind = "data-only"
     separable = True  # each joint has its own coefficients: an effect on joint j changes only joint j's fit
+    kinematics = None  # no arm description
+    offers_gravity_load = False  # its own gravity-like columns span that family already
 
     def __init__(self, n: int):
         self.n = n
@@ -93,7 +109,7 @@ def select_ridge(basis: DataBasis, segments: list[Segment], grid=RIDGE_GRID, joi
         cuts = np.linspace(0, len(s), 5).astype(int)
         folds = [s.slice(a, b, f"{s.name}[{k}]") for k, (a, b) in enumerate(zip(cuts[:-1], cuts[1:]))]
     blocks = [basis.blocks(f) for f in folds]
-    ys = [f.y - effects_of(f) if effects_of is not None else f.y for f in folds]
+    ys = [f.tau - effects_of(f) if effects_of is not None else f.tau for f in folds]
     grams = [[(c.T @ c, c.T @ y[:, j]) for j, (_, c) in enumerate(b)] for b, y in zip(blocks, ys)]
     chosen = {}
     for j in range(basis.n) if joints is None else joints:
@@ -117,11 +133,13 @@ def select_ridge(basis: DataBasis, segments: list[Segment], grid=RIDGE_GRID, joi
 class PinocchioBasis:
     kind = "pinocchio"
     separable = False  # base parameters are shared by all joints
+    offers_gravity_load = False  # a load is the payload family here (through the arm's kinematics)
 
     def __init__(self, model, seed: int = 0, ridge: float = 1e-3):
         import pinocchio as pin
 
         self.pin, self.model, self.data = pin, model, model.createData()
+        self.kinematics = model  # the arm description behind the payload family
         self.n = model.nv
         if model.nq != model.nv:
             raise ValueError("only revolute/prismatic joints (nq == nv) are supported")

@@ -1,51 +1,25 @@
 """Logs as segments (one contiguous run each) and the held-out split.
 
-A Segment holds one run: t [s], q [rad], qd [rad/s], qdd [rad/s^2] (differentiated from qd, smoothed),
-y = the quantity the model predicts (motor torque [N*m] or motor current [A], see `units`), optional
-temperature [degC]. Held-out data is always whole runs or contiguous blocks, never random samples:
-neighbouring samples of a 125 Hz log are nearly identical, so a random split would measure interpolation,
-not prediction.
+A Segment (hardware.timeseries, the one time-series type) holds one run: t [s] from the run's start, q [rad],
+qd [rad/s] (the cleaner of logged and differenced velocity), qdd [rad/s^2] (differentiated from qd,
+smoothed), tau = the quantity the model predicts (motor torque [N*m] or motor current [A], see `units`),
+optional temperature [degC], and the arm the log names (arm, arm_sha256; "" when it names none).
+Held-out data is always whole runs or contiguous blocks, never random samples (hardware.timeseries.
+heldout_spans): neighbouring samples of a 125 Hz log are nearly identical, so a random split would measure
+interpolation, not prediction.
 """
 
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from hardware.errors import UserError
 from hardware.recording.plain_log import load_plain_log
-
-
-@dataclass
-class Segment:
-    name: str
-    t: np.ndarray  # (N,) s, from the start of the run
-    q: np.ndarray  # (N, n) rad
-    qd: np.ndarray  # (N, n) rad/s
-    qdd: np.ndarray  # (N, n) rad/s^2
-    y: np.ndarray  # (N, n) N*m or A
-    units: str  # "N*m" or "A"
-    temperature: np.ndarray | None = None  # (N, n) degC
-    joint_names: tuple[str, ...] = ()
-    q_cmd: np.ndarray | None = None  # (N, n) rad, commanded position (NEXT's third input); None = unknown
-    qd_logged: np.ndarray | None = None  # (N, n) rad/s as logged, before cleaner_velocity (what NEXT saw)
-
-    @property
-    def n(self) -> int:
-        return self.q.shape[1]
-
-    def __len__(self) -> int:
-        return len(self.t)
-
-    def slice(self, a: int, b: int, name: str) -> Segment:
-        temp = None if self.temperature is None else self.temperature[a:b]
-        qc = None if self.q_cmd is None else self.q_cmd[a:b]
-        qdl = None if self.qd_logged is None else self.qd_logged[a:b]
-        return Segment(name, self.t[a:b], self.q[a:b], self.qd[a:b], self.qdd[a:b], self.y[a:b], self.units,
-                       temp, self.joint_names, qc, qdl)
+from hardware.timeseries import Segment, heldout_spans
+from hardware.timeseries import resample as resample_arrays
 
 
 def smooth(x: np.ndarray, width: int) -> np.ndarray:
@@ -91,8 +65,9 @@ def cleaner_velocity(t: np.ndarray, q: np.ndarray, qd: np.ndarray) -> tuple[np.n
 
 
 def make_segment(name: str, t, q, qd, y, units: str, temperature=None, joint_names=(), qdd=None,
-                 q_cmd=None, qd_logged=None) -> Segment:
-    """qd_logged: the logged velocity when qd has been processed already (resampling); default: qd."""
+                 q_cmd=None, qd_logged=None, arm: str = "", arm_sha256: str = "") -> Segment:
+    """y: the torque signal [units]. qd_logged: the logged velocity when qd has been processed already
+    (resampling); default: qd."""
     t = np.asarray(t, float).ravel()
     q = np.atleast_2d(np.asarray(q, float))
     if q.shape[0] != len(t):
@@ -128,7 +103,9 @@ def make_segment(name: str, t, q, qd, y, units: str, temperature=None, joint_nam
         temp = np.asarray(temperature, float).reshape(-1, q.shape[1])[keep][order][uniq]
         if not np.all(np.isfinite(temp)):
             temp = None
-    return Segment(name, t - t[0], q, qd, qdd, y, units, temp, tuple(joint_names), q_cmd, qd_logged)
+    return Segment(t=t - t[0], q=q, qd=qd, tau=y, q_cmd=q_cmd, name=name, units=units, qdd=qdd,
+                   qd_logged=qd_logged, temperature=temp, joint_names=tuple(joint_names), arm=arm,
+                   arm_sha256=arm_sha256)
 
 
 def _from_plain_log(path: Path) -> Segment:
@@ -140,7 +117,8 @@ def _segment_of(log, name: str) -> Segment:
     subtracted: diagnosis models the free-space dynamics."""
     y = log.tau if log.tau_ext_true is None or log.units != "N*m" else log.tau - log.tau_ext_true
     return make_segment(name, log.t, log.q, log.qd, y, log.units, log.temperature, log.joint_names,
-                        q_cmd=log.q_cmd)
+                        q_cmd=log.q_cmd, arm=getattr(log, "arm", ""),
+                        arm_sha256=getattr(log, "arm_sha256", ""))
 
 
 def free_runs(t: np.ndarray, contact: np.ndarray | None, margin_s: float = CONTACT_MARGIN_S,
@@ -193,12 +171,17 @@ def load_segments(path: str | Path, arm: str = "follower") -> list[Segment]:
 
     if not path.exists():
         raise UserError("file not found", where=str(path), fix="give the path of a recording (.mcap)")
+    from hardware.recording.session import recorded_arm
+
     try:
         rec = Recording(path)
         logs = [(ep.index, ep.to_plain(arm)) for ep in rec.episodes]
     except (ValueError, KeyError, OSError) as e:
         raise UserError(f"cannot read the {arm} joint states ({str(e)[:80]})", where=str(path),
                         fix="pass a factr2 recording (teleop/demo --record) or a plain .npz log") from None
+    named = recorded_arm(rec.session, arm)  # the session metadata says which arm (describe_session)
+    for _, log in logs:
+        log.arm, log.arm_sha256 = named.get("arm", ""), named.get("arm_sha256", "")
     segs = [seg for i, log in logs if len(log.t) >= 20 for seg in _segments_of(log, f"{path.stem}#ep{i}")]
     if not segs:
         raise UserError(f"no episode with {arm} joint states", where=str(path),
@@ -244,35 +227,32 @@ def load_segment(path: str | Path) -> Segment:
 
 
 def resample(seg: Segment, rate_hz: float) -> Segment:
-    """The segment on a uniform `rate_hz` grid (linear interpolation; qdd re-differentiated)."""
-    grid = np.arange(0.0, seg.t[-1], 1.0 / rate_hz)
-
-    def lerp(a):
-        if a is None:
-            return None
-        return np.stack([np.interp(grid, seg.t, a[:, j]) for j in range(a.shape[1])], 1)
-
-    return make_segment(seg.name, grid, lerp(seg.q), lerp(seg.qd), lerp(seg.y), seg.units,
-                        lerp(seg.temperature), seg.joint_names, q_cmd=lerp(seg.q_cmd),
-                        qd_logged=lerp(seg.qd_logged))
+    """The segment on a uniform `rate_hz` grid (hardware.timeseries.resample: linear interpolation; qd
+    re-cleaned and qdd re-differentiated on the new clock)."""
+    arrays = {k: getattr(seg, k) for k in ("q", "qd", "tau", "temperature", "q_cmd", "qd_logged")}
+    grid, r = resample_arrays(seg.t, arrays, rate_hz)[0]
+    return make_segment(seg.name, grid, r["q"], r["qd"], r["tau"], seg.units, r["temperature"],
+                        seg.joint_names, q_cmd=r["q_cmd"], qd_logged=r["qd_logged"], arm=seg.arm,
+                        arm_sha256=seg.arm_sha256)
 
 
 def split_heldout(runs: list[list[Segment]], heldout: list[Segment] | None, frac: float = 0.25):
     """(train, heldout) segments from `runs` (one list of segments per input file: a log whose contacts were
     cut out is several segments). Given held-out segments win; else the last file is held out when there
-    are several; a single file of several segments holds out its trailing segments, at least `frac` of its
-    samples; a single segment is cut into a training head and a contiguous held-out tail (`frac` of it)."""
+    are several (a different run); one file's segments are split by hardware.timeseries.heldout_spans's
+    tail rule: its trailing segments, at least `frac` of its samples, or the contiguous trailing `frac` of
+    a single segment."""
     segments = [s for run in runs for s in run]
     if heldout:
         return segments, list(heldout)
     runs = [run for run in runs if run]
     if len(runs) >= 2:
         return [s for run in runs[:-1] for s in run], list(runs[-1])
-    if len(segments) >= 2:
-        need, k = frac * sum(len(s) for s in segments), len(segments) - 1
-        while k > 1 and sum(len(s) for s in segments[k:]) < need:
-            k -= 1
-        return segments[:k], segments[k:]
-    s = segments[0]
-    cut = int(len(s) * (1 - frac))
-    return [s.slice(0, cut, s.name + "[train]")], [s.slice(cut, len(s), s.name + "[heldout]")]
+    train, held = heldout_spans([len(s) for s in segments], frac)
+
+    def take(spans, tag):
+        whole = [(0, len(s)) for s in segments]
+        return [segments[i] if (lo, hi) == whole[i] else segments[i].slice(lo, hi, segments[i].name + tag)
+                for i, lo, hi in spans]
+
+    return take(train, "[train]"), take(held, "[heldout]")

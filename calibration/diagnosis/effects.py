@@ -12,7 +12,29 @@ from dataclasses import dataclass, field
 import numpy as np
 
 FAMILIES = ("coulomb_friction", "viscous_friction", "stribeck_friction", "position_periodic", "backlash",
-            "position_spring", "drift", "current_offset", "torque_constant_scale", "delay", "coupling")
+            "position_spring", "drift", "current_offset", "torque_constant_scale", "delay", "coupling",
+            "payload", "gravity_load")
+# Families that act on every joint's equation with shared coefficients (features (N, n, k)); the effect's
+# `joint` is the link it is attached to (the last one: a payload sits at the flange).
+ARM_WIDE = ("payload",)
+# Friction dissipates: a fit that feeds energy in is not friction but evidence of something else, named here
+# with the library families that could be it. Position-dependent terms (springs, periodic terms, offsets)
+# may take either sign: counterbalance springs, gas struts, cable carriers and hoses act either way in the
+# measured motor torque.
+NOT_DISSIPATIVE = {
+    "coulomb_friction": ("a torque that steps with the direction of motion and helps it: friction "
+                         "compensation in the drive that over-compensates, a direction-dependent offset of "
+                         "the torque signal, or direction memory",
+                         ("backlash", "current_offset", "coupling")),
+    "viscous_friction": ("a torque proportional to velocity that helps the motion: the torque signal lagging "
+                         "the state (filtering, sampling phase), velocity feed-forward or back-EMF "
+                         "compensation in the drive, or an inertia error", ("delay", "torque_constant_scale",
+                                                                          "coupling")),
+    "stribeck_friction": ("friction that grows away from standstill instead of falling: viscous friction, or "
+                          "a lag of the torque signal", ("viscous_friction", "delay")),
+}
+PAYLOAD_MAX_DISTANCE_M = 1.0  # a centre of mass farther from the flange is not a payload "at the flange"
+G = 9.81  # m/s^2
 
 SIGN_EPS = 0.01  # rad/s: tanh(qd / SIGN_EPS) stands for sign(qd) without the jump at qd = 0
 
@@ -31,12 +53,26 @@ class Effect:
                                                       for k, v in self.hyper.items())))
 
     @property
+    def wide(self) -> bool:
+        """True for a family that acts on every joint (shared coefficients), e.g. a payload."""
+        return self.family in ARM_WIDE
+
+    def on_joint(self, feats: np.ndarray, j: int) -> np.ndarray | None:
+        """This effect's columns (N, k) in joint j's equation, given its features(); None: not on joint j."""
+        if self.wide:
+            return feats[:, j, :]
+        return feats if self.joint == j else None
+
+    @property
     def slot(self) -> tuple:
         """Two effects with the same slot are the same thing: only one of them is kept in a model."""
         return (self.family, self.joint, self.hyper.get("other_joint"), self.hyper.get("source"))
 
     def features(self, d) -> np.ndarray:
-        """(N, k) columns on a Design `d` (stacked segments, see greybox.Design)."""
+        """(N, k) columns on a Design `d` (stacked segments, see greybox.Design); (N, n, k) for an arm-wide
+        family."""
+        if self.wide:
+            return _FEATURES[self.family](self, d)
         return np.atleast_2d(_FEATURES[self.family](self, d).T).T
 
     def params(self) -> dict:
@@ -69,13 +105,41 @@ class Effect:
             return {"delay_s": c[0] * h["shift_s"], "shift_s": h["shift_s"]}
         if f == "coupling":
             return {"other_joint": h["other_joint"], "viscous": c[0], "coulomb": c[1]}
+        if f == "payload":  # coefficients: mass [kg] and first moment m * c [kg*m] in the last link's frame
+            m = c[0]
+            com = [x / m if abs(m) > 1e-9 else float("nan") for x in c[1:4]]
+            return {"mass_kg": m, "com_x_m": com[0], "com_y_m": com[1], "com_z_m": com[2],
+                    "distance_m": float(np.linalg.norm(com))}
+        if f == "gravity_load":
+            return {"amplitude": float(np.sqrt(np.sum(np.square(c))))}
         return {"coef": c}
 
+    def describe(self, units: str = "N*m", names=None) -> str:
+        """The effect in words a user understands (one clause)."""
+        p, j = self.params(), self.joint
+        name = names[j] if names is not None and j < len(names) else f"joint {j}"
+        if self.family == "payload":
+            d = p["distance_m"]
+            return (f"an unknown payload: about {p['mass_kg']:.2g} kg at {100 * d:.0f} cm from the flange "
+                    f"(centre of mass {100 * p['com_x_m']:.1f}, {100 * p['com_y_m']:.1f}, "
+                    f"{100 * p['com_z_m']:.1f} cm in the last link's frame)")
+        if self.family == "gravity_load":
+            return (f"a gravity-like load on {name} (a payload or a wrong mass; no arm description, so its "
+                    "mass and position are not identified)")
+        if self.family == "position_spring":
+            return (f"a position spring on {name}: {p['stiffness_per_rad']:.3g} {units}/rad about "
+                    f"{p['rest_position_rad']:.3g} rad")
+        if self.family == "position_periodic":
+            return (f"a position-periodic torque on {name}: {p['amplitude']:.3g} {units}, period "
+                    f"{p['period_rad']:.4g} rad")
+        shown = ", ".join(f"{k} {v:.3g}" for k, v in p.items() if isinstance(v, float))
+        return f"{self.family.replace('_', ' ')} on {name}" + (f" ({shown})" if shown else "")
+
     def implausible(self) -> str:
-        """Why the fitted parameters are not physical ("" when they are): a torque-constant scale outside
-        0.5-2, a negative / over-half-second delay, or a spring of negative stiffness (a passive elastic
-        element restores; an anti-spring is a gravity or K error fitted through the wrong feature) is another
-        effect fitted through the wrong feature."""
+        """Why the fitted parameters are physically impossible for this family ("" when they are not): a
+        torque-constant scale outside 0.5-2, a negative / over-half-second delay, friction that feeds energy
+        in (see NOT_DISSIPATIVE), a negative payload mass or one whose centre is over a metre from the
+        flange. No sign is assumed for position-dependent terms: a spring of either stiffness is possible."""
         if self.coef is None:
             return ""
         p = self.params()
@@ -83,9 +147,26 @@ class Effect:
             return f"scale {p['scale']:.3g} outside 0.5..2"
         if self.family == "delay" and not 0.0 <= p["delay_s"] <= 0.5:
             return f"delay {p['delay_s']:.3g} s outside 0..0.5 s"
-        if self.family == "position_spring" and p["stiffness_per_rad"] < 0.0:
-            return f"negative stiffness {p['stiffness_per_rad']:.3g} N*m/rad"
+        if self.family in NOT_DISSIPATIVE:
+            key = {"coulomb_friction": "fc", "viscous_friction": "fv", "stribeck_friction": "fs_extra"}
+            v = p[key[self.family]]
+            if v < 0.0:
+                name = self.family.replace("_", " ")
+                return f"negative {name} {key[self.family]} {v:.3g}: friction dissipates"
+        if self.family == "payload":
+            if p["mass_kg"] <= 0.0:
+                return f"payload mass {p['mass_kg']:.3g} kg is not positive"
+            if not p["distance_m"] <= PAYLOAD_MAX_DISTANCE_M:
+                return (f"payload centre {p['distance_m']:.3g} m from the flange "
+                        f"(> {PAYLOAD_MAX_DISTANCE_M:g} m)")
         return ""
+
+    def evidence_of(self) -> dict:
+        """For friction fitted with the wrong sign: what it is evidence of, and the candidate families."""
+        if self.family not in NOT_DISSIPATIVE or not self.implausible():
+            return {}
+        what, cands = NOT_DISSIPATIVE[self.family]
+        return {"evidence_of": what, "candidates": list(cands)}
 
     @classmethod
     def from_json(cls, d: dict, ref: np.ndarray | None = None) -> Effect:
@@ -147,7 +228,17 @@ _FEATURES = {
         d, lambda a, b: _lagged(d.t[a:b], _rigid(e, d)[a:b], e.hyper["shift_s"])),
     "coupling": lambda e, d: np.stack([d.qd[:, e.hyper["other_joint"]],
                                        np.tanh(d.qd[:, e.hyper["other_joint"]] / SIGN_EPS)], 1),
+    "payload": lambda e, d: d.payload_columns(),
+    "gravity_load": lambda e, d: link_orientations(d.q),
 }
+
+
+def link_orientations(q: np.ndarray) -> np.ndarray:
+    """(N, 2n) sin and cos of q_0 + ... + q_k for k = 0..n-1: the orientation of each link of a serial arm
+    whose axes are parallel. A load carried by the arm's end has a gravity torque on every joint that is a
+    combination of these (exact for a planar arm, the gravity-like family when no description is known)."""
+    a = np.cumsum(q, 1)
+    return np.concatenate([np.sin(a), np.cos(a)], 1)
 
 
 def _lagged(t: np.ndarray, x: np.ndarray, shift_s: float) -> np.ndarray:

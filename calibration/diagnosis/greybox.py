@@ -24,6 +24,7 @@ class Design:
     """Segments stacked into one set of arrays, with the rigid-part columns computed once."""
 
     def __init__(self, basis, segments: list[Segment]):
+        self.basis = basis
         self.segments = segments
         lens = [len(s) for s in segments]
         ends = np.cumsum(lens)
@@ -32,7 +33,7 @@ class Design:
         self.q = np.concatenate([s.q for s in segments])
         self.qd = np.concatenate([s.qd for s in segments])
         self.qdd = np.concatenate([s.qdd for s in segments])
-        self.y = np.concatenate([s.y for s in segments])
+        self.y = np.concatenate([s.tau for s in segments])
         temps = [s.temperature for s in segments]
         self.temp = None if any(x is None for x in temps) else np.concatenate(temps)
         blocks = [basis.blocks(s) for s in segments]
@@ -48,6 +49,15 @@ class Design:
         if key not in self._cache:
             self._cache[key] = e.features(self)
         return self._cache[key]
+
+    def payload_columns(self) -> np.ndarray:
+        """(N, n, 4) torque per unit payload mass and first moment (basis.payload_columns) on the basis'
+        arm description (its `kinematics`)."""
+        if "payload" not in self._cache:
+            from .basis import payload_columns
+
+            self._cache["payload"] = payload_columns(self.basis.kinematics, self.q, self.qd, self.qdd)
+        return self._cache["payload"]
 
 
 class GreyBox:
@@ -75,16 +85,15 @@ class GreyBox:
             gj, bj = d.gram[j]
             h[np.ix_(idx, idx)] += gj
             g[idx] += bj
-            mine = [k for k, e in enumerate(self.effects) if e.joint == j]
-            for a, k in enumerate(mine):
+            mine = [(k, f) for k, e in enumerate(self.effects) if (f := e.on_joint(feats[k], j)) is not None]
+            for a, (k, fk) in enumerate(mine):
                 sk = slice(offs[k], offs[k + 1])
-                fk = feats[k]
                 h[idx, sk] += cols.T @ fk
                 h[sk, idx] += (cols.T @ fk).T
                 g[sk] += fk.T @ d.y[:, j]
-                for k2 in mine[a:]:
+                for k2, f2 in mine[a:]:
                     s2 = slice(offs[k2], offs[k2 + 1])
-                    blk = fk.T @ feats[k2]
+                    blk = fk.T @ f2
                     h[sk, s2] += blk
                     if k2 != k:
                         h[s2, sk] += blk.T
@@ -106,7 +115,10 @@ class GreyBox:
     def predict(self, d: Design) -> np.ndarray:
         out = self.rigid(d)
         for e in self.effects:
-            out[:, e.joint] += d.features(e) @ e.coef
+            if e.wide:
+                out += np.einsum("tjk,k->tj", d.features(e), e.coef)
+            else:
+                out[:, e.joint] += d.features(e) @ e.coef
         return out
 
 

@@ -92,7 +92,9 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
         if not getattr(basis, "separable", False):
             changed = list(range(model.n))
         taken = {e.slot for e in model.effects}
-        pool = [c for c in pool if c.effect.joint not in changed and c.effect.slot not in taken]
+        # arm-wide candidates span every joint: rescored each round with the rest
+        pool = [c for c in pool if c.effect.joint not in changed and c.effect.slot not in taken
+                and not c.effect.wide]
         pool += candidates(model, train, res_train, joints=changed)
         pool.sort(key=rank)
         cands = [c for c in pool if c.score >= cfg.min_score]
@@ -109,17 +111,20 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
             # at most `tries_per_joint` of them on one joint: the score is a fraction of each joint's
             # own residual, so a small joint with a structured but unexplainable residual must not use up
             # the tries of a joint with a real effect
-            if tries.get(c.effect.joint, 0) >= cfg.tries_per_joint:
+            who = "arm" if c.effect.wide else c.effect.joint
+            if tries.get(who, 0) >= cfg.tries_per_joint:
                 continue
-            tries[c.effect.joint] = tries.get(c.effect.joint, 0) + 1
+            tries[who] = tries.get(who, 0) + 1
             tried = _try(model, c, train, held, l1, floor, cfg)
             if tried is None:
                 j = c.effect.joint
                 rejected.append({"effect": c.effect.family, "joint": j, "hyper": c.effect.hyper,
                                  "score": round(c.score, 4), **c.evidence.get("heldout_check", {})})
                 chk = c.evidence["heldout_check"]
-                log(f"  rejected {c.effect.family} on joint {j}: " + (chk.get("implausible") or
-                    f"held-out gain {chk['heldout_gain']:.4g} <= {chk['needed']:.4g}"))
+                log(f"  rejected {c.effect.family} on {_where(c.effect)}: " + (chk.get("implausible") or
+                    f"held-out gain {chk['heldout_gain']:.4g} <= {chk['needed']:.4g}")
+                    + (f" -- evidence of {chk['evidence_of']} (candidates: {', '.join(chk['candidates'])})"
+                       if "evidence_of" in chk else ""))
                 continue
             # a later (lower-ranked) close candidate must beat the kept one by the acceptance threshold too
             if accepted is None or tried[-1] > accepted[-1] + accepted[0].evidence["heldout_check"]["needed"]:
@@ -137,9 +142,9 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
         held_res = held.y - model.predict(held)
         steps.append(Step({**final.to_json(), "evidence": c.evidence}, l1_new.tolist(), rms_new.tolist(),
                           ltr_new.tolist(), trial, (res_train, held_res)))
-        log(f"added {c.effect.family} on joint {c.effect.joint} {final.params()}: held-out L1 joint "
-            f"{c.effect.joint} {l1[c.effect.joint]:.4f} -> {l1_new[c.effect.joint]:.4f}")
-        changed = [c.effect.joint]
+        log(f"added {c.effect.family} on {_where(c.effect)} {final.params()}: held-out L1 "
+            f"{_where(c.effect)} {_l1_of(c.effect, l1):.4f} -> {_l1_of(c.effect, l1_new):.4f}")
+        changed = list(range(model.n)) if c.effect.wide else [c.effect.joint]
         if hasattr(basis, "per_joint"):  # re-choose the ridge of that joint now that the effect is known
             def effects_of(seg, trial=trial):
                 ds = Design(basis, [seg])
@@ -155,20 +160,35 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
     return Diagnosis(steps, model, train, held, cfg, rejected, pruned, declared)
 
 
+def _where(e: Effect) -> str:
+    return "all joints (attached to the last link)" if e.wide else f"joint {e.joint}"
+
+
+def _l1_of(e: Effect, l1) -> float:
+    """The held-out L1 an effect is judged on: its joint's, or the sum over joints for an arm-wide one (so
+    that its gain compares with a single-joint effect's in the same units)."""
+    return float(np.sum(l1)) if e.wide else float(l1[e.joint])
+
+
+def _need(e: Effect, l1, floor, cfg: LoopConfig) -> float:
+    return float(max(cfg.rel_gain * _l1_of(e, l1), np.sum(floor) if e.wide else floor[e.joint]))
+
+
 def _try(model: GreyBox, c, train: Design, held: Design, l1, floor, cfg: LoopConfig):
     """Fit the model with candidate c -> (c, trial, l1, rms, train l1, margin) when its joint's held-out L1
-    drops by more than the threshold (margin = drop - threshold) and the mean does not rise; else None."""
+    (arm-wide effects: the sum over joints) drops by more than the threshold (margin = drop - threshold)
+    and the mean does not rise; else None."""
     trial = model.with_effect(c.effect).fit(train)
     t_l1, t_rms, t_ltr = _eval(trial, train, held)
-    j = c.effect.joint
-    gain = float(l1[j] - t_l1[j])
-    need = float(max(cfg.rel_gain * l1[j], floor[j]))
-    c.evidence.update({"heldout_l1_joint_before": round(float(l1[j]), 6),
-                       "heldout_l1_joint_after": round(float(t_l1[j]), 6)})
+    gain = _l1_of(c.effect, l1) - _l1_of(c.effect, t_l1)
+    need = _need(c.effect, l1, floor, cfg)
+    c.evidence.update({"heldout_l1_joint_before": round(_l1_of(c.effect, l1), 6),
+                       "heldout_l1_joint_after": round(_l1_of(c.effect, t_l1), 6)})
     c.evidence["heldout_check"] = {"heldout_gain": gain, "needed": need}
-    why = next(e for e in trial.effects if e.key == c.effect.key).implausible()
+    fitted = next(e for e in trial.effects if e.key == c.effect.key)
+    why = fitted.implausible()
     if why:
-        c.evidence["heldout_check"]["implausible"] = why
+        c.evidence["heldout_check"].update({"implausible": why, **fitted.evidence_of()})
         return None
     if gain > need and t_l1.mean() <= l1.mean():
         return c, trial, t_l1, t_rms, t_ltr, gain - need
@@ -212,12 +232,11 @@ def _prune(model: GreyBox, train: Design, held: Design, l1, floor, cfg: LoopConf
         # copies: a trial fit must not overwrite the coefficients of the effects the kept model shares
         trial = GreyBox(model.basis, [copy.copy(x) for x in model.effects if x is not e]).fit(train)
         t_l1, _, _ = _eval(trial, train, held)
-        j = e.joint
         harmless = t_l1.mean() <= l1.mean() * (1 + cfg.rel_gain)
-        if t_l1[j] - l1[j] <= max(cfg.rel_gain * l1[j], floor[j]) and harmless:
-            pruned.append({**e.to_json(), "heldout_l1_joint_with": float(l1[j]), "heldout_l1_joint_without":
-                           float(t_l1[j])})
-            log(f"pruned {e.family} on joint {j}: held-out L1 joint {j} {l1[j]:.4f} -> {t_l1[j]:.4f} "
+        if _l1_of(e, t_l1) - _l1_of(e, l1) <= _need(e, l1, floor, cfg) and harmless:
+            pruned.append({**e.to_json(), "heldout_l1_joint_with": _l1_of(e, l1),
+                           "heldout_l1_joint_without": _l1_of(e, t_l1)})
+            log(f"pruned {e.family} on {_where(e)}: held-out L1 {_l1_of(e, l1):.4f} -> {_l1_of(e, t_l1):.4f} "
                 "without it")
             model, l1 = trial, t_l1
     return model, pruned

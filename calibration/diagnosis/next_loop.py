@@ -26,8 +26,12 @@ class NextBasis:
     kind = "next"
     separable = True
 
-    def __init__(self, n: int, predictions: dict[int, np.ndarray], label: str):
+    def __init__(self, n: int, predictions: dict[int, np.ndarray], label: str, kinematics=None):
         self.n, self.preds, self.label = n, predictions, label
+        # a new load (payload) on runs NEXT was not trained for: through the arm's kinematics when the
+        # description is known, else the gravity-like family of link orientations
+        self.kinematics = kinematics
+        self.offers_gravity_load = kinematics is None
         self.n_params = n
         self.prior = np.ones(n)
         self.ridge = np.full(n, 1e3)
@@ -84,7 +88,7 @@ def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments, prior
         if prior is not None:  # the checkpoint's physics prior is part of its model
             from calibration.next.prior import prior_torque
 
-            p = p + prior_torque(prior, seen.t, seen.q, seen.qd, seen.y, seen.temperature)
+            p = p + prior_torque(prior, seen.t, seen.q, seen.qd, seen.tau, seen.temperature)
         cut = r.slice(history - 1, len(r), r.name)
         preds[id(cut)] = p[history - 1:]
         out.append(cut)
@@ -94,8 +98,10 @@ def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments, prior
     return out, preds
 
 
-def diagnose_next(ckpt: str, train: list[Segment], heldout: list[Segment], cfg, log=print):
-    """Load a NEXT checkpoint and run the diagnose loop with it as the base model."""
+def diagnose_next(ckpt: str, train: list[Segment], heldout: list[Segment], cfg, log=print, kinematics=None,
+                  no_arm: bool = False):
+    """Load a NEXT checkpoint and run the diagnose loop with it as the base model. kinematics: the arm's
+    pinocchio model for the payload family (default: the checkpoint's arm, unless no_arm)."""
     from .loop import diagnose
 
     try:
@@ -112,8 +118,15 @@ def diagnose_next(ckpt: str, train: list[Segment], heldout: list[Segment], cfg, 
                         where=ckpt, fix="use the checkpoint of this arm")
     tr, p_tr = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, train, ck.prior)
     ho, p_ho = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, heldout, ck.prior)
+    if kinematics is None and ck.arm and not no_arm and ck.units == "N*m":
+        from hardware.arms import load_arm
+
+        kinematics = load_arm(ck.arm).pinocchio_model()
+    if ck.units != "N*m":
+        kinematics = None  # the payload family is in N*m
     basis = NextBasis(train[0].n, {**p_tr, **p_ho}, f"NEXT checkpoint {ckpt} ({ck.model.cfg.arch}, "
-                      f"history {ck.history}, inputs {ck.inputs}) + grey-box terms on its residual")
+                      f"history {ck.history}, inputs {ck.inputs}) + grey-box terms on its residual",
+                      kinematics)
     dg = diagnose(basis, tr, ho, cfg, log=log)
     return dg, {"basis": basis.describe(), "title": "NEXT + grey-box terms on its residual",
                 "next_checkpoint": str(ckpt)}
@@ -131,9 +144,9 @@ def train_next(segments: list[Segment], seconds: float, residual_of=None, seed: 
     nsegs = []
     for s in segments:
         r = resample(s, rate_hz)
-        y = r.y - (residual_of(r) if residual_of is not None else 0.0)
+        y = r.tau - (residual_of(r) if residual_of is not None else 0.0)
         nsegs.append(NSeg(t=r.t, q=r.q, qd=r.qd, q_cmd=r.q if r.q_cmd is None else r.q_cmd, tau=y,
-                          rate_hz=rate_hz, source=r.name))
+                          rate_hz=rate_hz, name=r.name))
     t0 = time.perf_counter()
     data = build_windows(nsegs, history=history, inputs="q,qd,dq")
     res = train(data, TrainConfig(history=history, max_seconds=seconds, threads=threads, device="cpu",

@@ -32,7 +32,9 @@ def to_json(dg: Diagnosis, meta: dict) -> dict:
         verdict = (f"added {len(found)} effect(s); mean held-out L1 {_mean_l1(first.heldout_l1):.4g} -> "
                    f"{_mean_l1(l1_after):.4g} {meta.get('units', '')}")
     return {
-        **meta, "joints": names, "verdict": verdict,
+        **meta, "joints": names, "headline": headline(dg, names, meta), "verdict": verdict,
+        "found_in_words": [e.describe(meta.get("units", "N*m"), names) for e in found],
+        "evidence_of_something_else": [r for r in dg.rejected if "evidence_of" in r][-10:],
         "config": {"rel_gain": dg.config.rel_gain, "abs_gain_of_target_rms": dg.config.abs_gain,
                    "tries_per_step": dg.config.tries, "max_effects": dg.config.max_effects},
         "samples": {"train": len(dg.train), "heldout": len(dg.heldout)},
@@ -44,6 +46,26 @@ def to_json(dg: Diagnosis, meta: dict) -> dict:
         "after": {"heldout_l1": l1_after.tolist(), "heldout_rms": rms_after.tolist(),
                   "heldout_l1_mean": _mean_l1(l1_after)},
     }
+
+
+def headline(dg: Diagnosis, names: list, meta: dict) -> str:
+    """One sentence: the first effect found, in words, and how much of the held-out residual it explains
+    (its joint's held-out L1 before -> after adding it; arm-wide effects: summed over joints)."""
+    u = meta.get("units", "")
+    of = "the model's" if not meta.get("next_checkpoint") else "NEXT's"
+    found = dg.found() if hasattr(dg, "found") else dg.model.effects
+    added = [s.added for s in dg.steps[1:] if s.added is not None]
+    if not found or not added:
+        return f"Nothing missing: no effect explains {of} held-out residual beyond the acceptance threshold"
+    first = next((e for e in found if (e.family, e.joint) == (added[0]["effect"], added[0]["joint"])),
+                 found[0])
+    ev = added[0]["evidence"]
+    b, a = ev["heldout_l1_joint_before"], ev["heldout_l1_joint_after"]
+    where = "summed over joints" if first.wide else f"of {names[first.joint]}"
+    more = f"; {len(found) - 1} more effect(s) below" if len(found) > 1 else ""
+    return (f"{first.describe(u, names)[0].upper()}{first.describe(u, names)[1:]} explains "
+            f"{100 * (b - a) / max(b, 1e-12):.0f} % of {of} held-out residual {where} "
+            f"(L1 {b:.3g} -> {a:.3g} {u}){more}")
 
 
 def _binned(x, y, bins=50):
@@ -65,12 +87,18 @@ def plot_step(dg: Diagnosis, k: int, path: Path) -> None:
 
     step, prev = dg.steps[k], dg.steps[k - 1]
     e = next(x for x in step.model.effects if x.key[:2] == (step.added["effect"], step.added["joint"]))
-    j = e.joint
     d = dg.heldout
+    if e.wide:  # shown on the joint where it acts most
+        per_joint = np.einsum("tjk,k->tj", d.features(e), e.coef)
+        j = int(np.argmax(per_joint.std(0)))
+        contrib = per_joint[:, j]
+        label, x = f"fitted {e.family} torque on joint {j} [{dg.train.segments[0].units}]", contrib
+    else:
+        j = e.joint
+        label, x = trace_feature(e, d)
+        contrib = d.features(e) @ e.coef
     before = d.y[:, j] - prev.model.predict(d)[:, j]
     after = d.y[:, j] - step.model.predict(d)[:, j]
-    label, x = trace_feature(e, d)
-    contrib = d.features(e) @ e.coef
     if e.family == "position_periodic":
         period = e.hyper["period_rad"]
         x, label = np.mod(d.q[:, j], period) / period, f"phase of q[{j}] modulo {period:.4g} rad"
@@ -120,8 +148,10 @@ def write(dg: Diagnosis, out: Path, meta: dict, plots: bool = True) -> dict:
     rep = to_json(dg, meta)
     (out / "report.json").write_text(json.dumps(rep, indent=1, default=float))
     u = rep.get("units", "")
-    lines = [f"# Diagnosis: {meta.get('title', 'grey-box model')}", "",
+    lines = [f"# {rep['headline']}", "", f"Diagnosis: {meta.get('title', 'grey-box model')}. "
              f"Data: {meta.get('data_source', '')}", "",
+             f"Arm: {meta.get('arm') or 'none (data-only basis)'}"
+             + (f" ({meta['arm_source']})" if meta.get("arm_source") else ""), "",
              f"Training runs: {', '.join(meta.get('train_runs', []))}; held-out: "
              f"{', '.join(meta.get('heldout_runs', []))} ({rep['samples']['train']} / "
              f"{rep['samples']['heldout']} samples). Rigid part: {meta.get('basis', '')}. Units: {u}.", "",
@@ -143,7 +173,9 @@ def write(dg: Diagnosis, out: Path, meta: dict, plots: bool = True) -> dict:
             continue
         a = s["added"]
         ev = a["evidence"]
-        lines.append(f"{k}. **{a['effect']}** on joint {a['joint']} ({rep['joints'][a['joint']]}): "
+        on = ("all joints (at the last link)" if a["effect"] == "payload"
+              else f"joint {a['joint']} ({rep['joints'][a['joint']]})")
+        lines.append(f"{k}. **{a['effect']}** on {on}: "
                      f"{_fmt(a['params'])}. Evidence: explains "
                      f"{100 * ev['explains_train_residual']:.1f} % of the joint's training residual; "
                      f"held-out L1 of the joint {ev['heldout_l1_joint_before']:.4g} -> "
@@ -160,5 +192,13 @@ def write(dg: Diagnosis, out: Path, meta: dict, plots: bool = True) -> dict:
     lines += ["", "## Final effects", ""]
     finals = [f"- {e['effect']} on joint {e['joint']}: {_fmt(e['params'])}" for e in rep["effects"]]
     lines += finals or ["- none"]
+    if rep["found_in_words"]:
+        lines += ["", "In words: " + "; ".join(rep["found_in_words"]) + "."]
+    if rep["evidence_of_something_else"]:
+        lines += ["", "## Evidence of something else", "",
+                  "Friction fitted with a sign that feeds energy in was rejected as friction; what it points "
+                  "at:", ""]
+        lines += [f"- {r['effect']} on joint {r['joint']}: {r['implausible']} -- {r['evidence_of']}; "
+                  f"candidates: {', '.join(r['candidates'])}" for r in rep["evidence_of_something_else"]]
     (out / "report.md").write_text("\n".join(lines) + "\n")
     return rep

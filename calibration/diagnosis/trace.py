@@ -35,7 +35,7 @@ class _Projector:
 
     def __init__(self, model: GreyBox, d: Design, j: int, extra: list | None = None):
         idx, cols = d.base[j]
-        mine = [d.features(e) for e in model.effects if e.joint == j]
+        mine = [f for e in model.effects if (f := e.on_joint(d.features(e), j)) is not None]
         # With parameters shared across joints (an arm description) joint j's own regressor row spans far
         # more than the shared fit can use on joint j alone, so only the effects are projected out there.
         own = [cols] if getattr(model.basis, "separable", False) else []
@@ -104,13 +104,35 @@ def candidates(model: GreyBox, d: Design, residual: np.ndarray, joints=None) -> 
         for k in range(model.n):
             if k != j and float(np.sqrt(np.mean(d.qd[:, k] ** 2))) > MOVING:
                 trials.append(score(Effect("coupling", j, {"other_joint": k}), proj=own_motion))
+        if getattr(model.basis, "offers_gravity_load", False):
+            trials.append(score(Effect("gravity_load", j)))
         for c in trials:
             if c.effect.slot in taken:
                 continue
             c.evidence["explains_train_residual"] = round(c.score, 4)
             out.append(c)
+    if getattr(model.basis, "kinematics", None) is not None:
+        c = _arm_wide(model, d, residual, Effect("payload", model.n - 1))
+        if c.effect.slot not in taken:
+            out.append(c)
     out.sort(key=rank)
     return out
+
+
+def _arm_wide(model: GreyBox, d: Design, residual: np.ndarray, e: Effect) -> Candidate:
+    """Score an effect that acts on every joint with shared coefficients: the fraction of the training
+    residual of all joints together (stacked) that its columns explain, each joint's columns projected as
+    that joint's candidates are."""
+    f = d.features(e)
+    fs, rs = [], []
+    for j in range(model.n):
+        r = residual[:, j]
+        if float(r @ r) > 0:
+            fs.append(_Projector(model, d, j)(f[:, j, :]))
+            rs.append(r)
+    sc = explained(np.concatenate(fs), np.concatenate(rs)) if rs else 0.0
+    return Candidate(e, sc, {"columns": f.shape[2], "explains_train_residual": round(sc, 4),
+                             "acts_on": "all joints"})
 
 
 def rank(c: Candidate) -> float:
@@ -120,6 +142,9 @@ def rank(c: Candidate) -> float:
 def trace_feature(e: Effect, d: Design) -> tuple[str, np.ndarray]:
     """The signal the residual is plotted against as evidence for an effect (axis label, values)."""
     j = e.joint
+    if e.family in ("payload", "gravity_load") and e.coef is not None:
+        f = e.on_joint(d.features(e), j)
+        return f"fitted {e.family.replace('_', ' ')} torque on joint {j}", f @ e.coef
     if e.family in ("position_periodic", "position_spring"):
         return f"q[{j}] [rad]", d.q[:, j]
     if e.family == "backlash":

@@ -179,7 +179,7 @@ def record(seconds: float, seed: int, hook, effects: dict[str, bool], twin_seed:
     The twin's own temperature is not read by the driver, so no temperature array is logged."""
     from calibration.next.collect import ContactStop, collect_free_motion
     from calibration.trajectories import arm_coverage_trajectory
-    from hardware.sim.serve import open_rig
+    from hardware.connect import open_rig
 
     traj = arm_coverage_trajectory("piper", minutes=seconds / 60.0, rate_hz=rate_hz, seed=seed)
     with open_rig(twin_rig(effects), clock="lockstep", effect=hook, seed=twin_seed) as s:

@@ -66,6 +66,8 @@ class CollectedRun:
     tau_ext_true: list = field(default_factory=list)
     contact: list = field(default_factory=list)
     joint_names: list[str] = field(default_factory=list)
+    arm: str = ""  # the arm description's name and SHA-256: a log says which arm it comes from
+    arm_sha256: str = ""
     stopped: str = ""
     wall_s: float = 0.0
 
@@ -80,6 +82,8 @@ class CollectedRun:
             out["contact"] = np.asarray(self.contact, bool)
             out["simulated_ground_truth"] = np.array(True)
         out["joint_names"] = np.array(self.joint_names)
+        if self.arm:
+            out["arm"], out["arm_sha256"] = np.array(self.arm), np.array(self.arm_sha256)
         return out
 
 
@@ -126,7 +130,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
     follower = session.followers[follower_name]
     limits = spec.limits()
     clock, dt = session.clock, 1.0 / traj.rate_hz
-    run = CollectedRun(joint_names=list(arm.joint_names))
+    run = CollectedRun(joint_names=list(arm.joint_names), arm=arm.name, arm_sha256=arm.sha256)
     truth = session.twin.device_ground_truth if session.twin is not None else None
     if pushes and session.twin is None:
         raise DeviceError("scripted pushes need a simulated rig", where=follower_name, fix="use a sim-* rig")

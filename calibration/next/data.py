@@ -2,8 +2,8 @@
 
 Pipeline, top to bottom:
   1. resample_log(): irregular timestamps -> uniform grid at `rate_hz` (default 100 Hz, the paper's rate) by
-     linear interpolation. Gaps longer than `max_gap_s` are not bridged: the run is split there into segments,
-     and no window ever spans two segments.
+     linear interpolation (hardware.timeseries: the one Segment type and resampler). Gaps longer than
+     `max_gap_s` are not bridged: the run is split there into segments, and no window ever spans two.
   2. make_inputs(): per-sample features. "q,qd,dq" = (q [rad], q_dot [rad/s], q_cmd - q [rad]) as in the
      paper; "q" and "q,qd" reproduce the input ablation.
   3. split_blocks(): each segment is cut into contiguous blocks (default 10 s); every k-th block goes to
@@ -20,37 +20,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hardware.timeseries import Segment, heldout_spans, resample
+
 INPUT_SETS = ("q", "q,qd", "q,qd,dq")
-
-
-@dataclass
-class Segment:
-    """Uniformly sampled stretch of one run. tau: measured torque signal [N*m or A]; rate in Hz."""
-
-    t: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray
-    q_cmd: np.ndarray
-    tau: np.ndarray
-    rate_hz: float
-    source: str = ""
-    tau_ext_true: np.ndarray | None = None
-    contact: np.ndarray | None = None
-    temperature: np.ndarray | None = None  # motor temperature [degC] (N, n), when the log has it
-
-    def __len__(self) -> int:
-        return int(self.t.shape[0])
-
-
-def _interp(t_new: np.ndarray, t: np.ndarray, a: np.ndarray) -> np.ndarray:
-    return np.stack([np.interp(t_new, t, a[:, j]) for j in range(a.shape[1])], axis=1)
 
 
 def resample_log(log, rate_hz: float = 100.0, max_gap_s: float = 0.1) -> list[Segment]:
     """Resample a PlainLog (hardware.recording.plain_log) onto a `rate_hz` grid; split at gaps > max_gap_s.
 
     Linear interpolation of q, qd, q_cmd, tau (and tau_ext_true, temperature); `contact` takes the nearest
-    earlier sample. Samples with any non-finite value are dropped first (treated as a gap).
+    earlier sample (hardware.timeseries.resample). Samples with any non-finite value are dropped first
+    (treated as a gap).
     """
     t = np.asarray(log.t, float)
     arrays = {"q": log.q, "qd": log.qd, "q_cmd": log.q_cmd, "tau": log.tau}
@@ -62,28 +42,14 @@ def resample_log(log, rate_hz: float = 100.0, max_gap_s: float = 0.1) -> list[Se
     temp = getattr(log, "temperature", None)
     if temp is not None and np.all(np.isfinite(np.asarray(temp, float)[finite])):  # partial: not used
         arrays["temperature"] = temp
-    t = t[finite]
     arrays = {k: np.asarray(v, float)[finite] for k, v in arrays.items()}
-    contact = None if log.contact is None else np.asarray(log.contact, bool)[finite]
-    if len(t) < 2:
-        return []
-    breaks = np.flatnonzero(np.diff(t) > max_gap_s) + 1
-    segments = []
-    for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, len(t)]):
-        ts = t[lo:hi]
-        if len(ts) < 2:
-            continue
-        grid = ts[0] + np.arange(int(np.floor((ts[-1] - ts[0]) * rate_hz)) + 1) / rate_hz
-        res = {k: _interp(grid, ts, v[lo:hi]) for k, v in arrays.items()}
-        seg_contact = None
-        if contact is not None:
-            idx = np.clip(np.searchsorted(ts, grid, side="right") - 1, 0, len(ts) - 1)
-            seg_contact = contact[lo:hi][idx]
-        segments.append(Segment(t=grid, q=res["q"], qd=res["qd"], q_cmd=res["q_cmd"], tau=res["tau"],
-                                rate_hz=rate_hz, source=str(getattr(log, "name", "")),
-                                tau_ext_true=res.get("tau_ext_true"), contact=seg_contact,
-                                temperature=res.get("temperature")))
-    return segments
+    if log.contact is not None:
+        arrays["contact"] = np.asarray(log.contact, bool)[finite]
+    meta = {"rate_hz": rate_hz, "name": str(getattr(log, "name", "")), "units": getattr(log, "units", "N*m"),
+            "joint_names": tuple(getattr(log, "joint_names", ()) or ()), "arm": getattr(log, "arm", ""),
+            "arm_sha256": getattr(log, "arm_sha256", "")}
+    return [Segment(t=grid, **res, **meta)
+            for grid, res in resample(t[finite], arrays, rate_hz, max_gap_s=max_gap_s)]
 
 
 def make_inputs(q: np.ndarray, qd: np.ndarray, q_cmd: np.ndarray, inputs: str = "q,qd,dq") -> np.ndarray:
@@ -138,17 +104,8 @@ def split_blocks(lengths: list[int], block_len: int, val_every: int = 5, offset:
     """Cut each segment (by length) into contiguous blocks of `block_len` samples; block b of the whole
     sequence goes to validation when (b + offset) % val_every == 0. Returns (train, val) lists of
     (segment index, start, stop). A segment shorter than a block is one block. The last partial block of a
-    segment joins the previous one so no tiny block is made."""
-    train, val = [], []
-    b = 0
-    for si, n in enumerate(lengths):
-        starts = list(range(0, n, block_len))
-        if len(starts) > 1 and n - starts[-1] < block_len // 2:
-            starts.pop()
-        stops = starts[1:] + [n]
-        for lo, hi in zip(starts, stops):
-            (val if (b + offset) % val_every == 0 else train).append((si, lo, hi))
-            b += 1
+    segment joins the previous one so no tiny block is made (hardware.timeseries.heldout_spans)."""
+    train, val = heldout_spans(lengths, 1.0 / val_every, block_len, offset, min_tail=block_len // 2)
     if not train and val:  # a single tiny run: keep something to train on
         train, val = val, []
     return train, val

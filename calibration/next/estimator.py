@@ -30,39 +30,25 @@ The estimator assumes one update per sample at the checkpoint's rate (ck.rate_hz
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 
+from calibration.estimate import (  # noqa: F401  (re-exported: the flags of NEXT estimates)
+    FLAG_NO_TEMPERATURE,
+    FLAG_NONFINITE,
+    FLAG_OK,
+    FLAG_OOD,
+    FLAG_UNVERIFIED,
+    FLAG_WARMUP,
+    Estimate,
+)
 from calibration.next.checkpoint import NextCheckpoint, weights_numpy
 from calibration.next.data import make_inputs
 from calibration.next.lstm_runs import CarriedRun, ExactWindows, LstmWeights
 from calibration.next.prior import PriorStream, prior_torque
 from calibration.next.train import predict_series
 
-FLAG_OK = 0
-FLAG_WARMUP = 1  # fewer than H clean samples since start/restart: estimate is NaN
-FLAG_NONFINITE = 2  # an input was NaN/inf: estimate is NaN
-FLAG_OOD = 4  # inputs outside the training range: estimate may be unreliable
-FLAG_NO_TEMPERATURE = 8  # the prior has a temperature term but no finite temperature came: not corrected
-FLAG_UNVERIFIED = 16  # carried-state estimate while the exact windows refill after a failed audit
 CARRIED_TOL = 0.01  # the carried state may move the network output by <= 1 % of its validation L1, per joint
-
-
-@dataclass
-class Estimate:
-    tau_ext: np.ndarray  # (J,) external torque [units of the checkpoint]; NaN when not valid
-    tau_f: np.ndarray  # (J,) predicted free-space torque
-    flags: int
-
-    @property
-    def valid(self) -> bool:
-        return not (self.flags & (FLAG_WARMUP | FLAG_NONFINITE))
-
-    @property
-    def ood(self) -> bool:
-        return bool(self.flags & FLAG_OOD)
 
 
 def carried_allowed(ck: NextCheckpoint) -> bool:
@@ -155,7 +141,7 @@ class NextEstimator:
 
     def _nan(self, flags: int) -> Estimate:
         nan = np.full(self.n_j, np.nan)
-        return Estimate(nan, nan.copy(), flags)
+        return Estimate(nan, flags=flags, tau_f=nan.copy())
 
     def work(self) -> None:
         """Between samples (defer=True): step 1/parts of the exact runs still pending. Cheap no-op else."""
@@ -227,12 +213,12 @@ class NextEstimator:
             return self._nan(flags | FLAG_WARMUP)
         tau_f = out.astype(np.float64) * self._y_std + self._y_mean + prior
         if flags & FLAG_NONFINITE:
-            return Estimate(np.full(self.n_j, np.nan), tau_f, flags)
+            return Estimate(np.full(self.n_j, np.nan), flags=flags, tau_f=tau_f)
         ext = tau - tau_f
         if self.ema_alpha is not None:
             self._ema = ext if self._ema is None else self._ema + self.ema_alpha * (ext - self._ema)
             ext = self._ema.copy()
-        return Estimate(ext, tau_f, flags)
+        return Estimate(ext, flags=flags, tau_f=tau_f)
 
 
 def batch_tau_f(ck: NextCheckpoint, q, qd, q_cmd, tau=None, temperature=None,

@@ -13,10 +13,11 @@ import threading
 import time
 from pathlib import Path
 
+from calibration.estimators import FEEDBACK_MODES
 from hardware.errors import UserError
 
 HELP = "SIMULATED bilateral teleop demo on the twin: virtual operator, table wipe, timing + feedback metrics"
-MODES = ("auto", "none", "dob", "pp", "next", "ground_truth")
+MODES = ("auto", *FEEDBACK_MODES)
 
 
 def add_arguments(p) -> None:
@@ -39,12 +40,10 @@ def _say(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def resolve_mode(args) -> tuple[str, object | None, str | None]:
-    """(mode, NEXT estimator or None, why NEXT is not used or None)."""
+def resolve_mode(args) -> tuple[str, Path | None, str | None]:
+    """(mode, NEXT checkpoint or None, why NEXT is not used or None)."""
     from factr2_teleop.demo import next_cache
-    from hardware.rigs.rig import load_rig
 
-    arm = load_rig(args.rig).followers[0].arm
     if args.mode not in ("auto", "next"):
         return args.mode, None, None
     path = next_cache.find_checkpoint(args.rig, args.checkpoint)
@@ -73,18 +72,18 @@ def resolve_mode(args) -> tuple[str, object | None, str | None]:
             return "dob", None, f"NEXT set-up failed ({type(e).__name__}: {str(e)[:120]})"
         if show:
             print(file=sys.stderr)
-    return "next", next_cache.load_estimator(path, arm), None
+    return "next", path, None
 
 
 def _live_text(run, stop: threading.Event) -> None:
     """One status line, rewritten in place, until the run ends (the Textual app has no demo view yet)."""
     while not stop.wait(0.5):
         s = run.loop.snapshot()
-        rec = s.records.get("arm") or {}
+        rec = s.records.get("arm")
         phase = s.phases.get("arm", "?")
         ops = run.operator.log
         task = ops[-1].phase if ops else "-"
-        gate = rec.get("feedback.gate", 0.0)
+        gate = rec.gate if rec is not None else 0.0
         print(f"\r[SIMULATED {run.cfg.mode}] t {s.t - run.operator.t0 if ops else 0.0:5.1f} s  {phase:10s} "
               f"task {task:8s} gate {gate:4.2f} | {s.timing.line()}   ", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
@@ -102,30 +101,6 @@ def tui_view():
     return getattr(demo_view, "show_demo", None)
 
 
-def _recorder(dir_: str, run):
-    from hardware.recording.session import describe_session
-    from hardware.recording.writer import Recorder
-
-    out = Path(dir_)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / f"demo-{run.cfg.rig}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
-    meta = describe_session(rig_path=run.session.rig.path, twin=True, next_checkpoint="")
-    meta.update({"feedback_mode": run.cfg.mode, "demo": "table wipe, virtual operator (SIMULATED)"})
-    rec = Recorder(path, t0=run.session.clock.now(), metadata=meta)
-    rec.start_episode(run.session.clock.now(), "demo: press and wipe the table")
-
-    def log(r: dict, gt) -> None:
-        t = r["t"]
-        rec.log_joint_state("leader", t, run.leader.last_state)
-        rec.log_joint_state("follower", t, run.follower.last_state)
-        rec.log_external_torque("follower", t, r["follower.joint.tau_ext"], r["feedback.contact"])
-        rec.log_torque_command("leader", t, r["leader.joint.tau_cmd"], r["feedback.gate"])
-        if gt is not None:
-            rec.log_ground_truth("follower", t, gt.tau_ext[: run.n], gt.contact)
-
-    return rec, log
-
-
 def run(args) -> int:
     from factr2_teleop.demo.task import DemoConfig, DemoRun
     from hardware.rigs.rig import load_rig
@@ -135,18 +110,24 @@ def run(args) -> int:
     if not load_rig(args.rig).simulated:
         raise UserError(f"rig {args.rig} is real hardware; the demo runs on a twin", where="--rig",
                         fix=f"use `factr2 teleop --rig {args.rig}` on real arms, or a sim-* rig here")
-    mode, next_est, why = resolve_mode(args)
+    from factr2_teleop.session.pairs import load_next
+
+    mode, next_path, why = resolve_mode(args)
+    next_est = load_next(next_path, load_rig(args.rig).followers[0].arm) if next_path is not None else None
     live = not args.headless and sys.stderr.isatty() and sys.stdout.isatty()
     # imported before the rig opens: a real-time run must start right after DemoRun() (its twin waits)
     show_app = tui_view() if live else None
     if why:
         _say(f"feedback mode {mode}: {why}")
     demo = DemoRun(DemoConfig(rig=args.rig, seconds=args.seconds, mode=mode, rate_hz=args.rate,
-                              clock=args.clock), next_source=next_est)
+                              clock=args.clock), next_source=next_est,
+                   next_path=str(next_path) if next_path else None)
     rec = None
     try:
         if args.record:
-            rec, demo.recorder = _recorder(args.record, demo)
+            rec = demo.teleop.record(args.record, stem=f"demo-{args.rig}",
+                                     extra_meta={"demo": "table wipe, virtual operator (SIMULATED)"})
+            rec.start_episode("demo: press and wipe the table")
         stop_view = threading.Event()
         view = None
         if live and show_app is None:
@@ -180,8 +161,7 @@ def run(args) -> int:
         res = demo.result()
     finally:
         if rec is not None:
-            rec.stop_episode(demo.session.clock.now(), None)
-            st = rec.close()
+            st = demo.teleop.close_recording()
             _say(f"recorded to {rec.path}" + (f" (error: {st.error})" if st.error else ""))
         demo.close()
     out = res.to_json()

@@ -1,8 +1,12 @@
 """`factr2 diagnose`: fit a grey-box model to logs, trace its held-out residual to missing effects, add them.
 
-    factr2 diagnose run1.npz run2.npz run3.npz --out diag/                 # data-only basis
+    factr2 diagnose cal/data/free_motion.npz --out diag/                   # the arm the log names (or none)
     factr2 diagnose runs/*.npz --heldout other.npz --arm piper --out diag/  # pinocchio regressor of the arm
+    factr2 diagnose runs/*.npz --arm none --out diag/                       # data-only basis, whatever the logs say
     factr2 diagnose runs/*.npz --model next.ckpt --out diag/                # around a trained NEXT model
+
+Logs written by this app name their arm (plain logs: `arm`, `arm_sha256`, `joint_names`; recordings: the
+session metadata's `arms`), so no --arm is needed; --arm overrides, --arm none forces the data-only basis.
 """
 
 from __future__ import annotations
@@ -23,7 +27,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--physics", action="store_true", help="grey-box physics model (the default)")
     src.add_argument("--model", metavar="CKPT", help="diagnose a trained NEXT checkpoint instead")
     p.add_argument("--arm", help="arm description (hardware.arms name or MJCF path): use its pinocchio "
-                   "regressor as the rigid part; 'pinocchio-sample' = pinocchio's sample manipulator")
+                   "regressor as the rigid part (default: the arm the logs name); 'none' = data-only basis; "
+                   "'pinocchio-sample' = pinocchio's sample manipulator")
     p.add_argument("--kt", help="torque constants N*m/A per joint, comma separated (current logs with --arm)")
     p.add_argument("--heldout", nargs="+", metavar="FILE", help="held-out runs (default: the last INPUT, or "
                    "the last quarter of a single INPUT)")
@@ -40,12 +45,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-plots", action="store_true")
 
 
-def _basis(args, n: int, units: str):
-    from calibration.diagnosis.basis import DataBasis, PinocchioBasis
+def _arm(args, segs) -> tuple[str | None, str]:
+    """(arm description to use or None, where that came from): --arm wins; else the one arm the logs name."""
+    if args.arm:
+        return (None, "--arm none") if args.arm == "none" else (args.arm, "--arm")
+    named = sorted({s.arm for s in segs} - {""})
+    if len(named) > 1:
+        raise UserError(f"the logs name different arms ({', '.join(named)})", where=", ".join(args.inputs),
+                        fix="diagnose the runs of one arm at a time, or pass --arm")
+    return (named[0], "named by the logs") if named else (None, "")
 
-    if not args.arm:
-        return DataBasis(n)
-    if args.arm == "pinocchio-sample":
+
+def _kinematics(name: str | None, segs, n: int):
+    """The pinocchio model of arm `name` (None: none), checked against the logs: joint count and names; a
+    description that changed since the logs were written is used with a note."""
+    if name is None:
+        return None
+    if name == "pinocchio-sample":
         import pinocchio as pin
 
         model = pin.buildSampleModelManipulator()
@@ -54,14 +70,37 @@ def _basis(args, n: int, units: str):
             from hardware.arms import load_arm
         except ImportError:
             raise UserError("arm descriptions are not installed", where="--arm",
-                            fix="drop --arm to use the data-only basis") from None
-        model = load_arm(args.arm).pinocchio_model()
+                            fix="pass --arm none to use the data-only basis") from None
+        from hardware.errors import ConfigError
+
+        try:
+            desc = load_arm(name)
+        except ConfigError as e:
+            raise UserError(f"cannot load arm description {name!r} ({e.what})", where="--arm",
+                            fix="pass --arm NAME_OR_MJCF_PATH of the arm, or --arm none") from None
+        logged = {s.joint_names for s in segs if s.arm == name and s.joint_names}
+        if logged and logged != {tuple(desc.joint_names)}:
+            raise UserError(f"the logs' joints {sorted(logged)[0]} are not arm {name}'s "
+                            f"{list(desc.joint_names)}", where="--arm", fix="pass the arm the logs come from")
+        stale = {s.arm_sha256 for s in segs if s.arm == name and s.arm_sha256} - {desc.sha256}
+        if stale:
+            print(f"note: arm description {name} changed since the logs were written (sha256 "
+                  f"{sorted(stale)[0][:12]} then, {desc.sha256[:12]} now); using the current one")
+        model = desc.pinocchio_model()
     if model.nv != n:
         raise UserError(f"the arm has {model.nv} joints, the logs {n}", where="--arm",
                         fix="pick the arm the logs were recorded on")
+    return model
+
+
+def _basis(args, model, n: int, units: str):
+    from calibration.diagnosis.basis import DataBasis, PinocchioBasis
+
+    if model is None:
+        return DataBasis(n)
     if units != "N*m":
         raise UserError("logs are in current [A]; the arm's regressor is in N*m", where="--arm",
-                        fix="pass --kt K1,K2,... (N*m/A per joint), or drop --arm for the data-only basis")
+                        fix="pass --kt K1,K2,... (N*m/A per joint), or --arm none for the data-only basis")
     return PinocchioBasis(model, ridge=args.prior_weight)
 
 
@@ -78,7 +117,7 @@ def _apply_kt(segments, kt: str | None, n: int):
         raise UserError(f"{len(k)} torque constants for {n} joints", where="--kt", fix="one per joint")
     for s in segments:
         if s.units == "A":
-            s.y, s.units = s.y * k, "N*m"
+            s.tau, s.units = s.tau * k, "N*m"
     return segments
 
 
@@ -127,8 +166,11 @@ def run(args) -> int:
                         fix="diagnose runs of one arm at a time")
     _apply_kt(every, args.kt, n)
     train, heldout = split_heldout(runs, held)
+    arm, arm_source = _arm(args, every)
+    model = _kinematics(arm, every, n)
     cfg = LoopConfig(rel_gain=args.rel_gain, abs_gain=args.abs_gain, max_effects=args.max_effects)
     meta = {"units": every[0].units, "joint_names": list(every[0].joint_names) or None,
+            "arm": arm, "arm_source": arm_source,
             "train_runs": [s.name for s in train], "heldout_runs": [s.name for s in heldout],
             "data_source": ", ".join(_short(p) for p in args.inputs) + (
                 " | held out: " + ", ".join(_short(p) for p in args.heldout) if args.heldout else "")}
@@ -136,15 +178,17 @@ def run(args) -> int:
     if args.model:
         from calibration.diagnosis.next_loop import diagnose_next
 
-        dg, extra = diagnose_next(args.model, train, heldout, cfg, log=print)
+        dg, extra = diagnose_next(args.model, train, heldout, cfg, log=print, kinematics=model,
+                                  no_arm=args.arm == "none")
         meta.update(extra)
     else:
-        basis = _basis(args, n, every[0].units)
+        basis = _basis(args, model, n, every[0].units)
         meta.update({"basis": basis.describe(), "title": "grey-box physics model"})
         declared = _declared(args.declared, basis, n) if args.declared else None
         dg = diagnose(basis, train, heldout, cfg, log=print, declared=declared)
     meta["seconds"] = round(time.perf_counter() - t0, 2)
     rep = write(dg, Path(args.out), meta, plots=not args.no_plots)
+    print(rep["headline"])
     print(f"{rep['verdict']}")
     print(f"report: {Path(args.out) / 'report.md'}")
     return 0

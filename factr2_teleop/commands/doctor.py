@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 
 from hardware import doctor as dr
-from hardware.dynamixel.protocol import OP_MODE_NAMES
 from hardware.errors import ConfigError
 
 HELP = "list serial ports and CAN interfaces; ping Dynamixel servos and say what is wrong"
@@ -53,42 +52,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rig", default=None, help="probe every device of this rig (name or .toml path)")
 
 
-def _targets(args) -> tuple[list[dict], list[str], list[str]]:
-    """(dynamixel probes, CAN interfaces, notes) from --port/--ids and --rig."""
-    ids = parse_ids(args.ids) if args.ids else list(range(1, 8))
-    probes = [dict(port=p, baud=args.baud, ids=ids, expect_model=args.model) for p in args.port]
-    cans, notes = list(args.can), []
-    if args.rig:
-        try:
-            from hardware.rigs import load_rig
-        except ImportError:
-            raise ConfigError(
-                "rig files are not available in this install", where="--rig", fix="use --port/--ids/--baud"
-            ) from None
-        rig = load_rig(args.rig)
-        for d in rig.leaders + rig.followers:
-            c = d.config
-            port, channel = getattr(c, "port", None), getattr(c, "channel", None)
-            if port == "twin" or channel == "twin" or c is None:
-                notes.append(
-                    f"{d.name}: simulated by the twin (its pty / virtual bus exists only while the "
-                    "twin runs); probe a running twin with --port PTY"
-                )
-                continue
-            if d.driver == "dynamixel":
-                rig_ids = list(c.ids) + ([c.gripper_id] if c.gripper_id is not None else [])
-                model = c.model if isinstance(c.model, str) else None
-                probes.append(dict(port=c.port, baud=c.baud, ids=rig_ids, expect_model=model))
-            elif channel:
-                cans.append(channel)
-    return probes, cans, notes
-
-
 def run(args) -> int:
-    probes, cans, notes = _targets(args)
+    ids = parse_ids(args.ids) if args.ids else list(range(1, 8))
+    rig = None
+    if args.rig:
+        from hardware.rigs import load_rig
+
+        rig = load_rig(args.rig)
     failed = False
     print("serial ports:")
-    ports = dr.check_serial_ports([p["port"] for p in probes])
+    ports = dr.check_serial_ports(list(args.port) + (dr.rig_serial_ports(rig) if rig else []))
     for info in ports:
         lat = "" if info.latency_timer_ms is None else f", latency timer {info.latency_timer_ms} ms"
         desc = f" ({info.description})" if info.description and info.description != "n/a" else ""
@@ -101,34 +74,28 @@ def run(args) -> int:
         print(f"  {c.name}: {'up' if c.up else 'DOWN'} ({c.operstate})")
     if not ifaces:
         print("  none found")
+    checks = [dr.dynamixel_check(p, args.baud, ids, args.loop_hz, args.model) for p in args.port]
+    notes: list[str] = []
+    if rig is not None:
+        rig_checks, notes = dr.rig_checks(rig, args.loop_hz)
+        checks += rig_checks
     for n in notes:
         print(f"note: {n}")
-    for pr in probes:
-        rep = dr.probe_dynamixel(pr["port"], pr["baud"], pr["ids"], args.loop_hz, pr["expect_model"])
-        print(f"dynamixel {rep.port} @ {rep.baud} bit/s, ids {pr['ids']}:")
-        if rep.latency_timer_ms is not None:
-            print(f"  latency timer: {rep.latency_timer_ms} ms")
-        if rep.servos:
-            print("  id  model        fw  mode                    delay  temp  torque  hw-error")
-        for s in rep.servos:
-            mode = OP_MODE_NAMES.get(s.operating_mode, str(s.operating_mode))
-            print(
-                f"  {s.id:<3} {s.model:<12} {s.firmware:<3} {mode:<23} {s.return_delay_us:>4}us "
-                f"{s.temperature_c:>3}C  {'on' if s.torque_on else 'off':<6}  {s.hardware_error}"
-            )
-        if rep.round_trip_s == rep.round_trip_s:
-            print(f"  round trip (sync read): {1e3 * rep.round_trip_s:.2f} ms")
-        for f in rep.findings:
+    for chk in checks:
+        print(chk.title)
+        for line in chk.details:
+            print(f"  {line}")
+        for f in chk.findings:
             print(f"  {f.line()}")
-            failed |= f.level == "error"
-    for iface in cans:
+        failed |= chk.failed
+    for iface in args.can:
         print(f"CAN {iface}:")
         if iface not in {c.name for c in ifaces}:
             print(f"  note: {iface} is not a CAN interface in /sys/class/net")
         for f in dr.run_can_checks(iface):
             print(f"  {f.line()}")
             failed |= f.level == "error"
-    if not probes and not cans:
+    if not checks and not args.can and not notes:
         print("(give --port PORT --ids 1-7 [--baud 4000000] to ping servos, --can can0, or --rig RIG)")
     print("doctor: " + ("problems found (see ERROR lines)" if failed else "no errors"))
     return 1 if failed else 0

@@ -25,8 +25,9 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from hardware.connect import serve_twin
+    from hardware.registry import device_kind
     from hardware.rigs import list_rigs, load_rig
-    from hardware.sim import serve_twin
 
     if args.list:
         for name in list_rigs():
@@ -37,15 +38,16 @@ def run(args) -> int:
     try:
         rig = server.rig
         print(f"twin of rig {rig.name} running in real time (SIMULATED hardware)", flush=True)
-        for name, path in server.serial_ports.items():
-            print(f"  {name}: Dynamixel Protocol 2.0 on {path}", flush=True)
-        for name, ch in server.can_channels.items():
-            print(f"  {name}: CAN (python-can interface 'virtual', this process only) channel {ch}",
-                  flush=True)
-        for d in rig.followers:
-            if d.driver == "sim":
-                print(f"  {d.name}: no wire protocol (driver 'sim': open the rig in-process with open_rig)",
-                      flush=True)
+        for d in rig.leaders + rig.followers:
+            dev, kind = server.twin.devices[d.name], device_kind(d.driver)
+            if dev.wire == "serial":
+                print(f"  {d.name}: {kind.protocol} on {dev.endpoint}", flush=True)
+            elif dev.wire == "can":
+                print(f"  {d.name}: {kind.protocol} (python-can interface 'virtual', this process only) on "
+                      f"channel {dev.endpoint}", flush=True)
+            else:
+                print(f"  {d.name}: no wire protocol (driver {d.driver!r}: open the rig in-process with "
+                      "hardware.connect.open_rig)", flush=True)
         if server.twin.hook_spec:
             print(f"  undeclared effect on the followers: {server.twin.hook_spec}", flush=True)
         print("Ctrl-C to stop", flush=True)

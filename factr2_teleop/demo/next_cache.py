@@ -51,15 +51,6 @@ def find_checkpoint(rig: str, explicit: str | None = None) -> Path | None:
     return p if p.is_file() else None
 
 
-def load_estimator(path: Path, arm: str):
-    """A streaming NextEstimator for the checkpoint (UserError if it was trained for another arm). Its work
-    is spread over the control ticks between two samples (defer; the loop calls idle() -> work())."""
-    from calibration.next.checkpoint import load_checkpoint
-    from calibration.next.estimator import NextEstimator
-
-    return NextEstimator(load_checkpoint(path, arm=arm), defer=True)
-
-
 def create_checkpoint(rig: str, say: Callable[[str], None], minutes: float = DEMO_MINUTES,
                       train_s: float = DEMO_TRAIN_S, progress: Callable[[float, float], None] | None = None
                       ) -> Path:

@@ -5,7 +5,8 @@ bilateral feedback on, ground truth and wire-side commands logged for the metric
     run.run()                  # blocking; run.loop.snapshot() from another thread for a live view
     result = run.result()      # DemoResult: the --json numbers + per-mode wipe numbers
 
-Wiring: open_rig(rig) -> ArmPair (leader gravity from its description, the mode's estimator) -> TeleopLoop.
+Wiring: open_rig(rig) -> factr2_teleop.session TeleopSession (the pairs `factr2 teleop` builds for the same
+options) with a per-tick hook that moves the virtual hand and samples ground truth for the metrics.
 The virtual hand torque is applied from the loop's per-tick hook (held by the twin until the next tick).
 Commands are logged on the wire side (after the safety layer, where the driver sends them) and checked
 against the rig's limits by demo.metrics, independently of the safety layer's code.
@@ -19,14 +20,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calibration.estimators import DOB_GAIN_PER_S, FEEDBACK_MODES, PP_STIFFNESS_NM_PER_RAD
 from factr2_teleop.demo import metrics as M
-from factr2_teleop.teleop.estimators import make_estimator
-from factr2_teleop.teleop.leader_law import arm_model_fns
-from factr2_teleop.teleop.loop import TeleopLoop
-from factr2_teleop.teleop.pair import ArmPair, PairConfig
+from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.rt import single_thread_blas
 from factr2_teleop.teleop.virtual_operator import OperatorScript, Segment, VirtualOperator, make_task_script
-from hardware.clock import Clock
+from hardware.sim.twin import TwinDrivenClock
 
 # Task on the sim-piper table scene, leader joints [rad]: above the table, and a press target beyond the
 # surface (the follower stops near j2 = 1.9 rad: 0.1 rad beyond) so the hand keeps pushing in contact.
@@ -36,15 +35,13 @@ WIPE_AMP = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.0])  # rad: wipe = base yaw osci
 CYCLE_S = {"free": 1.5, "reach": 2.0, "contact": 1.5, "wipe": 4.0, "release": 2.0}  # one task cycle [s]
 PIPER_GAINS = [0.06, 0.08, 0.08, 0.03, 0.03, 0.02]  # K_f, leader N*m per follower N*m (FACTR 2 magnitudes)
 SURFACE_NORMAL = np.array([0.0, 0.0, 1.0])  # table normal (world, up)
-MODES = ("none", "dob", "pp", "next", "ground_truth")
 LAG_GRID_S = 0.001  # s: feedback lag resolution
 SETTLE_S = 1.0  # s: the hand holds the leader still at the start (soft start)
-MAX_CATCH_UP_S = 0.05  # s: a driven twin further behind wall time than this skips ahead (Twin.overruns)
 
 
 @dataclass
 class DemoConfig:
-    """rig: a simulated rig; seconds: task length [s]; mode: feedback mode (MODES); rate_hz: loop rate;
+    """rig: a simulated rig; seconds: task length [s]; mode: FEEDBACK_MODES; rate_hz: loop rate [Hz];
     clock: "realtime" (wall-clock timing; the loop thread steps the twin, TwinDrivenClock), "realtime-thread"
     (the twin's own stepping thread) or "lockstep" (deterministic, as fast as the CPU goes);
     gain: K_f per leader joint; clip_nm: feedback clip per joint [N*m]; hand_*: virtual operator."""
@@ -59,8 +56,8 @@ class DemoConfig:
     clip_nm: float = 1.0
     t_high_nm: float = 2.0
     t_low_nm: float = 1.0
-    dob_gain: float = 50.0
-    pp_stiffness: float = 40.0
+    dob_gain: float = DOB_GAIN_PER_S
+    pp_stiffness: float = PP_STIFFNESS_NM_PER_RAD
     hand_stiffness: float = 3.0
     hand_damping: float = 0.1
     hand_tau_max_nm: float = 2.0
@@ -100,76 +97,25 @@ def contact_force_n(world) -> float:
     return total
 
 
-class TwinDrivenClock(Clock):
-    """Real time, but the loop thread steps the twin: after each sleep the twin's physics catches up to
-    wall time (Twin.advance), so physics, emulators and the loop run in ONE thread in a fixed order with no
-    GIL hand-offs between a stepping thread and the loop (the jitter source of an in-process real-time
-    twin). Same time base as hardware.clock.Clock (the drivers' clock)."""
-
-    def __init__(self, twin):
-        self.twin = twin
-
-    def resync(self) -> None:
-        """Sim time continues from now (set-up time is not simulated: the leader would fall meanwhile),
-        then one step so that fresh samples exist. Twin has no public re-base (start_realtime does this
-        inside); asked for in the report."""
-        self.twin._t_offset = self.now() - self.twin.t
-        self.twin.advance(self.now() + self.twin.dt)
-        self.twin._t_offset = self.now() - self.twin.t
-
-    def _catch_up(self) -> None:
-        now = self.now()
-        lag = now - self.twin._t_offset - self.twin.t
-        if lag > MAX_CATCH_UP_S:  # a stall (swap, suspend): skip ahead rather than spiral (counted)
-            self.twin._t_offset += lag - self.twin.dt
-            self.twin.overruns += 1
-        self.twin.advance(now)
-
-    def sleep(self, dt_s: float) -> None:
-        super().sleep(dt_s)
-        self._catch_up()
-
-    def sleep_until(self, t: float) -> None:
-        super().sleep_until(t)
-        self._catch_up()
-
-
 class _WireLog:
-    """Logs what a driver instance puts on the wire (its _send_safe / _send_torque_safe, after the safety
-    layer): (t, t_sent, values, hold). t is when the command was issued (clock read on entry to the public
-    command method, wrapped too), t_sent when it reached the wire: the safety layer's own clock read lies
-    between the two, so a rate check on [t, t_sent] brackets needs no trust in the layer's timing."""
+    """What a driver puts on the wire after the safety layer (its command observer, hardware.roles):
+    (t, t_sent, values, hold). t is when the command was issued, t_sent when it reached the wire side: the
+    safety layer's own clock read lies between the two, so a rate check on [t, t_sent] brackets needs no
+    trust in the layer's timing."""
 
-    def __init__(self, device, method: str, attr: str, clock, public: str | None = None):
+    def __init__(self, device, attr: str):
         self.t: list[float] = []
         self.t_sent: list[float] = []
         self.v: list[np.ndarray] = []
         self.hold: list[bool] = []
-        self._issued = float("nan")
-        inner = getattr(device, method)
+        self._attr = attr
+        device.add_command_observer(self._on_command)
 
-        def send(safe):
-            sent = clock.now()
-            t = self._issued if np.isfinite(self._issued) else sent
-            self._issued = float("nan")
-            self.t.append(t)
-            self.t_sent.append(sent)
-            self.v.append(np.array(getattr(safe, attr), dtype=float))
-            self.hold.append(bool(getattr(safe, "hold", False)))
-            return inner(safe)
-
-        setattr(device, method, send)
-        if public is not None:
-            outer = getattr(device, public)
-
-            def issue(*a, **kw):
-                self._issued = clock.now()
-                try:
-                    return outer(*a, **kw)
-                finally:
-                    self._issued = float("nan")
-
-            setattr(device, public, issue)
+    def _on_command(self, t_issued: float, t_sent: float, safe) -> None:
+        self.t.append(t_issued)
+        self.t_sent.append(t_sent)
+        self.v.append(np.array(getattr(safe, self._attr), dtype=float))
+        self.hold.append(bool(getattr(safe, "hold", False)))
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         return np.array(self.t), (np.array(self.v) if self.v else np.zeros((0, 0)))
@@ -211,13 +157,13 @@ class DemoResult:
 class DemoRun:
     """Builds the session, pair and operator; run() ticks the loop; result() computes the metrics."""
 
-    def __init__(self, cfg: DemoConfig, next_source=None, recorder=None):
-        from hardware.sim.serve import open_rig
+    def __init__(self, cfg: DemoConfig, next_source=None, next_path: str | None = None):
+        from hardware.connect import open_rig
 
-        if cfg.mode not in MODES:
+        if cfg.mode not in FEEDBACK_MODES:
             raise ValueError(f"unknown mode {cfg.mode!r}")
         single_thread_blas()  # process-wide: multi-threaded BLAS makes NEXT 10x slower on a busy machine
-        self.cfg, self.recorder = cfg, recorder
+        self.cfg, self.next_path = cfg, next_path
         self.session = open_rig(cfg.rig, clock="lockstep" if cfg.clock == "lockstep" else "realtime",
                                 seed=cfg.seed, dynamixel_transport=cfg.dynamixel_transport)
         try:
@@ -231,60 +177,53 @@ class DemoRun:
             raise
 
     def _build(self, next_source) -> None:
+        from factr2_teleop.session.pairs import TeleopOptions
+        from factr2_teleop.session.teleop import TeleopSession
+
         cfg, s = self.cfg, self.session
         self.leader, self.follower = s.pairs[0]
-        lspec, fspec = s.rig.leaders[0], s.rig.followers[0]
-        g, jac = arm_model_fns(lspec.arm)
-        pc = PairConfig(name="arm")
-        fb = pc.law.feedback
-        fb.gain, fb.clip_nm = list(cfg.gain), cfg.clip_nm
-        fb.t_high_nm, fb.t_low_nm = cfg.t_high_nm, cfg.t_low_nm
-        if cfg.mode == "pp":
-            fb.gate_on_contact = False
-        if cfg.mode == "next" and next_source is not None and hasattr(next_source, "ck"):
-            pc.estimator_period_s = 1.0 / next_source.ck.rate_hz - 0.25 / cfg.rate_hz
-        self.n = n = self.follower.n_joints
+        fspec = s.rig.followers[0]
+        fb = {"clip_nm": cfg.clip_nm, "t_high_nm": cfg.t_high_nm, "t_low_nm": cfg.t_low_nm}
+        opts = TeleopOptions(mode=cfg.mode, rate_hz=cfg.rate_hz, gain=list(cfg.gain), feedback=fb,
+                             pp_stiffness_nm_per_rad=cfg.pp_stiffness, dob_gain_per_s=cfg.dob_gain)
+        nexts = {fspec.name: next_source} if cfg.mode == "next" and next_source is not None else None
+        self.teleop = TeleopSession(s, opts, clock=self.clock, next_estimators=nexts,
+                                    next_paths={fspec.name: self.next_path} if self.next_path else None)
+        self.pair = self.teleop.pairs[0]
+        self.n = self.follower.n_joints
         world = s.twin.devices[fspec.name].world
         self._gt_world, self._gt_bank = world, world.banks.index(s.twin.bank(fspec.name))
-        est = make_estimator(cfg.mode, n, follower_arm=fspec.arm, dob_gain=cfg.dob_gain,
-                             pp_stiffness_nm_per_rad=cfg.pp_stiffness, next_source=next_source,
-                             truth=lambda: world.ground_truth(1.0 / cfg.rate_hz)[self._gt_bank].tau_ext)
-        self._model_fns = (g, jac)
-        self.pair = ArmPair(self.leader, self.follower, pc, 1.0 / cfg.rate_hz, gravity_fn=g, jacobian_fn=jac,
-                            estimator=est)
+        self._model_fns = (self.pair.law.gravity_fn, self.pair.law.jacobian_fn)
         self.script = task_script(self.leader.read().q, cfg.seconds)
         self.operator = VirtualOperator(self.script, cfg.hand_stiffness, cfg.hand_damping,
                                         cfg.hand_tau_max_nm,
-                                        jacobian_fn=jac, surface_normal=SURFACE_NORMAL, t0=s.clock.now(),
-                                        defer_force=True)
-        self.wire_f = _WireLog(self.follower, "_send_safe", "q", s.clock, public="command")
-        self.wire_l = _WireLog(self.leader, "_send_torque_safe", "tau", s.clock)
-        self.loop = TeleopLoop([self.pair], self.clock, rate_hz=cfg.rate_hz, recorder=self._on_tick)
+                                        jacobian_fn=self.pair.law.jacobian_fn, surface_normal=SURFACE_NORMAL,
+                                        t0=s.clock.now(), defer_force=True)
+        self.wire_f = _WireLog(self.follower, "q")
+        self.wire_l = _WireLog(self.leader, "tau")
+        self.teleop.hooks.append(self._on_tick)
+        self.loop = self.teleop.loop
         self._rows: list[tuple] = []  # per ground-truth tick: t, phase, fb, est, true, contact, force, task
         self._tick_n = 0
         self._truth_every = cfg.truth_every or (1 if cfg.clock == "lockstep" else 2)
         self.wall_s = self.cpu_s = float("nan")
 
-    def _on_tick(self, rec: dict) -> None:
+    def _on_tick(self, rec: TickRecord) -> None:
         ls = self.leader.last_state
-        tau_hand = self.operator.torque(rec["t"], ls.q, np.nan_to_num(ls.q_dot))
+        tau_hand = self.operator.torque(rec.t, ls.q, np.nan_to_num(ls.q_dot))
         self.session.twin.apply_leader_hand_torque(tau_hand)
         self._tick_n += 1
-        gt = None
         if self._tick_n % self._truth_every == 0:
             gt = self._gt_world.ground_truth(self._truth_every / self.cfg.rate_hz)[self._gt_bank]
             f = contact_force_n(self._gt_world) if self.cfg.contact_force else float("nan")
-            self._rows.append((rec["t"], rec["phase"], rec.get("leader.joint.tau_feedback"),
-                               rec["follower.joint.tau_ext"], gt.tau_ext[: self.n].copy(), gt.contact, f,
-                               self.operator.log[-1].phase))
-        if self.recorder is not None:
-            self.recorder(rec, gt)  # gt None on ticks without a ground-truth read
+            self._rows.append((rec.t, rec.phase, rec.tau_feedback, rec.tau_ext, gt.tau_ext[: self.n].copy(),
+                               gt.contact, f, self.operator.log[-1].phase))
 
     def run(self) -> None:
         self._warm_up()
         t0, c0 = time.perf_counter(), time.process_time()
         if isinstance(self.clock, TwinDrivenClock):
-            self.clock.resync()
+            self.clock.start()
         try:
             self.loop.run(duration_s=self.cfg.seconds)
         finally:
@@ -294,7 +233,7 @@ class DemoRun:
     def _warm_up(self) -> None:
         """First calls of the per-tick pieces (numpy/pinocchio/BLAS first-use costs, up to tens of ms)
         happen here, not in the first real-time ticks where they read as stale data."""
-        from factr2_teleop.teleop.estimators import EstimatorInput
+        from calibration.estimators import EstimatorInput
 
         ls, fs = self.leader.read(), self.follower.read()
         self.operator.torque(self.operator.t0, ls.q, np.nan_to_num(ls.q_dot))
@@ -309,7 +248,8 @@ class DemoRun:
         if self.cfg.mode == "dob":  # not est(): its first call sets the momentum origin
             est.mass(fs.q), est.coriolis(fs.q, np.zeros_like(fs.q)), est.gravity(fs.q)
         elif est is not None:
-            est(EstimatorInput(t=self.clock.now(), follower=fs, q_leader_f=self.pair.map.forward(ls.q)))
+            q_l = self.pair.map.forward(ls.q)
+            est.update(EstimatorInput(t=self.clock.now(), follower=fs, q_leader_f=q_l))
         # A set-up that just recorded and trained NEXT in this process leaves much garbage; a full
         # collection during the loop stalled a tick for ~150 ms (two first runs measured 490-491 Hz with
         # one such stall, later runs 500.0 Hz): collect it now, before the real-time part.

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factr2_teleop.teleop.params import PerJoint, clamp, per_joint
+from hardware.params import PerJoint, clamp, per_joint
 
 
 @dataclass

@@ -21,8 +21,8 @@ import numpy as np
 
 from factr2_teleop.teleop.feedback import FeedbackConfig, FeedbackGate
 from factr2_teleop.teleop.mapping import JointMap
-from factr2_teleop.teleop.params import PerJoint, clamp, per_joint
 from hardware.errors import ConfigError
+from hardware.params import PerJoint, clamp, per_joint
 from hardware.types import JointLimits
 
 FRICTION_MODES = ("off", "dither", "coulomb")

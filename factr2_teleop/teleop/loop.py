@@ -21,6 +21,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, STOPPED, ArmPair
+from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.timing import LoopTiming, TimingStats
 from hardware.clock import Clock
 
@@ -38,13 +39,13 @@ __all__ = ["TeleopLoop", "TeleopSnapshot", "DEFAULT_RATE_HZ", "SOFT_START", "COU
 
 @dataclass(frozen=True)
 class TeleopSnapshot:
-    """What a UI shows: per-pair latest record (flat feature dict, see pair.ArmPair._record), phases, timing,
+    """What a UI shows: per-pair latest record (record.TickRecord), phases, timing,
     the last messages (t [s], pair, text), running flag and the error that stopped the loop (if any)."""
 
     t: float
     running: bool
     phases: dict[str, str]
-    records: dict[str, dict]
+    records: dict[str, TickRecord]
     timing: TimingStats
     messages: tuple[tuple[float, str, str], ...]
     error: str | None
@@ -53,13 +54,13 @@ class TeleopSnapshot:
 class TeleopLoop:
     """TeleopLoop(pairs, clock, rate_hz=500, recorder=None, max_messages=100).
 
-    recorder: callable(record: dict) per pair per tick (duck-typed; an exception in it stops recording with a
+    recorder: callable(record: TickRecord) per pair per tick (an exception in it stops recording with a
     message, never the arms). run() blocks (until stop(), duration_s or max_ticks); start() runs it in a
     thread. snapshot() may be called from any thread.
     """
 
     def __init__(self, pairs: list[ArmPair], clock: Clock, rate_hz: float = DEFAULT_RATE_HZ,
-                 recorder: Callable[[dict], None] | None = None, max_messages: int = 100):
+                 recorder: Callable[[TickRecord], None] | None = None, max_messages: int = 100):
         if not pairs:
             raise ValueError("TeleopLoop needs at least one arm pair")
         names = [p.cfg.name for p in pairs]
@@ -81,7 +82,7 @@ class TeleopLoop:
         self._t_pub = float("nan")
         self._t_last_start = float("nan")
         self._phases: dict[str, str] = {}
-        self._records: dict[str, dict] = {}
+        self._records: dict[str, TickRecord] = {}
         self._publish(float("nan"))
 
     # -- public ---------------------------------------------------------------------------------------
@@ -161,6 +162,11 @@ class TeleopLoop:
     def running(self) -> bool:
         return self._running
 
+    @property
+    def alive(self) -> bool:
+        """The thread of start() still runs (stopping included)."""
+        return self._thread is not None and self._thread.is_alive()
+
     def snapshot(self) -> TeleopSnapshot:
         with self._lock:
             return TeleopSnapshot(
@@ -174,7 +180,7 @@ class TeleopLoop:
         self._t_last_start = t_start
         for p in self.pairs:
             rec = p.tick(self.clock.now())
-            rec["loop.period_s"], rec["loop.overruns"] = period, self.timing.overruns
+            rec.loop_period_s, rec.loop_overruns = period, self.timing.overruns
             if self.recorder is not None:
                 try:
                     self.recorder(rec)
@@ -202,6 +208,7 @@ class TeleopLoop:
 
     def _publish(self, t: float) -> None:
         phases = {p.cfg.name: p.phase for p in self.pairs}
-        records = {p.cfg.name: p.last for p in self.pairs}  # each tick builds a new dict: no copy needed
+        # each tick builds a new record: no copy needed
+        records = {p.cfg.name: p.last for p in self.pairs if p.last is not None}
         with self._lock:
             self._t_pub, self._phases, self._records = t, phases, records

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factr2_teleop.teleop.params import PerJoint, per_joint
 from hardware.errors import ConfigError
+from hardware.params import PerJoint, per_joint
 
 
 @dataclass

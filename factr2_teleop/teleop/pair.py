@@ -14,14 +14,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from factr2_teleop.teleop.estimators import Estimate, EstimatorInput
+from calibration.estimate import FLAG_NONFINITE, Estimate
+from calibration.estimators import Estimator, EstimatorInput
 from factr2_teleop.teleop.feedback import contact_score
 from factr2_teleop.teleop.leader_law import LeaderInputs, LeaderLaw, LeaderLawConfig
 from factr2_teleop.teleop.mapping import JointMap, JointMapConfig
+from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch_error, rate_limit
 from hardware.clock import Clock
 from hardware.errors import ConfigError, DeviceError
 from hardware.roles import Follower, Leader
+from hardware.safety import SafeFollowerCommand
 from hardware.types import STATUS_COMM_LOST, STATUS_STALE, FollowerCommand, JointState
 
 log = logging.getLogger("factr2.teleop")
@@ -81,12 +84,13 @@ class ArmPair:
     def __init__(self, leader: Leader, follower: Follower, cfg: PairConfig, dt_s: float,
                  gravity_fn: Callable | None = None, jacobian_fn: Callable | None = None,
                  model_map: JointMap | None = None,
-                 estimator: Callable[[EstimatorInput], Estimate | None] | None = None):
+                 estimator: Estimator | None = None):
         self.leader, self.follower, self.cfg, self.dt_s = leader, follower, cfg, float(dt_s)
         self.law = LeaderLaw(cfg.law, leader.safety.limits, gravity_fn, jacobian_fn, model_map)
         self.map = JointMap(cfg.mapping, leader.n_joints, follower.n_joints, where=f"{cfg.name}.mapping")
         self.soft = SoftStart(cfg.soft_start, follower.n_joints, dt_s)
         self.estimator = estimator
+        self.mode = "none" if estimator is None else "custom"  # feedback mode name (session.pairs sets it)
         self.phase = IDLE
         self.q_target: np.ndarray | None = None
         self.estimate: Estimate | None = None
@@ -95,7 +99,8 @@ class ArmPair:
         self.messages: list[str] = []  # drained by the loop each tick
         self._last_msg = ""
         self.estimator_errors = 0
-        self.last: dict = {}
+        self.last: TickRecord | None = None
+        self.sent: SafeFollowerCommand | None = None  # what reached the follower this tick
         self._t_ok = {"leader": -np.inf, "follower": -np.inf}  # time of the last complete sample [s]
 
     # -- helpers -------------------------------------------------------------------------------------
@@ -173,8 +178,8 @@ class ArmPair:
             raise err
         self._start_soft(ls, fs)
 
-    def tick(self, now: float) -> dict:
-        """One control period. Returns the flat record of this tick (also kept as self.last)."""
+    def tick(self, now: float) -> TickRecord:
+        """One control period. Returns the record of this tick (also kept as self.last)."""
         cfg = self.cfg
         dt = now - self._t_prev if np.isfinite(self._t_prev) else self.dt_s
         dt = min(max(dt, 0.0), 3.0 * self.dt_s)
@@ -200,9 +205,10 @@ class ArmPair:
             tau_sent = self.leader.command_torque(out.tau)
         else:
             tau_sent = np.zeros(self.leader.n_joints)
+        self.sent = None
         if self.phase == SOFT_START:
             self.q_target, done = self.soft.step(q_leader_f)
-            self.follower.command(FollowerCommand(q=self.q_target))
+            self.sent = self.follower.command(FollowerCommand(q=self.q_target))
             if done:
                 self.phase = COUPLED
                 self._say("coupled: follower tracks the leader", logging.INFO)
@@ -210,7 +216,7 @@ class ArmPair:
             prev = self.q_target if self.q_target is not None else fs.q
             self.q_target = rate_limit(q_leader_f, prev, self.soft.rate, dt)
             grip = self.map.gripper_forward(ls.gripper_pos)
-            self.follower.command(FollowerCommand(q=self.q_target, gripper=grip))
+            self.sent = self.follower.command(FollowerCommand(q=self.q_target, gripper=grip))
         self.last = self._record(now, ls, fs, tau_sent, out)
         return self.last
 
@@ -223,33 +229,29 @@ class ArmPair:
         return bool(np.all(np.isfinite(st.q))) and now - self._t_ok[who] <= max_age
 
     def _tick_estimator(self, now: float, fs: JointState, q_leader_f: np.ndarray) -> None:
-        if self.estimator is None:
+        est = self.estimator
+        if est is None:
             return
-        if now - self._t_est_run < self.cfg.estimator_period_s:
-            idle = getattr(self.estimator, "idle", None)
-            refresh = getattr(self.estimator, "refresh", None)
-            try:
-                if idle is not None:  # spread the estimator's work over the ticks between its samples
-                    idle()
-                if refresh is not None and self.estimate is not None and self.estimate.fresh:
-                    est = refresh(EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f,
-                                                 q_target_f=self.q_target))
-                    if est is not None:  # the latest measured torque against the last model output
-                        self.estimate = est
-            except Exception:  # noqa: BLE001 -- the next real call reports a broken estimator
-                pass
-            return
-        self._t_est_run = now
+        inp = EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f, q_target_f=self.q_target)
+        period = max(self.cfg.estimator_period_s, est.period_s)
         try:
-            est = self.estimator(EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f,
-                                                q_target_f=self.q_target))
+            if now - self._t_est_run < period:
+                est.idle()  # spread the estimator's work over the ticks between its samples
+                if self.estimate is not None and self.estimate.valid:
+                    new = est.refresh(inp)  # the latest measured torque against the last model output
+                    if new is not None:
+                        self.estimate = new
+                return
+            self._t_est_run = now
+            new = est.update(inp)
         except Exception as e:  # noqa: BLE001 -- a failing estimator turns feedback off, not the arms
             self.estimator_errors += 1
-            self.estimate = Estimate(tau_ext=np.full(self.follower.n_joints, np.nan), t=now, fresh=False)
+            self.estimate = Estimate(tau_ext=np.full(self.follower.n_joints, np.nan), t=now,
+                                     flags=FLAG_NONFINITE)
             self._say(f"feedback off: estimator failed ({type(e).__name__}: {e})")
             return
-        if est is not None:
-            self.estimate = est
+        if new is not None:
+            self.estimate = new
 
     def _leader_inputs(self, now: float, ls: JointState, fs: JointState) -> LeaderInputs:
         est = self.estimate
@@ -259,27 +261,18 @@ class ArmPair:
         if tau_f.shape != (self.follower.n_joints,):
             tau_f = np.full(self.follower.n_joints, np.nan)
         return LeaderInputs(t=now, q=ls.q, q_dot=ls.q_dot, tau_ext_leader=self.map.torque_back(tau_f),
-                            contact_score_nm=contact_score(tau_f), est_t=est.t, est_fresh=est.fresh,
+                            contact_score_nm=contact_score(tau_f), est_t=est.t, est_fresh=est.valid,
                             gripper_effort=fs.gripper_effort)
 
-    def _record(self, now: float, ls: JointState, fs: JointState, tau_sent: np.ndarray, out) -> dict:
+    def _record(self, now: float, ls: JointState, fs: JointState, tau_sent: np.ndarray, out) -> TickRecord:
         nf = self.follower.n_joints
-        est = self.estimate
-        tau_ext = np.asarray(est.tau_ext, dtype=float) if est is not None else np.full(nf, np.nan)
-        rec = {
-            "t": now, "pair": self.cfg.name, "phase": self.phase,
-            "leader.joint.pos": ls.q, "leader.joint.vel": ls.q_dot, "leader.joint.tau_cmd": tau_sent,
-            "leader.gripper.pos": ls.gripper_pos,
-            "follower.joint.pos": fs.q, "follower.joint.vel": fs.q_dot, "follower.joint.tau": fs.tau_m,
-            "follower.joint.pos_cmd": self.q_target if self.q_target is not None else np.full(nf, np.nan),
-            "follower.joint.tau_ext": tau_ext, "follower.gripper.pos": fs.gripper_pos,
-            "follower.gripper.effort": fs.gripper_effort,
-            "feedback.gate": out.gate if out else 0.0,
-            "feedback.contact": bool(out.contact) if out else False,
-            "feedback.fresh": bool(out.fresh) if out else False,
-            "leader.gripper.tau_fb": out.gripper_tau if out else 0.0,
-        }
-        if out is not None:
-            for k, v in out.terms.items():
-                rec[f"leader.joint.tau_{k}"] = v
-        return rec
+        est, sent = self.estimate, self.sent
+        return TickRecord(
+            t=now, pair=self.cfg.name, phase=self.phase, leader=ls, follower=fs, leader_tau_cmd=tau_sent,
+            tau_ext=np.asarray(est.tau_ext, dtype=float) if est is not None else np.full(nf, np.nan),
+            action_q=sent.q if sent is not None else np.full(nf, np.nan),
+            action_gripper=float("nan") if sent is None or sent.gripper is None else float(sent.gripper),
+            action_hold=bool(sent.hold) if sent is not None else self.phase in (HOLD, FAULT, STOPPED),
+            leader_tau_terms=dict(out.terms) if out is not None else {},
+            gate=out.gate if out else 0.0, contact=bool(out.contact) if out else False,
+            fresh=bool(out.fresh) if out else False, leader_gripper_tau_fb=out.gripper_tau if out else 0.0)

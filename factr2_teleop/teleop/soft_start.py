@@ -11,8 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 import ruckig
 
-from factr2_teleop.teleop.params import PerJoint, clamp, per_joint
 from hardware.errors import UserError
+from hardware.params import PerJoint, clamp, per_joint
 
 DEFAULT_MAX_MISMATCH_RAD = 1.0
 

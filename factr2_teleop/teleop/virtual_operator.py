@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from factr2_teleop.teleop.params import PerJoint, per_joint
+from hardware.params import PerJoint, per_joint
 
 PHASES = ("free", "reach", "contact", "wipe", "release")
 _ENVELOPE_S = 0.3  # s: oscillations fade in/out over this so the reference stays smooth

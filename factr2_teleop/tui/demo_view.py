@@ -28,7 +28,7 @@ from textual.binding import Binding
 from textual.containers import Vertical
 from textual.widgets import Footer, Static
 
-from factr2_teleop.tui.teleop import joint_lines
+from factr2_teleop.tui.teleop import joint_lines, record_arrays
 from factr2_teleop.tui.widgets import duration, fmt, progress_bar
 
 REFRESH_S = 0.2  # s between screen updates
@@ -52,10 +52,10 @@ def task_phase(run) -> str:
 def head_lines(run, snap, elapsed_s: float, stop_line: str | None) -> list[str]:
     """The lines above the joint table, each <= 80 columns."""
     cfg = run.cfg
-    rec = (snap.records.get("arm") or next(iter(snap.records.values()), None) or {}) if snap else {}
+    rec = (snap.records.get("arm") or next(iter(snap.records.values()), None)) if snap else None
     phase = ", ".join(snap.phases.values()) if snap and snap.phases else "starting"
-    contact = "CONTACT" if rec.get("feedback.contact") else "free"
-    gate = rec.get("feedback.gate", float("nan"))
+    contact = "CONTACT" if rec is not None and rec.contact else "free"
+    gate = rec.gate if rec is not None else float("nan")
     last = "" if snap is None or snap.running else "last tick: "  # stopped: the arms are safe now
     remaining = max(cfg.seconds - elapsed_s, 0.0) if np.isfinite(elapsed_s) else float("nan")
     frac = elapsed_s / cfg.seconds if np.isfinite(elapsed_s) else 0.0
@@ -141,8 +141,8 @@ class DemoApp(App):
             f" factr2 demo | {self.demo.cfg.rig} [SIMULATED] | {state} | SPACE=E-STOP  q quit")
         self.query_one("#tele-head", Static).update(
             "\n".join(head_lines(self.demo, snap, self.elapsed_s(snap), self.stop_line)))
-        rec = (next(iter(snap.records.values()), None) or {}) if snap else {}
-        table = "\n".join(joint_lines(rec)) if rec else "no data yet: the loop is starting"
+        rec = next(iter(snap.records.values()), None) if snap else None
+        table = "\n".join(joint_lines(*record_arrays(rec))) if rec else "no data yet: the loop is starting"
         if snap is not None and not snap.running:
             safe = self.demo.leader.in_safe_state and self.demo.follower.in_safe_state
             table += "\nloop stopped, last tick shown | arms: " + (

@@ -21,12 +21,16 @@ TAU_RANGE = 4.0  # N*m: bar span for external torques
 TAU_FB_RANGE = 0.3  # N*m: bar span for the leader's feedback torque
 
 
-def joint_lines(rec: dict) -> list[str]:
+def record_arrays(rec) -> tuple:
+    """(leader q, follower q, tau_ext, leader feedback torque) of a TickRecord (feedback: the command when
+    the law did not run)."""
+    fb = rec.tau_feedback if rec.tau_feedback is not None else rec.leader_tau_cmd
+    return rec.leader.q, rec.follower.q, rec.tau_ext, fb
+
+
+def joint_lines(lq=(), fq=(), te=(), fb=()) -> list[str]:
     """Per joint: leader q, follower q, follower tau_ext, leader feedback torque (bars + numbers)."""
-    lq = np.asarray(rec.get("leader.joint.pos", []), float)
-    fq = np.asarray(rec.get("follower.joint.pos", []), float)
-    te = np.asarray(rec.get("follower.joint.tau_ext", []), float)
-    fb = np.asarray(rec.get("leader.joint.tau_feedback", rec.get("leader.joint.tau_cmd", [])), float)
+    lq, fq, te, fb = (np.asarray(a if a is not None else [], float) for a in (lq, fq, te, fb))
     n = max(len(fq), len(lq))
     out = [
         f"{'j':<2} {'leader q [rad]':<18} {'follower q [rad]':<18} {'F tau_ext [N*m]':<18} "
@@ -98,10 +102,10 @@ class TeleopScreen(BaseScreen):
         tc = self.app.teleop
         rt = self.app.runtime
         snap = tc.snapshot()
-        rec = {}
+        rec = None
         phase, timing_line, contact = "stopped", "loop: not running", "-"
         if snap is not None:
-            rec = next(iter(snap.records.values()), {}) or {}
+            rec = next(iter(snap.records.values()), None)
             phase = ", ".join(snap.phases.values()) or "-"
             tm = snap.timing
             now = time.monotonic()
@@ -119,14 +123,14 @@ class TeleopScreen(BaseScreen):
                 f"loop {_num(tm.rate_hz, 0)} Hz ({clock}), p99 period {_num(tm.period_p99_ms, 2)} ms, "
                 f"{tm.overruns} overruns{wall}"
             )
-            contact = "CONTACT" if rec.get("feedback.contact") else "free"
+            contact = "CONTACT" if rec is not None and rec.contact else "free"
             if snap.error:
                 timing_line += f" | STOPPED BY {snap.error}"
         run = "RUNNING" if tc.running else "STOPPED"
         sim = ""
         if rt.simulated:
             sim = " | sim: operator " + ("ON" if tc.operator else "off") + " (v), push (p), match leader (h)"
-        gate = rec.get("feedback.gate", float("nan"))
+        gate = rec.gate if rec is not None else float("nan")
         head = (
             f"teleop {run} | phase {phase} | feedback {tc.mode} K_f {tc.gain:.2f} gate {fmt(gate, 4, 2)} | "
             f"contact: {contact}\n{timing_line}{sim}"
@@ -136,13 +140,12 @@ class TeleopScreen(BaseScreen):
         if tc.last_error:
             head += f"\nlast stop: {tc.last_error}"
         self.query_one("#tele-head", Static).update(head)
+        arrays = record_arrays(rec) if rec is not None else None
         if not tc.running and rt.connected:  # stopped: the monitor's live positions, torques unknown
             st = {d.role: d.q for d in rt.statuses() if d.q is not None}
-            rec = {"leader.joint.pos": st.get("leader"), "follower.joint.pos": st.get("follower")}
-            rec = {k: v for k, v in rec.items() if v is not None}
-        self.query_one("#joints", Static).update(
-            "\n".join(joint_lines(rec)) if rec else "no data: connect on the Rig screen, then t starts teleop"
-        )
+            arrays = (st.get("leader"), st.get("follower")) if st else None
+        none = "no data: connect on the Rig screen, then t starts teleop"
+        self.query_one("#joints", Static).update("\n".join(joint_lines(*arrays)) if arrays else none)
         rs = tc.rec_state()
         state = f"REC * episode {rs.episode} {duration(rs.duration_s)}" if rs.recording else "rec: idle"
         err = f" | RECORDER ERROR: {rs.error}" if rs.error else ""

@@ -1,28 +1,27 @@
-"""Teleop + recording behind the Teleop screen (no Textual): builds the arm pairs of the connected rig, runs
-the bilateral loop (factr2_teleop.teleop.loop.TeleopLoop) in a thread, and records episodes with
-hardware.recording.Recorder. The loop's per-tick callback records and, on twins, moves the virtual hand.
+"""Teleop + recording behind the Teleop screen (no Textual): a factr2_teleop.session TeleopSession on the
+connected rig (the same pairs, estimators and recording as `factr2 teleop` for the same options), its loop
+in a thread, episodes in one session file. On twins a per-tick hook moves the virtual hand.
 """
 
 from __future__ import annotations
 
 import threading
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from factr2_teleop.teleop.estimators import ESTIMATOR_MODES, make_estimator
+from calibration.estimate import describe_flags
+from factr2_teleop.session.pairs import TeleopOptions, modes_for
+from factr2_teleop.session.teleop import TeleopSession
 from factr2_teleop.teleop.feedback import FeedbackConfig
-from factr2_teleop.teleop.leader_law import arm_model_fns
 from factr2_teleop.teleop.loop import TeleopLoop, TeleopSnapshot
-from factr2_teleop.teleop.pair import ArmPair, PairConfig
+from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.tui.runtime import RigRuntime
-from hardware.errors import ConfigError, UserError
+from hardware.errors import UserError
 
 GAIN_STEP = 0.01  # K_f step per key press [leader N*m per follower N*m]
 GAIN_MAX = 0.5
-TIMING_LOG_EVERY = 50  # ticks between loop-timing records (10 Hz at 500 Hz)
 
 
 @dataclass
@@ -66,6 +65,7 @@ class TeleopController:
         self.gain = FeedbackConfig().gain if gain is None else float(gain)
         self.operator = False  # SIMULATED: a scripted virtual operator drives the leader
         self.loop: TeleopLoop | None = None
+        self.ts: TeleopSession | None = None
         self._thread: threading.Thread | None = None
         self.recorder = None
         self._ep_t0 = float("nan")
@@ -81,7 +81,7 @@ class TeleopController:
     # -- feedback settings --------------------------------------------------------------------------------
     def modes(self) -> list[str]:
         """Feedback modes offered on this rig (ground_truth only on a twin)."""
-        return [m for m in ESTIMATOR_MODES if m != "ground_truth" or self.rt.simulated]
+        return modes_for(self.rt.rig)
 
     def cycle_mode(self) -> str:
         if self.running:
@@ -107,56 +107,23 @@ class TeleopController:
     def running(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
 
-    def _estimator(self, follower_spec, follower, twin):
-        n = follower.n_joints
-        kw: dict = {"follower_arm": follower_spec.arm, "pp_stiffness_nm_per_rad": 20.0}
-        if self.mode == "ground_truth" and twin is not None:
-            name = follower_spec.name
-            period = 1.0 / self.rate_hz
-            kw["truth"] = lambda: twin.device_ground_truth(name, period).tau_ext[:n]
+    def build(self) -> TeleopSession:
+        """The pairs and loop for this screen's mode and gain (UserError when they cannot be built)."""
         if self.mode == "next":
             problem = next_checkpoint_problem(self.rt)
             if problem:
-                raise UserError(
-                    f"NEXT feedback unavailable: {problem}",
-                    where="Teleop",
-                    fix="run the Calibration screen, or pick another mode (key m)",
-                )
-            kw["next_source"] = _next_source(follower_spec, self.next_flags)
-        return make_estimator(self.mode, n, **kw)
-
-    def build_pairs(self) -> list[ArmPair]:
-        """One ArmPair per rig pair, with the rig's [teleop] law settings (factr2 teleop's pair_configs)
-        and this screen's feedback mode and gain on top."""
-        from factr2_teleop.commands.teleop import pair_configs
-
-        s = self.rt.session
-        tables, _ = pair_configs(s.rig)
-        pairs = []
-        dt = 1.0 / self.rate_hz
-        for lname, fname in s.rig.pairs:
-            leader, follower = s.leaders[lname], s.followers[fname]
-            name = fname if len(s.rig.pairs) > 1 else "arm"
-            cfg = PairConfig.from_dict(dict(tables.get(name, {"name": name})), where=f"teleop.pairs.{name}")
-            fb = cfg.law.feedback
-            fb.gain, fb.gate_on_contact, fb.enabled = self.gain, self.mode != "pp", self.mode != "none"
-            grav, jac = arm_model_fns(s.rig.device(lname).arm)
-            est = self._estimator(s.rig.device(fname), follower, s.twin)
-            pairs.append(ArmPair(leader, follower, cfg, dt, gravity_fn=grav, jacobian_fn=jac, estimator=est))
-        if not pairs:
-            raise ConfigError(
-                "the rig pairs no leader with a follower",
-                where=str(s.rig.path),
-                fix="add a [[pairs]] table or a leader",
-            )
-        return pairs
+                raise UserError(f"NEXT feedback unavailable: {problem}", where="Teleop",
+                                fix="run the Calibration screen, or pick another mode (key m)")
+        opts = TeleopOptions(mode=self.mode, rate_hz=self.rate_hz, gain=self.gain)
+        return TeleopSession(self.rt.session, opts)
 
     def start(self) -> None:
         """Claim the rig and start the loop (UserError when it cannot start; the arms stay safe)."""
         self.rt.claim("teleop")
         try:
-            pairs = self.build_pairs()
-            self.loop = TeleopLoop(pairs, self.rt.session.clock, self.rate_hz, recorder=self._on_tick)
+            self.ts = self.build()
+            self.ts.hooks.append(self._on_tick)
+            self.loop = self.ts.loop
             if self.operator:
                 self._start_operator()
         except BaseException:
@@ -204,9 +171,10 @@ class TeleopController:
                 return
             try:
                 if self.recording:
-                    r.note(self._now(), why)
-                    self.rec_stop()
-                st = r.close()
+                    self._episodes_done += 1
+                    self._last_outcome = "unlabelled"
+                    self._ep_t0 = float("nan")
+                st = self.ts.close_recording(why) if self.ts is not None else r.close(why)
                 if st.error:
                     self.rt.say(f"recording closed with an error: {st.error}")
             except Exception as e:  # noqa: BLE001 -- the arms are already safe; say it
@@ -241,29 +209,13 @@ class TeleopController:
             self.rt.say(f"{name}: SIMULATED virtual operator runs a {script.duration_s:.0f} s task script")
 
     # -- per tick (loop thread) ---------------------------------------------------------------------------
-    def _on_tick(self, rec: dict) -> None:
-        s = self.rt.session
-        pair = next((p for p in self.loop.pairs if p.cfg.name == rec["pair"]), None)
-        if pair is not None and pair.leader.name in self.rt.hands:
+    def _on_tick(self, rec: TickRecord) -> None:
+        pair = next((p for p in self.loop.pairs if p.cfg.name == rec.pair), None)
+        if pair is not None and pair.leader.name in self.rt.hands:  # SIMULATED hand on the leader
             ls = pair.leader.last_state
-            self.rt.hands[pair.leader.name].apply(rec["t"], ls.q, ls.q_dot)
-        r = self.recorder
-        if r is None or not np.isfinite(self._ep_t0) or pair is None:
-            return
-        t = rec["t"]
-        prefix = "" if len(self.loop.pairs) == 1 else f"{rec['pair']}_"
-        r.log_joint_state(f"{prefix}leader", t, pair.leader.last_state)
-        r.log_joint_state(f"{prefix}follower", t, pair.follower.last_state)
-        r.log_external_torque(f"{prefix}follower", t, rec["follower.joint.tau_ext"], rec["feedback.contact"])
-        r.log_torque_command(f"{prefix}leader", t, rec["leader.joint.tau_cmd"], rec["feedback.gate"])
-        if s.twin is not None:
-            gt = s.twin.device_ground_truth(pair.follower.name, 1.0 / self.rate_hz)  # mean over the tick
-            n = pair.follower.n_joints
-            r.log_ground_truth(f"{prefix}follower", t, gt.tau_ext[:n], gt.contact)
-        self._ticks += 1
-        if self._ticks % TIMING_LOG_EVERY == 0:
-            st = self.loop.timing.stats()
-            r.log_loop_timing(t, st.period_p50_ms * 1e-3, st.compute_p99_ms * 1e-3, 0.0, st.overruns)
+            self.rt.hands[pair.leader.name].apply(rec.t, ls.q, ls.q_dot)
+        if pair is not None and pair.mode == "next":
+            self.next_flags[pair.follower.name] = describe_flags(pair.estimator.flags)
 
     # -- recording ----------------------------------------------------------------------------------------
     @property
@@ -280,37 +232,21 @@ class TeleopController:
         if self.recording:
             raise UserError("already recording an episode", where="Teleop", fix="stop it first (key x)")
         if self.recorder is None:
-            from hardware.recording.session import describe_session
-            from hardware.recording.writer import Recorder
-
-            s = self.rt.session
-            path = self.out_dir / f"{self.rt.rig.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
-            k = 1
-            while path.exists():
-                path = path.with_name(f"{path.stem}-{k}.mcap")
-                k += 1
-            ck = next((f.next_checkpoint for f in s.rig.followers if f.next_checkpoint), "")
-            meta = describe_session(
-                rig_path=self.rt.rig.path,
-                twin=s.twin is not None,
-                next_checkpoint=ck if self.mode == "next" else "",
-            )
-            meta.update({"feedback_mode": self.mode, "feedback_gain": f"{self.gain:g}"})
-            self.recorder = Recorder(path, t0=self._now(), metadata=meta)
+            meta = {"operator_simulated": str(self.operator)}
+            self.recorder = self.ts.record(self.out_dir, extra_meta=meta)
         self._ep_t0 = self._now()
-        ep = self.recorder.start_episode(self._ep_t0, task)
+        ep = self.recorder.start_episode(task)
         self.rt.say(f"recording episode {ep} to {self.recorder.path.name}")
         return ep
 
     def rec_stop(self, outcome: str | None = None) -> None:
         if not self.recording:
             raise UserError("no episode is recording", where="Teleop", fix="start one first (key r)")
-        t = self._now()
-        self.recorder.stop_episode(t, outcome)
+        self.recorder.stop_episode(outcome)
         self._ep_t0 = float("nan")
         self._episodes_done += 1
         self._last_outcome = outcome or "unlabelled"
-        self.rt.say(f"episode {self.recorder.episode} stopped ({self._last_outcome})")
+        self.rt.say(f"episode {self.recorder.recorder.episode} stopped ({self._last_outcome})")
 
     def rec_discard(self) -> None:
         self.rec_stop("discard")
@@ -320,30 +256,31 @@ class TeleopController:
         if self.recording:
             self.rec_stop(outcome)
             return
-        if self.recorder is None or self.recorder.episode < 0:
+        if self.recorder is None or self.recorder.recorder.episode < 0:
             raise UserError(
                 "no episode to label in an open recording",
                 where="Teleop",
                 fix="label an episode before stopping teleop, or use `factr2 episodes`",
             )
-        self.recorder.label_episode(self._now(), outcome, episode=self.recorder.episode)
+        w = self.recorder.recorder
+        w.label_episode(self._now(), outcome, episode=w.episode)
         self._last_outcome = outcome
-        self.rt.say(f"episode {self.recorder.episode} marked {outcome}")
+        self.rt.say(f"episode {w.episode} marked {outcome}")
 
     def note(self, text: str) -> None:
         if self.recorder is None:
             raise UserError("no recording to annotate", where="Teleop", fix="record an episode first (key r)")
-        self.recorder.note(self._now(), text)
+        self.recorder.recorder.note(self._now(), text)
         self.rt.say(f"note added: {text}")
 
     def rec_state(self) -> RecordingState:
         r = self.recorder
-        st = r.status() if r is not None else None
+        st = r.recorder.status() if r is not None else None
         dur = self._now() - self._ep_t0 if self.recording else float("nan")
         return RecordingState(
             str(r.path) if r else self.last_file,
             self.recording,
-            r.episode if r else -1,
+            r.recorder.episode if r else -1,
             self._episodes_done,
             dur,
             self._last_outcome,
@@ -359,27 +296,3 @@ class TeleopController:
         finally:
             self._close_recording("app closed")
 
-
-def _next_source(follower_spec, flags_out: dict):
-    """NEXT tau_ext source for estimators.CallableEstimator, from the follower's configured checkpoint."""
-    from calibration.next.checkpoint import load_checkpoint
-    from calibration.next.estimator import NextEstimator
-
-    ck = load_checkpoint(follower_spec.next_checkpoint, arm=follower_spec.arm)
-    est = NextEstimator(ck)
-    period = 1.0 / ck.rate_hz
-    state = {"t": -np.inf}
-
-    def source(inp):
-        st = inp.follower
-        if st.t - state["t"] < period - 1e-9:
-            return None
-        state["t"] = st.t
-        q_cmd = inp.q_target_f if inp.q_target_f is not None else st.q
-        e = est.update(st.q, st.q_dot, q_cmd, st.tau_m, temperature=st.temperature)
-        flags_out[follower_spec.name] = (
-            "out of training range (OOD)" if e.ood else ("warming up" if not e.valid else "ok")
-        )
-        return e.tau_ext, st.t, e.valid
-
-    return source

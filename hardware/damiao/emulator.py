@@ -173,3 +173,75 @@ class DamiaoEmulator(CanEmulatorIO):
                 self.timed_out[k] = True
                 self.timeouts += 1
         return 0
+
+
+class GripperTransmission:
+    """MotorBank view whose last motor is a rotary gripper motor driving the bank's linear finger joint:
+    angle theta [rad] = closed_rad + s * x [m], s = (open_rad - closed_rad) / stroke_m, so theta_closed at
+    x = 0 and theta_open at the finger's full travel. Forces map by power (F = s * tau), gains by s^2."""
+
+    def __init__(self, bank, closed_rad: float, open_rad: float, stroke_m: float):
+        self.bank, self.n, self.g = bank, bank.n, bank.n - 1
+        self.c, self.s = float(closed_rad), (float(open_rad) - float(closed_rad)) / float(stroke_m)
+        self.torque_constant = bank.torque_constant
+
+    def __getattr__(self, name):  # set_speed etc. pass through
+        return getattr(self.bank, name)
+
+    def _split(self, idx, *vals):
+        idx = np.atleast_1d(np.asarray(idx, dtype=int))
+        return idx, [np.array(np.broadcast_to(np.asarray(v, dtype=float), idx.shape)) for v in vals]
+
+    def read(self):
+        r = self.bank.read()
+        g, s = self.g, self.s
+        r.q[g], r.q_dot[g] = self.c + s * r.q[g], s * r.q_dot[g]
+        r.tau_m[g] = r.tau_m[g] / s
+        r.current[g] = r.tau_m[g] / self.torque_constant[g]
+        return r
+
+    def command_position(self, idx, q) -> None:
+        idx, (q,) = self._split(idx, q)
+        q[idx == self.g] = (q[idx == self.g] - self.c) / self.s
+        self.bank.command_position(idx, q)
+
+    def command_mit(self, idx, q, v, kp, kd, tau_ff) -> None:
+        idx, (q, v, kp, kd, tau) = self._split(idx, q, v, kp, kd, tau_ff)
+        m, s = idx == self.g, self.s
+        q[m], v[m], tau[m] = (q[m] - self.c) / s, v[m] / s, tau[m] * s
+        kp[m], kd[m] = kp[m] * s * s, kd[m] * s * s
+        self.bank.command_mit(idx, q, v, kp, kd, tau)
+
+    def command_current(self, idx, current_a) -> None:
+        idx, (i,) = self._split(idx, current_a)
+        i[idx == self.g] *= self.s  # joint force per amp = s * K
+        self.bank.command_current(idx, i)
+
+    def enable(self, idx, on: bool) -> None:
+        self.bank.enable(idx, on)
+
+
+def make_twin_emulator(ctx):
+    """A twin's Damiao chain (hardware.registry EmulatorContext -> TwinEndpoint) on a fresh virtual CAN
+    channel; the gripper motor turns (rad) while the MJCF finger slides (m): GripperTransmission maps them."""
+    import mujoco
+
+    from hardware.can_bus import open_bus
+    from hardware.registry import TwinEndpoint
+
+    cfg, g = ctx.spec.config, ctx.with_gripper
+    ids = list(cfg.ids) + ([cfg.gripper_id] if g else [])
+    motors = list(cfg.motor) + ([cfg.gripper_motor] if g else [])
+    bank = ctx.bank
+    if g:
+        m = ctx.world.model
+        lo, hi = m.jnt_range[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, bank.joint_names[-1])]
+        bank = GripperTransmission(bank, cfg.gripper_closed_rad, cfg.gripper_open_rad, float(hi - lo))
+    master = cfg.master_ids and (list(cfg.master_ids) + ([cfg.gripper_id + 0x10] if g else []))
+    bus = open_bus(ctx.channel, "virtual", clock=ctx.now)
+    try:
+        emu = DamiaoEmulator(bus, bank, ids, motors, master_ids=master, seed=ctx.seed)
+    except BaseException:
+        bus.shutdown()
+        raise
+    return TwinEndpoint(emulator=emu, endpoint=ctx.channel, bus=bus)

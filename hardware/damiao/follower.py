@@ -143,7 +143,7 @@ class DamiaoFollower(Follower):
         for _ in range(REGISTER_TRIES):
             if self.link.wait(lambda: all(t >= t1 for t in self.decoder.t_rx), c.reply_timeout_s, self._push):
                 break
-            self._send_safe(self._hold)
+            self._to_wire(self._hold)
         self._last_state = self._build_state(self.clock.now())
         self.safety.watchdog.feed_feedback(self._last_state.t)
 
@@ -211,7 +211,7 @@ class DamiaoFollower(Follower):
         self.link.drain(self._push)
         due = not self.clock.now() - self._t_hold_sent < HOLD_RESEND_S
         if self._hold is not None and self.in_safe_state and due:
-            self._send_safe(self._hold)
+            self._to_wire(self._hold)
         if self.decoder.counters.ok == ok_before:
             return None
         return self._build_state(self.clock.now())

@@ -33,13 +33,17 @@ import termios
 import threading
 import time
 import tty
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hardware.dynamixel import protocol as p
 from hardware.dynamixel.models import resolve_models
 from hardware.dynamixel.servo_table import FIRMWARE_VERSION, ServoTable
-from hardware.sim.motors import MotorBank
+
+if TYPE_CHECKING:  # the contract only: a device folder does not import the twin (no import cycle)
+    from hardware.sim.motors import MotorBank
 
 SEEN_PACKETS_MAX = 16  # in-process: recent clean writes whose parse is reused (a parse is a pure function)
 PARTIAL_TIMEOUT_S = 0.05  # an incomplete packet older than this is dropped (the servo's rx timeout)
@@ -59,6 +63,8 @@ class DynamixelEmulator:
     57600; the default baud is the rig's 4 Mbit/s). A servo ignores packets when the rate the client set on
     the pty (termios) differs from its Baud Rate(8), as garbage on a real wire would be.
     emulate_return_delay: sleep Return Delay Time(9) before each reply, like the firmware.
+    clock: () -> s for the servos' Realtime Tick (default the wall clock; a twin passes the rig clock so
+    that a lockstep run reads no wall time).
     """
 
     def __init__(
@@ -79,6 +85,7 @@ class DynamixelEmulator:
         bank_lock: threading.Lock | None = None,
         seed: int | None = None,
         transport: str = "pty",
+        clock: Callable[[], float] | None = None,
     ):
         if transport not in ("pty", "inprocess"):
             raise ValueError(f"transport must be 'pty' or 'inprocess', got {transport!r}")
@@ -109,7 +116,8 @@ class DynamixelEmulator:
         self._cv = threading.Condition()
         self._busy = False
         self._stop = threading.Event()
-        self._last_rx = time.monotonic()
+        self._last_rx = time.monotonic()  # pty thread only (a real-time transport): partial-packet timeout
+        self._tick_clock = clock or time.monotonic
         self._refresh()  # power-on: latch each servo's turn base
         self._thread: threading.Thread | None = None
         if transport == "inprocess":
@@ -277,7 +285,7 @@ class DynamixelEmulator:
         with self._bank_lock:
             r = self.bank.read()
         q, qd, cur, temp = r.q.tolist(), r.q_dot.tolist(), r.current.tolist(), r.temperature.tolist()
-        tick = int(time.monotonic() * 1e3) % 32768
+        tick = int(self._tick_clock() * 1e3) % 32768
         rad_tick, rad_s_unit = p.RAD_PER_TICK, p.RAD_S_PER_VELOCITY_UNIT
         for s in servos:
             i, sg = s.index, s.sign
@@ -443,6 +451,25 @@ class DynamixelEmulator:
         if idx:
             with self._bank_lock:
                 self.bank.command_current(np.array(idx), np.array(amps))
+
+
+def make_twin_emulator(ctx):
+    """A twin's leader (hardware.registry EmulatorContext -> TwinEndpoint): the rig's servos, current
+    mode, return delay 0 (the leader sets it anyway), on a pty or an in-process port."""
+    from hardware.dynamixel import servo_models
+    from hardware.registry import TwinEndpoint
+
+    cfg = ctx.spec.config
+    g = ctx.with_gripper
+    models, trigger = servo_models(cfg)  # the trigger servo comes after the joints
+    offsets = [float(o) for o in cfg.offsets_rad] + ([float(cfg.gripper_open_rad)] if g else [])
+    emu = DynamixelEmulator(ctx.bank, list(cfg.ids) + ([cfg.gripper_id] if g else []),
+                            models + ([trigger] if g else []),
+                            signs=[float(s) for s in cfg.signs] + ([1.0] if g else []), offsets_rad=offsets,
+                            return_delay=0, operating_mode=p.OP_MODE_CURRENT, baud=int(cfg.baud),
+                            bank_lock=ctx.world.lock, seed=ctx.twin_seed, emulate_return_delay=False,
+                            transport=ctx.dynamixel_transport, clock=ctx.now)
+    return TwinEndpoint(emulator=emu, endpoint=emu.port_path)
 
 
 def _rint(x: float) -> int:

@@ -227,3 +227,21 @@ def _next_tick(prev: float, t: float, period: float) -> float:
     """Next due time on a fixed grid; after a long pause restart from t instead of bursting."""
     nxt = prev + period
     return nxt if nxt > t else t + period
+
+
+def make_twin_emulator(ctx):
+    """A twin's Piper (hardware.registry EmulatorContext -> TwinEndpoint) on a fresh virtual CAN channel,
+    with the rig's joint limits and firmware generation; frames carry the rig clock's time."""
+    from hardware.can_bus import open_bus
+    from hardware.registry import TwinEndpoint
+
+    bus = open_bus(ctx.channel, "virtual", clock=ctx.now)
+    try:
+        lim = ctx.spec.limits()
+        emu = PiperEmulator(bus, ctx.bank, seed=ctx.seed,
+                            old_firmware_effort=bool(ctx.spec.config.firmware_effort_x4),
+                            joint_limits_rad=np.stack([lim.q_min, lim.q_max], axis=1))
+    except BaseException:
+        bus.shutdown()
+        raise
+    return TwinEndpoint(emulator=emu, endpoint=ctx.channel, bus=bus)

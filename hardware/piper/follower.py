@@ -147,7 +147,7 @@ class PiperFollower(Follower):
         ok_before = self.decoder.counters.ok
         self.link.drain(self._push)
         if self._hold is not None and self.in_safe_state and not now - self._t_hold_sent < HOLD_RESEND_S:
-            self._send_safe(self._hold)
+            self._to_wire(self._hold)
         if self.decoder.counters.ok == ok_before:
             return None
         return self._build_state(now)

@@ -6,7 +6,9 @@ Required arrays (N samples, n joints):
 Optional: torque_constant [N*m/A] (n,) -- turns current into tau_m; temperature [degC] (N, n);
   tau_ext_true [N*m] (N, n) ground-truth external torque; force (N, k);
   contact (N,) bool;
-  joint_names (n,) str. Other keys are kept in `extra`.
+  joint_names (n,) str; arm () str, the arm description's name (hardware.arms), and arm_sha256 () str, the
+  SHA-256 of its file when the log was written: which arm the log comes from, so that diagnosis and
+  calibration need no --arm. Other keys are kept in `extra`.
 With current and no torque constant the torque signal stays in A (`units == "A"`): estimates made
 from it are in current units.
 """
@@ -22,7 +24,8 @@ import numpy as np
 from hardware.errors import ConfigError
 
 REQUIRED = ("t", "q", "qd", "q_cmd")
-OPTIONAL = ("torque_constant", "temperature", "tau_ext_true", "force", "contact", "joint_names")
+OPTIONAL = ("torque_constant", "temperature", "tau_ext_true", "force", "contact", "joint_names", "arm",
+            "arm_sha256")
 
 
 @dataclass
@@ -42,6 +45,8 @@ class PlainLog:
     force: np.ndarray | None = None
     contact: np.ndarray | None = None
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    arm: str = ""  # arm description name ("" = not recorded)
+    arm_sha256: str = ""  # SHA-256 of that description's file when the log was written
 
     @property
     def n_joints(self) -> int:
@@ -127,6 +132,13 @@ def load_plain_log(path: str | Path) -> PlainLog:
         if c.shape[0] != n_samples:
             raise _bad(path, f"contact has {c.shape[0]} entries for {n_samples} samples", "one per sample")
         log.contact = c[keep].astype(bool)
+    for key in ("arm", "arm_sha256"):
+        if key in data:
+            v = np.asarray(data[key])
+            if v.ndim != 0 or v.dtype.kind not in "US":
+                raise _bad(path, f"{key} is {v.dtype} of shape {v.shape}, expected one string",
+                           f"store {key} as np.array('...')")
+            setattr(log, key, str(v))
     known = set(REQUIRED) | set(OPTIONAL) | {"tau_m", "current"}
     log.extra = {k: v[keep] if (v.ndim >= 1 and v.shape[0] == n_samples) else v
                  for k, v in data.items() if k not in known}

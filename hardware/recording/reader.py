@@ -27,38 +27,7 @@ from hardware.recording import schemas as S
 from hardware.recording.cache import Decoded, FrameIndex, LazyFields, TopicArrays, load_or_decode
 from hardware.recording.mcap_scan import open_buffer, read_message_data
 from hardware.recording.protobuf_wire import decode_compressed_image
-
-
-def interp_linear(t: np.ndarray, y: np.ndarray, t_grid: np.ndarray) -> np.ndarray:
-    """Linear interpolation of samples y (N, ...) at times t (N,) onto t_grid (M,); NaN outside [t0, tN]."""
-    t, y, tg = np.asarray(t, float), np.asarray(y, float), np.asarray(t_grid, float)
-    out = np.full((tg.shape[0],) + y.shape[1:], np.nan)
-    if t.shape[0] == 0:
-        return out
-    if t.shape[0] == 1:
-        out[tg == t[0]] = y[0]
-        return out
-    i = np.clip(np.searchsorted(t, tg, side="right") - 1, 0, t.shape[0] - 2)
-    dt = t[i + 1] - t[i]
-    w = np.divide(tg - t[i], dt, out=np.zeros_like(tg), where=dt > 0)
-    w = w.reshape((-1,) + (1,) * (y.ndim - 1))
-    vals = y[i] + w * (y[i + 1] - y[i])
-    inside = (tg >= t[0]) & (tg <= t[-1])
-    out[inside] = vals[inside]
-    return out
-
-
-def hold_previous(t: np.ndarray, y: np.ndarray, t_grid: np.ndarray) -> np.ndarray:
-    """Previous-value hold of y (N, ...) onto t_grid; before the first sample (or no samples): NaN for float,
-    False/0 for bool/int."""
-    y = np.asarray(y)
-    i = np.searchsorted(np.asarray(t, float), np.asarray(t_grid, float), side="right") - 1
-    fill = np.nan if y.dtype.kind == "f" else 0
-    out = np.full((len(t_grid),) + y.shape[1:], fill, dtype=y.dtype if y.dtype.kind in "fbiu" else float)
-    ok = i >= 0
-    if y.shape[0]:
-        out[ok] = y[i[ok]]
-    return out
+from hardware.timeseries import hold_previous, interp_linear, resample, uniform_grid
 
 
 def _slice(ta: TopicArrays, t0: float, t1: float) -> TopicArrays:
@@ -118,11 +87,12 @@ class Episode:
     def resample(self, t_grid: np.ndarray | None = None,
                  rate_hz: float | None = None) -> dict[str, np.ndarray]:
         """Every signal on one time grid (t_grid [s], or a uniform grid at rate_hz over the episode):
-        float signals interpolated linearly, bool/int signals held. Returns {"t": grid, name: values}."""
+        float signals interpolated linearly, bool/int signals held (hardware.timeseries.resample, the
+        resampler calibration and diagnosis use). Returns {"t": grid, name: values}."""
         if t_grid is None:
             if not rate_hz:
                 raise ValueError("give t_grid or rate_hz")
-            t_grid = self.t_start + np.arange(int(np.floor(self.duration_s * rate_hz)) + 1) / rate_hz
+            t_grid = uniform_grid(self.t_start, self.t_stop, rate_hz)
         t_grid = np.asarray(t_grid, dtype=float)
         kinds = {}
         for name in self.recording.topics:
@@ -131,7 +101,8 @@ class Episode:
                 kinds[signal_name(name, schema.name, f.feature)] = f.kind
         out: dict[str, np.ndarray] = {"t": t_grid}
         for sig, (t, y) in self.signals().items():
-            out[sig] = interp_linear(t, y, t_grid) if kinds[sig] == "float" else hold_previous(t, y, t_grid)
+            y = np.asarray(y, float) if kinds[sig] == "float" else np.asarray(y)  # cache.py: bool/int64 else
+            out[sig] = resample(t, {sig: y}, t_grid=t_grid)[0][1][sig]
         return out
 
     def contact_share(self, arm: str = "follower") -> float:

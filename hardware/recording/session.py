@@ -29,11 +29,40 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def arm_metadata(rig) -> dict[str, dict]:
+    """Per device of a rig (hardware.rigs.rig.Rig): its arm description's name, the SHA-256 of that file,
+    its joint names and role -- what a reader needs to know which arm a recorded joint state comes from."""
+    from hardware.arms import load_arm
+
+    out = {}
+    for dev in list(rig.leaders) + list(rig.followers):
+        desc = load_arm(dev.arm)
+        out[dev.name] = {"arm": desc.name, "arm_sha256": desc.sha256, "joint_names": list(desc.joint_names),
+                         "role": dev.role}
+    return out
+
+
+def recorded_arm(session: dict[str, str], label: str) -> dict:
+    """The arm entry (arm_metadata) of the recorded arm `label` ("follower", "left_follower", ...) in a
+    recording's session metadata: the device of that name, else the one arm shared by every device whose
+    role ends the label ("follower", "leader"); {} when the recording does not say."""
+    try:
+        arms = json.loads(session.get("arms", "") or "{}")
+    except ValueError:
+        return {}
+    if label in arms:
+        return arms[label]
+    same_role = {json.dumps(a, sort_keys=True) for a in arms.values() if label.endswith(a.get("role", "?"))}
+    return json.loads(same_role.pop()) if len(same_role) == 1 else {}
+
+
 def describe_session(*, rig_path: str | Path | None = None, arm_files: list[str | Path] = (),
                      next_checkpoint: str = "", operator: str | None = None, task: str = "",
-                     twin: bool | None = None) -> dict[str, str]:
+                     twin: bool | None = None, arms: dict[str, dict] | None = None) -> dict[str, str]:
     """Metadata the app passes to Recorder(metadata=...): the rig file's full text, the SHA-256 of each arm
-    description file, the NEXT checkpoint id, the operator, the task, and whether this is a twin."""
+    description file, the NEXT checkpoint id, the operator, the task, whether this is a twin, and `arms`
+    (arm_metadata: per device its arm name, description hash and joint names; read from the rig file when
+    not given, so every recording says which arm it comes from)."""
     meta: dict[str, str] = {"next_checkpoint": str(next_checkpoint), "task": str(task)}
     if operator is not None:
         meta["operator"] = str(operator)
@@ -48,6 +77,16 @@ def describe_session(*, rig_path: str | Path | None = None, arm_files: list[str 
         p = Path(a)
         hashes[p.name] = _sha256(p) if p.is_file() else "missing"
     meta["arm_description_sha256"] = json.dumps(hashes)
+    if arms is None and rig_path is not None and Path(rig_path).is_file():
+        from hardware.errors import ConfigError
+        from hardware.rigs.rig import load_rig
+
+        try:
+            arms = arm_metadata(load_rig(rig_path))
+        except ConfigError:  # the recording still starts; it just cannot name its arms
+            arms = None
+    if arms is not None:
+        meta["arms"] = json.dumps(arms)
     return meta
 
 

@@ -4,16 +4,17 @@ them.
 A rig is a TOML file (built-in ones live next to this module; see docs/twin.md for the format):
 
     [rig]            name, description, simulated (true: a MuJoCo twin serves the buses)
-    [[leaders]]      driver = "dynamixel", arm, port, + DynamixelLeaderConfig fields, [leaders.limits],
-                     [leaders.twin]
-    [[followers]]    driver = "piper" | "damiao" | "sim", arm, channel, + config fields, next_checkpoint,
-                     [followers.limits], [followers.twin]
+    [[leaders]]      driver (a leader kind: "dynamixel"), arm, + the kind's config fields (port, ...),
+                     [leaders.limits], [leaders.twin]
+    [[followers]]    driver (a follower kind: "piper" | "damiao" | "sim"), arm, + the kind's config fields
+                     (channel, ...), next_checkpoint, [followers.limits], [followers.twin]
     [[cameras]]      name, source, width, height, fps
     [twin]           seed, effect ("MODULE:FUNCTION"), [twin.effects] (bool per actuator effect)
 
 load_rig(name_or_path) validates everything up front; every problem is a ConfigError naming the file, the
 field and the fix. Ports and channels of simulated rigs are "twin": open_rig/serve_twin fill in the twin's
-pty paths and virtual CAN channels.
+pty paths and virtual CAN channels. Driver names and their config dataclasses come from the device-kind
+registry (hardware/registry.py), not from this file.
 """
 
 from __future__ import annotations
@@ -27,10 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hardware.damiao.config import DamiaoFollowerConfig
-from hardware.dynamixel.config import DynamixelLeaderConfig
 from hardware.errors import ConfigError
-from hardware.piper.config import PiperFollowerConfig
+from hardware.registry import device_kind
 from hardware.sim.actuators import EFFECT_NAMES, ActuatorParams
 
 if sys.version_info >= (3, 11):
@@ -41,8 +40,6 @@ else:  # pragma: no cover
 RIG_DIR = Path(__file__).resolve().parent
 DEFAULT_RIG = "sim-piper"
 TWIN_PLACEHOLDER = "twin"  # port/channel value that the twin replaces with its own pty / virtual channel
-LEADER_DRIVERS = {"dynamixel": DynamixelLeaderConfig}
-FOLLOWER_DRIVERS = {"piper": PiperFollowerConfig, "damiao": DamiaoFollowerConfig, "sim": None}
 LIMIT_FIELDS = ("q_min", "q_max", "v_max", "tau_max", "tau_rate_max", "kp_max", "kd_max")
 DEVICE_KEYS = {"driver", "arm", "name", "limits", "twin", "next_checkpoint"}
 DEVICE_TWIN_KEYS = {"motors", "start_q", "params"}
@@ -54,7 +51,8 @@ TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene"}
 
 @dataclass
 class DeviceSpec:
-    """One leader or follower of a rig. config: the driver's config dataclass (None for driver "sim")."""
+    """One leader or follower of a rig. config: its kind's config dataclass (None for a kind without one,
+    e.g. driver "sim")."""
 
     name: str
     role: str  # "leader" | "follower"
@@ -137,15 +135,14 @@ class Rig:
         raise ConfigError(f"rig {self.name} has no device {name!r}", where=str(self.path),
                           fix=f"use one of {[d.name for d in self.leaders + self.followers]}")
 
-    def with_endpoints(self, serial_ports: dict[str, str], can_channels: dict[str, str]) -> Rig:
-        """A copy whose "twin" ports/channels point at a running twin (and interface "virtual")."""
+    def with_endpoints(self, endpoints: dict[str, str]) -> Rig:
+        """A copy whose devices reach a running twin: device name -> its pty / in-process port / virtual CAN
+        channel (Twin.endpoints), written where each kind's config names it."""
         def fix(d: DeviceSpec) -> DeviceSpec:
-            c = d.config
-            if isinstance(c, DynamixelLeaderConfig) and d.name in serial_ports:
-                c = dataclasses.replace(c, port=serial_ports[d.name])
-            elif isinstance(c, PiperFollowerConfig | DamiaoFollowerConfig) and d.name in can_channels:
-                c = dataclasses.replace(c, channel=can_channels[d.name], interface="virtual")
-            return dataclasses.replace(d, config=c)
+            if d.name not in endpoints or d.config is None:
+                return d
+            config = device_kind(d.driver).with_endpoint(d.config, endpoints[d.name])
+            return dataclasses.replace(d, config=config)
         return dataclasses.replace(self, leaders=[fix(d) for d in self.leaders],
                                    followers=[fix(d) for d in self.followers])
 
@@ -204,11 +201,12 @@ def parse_rig(doc: dict, path: Path) -> Rig:
     cams = [_camera(c, i, f) for i, c in enumerate(_array(doc.get("cameras", []), f, "cameras"))]
     twin = _twin(doc.get("twin", {}), f)
     if not simulated:
-        for d in followers:
-            if d.driver == "sim":
-                raise ConfigError(f"follower {d.name} uses driver 'sim' on a rig that is not simulated",
-                                  where=f"{f}: followers.{d.name}.driver",
-                                  fix="set [rig] simulated = true or use driver piper/damiao")
+        for d in leaders + followers:
+            if device_kind(d.driver).simulated_only:
+                raise ConfigError(f"{d.role} {d.name} uses driver {d.driver!r} on a rig that is not "
+                                  "simulated",
+                                  where=f"{f}: {d.role}s.{d.name}.driver",
+                                  fix="set [rig] simulated = true or use a driver with hardware behind it")
     pairs = _pairs(doc.get("pairs"), leaders, followers, f)
     desc = _typed(head.get("description", ""), str, f, "rig.description")
     teleop = _table(doc.get("teleop", {}), f, "teleop")
@@ -219,14 +217,11 @@ def parse_rig(doc: dict, path: Path) -> Rig:
 def _device(d, role: str, i: int, f: str, path: Path) -> DeviceSpec:
     where = f"{role}s[{i}]"
     d = _table(d, f, where)
-    drivers = LEADER_DRIVERS if role == "leader" else FOLLOWER_DRIVERS
-    driver = _typed(_need(d, "driver", f, where, f"one of {sorted(drivers)}"), str, f, f"{where}.driver")
-    if driver not in drivers:
-        raise ConfigError(f"unknown driver {driver!r}", where=f"{f}: {where}.driver",
-                          fix=f"use one of {sorted(drivers)}")
+    driver = _typed(_need(d, "driver", f, where, f"a {role} driver"), str, f, f"{where}.driver")
+    kind = device_kind(driver, role, where=f"{f}: {where}.driver")
     arm = _typed(_need(d, "arm", f, where, "the arm description name, e.g. piper"), str, f, f"{where}.arm")
     name = _typed(d.get("name", role if i == 0 else f"{role}{i}"), str, f, f"{where}.name")
-    cls = drivers[driver]
+    cls = kind.config
     cfg_fields = {x.name: x for x in dataclasses.fields(cls)} if cls else {}
     _unknown(d, DEVICE_KEYS | set(cfg_fields), f, where)
     config = None

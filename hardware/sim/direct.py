@@ -4,6 +4,8 @@ Used for arms that have no supported bus in this project (the Franka Panda rig `
 Follower role, safety layer and watchdog as a real driver, but commands go straight to the MujocoBank
 (position loop for plain targets, the MIT law when gains are given) and read() returns the bank's
 firmware-style reading. It refuses to exist outside a twin: there is no hardware behind it.
+
+KIND declares rig `driver = "sim"` (hardware/registry.py): simulated rigs only, no wire, no doctor probe.
 """
 
 from __future__ import annotations
@@ -11,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 
 from hardware.clock import Clock
+from hardware.errors import ConfigError
+from hardware.registry import DeviceKind, TwinDrive
 from hardware.roles import Follower
 from hardware.safety import DEFAULT_WATCHDOG_S, SafeFollowerCommand
 from hardware.types import STATUS_ENABLED, STATUS_HOLD, JointLimits, JointState
@@ -62,3 +66,18 @@ class BankFollower(Follower):
             self.bank.command_mit(self._idx, safe.q, np.zeros(self.n_joints), safe.kp, safe.kd, safe.tau_ff)
         if safe.gripper is not None and self.bank.n > self.n_joints:
             self.bank.command_position(np.array([self.n_joints]), np.array([float(safe.gripper)]))
+
+
+SIM_GRIPPER_MOTOR = "piper_gripper"  # hardware/sim/presets.py: gripper drive of arms without a real bus
+
+
+def make_driver(spec, clock, twin=None) -> BankFollower:
+    if twin is None:
+        raise ConfigError(f"device {spec.name} has driver 'sim' but no twin runs", where=f"rig {spec.name}",
+                          fix="use a simulated rig")
+    return BankFollower(spec.name, twin.bank(spec.name), spec.limits(), clock=clock)
+
+
+KIND = DeviceKind(driver="sim", role="follower", config=None, driver_ref="hardware.sim.direct:make_driver",
+                  twin_drive=lambda c: TwinDrive(motors=None, gripper_motor=SIM_GRIPPER_MOTOR, gripper=True),
+                  simulated_only=True)

@@ -10,9 +10,16 @@ joints (+ gripper); it speaks its driver's protocol through PiperEmulator / Dami
 virtual channel. Each leader (a GELLO arm) is a separate world without contacts, driven by goal currents
 through a DynamixelEmulator on a pseudo-terminal (dynamixel_transport="pty", real time and serve_twin) or
 on an in-process port (dynamixel_transport="inprocess", lockstep rigs: hardware/dynamixel/inprocess.py, same
-sdk bytes without the pty and its thread). Physics steps at the rig's physics_hz (1 kHz default):
-per step the CAN emulators take pending commands (poll), every world steps, and the CAN emulators send
-the feedback due (emit). Dynamixel requests are answered by the emulator's thread from the latest state.
+sdk bytes without the pty and its thread). Each device's emulator comes from its kind (hardware/registry.py:
+the device folder's make_twin_emulator); this module names no driver. Physics steps at the rig's
+physics_hz (1 kHz default): per step the CAN emulators take pending commands (poll), every world steps,
+and the CAN emulators send the feedback due (emit). Dynamixel requests are answered by the emulator's
+thread from the latest state.
+
+Time: sim time t starts at 0; the rig clock reads t + offset (rig_time()). Emulators stamp frames and
+servo ticks with rig_time(), never with the wall clock, so a lockstep run is the same on any machine.
+Three ways to drive it: attach(lockstep_clock); start_realtime() (a thread); or the caller's own thread
+through TwinDrivenClock (rebase(), then catch_up(now) after each sleep).
 """
 
 from __future__ import annotations
@@ -22,20 +29,23 @@ import os
 import threading
 import time
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
+from hardware.clock import Clock
 from hardware.errors import ConfigError
-from hardware.rigs.rig import DeviceSpec, Rig
+from hardware.registry import EmulatorContext, device_kind
 from hardware.sim.actuators import ActuatorParams, Effects
 from hardware.sim.effects_hook import load_hook
 from hardware.sim.mujoco_bank import MujocoBank
 from hardware.sim.presets import arm_params, motor_params
+from hardware.sim.tasks.base import scene_model
 from hardware.sim.world import GroundTruth, MujocoWorld
 
-GRIPPER_MOTOR = {"piper": "piper_gripper", "damiao": "DM4310", "dynamixel": "XL330-M288",
-                 "sim": "piper_gripper"}
+if TYPE_CHECKING:  # the rig loader uses this package (actuator names); the twin only reads a Rig
+    from hardware.rigs.rig import DeviceSpec, Rig
 # Hz: firmware-law rate of leader worlds. A GELLO leader runs in current mode (its law is K * i, the current
 # changes once per driver loop) and is light, so its bank math runs every 2 ms while MuJoCo still integrates
 # it at physics_hz (implicit damping + friction slope every physics step); tests/test_twin_speed.py checks the
@@ -43,6 +53,9 @@ GRIPPER_MOTOR = {"piper": "piper_gripper", "damiao": "DM4310", "dynamixel": "XL3
 LEADER_CONTROL_HZ = 500.0
 REALTIME_SLEEP_S = 0.0005  # s: the real-time thread's nap between catch-ups
 REALTIME_MAX_LAG_S = 0.1  # s: a real-time twin further behind than this skips ahead (counted in .overruns)
+# s: a twin driven by the caller's thread (TwinDrivenClock) further behind wall time than this skips ahead
+# (a stall: swap, suspend) rather than spiral (counted in .overruns)
+DRIVEN_MAX_LAG_S = 0.05
 _SERIAL = itertools.count()
 
 
@@ -54,6 +67,7 @@ class TwinDevice:
     world: MujocoWorld
     bank: MujocoBank
     n_arm: int  # arm joints (the bank may add the gripper after them)
+    wire: str | None = None  # the kind's wire: "serial" | "can" | None
     emulator: object | None = None
     bus: object | None = None
     endpoint: str | None = None
@@ -63,20 +77,10 @@ def _effects(spec: dict[str, bool]) -> Effects:
     return replace(Effects(), **spec)
 
 
-def _servo_models(dev: DeviceSpec) -> tuple[list[str], str]:
-    """A Dynamixel leader's servo model per joint and of its trigger, as its config names them."""
-    cfg = dev.config
-    models = [cfg.model] * len(cfg.ids) if isinstance(cfg.model, str) else list(cfg.model)
-    return models, getattr(cfg, "gripper_model", None) or models[-1]
-
-
-def _device_params(dev: DeviceSpec, arm, with_gripper: bool, effects: Effects) -> ActuatorParams:
-    motors, gripper = dev.twin_motors, GRIPPER_MOTOR[dev.driver]
-    if dev.driver == "damiao":
-        gripper = getattr(dev.config, "gripper_motor", None) or gripper
-    if dev.driver == "dynamixel":  # the servos the rig declares (and the emulator reports) are the motors
-        servos, gripper = _servo_models(dev)
-        motors = motors or servos
+def _device_params(dev: DeviceSpec, drive, arm, with_gripper: bool, effects: Effects) -> ActuatorParams:
+    """Motor parameters of a device's bank: the rig's [twin] motors, else its kind's (drive: TwinDrive),
+    else the arm's presets; then the gripper motor and the rig's parameter overrides."""
+    motors, gripper = dev.twin_motors or drive.motors, drive.gripper_motor
     p = arm_params(dev.arm, effects=effects, n=arm.n_joints, motors=motors)
     if with_gripper:
         g = motor_params([gripper], where=f"twin gripper of {dev.name}")
@@ -93,58 +97,13 @@ def _device_params(dev: DeviceSpec, arm, with_gripper: bool, effects: Effects) -
     return p
 
 
-class GripperTransmission:
-    """MotorBank view whose last motor is a rotary gripper motor driving the bank's linear finger joint:
-    angle theta [rad] = closed_rad + s * x [m], s = (open_rad - closed_rad) / stroke_m, so theta_closed at
-    x = 0 and theta_open at the finger's full travel. Forces map by power (F = s * tau), gains by s^2."""
-
-    def __init__(self, bank, closed_rad: float, open_rad: float, stroke_m: float):
-        self.bank, self.n, self.g = bank, bank.n, bank.n - 1
-        self.c, self.s = float(closed_rad), (float(open_rad) - float(closed_rad)) / float(stroke_m)
-        self.torque_constant = bank.torque_constant
-
-    def __getattr__(self, name):  # set_speed etc. pass through
-        return getattr(self.bank, name)
-
-    def _split(self, idx, *vals):
-        idx = np.atleast_1d(np.asarray(idx, dtype=int))
-        return idx, [np.array(np.broadcast_to(np.asarray(v, dtype=float), idx.shape)) for v in vals]
-
-    def read(self):
-        r = self.bank.read()
-        g, s = self.g, self.s
-        r.q[g], r.q_dot[g] = self.c + s * r.q[g], s * r.q_dot[g]
-        r.tau_m[g] = r.tau_m[g] / s
-        r.current[g] = r.tau_m[g] / self.torque_constant[g]
-        return r
-
-    def command_position(self, idx, q) -> None:
-        idx, (q,) = self._split(idx, q)
-        q[idx == self.g] = (q[idx == self.g] - self.c) / self.s
-        self.bank.command_position(idx, q)
-
-    def command_mit(self, idx, q, v, kp, kd, tau_ff) -> None:
-        idx, (q, v, kp, kd, tau) = self._split(idx, q, v, kp, kd, tau_ff)
-        m, s = idx == self.g, self.s
-        q[m], v[m], tau[m] = (q[m] - self.c) / s, v[m] / s, tau[m] * s
-        kp[m], kd[m] = kp[m] * s * s, kd[m] * s * s
-        self.bank.command_mit(idx, q, v, kp, kd, tau)
-
-    def command_current(self, idx, current_a) -> None:
-        idx, (i,) = self._split(idx, current_a)
-        i[idx == self.g] *= self.s  # joint force per amp = s * K
-        self.bank.command_current(idx, i)
-
-    def enable(self, idx, on: bool) -> None:
-        self.bank.enable(idx, on)
-
-
 class Twin:
     """Simulated rig. Device names are the rig's; see module doc for the stepping order."""
 
     def __init__(self, rig: Rig, *, effect=None, seed: int | None = None, dynamixel_transport: str = "pty",
-                 leader_control_hz: float | None = LEADER_CONTROL_HZ):
+                 leader_control_hz: float | None = LEADER_CONTROL_HZ, task=None):
         from hardware.arms import load_arm
+        from hardware.sim.tasks import get_task
 
         self.rig = rig
         self.seed = rig.twin.seed if seed is None else int(seed)
@@ -155,6 +114,8 @@ class Twin:
             n_check = load_arm(rig.followers[0].arm).n_joints
             self.hook = load_hook(hook_spec, n_check=n_check)
         self.hook_spec = hook_spec
+        # task objects in the follower scenes (hardware/sim/tasks): the argument, else the rig's [twin] task
+        self.task = get_task(task if task is not None else getattr(rig.twin, "task", None))
         if dynamixel_transport not in ("pty", "inprocess"):
             raise ConfigError(f"unknown Dynamixel transport {dynamixel_transport!r}", where="Twin",
                               fix="use 'pty' or 'inprocess'")
@@ -177,6 +138,7 @@ class Twin:
         self._rt_thread: threading.Thread | None = None
         self._rt_stop = threading.Event()
         self.overruns = 0
+        self._step_observers: list = []  # add_step_observer
         self.steps = 0
         try:
             for k, dev in enumerate(rig.followers):
@@ -190,7 +152,7 @@ class Twin:
     # -- construction ----------------------------------------------------------------------------------
     def _add(self, dev: DeviceSpec, arm, follower: bool, seed: int) -> None:
         if follower:
-            model = mujoco.MjModel.from_xml_path(str(arm.scene_path(self.rig.twin.scene)))
+            model = scene_model(arm, self.rig.twin.scene, self.task)
             # resting free objects sleep (no contact work until something touches them); the arm's tree is
             # actuated, so MuJoCo never puts it to sleep
             model.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
@@ -199,12 +161,12 @@ class Twin:
             model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         model.opt.timestep = self.dt / self.substeps
         world = MujocoWorld(model, name=dev.name)
-        cfg = dev.config
+        kind = device_kind(dev.driver, where=f"rig {dev.name}")
+        drive = kind.twin_drive(dev.config)
         # the gripper motor is the bank's last one when the arm has a gripper joint and the device drives it
-        with_gripper = bool(arm.gripper_joints) and (dev.driver in ("piper", "sim")
-                                                     or cfg.gripper_id is not None)
+        with_gripper = bool(arm.gripper_joints) and drive.gripper
         joints = list(arm.joint_names) + ([arm.gripper_joints[0]] if with_gripper else [])
-        params = _device_params(dev, arm, with_gripper, self.effects)
+        params = _device_params(dev, drive, arm, with_gripper, self.effects)
         bank = world.add_bank(joints, params, name=dev.name, seed=seed)
         every = 1 if follower else self.leader_every
         world.set_substeps(self.substeps * every)
@@ -219,68 +181,35 @@ class Twin:
         lo, hi = model.jnt_range[jids].T
         limited = model.jnt_limited[jids] > 0
         world.set_qpos(bank, np.where(limited, np.clip(q0, lo, hi), q0))
-        td = TwinDevice(spec=dev, world=world, bank=bank, n_arm=arm.n_joints)
+        td = TwinDevice(spec=dev, world=world, bank=bank, n_arm=arm.n_joints, wire=kind.wire)
         self.worlds.append(world)
         self.devices[dev.name] = td
-        if dev.driver == "dynamixel":
-            self._add_dynamixel(td, cfg, with_gripper)
-        elif dev.driver in ("piper", "damiao"):
-            self._add_can(td, cfg, with_gripper, seed)
-
-    def _add_dynamixel(self, td: TwinDevice, cfg, with_gripper: bool) -> None:
-        from hardware.dynamixel.emulator import DynamixelEmulator
-        from hardware.dynamixel.protocol import OP_MODE_CURRENT
-
-        ids = list(cfg.ids) + ([cfg.gripper_id] if with_gripper else [])
-        models, trigger = _servo_models(td.spec)
-        if with_gripper:  # the trigger servo: the config's gripper_model, else the last joint's model
-            models = models + [trigger]
-        signs = [float(s) for s in cfg.signs] + ([1.0] if with_gripper else [])
-        offsets = [float(o) for o in cfg.offsets_rad]
-        offsets += [float(cfg.gripper_open_rad)] if with_gripper else []
-        emu = DynamixelEmulator(td.bank, ids, models, signs=signs, offsets_rad=offsets, return_delay=0,
-                                operating_mode=OP_MODE_CURRENT, baud=int(cfg.baud), bank_lock=td.world.lock,
-                                seed=self.seed, emulate_return_delay=False,
-                                transport=self.dynamixel_transport)
-        td.emulator, td.endpoint = emu, emu.port_path
-        self._dxl_emus.append(emu)
-
-    def _add_can(self, td: TwinDevice, cfg, with_gripper: bool, seed: int) -> None:
-        from hardware.can_bus import open_bus
-
-        channel = f"{self._tag}-{td.spec.name}"
-        bus = open_bus(channel, "virtual")
-        td.bus, td.endpoint = bus, channel
-        if td.spec.driver == "piper":
-            from hardware.piper.emulator import PiperEmulator
-
-            lim = td.spec.limits()
-            emu = PiperEmulator(bus, td.bank, seed=seed, old_firmware_effort=bool(cfg.firmware_effort_x4),
-                                joint_limits_rad=np.stack([lim.q_min, lim.q_max], axis=1))
-        else:
-            from hardware.damiao.emulator import DamiaoEmulator
-
-            ids = list(cfg.ids) + ([cfg.gripper_id] if with_gripper else [])
-            motors = list(cfg.motor) + ([cfg.gripper_motor] if with_gripper else [])
-            bank = td.bank
-            if with_gripper:  # the gripper motor turns (rad); the MJCF finger slides (m)
-                lo, hi = td.world.model.jnt_range[mujoco.mj_name2id(td.world.model, mujoco.mjtObj.mjOBJ_JOINT,
-                                                                    bank.joint_names[-1])]
-                bank = GripperTransmission(bank, cfg.gripper_closed_rad, cfg.gripper_open_rad, float(hi - lo))
-            emu = DamiaoEmulator(bus, bank, ids, motors, master_ids=cfg.master_ids and
-                                 (list(cfg.master_ids) + ([cfg.gripper_id + 0x10] if with_gripper else [])),
-                                 seed=seed)
-        td.emulator = emu
-        self._can_emus.append(emu)
+        if kind.wire is not None:
+            ctx = EmulatorContext(spec=dev, bank=bank, world=world, with_gripper=with_gripper, seed=seed,
+                                  twin_seed=self.seed, channel=f"{self._tag}-{dev.name}",
+                                  dynamixel_transport=self.dynamixel_transport, now=self.rig_time)
+            ep = kind.make_emulator(ctx)
+            td.emulator, td.endpoint, td.bus = ep.emulator, ep.endpoint, ep.bus
+            (self._can_emus if kind.wire == "can" else self._dxl_emus).append(ep.emulator)
 
     # -- endpoints ---------------------------------------------------------------------------------------
     @property
+    def endpoints(self) -> dict[str, str]:
+        """Device name -> where its emulator serves it (devices with a wire)."""
+        return {n: d.endpoint for n, d in self.devices.items() if d.wire is not None}
+
+    @property
     def serial_ports(self) -> dict[str, str]:
-        return {n: d.endpoint for n, d in self.devices.items() if d.spec.driver == "dynamixel"}
+        return {n: d.endpoint for n, d in self.devices.items() if d.wire == "serial"}
 
     @property
     def can_channels(self) -> dict[str, str]:
-        return {n: d.endpoint for n, d in self.devices.items() if d.spec.driver in ("piper", "damiao")}
+        return {n: d.endpoint for n, d in self.devices.items() if d.wire == "can"}
+
+    @property
+    def can_emulators(self) -> list:
+        """The CAN emulators, in stepping order (their counters: rx_frames, tx_frames, ...)."""
+        return list(self._can_emus)
 
     def bank(self, name: str) -> MujocoBank:
         return self.devices[name].bank
@@ -314,11 +243,44 @@ class Twin:
             while self.t + 0.5 * self.dt < target:
                 self.step(poll=every or n == 0)
                 n += 1
+            if n and self._step_observers:
+                t_rig = self.t + self._t_offset
+                for fn in self._step_observers:
+                    fn(t_rig)
             return n
+
+    def add_step_observer(self, fn) -> None:
+        """fn(t [s, rig clock]) after every advance that stepped, on the stepping thread, the twin's lock held
+        (cameras snapshot the physics state here: a frame shows the state at exactly its timestamp)."""
+        self._step_observers.append(fn)
+
+    def remove_step_observer(self, fn) -> None:
+        if fn in self._step_observers:
+            self._step_observers.remove(fn)
+
+    def rig_time(self) -> float:
+        """The rig clock's time [s] at the twin's current sim time (what emulators stamp frames with)."""
+        return self.t + self._t_offset
+
+    def lag(self, now: float) -> float:
+        """How far [s] the twin is behind rig-clock time `now`."""
+        return now - self._t_offset - self.t
+
+    def rebase(self, now: float) -> None:
+        """Sim time continues from rig-clock time `now` (time before it is not simulated)."""
+        self._t_offset = now - self.t
+
+    def catch_up(self, now: float, max_lag_s: float) -> int:
+        """Step to rig-clock time `now`; further behind than max_lag_s [s] (a stall), skip ahead to one step
+        behind instead (counted in .overruns) rather than spiral. Returns steps taken."""
+        if self.lag(now) > max_lag_s:
+            self.overruns += 1
+            self._t_offset = now - self.t - self.dt
+        return self.advance(now)
 
     def attach(self, clock) -> None:
         """Lockstep: clock.sleep(dt) advances this twin; sim time 0 is the clock's current time."""
-        self._t_offset = clock.now() - self.t
+        self.rebase(clock.now())
         clock.attach(self.advance)
 
     def start_realtime(self) -> None:
@@ -326,17 +288,13 @@ class Twin:
         if self._rt_thread is not None:
             return
         self._rt_stop.clear()
-        self._t_offset = time.monotonic() - self.t
+        self.rebase(time.monotonic())
         self._rt_thread = threading.Thread(target=self._realtime_loop, name="factr2-twin", daemon=True)
         self._rt_thread.start()
 
     def _realtime_loop(self) -> None:
         while not self._rt_stop.is_set():
-            now = time.monotonic()
-            if now - self._t_offset - self.t > REALTIME_MAX_LAG_S:
-                self.overruns += 1  # cannot keep up: skip ahead rather than run ever later
-                self._t_offset = now - self.t
-            self.advance(now)
+            self.catch_up(time.monotonic(), REALTIME_MAX_LAG_S)
             time.sleep(REALTIME_SLEEP_S)
 
     def stop_realtime(self) -> None:
@@ -381,3 +339,40 @@ class Twin:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+class TwinDrivenClock(Clock):
+    """Real time, but the caller's thread steps the twin: after each sleep the physics catches up to wall
+    time (Twin.catch_up), so physics, emulators and the loop run in ONE thread in a fixed order, with no
+    GIL hand-offs between a stepping thread and the loop (the jitter source of an in-process real-time
+    twin). Same time base as hardware.clock.Clock (the drivers' clock). The twin's own thread must not run.
+
+        clock = TwinDrivenClock(twin)   # twin.stop_realtime() first if it was started
+        clock.start()                   # set-up time is not simulated; one step so fresh samples exist
+        loop.run(clock)                 # each clock.sleep() steps the twin to now
+    """
+
+    def __init__(self, twin: Twin, max_lag_s: float = DRIVEN_MAX_LAG_S):
+        self.twin, self.max_lag_s = twin, float(max_lag_s)
+
+    @property
+    def overruns(self) -> int:
+        """Times the twin skipped ahead (the thread stalled for more than max_lag_s)."""
+        return self.twin.overruns
+
+    def start(self) -> None:
+        """Sim time continues from now (set-up time is not simulated: the leader would fall meanwhile),
+        then one step so that fresh samples exist, rebased again so the loop starts level with the twin."""
+        if self.twin._rt_thread is not None:
+            raise RuntimeError("TwinDrivenClock: the twin's own thread runs (call twin.stop_realtime())")
+        self.twin.rebase(self.now())
+        self.twin.advance(self.now() + self.twin.dt)
+        self.twin.rebase(self.now())
+
+    def sleep(self, dt_s: float) -> None:
+        super().sleep(dt_s)
+        self.twin.catch_up(self.now(), self.max_lag_s)
+
+    def sleep_until(self, t: float) -> None:
+        super().sleep_until(t)
+        self.twin.catch_up(self.now(), self.max_lag_s)

@@ -1,13 +1,18 @@
-"""External-torque sources the loop can feed back, behind one call signature (the paper's comparison modes).
+"""External-torque estimators behind one protocol (the paper's comparison modes), below the app so that
+teleop, rollout and labelling share them.
 
-An estimator is any callable  est(EstimatorInput) -> Estimate | None  (None: nothing this tick). Estimates are
-in the project convention: tau_ext [N*m] = tau_m - tau_free on the follower joints = minus the environment's
-torque on the follower (the paper's, NEXT's and the twin's GroundTruth.tau_ext). Modes:
+    est.update(inp) -> Estimate | None     a new estimate from this tick's data (None: nothing new yet)
+    est.refresh(inp) -> Estimate | None    a control tick between two model samples (default: None)
+    est.idle() -> None                     a tick without a sample: spread deferred work (default: nothing)
+    est.period_s                           run update() at most this often [s] (0: every tick)
+
+Modes (FEEDBACK_MODES):
   none          no estimator, no feedback (GELLO-style)
   dob           momentum disturbance observer on the follower model (MomentumObserver)
   pp            position-position: tau_ext ~ K (q_leader_mapped - q_follower) (PositionPositionEstimator)
-  next          NEXT (calibration/next NextEstimator, via NextAdapter): its tau_m - tau_f_hat
+  next          NEXT (calibration.next NextEstimator, via NextAdapter): its tau_m - tau_f_hat
   ground_truth  a twin's true contact torque (GroundTruthEstimator; simulated, label it so)
+Estimates are calibration.estimate.Estimate (tau_ext [N*m] = tau_m - tau_free on the follower joints).
 """
 
 from __future__ import annotations
@@ -18,11 +23,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration.baselines import momentum_observer_step
-from factr2_teleop.teleop.params import PerJoint, per_joint
+from calibration.estimate import FLAG_OK, FLAG_UNCONVERGED, Estimate
+from hardware.params import PerJoint, per_joint
 from hardware.types import JointState
 
-ESTIMATOR_MODES = ("none", "dob", "pp", "next", "ground_truth")
-NEXT_FLAG_WARMUP = 1  # = calibration.next.estimator.FLAG_WARMUP (not imported: torch stays out of teleop)
+FEEDBACK_MODES = ("none", "dob", "pp", "next", "ground_truth")
+SIMULATED_ONLY_MODES = ("ground_truth",)
+PP_STIFFNESS_NM_PER_RAD = 40.0  # position-position coupling stiffness (follower N*m per rad of lag)
+DOB_GAIN_PER_S = 50.0  # momentum observer gain K_o [1/s]
 
 
 @dataclass
@@ -36,20 +44,22 @@ class EstimatorInput:
     q_target_f: np.ndarray | None = None
 
 
-@dataclass
-class Estimate:
-    """tau_ext [N*m] on the follower joints (tau_m - tau_free); t: time of the data it used [s];
-    fresh: the source's own validity flag (e.g. a NEXT history window that is full)."""
+class Estimator:
+    """Base class: subclasses implement update(); refresh() and idle() are optional (no-op defaults)."""
 
-    tau_ext: np.ndarray
-    t: float
-    fresh: bool = True
+    period_s: float = 0.0
+
+    def update(self, inp: EstimatorInput) -> Estimate | None:
+        raise NotImplementedError
+
+    def refresh(self, inp: EstimatorInput) -> Estimate | None:
+        return None
+
+    def idle(self) -> None:
+        return None
 
 
-Estimator = Callable[[EstimatorInput], "Estimate | None"]
-
-
-class PositionPositionEstimator:
+class PositionPositionEstimator(Estimator):
     """Bilateral position-position coupling expressed as an external torque: when the follower lags the leader
     (blocked by a wall), its position loop pushes against the wall with about K * lag, which is tau_ext.
     Use with gate_on_contact=False."""
@@ -57,65 +67,52 @@ class PositionPositionEstimator:
     def __init__(self, stiffness_nm_per_rad: PerJoint, n: int):
         self.k = per_joint(stiffness_nm_per_rad, n, "estimator.pp.stiffness_nm_per_rad", nonneg=True)
 
-    def __call__(self, inp: EstimatorInput) -> Estimate:
+    def update(self, inp: EstimatorInput) -> Estimate:
         lag = np.asarray(inp.q_leader_f, dtype=float) - inp.follower.q
-        return Estimate(tau_ext=self.k * lag, t=inp.follower.t, fresh=True)
+        return Estimate(tau_ext=self.k * lag, t=inp.follower.t)
 
 
-class GroundTruthEstimator:
+class GroundTruthEstimator(Estimator):
     """A twin's true external torque: truth() -> tau_ext [N*m] (GroundTruth.tau_ext). Simulated only.
     n: keep the first n entries (the twin's bank appends the gripper after the arm joints)."""
 
     def __init__(self, truth: Callable[[], np.ndarray], n: int | None = None):
         self.truth, self.n = truth, n
 
-    def __call__(self, inp: EstimatorInput) -> Estimate:
+    def update(self, inp: EstimatorInput) -> Estimate:
         tau = np.asarray(self.truth(), dtype=float).reshape(-1)
-        return Estimate(tau_ext=tau if self.n is None else tau[: self.n], t=inp.follower.t, fresh=True)
+        return Estimate(tau_ext=tau if self.n is None else tau[: self.n], t=inp.follower.t)
 
 
-class CallableEstimator:
-    """Wraps a source that already speaks tau_m - tau_f_hat (NEXT's streaming estimator):
-    source(inp) -> (tau_ext [N*m], t [s] of the data used, fresh) or None (nothing new this tick)."""
+class NextAdapter(Estimator):
+    """Drives calibration.next.estimator.NextEstimator from the loop at the checkpoint's rate (period_s). Its
+    output is already tau_m - tau_f_hat. q_cmd: the follower's reported target (JointState.q_cmd) when it has
+    one, else the target the loop sent last. Warm-up (no estimate yet) returns None, so feedback waits; a NaN
+    estimate goes through (feedback off with a message); an out-of-range input (ood) is counted, not gated:
+    in contact q_cmd - q leaves the free-motion training range by design. flags: the last estimate's flags."""
 
-    def __init__(self, source: Callable[[EstimatorInput], tuple[np.ndarray, float, bool] | None]):
-        self.source = source
-
-    def __call__(self, inp: EstimatorInput) -> Estimate | None:
-        r = self.source(inp)
-        if r is None:
-            return None
-        tau, t, fresh = r
-        return Estimate(tau_ext=np.asarray(tau, dtype=float), t=float(t), fresh=bool(fresh))
-
-
-class NextAdapter:
-    """Drives calibration.next.estimator.NextEstimator (duck-typed: update(q, q_dot, q_cmd, tau_m) -> object
-    with tau_ext, flags, valid, ood) from the loop. Its output is already tau_m - tau_f_hat. Call it at the
-    checkpoint's rate (PairConfig.estimator_period_s = 1 / rate_hz). q_cmd: the follower's reported target
-    (JointState.q_cmd) when it has one, else the target the loop sent last. Warm-up (flag bit 1, no estimate
-    yet) returns None, so feedback waits; a NaN estimate goes through (feedback off with a message); an
-    out-of-range input (ood) is counted, not gated: in contact q_cmd - q leaves the free-motion training range
-    by design."""
-
-    def __init__(self, next_estimator):
+    def __init__(self, next_estimator, loop_period_s: float = 0.0):
         self.next = next_estimator
+        rate = float(getattr(getattr(next_estimator, "ck", None), "rate_hz", 0.0) or 0.0)
+        # a quarter tick early: a model period that is a whole number of ticks must not slip by one tick
+        self.period_s = max(0.0, 1.0 / rate - 0.25 * loop_period_s) if rate > 0 else 0.0
         self.ood_count = 0
+        self.flags = FLAG_OK
         self._tau_f: np.ndarray | None = None  # free-space torque of the last valid estimate [N*m]
 
-    def __call__(self, inp: EstimatorInput) -> Estimate | None:
+    def update(self, inp: EstimatorInput) -> Estimate | None:
         st = inp.follower
         q_cmd = st.q_cmd
         if not np.all(np.isfinite(q_cmd)):
             q_cmd = inp.q_target_f if inp.q_target_f is not None else st.q
         e = self.next.update(st.q, st.q_dot, q_cmd, st.tau_m, temperature=st.temperature)
-        if int(getattr(e, "flags", 0)) & NEXT_FLAG_WARMUP:
+        self.flags = e.flags
+        if e.warming_up:
             self._tau_f = None
             return None  # warming up (or restarting after a bad sample): no estimate yet
-        self.ood_count += int(bool(e.ood))
-        tau_f = getattr(e, "tau_f", None)
-        self._tau_f = np.asarray(tau_f, dtype=float) if e.valid and tau_f is not None else None
-        return Estimate(tau_ext=np.asarray(e.tau_ext, dtype=float), t=st.t, fresh=bool(e.valid))
+        self.ood_count += int(e.ood)
+        self._tau_f = np.asarray(e.tau_f, dtype=float) if e.valid and e.tau_f is not None else None
+        return Estimate(tau_ext=np.asarray(e.tau_ext, dtype=float), t=st.t, flags=e.flags, tau_f=self._tau_f)
 
     def refresh(self, inp: EstimatorInput) -> Estimate | None:
         """A control tick between two model samples: tau_ext = this tick's tau_m - the last predicted free
@@ -124,16 +121,14 @@ class NextAdapter:
         tau_m = np.asarray(inp.follower.tau_m, dtype=float)
         if self._tau_f is None or tau_m.shape != self._tau_f.shape or not np.all(np.isfinite(tau_m)):
             return None
-        return Estimate(tau_ext=tau_m - self._tau_f, t=inp.follower.t, fresh=True)
+        return Estimate(tau_ext=tau_m - self._tau_f, t=inp.follower.t, tau_f=self._tau_f)
 
     def idle(self) -> None:
         """A control tick without a new sample: let a deferring estimator step some of its pending runs."""
-        work = getattr(self.next, "work", None)
-        if work is not None:
-            work()
+        self.next.work()
 
 
-class MomentumObserver:
+class MomentumObserver(Estimator):
     """Disturbance-observer estimator on the follower's dynamics model (callables in the follower's joint
     frame): mass(q) -> M, coriolis(q, q_dot) -> C, gravity(q) -> g. k_o: observer gain [1/s] per joint.
     Uses the follower's measured motor torque tau_m (current x torque constant). Returns tau_ext = -r."""
@@ -185,7 +180,7 @@ class MomentumObserver:
         self._p0: np.ndarray | None = None
         self._t_prev = float("nan")
 
-    def __call__(self, inp: EstimatorInput) -> Estimate | None:
+    def update(self, inp: EstimatorInput) -> Estimate | None:
         st = inp.follower
         q, qd, tau_m = st.q, st.q_dot, st.tau_m
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(tau_m))):
@@ -193,32 +188,31 @@ class MomentumObserver:
         M = self.mass(q)
         if self._p0 is None:
             self._p0, self._t_prev = M @ qd, st.t
-            return Estimate(tau_ext=-self._r, t=st.t, fresh=False)  # not converged yet
+            return Estimate(tau_ext=-self._r, t=st.t, flags=FLAG_UNCONVERGED)  # not converged yet
         dt = st.t - self._t_prev
         if dt <= 0:  # no new follower sample: same estimate, same data time
-            return Estimate(tau_ext=-self._r, t=self._t_prev, fresh=True)
+            return Estimate(tau_ext=-self._r, t=self._t_prev)
         self._t_prev = st.t
         beta = self.gravity(q) - self.coriolis(q, qd).T @ qd
         self._integral, self._r = momentum_observer_step(self._integral, self._r, M @ qd, self._p0, tau_m,
                                                          beta, dt, self.k_o)
-        return Estimate(tau_ext=-self._r, t=st.t, fresh=True)
+        return Estimate(tau_ext=-self._r, t=st.t)
 
 
-def make_estimator(mode: str, n: int, *, follower_arm=None, dob_gain: PerJoint = 50.0,
-                   pp_stiffness_nm_per_rad: PerJoint | None = None,
-                   next_source: Callable | None = None,
+def make_estimator(mode: str, n: int, *, follower_arm=None, dob_gain: PerJoint = DOB_GAIN_PER_S,
+                   pp_stiffness_nm_per_rad: PerJoint = PP_STIFFNESS_NM_PER_RAD,
+                   next_estimator=None, loop_period_s: float = 0.0,
                    truth: Callable[[], np.ndarray] | None = None) -> Estimator | None:
-    """The estimator for a feedback mode (ESTIMATOR_MODES); None for "none". ConfigError when the mode's
-    ingredient is missing: follower_arm (hardware.arms name or ArmDescription, "dob"),
-    pp_stiffness_nm_per_rad ("pp"), next_source (a NextEstimator, or a callable for CallableEstimator,
-    "next"), truth (the twin's contact torque, "ground_truth")."""
+    """The estimator for a feedback mode (FEEDBACK_MODES); None for "none". ConfigError when the mode's
+    ingredient is missing: follower_arm (hardware.arms name or ArmDescription, "dob"), next_estimator (a
+    calibration.next NextEstimator, "next"; loop_period_s: the control period it runs in), truth (the twin's
+    contact torque, "ground_truth")."""
     from hardware.errors import ConfigError
 
-    need = {"dob": follower_arm, "pp": pp_stiffness_nm_per_rad, "next": next_source,
-            "ground_truth": truth}
-    if mode not in ESTIMATOR_MODES:
+    need = {"dob": follower_arm, "pp": pp_stiffness_nm_per_rad, "next": next_estimator, "ground_truth": truth}
+    if mode not in FEEDBACK_MODES:
         raise ConfigError(f"unknown feedback mode {mode!r}", where="teleop.feedback_mode",
-                          fix=f"use one of {', '.join(ESTIMATOR_MODES)}")
+                          fix=f"use one of {', '.join(FEEDBACK_MODES)}")
     if mode == "none":
         return None
     if need[mode] is None:
@@ -232,5 +226,5 @@ def make_estimator(mode: str, n: int, *, follower_arm=None, dob_gain: PerJoint =
     if mode == "pp":
         return PositionPositionEstimator(pp_stiffness_nm_per_rad, n)
     if mode == "next":
-        return NextAdapter(next_source) if hasattr(next_source, "update") else CallableEstimator(next_source)
+        return NextAdapter(next_estimator, loop_period_s)
     return GroundTruthEstimator(truth, n)

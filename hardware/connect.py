@@ -1,6 +1,6 @@
-"""Public entry points: serve a rig's twin on its wire protocols, or open a rig with its drivers connected.
+"""Open a rig: its drivers connected to the real hardware or to its twin; or serve a twin on its wires.
 
-    from hardware.sim import serve_twin, open_rig
+    from hardware.connect import open_rig, serve_twin
     twin = serve_twin("sim-piper", effect=None)     # real time, in this process (SIMULATED hardware)
     twin.can_channels   # {"follower": "<virtual channel>"}   python-can interface "virtual"
     twin.serial_ports   # {"leader": "/dev/pts/N"}            Dynamixel Protocol 2.0
@@ -9,6 +9,10 @@
 
     with open_rig("sim-piper", clock="lockstep") as s:   # twin + real drivers, lockstep clock
         s.followers["follower"].command(...); s.clock.sleep(0.002)
+
+This module sits above the rig loader (hardware/rigs) and the twin (hardware/sim), which do not import each
+other's runtime code; every device is built by its kind (hardware/registry.py). hardware.sim.open_rig /
+serve_twin remain as thin aliases for older callers.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from dataclasses import dataclass, field
 
 from hardware.clock import Clock, LockstepClock
 from hardware.errors import ConfigError
+from hardware.registry import device_kind
 from hardware.rigs.rig import Rig, load_rig
 from hardware.roles import Follower, Leader, WatchdogThread
 from hardware.sim.twin import Twin
@@ -146,25 +151,8 @@ class RigSession:
 
 
 def make_driver(spec, clock: Clock, twin: Twin | None = None):
-    """The driver object for one rig device (not connected)."""
-    limits = spec.limits()
-    if spec.driver == "dynamixel":
-        from hardware.dynamixel.leader import DynamixelLeader
-        return DynamixelLeader(spec.config, limits, clock=clock)
-    if spec.driver == "piper":
-        from hardware.piper.follower import PiperFollower
-        return PiperFollower(spec.config, limits, clock=clock)
-    if spec.driver == "damiao":
-        from hardware.damiao.follower import DamiaoFollower
-        return DamiaoFollower(spec.config, limits, clock=clock)
-    if spec.driver == "sim":
-        if twin is None:
-            raise ConfigError(f"device {spec.name} has driver 'sim' but no twin runs",
-                              where=f"rig {spec.name}", fix="use a simulated rig")
-        from hardware.sim.direct import BankFollower
-        return BankFollower(spec.name, twin.bank(spec.name), limits, clock=clock)
-    raise ConfigError(f"unknown driver {spec.driver!r}", where=f"rig device {spec.name}",
-                      fix="use piper, damiao, dynamixel or sim")
+    """The driver object for one rig device (not connected), built by its kind."""
+    return device_kind(spec.driver, where=f"rig device {spec.name}").make_driver(spec, clock, twin)
 
 
 def make_cameras(rig: Rig, twin: Twin | None, clock: Clock) -> dict:
@@ -196,19 +184,8 @@ def make_cameras(rig: Rig, twin: Twin | None, clock: Clock) -> dict:
 
 
 def _twin_camera(config, world, clock):
-    """A MujocoCamera on a twin world (the camera module is imported only when a rig has cameras)."""
-    from hardware.cameras.mujoco_camera import MujocoCamera
-
-    class TwinCamera(MujocoCamera):
-        """A MuJoCo camera rendering under the world's lock (safe against the real-time stepping thread)."""
-
-        def __init__(self, config, world, clock):
-            super().__init__(config, world.model, world.data, clock)
-            self._world_lock = world.lock
-
-        def _grab(self):
-            with self._world_lock:
-                return super()._grab()
+    """A camera on a twin world (the camera module is imported only when a rig has cameras)."""
+    from hardware.cameras.mujoco_camera import TwinCamera
 
     return TwinCamera(config, world, clock)
 
@@ -230,7 +207,7 @@ def open_rig(rig: str | os.PathLike | Rig = "sim-piper", clock: str = "lockstep"
     if r.simulated:
         transport = dynamixel_transport or ("inprocess" if clock == "lockstep" else "pty")
         twin = Twin(r, effect=effect, seed=seed, dynamixel_transport=transport)
-        r = r.with_endpoints(twin.serial_ports, twin.can_channels)
+        r = r.with_endpoints(twin.endpoints)
     elif clock == "lockstep":
         raise ConfigError(f"rig {r.name} is real hardware: it cannot run in lockstep", where=str(r.path),
                           fix="use clock='realtime'")

@@ -1,0 +1,138 @@
+"""A session's recording: one MCAP file per session (episodes inside), the per-tick hook of every arm pair,
+the rig's cameras at their rate, the twin's ground truth (SIMULATED, labelled) and the loop's timing.
+
+    rec = SessionRecording.open(out_dir, session, pairs, extra_meta={"feedback_mode": "next"})
+    rec.start_episode(task="wipe")      # also starts the cameras on first use
+    loop = TeleopLoop(pairs, clock, rate, recorder=rec.on_tick)   # or call rec.on_tick from another hook
+    rec.stop_episode("success"); rec.close()  -> RecorderStatus (+ rec.camera_stats)
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from factr2_teleop.teleop.record import TickRecord
+from hardware.errors import UserError
+from hardware.features import arm_prefix
+from hardware.recording.arm_tick import record_arm_tick
+
+TRUTH_EVERY = 5  # ticks between ground-truth samples (each the mean over those ticks): 100 Hz at 500 Hz
+TIMING_EVERY = 50  # ticks between loop-timing samples (10 Hz at 500 Hz)
+
+
+def session_path(out_dir: str | Path, stem: str) -> Path:
+    """A new file name in out_dir (never an existing one): <stem>-<date>-<time>[-k].mcap."""
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise UserError(f"cannot create {out}: {e.strerror}", where="recording folder",
+                        fix="pick a writable folder") from None
+    path = out / f"{stem}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+    k = 1
+    while path.exists():
+        path = out / f"{stem}-{time.strftime('%Y%m%d-%H%M%S')}-{k}.mcap"
+        k += 1
+    return path
+
+
+class SessionRecording:
+    def __init__(self, recorder, session, pairs, rate_hz: float, cameras: bool = True):
+        self.recorder, self.session, self.rate_hz = recorder, session, float(rate_hz)
+        n = len(pairs)
+        self._pairs = {p.cfg.name: (p, arm_prefix(p.cfg.name, n)) for p in pairs}
+        self._want_cameras = cameras and bool(session.cameras)
+        self.stream = None
+        self.camera_stats: dict = {}
+        self._ticks = 0
+        self._lock = threading.Lock()  # two loops (bimanual, real time) may share one file
+        self.recording = False  # an episode is open
+
+    @classmethod
+    def open(cls, out: str | Path, session, pairs, rate_hz: float, *, stem: str | None = None,
+             extra_meta: dict | None = None, next_checkpoint: str = "", task: str = "",
+             cameras: bool = True, path: str | Path | None = None) -> SessionRecording:
+        """A new recording in folder `out` (or exactly `path`). UserError when it cannot be written."""
+        from hardware.arms import load_arm
+        from hardware.recording.session import describe_session
+        from hardware.recording.writer import Recorder
+
+        rig = session.rig
+        p = Path(path) if path is not None else session_path(out, stem or rig.name)
+        names, arms = {}, []
+        for pair in pairs:
+            pre = arm_prefix(pair.cfg.name, len(pairs))
+            for role, dev in (("leader", pair.leader), ("follower", pair.follower)):
+                arm = load_arm(rig.device(dev.name).arm)
+                names[f"{pre}{role}"] = list(arm.joint_names)
+                arms.append(arm.mjcf_path)
+        meta = describe_session(rig_path=rig.path, arm_files=arms, next_checkpoint=next_checkpoint, task=task,
+                                twin=session.twin is not None)
+        meta.update({k: str(v) for k, v in (extra_meta or {}).items()})
+        if session.cameras and cameras:
+            meta["cameras"] = ",".join(session.cameras)
+        rec = Recorder(p, joint_names=names, metadata=meta, t0=session.clock.now())
+        return cls(rec, session, pairs, rate_hz, cameras=cameras)
+
+    @property
+    def path(self) -> Path:
+        return self.recorder.path
+
+    # -- episodes ----------------------------------------------------------------------------------------
+    def start_episode(self, task: str = "") -> int:
+        if self._want_cameras and self.stream is None:
+            self._start_cameras()
+        ep = self.recorder.start_episode(self.session.clock.now(), task)
+        self.recording = True
+        return ep
+
+    def stop_episode(self, outcome: str | None = None, text: str = "") -> None:
+        self.recorder.stop_episode(self.session.clock.now(), outcome, text)
+        self.recording = False
+
+    def _start_cameras(self) -> None:
+        from hardware.cameras.stream import CameraStream
+
+        self.stream = CameraStream(self.session.cameras, self.session.clock, sink=self._frame,
+                                   twin=self.session.twin)
+        self.stream.start()
+
+    def _frame(self, camera: str, t: float, rgb: np.ndarray) -> None:
+        if self.recording:
+            self.recorder.log_image(camera, t, rgb)
+
+    # -- per tick (the loop's thread) --------------------------------------------------------------------
+    def on_tick(self, r: TickRecord) -> None:
+        if not self.recording:
+            return
+        pair, pre = self._pairs[r.pair]
+        with self._lock:
+            record_arm_tick(self.recorder, pre, r.t, leader=r.leader, follower=r.follower, tau_ext=r.tau_ext,
+                            contact=r.contact, leader_tau_cmd=r.leader_tau_cmd, gate=r.gate,
+                            action_q=r.action_q, action_gripper=r.action_gripper, action_hold=r.action_hold)
+            self._ticks += 1
+            twin = self.session.twin
+            if twin is not None and self._ticks % TRUTH_EVERY == 0:  # SIMULATED: the twin's truth
+                gt = twin.device_ground_truth(pair.follower.name, TRUTH_EVERY / self.rate_hz)
+                n = pair.follower.n_joints
+                self.recorder.log_ground_truth(f"{pre}follower", r.t, gt.tau_ext[:n], gt.contact)
+            if self._ticks % TIMING_EVERY == 0 and np.isfinite(r.loop_period_s):
+                self.recorder.log_loop_timing(r.t, r.loop_period_s, 0.0, 0.0, r.loop_overruns)
+
+    # -- end -----------------------------------------------------------------------------------------------
+    def close(self, why: str = ""):
+        """Stop the cameras, end an open episode (kept, unlabelled, with a note), write the summary.
+        Returns the RecorderStatus. Never raises."""
+        if self.stream is not None:
+            self.stream.stop()
+            self.camera_stats = self.stream.stats()
+            self.stream = None
+        if self.recording:
+            if why:
+                self.recorder.note(self.session.clock.now(), why)
+            self.stop_episode(None)
+        return self.recorder.close()

@@ -1,0 +1,232 @@
+"""Collecting scripted demonstrations of a twin task through the full teleop stack (SIMULATED).
+
+    rig = task_rig("sim-piper", "peg-insert")            # the rig with the task's scene, cameras, gripper map
+    with open_rig(rig, clock="lockstep", seed=0) as s:
+        ts = TeleopSession(s, TeleopOptions(mode="next", checkpoint=...))
+        ts.record(out, path=...)                            # one MCAP for the session
+        ep = EpisodeDriver(ts, get_task("peg-insert"), episodes=50, seed=0)
+        ts.hooks.append(ep.on_tick)                         # the operator's hand + detectors, every tick
+        ts.loop.run()                                       # ends itself after the last episode
+        ep.results                                          # EpisodeResult per episode
+
+The hook runs on the loop's thread: it applies the operator's hand to the twin's leader (joints and trigger),
+lets the script decide every DECIDE_EVERY ticks from what it sees (the twin's state) and feels (the leader's
+feedback torque), updates the task's stage detectors, marks stages in the recording (progress events) and
+ends each episode with its outcome (success / failure: failed demonstrations are kept, labelled). Between
+episodes the objects are put back for the next seed, as an assistant would (the arm is clear above them).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, fields, replace
+
+import mujoco
+import numpy as np
+
+from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept
+from factr2_teleop.tasks.scripts import SCRIPTS
+from hardware.errors import ConfigError
+from hardware.rigs.rig import CameraSpec, Rig, TwinSpec, load_rig
+from hardware.sim.tasks import StageTracker, Task, get_task
+
+SETTLE_S = 0.3  # s: the hand holds still after the soft start and after each reset
+
+
+@dataclass
+class TaskTwinSpec(TwinSpec):
+    """A rig's twin settings naming a task (until rig files carry `[twin] task`; Twin reads .task)."""
+
+    task: str | None = None
+
+
+def gripper_mapping(arm_name: str) -> dict:
+    """Leader trigger fraction (0 open .. 1 closed) -> follower gripper stroke [m] (max open .. 0)."""
+    from hardware.arms import load_arm
+
+    arm = load_arm(arm_name)
+    stroke_max = float(arm.gripper_stroke_gain * arm.gripper_range[1])
+    return {"gripper_scale": -stroke_max, "gripper_offset": stroke_max, "gripper_min": 0.0,
+            "gripper_max": stroke_max}
+
+
+def task_rig(rig: str | Rig, task: str | Task) -> Rig:
+    """The rig set up for a task: the twin builds the task scene, the cameras are the task's scene and wrist
+    cameras (at the rig's camera size and rate), the gripper follows the trigger. ConfigError (one line) for a
+    real rig, an unknown task or a follower arm whose scene cannot hold it."""
+    r = rig if isinstance(rig, Rig) else load_rig(rig)
+    t = get_task(task)
+    if not r.simulated:
+        raise ConfigError(f"rig {r.name} is real hardware: tasks exist only on twins", where=str(r.path),
+                          fix="use a sim-* rig (factr2 twin --list)")
+    if len(r.pairs) != 1:
+        raise ConfigError(f"rig {r.name} has {len(r.pairs)} arm pairs; task demonstrations drive one",
+                          where=str(r.path), fix="use a single-arm rig such as sim-piper")
+    fol = r.device(r.pairs[0][1])
+    t.check_arm(fol.arm, where=f"{r.path}: follower {fol.name} ({fol.arm})")
+    twin = TaskTwinSpec(**{f.name: getattr(r.twin, f.name) for f in fields(TwinSpec)}, task=t.name)
+    base = r.cameras[0] if r.cameras else CameraSpec("scene", "", 320, 240, 30.0)
+    cams = [CameraSpec("scene", f"sim:{t.scene_camera}", base.width, base.height, base.fps),
+            CameraSpec("wrist", f"sim:{t.wrist_camera}", base.width, base.height, base.fps)]
+    teleop = dict(r.teleop or {})
+    mapping = dict(teleop.get("mapping") or {})
+    if "gripper_scale" not in mapping:
+        mapping.update(gripper_mapping(fol.arm))
+    teleop["mapping"] = mapping
+    return replace(r, twin=twin, cameras=cams, teleop=teleop)
+
+
+@dataclass
+class EpisodeResult:
+    index: int
+    seed: int
+    outcome: str  # "success" | "failure"
+    progress: float  # share of stages reached
+    stages: dict  # stage -> time reached [s from episode start] (None: not reached)
+    duration_s: float
+    retries: int
+    felt: int  # contacts the operator reacted to
+    gave_up: bool
+    t_start: float = 0.0
+    t_end: float = 0.0
+    params: dict = field(default_factory=dict)
+
+
+class EpisodeDriver:
+    """The per-tick hook: operator + script + detectors + episode bookkeeping (see the module doc)."""
+
+    def __init__(self, ts, task: Task, episodes: int, seed: int = 0, on_episode=None):
+        from hardware.arms.dynamics import ArmDynamics
+
+        self.ts, self.task, self.episodes, self.seed = ts, task, int(episodes), int(seed)
+        self.on_episode = on_episode  # callable(EpisodeResult) after each episode (progress bar)
+        s = ts.session
+        self.pair = ts.pairs[0]
+        self.twin = s.twin
+        fname, self.lname = self.pair.follower.name, self.pair.leader.name
+        self.world = self.twin.devices[fname].world
+        self.model, self.data = self.world.model, self.world.data
+        self.ee_site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "ee")
+        dyn = ArmDynamics(s.rig.device(fname).arm)
+        lim = self.pair.follower.safety.limits
+        self._op_args = (dyn.fk, dyn.jacobian, lim.q_min, lim.q_max, self.pair.map.backward,
+                         self.pair.dt_s)
+        self.results: list[EpisodeResult] = []
+        self._k = 0
+        self._state = "wait"  # wait (soft start) -> settle -> run -> (next episode) ... -> done
+        self._t_state = float("nan")
+        self._ep = -1
+        self.op: Operator | None = None
+
+    # -- the hook ----------------------------------------------------------------------------------------
+    def on_tick(self, r) -> None:
+        self._k += 1
+        if self._state == "done":
+            return
+        if self._state == "wait":
+            if r.phase == "coupled":
+                self._begin_episode(r)
+            else:
+                self._hold(r)
+            return
+        op = self.op
+        if self._k % DECIDE_EVERY == 0:
+            p = self._percept(r)
+            if self._state == "settle":
+                op.decide(p, DECIDE_EVERY * self.pair.dt_s)
+                if r.t - self._t_state >= SETTLE_S:
+                    self._state = "run"
+                    self.rec_start()
+            else:
+                op.p = p  # what the script sees at this decision
+                try:
+                    next(self.script)
+                except StopIteration as stop:
+                    self._end_episode(r, stop.value or {})
+                    return
+                op.decide(p, DECIDE_EVERY * self.pair.dt_s)
+                self._detect(r.t, p)
+                if r.t - self._t_state > self.task.episode_s:
+                    self._end_episode(r, {"gave_up": True, "timeout": True})
+                    return
+        self._apply_hand(r)
+
+    # -- pieces ------------------------------------------------------------------------------------------
+    def _hold(self, r) -> None:
+        """Before coupling: the hand keeps the leader where it is (gravity compensation does the rest)."""
+        self.twin.bank(self.lname).set_hand_torque(np.zeros(self.pair.leader.n_joints + 1))
+
+    def _apply_hand(self, r) -> None:
+        ls = r.leader
+        tau = self.op.torques(ls.q, ls.q_dot, ls.gripper_pos)
+        self.twin.bank(self.lname).set_hand_torque(tau)
+
+    def _percept(self, r) -> Percept:
+        d = self.data
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = d.site_xmat[self.ee_site].reshape(3, 3), d.site_xpos[self.ee_site]
+        fb = r.tau_feedback
+        felt = float(np.sum(np.abs(fb))) if fb is not None and np.all(np.isfinite(fb)) else 0.0
+        return Percept(t=r.t, q_leader=r.leader.q, qd_leader=r.leader.q_dot, trigger=r.leader.gripper_pos,
+                       q_follower=r.follower.q, felt_nm=felt, T_ee=T,
+                       obs=self.task.observe(self.model, self.data, self.params))
+
+    def _begin_episode(self, r) -> None:
+        self._ep += 1
+        ep_seed = self.seed * 100_003 + self._ep
+        rng = np.random.default_rng(ep_seed)
+        with self.world.lock:
+            self.params = self.task.reset(self.model, self.data, rng)
+            mujoco.mj_forward(self.model, self.data)
+        self.tracker = StageTracker(self.task.stages)
+        q0 = self.pair.map.forward(r.leader.q)
+        if self.op is None:
+            self.op = Operator(*self._op_args, q_start=q0)
+        self.op.grip = 0.0
+        self.op.p = self._percept(r)
+        self.script = SCRIPTS[self.task.name](self.op, self.params, rng)
+        self._ep_seed = ep_seed
+        self._state, self._t_state = "settle", r.t
+
+    def rec_start(self) -> None:
+        rec = self.ts.recording
+        if rec is not None:
+            rec.start_episode(self.task.name)
+            rec.recorder.note(self.ts.session.clock.now(), json.dumps(
+                {"task": self.task.name, "episode_seed": self._ep_seed, "params": _jsonable(self.params)}))
+        self._t_state = self.ts.session.clock.now()
+
+    def _detect(self, t: float, p: Percept) -> None:
+        flags = self.task.detect(p.obs, self.params, self.tracker.memory)
+        for name in self.tracker.update(flags, t - self._t_state):
+            rec = self.ts.recording
+            if rec is not None:
+                rec.recorder.mark_progress(t, self.tracker.progress, name)
+
+    def _end_episode(self, r, info: dict) -> None:
+        obs = self.task.observe(self.model, self.data, self.params)
+        ok = bool(self.tracker.done.all()) and self.task.final_ok(obs, self.params, self.tracker.memory)
+        outcome = "success" if ok else "failure"
+        res = EpisodeResult(
+            index=self._ep, seed=self._ep_seed, outcome=outcome, progress=self.tracker.progress,
+            stages={s: (None if np.isnan(x) else round(float(x), 3))
+                    for s, x in zip(self.task.stages, self.tracker.t_done)},
+            duration_s=r.t - self._t_state, retries=int(info.get("retries", 0)),
+            felt=len(info.get("felt", [])), gave_up=bool(info.get("gave_up", False)),
+            t_start=self._t_state, t_end=r.t, params=_jsonable(self.params))
+        self.results.append(res)
+        rec = self.ts.recording
+        if rec is not None:
+            rec.stop_episode(outcome, json.dumps({k: v for k, v in res.__dict__.items() if k != "params"}))
+        if self.on_episode is not None:
+            self.on_episode(res)
+        if len(self.results) >= self.episodes:
+            self._state = "done"
+            self.ts.loop.stop()
+        else:
+            self._begin_episode(r)
+
+
+def _jsonable(d: dict) -> dict:
+    return {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else
+                float(v) if isinstance(v, np.floating) else v) for k, v in d.items()}

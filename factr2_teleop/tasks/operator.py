@@ -1,0 +1,138 @@
+"""A scripted operator that demonstrates through the LEADER (SIMULATED hand on the twin's GELLO leader).
+
+The operator never touches the follower. Each tick it pushes the leader's joints and trigger with a hand
+impedance toward a reference (hand_torque), exactly as the demo's virtual operator does; the teleop stack
+(Dynamixel leader -> pair -> CAN follower, NEXT feedback) does the rest. What it decides from is what a person
+has: the follower's pose and the task objects as seen (the twin's state, "vision"), and the force feedback
+felt in the hand (the leader law's feedback torque).
+
+References. A script (a generator, see scripts.py) sets a Cartesian target for the gripper or for a held tool
+(the peg); IK on the follower's description (kinematics.py) turns it into follower joints q_des. Because the
+hand is compliant and the feedback pushes back, the leader (and so the follower) lags q_des; like a person who
+watches the follower and pushes until it is where they want it, the operator integrates the follower's joint
+error into its leader reference (servo term b, bounded), and maps that to leader joints through the pair's
+joint map. Pure pieces (hand_torque, servo_update, interp_pose) are functions on arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factr2_teleop.tasks import kinematics as K
+
+HAND_K = 4.0  # N*m/rad: a firm grip on a small leader (the demo's relaxed hand is 3)
+HAND_D = 0.12  # N*m*s/rad
+HAND_TAU_MAX = 2.0  # N*m per joint
+TRIGGER_SPAN_RAD = 0.7  # leader trigger travel open -> closed (rig gripper_closed_rad - gripper_open_rad)
+TRIGGER_K = 0.6  # N*m per unit of trigger fraction error
+TRIGGER_TAU_MAX = 0.4  # N*m
+SERVO_KI = 3.0  # 1/s: how fast the operator removes the follower's joint error
+SERVO_MAX_RAD = 0.06  # rad: the most it leans into the leader beyond the reference
+DECIDE_EVERY = 5  # ticks: the script decides (IK, vision) at 100 Hz on a 500 Hz loop
+
+
+def hand_torque(q, qd, q_ref, qd_ref, k=HAND_K, d=HAND_D, tau_max=HAND_TAU_MAX) -> np.ndarray:
+    """Joint-space hand impedance on the leader [N*m], clipped to what a hand pushes."""
+    tau = k * (np.asarray(q_ref) - q) + d * (np.asarray(qd_ref) - np.nan_to_num(qd))
+    return np.clip(np.where(np.isfinite(tau), tau, 0.0), -tau_max, tau_max)
+
+
+def trigger_torque(fraction, fraction_ref) -> float:
+    """Hand torque on the trigger [N*m] toward a closing fraction (0 open .. 1 closed)."""
+    f = 0.0 if fraction is None or not np.isfinite(fraction) else float(fraction)
+    return float(np.clip(TRIGGER_K * (fraction_ref - f), -TRIGGER_TAU_MAX, TRIGGER_TAU_MAX))
+
+
+def servo_update(b, q_des, q_meas, dt, ki=SERVO_KI, limit=SERVO_MAX_RAD) -> np.ndarray:
+    """Integrate the follower's joint error into the operator's lean b [rad] (bounded)."""
+    return np.clip(b + ki * dt * (np.asarray(q_des) - np.asarray(q_meas)), -limit, limit)
+
+
+def min_jerk(s: float) -> float:
+    s = float(np.clip(s, 0.0, 1.0))
+    return s ** 3 * (10.0 - 15.0 * s + 6.0 * s * s)
+
+
+def rodrigues(w: np.ndarray) -> np.ndarray:
+    a = float(np.linalg.norm(w))
+    if a < 1e-12:
+        return np.eye(3)
+    k = w / a
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(a) * Kx + (1 - np.cos(a)) * Kx @ Kx
+
+
+def interp_pose(T0: np.ndarray, T1: np.ndarray, s: float, bump=None) -> np.ndarray:
+    """Min-jerk pose between T0 and T1 at s in [0, 1]; bump [m]: a sideways/upward excursion peaking mid-way
+    (a person's path is not a straight line)."""
+    a = min_jerk(s)
+    p = T0[:3, 3] + a * (T1[:3, 3] - T0[:3, 3])
+    if bump is not None:
+        p = p + np.sin(np.pi * float(np.clip(s, 0, 1))) * np.asarray(bump)
+    R = rodrigues(a * K.rotation_error(T0[:3, :3], T1[:3, :3])) @ T0[:3, :3]
+    return K.pose(R, p)
+
+
+@dataclass
+class Percept:
+    """What the operator has at a decision: t [s]; leader q/qd [rad, rad/s], trigger fraction; follower q
+    [rad] (as reported); felt_nm: ||feedback torque on the leader||_1 [N*m]; T_ee: follower gripper pose seen
+    (4x4, m); obs: the task's observe() arrays."""
+
+    t: float
+    q_leader: np.ndarray
+    qd_leader: np.ndarray
+    trigger: float
+    q_follower: np.ndarray
+    felt_nm: float
+    T_ee: np.ndarray
+    obs: dict = field(default_factory=dict)
+
+
+class Operator:
+    """Holds the reference (q_des, grip) and turns it into hand torques; scripts drive it via moves.
+
+    fk/jac: follower description (hardware.arms.dynamics.ArmDynamics.fk/.jacobian); q_min/q_max: follower
+    limits [rad]; to_leader: follower joints -> leader joints (the pair's JointMap.backward); dt: loop period."""
+
+    def __init__(self, fk, jac, q_min, q_max, to_leader, dt: float, q_start):
+        self.fk, self.jac, self.q_min, self.q_max = fk, jac, np.asarray(q_min), np.asarray(q_max)
+        self.to_leader, self.dt = to_leader, float(dt)
+        self.q_des = np.asarray(q_start, float).copy()
+        self.b = np.zeros_like(self.q_des)
+        self.servo_on = True
+        self.grip = 0.0  # trigger fraction asked for
+        self.q_ref_l = self.to_leader(self.q_des)
+        self.qd_ref_l = np.zeros_like(self.q_ref_l)
+        self.p: Percept | None = None
+        self.felt_peak = 0.0
+
+    # -- per tick --------------------------------------------------------------------------------------
+    def decide(self, p: Percept, dt_decide: float) -> None:
+        """Update the lean and the leader reference from a percept (after the script set q_des)."""
+        self.p = p
+        if self.servo_on:
+            self.b = servo_update(self.b, self.q_des, p.q_follower, dt_decide)
+        ref = self.to_leader(np.clip(self.q_des + self.b, self.q_min, self.q_max))
+        self.qd_ref_l = (ref - self.q_ref_l) / dt_decide
+        self.q_ref_l = ref
+
+    def torques(self, q_l, qd_l, trigger) -> np.ndarray:
+        """Hand torques on the leader's joints + trigger [N*m] (n + 1)."""
+        tau = hand_torque(q_l, qd_l, self.q_ref_l, self.qd_ref_l)
+        return np.append(tau, trigger_torque(trigger, self.grip))
+
+    # -- targets ------------------------------------------------------------------------------------------
+    def aim(self, T_ee_des: np.ndarray, iters: int = 4) -> float:
+        """Set q_des by IK toward a gripper pose (warm start: the current q_des); returns the position
+        residual [m]."""
+        q = self.q_des
+        for _ in range(iters):
+            q = K.ik_step(self.fk, self.jac, q, T_ee_des, self.q_min, self.q_max)
+        self.q_des = q
+        return float(np.linalg.norm(K.pose_error(self.fk(q), T_ee_des)[:3]))
+
+    def ee_pose_des(self) -> np.ndarray:
+        return self.fk(self.q_des)

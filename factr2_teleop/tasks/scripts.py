@@ -1,0 +1,154 @@
+"""Scripted demonstrations, one generator per task, driving an Operator (operator.py) one decision per yield.
+
+A script reads op.p (the Percept: follower pose and task objects as seen, the feedback felt) and sets the
+operator's targets. It behaves like a person: per-episode speed and per-move jitter, a curved path, an
+approach that sometimes arrives misaligned (noise on where it thinks the target is), contact felt through the
+leader's force feedback, then backing off and realigning. Its result (returned by the generator) is a dict:
+{"gave_up": bool, "retries": int, "felt": [t, ...]}; success is decided by the task's detectors, not here.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factr2_teleop.tasks import kinematics as K
+from factr2_teleop.tasks.operator import DECIDE_EVERY, interp_pose
+from hardware.sim.tasks import peg_insert as PEG
+
+DECIDE_DT_S = DECIDE_EVERY / 500.0  # s: one decision (the loop runs at 500 Hz)
+FELT_NM = 0.05  # N*m: ||feedback torque||_1 on the leader a person notices as "it hit something"
+P_MISALIGN = 0.35  # share of approaches that arrive misaligned (a person misjudges the hole)
+MAX_TRIES = 4  # insert attempts before giving up
+
+
+def wait(op, seconds: float):
+    for _ in range(max(1, round(seconds / DECIDE_DT_S))):
+        yield
+
+
+def move(op, T_to, seconds: float, tool=None, bump=None, T_from=None):
+    """Move the gripper (tool None) or a held tool (tool(): T_ee_tool now) to T_to over `seconds`."""
+    if T_from is None:
+        T_from = op.ee_pose_des() if tool is None else op.ee_pose_des() @ tool()
+    n = max(1, round(seconds / DECIDE_DT_S))
+    for k in range(1, n + 1):
+        T = interp_pose(T_from, T_to, k / n, bump)
+        op.aim(T if tool is None else T @ np.linalg.inv(tool()))
+        yield
+
+
+def grip(op, fraction: float, seconds: float):
+    g0 = op.grip
+    n = max(1, round(seconds / DECIDE_DT_S))
+    for k in range(1, n + 1):
+        op.grip = g0 + (fraction - g0) * k / n
+        yield
+
+
+def yaw_of(R: np.ndarray) -> float:
+    return float(np.arctan2(R[1, 0], R[0, 0]))
+
+
+def best_down_yaw(op, p, yaw: float, period: float) -> float:
+    """Of yaw + k * period, the gripper yaw whose IK keeps the wrist (last joint) nearest its middle."""
+    best, score = yaw, np.inf
+    for k in range(-4, 5):
+        y = yaw + k * period
+        q, e = K.solve_ik(op.fk, op.jac, op.q_des, K.pose(K.down_rotation(y), p), op.q_min, op.q_max, iters=30)
+        s = abs(q[-1]) + 100.0 * np.linalg.norm(e[:3])
+        if s < score:
+            best, score = y, s
+    return best
+
+
+def _upright(yaw: float, p) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return K.pose(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), p)
+
+
+def peg_insert(op, params: dict, rng: np.random.Generator):
+    speed = rng.uniform(0.8, 1.3)  # this demonstration's pace (1 = nominal)
+
+    def dur(s):
+        return s * speed * rng.uniform(0.85, 1.15)
+
+    out = {"gave_up": False, "retries": 0, "felt": []}
+    yield
+    obs = op.p.obs
+    peg_top = obs["peg_pos"] + [0, 0, PEG.PEG_HALF[2]]
+    grasp_p = peg_top - [0, 0, 0.018]  # the ee site 18 mm below the top: fingers over the upper 28 mm
+    yaw = best_down_yaw(op, grasp_p, yaw_of(obs["peg_rot"]), np.pi / 2)
+    above = K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.07])
+    bump = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.0, 0.05)])
+    yield from move(op, above, dur(1.8), bump=bump)
+    yield from move(op, K.pose(K.down_rotation(yaw), grasp_p), dur(1.0))
+    yield from wait(op, 0.3)
+    yield from grip(op, 1.0, dur(0.5))
+    yield from wait(op, 0.5)
+    yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.075]), dur(0.9))
+
+    def tool():  # where the peg sits in the gripper, as seen now
+        o = op.p.obs
+        return np.linalg.inv(op.p.T_ee) @ K.pose(o["peg_rot"], o["peg_pos"])
+
+    hole, hole_yaw = np.asarray(params["hole_pos"], float), float(params["hole_yaw"])
+    peg_yaw = yaw_of(op.p.obs["peg_rot"])
+    target_yaw = hole_yaw + np.pi / 2 * np.round((peg_yaw - hole_yaw) / (np.pi / 2))
+    off, dyaw = np.zeros(3), 0.0
+    if rng.random() < P_MISALIGN:  # misjudged: arrives beside the hole or turned
+        if rng.random() < 0.6:
+            a = rng.uniform(0, 2 * np.pi)
+            off = rng.uniform(0.0015, 0.003) * np.array([np.cos(a), np.sin(a), 0.0])
+        else:
+            dyaw = rng.choice([-1, 1]) * np.deg2rad(rng.uniform(4.0, 7.0))
+    z_above = PEG.DEPTH_M + PEG.PEG_HALF[2] + 0.012  # peg centre with its bottom 12 mm above the fixture
+    bump = np.array([rng.uniform(-0.02, 0.02), 0.0, rng.uniform(0.0, 0.04)])
+    yield from move(op, _upright(target_yaw + dyaw, hole + off + [0, 0, z_above]), dur(2.0), tool=tool,
+                    bump=bump)
+    for attempt in range(MAX_TRIES):
+        T_goal = _upright(target_yaw + dyaw, hole + off + [0, 0, z_above])
+        yield from move(op, T_goal, dur(0.8), tool=tool)  # settle over the (believed) hole
+        status = yield from _descend(op, T_goal, dur(1.6), out)
+        if status == "inserted":
+            break
+        out["retries"] += 1
+        yield from move(op, T_goal @ K.pose(np.eye(3), [0, 0, 0.006]), dur(0.6), tool=tool)  # back off
+        off, dyaw = np.zeros(3), 0.0  # looks again, closer: this time the estimate is right
+    else:
+        out["gave_up"] = True
+    yield from grip(op, 0.0, dur(0.4))
+    yield from wait(op, 0.3)
+    T = op.ee_pose_des()
+    yield from move(op, K.pose(T[:3, :3], T[:3, 3] + [0, 0, 0.08]), dur(0.9))
+    return out
+
+
+def _descend(op, T_goal, seconds: float, out: dict):
+    """Lower the held peg from T_goal into the hole; 'inserted', or 'jammed' when contact is felt before the
+    peg enters (or it stops going down)."""
+    z_end = PEG.PEG_HALF[2] - 0.002  # peg centre with its bottom 2 mm below the table: keep pushing a little
+
+    def tool():
+        o = op.p.obs
+        return np.linalg.inv(op.p.T_ee) @ K.pose(o["peg_rot"], o["peg_pos"])
+
+    T_end = T_goal.copy()
+    T_end[2, 3] = z_end
+    n = max(1, round(seconds / DECIDE_DT_S))
+    for k in range(1, n + 1 + round(0.6 / DECIDE_DT_S)):
+        T = interp_pose(T_goal, T_end, min(k / n, 1.0))
+        op.aim(T @ np.linalg.inv(tool()))
+        yield
+        m = PEG.peg_metrics(op.p.obs["peg_pos"], op.p.obs["peg_rot"], op.p.obs["hole_pos"],
+                            float(op.p.obs["hole_yaw"]))
+        if m["bottom_z_m"] <= PEG.DEPTH_M - PEG.INSERT_DEPTH_M - 0.001:
+            return "inserted"
+        entered = m["bottom_z_m"] < PEG.DEPTH_M - 0.003
+        stalled = T[2, 3] - PEG.PEG_HALF[2] < m["bottom_z_m"] - 0.008
+        if not entered and (op.p.felt_nm > FELT_NM or stalled):
+            out["felt"].append((op.p.t, "feedback" if op.p.felt_nm > FELT_NM else "seen"))
+            return "jammed"
+    return "jammed"
+
+
+SCRIPTS = {"peg-insert": peg_insert}

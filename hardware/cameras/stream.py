@@ -1,0 +1,210 @@
+"""Camera capture beside a control loop: every camera of a session at its rate, on threads of its own, each
+frame handed to sink(camera, t [s, rig clock], rgb). The control loop never waits for a camera.
+
+- Real cameras: one thread per camera grabs on the rig clock's schedule (k / fps from the start); a grab that
+  fails or comes back later than half a period is counted.
+- Twin cameras (hardware.cameras.mujoco_camera.TwinCamera): the twin's stepping path
+  (Twin.add_step_observer) copies the physics state when a frame is due (microseconds, lock held by the
+  stepper), and the camera's thread renders the copy on a private MjData: MuJoCo never renders on the control
+  thread, and the frame shows the state at exactly its timestamp. In lockstep the stepper waits for a free
+  slot (no real time to keep: no frame is dropped and a run stays deterministic); in real time a full queue
+  drops the frame and counts it.
+
+    stream = CameraStream(session.cameras, session.clock, sink=recorder.log_image, twin=session.twin)
+    stream.start(); ...; stream.stop(); stream.stats()   # {camera: CameraStats}
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from hardware.cameras.base import Camera
+from hardware.clock import Clock
+
+QUEUE_FRAMES = 3  # snapshots waiting per twin camera (~0.1 s at 30 Hz)
+LATE_FRACTION = 0.5  # a real camera's grab later than this many periods counts as late
+
+
+@dataclass
+class CameraStats:
+    """expected: frames due since start (elapsed rig time x fps); captured: handed to the sink; dropped: due
+    but not taken (queue full, real time); failed: grabs/renders that raised; late: real grabs > half a
+    period late. error: the last failure's message."""
+
+    expected: int = 0
+    captured: int = 0
+    dropped: int = 0
+    failed: int = 0
+    late: int = 0
+    error: str = ""
+
+    @property
+    def ratio(self) -> float:
+        return self.captured / self.expected if self.expected else float("nan")
+
+
+class CameraStream:
+    def __init__(self, cameras: dict[str, Camera], clock: Clock,
+                 sink: Callable[[str, float, np.ndarray], object], twin=None):
+        self.cameras, self.clock, self.sink, self.twin = dict(cameras), clock, sink, twin
+        self._stats = {n: CameraStats() for n in self.cameras}
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._queues: dict[str, queue.Queue] = {}
+        self._due: dict[str, float] = {}
+        self._t0 = float("nan")
+        self._t_last = float("nan")
+        self._lock = threading.Lock()
+        self._observer = None
+
+    # -- lifecycle ------------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Connect every camera on its own thread and start capturing (frames due from now on)."""
+        if self._threads:
+            return
+        self._stop.clear()
+        self._t0 = self._t_last = self.clock.now()
+        ready = []
+        for name, cam in self.cameras.items():
+            snap = self.twin is not None and hasattr(cam, "snapshot")
+            if snap:
+                self._queues[name] = queue.Queue(QUEUE_FRAMES)
+                self._due[name] = self._t0
+            ev = threading.Event()
+            ready.append(ev)
+            target = self._render_loop if snap else self._grab_loop
+            th = threading.Thread(target=target, args=(name, cam, ev), name=f"factr2-camera-{name}",
+                                  daemon=True)
+            th.start()
+            self._threads.append(th)
+        for ev in ready:  # a GL context or device opens in a second or so; capture starts once all are up
+            ev.wait(10.0)
+        if self._queues:
+            self._observer = self._on_step
+            self.twin.add_step_observer(self._observer)
+
+    def stop(self) -> None:
+        if self._observer is not None:
+            self.twin.remove_step_observer(self._observer)
+            self._observer = None
+        self._t_last = self.clock.now()
+        self._stop.set()
+        for q in self._queues.values():
+            try:
+                q.put_nowait(None)
+            except queue.Full:
+                pass
+        for th in self._threads:
+            th.join(5.0)
+        self._threads = []
+        for cam in self.cameras.values():
+            try:
+                cam.disconnect()
+            except Exception:  # noqa: BLE001 -- stopping must reach every camera
+                pass
+
+    def stats(self) -> dict[str, CameraStats]:
+        """Per camera, with `expected` counted up to now (or the stop)."""
+        t_end = self.clock.now() if self._threads else self._t_last
+        with self._lock:
+            out = {}
+            for name, st in self._stats.items():
+                fps = self.cameras[name].config.fps
+                exp = int(np.floor((t_end - self._t0) * fps + 1e-9)) + 1 if np.isfinite(self._t0) else 0
+                out[name] = CameraStats(exp, st.captured, st.dropped, st.failed, st.late, st.error)
+            return out
+
+    # -- twin cameras -----------------------------------------------------------------------------------
+    def _on_step(self, t: float) -> None:
+        """On the twin's stepping thread after each advance: snapshot every camera whose frame is due."""
+        for name, q in self._queues.items():
+            due = self._due[name]
+            if t + 1e-9 < due:
+                continue
+            cam = self.cameras[name]
+            self._due[name] = due + 1.0 / cam.config.fps * max(1, int((t - due) * cam.config.fps + 1e-9) + 1)
+            snap = cam.snapshot(t)
+            if self.clock.realtime:
+                try:
+                    q.put_nowait(snap)
+                except queue.Full:
+                    with self._lock:
+                        self._stats[name].dropped += 1
+            else:
+                while not self._stop.is_set():  # lockstep: wait for the renderer (keeps every frame)
+                    try:
+                        q.put(snap, timeout=0.5)
+                        break
+                    except queue.Full:
+                        continue
+
+    def _render_loop(self, name: str, cam, ready: threading.Event) -> None:
+        try:
+            cam.connect()  # the GL context belongs to this thread
+        except Exception as e:  # noqa: BLE001 -- reported in stats; the loop goes on without this camera
+            self._fail(name, e)
+            ready.set()
+            return
+        ready.set()
+        q = self._queues[name]
+        while True:
+            snap = q.get()
+            if snap is None:
+                break
+            try:
+                rgb = cam.render(snap)
+            except Exception as e:  # noqa: BLE001
+                self._fail(name, e)
+                continue
+            self._deliver(name, snap.t, rgb)
+        cam.disconnect()
+
+    # -- real cameras -----------------------------------------------------------------------------------
+    def _grab_loop(self, name: str, cam: Camera, ready: threading.Event) -> None:
+        try:
+            cam.connect()
+        except Exception as e:  # noqa: BLE001
+            self._fail(name, e)
+            ready.set()
+            return
+        ready.set()
+        period = 1.0 / cam.config.fps
+        k = 0
+        while not self._stop.is_set():
+            due = self._t0 + k * period
+            now = self.clock.now()
+            if now < due:
+                self._stop.wait(min(due - now, 0.1)) if self.clock.realtime else time.sleep(0.001)
+                continue
+            try:
+                frame = cam.read()
+            except Exception as e:  # noqa: BLE001
+                self._fail(name, e)
+                k += 1
+                continue
+            if frame.t - due > LATE_FRACTION * period:
+                with self._lock:
+                    self._stats[name].late += 1
+            self._deliver(name, frame.t, frame.rgb)
+            k = max(k + 1, int((self.clock.now() - self._t0) / period))  # skip frames that are past
+
+    def _deliver(self, name: str, t: float, rgb: np.ndarray) -> None:
+        try:
+            self.sink(name, t, rgb)
+        except Exception as e:  # noqa: BLE001 -- a sink error costs the frame, not the stream
+            self._fail(name, e)
+            return
+        with self._lock:
+            self._stats[name].captured += 1
+
+    def _fail(self, name: str, e: BaseException) -> None:
+        with self._lock:
+            st = self._stats[name]
+            st.failed += 1
+            st.error = f"{type(e).__name__}: {e}"

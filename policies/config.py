@@ -1,0 +1,65 @@
+"""One config dataclass for both policies (ACT, flow-matching DiT), with the paper's and a CPU-sized preset.
+
+Paper (appendix, policy table): ACT 4 encoder / 6 decoder layers, flow 6 decoder layers; 8 heads, hidden 768,
+FF 3072, dropout 0.1, sinusoidal positions, chunk 30; flow: 10 Euler steps, time ~ Beta(1, 1.5). The paper's
+image encoder is DINOv3-Base, whose weights cannot be fetched here: both presets default to a ResNet-18 with
+GroupNorm trained from scratch (policies.vision), 224 px for `paper`, 96 px for `small`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+
+POLICIES = ("flow", "act")
+PRESETS = ("small", "paper")
+
+
+@dataclass
+class PolicyConfig:
+    policy: str = "flow"  # "flow" (DiT, velocity objective) or "act" (CVAE transformer)
+    # transformer
+    hidden: int = 768
+    heads: int = 8
+    enc_layers: int = 4  # ACT's observation encoder (the flow model's observation encoder too)
+    dec_layers: int = 6
+    ff: int = 3072
+    dropout: float = 0.1
+    chunk: int = 30  # actions predicted per observation
+    # inputs / outputs (filled from the data)
+    n_cameras: int = 1
+    image_size: int = 224  # square input [px], frames are cached at this size
+    state_dim: int = 7  # follower joints + gripper
+    force_dim: int = 6  # tau_ext (or current) per joint; 0: no force token (base)
+    action_dim: int = 7
+    aux_force: bool = False  # TA-VLA: also predict the future force chunk
+    # vision
+    backbone: str = "resnet18-gn"  # or "torchvision:NAME" / "timm:NAME" (weights from a local file only)
+    backbone_weights: str = ""  # local file (.safetensors / .pt state dict), "" = from scratch
+    # ACT
+    latent_dim: int = 32
+    kl_weight: float = 10.0
+    # flow matching
+    flow_steps: int = 10
+    time_beta_a: float = 1.0
+    time_beta_b: float = 1.5
+    aux_weight: float = 1.0  # TA-VLA auxiliary loss weight
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> PolicyConfig:
+        known = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in known})
+
+
+def preset(name: str, policy: str = "flow") -> PolicyConfig:
+    """The `paper` sizes, or `small`: sized for a laptop CPU (hidden 256, 2 + 3 layers, 96 px)."""
+    if name not in PRESETS:
+        raise ValueError(f"preset {name!r}: one of {', '.join(PRESETS)}")
+    if policy not in POLICIES:
+        raise ValueError(f"policy {policy!r}: one of {', '.join(POLICIES)}")
+    cfg = PolicyConfig(policy=policy)
+    if name == "small":
+        cfg = replace(cfg, hidden=256, heads=4, enc_layers=2, dec_layers=3, ff=1024, image_size=96)
+    return cfg

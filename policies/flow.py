@@ -1,0 +1,142 @@
+"""Flow-matching DiT policy (paper Sec. 5; architecture after MDT / DiT): a velocity field v(x_a, a, o) over
+the action chunk. Training: x1 = the (normalised) demonstrated chunk, x0 ~ N(0, I), a ~ Beta(1.0, 1.5),
+x_a = (1 - a) x0 + a x1, loss ||v - (x1 - x0)||^2 on the valid chunk steps. Inference: the observation is
+encoded once per chunk, then 10 Euler steps from noise (a = 0) to the chunk (a = 1).
+
+Each block: adaLN-Zero modulation from the flow time (DiT), self-attention over the chunk, cross-attention to
+the observation tokens, MLP. TA-VLA: a linear head on the last hidden states predicts the future force chunk.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from policies.config import PolicyConfig
+from policies.tokens import ObservationTokens, masked_mean, sinusoidal, timestep_embedding
+
+
+def _modulate(x, shift, scale):
+    return x * (1 + scale[:, None]) + shift[:, None]
+
+
+class Attention(nn.Module):
+    """Multi-head attention on scaled_dot_product_attention. Cross-attention takes the memory's keys and
+    values from `kv(memory)`, computed once per chunk and reused by every Euler step."""
+
+    def __init__(self, cfg: PolicyConfig, cross: bool):
+        super().__init__()
+        h = cfg.hidden
+        self.heads, self.cross, self.p = cfg.heads, cross, cfg.dropout
+        self.q = nn.Linear(h, h) if cross else None
+        self.qkv = nn.Linear(h, 2 * h if cross else 3 * h)  # cross: the memory's k, v
+        self.proj = nn.Linear(h, h)
+
+    def _split(self, x):
+        b, n, d = x.shape
+        return x.view(b, n, self.heads, d // self.heads).transpose(1, 2)
+
+    def kv(self, memory):
+        k, v = self.qkv(memory).chunk(2, dim=-1)
+        return self._split(k), self._split(v)
+
+    def forward(self, x, kv=None):
+        if self.cross:
+            q, (k, v) = self._split(self.q(x)), kv
+        else:
+            q, k, v = (self._split(t) for t in self.qkv(x).chunk(3, dim=-1))
+        y = F.scaled_dot_product_attention(q, k, v, dropout_p=self.p if self.training else 0.0)
+        return self.proj(y.transpose(1, 2).flatten(2))
+
+
+class DiTBlock(nn.Module):
+    def __init__(self, cfg: PolicyConfig):
+        super().__init__()
+        h = cfg.hidden
+        self.norm1 = nn.LayerNorm(h, elementwise_affine=False)
+        self.attn = Attention(cfg, cross=False)
+        self.norm_x = nn.LayerNorm(h)
+        self.cross = Attention(cfg, cross=True)
+        self.norm2 = nn.LayerNorm(h, elementwise_affine=False)
+        self.mlp = nn.Sequential(nn.Linear(h, cfg.ff), nn.GELU(), nn.Dropout(cfg.dropout), nn.Linear(cfg.ff, h))
+        self.ada = nn.Sequential(nn.SiLU(), nn.Linear(h, 6 * h))
+        nn.init.zeros_(self.ada[1].weight)  # adaLN-Zero: every block starts as the identity
+        nn.init.zeros_(self.ada[1].bias)
+        self.drop = nn.Dropout(cfg.dropout)
+
+    def forward(self, x, c, kv):
+        s1, g1, a1, s2, g2, a2 = self.ada(c).chunk(6, dim=-1)
+        x = x + a1[:, None] * self.drop(self.attn(_modulate(self.norm1(x), s1, g1)))
+        x = x + self.drop(self.cross(self.norm_x(x), kv))
+        return x + a2[:, None] * self.mlp(_modulate(self.norm2(x), s2, g2))
+
+
+class FlowPolicy(nn.Module):
+    def __init__(self, cfg: PolicyConfig):
+        super().__init__()
+        self.cfg = cfg
+        h = cfg.hidden
+        self.obs = ObservationTokens(cfg)
+        self.obs_norm = nn.LayerNorm(h)
+        self.x_in = nn.Linear(cfg.action_dim, h)
+        self.time = nn.Sequential(nn.Linear(h, h), nn.SiLU(), nn.Linear(h, h))
+        self.blocks = nn.ModuleList(DiTBlock(cfg) for _ in range(cfg.dec_layers))
+        self.norm_out = nn.LayerNorm(h, elementwise_affine=False)
+        self.ada_out = nn.Sequential(nn.SiLU(), nn.Linear(h, 2 * h))
+        self.out = nn.Linear(h, cfg.action_dim)
+        for m in (self.ada_out[1], self.out):
+            nn.init.zeros_(m.weight)
+            nn.init.zeros_(m.bias)
+        self.aux_head = nn.Linear(h, cfg.force_dim) if cfg.aux_force and cfg.force_dim else None
+
+    @staticmethod
+    def draw_noise(cfg: PolicyConfig, batch: int, gen: torch.Generator) -> dict:
+        """x0 (B, chunk, A) ~ N(0, I) and a (B,) ~ Beta(a, b), both fixed by the generator's state (torch has
+        no seeded Beta sampler: numpy's, seeded from the generator)."""
+        x0 = torch.randn(batch, cfg.chunk, cfg.action_dim, generator=gen)
+        rng = np.random.default_rng(int(torch.randint(0, 2**62, (1,), generator=gen)))
+        alpha = torch.from_numpy(rng.beta(cfg.time_beta_a, cfg.time_beta_b, size=batch).astype(np.float32))
+        return {"x0": x0, "alpha": alpha}
+
+    def encode(self, batch: dict) -> list:
+        """The observation, once per chunk: each block's cross-attention keys and values of its tokens."""
+        memory = self.obs_norm(self.obs(batch["images"], batch["state"], batch.get("force")))
+        return [blk.cross.kv(memory) for blk in self.blocks]
+
+    def velocity(self, x, alpha, memory):
+        c = self.time(timestep_embedding(alpha, self.cfg.hidden))
+        h = self.x_in(x) + sinusoidal(x.shape[1], self.cfg.hidden).to(x)[None]
+        for blk, kv in zip(self.blocks, memory):
+            h = blk(h, c, kv)
+        shift, scale = self.ada_out(c).chunk(2, dim=-1)
+        h = _modulate(self.norm_out(h), shift, scale)
+        return self.out(h), h
+
+    def loss(self, batch: dict, noise: dict) -> tuple[torch.Tensor, dict]:
+        x1 = batch["action"]
+        x0, a = noise["x0"].to(x1), noise["alpha"].to(x1)
+        xa = (1 - a)[:, None, None] * x0 + a[:, None, None] * x1
+        v, h = self.velocity(xa, a, self.encode(batch))
+        fm = masked_mean(F.mse_loss(v, x1 - x0, reduction="none"), batch["mask"])
+        parts, total = {"action": fm}, fm
+        if self.aux_head is not None:
+            parts["aux_force"] = masked_mean(F.mse_loss(self.aux_head(h), batch["force_chunk"], reduction="none"),
+                                             batch["mask"])
+            total = total + self.cfg.aux_weight * parts["aux_force"]
+        return total, parts
+
+    @torch.no_grad()
+    def predict(self, batch: dict, noise: dict) -> torch.Tensor:
+        """Action chunk (B, chunk, A), normalised: Euler integration of v from x0 = noise["x0"]."""
+        memory = self.encode(batch)
+        x = noise["x0"].to(memory[0][0])
+        n = self.cfg.flow_steps
+        for k in range(n):
+            a = torch.full((len(x),), k / n, device=x.device, dtype=x.dtype)
+            x = x + self.velocity(x, a, memory)[0] / n
+        return x
+
+    def action_error(self, batch: dict, noise: dict) -> torch.Tensor:
+        return masked_mean((self.predict(batch, noise) - batch["action"]).abs(), batch["mask"])

@@ -1,0 +1,190 @@
+"""Phase labels of recorded episodes (the I/O around policies.phases).
+
+tau_ext comes from the recording (/<arm>/tau_ext, what NEXT estimated live), or, with a NEXT checkpoint
+(`--next CKPT`), from that checkpoint run offline over the logged follower joint states (episodes recorded
+without an estimate, or with an older model). Bimanual rigs: the score sums every follower's joints, on the
+first follower's timeline, and so do the thresholds (one noise floor per arm).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hardware.errors import UserError
+from hardware.recording import schemas as S
+from hardware.recording.reader import Episode, interp_linear
+from policies import phases as P
+from policies.recordings import ArmSet, episode_id, session_next_checkpoint
+
+
+@dataclass
+class NextModel:
+    """A loaded NEXT checkpoint and its id (file name + data hash), for labelling and for the run's record."""
+
+    ck: object  # calibration.next.checkpoint.NextCheckpoint
+    path: Path
+    id: str
+
+
+def load_next(path) -> NextModel:
+    from calibration.next.checkpoint import load_checkpoint
+
+    ck = load_checkpoint(path)
+    p = Path(path)
+    h = hashlib.sha256(p.with_suffix(".json").read_bytes()).hexdigest()[:12] if p.with_suffix(
+        ".json").exists() else "?"
+    return NextModel(ck, p, f"{p.with_suffix('').name}@{h}")
+
+
+@dataclass
+class Thresholds:
+    t_low: float
+    t_high: float
+    source: str  # "given", or the checkpoint whose free-motion noise they derive from
+
+    def to_dict(self) -> dict:
+        return {"t_low": self.t_low, "t_high": self.t_high, "source": self.source,
+                "pre_contact_s": P.PRE_CONTACT_S}
+
+
+def resolve_thresholds(given: tuple[float, float] | None, next_model: NextModel | None, episodes: list[Episode],
+                       arms: ArmSet) -> Thresholds:
+    """Given thresholds, else from --next's noise, else from the checkpoint the recording session names."""
+    if given is not None:
+        return Thresholds(float(given[0]), float(given[1]), "given")
+    model = next_model
+    if model is None:
+        named = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
+        if named and (Path(named).with_suffix(".json").exists()):
+            model = load_next(named)
+    if model is None:
+        raise UserError("no NEXT checkpoint to derive the contact thresholds from (the recordings name none)",
+                        where=str(episodes[0].recording.path),
+                        fix="pass --next CKPT (the NEXT checkpoint) or --thresholds LOW:HIGH [N*m]")
+    val_l1 = (model.ck.metrics or {}).get("val_l1")
+    if not val_l1:
+        raise UserError("the NEXT checkpoint has no free-motion noise (metrics.val_l1)", where=str(model.path),
+                        fix="retrain it with `factr2 calibrate`, or pass --thresholds LOW:HIGH")
+    lo, hi = P.default_thresholds(val_l1)
+    n = len(arms.followers)
+    return Thresholds(n * lo, n * hi, f"NEXT {model.id} (val_l1 sum {float(np.sum(val_l1)):.4g})")
+
+
+def _offline_tau_ext(ep: Episode, arm: str, model: NextModel) -> tuple[np.ndarray, np.ndarray]:
+    """tau_ext of one arm from the checkpoint run over its logged joint states, at the checkpoint's rate;
+    NaN where the window is not full yet (each gap restarts it)."""
+    from calibration.next.data import resample_log
+    from calibration.next.estimator import batch_tau_f
+
+    ck = model.ck
+    if list(ck.joint_names) != list(ep.recording.joint_names(arm) or ck.joint_names):
+        raise UserError(f"NEXT checkpoint joints {ck.joint_names} differ from the recording's {arm} joints",
+                        where=str(model.path), fix="pass the NEXT checkpoint calibrated on this arm")
+    log = ep.to_plain(arm)
+    if ck.units == "A":
+        log.tau = np.asarray(log.extra["current"], float)
+    ts, taus = [], []
+    for seg in resample_log(log, ck.rate_hz):
+        tau_f = batch_tau_f(ck, seg.q, seg.qd, seg.q_cmd, tau=seg.tau, temperature=seg.temperature)
+        ts.append(seg.t)
+        taus.append(seg.tau - tau_f)
+    if not ts:
+        raise UserError(f"episode {episode_id(ep)}: too few {arm} joint states for NEXT", where=str(model.path))
+    return np.concatenate(ts), np.concatenate(taus)
+
+
+def _recorded_tau_ext(ep: Episode, arm: str) -> tuple[np.ndarray, np.ndarray] | None:
+    topic = S.tau_ext_topic(arm)
+    if topic not in ep.recording.topics:
+        return None
+    ta = ep.topic(topic)
+    tau = np.asarray(ta.fields["tau_ext"], float)
+    if len(ta) < 2 or not np.isfinite(tau).any():
+        return None
+    return ta.t, tau
+
+
+def episode_tau_ext(ep: Episode, arms: ArmSet, next_model: NextModel | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, str]:
+    """(t [s], tau_ext (N, sum of joints) [N*m], source) of an episode: every follower, on the first one's
+    timeline. Source "recorded" or "NEXT <id> offline"."""
+    parts = []
+    for arm in arms.followers:
+        got = _offline_tau_ext(ep, arm, next_model) if next_model is not None else _recorded_tau_ext(ep, arm)
+        if got is None:
+            raise UserError(f"episode {episode_id(ep)} has no estimated tau_ext for {arm}",
+                            where=str(ep.recording.path),
+                            fix="pass --next CKPT to estimate it offline from the logged joint states")
+        parts.append(got)
+    t = parts[0][0]
+    tau = np.concatenate([parts[0][1]] + [interp_linear(ti, yi, t) for ti, yi in parts[1:]], axis=1)
+    return t, tau, ("recorded" if next_model is None else f"NEXT {next_model.id} offline")
+
+
+@dataclass
+class EpisodeLabels:
+    episode: str
+    t: np.ndarray  # [s] the tau_ext samples' times
+    tau_ext: np.ndarray  # (N, J) [N*m]
+    score: np.ndarray  # (N,) ||tau_ext||_1
+    phases: np.ndarray  # (N,) int8: policies.phases.FREE / PRE_CONTACT / CONTACT
+    source: str
+
+    def shares(self) -> np.ndarray:
+        return P.phase_shares(self.phases)
+
+    def at(self, t_grid: np.ndarray) -> np.ndarray:
+        """Phase at each grid time: the label of the latest sample at or before it (FREE before the first)."""
+        i = np.searchsorted(self.t, np.asarray(t_grid, float), side="right") - 1
+        return np.where(i >= 0, self.phases[np.clip(i, 0, None)], P.FREE).astype(np.int8)
+
+
+def label_episode(ep: Episode, arms: ArmSet, th: Thresholds, next_model: NextModel | None = None
+                  ) -> EpisodeLabels:
+    t, tau, source = episode_tau_ext(ep, arms, next_model)
+    score = P.contact_score(tau)
+    return EpisodeLabels(episode_id(ep), t, tau, score,
+                         P.label_phases(t, P.hysteresis(score, th.t_low, th.t_high)), source)
+
+
+PHASE_COLOURS = ("#ffffff", "#f5c26b", "#e4572e")
+
+
+def plot_labels(lab: EpisodeLabels, th: Thresholds, path: Path) -> Path:
+    """The labelling figure: tau_ext per joint and the score with the thresholds, phases shaded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = lab.t - lab.t[0] if len(lab.t) else lab.t
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
+    for j in range(lab.tau_ext.shape[1]):
+        a1.plot(t, lab.tau_ext[:, j], lw=0.8, label=f"j{j + 1}")
+    a2.plot(t, lab.score, color="k", lw=0.8, label="||tau_ext||_1")
+    a2.axhline(th.t_high, color="#e4572e", ls="--", lw=0.8, label=f"T_high {th.t_high:.3g}")
+    a2.axhline(th.t_low, color="#4c72b0", ls="--", lw=0.8, label=f"T_low {th.t_low:.3g}")
+    edges = np.flatnonzero(np.diff(lab.phases.astype(int))) + 1
+    starts, stops = np.r_[0, edges], np.r_[edges, len(t)]
+    for a in (a1, a2):
+        for lo, hi in zip(starts, stops):
+            ph = int(lab.phases[lo]) if len(lab.phases) else 0
+            if ph != P.FREE and hi > lo:
+                a.axvspan(t[lo], t[min(hi, len(t) - 1)], color=PHASE_COLOURS[ph], alpha=0.45, lw=0)
+    a1.set_ylabel("tau_ext [N*m]")
+    a1.legend(ncol=8, fontsize=7, loc="upper right")
+    a2.set_ylabel("score [N*m]")
+    a2.set_xlabel("time in episode [s]")
+    a2.legend(fontsize=7, loc="upper right")
+    sh = lab.shares()
+    a1.set_title(f"{lab.episode}: free {sh[0]:.0%}, pre-contact (orange) {sh[1]:.0%}, contact (red) {sh[2]:.0%}"
+                 f"  [{lab.source}]", fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

@@ -1,0 +1,99 @@
+"""FIRST phase labels (paper Sec. 5): free motion, pre-contact, contact, from the NEXT external torque.
+
+    score  f_t = ||tau_ext_t||_1                       [N*m] (or [A] for a current-unit checkpoint)
+    contact: on at f_t >= T_high, off at f_t <= T_low, else the previous state (starts off)
+    onset: a sample in contact whose predecessor is not (sample 0 counts when it is in contact)
+    pre-contact: samples within `pre_s` (1 s) before an onset, never a contact sample, clipped at the start
+    free: the rest
+
+Default thresholds come from the NEXT checkpoint's measured free-motion noise: its validation L1 per joint
+(metrics["val_l1"], the mean |tau_ext| the estimator reports in free motion, where the truth is 0). With
+s = sum_j val_l1_j (the mean free-motion score), T_low = LOW_X * s and T_high = HIGH_X * s. For a Gaussian
+residual on 6 joints the score's free-motion 99.9th percentile is ~2 s, so T_low sits above nearly all free
+noise and T_high adds margin against chattering. Both are overridable (`--thresholds LOW:HIGH`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+FREE, PRE_CONTACT, CONTACT = 0, 1, 2
+PHASE_NAMES = ("free", "pre-contact", "contact")
+PHASE_SHORT = ("F", "PC", "C")
+PRE_CONTACT_S = 1.0  # the paper's pre-contact window before each onset [s]
+LOW_X, HIGH_X = 2.0, 3.0  # thresholds as multiples of the mean free-motion score
+
+
+def contact_score(tau_ext: np.ndarray) -> np.ndarray:
+    """f_t = sum_j |tau_ext_tj| for tau_ext (N, J); NaN where any joint is NaN (no estimate yet)."""
+    tau = np.asarray(tau_ext, dtype=float)
+    return np.abs(tau).sum(axis=1) if tau.ndim == 2 else np.abs(tau)
+
+
+def hysteresis(score: np.ndarray, t_low: float, t_high: float) -> np.ndarray:
+    """Contact state (N,) bool: switches on at score >= t_high, off at score <= t_low, else keeps the previous
+    state; starts off. NaN scores (no estimate) keep the state."""
+    if not t_low <= t_high:
+        raise ValueError(f"t_low {t_low} must be <= t_high {t_high}")
+    s = np.asarray(score, dtype=float)
+    on = s >= t_high
+    off = s <= t_low
+    # the state after sample i is the last decisive event (on or off) at or before i
+    event = np.where(on, 1, np.where(off, 0, -1))
+    idx = np.where(event >= 0, np.arange(len(s)), -1)
+    last = np.maximum.accumulate(idx) if len(s) else idx
+    return np.where(last >= 0, event[np.maximum(last, 0)] == 1, False)
+
+
+def onsets(contact: np.ndarray) -> np.ndarray:
+    """Indices where contact starts (a contact sample after a non-contact one; index 0 if in contact)."""
+    c = np.asarray(contact, dtype=bool)
+    prev = np.concatenate([[False], c[:-1]])
+    return np.flatnonzero(c & ~prev)
+
+
+def label_phases(t: np.ndarray, contact: np.ndarray, pre_s: float = PRE_CONTACT_S) -> np.ndarray:
+    """Phase per sample (N,) int8: CONTACT where in contact, PRE_CONTACT for samples with
+    t_onset - pre_s <= t < t_onset (any sample rate; clipped at the first sample; never over contact),
+    FREE elsewhere. t [s] ascending."""
+    t = np.asarray(t, dtype=float)
+    c = np.asarray(contact, dtype=bool)
+    out = np.full(len(t), FREE, dtype=np.int8)
+    for k in onsets(c):
+        lo = np.searchsorted(t, t[k] - pre_s, side="left")
+        out[lo:k] = PRE_CONTACT
+    out[c] = CONTACT
+    return out
+
+
+def phases_from_torque(t: np.ndarray, tau_ext: np.ndarray, t_low: float, t_high: float,
+                       pre_s: float = PRE_CONTACT_S) -> np.ndarray:
+    """The whole labelling: tau_ext (N, J) at times t [s] -> phase per sample (N,) int8."""
+    return label_phases(t, hysteresis(contact_score(tau_ext), t_low, t_high), pre_s)
+
+
+def phase_shares(phases: np.ndarray) -> np.ndarray:
+    """Fraction of samples in each phase (3,); zeros for an empty array."""
+    p = np.asarray(phases)
+    if len(p) == 0:
+        return np.zeros(3)
+    return np.bincount(p.astype(np.int64), minlength=3)[:3] / len(p)
+
+
+def default_thresholds(val_l1) -> tuple[float, float]:
+    """(T_low, T_high) from a NEXT checkpoint's free-motion validation L1 per joint (see module doc)."""
+    s = float(np.sum(np.abs(np.asarray(val_l1, dtype=float))))
+    if not np.isfinite(s) or s <= 0:
+        raise ValueError("the NEXT checkpoint has no usable free-motion noise (metrics.val_l1)")
+    return LOW_X * s, HIGH_X * s
+
+
+def parse_thresholds(text: str) -> tuple[float, float]:
+    """'LOW:HIGH' -> (T_low, T_high), 0 <= LOW <= HIGH; ValueError with the reason otherwise."""
+    parts = str(text).split(":")
+    if len(parts) != 2:
+        raise ValueError(f"{text!r} is not LOW:HIGH")
+    lo, hi = (float(p) for p in parts)
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
+        raise ValueError(f"{text!r}: need 0 <= LOW <= HIGH")
+    return lo, hi

@@ -1,0 +1,144 @@
+"""Find the episodes a training run, a labelling or an export uses: recordings (files or folders) -> episodes,
+with the arm set checked once for all of them.
+
+A corrupt or unreadable recording is skipped with a warning when others remain; none left is a UserError.
+Episodes labelled "discard" are left out (the operator threw them away); so are episodes without follower
+joint-state samples.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+from hardware.errors import UserError
+from hardware.recording import schemas as S
+from hardware.recording.reader import Episode, Recording
+
+_FOLLOWER_JS = re.compile(r"^/((?:\w+_)?follower)/joint_state$")
+
+
+@dataclass(frozen=True)
+class ArmSet:
+    """What every episode of a run must share: follower arms (topic names, "follower" or "left_follower"),
+    their joint names, and each arm's model from the rig file ("" when the recording does not say)."""
+
+    followers: tuple[str, ...]
+    joint_names: tuple[tuple[str, ...], ...]
+    arm_models: tuple[str, ...]
+
+    def describe(self) -> str:
+        return ", ".join(f"{f} ({m or '?'}: {len(j)} joints)"
+                         for f, j, m in zip(self.followers, self.joint_names, self.arm_models))
+
+    def to_dict(self) -> dict:
+        return {"followers": list(self.followers), "joint_names": [list(j) for j in self.joint_names],
+                "arm_models": list(self.arm_models)}
+
+
+def recording_files(paths) -> list[Path]:
+    """Every .mcap under the given files/folders (folders: their .mcap files, not recursive), sorted."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            out += sorted(f for f in p.iterdir() if f.is_file() and f.suffix == ".mcap" and ".tmp-" not in f.name)
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise UserError("no such file or folder", where=str(p), fix="check the path")
+    return out
+
+
+def _rig_arm_models(rec: Recording, followers: list[str]) -> list[str]:
+    """Each follower's arm model from the session's rig TOML ("" when absent or unreadable)."""
+    text = rec.session.get("rig_toml", "")
+    models = {}
+    if text:
+        try:
+            import tomllib
+        except ModuleNotFoundError:  # Python 3.10
+            import tomli as tomllib
+        try:
+            for d in tomllib.loads(text).get("followers", []):
+                name = str(d.get("name", "follower"))
+                models[name] = str(d.get("arm", ""))
+        except (ValueError, AttributeError, TypeError):
+            pass
+    return [models.get(f, models.get("follower", "") if len(followers) == 1 else "") for f in followers]
+
+
+def arm_set(rec: Recording) -> ArmSet:
+    followers = sorted(m.group(1) for t in rec.topics if (m := _FOLLOWER_JS.match(t)))
+    joints = []
+    for f in followers:
+        names = rec.joint_names(f)
+        if not names:
+            ta = rec.topic(S.joint_state_topic(f))
+            n = ta.fields["q"].shape[1] if len(ta) else 0
+            names = [f"joint{i + 1}" for i in range(n)]
+        joints.append(tuple(names))
+    return ArmSet(tuple(followers), tuple(joints), tuple(_rig_arm_models(rec, followers)))
+
+
+def load_episodes(paths, *, keep_discarded: bool = False) -> tuple[list[Episode], ArmSet]:
+    """All usable episodes of the recordings under `paths`, and their common arm set."""
+    files = recording_files(paths)
+    if not files:
+        raise UserError("no recordings (.mcap) found", where=", ".join(map(str, paths)),
+                        fix="pass recording files or folders written by `factr2 teleop --record`")
+    episodes: list[Episode] = []
+    arms: ArmSet | None = None
+    first = None
+    skipped = []
+    for f in files:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # truncation is reported below, once
+                rec = Recording(f)
+            this = arm_set(rec)
+        except (UserError, OSError, ValueError, KeyError) as e:
+            skipped.append(f"{f}: {str(e).splitlines()[0][:160]}")
+            continue
+        if rec.truncated:
+            warnings.warn(f"{f}: truncated recording (recorder killed?); using what was flushed", stacklevel=2)
+        if not this.followers:
+            skipped.append(f"{f}: no follower joint states")
+            continue
+        if arms is None:
+            arms, first = this, f
+        elif this != arms:
+            raise UserError(f"episodes of different arms or joint sets: {first} has {arms.describe()}, "
+                            f"this has {this.describe()}", where=str(f),
+                            fix="train on recordings of one rig (one folder per rig)")
+        for ep in rec.episodes:
+            if ep.outcome == "discard" and not keep_discarded:
+                continue
+            if len(ep.topic(S.joint_state_topic(arms.followers[0]))) < 2:
+                continue
+            episodes.append(ep)
+    for s in skipped:
+        warnings.warn(f"skipped {s}", stacklevel=2)
+    if not episodes:
+        why = f" ({len(skipped)} unreadable: {skipped[0]})" if skipped else ""
+        raise UserError(f"no usable episodes{why}", where=", ".join(map(str, paths)),
+                        fix="record episodes with `factr2 teleop --record DIR` (discarded ones are left out)")
+    return episodes, arms
+
+
+def episode_id(ep: Episode) -> str:
+    return f"{ep.recording.path.name}#{ep.index}"
+
+
+def session_next_checkpoint(ep: Episode) -> str:
+    """The NEXT checkpoint the recording's session names ("" when none)."""
+    return str(ep.recording.session.get("next_checkpoint", "") or "")
+
+
+def describe_rig(ep: Episode) -> dict:
+    """Rig file and simulated flag of an episode's session (for checkpoints and exports)."""
+    s = ep.recording.session
+    return {"rig_file": s.get("rig_file", ""), "simulated": s.get("simulated", "unknown"),
+            "joint_names": json.loads(s.get("joint_names", "{}") or "{}")}

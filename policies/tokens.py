@@ -1,0 +1,72 @@
+"""Observation tokens shared by both policies (paper appendix): image features per camera (one token per
+feature-map cell of the shared backbone, plus a learned camera embedding), one MLP token for joints + gripper,
+one MLP token for the force input (tau_ext or current; absent for `base`). Sinusoidal positions."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn as nn
+
+from policies.config import PolicyConfig
+from policies.vision import IMAGENET_MEAN, IMAGENET_STD, make_backbone
+
+
+def sinusoidal(n: int, dim: int) -> torch.Tensor:
+    """(n, dim) fixed sinusoidal position table (Vaswani et al.)."""
+    pos = torch.arange(n, dtype=torch.float32)[:, None]
+    freq = torch.exp(torch.arange(0, dim, 2, dtype=torch.float32) * (-math.log(10000.0) / dim))
+    out = torch.zeros(n, dim)
+    out[:, 0::2] = torch.sin(pos * freq)
+    out[:, 1::2] = torch.cos(pos * freq[: dim // 2])
+    return out
+
+
+def timestep_embedding(t: torch.Tensor, dim: int, scale: float = 1000.0) -> torch.Tensor:
+    """(B,) flow times in [0, 1] -> (B, dim) sinusoidal features."""
+    half = dim // 2
+    freq = torch.exp(-math.log(10000.0) * torch.arange(half, dtype=torch.float32, device=t.device) / half)
+    arg = scale * t.float()[:, None] * freq[None]
+    return torch.cat([torch.sin(arg), torch.cos(arg)], dim=-1)
+
+
+def mlp(din: int, dout: int) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(din, dout), nn.GELU(), nn.Linear(dout, dout))
+
+
+class ObservationTokens(nn.Module):
+    """(images (B, M, 3, H, W) in [0, 1], state (B, S), force (B, F) or None) -> tokens (B, T, hidden)."""
+
+    def __init__(self, cfg: PolicyConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.backbone = make_backbone(cfg.backbone, cfg.backbone_weights)
+        self.proj = nn.Conv2d(self.backbone.out_channels, cfg.hidden, 1)
+        self.camera = nn.Embedding(max(cfg.n_cameras, 1), cfg.hidden)
+        self.state = mlp(cfg.state_dim, cfg.hidden)
+        self.force = mlp(cfg.force_dim, cfg.hidden) if cfg.force_dim > 0 else None
+        self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
+        self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
+
+    def image_tokens(self, images: torch.Tensor) -> torch.Tensor:
+        b, m = images.shape[:2]
+        x = (images.flatten(0, 1) - self.mean) / self.std
+        f = self.proj(self.backbone(x))  # (B*M, hidden, h, w)
+        f = f.flatten(2).transpose(1, 2)  # (B*M, h*w, hidden)
+        f = f + sinusoidal(f.shape[1], f.shape[2]).to(f)[None]
+        f = f.view(b, m, -1, f.shape[-1]) + self.camera.weight[:m].view(1, m, 1, -1)
+        return f.flatten(1, 2)
+
+    def forward(self, images, state, force=None) -> torch.Tensor:
+        toks = [self.state(state)[:, None]]
+        if self.force is not None:
+            toks.append(self.force(force)[:, None])
+        toks.append(self.image_tokens(images))
+        return torch.cat(toks, dim=1)
+
+
+def masked_mean(err: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Per-sample mean of err (B, chunk, D) over the valid chunk steps (mask (B, chunk)) -> (B,)."""
+    m = mask.to(err.dtype)[..., None]
+    return (err * m).sum(dim=(1, 2)) / (m.sum(dim=(1, 2)) * err.shape[-1]).clamp_min(1.0)

@@ -1,0 +1,71 @@
+"""Small synthetic teleop recordings for the policy tests: follower joint states, the follower command (the
+action), estimated tau_ext with contact bursts, and camera frames, written with the real Recorder."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hardware.recording import Recorder
+from hardware.types import STATUS_ENABLED, JointState
+
+N_JOINTS = 6
+NAMES = [f"joint{i + 1}" for i in range(N_JOINTS)]
+RATE_HZ = 100.0  # joint states, tau_ext, command
+CAMERA_HZ = 10.0
+
+
+def _frame(k: int, cam: int, h: int = 32, w: int = 40) -> np.ndarray:
+    """A bright square whose position encodes the time step (so images carry the state)."""
+    img = np.full((h, w, 3), 40 + 60 * cam, np.uint8)
+    x = (k // 3) % (w - 8)
+    img[8:16, x:x + 8] = 250
+    return img
+
+
+def write_recording(path, *, episodes: int = 2, seconds: float = 4.0, cameras=("wrist", "top"),
+                    tau_ext: bool = True, contact_at=(1.5,), contact_s: float = 1.0, seed: int = 0,
+                    n_joints: int = N_JOINTS, joint_names=None, simulated: bool = True) -> Path:
+    """`episodes` episodes of `seconds` each; in each, tau_ext rises to 2 N*m per joint for `contact_s`
+    at every time in `contact_at` (seconds into the episode) and is 0.01 N*m noise elsewhere."""
+    path = Path(path)
+    names = list(joint_names or NAMES[:n_joints])
+    rng = np.random.default_rng(seed)
+    meta = {"simulated": "true" if simulated else "false", "task": "synthetic"}
+    rec = Recorder(path, joint_names={"follower": names, "leader": names}, t0=0.0, metadata=meta)
+    dt = 1.0 / RATE_HZ
+    t = 0.0
+    for e in range(episodes):
+        t0 = t
+        rec.start_episode(t, task="push")
+        n = int(seconds * RATE_HZ)
+        phase = rng.uniform(0, 2 * np.pi)
+        for k in range(n):
+            tk = t0 + k * dt
+            q = 0.5 * np.sin(0.8 * k * dt + phase + np.arange(n_joints))
+            s = JointState.empty(n_joints, t=tk)
+            s.q[:] = q
+            s.q_dot[:] = 0.4 * np.cos(0.8 * k * dt + phase + np.arange(n_joints))
+            s.tau_m[:] = 0.1 * q
+            s.current[:] = 0.05 * q
+            s.q_cmd[:] = q
+            s.temperature[:] = 30.0
+            s.status[:] = STATUS_ENABLED
+            s.gripper_pos = 0.02 + 0.01 * np.sin(k * dt)
+            rec.log_joint_state("follower", tk, s)
+            rec.log_joint_state("leader", tk, s)
+            q_next = 0.5 * np.sin(0.8 * (k + 1) * dt + phase + np.arange(n_joints))
+            rec.log_follower_command("follower", tk, q_next, gripper=0.02 + 0.01 * np.sin((k + 1) * dt))
+            if tau_ext:
+                in_contact = any(c <= k * dt < c + contact_s for c in contact_at)
+                tau = np.full(n_joints, 2.0) if in_contact else rng.normal(0, 0.01, n_joints)
+                rec.log_external_torque("follower", tk, tau, in_contact)
+            if k % int(RATE_HZ / CAMERA_HZ) == 0:
+                for ci, cam in enumerate(cameras):
+                    rec.log_image(cam, tk, _frame(k, ci))
+        t = t0 + n * dt
+        rec.stop_episode(t, "success")
+        t += 0.5
+    rec.close()
+    return path

@@ -1,0 +1,94 @@
+"""FIRST phase labels: hysteresis, onsets, pre-contact clipping and overlap, thresholds, the CLI."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from policies import phases as P
+from tests.policy_helpers import write_recording
+
+
+def test_hysteresis_switches_at_high_and_low_and_keeps_between():
+    s = np.array([0, 2, 3, 2.5, 1.5, 1.0, 2.9, 3.0, np.nan, 0.9])
+    c = P.hysteresis(s, t_low=1.0, t_high=3.0)
+    assert c.tolist() == [False, False, True, True, True, False, False, True, True, False]
+
+
+def test_hysteresis_rejects_inverted_thresholds():
+    with pytest.raises(ValueError):
+        P.hysteresis(np.zeros(3), 2.0, 1.0)
+
+
+def test_contact_score_is_l1_norm():
+    tau = np.array([[1.0, -2.0, 0.5], [0, 0, 0]])
+    assert P.contact_score(tau).tolist() == [3.5, 0.0]
+
+
+def test_onset_at_t0_has_no_pre_contact():
+    t = np.arange(10) * 0.1
+    c = np.array([1, 1, 0, 0, 0, 0, 0, 0, 1, 1], bool)
+    assert P.onsets(c).tolist() == [0, 8]
+    ph = P.label_phases(t, c, pre_s=0.3)
+    # onset at 0: nothing before it; onset at 8 (t=0.8): samples with 0.5 <= t < 0.8 are pre-contact
+    assert ph.tolist() == [2, 2, 0, 0, 0, 1, 1, 1, 2, 2]
+
+
+def test_pre_contact_clipped_at_start_and_never_over_contact():
+    t = np.arange(20) * 0.1  # 10 Hz
+    c = np.zeros(20, bool)
+    c[3:5] = True  # onset at t=0.3: 1 s window clipped at the episode start
+    c[7:9] = True  # onset at t=0.7: window [−0.3, 0.7) overlaps the first contact, which stays contact
+    ph = P.label_phases(t, c, pre_s=1.0)
+    assert ph[:3].tolist() == [1, 1, 1]
+    assert ph[3:5].tolist() == [2, 2]
+    assert ph[5:7].tolist() == [1, 1]
+    assert ph[7:9].tolist() == [2, 2]
+    assert (ph[9:] == 0).all()
+
+
+def test_pre_contact_is_one_second_at_any_rate():
+    for rate in (10.0, 30.0, 100.0, 1000.0):
+        t = np.arange(int(5 * rate)) / rate
+        c = t >= 3.0
+        ph = P.label_phases(t, c)
+        pre_t = t[ph == P.PRE_CONTACT]
+        assert pre_t.min() == pytest.approx(2.0) and pre_t.max() < 3.0
+        assert len(pre_t) == int(round(rate))
+
+
+def test_default_thresholds_scale_with_free_noise_and_parse():
+    lo, hi = P.default_thresholds([0.1] * 6)
+    assert lo == pytest.approx(P.LOW_X * 0.6) and hi == pytest.approx(P.HIGH_X * 0.6)
+    assert P.parse_thresholds("1:2.5") == (1.0, 2.5)
+    for bad in ("2:1", "x", "1:2:3", "-1:2"):
+        with pytest.raises(ValueError):
+            P.parse_thresholds(bad)
+
+
+def test_phases_cli_prints_shares_and_writes_pngs(tmp_path, capsys):
+    from factr2_teleop.cli import main
+
+    write_recording(tmp_path / "a.mcap", episodes=2, seconds=4.0, cameras=())
+    rc = main(["episodes", "phases", str(tmp_path), "--thresholds", "1:3", "--out", str(tmp_path / "ph")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "a.mcap#0" in out and "a.mcap#1" in out
+    pngs = sorted((tmp_path / "ph").glob("*.png"))
+    assert len(pngs) == 2 and all(p.stat().st_size > 5000 for p in pngs)
+    # 4 s episode, contact 1.5..2.5 s, pre-contact 0.5..1.5 s: 25 % / 25 % / 50 % free
+    row = next(line for line in out.splitlines() if line.startswith("a.mcap#0"))
+    free, pre, con = (float(x.rstrip("%")) for x in row.split()[2:5])
+    assert abs(pre - 25) < 1.5 and abs(con - 25) < 1.5 and abs(free - 50) < 1.5
+
+
+def test_phases_cli_without_tau_ext_or_next_is_one_line(tmp_path, capsys):
+    from factr2_teleop.cli import main
+
+    write_recording(tmp_path / "a.mcap", episodes=1, seconds=1.0, cameras=(), tau_ext=False)
+    rc = main(["episodes", "phases", str(tmp_path), "--thresholds", "1:3"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "no estimated tau_ext" in err and "--next" in err and len(err.strip().splitlines()) == 1
+    rc = main(["episodes", "phases", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--thresholds" in err
