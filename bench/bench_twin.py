@@ -40,8 +40,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hardware.rigs import Rig, load_rig  # noqa: E402
 from hardware.connect import open_rig, serve_twin  # noqa: E402
+from hardware.rigs import Rig, load_rig  # noqa: E402
 from hardware.types import FollowerCommand  # noqa: E402
 
 

@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from teleop_fakes import BankFollower, BankLeader, Rig  # noqa: E402
 
-from factr2_teleop.teleop.estimators import PositionPositionEstimator  # noqa: E402
+from calibration.estimators import PositionPositionEstimator  # noqa: E402
 from factr2_teleop.teleop.leader_law import arm_model_fns  # noqa: E402
 from factr2_teleop.teleop.loop import TeleopLoop  # noqa: E402
 from factr2_teleop.teleop.pair import ArmPair, PairConfig  # noqa: E402

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from factr2_teleop.teleop.estimators import make_estimator
+from calibration.estimators import make_estimator
 from factr2_teleop.teleop.leader_law import arm_model_fns
 from factr2_teleop.teleop.loop import TeleopLoop
 from factr2_teleop.teleop.pair import ArmPair, PairConfig
@@ -52,7 +52,7 @@ def run_mode(mode: str, scale: float) -> dict:
         def hand(rec: dict) -> None:  # the twin applies the hand torque on the leader until the next tick
             recs.append(rec)
             st = lead.last_state
-            s.twin.apply_leader_hand_torque(op.torque(rec["t"], st.q, np.nan_to_num(st.q_dot)))
+            s.twin.apply_leader_hand_torque(op.torque(rec.t, st.q, np.nan_to_num(st.q_dot)))
 
         loop = TeleopLoop([pair], s.clock, recorder=hand)
         t0 = time.perf_counter()
@@ -61,9 +61,9 @@ def run_mode(mode: str, scale: float) -> dict:
         wipe = [r for r, smp in zip(recs, op.log) if smp.phase == "wipe"]
         summ = op.summary()
         return {"mode": mode, "wall_s": wall, "ticks": loop.timing.ticks,
-                "leader_j2": np.mean([r["leader.joint.pos"][1] for r in wipe]),
-                "follower_j2": np.mean([r["follower.joint.pos"][1] for r in wipe]),
-                "fb_j2": np.mean([r["leader.joint.tau_feedback"][1] for r in wipe]),
+                "leader_j2": np.mean([r.leader.q[1] for r in wipe]),
+                "follower_j2": np.mean([r.follower.q[1] for r in wipe]),
+                "fb_j2": np.mean([r.tau_feedback[1] for r in wipe]),
                 "hand_wipe": summ["wipe"]["tau_l1_nm"], "hand_free": summ["free"]["tau_l1_nm"]}
     finally:
         s.close()

@@ -42,9 +42,9 @@ CONTACT_TIE = 1.01  # contact L1 within 1 % of the best counts as equal
 
 
 def record(seeds: list[int], seconds: float, out: Path) -> list[Path]:
-    from factr2_teleop.commands.calibrate import record_pushed_replay
-    from hardware.rigs.rig import load_rig
+    from calibration.pipeline import record_pushed_replay
     from hardware.connect import open_rig
+    from hardware.rigs.rig import load_rig
 
     rig = load_rig("sim-piper")
     paths = []

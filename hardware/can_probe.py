@@ -228,45 +228,45 @@ def _findings(rep: ProbeReport, subject: str) -> list:
         Finding("info", subject, ln.strip()) for ln in lines[1:]]
 
 
-def _run(kind: str, cfg, subject: str) -> list:
+def _run(probe, cfg, subject: str) -> list:
     from hardware.can_bus import open_bus
 
     bus = open_bus(cfg.channel, cfg.interface, cfg.bitrate)
     try:
-        rep = probe_piper(bus, cfg) if kind == "piper" else probe_damiao(bus, cfg)
+        rep = probe(bus, cfg)
     finally:
         bus.shutdown()
     return _findings(rep, subject)
 
 
-def _check(kind: str, cfg) -> list:
+def _check(probe, kind: str, cfg) -> list:
     from hardware.doctor import DeviceCheck, Finding
     from hardware.errors import UserError
 
     title = f"CAN {cfg.interface}:{cfg.channel} ({kind} {cfg.name})"
     try:
-        return [DeviceCheck(title, findings=_run(kind, cfg, f"{cfg.channel} {kind}"))]
+        return [DeviceCheck(title, findings=_run(probe, cfg, f"{cfg.channel} {kind}"))]
     except UserError as e:
         return [DeviceCheck(title, findings=[Finding("error", f"{cfg.channel} {kind}", e.what, e.fix)])]
 
 
 def piper_checks(config: PiperFollowerConfig, loop_hz: float) -> list:
     """A rig's Piper, probed with its own config (read-only)."""
-    return _check("piper", config)
+    return _check(probe_piper, "piper", config)
 
 
 def damiao_checks(config: DamiaoFollowerConfig, loop_hz: float) -> list:
     """A rig's Damiao chain, probed with its own ids and motors (read-only)."""
-    return _check("damiao", config)
+    return _check(probe_damiao, "damiao", config)
 
 
 def piper_bare(interface: str) -> list:
     """`factr2 doctor --can IFACE`: a Piper with the default config on this interface."""
-    return _run("piper", PiperFollowerConfig(channel=interface), f"{interface} piper")
+    return _run(probe_piper, PiperFollowerConfig(channel=interface), f"{interface} piper")
 
 
 def damiao_bare(interface: str) -> list:
     """`factr2 doctor --can IFACE`: a 6-motor YAM-style Damiao chain (ids 1-6) on this interface."""
     cfg = DamiaoFollowerConfig(channel=interface, ids=[1, 2, 3, 4, 5, 6],
                                motor=["DM4340"] * 3 + ["DM4310"] * 3)
-    return _run("damiao", cfg, f"{interface} damiao")
+    return _run(probe_damiao, cfg, f"{interface} damiao")

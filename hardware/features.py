@@ -26,8 +26,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hardware.recording import schemas as S
+from hardware.recording.schemas import ACTION, signal_name  # noqa: F401  (the names of recorded fields)
 
-ACTION = "action"
 IMAGES = "observation.images."
 
 
@@ -49,15 +49,6 @@ class Feature:
 def arm_prefix(pair: str, n_pairs: int) -> str:
     """"" for a single-pair rig, else "<pair>_" (the recording's topic prefix)."""
     return "" if n_pairs <= 1 else f"{pair}_"
-
-
-def signal_name(topic: str, schema_name: str, feature: str) -> str:
-    """Flat name of a recorded numeric field: "<arm>.<feature>", with the follower's command topic named as
-    the action ("/follower/command" q -> "action.joint.pos"; "/left_follower/command" -> "left_action...")."""
-    arm = topic.split("/")[1]
-    if schema_name == S.FOLLOWER_COMMAND.name:
-        arm = arm[: -len("follower")] + ACTION if arm.endswith("follower") else f"{arm}_{ACTION}"
-    return f"{arm}.{feature}"
 
 
 def _arm(arm: str, n: int, leader: bool) -> list[Feature]:

@@ -67,6 +67,9 @@ class ACTPolicy(nn.Module):
         out = self.decoder(q.expand(len(x), -1, -1), memory)
         return self.head(out), (self.aux_head(out) if self.aux_head is not None else None)
 
+    def forward(self, batch: dict, noise: dict):
+        return self.loss(batch, noise)  # DDP wraps forward: the training step is the loss
+
     def loss(self, batch: dict, noise: dict) -> tuple[torch.Tensor, dict]:
         """Per-sample loss (B,) and its parts (each (B,))."""
         mu, logvar = self._posterior(batch["state"], batch["action"], batch["mask"])

@@ -114,6 +114,9 @@ class FlowPolicy(nn.Module):
         h = _modulate(self.norm_out(h), shift, scale)
         return self.out(h), h
 
+    def forward(self, batch: dict, noise: dict):
+        return self.loss(batch, noise)  # DDP wraps forward: the training step is the loss
+
     def loss(self, batch: dict, noise: dict) -> tuple[torch.Tensor, dict]:
         x1 = batch["action"]
         x0, a = noise["x0"].to(x1), noise["alpha"].to(x1)

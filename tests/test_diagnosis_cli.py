@@ -185,3 +185,50 @@ def test_free_runs_leave_out_the_samples_near_contact():
     c[-1] = True
     assert free_runs(t, c) == [(0, 970)]
     assert free_runs(t[:10], None) == []  # too short to be a run
+
+
+def test_cli_takes_the_arm_the_logs_name_and_a_flag_overrides(tmp_path, capsys):
+    """Logs that name their arm need no --arm (the pinocchio regressor is used); --arm none forces the
+    data-only basis; logs naming two different arms are one line."""
+    pin = pytest.importorskip("pinocchio")
+    from calibration.diagnosis.synthetic import pinocchio_arm
+
+    model = pin.buildSampleModelManipulator()
+    paths = []
+    for s in range(2):
+        g = pinocchio_arm(model, "current_offset", 2, 10.0, seed=s)
+        p = tmp_path / f"run{s}.npz"
+        np.savez(p, t=g.t, q=g.q, qd=g.qd, q_cmd=g.q, tau_m=g.tau, arm=np.array("pinocchio-sample"),
+                 arm_sha256=np.array(""))
+        paths.append(str(p))
+    out = tmp_path / "named"
+    assert main(["diagnose", *paths, "--out", str(out), "--no-plots"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["arm"] == "pinocchio-sample" and rep["arm_source"] == "named by the logs"
+    assert "pinocchio" in rep["basis"] and rep["headline"] == capsys.readouterr().out.splitlines()[-3]
+    out = tmp_path / "none"
+    assert main(["diagnose", *paths, "--arm", "none", "--out", str(out), "--no-plots"]) == 0
+    assert "data-only" in json.loads((out / "report.json").read_text())["basis"]
+    d = dict(np.load(paths[1]))
+    np.savez(paths[1], **{**d, "arm": np.array("piper")})
+    capsys.readouterr()
+    assert main(["diagnose", *paths, "--out", str(tmp_path / "two"), "--no-plots"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "different arms" in err[0], err
+
+
+def test_recordings_name_their_arms_in_the_session_metadata(tmp_path):
+    from recording_helpers import record_session
+
+    from calibration.diagnosis.data import load_segments
+    from hardware.recording.session import describe_session, recorded_arm
+    from hardware.rigs.rig import load_rig
+
+    meta = describe_session(rig_path=load_rig("sim-piper").path, twin=True)
+    assert recorded_arm(meta, "follower")["arm"] == "piper"
+    assert recorded_arm(meta, "follower")["joint_names"][0] == "joint1"
+    assert recorded_arm(meta, "leader")["arm"] == "gello_piper" and recorded_arm({}, "follower") == {}
+    path = tmp_path / "session.mcap"
+    record_session(path, n=300, dt=0.01, episodes=1, cameras=False, contact=False, metadata=meta).close()
+    segs = load_segments(path)
+    assert segs[0].arm == "piper" and len(segs[0].arm_sha256) == 64

@@ -187,3 +187,66 @@ def test_segments_keep_the_logged_velocity_through_resampling():
     ref = np.stack([np.interp(r.t, t, noisy_qd[:, j]) for j in range(2)], 1)
     np.testing.assert_allclose(r.qd_logged, ref)
     assert np.array_equal(seg.slice(5, 50, "c").qd_logged, noisy_qd[5:50])
+
+
+def test_a_spring_takes_the_sign_the_data_supports():
+    """Counterbalance springs, gas struts, cables act either way in motor torque: a negative stiffness is
+    found, not rejected (it was, as 'implausible', before issue 25)."""
+    dg = diagnose(DataBasis(3), *_split(_runs("position_spring", 2, stiffness=-2.0)))
+    e = _check(dg, "position_spring", 2)
+    assert e.params()["stiffness_per_rad"] == pytest.approx(-2.0, rel=0.1)
+    assert e.params()["rest_position_rad"] == pytest.approx(0.2, abs=0.05)
+
+
+def test_friction_that_feeds_energy_in_is_evidence_of_something_else():
+    """A 'negative viscous friction' is never accepted as friction; its rejection names what it points at."""
+    from calibration.diagnosis.effects import Effect
+
+    e = Effect("viscous_friction", 1, coef=np.array([-0.4]))
+    assert "friction dissipates" in e.implausible()
+    assert "delay" in e.evidence_of()["candidates"] and "lag" in e.evidence_of()["evidence_of"]
+    assert Effect("viscous_friction", 1, coef=np.array([0.4])).evidence_of() == {}
+    assert Effect("position_spring", 1, {"q_ref": 0.0}, coef=np.array([-3.0, 0.1])).implausible() == ""
+    dg = diagnose(DataBasis(3), *_split(_runs("viscous_friction", 1, fv=-1.5)))
+    assert not any(x.family == "viscous_friction" and x.joint == 1 for x in dg.model.effects)
+    bad = [r for r in dg.rejected if r["effect"] == "viscous_friction" and r["joint"] == 1]
+    assert bad and "evidence_of" in bad[0] and "delay" in bad[0]["candidates"]
+
+
+def test_payload_at_the_flange_is_found_with_its_mass_and_centre(sample_arm):
+    """An arm carrying a load its description does not know (0.5 kg, 5 cm off the flange): the point-mass
+    family through the arm's kinematics is found first and only, mass and centre recovered."""
+    from calibration.diagnosis.report import headline
+    from hardware.sim.example_effects import with_payload
+
+    model, basis = sample_arm
+    loaded = with_payload(model, 0.5, [0.03, 0.0, 0.04])
+    runs = [pinocchio_arm(loaded, None, duration_s=15.0, seed=s, name=f"run{s}") for s in range(3)]
+    dg = diagnose(basis, runs[:2], runs[2:])
+    assert [(e.family, e.wide) for e in dg.found()] == [("payload", True)]
+    p = dg.model.effects[0].params()
+    assert p["mass_kg"] == pytest.approx(0.5, rel=0.05) and p["distance_m"] == pytest.approx(0.05, abs=0.005)
+    assert np.mean(dg.steps[-1].heldout_l1) <= 0.5 * np.mean(dg.steps[0].heldout_l1)
+    line = headline(dg, [f"j{k}" for k in range(6)], {"units": "N*m"})
+    assert line.startswith("An unknown payload: about 0.5 kg at 5 cm from the flange"), line
+
+
+def test_new_load_on_a_fixed_model_is_traced_to_gravity_without_a_description():
+    """A predictor that knows the arm without the load (a stand-in for NEXT trained before a tool was
+    mounted) and no arm description: the residual is a gravity-like load of the link orientations."""
+    from calibration.diagnosis.next_loop import NextBasis
+    from calibration.diagnosis.synthetic import LENGTH, G, analytic_torque
+
+    runs = _runs(None, 0, seconds=20.0)
+    for r in runs:  # 0.4 kg at the end of the planar arm
+        ang = np.cumsum(r.q, 1)
+        r.tau = r.tau + np.stack([0.4 * G * sum(LENGTH[m] * np.cos(ang[:, m]) for m in range(j, 3))
+                                  for j in range(3)], 1)
+    preds = {id(r): analytic_torque(r.q, r.qdd) for r in runs}
+    dg = diagnose(NextBasis(3, preds, "stand-in predictor"), runs[:2], runs[2:])
+    assert dg.steps[1].added["effect"] == "gravity_load"
+    assert np.mean(dg.steps[-1].heldout_l1) <= 0.5 * np.mean(dg.steps[0].heldout_l1)
+
+
+def _split(runs):
+    return runs[:2], runs[2:]

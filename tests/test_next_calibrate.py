@@ -92,7 +92,14 @@ def test_ur5_logs_in_current_units(tmp_path):
 
 
 def test_heldout_blocks_spread_over_the_run():
-    from factr2_teleop.commands.calibrate import heldout_blocks
+    """The calibration pipeline's one held-out policy (CLI, terminal app and demo alike)."""
+    from calibration.pipeline import CalibrationConfig, split_mask
+
+    cfg = CalibrationConfig(heldout_frac=0.15, rate_hz=100.0)  # 20 s blocks
+
+    def heldout_blocks(n, frac, block):
+        assert frac == cfg.heldout_frac and block == 2000
+        return split_mask(n, cfg)
 
     m = heldout_blocks(70_000, 0.15, 2000)  # 35 blocks of 20 s at 100 Hz, every 7th held out
     assert 0.12 < m.mean() < 0.18 and not m[:2000].any()

@@ -114,3 +114,28 @@ def test_sim_driver_needs_simulated_rig(tmp_path):
     p.write_text('[rig]\nsimulated = false\n[[followers]]\ndriver = "sim"\narm = "panda"\n')
     with pytest.raises(ConfigError, match="driver 'sim' on a rig that is not simulated"):
         load_rig(p)
+
+
+def test_every_device_kind_resolves_and_serves_every_builtin_rig():
+    """Each device folder declares its kind once; every name it declares imports and is callable."""
+    import importlib
+
+    from hardware.registry import KIND_MODULES, device_kind, device_kinds
+
+    kinds = device_kinds()
+    assert [k.driver for k in kinds] == ["dynamixel", "piper", "damiao", "sim"] and len(KIND_MODULES) == 4
+    for k in kinds:
+        for ref in (k.driver_ref, k.emulator_ref, k.probe_ref, k.bare_probe_ref):
+            if ref is not None:
+                mod, _, attr = ref.partition(":")
+                assert callable(getattr(importlib.import_module(mod), attr)), ref
+        assert (k.wire is None) == (k.emulator_ref is None) == k.simulated_only
+    assert [k.driver for k in device_kinds("leader")] == ["dynamixel"]
+    for n in list_rigs():
+        for d in load_rig(n).leaders + load_rig(n).followers:
+            k = device_kind(d.driver, d.role)
+            assert d.config is None if k.config is None else isinstance(d.config, k.config)
+            drive = k.twin_drive(d.config)
+            assert isinstance(drive.gripper_motor, str) and drive.gripper_motor
+    with pytest.raises(ConfigError, match=r"unknown driver 'piper' for a leader.*\['dynamixel'\]"):
+        device_kind("piper", "leader")

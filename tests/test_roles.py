@@ -103,3 +103,34 @@ def test_leader_torque_limited_and_zeroed_on_stale_feedback():
     clock.sleep(0.03)
     assert lead.check_watchdog() is not None  # feedback 60 ms old
     assert np.all(bank.current_cmd == 0)
+
+
+def test_command_observers_see_every_safe_command_once_in_wire_order():
+    clock, bank = LockstepClock(), IdealMotorBank(N)
+    clock.attach(bank.advance)
+    seen_f, seen_l = [], []
+    with BankFollower(bank, clock) as f, BankLeader(IdealMotorBank(N), clock) as lead:
+        f.add_command_observer(lambda t, t_sent, safe: seen_f.append((t, t_sent, safe)))
+        lead.add_command_observer(lambda t, t_sent, safe: seen_l.append((t, t_sent, safe)))
+        f.read()
+        f.command(FollowerCommand(q=np.array([5.0, 0.0, 0.0])))
+        clock.sleep(0.002)
+        f.hold("test")
+        lead.zero_torque("start")  # the rate limit's clock starts here
+        clock.sleep(0.01)
+        lead.read()
+        lead.command_torque(np.array([3.0, 0.0, -3.0]))
+        clock.sleep(1.0)  # stale: the watchdog's hold goes through the same path
+        f.read()
+    # the follower: command, hold, watchdog hold, disconnect hold -- exactly what reached _send_safe
+    assert [s for *_, s in seen_f] == f.sent and len(f.sent) >= 3
+    assert seen_f[0][2].q[0] <= 1.0 and not seen_f[0][2].hold and all(s.hold for *_, s in seen_f[1:])
+    assert seen_f[0][0] == seen_f[0][1] == 0.0 and seen_f[1][0] == 0.002  # t_issued, t_sent [s, clock]
+    assert np.all(seen_l[0][2].tau == 0) and np.allclose(seen_l[1][2].tau, [1.0, 0.0, -1.0])
+    assert seen_l[1][0] == seen_l[1][1] == 0.012 and np.all(seen_l[-1][2].tau == 0)  # then the watchdog
+    f2 = BankFollower(bank, clock)
+    obs = seen_f.append
+    f2.add_command_observer(obs)
+    f2.remove_command_observer(obs)
+    f2.command(FollowerCommand(q=np.zeros(N)))
+    assert f2._observers == [] and len(f2.sent) == 1

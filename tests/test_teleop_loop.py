@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from teleop_fakes import Rig, no_model_cfg
 
-from factr2_teleop.teleop.estimators import GroundTruthEstimator
+from calibration.estimators import GroundTruthEstimator
 from factr2_teleop.teleop.loop import TeleopLoop
 from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, SOFT_START, STOPPED
 from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch_error, rate_limit
@@ -67,7 +67,7 @@ def test_loop_soft_starts_small_mismatch_then_couples_and_tracks():
     rig = Rig(q_leader=[0.3, -0.4, 0.2], q_follower=[0.0, 0.0, 0.0])
     pair = rig.pair()
     phases = []
-    loop = TeleopLoop([pair], rig.clock, recorder=lambda r: phases.append((r["t"], r["phase"])))
+    loop = TeleopLoop([pair], rig.clock, recorder=lambda r: phases.append((r.t, r.phase)))
     loop.run(duration_s=3.0)
     ph = [p for _, p in phases]
     assert ph[0] == SOFT_START and COUPLED in ph
@@ -86,8 +86,8 @@ def test_follower_holds_within_50ms_of_leader_silence():
     events = []
 
     def rec(r):
-        events.append((r["t"], r["phase"]))
-        if r["t"] >= 1.0 and not rig.leader.silent:
+        events.append((r.t, r.phase))
+        if r.t >= 1.0 and not rig.leader.silent:
             rig.leader.silent = True  # the leader stops answering at t = 1.0 s (last sample at ~1.0 s)
 
     loop.recorder = rec
@@ -108,8 +108,8 @@ def test_leader_back_after_silence_resumes_through_soft_start():
     seen = []
 
     def rec(r):
-        seen.append(r["phase"])
-        rig.leader.silent = 0.5 <= r["t"] < 0.7
+        seen.append(r.phase)
+        rig.leader.silent = 0.5 <= r.t < 0.7
 
     loop.recorder = rec
     loop.run(duration_s=1.5)
@@ -130,8 +130,8 @@ def test_nan_estimate_turns_feedback_off_with_message():
     gates = []
 
     def rec(r):
-        gates.append((r["t"], r["feedback.gate"], r["leader.joint.tau_feedback"].copy()))
-        state["nan"] = r["t"] >= 1.0
+        gates.append((r.t, r.gate, r.tau_feedback.copy()))
+        state["nan"] = r.t >= 1.0
 
     loop = TeleopLoop([pair], rig.clock, recorder=rec)
     loop.run(duration_s=1.2)
@@ -147,7 +147,7 @@ def test_exception_in_a_tick_leaves_both_arms_safe_and_is_reraised():
     pair = rig.pair()
 
     def boom(r):
-        if r["t"] > 0.5:
+        if r.t > 0.5:
             raise RuntimeError("driver exploded")
 
     orig_tick = pair.tick
@@ -171,7 +171,7 @@ def test_stop_request_and_keyboard_interrupt_leave_both_safe():
     loop = TeleopLoop([rig.pair()], rig.clock)
 
     def rec(r):
-        if r["t"] > 0.3:
+        if r.t > 0.3:
             loop.stop()  # the loop thread itself asks (UI button); run() returns at the next check
 
     loop.recorder = rec
@@ -213,7 +213,7 @@ def test_bimanual_two_pairs_one_loop():
     loop = TeleopLoop([pa, pb], a.clock)
     loop.run(duration_s=1.0)
     snap = loop.snapshot()
-    assert set(snap.records) == {"left", "right"} and snap.records["right"]["pair"] == "right"
+    assert set(snap.records) == {"left", "right"} and snap.records["right"].pair == "right"
     with pytest.raises(ValueError):
         TeleopLoop([pa, pa], a.clock)
 
@@ -241,7 +241,7 @@ def test_loop_timing_on_lockstep_clock_is_exact():
     s = loop.snapshot().timing
     assert s.rate_hz == pytest.approx(250.0) and s.overruns == 0 and s.ticks == 250
     rec = loop.snapshot().records["arm"]
-    assert rec["loop.period_s"] == pytest.approx(0.004) and rec["loop.overruns"] == 0
+    assert rec.loop_period_s == pytest.approx(0.004) and rec.loop_overruns == 0
 
 
 def test_loop_makes_up_a_late_tick_but_not_a_long_stall():
@@ -314,8 +314,8 @@ def test_leader_back_after_short_silence_recouples_directly_when_close():
     seen = []
 
     def rec(r):
-        seen.append(r["phase"])
-        rig.leader.silent = 0.5 <= r["t"] < 0.55
+        seen.append(r.phase)
+        rig.leader.silent = 0.5 <= r.t < 0.55
 
     loop.recorder = rec
     loop.run(duration_s=1.0)

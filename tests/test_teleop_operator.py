@@ -7,8 +7,7 @@ import pytest
 from teleop_fakes import N, Rig
 from test_teleop_loop import fb_cfg
 
-from factr2_teleop.teleop.estimators import (
-    CallableEstimator,
+from calibration.estimators import (
     EstimatorInput,
     GroundTruthEstimator,
     MomentumObserver,
@@ -75,14 +74,13 @@ def _state(q, qd, tau_m, t):
 def test_estimators_convention():
     st = _state([0.1, 0.0], [0, 0], [0, 0], 2.0)
     pp = PositionPositionEstimator([10.0, 5.0], 2)
-    e = pp(EstimatorInput(t=2.0, follower=st, q_leader_f=np.array([0.3, -0.1])))
+    e = pp.update(EstimatorInput(t=2.0, follower=st, q_leader_f=np.array([0.3, -0.1])))
     # follower behind the leader (blocked): its motors push toward the leader, against the obstacle
-    assert np.allclose(e.tau_ext, [2.0, -0.5]) and e.t == 2.0
-    r = CallableEstimator(lambda inp: (np.array([1.0, -2.0]), 1.9, False))
-    e = r(EstimatorInput(t=2.0, follower=st, q_leader_f=np.zeros(2)))
-    assert np.allclose(e.tau_ext, [1.0, -2.0]) and e.t == 1.9 and not e.fresh
+    assert np.allclose(e.tau_ext, [2.0, -0.5]) and e.t == 2.0 and e.valid
+    inp = EstimatorInput(t=2.0, follower=st, q_leader_f=np.zeros(2))
+    assert pp.refresh(inp) is None and pp.idle() is None and pp.period_s == 0.0  # the protocol's defaults
     g = GroundTruthEstimator(lambda: np.array([0.5, 0.0]))
-    assert np.allclose(g(EstimatorInput(t=2.0, follower=st, q_leader_f=np.zeros(2))).tau_ext, [0.5, 0])
+    assert np.allclose(g.update(inp).tau_ext, [0.5, 0])
 
 
 def test_momentum_observer_converges_to_environment_torque():
@@ -97,7 +95,7 @@ def test_momentum_observer_converges_to_environment_torque():
     g = pin.computeGeneralizedGravity(model, data, q)
     est = None
     for k in range(300):  # 0.3 s at 1 kHz, statics: motors cancel gravity and the push
-        est = obs(EstimatorInput(t=k * 1e-3, follower=_state(q, np.zeros(6), g - tau_env, k * 1e-3),
+        est = obs.update(EstimatorInput(t=k * 1e-3, follower=_state(q, np.zeros(6), g - tau_env, k * 1e-3),
                                  q_leader_f=q))
     assert np.allclose(est.tau_ext, -tau_env, atol=1e-3)  # tau_ext = tau_m - tau_free = -tau_env
 
@@ -130,22 +128,21 @@ def test_closed_loop_feedback_opposes_the_operator_per_joint(joint):
         results[with_fb] = (rig.lb.q[joint], op.summary()["contact"]["tau_l1_nm"], last)
     q_nofb, push_nofb, _ = results[False]
     q_fb, push_fb, last = results[True]
-    tau_fb = last["leader.joint.tau_feedback"]
-    assert last["feedback.contact"] and last["feedback.gate"] == 1.0
+    tau_fb = last.tau_feedback
+    assert last.contact and last.gate == 1.0
     assert tau_fb[joint] < -0.1 and np.allclose(np.delete(tau_fb, joint), 0.0)
     assert q_nofb > 0.55 and q_fb < q_nofb - 0.1
     assert push_fb > push_nofb
 
 
 def test_make_estimator_modes():
-    from factr2_teleop.teleop.estimators import make_estimator
+    from calibration.estimators import make_estimator
     from hardware.errors import ConfigError
 
     assert make_estimator("none", 3) is None
     assert isinstance(make_estimator("pp", 3, pp_stiffness_nm_per_rad=5.0), PositionPositionEstimator)
     assert isinstance(make_estimator("dob", 6, follower_arm="piper"), MomentumObserver)
-    assert isinstance(make_estimator("next", 3, next_source=lambda inp: None), CallableEstimator)
-    for mode in ("dob", "pp", "next", "ground_truth", "magic"):
+    for mode in ("dob", "next", "ground_truth", "magic"):
         with pytest.raises(ConfigError):
             make_estimator(mode, 3)
 
@@ -153,9 +150,8 @@ def test_make_estimator_modes():
 def test_next_adapter_warmup_valid_and_nan():
     """NextAdapter over a stand-in with NextEstimator's update() contract (the real one needs a
     checkpoint)."""
-    from types import SimpleNamespace
-
-    from factr2_teleop.teleop.estimators import NextAdapter, make_estimator
+    from calibration.estimate import FLAG_NONFINITE, FLAG_OOD, FLAG_WARMUP, Estimate
+    from calibration.estimators import NextAdapter, make_estimator
 
     class Stand:
         def __init__(self):
@@ -165,23 +161,26 @@ def test_next_adapter_warmup_valid_and_nan():
             self.calls.append(np.array(q_cmd))
             k = len(self.calls)
             if k < 3:  # warm-up
-                return SimpleNamespace(tau_ext=np.full(2, np.nan), flags=1, valid=False, ood=False)
+                return Estimate(np.full(2, np.nan), flags=FLAG_WARMUP)
             if k == 5:  # a bad sample: NaN, passed on (the gate turns feedback off with a message)
-                return SimpleNamespace(tau_ext=np.full(2, np.nan), flags=2, valid=False, ood=False)
-            return SimpleNamespace(tau_ext=np.array([0.5, -0.2]), flags=4 * (k == 4), valid=True, ood=k == 4)
+                return Estimate(np.full(2, np.nan), flags=FLAG_NONFINITE)
+            return Estimate(np.array([0.5, -0.2]), flags=FLAG_OOD * (k == 4), tau_f=np.zeros(2))
+
+        def work(self):
+            pass
 
     stand = Stand()
-    ad = make_estimator("next", 2, next_source=stand)
+    ad = make_estimator("next", 2, next_estimator=stand)
     assert isinstance(ad, NextAdapter)
     st = _state([0.1, 0.2], [0, 0], [1.0, 1.0], 3.0)
     st.q_cmd = np.array([np.nan, np.nan])
     inp = EstimatorInput(t=3.0, follower=st, q_leader_f=np.zeros(2), q_target_f=np.array([0.3, 0.4]))
-    assert ad(inp) is None and ad(inp) is None
-    e = ad(inp)
-    assert np.allclose(e.tau_ext, [0.5, -0.2]) and e.fresh and e.t == 3.0
+    assert ad.update(inp) is None and ad.update(inp) is None
+    e = ad.update(inp)
+    assert np.allclose(e.tau_ext, [0.5, -0.2]) and e.valid and e.t == 3.0
     assert np.allclose(stand.calls[-1], [0.3, 0.4])  # no reported q_cmd: the loop's last target
     st.q_cmd = np.array([0.11, 0.21])
-    ad(inp)
+    ad.update(inp)
     assert np.allclose(stand.calls[-1], [0.11, 0.21]) and ad.ood_count == 1
-    e = ad(inp)
-    assert np.all(np.isnan(e.tau_ext)) and not e.fresh
+    e = ad.update(inp)
+    assert np.all(np.isnan(e.tau_ext)) and not e.valid

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from factr2_teleop.cli import main
-from factr2_teleop.commands.teleop import pair_configs
+from factr2_teleop.session.pairs import rig_tables
 from hardware.rigs.rig import load_rig
 
 
@@ -14,8 +14,8 @@ def test_teleop_runs_on_the_twin_and_reports_timing(capsys):
 
 
 def test_bimanual_rig_gets_one_pair_config_per_pair():
-    cfgs, _ = pair_configs(load_rig("sim-bimanual-piper"))
-    assert len(cfgs) == 2 and len(set(cfgs)) == 2
+    cfgs, _ = rig_tables(load_rig("sim-bimanual-piper"))
+    assert list(cfgs) == ["left", "right"]
 
 
 def test_teleop_ground_truth_on_real_rig_is_refused(capsys):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from factr2_teleop.demo.task import DemoConfig, DemoRun
-from factr2_teleop.teleop.estimators import make_estimator
+from calibration.estimators import make_estimator
 from factr2_teleop.teleop.pair import COUPLED
 from hardware.errors import UserError
 
@@ -41,12 +41,12 @@ def test_silent_leader_puts_the_follower_on_hold_within_50_ms():
         emu = run.session.twin.devices["leader"].emulator
         t_silent = []
 
-        def fault(rec, gt):
-            if rec["t"] - run.operator.t0 > 1.0 and not t_silent:
+        def fault(rec):
+            if rec.t - run.operator.t0 > 1.0 and not t_silent:
                 emu.set_silent(True)
                 t_silent.append(run.clock.now())
 
-        run.recorder = fault
+        run.teleop.hooks.append(fault)
         run.run()
         t, _ = run.wire_f.arrays()
         hold = np.array(run.wire_f.hold)
@@ -82,18 +82,11 @@ def test_nan_estimate_turns_feedback_off_and_says_so():
 def test_ctrl_c_leaves_both_arms_safe():
     run = _demo(3.0)
     try:
-        def interrupt(rec, gt):
-            if rec["t"] - run.operator.t0 > 1.0:
+        def interrupt(rec):
+            if rec.t - run.operator.t0 > 1.0:
                 raise KeyboardInterrupt
 
-        run.loop.recorder = None
-        orig = run._on_tick
-
-        def tick(rec):
-            orig(rec)
-            interrupt(rec, None)
-
-        run.loop.recorder = tick
+        run.teleop.hooks.append(interrupt)
         with pytest.raises(KeyboardInterrupt):
             run.run()
         _, tau_l = run.wire_l.arrays()
@@ -129,10 +122,10 @@ def test_short_follower_silence_in_contact_holds_then_recouples():
     try:
         emu = run.session.twin.devices["follower"].emulator
 
-        def fault(rec, gt):  # 60 ms of CAN silence while pressing on the table
-            emu.silent = 3.6 < rec["t"] - run.operator.t0 < 3.66
+        def fault(rec):  # 60 ms of CAN silence while pressing on the table
+            emu.silent = 3.6 < rec.t - run.operator.t0 < 3.66
 
-        run.recorder = fault
+        run.teleop.hooks.append(fault)
         run.run()
         phases = [r[1] for r in run._rows]
         said = [m[2] for m in run.loop.snapshot().messages]

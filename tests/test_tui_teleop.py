@@ -13,13 +13,8 @@ from hardware.recording.reader import Recording
 
 
 def test_joint_lines_fit_80_columns():
-    rec = {
-        "leader.joint.pos": np.array([0.1, -3.5]),
-        "follower.joint.pos": np.array([0.1, np.nan]),
-        "follower.joint.tau_ext": np.array([2.0, -1.0]),
-        "leader.joint.tau_feedback": np.array([0.05, 0.0]),
-    }
-    lines = joint_lines(rec)
+    lines = joint_lines(np.array([0.1, -3.5]), np.array([0.1, np.nan]), np.array([2.0, -1.0]),
+                        np.array([0.05, 0.0]))
     assert len(lines) == 3 and all(len(x) <= 80 for x in lines)
     assert "<" in lines[2] and "?" in lines[2]  # beyond the bar range; unknown follower position
 

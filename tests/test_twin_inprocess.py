@@ -8,11 +8,11 @@ import time
 import numpy as np
 import pytest
 
+from hardware.connect import open_rig
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.emulator import DynamixelEmulator
 from hardware.errors import DeviceNotFound
 from hardware.rigs import load_rig
-from hardware.connect import open_rig
 from hardware.sim.twin import Twin
 from hardware.types import FollowerCommand
 

@@ -10,8 +10,8 @@ import pytest
 
 from factr2_teleop.cli import main as cli_main
 from hardware.arms.dynamics import gravity
-from hardware.errors import ConfigError
 from hardware.connect import open_rig, serve_twin
+from hardware.errors import ConfigError
 from hardware.types import FollowerCommand
 
 TARGET = np.array([0.3, 0.8, -0.6, 0.1, 0.3, -0.2])
@@ -126,3 +126,26 @@ def test_rig_camera_renders_the_twin_scene():
         f = cam.read()
         assert f.rgb.shape == (240, 320, 3) and f.rgb.std() > 5  # an actual image, not a blank
         assert f.t == pytest.approx(s.clock.now())
+
+
+def test_twin_driven_clock_steps_the_twin_to_wall_time_and_skips_a_stall():
+    from hardware.sim.twin import TwinDrivenClock
+
+    with open_rig("sim-piper", clock="realtime") as s:
+        tw = s.twin
+        with pytest.raises(RuntimeError, match="stop_realtime"):
+            TwinDrivenClock(tw).start()  # two steppers would race
+        tw.stop_realtime()
+        clock = TwinDrivenClock(tw, max_lag_s=0.05)
+        clock.start()
+        t0, n0 = tw.t, tw.overruns
+        for _ in range(100):
+            clock.sleep(0.002)
+            assert tw.lag(clock.now()) < 0.05  # caught up after every sleep (less the stepping time)
+        assert tw.t - t0 == pytest.approx(0.2, abs=0.1)
+        time.sleep(0.3)  # a stall of the caller's thread: the twin skips ahead instead of simulating it
+        t1 = tw.t
+        clock.sleep(0.001)
+        assert clock.overruns >= n0 + 1 and tw.t - t1 < 0.05 and tw.lag(clock.now()) < 0.05
+        lead = s.leader.read()  # the drivers still talk to the twin through the wire
+        assert np.all(np.isfinite(lead.q))

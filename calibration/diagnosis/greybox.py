@@ -76,7 +76,7 @@ class GreyBox:
     def fit(self, d: Design) -> GreyBox:
         p0 = self.basis.n_params
         feats = [d.features(e) for e in self.effects]
-        sizes = [f.shape[1] for f in feats]
+        sizes = [f.shape[-1] for f in feats]
         offs = p0 + np.concatenate([[0], np.cumsum(sizes)]).astype(int)
         p = int(offs[-1])
         h = np.zeros((p, p))

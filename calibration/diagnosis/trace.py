@@ -120,19 +120,24 @@ def candidates(model: GreyBox, d: Design, residual: np.ndarray, joints=None) -> 
 
 
 def _arm_wide(model: GreyBox, d: Design, residual: np.ndarray, e: Effect) -> Candidate:
-    """Score an effect that acts on every joint with shared coefficients: the fraction of the training
-    residual of all joints together (stacked) that its columns explain, each joint's columns projected as
-    that joint's candidates are."""
+    """Score an effect that acts on every joint with shared coefficients: its coefficients are fitted to the
+    training residual of all joints together (each joint's columns projected as that joint's candidates
+    are), and the score is the largest fraction of one joint's residual that fit explains -- comparable with
+    a single-joint candidate's score (a payload that explains half of the shoulder's residual ranks with a
+    friction term that explains half of the wrist's)."""
     f = d.features(e)
-    fs, rs = [], []
-    for j in range(model.n):
-        r = residual[:, j]
-        if float(r @ r) > 0:
-            fs.append(_Projector(model, d, j)(f[:, j, :]))
-            rs.append(r)
-    sc = explained(np.concatenate(fs), np.concatenate(rs)) if rs else 0.0
+    js = [j for j in range(model.n) if float(residual[:, j] @ residual[:, j]) > 0]
+    fs = {j: _Projector(model, d, j)(f[:, j, :]) for j in js}
+    sc, per_joint = 0.0, {}
+    if js:
+        stacked_r = np.concatenate([residual[:, j] for j in js])
+        coef = np.linalg.lstsq(np.concatenate([fs[j] for j in js]), stacked_r, rcond=None)[0]
+        for j in js:
+            r = residual[:, j]
+            per_joint[j] = round(float(max(0.0, 1.0 - np.sum((r - fs[j] @ coef) ** 2) / (r @ r))), 4)
+        sc = max(per_joint.values())
     return Candidate(e, sc, {"columns": f.shape[2], "explains_train_residual": round(sc, 4),
-                             "acts_on": "all joints"})
+                             "explains_per_joint": per_joint, "acts_on": "all joints"})
 
 
 def rank(c: Candidate) -> float:

@@ -11,13 +11,10 @@ import math
 import sys
 from pathlib import Path
 
-import numpy as np
-
+from calibration.pipeline import CONTACT_EVAL_S, HELDOUT_FRAC, MIN_MINUTES, OBSERVER_GAIN
 from hardware.errors import UserError
 
 HELP = "train NEXT external-torque estimation from free-motion logs and compare it with baselines"
-HELDOUT_BLOCK_S = 20.0  # held-out free motion comes in blocks of this length [s]
-CONTACT_EVAL_S = 300.0  # pushed replay scored for contact L1 [s]: the paper's 5 min of held-out contact data
 
 
 def add_arguments(p) -> None:
@@ -32,14 +29,14 @@ def add_arguments(p) -> None:
     p.add_argument("--follower", help="follower of the rig to calibrate (default: the first)")
     p.add_argument("--minutes", type=float, default=10.0, help="length of the recorded free motion [min]")
     p.add_argument("--twin-effect", metavar="MOD:FN", help="twin effect hook (simulated rigs only)")
-    p.add_argument("--heldout-frac", type=float, default=0.15,
+    p.add_argument("--heldout-frac", type=float, default=HELDOUT_FRAC,
                    help="fraction of the recorded motion kept for evaluation, as 20 s blocks spread over the "
-                        "run (default 0.15)")
+                        f"run (default {HELDOUT_FRAC:g})")
     p.add_argument("--contact-eval-s", type=float, default=CONTACT_EVAL_S,
                    help="simulated rigs: length [s] of an extra held-out replay with scripted pushes "
                         "(ground truth logged) used to score contact L1; 0 to skip (default "
                         f"{CONTACT_EVAL_S:.0f}, the paper's 5 minutes of held-out contact data)")
-    p.add_argument("--min-minutes", type=float, default=2.0,
+    p.add_argument("--min-minutes", type=float, default=MIN_MINUTES,
                    help="keep the data and train when an unexpected contact stops the replay after at least "
                         "this long [min] (default 2)")
     p.add_argument("--rate-hz", type=float, default=100.0, help="resampling rate [Hz] (default 100)")
@@ -54,112 +51,41 @@ def add_arguments(p) -> None:
     p.add_argument("--max-epochs", type=int, default=400)
     p.add_argument("--max-seconds", type=float, default=math.inf, help="stop training after this long")
     p.add_argument("--device", default="auto", help="torch device: auto (cuda if present), cpu, cuda")
-    p.add_argument("--observer-gain", type=float, default=50.0, help="momentum observer gain K_o [1/s]")
+    p.add_argument("--observer-gain", type=float, default=OBSERVER_GAIN,
+                   help="momentum observer gain K_o [1/s]")
     p.add_argument("--no-plots", action="store_true")
 
 
-def _run_on_rig(args, cfg) -> int:
-    """Record free motion on a rig, then train and evaluate as --from-logs does (last part held out)."""
-    import json
-
+def _run_on_rig(args, train_cfg) -> int:
+    """Record free motion on a rig, then train and evaluate (calibration.pipeline, as the terminal app)."""
     from tqdm import tqdm
 
-    from calibration.next.collect import ContactStop, collect_free_motion
-    from calibration.report import calibrate_from_logs
-    from calibration.trajectories import arm_coverage_trajectory
-    from hardware.recording.plain_log import save_plain_log
+    from calibration.pipeline import CalibrationConfig, calibrate_rig
+    from hardware.connect import open_rig
     from hardware.rigs.rig import load_rig
-    from hardware.sim import open_rig
 
     rig = load_rig(args.rig)
     spec = rig.device(args.follower) if args.follower else rig.followers[0]
-    if not args.minutes > 0:
-        raise UserError(f"--minutes {args.minutes} must be positive", where="--minutes",
-                        fix="e.g. --minutes 10")
-    if not 0.0 < args.heldout_frac < 0.9:
-        raise UserError(f"--heldout-frac {args.heldout_frac} out of range", where="--heldout-frac",
-                        fix="use a value between 0 and 0.9, e.g. 0.15")
-    traj = arm_coverage_trajectory(spec.arm, args.minutes, args.rate_hz,
-                                   scene=rig.twin.scene if rig.simulated else "table")
-    out = Path(args.out)
-    (out / "data").mkdir(parents=True, exist_ok=True)
-    show = sys.stderr.isatty()
-    bar = tqdm(total=round(traj.duration_s), unit="s", desc=f"free motion on {rig.name}/{spec.name}",
-               disable=not show)
+    cfg = CalibrationConfig(minutes=args.minutes, rate_hz=args.rate_hz, heldout_frac=args.heldout_frac,
+                            contact_eval_s=args.contact_eval_s, min_minutes=args.min_minutes, train=train_cfg,
+                            observer_gain=args.observer_gain, plots=not args.no_plots)
+    cfg.check()
+    bar = tqdm(total=round(args.minutes * 60), unit="s", desc=f"free motion on {rig.name}/{spec.name}",
+               disable=not sys.stderr.isatty())
 
     def progress(done_s: float, total_s: float) -> None:
         bar.total = round(total_s)
         bar.n = round(done_s)
         bar.refresh()
 
-    contact_eval = None
+    def say(text: str) -> None:
+        print(text, file=sys.stderr)
+
     with open_rig(rig, clock="lockstep" if rig.simulated else "realtime", effect=args.twin_effect) as session:
-        try:
-            run = collect_free_motion(session, spec.name, traj, progress=progress)
-        except ContactStop as e:
-            run = e.run
-            keep = 0 if run is None else max(0, len(run.t) - int(2.0 * args.rate_hz))  # drop the last 2 s
-            if keep < args.min_minutes * 60.0 * args.rate_hz:
-                raise
-            for k in ("t", "q", "qd", "q_cmd", "tau_m", "current", "temperature", "tau_ext_true", "contact"):
-                setattr(run, k, getattr(run, k)[:keep])
-            run.stopped = f"contact: {e.what}"
-            minutes = keep / args.rate_hz / 60.0
-            print(f"warning: {e.what}; training on the {minutes:.1f} min recorded before it", file=sys.stderr)
-        if rig.simulated and args.contact_eval_s > 0:
-            contact_eval = record_pushed_replay(session, spec, args.contact_eval_s, args.rate_hz, seed=1)
+        report = calibrate_rig(session, spec, args.out, cfg, progress=progress, say=say)
     bar.close()
-    arrays = run.arrays()
-    n = len(arrays["t"])
-    held_mask = heldout_blocks(n, args.heldout_frac, int(round(HELDOUT_BLOCK_S * args.rate_hz)))
-    per_sample = {k: v for k, v in arrays.items() if v.ndim >= 1 and len(v) == n}
-    fixed = {k: v for k, v in arrays.items() if k not in per_sample}
-    save_plain_log(out / "data" / "free_motion.npz", **arrays)
-    data = out / "data"
-    train = save_plain_log(data / "train.npz", **{k: v[~held_mask] for k, v in per_sample.items()}, **fixed)
-    held = save_plain_log(data / "heldout.npz", **{k: v[held_mask] for k, v in per_sample.items()}, **fixed)
-    evals = [held]
-    if contact_eval is not None:
-        evals.append(save_plain_log(data / "contact_eval.npz", **contact_eval.arrays()))
-    report = calibrate_from_logs([train], out, evals, arm=spec.arm, cfg=cfg, rate_hz=args.rate_hz,
-                                 observer_gain=args.observer_gain, plots=not args.no_plots)
-    report.update(rig=rig.name, follower=spec.name, simulated=rig.simulated,
-                  collision_checked=traj.collision_checked, stopped=run.stopped or None)
-    (out / "report.json").write_text(json.dumps(report, indent=1))
-    _print_summary(report, out)
+    _print_summary(report, Path(args.out))
     return 0
-
-
-def heldout_blocks(n: int, frac: float, block: int) -> np.ndarray:
-    """(n,) bool: which samples are held out -- every k-th block of `block` samples (k = round(1 / frac),
-    the first block always trains). Blocks spread over the whole recording, so the held-out part has every
-    phase of the trajectory (slow, multi-joint, fast); a held-out tail would be the fast phase only, which
-    the model never saw. Runs shorter than k blocks get blocks of n // k samples. The time gaps left in
-    both files make resampling split them into segments, so no training window ever spans a cut."""
-    k = max(2, int(round(1.0 / frac)))
-    block = max(1, min(block, n // k))  # a short run gets shorter blocks, so something is held out
-    idx = np.arange(n) // block
-    return (idx % k) == k - 1
-
-
-def record_pushed_replay(session, spec, seconds: float, rate_hz: float, seed: int = 1):
-    """SIMULATED: replay a fresh coverage trajectory (seed >= 1: not the training data's) while the twin
-    pushes links 3-6 (10-40 N, 0.5-1.5 s, one every ~3 s); the log carries the twin's ground truth (the mean
-    over each sample period). The calibration's contact evaluation is seed 1; other seeds give independent
-    runs (bench/tune_next_filter.py)."""
-    from calibration.next.collect import Push, collect_free_motion
-    from calibration.trajectories import arm_coverage_trajectory
-
-    traj = arm_coverage_trajectory(spec.arm, seconds / 60.0, rate_hz, scene=session.rig.twin.scene, seed=seed)
-    rng = np.random.default_rng(seed)
-    pushes, t = [], 2.0
-    while t < traj.duration_s - 2.0:
-        d = rng.uniform(0.5, 1.5)
-        direction = rng.normal(size=3)
-        direction /= np.linalg.norm(direction)
-        pushes.append(Push(t, f"link{rng.integers(3, 7)}", tuple(rng.uniform(10, 40) * direction), d))
-        t += d + rng.uniform(1.0, 3.0)
-    return collect_free_motion(session, spec.name, traj, pushes=pushes)
 
 
 def _print_summary(report: dict, out: Path) -> None:

@@ -2,7 +2,7 @@
 
     factr2 diagnose cal/data/free_motion.npz --out diag/                   # the arm the log names (or none)
     factr2 diagnose runs/*.npz --heldout other.npz --arm piper --out diag/  # pinocchio regressor of the arm
-    factr2 diagnose runs/*.npz --arm none --out diag/                       # data-only basis, whatever the logs say
+    factr2 diagnose runs/*.npz --arm none --out diag/                       # data-only basis in any case
     factr2 diagnose runs/*.npz --model next.ckpt --out diag/                # around a trained NEXT model
 
 Logs written by this app name their arm (plain logs: `arm`, `arm_sha256`, `joint_names`; recordings: the

@@ -29,16 +29,24 @@ def add_arguments(p) -> None:
     p.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C)")
 
 
-def run(args) -> int:
+def options(args):
+    """The session layer's TeleopOptions of these arguments."""
     from factr2_teleop.session.pairs import TeleopOptions
+
+    return TeleopOptions(mode=args.mode, checkpoint=args.checkpoint, rate_hz=args.rate)
+
+
+def run(args) -> int:
+    from factr2_teleop.session.pairs import check_options
     from factr2_teleop.session.teleop import TeleopSession
     from factr2_teleop.teleop.rt import single_thread_blas
+    from hardware.connect import open_rig
     from hardware.rigs.rig import load_rig
-    from hardware.sim import open_rig
 
     single_thread_blas()
     rig = load_rig(args.rig)
-    opts = TeleopOptions(mode=args.mode, checkpoint=args.checkpoint, rate_hz=args.rate)
+    opts = options(args)
+    check_options(rig, opts)
     session = open_rig(rig, clock="realtime")
     ts = None
     try:

@@ -18,8 +18,9 @@ DEMO_MINUTES = 1.0  # simulated free motion for the demo's model [min] (the pape
 DEMO_TRAIN_S = 45.0  # training time budget [s]: set-up measured 1 min 41 s in all on the shared machine
 
 
-CACHE_VERSION = 4  # bumped when checkpoints change (2: prior with filtering, temperature, ripple; 3: adaptive
-# estimate filter; 4: carried-state measurement -- older checkpoints still load: fixed filter, exact windows)
+CACHE_VERSION = 5  # bumped when checkpoints change (2: prior with filtering, temperature, ripple; 3: adaptive
+# estimate filter; 4: carried-state measurement -- older checkpoints still load: fixed filter, exact windows;
+# 5: trained by the calibration pipeline, held-out blocks spread over the replay instead of the last 15 %)
 
 
 def cache_dir() -> Path:
@@ -56,13 +57,10 @@ def create_checkpoint(rig: str, say: Callable[[str], None], minutes: float = DEM
                       ) -> Path:
     """Record `minutes` of free motion on the rig's twin, train NEXT for at most `train_s`, write the cache.
     Raises what collection or training raises (ContactStop, UserError, ValueError)."""
-    from calibration.next.collect import collect_free_motion
     from calibration.next.train import TrainConfig
-    from calibration.report import calibrate_from_logs
-    from calibration.trajectories import arm_coverage_trajectory
-    from hardware.recording.plain_log import save_plain_log
+    from calibration.pipeline import CalibrationConfig, collect, plan_trajectory, train_and_report, write_logs
+    from hardware.connect import open_rig
     from hardware.rigs.rig import load_rig
-    from hardware.sim import open_rig
 
     r = load_rig(rig)
     if not r.simulated:
@@ -70,24 +68,19 @@ def create_checkpoint(rig: str, say: Callable[[str], None], minutes: float = DEM
                         fix="run `factr2 calibrate --rig R --out DIR`, then pass --checkpoint DIR/next.json")
     spec = r.followers[0]
     out = cached_checkpoint(rig).parent
-    (out / "data").mkdir(parents=True, exist_ok=True)
-    traj = arm_coverage_trajectory(spec.arm, minutes, 100.0, scene=r.twin.scene)
+    # the calibration pipeline of `factr2 calibrate`, shorter, without the pushed contact replay
+    cfg = CalibrationConfig(minutes=minutes, contact_eval_s=0.0, plots=False,
+                            train=TrainConfig(max_seconds=train_s, device="cpu", prior="auto"))
+    traj = plan_trajectory(r, spec, cfg)
     say(f"NEXT: recording {minutes:.1f} min of SIMULATED free motion on {r.name}/{spec.name}")
     with open_rig(r, clock="lockstep") as session:
-        run = collect_free_motion(session, spec.name, traj, progress=progress)
-    arrays = run.arrays()
-    n = len(arrays["t"])
-    cut = int(n * 0.85)
-    per = {k: v for k, v in arrays.items() if v.ndim >= 1 and len(v) == n}
-    fixed = {k: v for k, v in arrays.items() if k not in per}
-    train = save_plain_log(out / "data" / "train.npz", **{k: v[:cut] for k, v in per.items()}, **fixed)
-    held = save_plain_log(out / "data" / "heldout.npz", **{k: v[cut:] for k, v in per.items()}, **fixed)
+        run = collect(session, spec, traj, cfg, progress)
+    logs = write_logs(out, run, cfg)
     say(f"NEXT: training (at most {train_s:.0f} s)")
     import torch
 
     torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
-    cfg = TrainConfig(max_seconds=train_s, device="cpu", prior="auto")  # as `factr2 calibrate`
-    calibrate_from_logs([train], out, [held], arm=spec.arm, cfg=cfg, plots=False)
+    train_and_report(logs, out, spec.arm, cfg)
     path = out / "next.json"
     say(f"NEXT: checkpoint cached at {path}")
     return path

@@ -68,6 +68,14 @@ class DemoConfig:
     # ground truth (0.3 ms per read) every this many ticks for the metrics; 0: 2 in real time, 1 in lockstep
     truth_every: int = 0
 
+    def options(self):
+        """The session layer's TeleopOptions of this configuration."""
+        from factr2_teleop.session.pairs import TeleopOptions
+
+        fb = {"clip_nm": self.clip_nm, "t_high_nm": self.t_high_nm, "t_low_nm": self.t_low_nm}
+        return TeleopOptions(mode=self.mode, rate_hz=self.rate_hz, gain=list(self.gain), feedback=fb,
+                             pp_stiffness_nm_per_rad=self.pp_stiffness, dob_gain_per_s=self.dob_gain)
+
 
 def task_script(q_home: np.ndarray, seconds: float) -> OperatorScript:
     """Task cycles (free, reach, contact, wipe, release) filling `seconds`; shorter runs get one scaled
@@ -177,15 +185,12 @@ class DemoRun:
             raise
 
     def _build(self, next_source) -> None:
-        from factr2_teleop.session.pairs import TeleopOptions
         from factr2_teleop.session.teleop import TeleopSession
 
         cfg, s = self.cfg, self.session
         self.leader, self.follower = s.pairs[0]
         fspec = s.rig.followers[0]
-        fb = {"clip_nm": cfg.clip_nm, "t_high_nm": cfg.t_high_nm, "t_low_nm": cfg.t_low_nm}
-        opts = TeleopOptions(mode=cfg.mode, rate_hz=cfg.rate_hz, gain=list(cfg.gain), feedback=fb,
-                             pp_stiffness_nm_per_rad=cfg.pp_stiffness, dob_gain_per_s=cfg.dob_gain)
+        opts = cfg.options()
         nexts = {fspec.name: next_source} if cfg.mode == "next" and next_source is not None else None
         self.teleop = TeleopSession(s, opts, clock=self.clock, next_estimators=nexts,
                                     next_paths={fspec.name: self.next_path} if self.next_path else None)

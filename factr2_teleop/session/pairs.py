@@ -78,6 +78,13 @@ def feedback_mode(rig, spec, opts: TeleopOptions) -> str:
     return mode
 
 
+def check_options(rig, opts: TeleopOptions) -> None:
+    """Refuse options the rig cannot run before anything is opened (UserError / ConfigError)."""
+    loop_rate_hz(rig, opts)
+    for _lead, fol in rig.pairs:
+        feedback_mode(rig, rig.device(fol), opts)
+
+
 def modes_for(rig) -> list[str]:
     """Feedback modes a rig can run (ground truth only on a twin)."""
     return [m for m in FEEDBACK_MODES if rig.simulated or m not in SIMULATED_ONLY_MODES]
@@ -137,6 +144,7 @@ def build_pairs(session, opts: TeleopOptions, next_estimators: dict | None = Non
     if not rig.pairs:
         raise ConfigError("the rig pairs no leader with a follower", where=str(rig.path),
                           fix="add a [[pairs]] table or a leader")
+    check_options(rig, opts)
     rate = loop_rate_hz(rig, opts)
     tables, _ = rig_tables(rig)
     pairs = []

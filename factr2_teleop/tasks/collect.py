@@ -214,6 +214,7 @@ class EpisodeDriver:
             duration_s=r.t - self._t_state, retries=int(info.get("retries", 0)),
             felt=len(info.get("felt", [])), gave_up=bool(info.get("gave_up", False)),
             t_start=self._t_state, t_end=r.t, params=_jsonable(self.params))
+        res.felt_log = info.get("felt", [])
         self.results.append(res)
         rec = self.ts.recording
         if rec is not None:

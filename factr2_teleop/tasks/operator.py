@@ -29,8 +29,9 @@ TRIGGER_SPAN_RAD = 0.7  # leader trigger travel open -> closed (rig gripper_clos
 TRIGGER_K = 0.6  # N*m per unit of trigger fraction error
 TRIGGER_TAU_MAX = 0.4  # N*m
 SERVO_KI = 3.0  # 1/s: how fast the operator removes the follower's joint error
-SERVO_MAX_RAD = 0.06  # rad: the most it leans into the leader beyond the reference
+SERVO_MAX_RAD = 0.15  # rad: the most it leans into the leader beyond the reference
 DECIDE_EVERY = 5  # ticks: the script decides (IK, vision) at 100 Hz on a 500 Hz loop
+AIM_STEP_RAD = 0.03  # rad per joint and decision: the reference never jumps (no IK branch flips)
 
 
 def hand_torque(q, qd, q_ref, qd_ref, k=HAND_K, d=HAND_D, tau_max=HAND_TAU_MAX) -> np.ndarray:
@@ -107,7 +108,7 @@ class Operator:
         self.q_ref_l = self.to_leader(self.q_des)
         self.qd_ref_l = np.zeros_like(self.q_ref_l)
         self.p: Percept | None = None
-        self.felt_peak = 0.0
+        self.nudge = np.zeros(2)  # m, world xy: the visual correction of a held tool (scripts.aim_tool)
 
     # -- per tick --------------------------------------------------------------------------------------
     def decide(self, p: Percept, dt_decide: float) -> None:
@@ -131,7 +132,7 @@ class Operator:
         q = self.q_des
         for _ in range(iters):
             q = K.ik_step(self.fk, self.jac, q, T_ee_des, self.q_min, self.q_max)
-        self.q_des = q
+        self.q_des = self.q_des + np.clip(q - self.q_des, -AIM_STEP_RAD, AIM_STEP_RAD)
         return float(np.linalg.norm(K.pose_error(self.fk(q), T_ee_des)[:3]))
 
     def ee_pose_des(self) -> np.ndarray:

@@ -19,6 +19,12 @@ DECIDE_DT_S = DECIDE_EVERY / 500.0  # s: one decision (the loop runs at 500 Hz)
 FELT_NM = 0.05  # N*m: ||feedback torque||_1 on the leader a person notices as "it hit something"
 P_MISALIGN = 0.35  # share of approaches that arrive misaligned (a person misjudges the hole)
 MAX_TRIES = 4  # insert attempts before giving up
+SEE_KI = 4.0  # 1/s: how fast the operator nudges a held tool onto where they want it (visual correction)
+SEE_MAX_M = 0.01  # m: the largest such nudge
+ALIGNED_M = 0.0003  # m: "looks aligned" -- the operator pushes only then (or after ALIGN_PATIENCE_S)
+ALIGN_PATIENCE_S = 2.5
+HOLD_DRIFT_M = 0.0004  # m: while the peg is out of the hole and further off line than this, the push pauses
+DESCENT_SLACK_S = 3.0  # s: extra time a descent may take for its pauses
 
 
 def wait(op, seconds: float):
@@ -26,15 +32,26 @@ def wait(op, seconds: float):
         yield
 
 
-def move(op, T_to, seconds: float, tool=None, bump=None, T_from=None):
-    """Move the gripper (tool None) or a held tool (tool(): T_ee_tool now) to T_to over `seconds`."""
+def move(op, T_to, seconds: float, tool=None, bump=None, T_from=None, seen=None):
+    """Move the gripper (tool None) or a held tool (tool(): T_ee_tool) to T_to over `seconds`. seen(): the
+    tool's position as seen; given, the operator nudges the tool onto the path by what they see."""
     if T_from is None:
         T_from = op.ee_pose_des() if tool is None else op.ee_pose_des() @ tool()
+        T_from[:2, 3] -= op.nudge
     n = max(1, round(seconds / DECIDE_DT_S))
     for k in range(1, n + 1):
         T = interp_pose(T_from, T_to, k / n, bump)
-        op.aim(T if tool is None else T @ np.linalg.inv(tool()))
+        aim_tool(op, T, tool, seen)
         yield
+
+
+def aim_tool(op, T, tool=None, seen=None) -> None:
+    """Aim the gripper (tool None) or the held tool at T, with the visual nudge (world xy)."""
+    if seen is not None:
+        op.nudge = np.clip(op.nudge + SEE_KI * DECIDE_DT_S * (T[:2, 3] - seen()[:2]), -SEE_MAX_M, SEE_MAX_M)
+    T = T.copy()
+    T[:2, 3] += op.nudge
+    op.aim(T if tool is None else T @ np.linalg.inv(tool()))
 
 
 def grip(op, fraction: float, seconds: float):
@@ -87,9 +104,16 @@ def peg_insert(op, params: dict, rng: np.random.Generator):
     yield from wait(op, 0.5)
     yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.075]), dur(0.9))
 
-    def tool():  # where the peg sits in the gripper, as seen now
+    grasped = {"T": _peg_in_hand(op)}
+    op.nudge = np.zeros(2)
+
+    def seen():  # the peg's lower end: what has to meet the hole
         o = op.p.obs
-        return np.linalg.inv(op.p.T_ee) @ K.pose(o["peg_rot"], o["peg_pos"])
+        z = o["peg_rot"][:, 2] if o["peg_rot"][2, 2] >= 0 else -o["peg_rot"][:, 2]
+        return o["peg_pos"] - PEG.PEG_HALF[2] * z
+
+    def tool():  # where the peg sits in the gripper, as last looked at
+        return grasped["T"]
 
     hole, hole_yaw = np.asarray(params["hole_pos"], float), float(params["hole_yaw"])
     peg_yaw = yaw_of(op.p.obs["peg_rot"])
@@ -107,12 +131,13 @@ def peg_insert(op, params: dict, rng: np.random.Generator):
                     bump=bump)
     for attempt in range(MAX_TRIES):
         T_goal = _upright(target_yaw + dyaw, hole + off + [0, 0, z_above])
-        yield from move(op, T_goal, dur(0.8), tool=tool)  # settle over the (believed) hole
-        status = yield from _descend(op, T_goal, dur(1.6), out)
+        yield from move(op, T_goal, dur(0.8), tool=tool, seen=seen)  # over the (believed) hole
+        yield from _line_up(op, T_goal, tool, seen)
+        status = yield from _descend(op, T_goal, dur(1.6), out, tool, seen)
         if status == "inserted":
             break
         out["retries"] += 1
-        yield from move(op, T_goal @ K.pose(np.eye(3), [0, 0, 0.006]), dur(0.6), tool=tool)  # back off
+        yield from move(op, T_goal @ K.pose(np.eye(3), [0, 0, 0.006]), dur(0.6), tool=tool, seen=seen)  # back off
         off, dyaw = np.zeros(3), 0.0  # looks again, closer: this time the estimate is right
     else:
         out["gave_up"] = True
@@ -123,31 +148,50 @@ def peg_insert(op, params: dict, rng: np.random.Generator):
     return out
 
 
-def _descend(op, T_goal, seconds: float, out: dict):
+def _peg_in_hand(op) -> np.ndarray:
+    o = op.p.obs
+    return np.linalg.inv(op.p.T_ee) @ K.pose(o["peg_rot"], o["peg_pos"])
+
+
+def _line_up(op, T_goal, tool, seen):
+    """Hold over the target, nudging, until the peg looks aligned for 0.2 s (or patience runs out)."""
+    still = 0
+    for _ in range(round(ALIGN_PATIENCE_S / DECIDE_DT_S)):
+        aim_tool(op, T_goal, tool, seen)
+        yield
+        still = still + 1 if np.linalg.norm(T_goal[:2, 3] - seen()[:2]) < ALIGNED_M else 0
+        if still * DECIDE_DT_S >= 0.2:
+            return
+
+
+def _descend(op, T_goal, seconds: float, out: dict, tool, seen):
     """Lower the held peg from T_goal into the hole; 'inserted', or 'jammed' when contact is felt before the
     peg enters (or it stops going down)."""
     z_end = PEG.PEG_HALF[2] - 0.002  # peg centre with its bottom 2 mm below the table: keep pushing a little
 
-    def tool():
-        o = op.p.obs
-        return np.linalg.inv(op.p.T_ee) @ K.pose(o["peg_rot"], o["peg_pos"])
-
     T_end = T_goal.copy()
     T_end[2, 3] = z_end
-    n = max(1, round(seconds / DECIDE_DT_S))
-    for k in range(1, n + 1 + round(0.6 / DECIDE_DT_S)):
-        T = interp_pose(T_goal, T_end, min(k / n, 1.0))
-        op.aim(T @ np.linalg.inv(tool()))
+    ds = 1.0 / max(1, round(seconds / DECIDE_DT_S))
+    s = 0.0
+    for _ in range(round((seconds + DESCENT_SLACK_S) / DECIDE_DT_S)):
+        T = interp_pose(T_goal, T_end, s)
+        aim_tool(op, T, tool, seen)
         yield
         m = PEG.peg_metrics(op.p.obs["peg_pos"], op.p.obs["peg_rot"], op.p.obs["hole_pos"],
                             float(op.p.obs["hole_yaw"]))
         if m["bottom_z_m"] <= PEG.DEPTH_M - PEG.INSERT_DEPTH_M - 0.001:
             return "inserted"
         entered = m["bottom_z_m"] < PEG.DEPTH_M - 0.003
+        drift = np.linalg.norm(T[:2, 3] - seen()[:2])
+        if entered or drift < HOLD_DRIFT_M:  # a person pauses the push while the peg drifts off line
+            s = min(1.0, s + ds)
         stalled = T[2, 3] - PEG.PEG_HALF[2] < m["bottom_z_m"] - 0.008
         if not entered and (op.p.felt_nm > FELT_NM or stalled):
-            out["felt"].append((op.p.t, "feedback" if op.p.felt_nm > FELT_NM else "seen"))
+            out["felt"].append((round(op.p.t, 2), "feedback" if op.p.felt_nm > FELT_NM else "seen",
+                                np.round(m["lateral_m"] * 1e3, 2).tolist(), round(np.degrees(m["yaw_err_rad"]), 1),
+                                round(np.degrees(m["tilt_rad"]), 1)))
             return "jammed"
+    return "jammed"
     return "jammed"
 
 

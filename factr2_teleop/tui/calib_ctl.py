@@ -8,7 +8,7 @@ Steps (each a method the screen runs in a worker thread; progress goes to a thre
               (+ the twin's ground truth, SIMULATED); its rigid-body residual guard holds the follower and
               stops on unexpected contact. Live plots here: tau_m and tau_m - RNEA(q, q_dot, qdd_ref).
               User abort / emergency stop: the progress callback stops it (follower hold).
-  train()     calibration.report.calibrate_from_logs: NEXT + baselines, held-out = last quarter of the replay
+  train()     calibration.pipeline.train_and_report: NEXT + baselines on the pipeline's held-out blocks
   diagnose()  calibration.diagnosis on the same logs (grey-box: effects found, error before/after)
   activate()  the follower's next_checkpoint set for this session + a rig file saved next to the checkpoint
 """
@@ -104,7 +104,18 @@ class CalibrationRun:
         self.abort_reason: str | None = None
         self._lock = threading.Lock()
         self.spec = runtime.rig.followers[0]
-        self.logs: list[Path] = []
+        self.logs: dict[str, Path] = {}
+        self.cfg = self._config()
+
+    def _config(self):
+        """The calibration pipeline's settings for this screen: no pushed contact replay (a real arm cannot
+        be pushed by script), training sized for the screen (epochs, one thread), no PNGs."""
+        from calibration.next.train import TrainConfig
+        from calibration.pipeline import CalibrationConfig
+
+        train = TrainConfig(history=HISTORY, max_epochs=self.epochs, samples_per_epoch=self.samples_per_epoch,
+                            threads=1, device="cpu", warmup=min(10, self.epochs), prior="auto")
+        return CalibrationConfig(minutes=self.minutes, contact_eval_s=0.0, train=train, plots=False)
 
     # -- control --------------------------------------------------------------------------------------------
     def abort(self, reason: str = "aborted by the user") -> None:
@@ -121,13 +132,10 @@ class CalibrationRun:
 
     # -- steps ------------------------------------------------------------------------------------
     def plan(self) -> None:
-        from calibration.trajectories import arm_coverage_trajectory
+        from calibration.pipeline import plan_trajectory
 
         self._set(step="plan", progress=0.0, line="planning the free-motion coverage trajectory")
-        scene = self.rt.rig.twin.scene if self.rt.simulated else "table"
-        traj = arm_coverage_trajectory(
-            self.spec.arm, minutes=self.minutes, rate_hz=100.0, seed=0, scene=scene
-        )
+        traj = plan_trajectory(self.rt.rig, self.spec, self.cfg)
         self.traj = shorten(traj, self.minutes)
         chk = "collision-checked on the scene" if self.traj.collision_checked else "NOT collision-checked"
         self._set(progress=1.0, line=f"trajectory {self.traj.duration_s:.0f} s, {chk}")
@@ -147,9 +155,9 @@ class CalibrationRun:
         """Move to the start pose and replay the trajectory with calibration.next.collect.collect_free_motion
         (its momentum-observer guard stops on unexpected contact); logs saved as plain logs (train /
         held-out)."""
-        from calibration.next.collect import ContactStop, collect_free_motion
+        from calibration.next.collect import ContactStop
+        from calibration.pipeline import collect, write_logs
         from hardware.arms.dynamics import ArmDynamics
-        from hardware.recording.plain_log import save_plain_log
 
         s = self._session()
         f = s.followers[self.spec.name]
@@ -186,41 +194,24 @@ class CalibrationRun:
             return self.abort_reason is not None
 
         try:
-            run = collect_free_motion(s, self.spec.name, traj, progress=progress)
+            run = collect(s, self.spec, traj, self.cfg, progress)
         except ContactStop as e:
             raise _Aborted(f"unexpected contact -- follower on hold ({e.what})") from None
-        if run.stopped:
+        if run.stopped and not run.stopped.startswith("contact"):
             raise _Aborted(self.abort_reason or f"stopped ({run.stopped})")
-        arrays = run.arrays()
-        self.out.mkdir(parents=True, exist_ok=True)
-        save_plain_log(self.out / "replay.npz", **arrays)
-        m = len(arrays["t"])
-        cut = int(0.75 * m)  # held-out: the last quarter (never trained on)
-        per = {k: v for k, v in arrays.items() if v.ndim >= 1 and len(v) == m}
-        fixed = {k: v for k, v in arrays.items() if k not in per}
-        self.logs = [
-            save_plain_log(self.out / "replay_train.npz", **{k: v[:cut] for k, v in per.items()}, **fixed),
-            save_plain_log(self.out / "replay_heldout.npz", **{k: v[cut:] for k, v in per.items()}, **fixed),
-        ]
+        if run.stopped:
+            self.rt.say(f"calibration: {run.stopped}")
+        self.logs = write_logs(self.out, run, self.cfg)
+        m = len(run.t)
         self._set(progress=1.0, eta_s=0.0, line=f"replay done: {m * dt:.1f} s recorded")
 
     def train(self) -> dict:
         import torch
 
-        from calibration.next.train import TrainConfig
-        from calibration.report import calibrate_from_logs
+        from calibration.pipeline import train_and_report
 
         torch.set_num_threads(1)
         self._set(step="train", progress=0.0, eta_s=float("nan"), line="training NEXT")
-        cfg = TrainConfig(
-            history=HISTORY,
-            max_epochs=self.epochs,
-            samples_per_epoch=self.samples_per_epoch,
-            threads=1,
-            device="cpu",
-            warmup=min(10, self.epochs),
-            prior="auto",  # as `factr2 calibrate`
-        )
 
         def cb(p) -> bool:
             with self._lock:
@@ -233,9 +224,7 @@ class CalibrationRun:
             )
             return self.abort_reason is not None
 
-        report = calibrate_from_logs(
-            [self.logs[0]], self.out, [self.logs[1]], arm=self.spec.arm, cfg=cfg, callback=cb, plots=False
-        )
+        report = train_and_report(self.logs, self.out, self.spec.arm, self.cfg, callback=cb)
         self._check_abort()
         self._set(report=report, checkpoint=str(self.out / "next"), progress=1.0, line="training done")
         return report
@@ -250,8 +239,8 @@ class CalibrationRun:
         self._set(
             step="diagnose", progress=0.0, eta_s=float("nan"), line="diagnosing the residual (grey-box)"
         )
-        train = [load_segment(self.logs[0])]
-        held = [load_segment(self.logs[1])]
+        train = [load_segment(self.logs["train"])]
+        held = [load_segment(self.logs["heldout"])]
         basis = PinocchioBasis(load_arm(self.spec.arm).pinocchio_model())
         dg = diagnose(basis, train, held, LoopConfig(max_effects=6))
         meta = {

@@ -114,8 +114,11 @@ class TeleopController:
             if problem:
                 raise UserError(f"NEXT feedback unavailable: {problem}", where="Teleop",
                                 fix="run the Calibration screen, or pick another mode (key m)")
-        opts = TeleopOptions(mode=self.mode, rate_hz=self.rate_hz, gain=self.gain)
-        return TeleopSession(self.rt.session, opts)
+        return TeleopSession(self.rt.session, self.options())
+
+    def options(self) -> TeleopOptions:
+        """The session layer's TeleopOptions of this screen's settings."""
+        return TeleopOptions(mode=self.mode, rate_hz=self.rate_hz, gain=self.gain)
 
     def start(self) -> None:
         """Claim the rig and start the loop (UserError when it cannot start; the arms stay safe)."""

@@ -453,25 +453,6 @@ class DynamixelEmulator:
                 self.bank.command_current(np.array(idx), np.array(amps))
 
 
-def make_twin_emulator(ctx):
-    """A twin's leader (hardware.registry EmulatorContext -> TwinEndpoint): the rig's servos, current
-    mode, return delay 0 (the leader sets it anyway), on a pty or an in-process port."""
-    from hardware.dynamixel import servo_models
-    from hardware.registry import TwinEndpoint
-
-    cfg = ctx.spec.config
-    g = ctx.with_gripper
-    models, trigger = servo_models(cfg)  # the trigger servo comes after the joints
-    offsets = [float(o) for o in cfg.offsets_rad] + ([float(cfg.gripper_open_rad)] if g else [])
-    emu = DynamixelEmulator(ctx.bank, list(cfg.ids) + ([cfg.gripper_id] if g else []),
-                            models + ([trigger] if g else []),
-                            signs=[float(s) for s in cfg.signs] + ([1.0] if g else []), offsets_rad=offsets,
-                            return_delay=0, operating_mode=p.OP_MODE_CURRENT, baud=int(cfg.baud),
-                            bank_lock=ctx.world.lock, seed=ctx.twin_seed, emulate_return_delay=False,
-                            transport=ctx.dynamixel_transport, clock=ctx.now)
-    return TwinEndpoint(emulator=emu, endpoint=emu.port_path)
-
-
 def _rint(x: float) -> int:
     """Nearest integer, halves to even (= numpy.rint); 0 for NaN / inf."""
     return round(x) if math.isfinite(x) else 0

@@ -22,7 +22,6 @@ from pathlib import Path
 
 import numpy as np
 
-from hardware.features import signal_name
 from hardware.recording import schemas as S
 from hardware.recording.cache import Decoded, FrameIndex, LazyFields, TopicArrays, load_or_decode
 from hardware.recording.mcap_scan import open_buffer, read_message_data
@@ -81,7 +80,7 @@ class Episode:
             ta = self.topic(name)
             schema = S.NUMERIC_SCHEMAS[ta.schema]
             for f in schema.fields:
-                out[signal_name(name, schema.name, f.feature)] = (ta.t, ta.fields[f.name])
+                out[S.signal_name(name, schema.name, f.feature)] = (ta.t, ta.fields[f.name])
         return out
 
     def resample(self, t_grid: np.ndarray | None = None,
@@ -98,7 +97,7 @@ class Episode:
         for name in self.recording.topics:
             schema = S.NUMERIC_SCHEMAS[self.recording.topic(name).schema]
             for f in schema.fields:
-                kinds[signal_name(name, schema.name, f.feature)] = f.kind
+                kinds[S.signal_name(name, schema.name, f.feature)] = f.kind
         out: dict[str, np.ndarray] = {"t": t_grid}
         for sig, (t, y) in self.signals().items():
             y = np.asarray(y, float) if kinds[sig] == "float" else np.asarray(y)  # cache.py: bool/int64 else

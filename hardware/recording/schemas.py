@@ -138,6 +138,17 @@ LOOP_TIMING = Schema("factr2.LoopTiming", "control-loop timing, one sample per t
 NUMERIC_SCHEMAS: dict[str, Schema] = {s.name: s for s in (JOINT_STATE, EXTERNAL_TORQUE, TORQUE_COMMAND,
                                                            FOLLOWER_COMMAND, GROUND_TRUTH, LOOP_TIMING)}
 EVENT_SCHEMA_NAME = "factr2.Event"
+ACTION = "action"  # the arm prefix of the follower's command: the policy's action (hardware/features.py)
+
+
+def signal_name(topic: str, schema_name: str, feature: str) -> str:
+    """Flat name of a recorded numeric field: "<arm>.<feature>", with the follower's command topic named as
+    the action ("/follower/command" q -> "action.joint.pos"; "/left_follower/command" -> "left_action...")."""
+    arm = topic.split("/")[1]
+    if schema_name == FOLLOWER_COMMAND.name:
+        arm = arm[: -len("follower")] + ACTION if arm.endswith("follower") else f"{arm}_{ACTION}"
+    return f"{arm}.{feature}"
+
 
 
 def event_json_schema() -> bytes:

@@ -1,0 +1,167 @@
+"""NEXT calibration on a rig, one pipeline for the CLI (`factr2 calibrate --rig`), the terminal app's
+Calibration screen and the demo's first-run set-up: plan -> collect -> split -> train -> report.
+
+    cfg = CalibrationConfig(minutes=10)
+    traj = plan_trajectory(rig, spec, cfg)
+    run = collect(session, spec, traj, cfg, progress)            # one policy for an unexpected contact
+    logs = write_logs(out, run, cfg, contact_eval=None)          # one held-out policy (split_mask)
+    report = train_and_report(logs, out, spec.arm, cfg)
+
+Held-out policy: every k-th block of HELDOUT_BLOCK_S seconds (k = round(1 / heldout_frac)), spread over the
+whole replay, so the held-out part holds every phase of the trajectory (slow, multi-joint, fast); a held-out
+tail would be the fast phase alone, which the model never saw. Unexpected contact: the follower holds; the run
+is kept, less its last CONTACT_TRIM_S, when at least min_minutes remain, else ContactStop goes up.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from calibration.next.train import TrainConfig
+from hardware.errors import UserError
+from hardware.timeseries import heldout_spans, spans_mask
+
+HELDOUT_FRAC = 0.15  # share of the replay held out for evaluation
+HELDOUT_BLOCK_S = 20.0  # held-out free motion comes in blocks of this length [s]
+CONTACT_EVAL_S = 300.0  # pushed replay scored for contact L1 [s]: the paper's 5 min of held-out contact data
+MIN_MINUTES = 2.0  # an unexpected contact after at least this much data keeps it [min]
+CONTACT_TRIM_S = 2.0  # dropped before an unexpected contact [s]
+RATE_HZ = 100.0  # the paper's NEXT rate [Hz]
+OBSERVER_GAIN = 50.0  # momentum-observer baseline gain K_o [1/s]
+
+
+@dataclass
+class CalibrationConfig:
+    """minutes: length of the free-motion replay [min]; rate_hz: its rate and NEXT's [Hz]; heldout_frac;
+    contact_eval_s: twins only, length of a held-out replay with scripted pushes scored for contact [s] (0:
+    none); min_minutes: see the module; train: NEXT's TrainConfig; observer_gain [1/s]; plots: PNGs."""
+
+    minutes: float = 10.0
+    rate_hz: float = RATE_HZ
+    heldout_frac: float = HELDOUT_FRAC
+    contact_eval_s: float = CONTACT_EVAL_S
+    min_minutes: float = MIN_MINUTES
+    train: TrainConfig = field(default_factory=TrainConfig)
+    observer_gain: float = OBSERVER_GAIN
+    plots: bool = True
+
+    def check(self) -> None:
+        if not self.minutes > 0:
+            raise UserError(f"--minutes {self.minutes} must be positive", where="--minutes", fix="e.g. 10")
+        if not 0.0 < self.heldout_frac < 0.9:
+            raise UserError(f"--heldout-frac {self.heldout_frac} out of range", where="--heldout-frac",
+                            fix="use a value between 0 and 0.9, e.g. 0.15")
+
+
+def plan_trajectory(rig, spec, cfg: CalibrationConfig):
+    """The collision-checked free-motion coverage trajectory for a follower (calibration.trajectories)."""
+    from calibration.trajectories import arm_coverage_trajectory
+
+    return arm_coverage_trajectory(spec.arm, cfg.minutes, cfg.rate_hz,
+                                   scene=rig.twin.scene if rig.simulated else "table")
+
+
+def collect(session, spec, traj, cfg: CalibrationConfig, progress: Callable | None = None):
+    """Replay traj on the follower and record it (calibration.next.collect). An unexpected contact keeps the
+    data before it when at least cfg.min_minutes remain (run.stopped says so), else raises ContactStop."""
+    from calibration.next.collect import ContactStop, collect_free_motion
+
+    try:
+        return collect_free_motion(session, spec.name, traj, progress=progress)
+    except ContactStop as e:
+        run = e.run
+        keep = 0 if run is None else max(0, len(run.t) - int(CONTACT_TRIM_S * cfg.rate_hz))
+        if keep < cfg.min_minutes * 60.0 * cfg.rate_hz:
+            raise
+        for k in ("t", "q", "qd", "q_cmd", "tau_m", "current", "temperature", "tau_ext_true", "contact"):
+            setattr(run, k, getattr(run, k)[:keep])
+        run.stopped = f"contact: {e.what}; kept the {keep / cfg.rate_hz / 60.0:.1f} min before it"
+        return run
+
+
+def split_mask(n: int, cfg: CalibrationConfig) -> np.ndarray:
+    """(n,) bool, True where a sample is held out (the module's policy). A run shorter than k blocks gets
+    blocks of n // k samples, so something is held out."""
+    k = max(2, int(round(1.0 / cfg.heldout_frac)))
+    block = max(1, min(int(round(HELDOUT_BLOCK_S * cfg.rate_hz)), n // k))
+    _train, held = heldout_spans([n], cfg.heldout_frac, block_len=block, offset=1)
+    return spans_mask(held, [n])[0]
+
+
+def write_logs(out: str | Path, run, cfg: CalibrationConfig, contact_eval=None) -> dict[str, Path]:
+    """out/data/{free_motion, train, heldout[, contact_eval]}.npz; the time gaps left by the split make
+    resampling cut both files into segments, so no training window spans a cut. -> {name: path}."""
+    from hardware.recording.plain_log import save_plain_log
+
+    data = Path(out) / "data"
+    data.mkdir(parents=True, exist_ok=True)
+    arrays = run.arrays()
+    n = len(arrays["t"])
+    held = split_mask(n, cfg)
+    per = {k: v for k, v in arrays.items() if v.ndim >= 1 and len(v) == n}
+    fixed = {k: v for k, v in arrays.items() if k not in per}
+    paths = {"free_motion": save_plain_log(data / "free_motion.npz", **arrays),
+             "train": save_plain_log(data / "train.npz", **{k: v[~held] for k, v in per.items()}, **fixed),
+             "heldout": save_plain_log(data / "heldout.npz", **{k: v[held] for k, v in per.items()}, **fixed)}
+    if contact_eval is not None:
+        paths["contact_eval"] = save_plain_log(data / "contact_eval.npz", **contact_eval.arrays())
+    return paths
+
+
+def train_and_report(logs: dict[str, Path], out: str | Path, arm: str, cfg: CalibrationConfig,
+                     callback=None) -> dict:
+    """NEXT and the baselines on the logs of write_logs (calibration.report); report.json's dict."""
+    from calibration.report import calibrate_from_logs
+
+    evals = [logs["heldout"]] + ([logs["contact_eval"]] if "contact_eval" in logs else [])
+    return calibrate_from_logs([logs["train"]], out, evals, arm=arm, cfg=cfg.train, rate_hz=cfg.rate_hz,
+                               observer_gain=cfg.observer_gain, callback=callback, plots=cfg.plots)
+
+
+def record_pushed_replay(session, spec, seconds: float, rate_hz: float, seed: int = 1):
+    """SIMULATED: replay a fresh coverage trajectory (seed >= 1: not the training data's) while the twin
+    pushes links 3-6 (10-40 N, 0.5-1.5 s, one every ~3 s); the log carries the twin's ground truth (the mean
+    over each sample period). The calibration's contact evaluation is seed 1; other seeds give independent
+    runs (bench/tune_next_filter.py)."""
+    from calibration.next.collect import Push, collect_free_motion
+    from calibration.trajectories import arm_coverage_trajectory
+
+    traj = arm_coverage_trajectory(spec.arm, seconds / 60.0, rate_hz, scene=session.rig.twin.scene, seed=seed)
+    rng = np.random.default_rng(seed)
+    pushes, t = [], 2.0
+    while t < traj.duration_s - 2.0:
+        d = rng.uniform(0.5, 1.5)
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        pushes.append(Push(t, f"link{rng.integers(3, 7)}", tuple(rng.uniform(10, 40) * direction), d))
+        t += d + rng.uniform(1.0, 3.0)
+    return collect_free_motion(session, spec.name, traj, pushes=pushes)
+
+
+def calibrate_rig(session, spec, out: str | Path, cfg: CalibrationConfig, progress: Callable | None = None,
+                  callback=None, say: Callable[[str], None] = lambda s: None) -> dict:
+    """The whole pipeline on an open rig session; returns the report (also written to out/report.json)."""
+    import json
+
+    cfg.check()
+    rig = session.rig
+    traj = plan_trajectory(rig, spec, cfg)
+    run = collect(session, spec, traj, cfg, progress)
+    if run.stopped:
+        say(f"warning: {run.stopped}")
+    contact_eval = None
+    if rig.simulated and cfg.contact_eval_s > 0:
+        say(f"contact evaluation: {cfg.contact_eval_s:.0f} s replay with scripted pushes (SIMULATED)")
+        contact_eval = record_pushed_replay(session, spec, cfg.contact_eval_s, cfg.rate_hz, seed=1)
+    logs = write_logs(out, run, cfg, contact_eval)
+    report = train_and_report(logs, out, spec.arm, cfg, callback)
+    report.update(rig=rig.name, follower=spec.name, simulated=rig.simulated,
+                  collision_checked=traj.collision_checked, stopped=run.stopped or None,
+                  heldout={"policy": "blocks", "frac": cfg.heldout_frac, "block_s": HELDOUT_BLOCK_S})
+    (Path(out) / "report.json").write_text(json.dumps(report, indent=1))
+    return report
+

@@ -1,0 +1,32 @@
+"""`factr2 collect`: scripted demonstrations of a twin task through the full teleop stack (SIMULATED),
+lockstep (faster than real time), one MCAP per session (docs/tasks.md)."""
+
+from __future__ import annotations
+
+import sys
+
+HELP = "collect scripted demonstrations of a twin task through the leader, force feedback and recording"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--rig", default="sim-piper", help="a simulated rig (default: sim-piper)")
+    parser.add_argument("--task", required=True, help="task name (factr2 tasks lists them)")
+    parser.add_argument("--episodes", type=int, default=10, help="demonstrations to collect (default 10)")
+    parser.add_argument("--out", required=True, help="folder for the session's MCAP and summary JSON")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the initial conditions (default 0)")
+    parser.add_argument("--mode", default=None, help="feedback mode (default: next with a checkpoint, "
+                        "else dob; see factr2 teleop --help)")
+    parser.add_argument("--checkpoint", default=None, help="NEXT checkpoint (next.json from factr2 calibrate; "
+                        "default: the rig's, else the demo's cache)")
+    parser.add_argument("--no-cameras", action="store_true", help="record no camera frames (faster)")
+
+
+def run(args) -> int:
+    from factr2_teleop.tasks.run import CollectConfig, collect, summary_lines
+
+    cfg = CollectConfig(rig=args.rig, task=args.task, episodes=args.episodes, out=args.out, seed=args.seed,
+                        mode=args.mode, checkpoint=args.checkpoint, cameras=not args.no_cameras)
+    result = collect(cfg, progress=sys.stderr.isatty() or True)
+    for line in summary_lines(result):
+        print(line)
+    return 0

@@ -1,0 +1,142 @@
+"""`factr2 train RECORDING_OR_DIR... --out RUN`: train a FIRST (or baseline) policy on recorded episodes.
+
+Multi-process: `--nproc N` runs N processes on this machine (torchrun underneath); several machines: start the
+same command under torchrun on each (docs/policies.md), e.g.
+    torchrun --nnodes 2 --node_rank 0 --nproc_per_node 8 --rdzv_backend c10d --rdzv_endpoint HOST:29500 \\
+        -m factr2_teleop.cli train DATA --out RUN
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from hardware.errors import UserError
+
+HELP = "train a FIRST / ACT / flow-matching policy on recorded episodes (one or many processes)"
+
+
+def add_arguments(p) -> None:
+    from policies.config import POLICIES, PRESETS
+    from policies.dataset import FORCE_SOURCES
+    from policies.methods import METHODS
+
+    p.add_argument("inputs", type=Path, nargs="+", metavar="RECORDING_OR_DIR")
+    p.add_argument("--out", type=Path, required=True, metavar="RUN", help="run folder (checkpoints, logs)")
+    p.add_argument("--policy", choices=POLICIES, default="flow")
+    p.add_argument("--method", choices=list(METHODS), default="first",
+                   help="first (default), base, base-torque, factr, tavla")
+    p.add_argument("--ratio", default=None, metavar="F:PC:C",
+                   help="re-sampling weights w_F:w_PC:w_C or a preset (C, PC, PC+C, uniform); "
+                   "default 1:5:1 for first, uniform otherwise")
+    p.add_argument("--preset", choices=PRESETS, default="small", help="small (CPU) or paper (the paper's sizes)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--steps", type=int, default=None, help="optimiser steps")
+    g.add_argument("--epochs", type=float, default=None, help="passes over the training samples (default 20)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument("--force", choices=[f for f in FORCE_SOURCES if f != "none"], default="tau_ext",
+                   help="force input: NEXT tau_ext (default) or raw motor current")
+    p.add_argument("--next", type=Path, default=None, metavar="CKPT",
+                   help="NEXT checkpoint: estimate tau_ext offline from the logged joint states")
+    p.add_argument("--thresholds", default=None, metavar="LOW:HIGH", help="contact hysteresis [N*m]")
+    p.add_argument("--rate", type=float, default=None, help="policy rate [Hz] (default: the camera rate)")
+    p.add_argument("--batch", type=int, default=128)
+    p.add_argument("--lr", type=float, default=3e-4)
+    p.add_argument("--weight-decay", type=float, default=0.05)
+    p.add_argument("--warmup", type=int, default=500)
+    p.add_argument("--dropout", type=float, default=None)
+    p.add_argument("--image-size", type=int, default=None, help="input size [px] (default: the preset's)")
+    p.add_argument("--backbone", default="resnet18-gn", help="resnet18-gn, torchvision:NAME or timm:NAME")
+    p.add_argument("--backbone-weights", default="", metavar="FILE", help="local weights for the backbone")
+    p.add_argument("--val-every", type=int, default=500)
+    p.add_argument("--ckpt-every", type=int, default=1000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--nproc", type=int, default=1, help="processes on this machine (DDP; gloo on CPU)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _options(args):
+    from policies.phases import parse_thresholds
+    from policies.run import RunOptions
+    from policies.sampler import parse_ratio
+    from policies.train import TrainConfig
+
+    ratio = thresholds = None
+    if args.ratio is not None:
+        try:
+            ratio = parse_ratio(args.ratio)
+        except ValueError as e:
+            raise UserError(f"--ratio: {e}", fix="e.g. --ratio 1:5:1") from None
+    if args.thresholds is not None:
+        try:
+            thresholds = parse_thresholds(args.thresholds)
+        except ValueError as e:
+            raise UserError(f"--thresholds {e}", fix="give LOW:HIGH in N*m") from None
+    for name in ("steps", "batch", "val_every", "ckpt_every"):
+        v = getattr(args, name)
+        if v is not None and v < 1:
+            raise UserError(f"--{name.replace('_', '-')} must be >= 1, got {v}")
+    if args.epochs is not None and not args.epochs > 0:
+        raise UserError(f"--epochs must be > 0, got {args.epochs}")
+    tcfg = TrainConfig(steps=args.steps or 0, epochs=args.epochs or 20.0, batch=args.batch, lr=args.lr,
+                       weight_decay=args.weight_decay, warmup=args.warmup, val_every=args.val_every,
+                       ckpt_every=args.ckpt_every, seed=args.seed)
+    return RunOptions(inputs=args.inputs, out=args.out, policy=args.policy, method=args.method, ratio=ratio,
+                      preset=args.preset, force=args.force, next=args.next, thresholds=thresholds,
+                      rate_hz=args.rate, resume=args.resume, backbone=args.backbone,
+                      backbone_weights=args.backbone_weights, dropout=args.dropout, image_size=args.image_size,
+                      progress=not args.no_progress, train=tcfg)
+
+
+def _argv(args) -> list[str]:
+    """This command's options back as arguments (for the worker processes), less --nproc."""
+    out = ["train", *map(str, args.inputs)]
+    flags = {"resume": "--resume", "no_progress": "--no-progress"}
+    for dest, value in sorted(vars(args).items()):
+        if dest in ("inputs", "nproc", "command", "debug", "_run") or value is None or dest.startswith("_"):
+            continue
+        if dest in flags:
+            out += [flags[dest]] if value else []
+        elif dest in ("out", "policy", "method", "ratio", "preset", "steps", "epochs", "force", "next",
+                      "thresholds", "rate", "batch", "lr", "weight_decay", "warmup", "dropout", "image_size",
+                      "backbone", "backbone_weights", "val_every", "ckpt_every", "seed"):
+            out += [f"--{dest.replace('_', '-')}", str(value)]
+    return out
+
+
+def _launch(args, opts) -> int:
+    """Check what can be checked once, then run N worker processes under torchrun (standalone)."""
+    from policies.run import precheck
+
+    precheck(opts)
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={args.nproc}",
+           "-m", "factr2_teleop.cli"] + _argv(args)
+    env = dict(os.environ, OMP_NUM_THREADS=str(max(1, (os.cpu_count() or 1) // args.nproc)))
+    rc = subprocess.call(cmd, env=env)
+    return 0 if rc == 0 else 2
+
+
+def run(args) -> int:
+    opts = _options(args)  # bad values fail here, before any process starts
+    if args.nproc < 1:
+        raise UserError(f"--nproc must be >= 1, got {args.nproc}")
+    if args.nproc > 1 and "RANK" not in os.environ:
+        return _launch(args, opts)
+    from policies.run import run_training
+    from policies.train import setup_distributed
+
+    d = setup_distributed()
+    try:
+        metrics = run_training(opts, d)
+    finally:
+        if d.world > 1:
+            import torch.distributed as dist
+
+            dist.destroy_process_group()
+    if d.main:
+        shown = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items())
+        print(f"done: {args.out}/checkpoints (last), curves {args.out}/curves.png, TensorBoard {args.out}/tensorboard"
+              + (f"; {shown}" if shown else ""))
+    return 0

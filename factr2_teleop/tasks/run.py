@@ -1,0 +1,177 @@
+"""`factr2 collect` as a function: validate, open the task rig, run the teleop session with the scripted
+operator until every episode is done, write the summary. SIMULATED throughout.
+
+    result = collect(CollectConfig(task="peg-insert", episodes=50, out="demos"))
+    print("\\n".join(summary_lines(result)))
+
+Bad input fails before anything is written: an unknown task, a rig that is real or whose follower cannot hold
+the task, an output file that exists (never overwritten), no NEXT checkpoint for mode next.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from hardware.errors import UserError
+
+
+@dataclass
+class CollectConfig:
+    rig: str = "sim-piper"
+    task: str = "peg-insert"
+    episodes: int = 10
+    out: str = "demos"
+    seed: int = 0
+    mode: str | None = None  # feedback mode; None: next with a checkpoint, else dob
+    checkpoint: str | None = None
+    cameras: bool = True
+
+
+def output_paths(cfg: CollectConfig, rig_name: str) -> tuple[Path, Path]:
+    stem = f"{cfg.task}-{rig_name}-seed{cfg.seed}"
+    return Path(cfg.out) / f"{stem}.mcap", Path(cfg.out) / f"{stem}.json"
+
+
+def _mode_and_checkpoint(cfg: CollectConfig, rig_name: str) -> tuple[str, str | None]:
+    from factr2_teleop.demo.next_cache import find_checkpoint
+
+    if cfg.mode not in (None, "next"):
+        return cfg.mode, None
+    ck = find_checkpoint(rig_name, cfg.checkpoint)
+    if ck is None and cfg.mode == "next":
+        raise UserError("no NEXT checkpoint for feedback mode next", where="--mode next",
+                        fix="pass --checkpoint DIR/next.json (factr2 calibrate --rig sim-piper --out DIR)")
+    return ("next", str(ck)) if ck is not None else ("dob", None)
+
+
+def collect(cfg: CollectConfig, progress: bool = True) -> dict:
+    from factr2_teleop.session.pairs import TeleopOptions
+    from factr2_teleop.session.teleop import TeleopSession
+    from factr2_teleop.tasks.collect import EpisodeDriver, task_rig
+    from hardware.connect import open_rig
+    from hardware.sim.tasks import get_task
+
+    if cfg.episodes < 1:
+        raise UserError(f"--episodes {cfg.episodes} must be at least 1", where="--episodes", fix="e.g. 50")
+    task = get_task(cfg.task)
+    rig = task_rig(cfg.rig, task)
+    mcap, summary_path = output_paths(cfg, rig.name)
+    for p in (mcap, summary_path):
+        if p.exists():
+            raise UserError("output file already exists", where=str(p),
+                            fix="choose another --out or --seed (recordings are never overwritten)")
+    mode, ck = _mode_and_checkpoint(cfg, rig.name)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.episodes, desc=f"{task.name} (SIMULATED)", unit="ep", leave=False)
+    t_wall, c_cpu = time.perf_counter(), time.process_time()
+    with open_rig(rig, clock="lockstep", seed=cfg.seed) as s:
+        ts = TeleopSession(s, TeleopOptions(mode=mode, checkpoint=ck))
+        ts.record(cfg.out, path=mcap, task=task.name, cameras=cfg.cameras,
+                  extra_meta={"simulated": "true", "collect_seed": cfg.seed, "operator": "scripted"})
+        scores = PhaseLog()
+
+        def done(res):
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(ok=sum(r.outcome == "success" for r in ep.results))
+
+        ep = EpisodeDriver(ts, task, cfg.episodes, seed=cfg.seed, on_episode=done)
+        ts.hooks.append(ep.on_tick)
+        ts.hooks.append(lambda r: scores.add(r, ep))
+        try:
+            ts.loop.run()
+        finally:
+            status = ts.close_recording("collection interrupted" if len(ep.results) < cfg.episodes else "")
+            if bar is not None:
+                bar.close()
+        sim_s = s.clock.now() - scores.t0 if np.isfinite(scores.t0) else float("nan")
+        cams = (ts.recording or getattr(status, "camera_stats", None)) and {}
+        timing = ts.loop.timing.stats()
+    wall = time.perf_counter() - t_wall
+    thresholds = _thresholds(ck)
+    shares = scores.shares(ep.results, thresholds)
+    res = [asdict(r) for r in ep.results]
+    ok = [r["outcome"] == "success" for r in res]
+    lengths = [r["duration_s"] for r in res]
+    out = {"simulated": True, "task": task.name, "rig": rig.name, "seed": cfg.seed, "mode": mode,
+           "checkpoint": ck, "episodes": len(res), "success_rate": float(np.mean(ok)) if ok else 0.0,
+           "progress_mean": float(np.mean([r["progress"] for r in res])) if res else 0.0,
+           "episode_s_mean": float(np.mean(lengths)) if lengths else 0.0,
+           "episode_s_min": float(np.min(lengths)) if lengths else 0.0,
+           "episode_s_max": float(np.max(lengths)) if lengths else 0.0,
+           "retries_mean": float(np.mean([r["retries"] for r in res])) if res else 0.0,
+           "phase_shares": shares, "phase_thresholds_nm": thresholds, "sim_s": sim_s, "wall_s": wall,
+           "x_realtime": sim_s / wall if wall > 0 else float("nan"),
+           "cpu_s": time.process_time() - c_cpu, "loop_overruns": timing.overruns,
+           "frames_written": getattr(status, "frames_written", 0), "samples_dropped": getattr(status, "dropped", 0),
+           "frames_dropped": getattr(status, "dropped_frames", 0), "cameras": cams,
+           "recording": str(mcap), "results": res}
+    summary_path.write_text(json.dumps(out, indent=1, default=float))
+    return out
+
+
+def _thresholds(ck: str | None) -> list | None:
+    """Phase-label thresholds (T_low, T_high) [N*m] from the NEXT checkpoint's free-motion noise."""
+    if ck is None:
+        return None
+    from policies.phases import default_thresholds
+
+    val = json.loads(Path(ck).read_text()).get("metrics", {}).get("val_l1")
+    return list(default_thresholds(val)) if val else None
+
+
+class PhaseLog:
+    """Per tick inside episodes: t [s] and the estimate tau_ext [N*m] fed back (for the FIRST phase shares),
+    and the twin's contact flag (SIMULATED truth, for comparison)."""
+
+    def __init__(self):
+        self.t, self.tau, self.t0 = [], [], float("nan")
+
+    def add(self, r, ep) -> None:
+        if ep._state == "run":
+            if not np.isfinite(self.t0):
+                self.t0 = r.t
+            self.t.append(r.t)
+            self.tau.append(np.asarray(r.tau_ext, float))
+
+    def shares(self, results, thresholds) -> dict | None:
+        """Share of free / pre-contact / contact samples over all episodes (labels per episode)."""
+        if not thresholds or not self.t:
+            return None
+        from policies.phases import phases_from_torque
+
+        t, tau = np.asarray(self.t), np.nan_to_num(np.asarray(self.tau))
+        counts = np.zeros(3)
+        for r in results:
+            m = (t >= r.t_start) & (t <= r.t_end)
+            if m.sum():
+                ph = phases_from_torque(t[m], tau[m], *thresholds)
+                counts += np.bincount(ph.astype(int), minlength=3)[:3]
+        tot = counts.sum()
+        return dict(zip(("free", "pre_contact", "contact"), (counts / tot).tolist())) if tot else None
+
+
+def summary_lines(out: dict) -> list[str]:
+    lines = [f"{out['task']} on {out['rig']} (SIMULATED), feedback {out['mode']}, seed {out['seed']}",
+             f"{'episodes':>22s}  {out['episodes']}",
+             f"{'success rate':>22s}  {out['success_rate'] * 100:.1f} %  (task progress {out['progress_mean']:.2f})",
+             f"{'episode length [s]':>22s}  mean {out['episode_s_mean']:.1f}  min {out['episode_s_min']:.1f}  "
+             f"max {out['episode_s_max']:.1f}",
+             f"{'retries per episode':>22s}  {out['retries_mean']:.2f}"]
+    sh = out["phase_shares"]
+    if sh:
+        lines.append(f"{'free / pre / contact':>22s}  {sh['free'] * 100:.1f} / {sh['pre_contact'] * 100:.1f} / "
+                     f"{sh['contact'] * 100:.1f} %  (NEXT phase labels)")
+    lines += [f"{'wall time':>22s}  {out['wall_s']:.0f} s for {out['sim_s']:.0f} s simulated "
+              f"({out['x_realtime']:.2f}x real time)",
+              f"{'recording':>22s}  {out['recording']} ({out['frames_written']} frames, "
+              f"{out['samples_dropped']} samples dropped)"]
+    return lines

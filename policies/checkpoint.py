@@ -1,0 +1,116 @@
+"""Policy checkpoints: RUN/checkpoints/step-NNNNNNN.safetensors (weights, no pickle) + .json (policy config,
+train config, method, features, normaliser, phase thresholds, NEXT checkpoint id, data hash, rig and arm,
+software version, metrics) + .optim.safetensors (AdamW moments: what `--resume` needs to continue exactly).
+RUN/checkpoints/last names the newest complete one (written last, so a crash never points at half a file).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import torch
+from safetensors.torch import load_file, save_file
+
+from hardware.errors import ConfigError, UserError
+from policies.config import PolicyConfig
+from policies.normalizer import Normalizer
+
+FORMAT = "factr2-policy/1"
+KEEP = 2  # older periodic checkpoints beyond this many are removed (the final one always stays)
+
+
+def make_model(cfg: PolicyConfig):
+    from policies.act import ACTPolicy
+    from policies.flow import FlowPolicy
+
+    return (FlowPolicy if cfg.policy == "flow" else ACTPolicy)(cfg)
+
+
+def _optim_tensors(opt: torch.optim.Optimizer) -> dict[str, torch.Tensor]:
+    out = {}
+    for i, (pid, st) in enumerate(opt.state_dict()["state"].items()):
+        for k, v in st.items():
+            out[f"{pid}.{k}"] = (v if torch.is_tensor(v) else torch.tensor(v)).detach().cpu().contiguous()
+    return out
+
+
+def _write_atomic(path: Path, write) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def save(folder: Path, step: int, model: torch.nn.Module, opt: torch.optim.Optimizer | None, meta: dict,
+         final: bool = False) -> Path:
+    """Write step-<step>.{safetensors,json[,optim.safetensors]} and point `last` at it; returns the JSON."""
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = folder / f"step-{step:07d}"
+    sd = {k: v.detach().float().cpu().contiguous() for k, v in model.state_dict().items()}
+    _write_atomic(stem.with_suffix(".safetensors"), lambda p: save_file(sd, str(p)))
+    if opt is not None:
+        _write_atomic(Path(f"{stem}.optim.safetensors"), lambda p: save_file(_optim_tensors(opt), str(p)))
+    meta = dict(meta, format=FORMAT, step=step, final=final, weights=stem.with_suffix(".safetensors").name)
+    _write_atomic(stem.with_suffix(".json"), lambda p: p.write_text(json.dumps(meta, indent=1)))
+    _write_atomic(folder / "last", lambda p: p.write_text(stem.name + "\n"))
+    periodic = sorted(p for p in folder.glob("step-*.json") if not json.loads(p.read_text()).get("final"))
+    for old in periodic[:-KEEP]:
+        for suffix in (".json", ".safetensors", ".optim.safetensors"):
+            Path(str(old.with_suffix("")) + suffix).unlink(missing_ok=True)
+    return stem.with_suffix(".json")
+
+
+def last_checkpoint(run: Path) -> Path | None:
+    """The JSON of RUN's newest complete checkpoint, or None."""
+    p = Path(run) / "checkpoints" / "last"
+    if not p.is_file():
+        return None
+    j = p.parent / (p.read_text().strip() + ".json")
+    return j if j.is_file() else None
+
+
+def read_meta(path: Path) -> dict:
+    p = Path(path)
+    if p.is_dir():
+        p = last_checkpoint(p) or p / "checkpoints" / "last.json"
+    if p.suffix != ".json":
+        p = p.with_suffix(".json")
+    if not p.is_file():
+        raise UserError("no policy checkpoint here", where=str(path), fix="pass a RUN folder or a step-*.json")
+    try:
+        meta = json.loads(p.read_text())
+        if meta.get("format") != FORMAT:
+            raise ValueError(f"format {meta.get('format')!r}")
+    except ValueError as e:
+        raise ConfigError(f"not a policy checkpoint ({e})", where=str(p), fix="pass a factr2 train checkpoint") \
+            from None
+    meta["_path"] = str(p)
+    return meta
+
+
+def load_policy(path) -> tuple[torch.nn.Module, dict, Normalizer]:
+    """(model in eval mode, checkpoint JSON, normaliser) from a RUN folder or a step-*.json."""
+    meta = read_meta(Path(path))
+    cfg = PolicyConfig.from_dict(meta["policy"])
+    cfg.backbone_weights = ""  # the checkpoint's weights include the backbone
+    model = make_model(cfg)
+    weights = Path(meta["_path"]).with_name(meta["weights"])
+    try:
+        model.load_state_dict(load_file(str(weights)))
+    except (OSError, RuntimeError) as e:
+        raise ConfigError(f"weights do not load ({type(e).__name__}: {str(e)[:80]})", where=str(weights),
+                          fix="the checkpoint is damaged: use an earlier step-*.json") from None
+    return model.eval(), meta, Normalizer.from_dict(meta["normalizer"])
+
+
+def load_optimizer(opt: torch.optim.Optimizer, json_path: Path) -> None:
+    """Restore AdamW moments saved beside a checkpoint (same parameter order)."""
+    t = load_file(str(Path(str(Path(json_path).with_suffix(""))) + ".optim.safetensors"))
+    sd = opt.state_dict()
+    state: dict = {}
+    for key, v in t.items():
+        pid, name = key.split(".", 1)
+        state.setdefault(int(pid), {})[name] = v
+    sd["state"] = state
+    opt.load_state_dict(sd)

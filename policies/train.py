@@ -1,0 +1,231 @@
+"""The training loop (nanoGPT style: one config, one loop). AdamW (lr 3e-4, wd 0.05, betas 0.9/0.95), batch
+128, linear warm-up for 500 steps then cosine decay to 0 (the paper's values). Runs alone or under torchrun
+(DDP: gloo on CPU, NCCL on CUDA; bf16 autocast on CUDA).
+
+Exactness: global step s fixes everything random in it: the sampler's global batch (policies.sampler), the
+flow noise / CVAE noise and the crop boxes (drawn for the whole global batch from a generator seeded by
+(seed, s), each rank keeping its positions), and dropout (torch seeded by (seed, s, rank)). So `--resume`
+continues the uninterrupted run exactly, and N processes compute the gradient of the same global batch as one
+(GroupNorm and per-sample losses make the batch split irrelevant; with dropout 0 the loss curves agree to
+float rounding).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from policies import checkpoint as C
+from policies.config import PolicyConfig
+from policies.curves import RunLog
+from policies.dataset import PolicyData, draw_crops
+from policies.methods import BLUR_SIGMA0_PX_224, METHODS, blur_sigma, gaussian_blur
+from policies.phases import PHASE_SHORT
+from policies.sampler import DEFAULT_RATIO, FirstSampler
+
+
+@dataclass
+class TrainConfig:
+    steps: int = 0  # optimiser steps; 0: from epochs
+    epochs: float = 20.0  # passes over the training samples (draws per epoch = samples), when steps is 0
+    batch: int = 128  # global batch (all ranks together)
+    lr: float = 3e-4
+    weight_decay: float = 0.05
+    betas: tuple[float, float] = (0.9, 0.95)
+    warmup: int = 500
+    grad_clip: float = 1.0
+    val_every: int = 500
+    ckpt_every: int = 1000
+    log_every: int = 10
+    val_max: int = 1024  # validation samples per evaluation (evenly spaced over the validation episodes)
+    seed: int = 0
+    method: str = "first"
+    ratio: tuple[float, float, float] = DEFAULT_RATIO
+    force: str = "tau_ext"
+    threads: int = 0  # torch threads per process (0: cores / processes)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class Dist:
+    rank: int = 0
+    world: int = 1
+    local_rank: int = 0
+    device: torch.device = field(default_factory=lambda: torch.device("cpu"))
+
+    @property
+    def main(self) -> bool:
+        return self.rank == 0
+
+
+def setup_distributed() -> Dist:
+    """From torchrun's environment (RANK, WORLD_SIZE, LOCAL_RANK); a single process without it."""
+    cuda = torch.cuda.is_available()
+    if "RANK" not in os.environ or int(os.environ.get("WORLD_SIZE", "1")) <= 1:
+        return Dist(device=torch.device("cuda" if cuda else "cpu"))
+    import torch.distributed as dist
+
+    rank, world, local = (int(os.environ[k]) for k in ("RANK", "WORLD_SIZE", "LOCAL_RANK"))
+    if cuda:
+        torch.cuda.set_device(local)
+    dist.init_process_group("nccl" if cuda else "gloo")
+    return Dist(rank, world, local, torch.device(f"cuda:{local}" if cuda else "cpu"))
+
+
+def barrier(d: Dist) -> None:
+    if d.world > 1:
+        import torch.distributed as dist
+
+        dist.barrier()
+
+
+def lr_at(step: int, cfg: TrainConfig, total: int) -> float:
+    """Linear warm-up over cfg.warmup steps, then cosine from cfg.lr to 0 at `total`."""
+    if step < cfg.warmup:
+        return cfg.lr * (step + 1) / cfg.warmup
+    frac = (step - cfg.warmup) / max(1, total - cfg.warmup)
+    return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(1.0, frac)))
+
+
+def _seed(*parts: int) -> int:
+    return int(np.random.SeedSequence([int(p) for p in parts]).generate_state(1, np.uint64)[0] >> 1)
+
+
+def total_steps(cfg: TrainConfig, sampler: FirstSampler) -> int:
+    return cfg.steps or max(1, int(round(cfg.epochs * sampler.steps_per_epoch(cfg.batch))))
+
+
+def _to(batch: dict, device) -> dict:
+    return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
+
+
+@torch.no_grad()
+def evaluate(model, data: PolicyData, idx: np.ndarray, pcfg: PolicyConfig, device, max_n: int = 1024,
+             chunk: int = 64) -> dict[str, float]:
+    """Validation action loss (the objective's action term: L1 for ACT, velocity MSE for flow; fixed noise,
+    no augmentation) over all validation samples and per phase (the paper's phase-wise validation loss)."""
+    if not len(idx):
+        return {}
+    if len(idx) > max_n:
+        idx = idx[np.linspace(0, len(idx) - 1, max_n).round().astype(int)]
+    was = model.training
+    model.eval()
+    gen = torch.Generator().manual_seed(1234)
+    noise = type(model).draw_noise(pcfg, len(idx), gen)
+    losses = []
+    for lo in range(0, len(idx), chunk):
+        b = _to(data.batch(idx[lo:lo + chunk]), device)
+        n = {k: v[lo:lo + chunk].to(device) for k, v in noise.items()}
+        with _autocast(device):
+            losses.append(model.loss(b, n)[1]["action"].float().cpu())
+    model.train(was)
+    loss = torch.cat(losses).numpy()
+    ph = data.phase[idx]
+    out = {"val/loss": float(loss.mean())}
+    for p, name in enumerate(PHASE_SHORT):
+        if (ph == p).any():
+            out[f"val/loss_{name}"] = float(loss[ph == p].mean())
+    return out
+
+
+def _autocast(device):
+    if device.type == "cuda":
+        return torch.autocast("cuda", dtype=torch.bfloat16)
+    return torch.autocast("cpu", enabled=False)
+
+
+def train(data: PolicyData, pcfg: PolicyConfig, cfg: TrainConfig, run: Path, meta: dict, d: Dist,
+          resume_from: Path | None = None, progress: bool = True) -> dict:
+    """Train; checkpoints and logs in `run` (rank 0 writes). Returns the final metrics."""
+    torch.set_num_threads(cfg.threads or max(1, (os.cpu_count() or 1) // d.world))
+    method = METHODS[cfg.method]
+    train_idx, val_idx = data.split()
+    sampler = FirstSampler(data.phase[train_idx], cfg.ratio, cfg.seed, rank=d.rank, world=d.world)
+    total = total_steps(cfg, sampler)
+    spe = sampler.steps_per_epoch(cfg.batch)
+    torch.manual_seed(cfg.seed)  # identical initial weights on every rank
+    model = C.make_model(pcfg).to(d.device)
+    decay = [p for n, p in model.named_parameters() if p.ndim >= 2]
+    no_decay = [p for n, p in model.named_parameters() if p.ndim < 2]
+    opt = torch.optim.AdamW([{"params": decay, "weight_decay": cfg.weight_decay},
+                             {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr, betas=cfg.betas,
+                            fused=d.device.type == "cuda")
+    start = 0
+    if resume_from is not None:
+        old = C.read_meta(resume_from)
+        from safetensors.torch import load_file
+
+        model.load_state_dict(load_file(str(Path(old["_path"]).with_name(old["weights"]))))
+        C.load_optimizer(opt, Path(old["_path"]))
+        start = int(old["step"])
+    net = model
+    if d.world > 1:
+        from torch.nn.parallel import DistributedDataParallel as DDP
+
+        net = DDP(model, device_ids=[d.local_rank] if d.device.type == "cuda" else None)
+    log = RunLog(run, start) if d.main else None
+    meta = dict(meta, train=cfg.to_dict(), total_steps=total, steps_per_epoch=spe)
+    bar = None
+    if d.main and progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, initial=start, unit="step", dynamic_ncols=True, desc=f"{pcfg.policy}/{cfg.method}")
+    sigma0 = BLUR_SIGMA0_PX_224 * pcfg.image_size / 224.0
+    t_last, n_last, last_val = time.perf_counter(), 0, {}
+    model.train()
+    for s in range(start, total):
+        epoch, k = divmod(s, spe)
+        idx, pos = sampler.batch(epoch, k, cfg.batch)
+        gen = torch.Generator().manual_seed(_seed(cfg.seed, s))
+        noise = {key: v[torch.from_numpy(pos)] for key, v in type(model).draw_noise(pcfg, cfg.batch, gen).items()}
+        crops = draw_crops(cfg.batch, gen)[torch.from_numpy(pos)]
+        batch = _to(data.batch(train_idx[idx], crops), d.device)
+        noise = _to(noise, d.device)
+        if method.blur:
+            batch["images"] = gaussian_blur(batch["images"], blur_sigma(s, total, sigma0))
+        torch.manual_seed(_seed(cfg.seed, s, d.rank))  # dropout
+        lr = lr_at(s, cfg, total)
+        for g in opt.param_groups:
+            g["lr"] = lr
+        with _autocast(d.device):
+            loss_ps, parts = net(batch, noise)
+        loss = loss_ps.float().mean()
+        loss.backward()
+        gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
+        opt.step()
+        opt.zero_grad(set_to_none=True)
+        n_last += cfg.batch
+        done = s + 1
+        if bar is not None:
+            bar.update(1)
+        if d.main and (done % cfg.log_every == 0 or done == total):
+            now = time.perf_counter()
+            row = {"train/loss": loss.item(), "lr": lr, "train/grad_norm": float(gnorm),
+                   "samples_per_s": n_last / max(now - t_last, 1e-9)}
+            row.update({f"train/{k}": float(v.float().mean()) for k, v in parts.items()})
+            log.log(done, row)
+            t_last, n_last = now, 0
+            if bar is not None:
+                bar.set_postfix(loss=f"{row['train/loss']:.4f}", sps=f"{row['samples_per_s']:.0f}")
+        if d.main and (done % cfg.val_every == 0 or done == total):
+            last_val = evaluate(model, data, val_idx, pcfg, d.device, cfg.val_max)
+            if last_val:
+                log.log(done, last_val)
+        if d.main and (done % cfg.ckpt_every == 0 or done == total):
+            C.save(run / "checkpoints", done, model, opt, dict(meta, metrics=last_val), final=done == total)
+        if done % cfg.ckpt_every == 0:
+            barrier(d)  # the others wait while rank 0 writes, so a killed run has a consistent checkpoint
+    if bar is not None:
+        bar.close()
+    if log is not None:
+        log.close()
+    barrier(d)
+    return last_val
