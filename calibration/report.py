@@ -23,7 +23,7 @@ import numpy as np
 
 from calibration import baselines
 from calibration.next.checkpoint import NextCheckpoint, save_checkpoint
-from calibration.next.data import Segment, build_windows, resample_log, split_blocks
+from calibration.next.data import Segment, build_windows, logged_arm, resample_log, split_blocks
 from calibration.next.estimator import batch_tau_f
 from calibration.next.prior import PRIOR_KINDS, fit_prior, prior_torque
 from calibration.next.train import TrainConfig, available_cores, train
@@ -145,6 +145,8 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     runs, units, joint_names = _load_segments(train_paths, rate_hz)
+    if arm is None:  # logs this app writes name their arm; an explicit arm overrides
+        arm = logged_arm([s for _, segs in runs for s in segs])
     pin_model = None
     if arm is not None:
         from hardware.arms import load_arm

@@ -11,8 +11,7 @@
         s.followers["follower"].command(...); s.clock.sleep(0.002)
 
 This module sits above the rig loader (hardware/rigs) and the twin (hardware/sim), which do not import each
-other's runtime code; every device is built by its kind (hardware/registry.py). hardware.sim.open_rig /
-serve_twin remain as thin aliases for older callers.
+other's runtime code; every device is built by its kind (hardware/registry.py).
 """
 
 from __future__ import annotations

@@ -19,8 +19,9 @@ from policies.tokens import ObservationTokens, masked_mean, sinusoidal
 
 
 def _encoder(cfg: PolicyConfig, layers: int) -> nn.TransformerEncoder:
-    layer = nn.TransformerEncoderLayer(cfg.hidden, cfg.heads, cfg.ff, cfg.dropout, batch_first=True,
-                                       norm_first=True, activation="gelu")
+    layer = nn.TransformerEncoderLayer(
+        cfg.hidden, cfg.heads, cfg.ff, cfg.dropout, batch_first=True, norm_first=True, activation="gelu"
+    )
     return nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
 
 
@@ -39,8 +40,9 @@ class ACTPolicy(nn.Module):
         self.latent_in = nn.Linear(cfg.latent_dim, h)
         # policy
         self.encoder = _encoder(cfg, cfg.enc_layers)
-        layer = nn.TransformerDecoderLayer(h, cfg.heads, cfg.ff, cfg.dropout, batch_first=True, norm_first=True,
-                                           activation="gelu")
+        layer = nn.TransformerDecoderLayer(
+            h, cfg.heads, cfg.ff, cfg.dropout, batch_first=True, norm_first=True, activation="gelu"
+        )
         self.decoder = nn.TransformerDecoder(layer, cfg.dec_layers, norm=nn.LayerNorm(h))
         self.queries = nn.Parameter(torch.zeros(1, cfg.chunk, h))
         nn.init.normal_(self.queries, std=0.02)
@@ -52,8 +54,14 @@ class ACTPolicy(nn.Module):
         return {"eps": torch.randn(batch, cfg.latent_dim, generator=gen)}
 
     def _posterior(self, state, action, mask):
-        x = torch.cat([self.vae_cls.expand(len(state), -1, -1), self.vae_state(state)[:, None],
-                       self.vae_action(action)], dim=1)
+        x = torch.cat(
+            [
+                self.vae_cls.expand(len(state), -1, -1),
+                self.vae_state(state)[:, None],
+                self.vae_action(action),
+            ],
+            dim=1,
+        )
         x = x + sinusoidal(x.shape[1], x.shape[2]).to(x)[None]
         pad = torch.cat([torch.zeros(len(state), 2, dtype=torch.bool, device=x.device), ~mask], dim=1)
         mu, logvar = self.vae_out(self.vae_encoder(x, src_key_padding_mask=pad)[:, 0]).chunk(2, dim=-1)
@@ -80,7 +88,9 @@ class ACTPolicy(nn.Module):
         parts = {"action": l1, "kl": kl}
         total = l1 + self.cfg.kl_weight * kl
         if aux is not None:
-            parts["aux_force"] = masked_mean(F.l1_loss(aux, batch["force_chunk"], reduction="none"), batch["mask"])
+            parts["aux_force"] = masked_mean(
+                F.l1_loss(aux, batch["force_chunk"], reduction="none"), batch["mask"]
+            )
             total = total + self.cfg.aux_weight * parts["aux_force"]
         return total, parts
 

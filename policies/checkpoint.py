@@ -30,7 +30,7 @@ def make_model(cfg: PolicyConfig):
 
 def _optim_tensors(opt: torch.optim.Optimizer) -> dict[str, torch.Tensor]:
     out = {}
-    for i, (pid, st) in enumerate(opt.state_dict()["state"].items()):
+    for pid, st in opt.state_dict()["state"].items():
         for k, v in st.items():
             out[f"{pid}.{k}"] = (v if torch.is_tensor(v) else torch.tensor(v)).detach().cpu().contiguous()
     return out
@@ -42,8 +42,14 @@ def _write_atomic(path: Path, write) -> None:
     os.replace(tmp, path)
 
 
-def save(folder: Path, step: int, model: torch.nn.Module, opt: torch.optim.Optimizer | None, meta: dict,
-         final: bool = False) -> Path:
+def save(
+    folder: Path,
+    step: int,
+    model: torch.nn.Module,
+    opt: torch.optim.Optimizer | None,
+    meta: dict,
+    final: bool = False,
+) -> Path:
     """Write step-<step>.{safetensors,json[,optim.safetensors]} and point `last` at it; returns the JSON."""
     folder.mkdir(parents=True, exist_ok=True)
     stem = folder / f"step-{step:07d}"
@@ -77,14 +83,17 @@ def read_meta(path: Path) -> dict:
     if p.suffix != ".json":
         p = p.with_suffix(".json")
     if not p.is_file():
-        raise UserError("no policy checkpoint here", where=str(path), fix="pass a RUN folder or a step-*.json")
+        raise UserError(
+            "no policy checkpoint here", where=str(path), fix="pass a RUN folder or a step-*.json"
+        )
     try:
         meta = json.loads(p.read_text())
         if meta.get("format") != FORMAT:
             raise ValueError(f"format {meta.get('format')!r}")
     except ValueError as e:
-        raise ConfigError(f"not a policy checkpoint ({e})", where=str(p), fix="pass a factr2 train checkpoint") \
-            from None
+        raise ConfigError(
+            f"not a policy checkpoint ({e})", where=str(p), fix="pass a factr2 train checkpoint"
+        ) from None
     meta["_path"] = str(p)
     return meta
 
@@ -99,14 +108,17 @@ def load_policy(path) -> tuple[torch.nn.Module, dict, Normalizer]:
     try:
         model.load_state_dict(load_file(str(weights)))
     except (OSError, RuntimeError) as e:
-        raise ConfigError(f"weights do not load ({type(e).__name__}: {str(e)[:80]})", where=str(weights),
-                          fix="the checkpoint is damaged: use an earlier step-*.json") from None
+        raise ConfigError(
+            f"weights do not load ({type(e).__name__}: {str(e)[:80]})",
+            where=str(weights),
+            fix="the checkpoint is damaged: use an earlier step-*.json",
+        ) from None
     return model.eval(), meta, Normalizer.from_dict(meta["normalizer"])
 
 
 def load_optimizer(opt: torch.optim.Optimizer, json_path: Path) -> None:
     """Restore AdamW moments saved beside a checkpoint (same parameter order)."""
-    t = load_file(str(Path(str(Path(json_path).with_suffix(""))) + ".optim.safetensors"))
+    t = load_file(str(Path(json_path).with_suffix("")) + ".optim.safetensors")
     sd = opt.state_dict()
     state: dict = {}
     for key, v in t.items():

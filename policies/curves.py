@@ -1,5 +1,5 @@
-"""Training logs: TensorBoard event files, RUN/metrics.jsonl (one JSON line per logged step, what the PNG and
---resume's continuation read), and RUN/curves.png (training loss, validation loss per phase, learning rate)."""
+"""Training logs: TensorBoard event files, RUN/metrics.jsonl (one JSON line per logged step: what the PNG
+and --resume's continuation read), and RUN/curves.png (training loss, validation loss per phase, lr)."""
 
 from __future__ import annotations
 
@@ -20,12 +20,16 @@ class RunLog:
         rows = self.read(self.run) if resume_step else []
         self.rows = [r for r in rows if r["step"] <= resume_step]
         self.path.write_text("".join(json.dumps(r) + "\n" for r in self.rows))
-        self.tb = SummaryWriter(str(self.run / "tensorboard"), purge_step=resume_step + 1 if resume_step else None)
+        self.tb = SummaryWriter(
+            str(self.run / "tensorboard"), purge_step=resume_step + 1 if resume_step else None
+        )
 
     @staticmethod
     def read(run: Path) -> list[dict]:
         p = Path(run) / "metrics.jsonl"
-        return [json.loads(line) for line in p.read_text().splitlines() if line.strip()] if p.is_file() else []
+        return (
+            [json.loads(line) for line in p.read_text().splitlines() if line.strip()] if p.is_file() else []
+        )
 
     def log(self, step: int, values: dict[str, float]) -> None:
         for k, v in values.items():
@@ -57,8 +61,12 @@ def plot_curves(rows: list[dict], path: Path) -> Path | None:
     tr = series("train/loss")
     if tr is not None:
         axes[0].plot(tr[0], tr[1], lw=0.7, color="#999", label="train")
-    for key, colour in (("val/loss", "k"), ("val/loss_F", "#4c72b0"), ("val/loss_PC", "#f5a442"),
-                        ("val/loss_C", "#e4572e")):
+    for key, colour in (
+        ("val/loss", "k"),
+        ("val/loss_F", "#4c72b0"),
+        ("val/loss_PC", "#f5a442"),
+        ("val/loss_C", "#e4572e"),
+    ):
         s = series(key)
         if s is not None:
             axes[0 if key == "val/loss" else 1].plot(s[0], s[1], "o-", ms=3, color=colour, label=key)
@@ -66,7 +74,8 @@ def plot_curves(rows: list[dict], path: Path) -> Path | None:
         a.set_title(title)
         a.set_xlabel("step")
         a.set_yscale("log")
-        a.legend(fontsize=8)
+        if a.get_legend_handles_labels()[0]:
+            a.legend(fontsize=8)
     lr = series("lr")
     if lr is not None:
         axes[2].plot(lr[0], lr[1])

@@ -60,7 +60,9 @@ class DiTBlock(nn.Module):
         self.norm_x = nn.LayerNorm(h)
         self.cross = Attention(cfg, cross=True)
         self.norm2 = nn.LayerNorm(h, elementwise_affine=False)
-        self.mlp = nn.Sequential(nn.Linear(h, cfg.ff), nn.GELU(), nn.Dropout(cfg.dropout), nn.Linear(cfg.ff, h))
+        self.mlp = nn.Sequential(
+            nn.Linear(h, cfg.ff), nn.GELU(), nn.Dropout(cfg.dropout), nn.Linear(cfg.ff, h)
+        )
         self.ada = nn.Sequential(nn.SiLU(), nn.Linear(h, 6 * h))
         nn.init.zeros_(self.ada[1].weight)  # adaLN-Zero: every block starts as the identity
         nn.init.zeros_(self.ada[1].bias)
@@ -125,8 +127,9 @@ class FlowPolicy(nn.Module):
         fm = masked_mean(F.mse_loss(v, x1 - x0, reduction="none"), batch["mask"])
         parts, total = {"action": fm}, fm
         if self.aux_head is not None:
-            parts["aux_force"] = masked_mean(F.mse_loss(self.aux_head(h), batch["force_chunk"], reduction="none"),
-                                             batch["mask"])
+            parts["aux_force"] = masked_mean(
+                F.mse_loss(self.aux_head(h), batch["force_chunk"], reduction="none"), batch["mask"]
+            )
             total = total + self.cfg.aux_weight * parts["aux_force"]
         return total, parts
 

@@ -35,8 +35,11 @@ def load_next(path) -> NextModel:
 
     ck = load_checkpoint(path)
     p = Path(path)
-    h = hashlib.sha256(p.with_suffix(".json").read_bytes()).hexdigest()[:12] if p.with_suffix(
-        ".json").exists() else "?"
+    h = (
+        hashlib.sha256(p.with_suffix(".json").read_bytes()).hexdigest()[:12]
+        if p.with_suffix(".json").exists()
+        else "?"
+    )
     return NextModel(ck, p, f"{p.with_suffix('').name}@{h}")
 
 
@@ -47,12 +50,17 @@ class Thresholds:
     source: str  # "given", or the checkpoint whose free-motion noise they derive from
 
     def to_dict(self) -> dict:
-        return {"t_low": self.t_low, "t_high": self.t_high, "source": self.source,
-                "pre_contact_s": P.PRE_CONTACT_S}
+        return {
+            "t_low": self.t_low,
+            "t_high": self.t_high,
+            "source": self.source,
+            "pre_contact_s": P.PRE_CONTACT_S,
+        }
 
 
-def resolve_thresholds(given: tuple[float, float] | None, next_model: NextModel | None, episodes: list[Episode],
-                       arms: ArmSet) -> Thresholds:
+def resolve_thresholds(
+    given: tuple[float, float] | None, next_model: NextModel | None, episodes: list[Episode], arms: ArmSet
+) -> Thresholds:
     """Given thresholds, else from --next's noise, else from the checkpoint the recording session names."""
     if given is not None:
         return Thresholds(float(given[0]), float(given[1]), "given")
@@ -62,13 +70,18 @@ def resolve_thresholds(given: tuple[float, float] | None, next_model: NextModel 
         if named and (Path(named).with_suffix(".json").exists()):
             model = load_next(named)
     if model is None:
-        raise UserError("no NEXT checkpoint to derive the contact thresholds from (the recordings name none)",
-                        where=str(episodes[0].recording.path),
-                        fix="pass --next CKPT (the NEXT checkpoint) or --thresholds LOW:HIGH [N*m]")
+        raise UserError(
+            "no NEXT checkpoint to derive the contact thresholds from (the recordings name none)",
+            where=str(episodes[0].recording.path),
+            fix="pass --next CKPT (the NEXT checkpoint) or --thresholds LOW:HIGH [N*m]",
+        )
     val_l1 = (model.ck.metrics or {}).get("val_l1")
     if not val_l1:
-        raise UserError("the NEXT checkpoint has no free-motion noise (metrics.val_l1)", where=str(model.path),
-                        fix="retrain it with `factr2 calibrate`, or pass --thresholds LOW:HIGH")
+        raise UserError(
+            "the NEXT checkpoint has no free-motion noise (metrics.val_l1)",
+            where=str(model.path),
+            fix="retrain it with `factr2 calibrate`, or pass --thresholds LOW:HIGH",
+        )
     lo, hi = P.default_thresholds(val_l1)
     n = len(arms.followers)
     return Thresholds(n * lo, n * hi, f"NEXT {model.id} (val_l1 sum {float(np.sum(val_l1)):.4g})")
@@ -82,8 +95,11 @@ def _offline_tau_ext(ep: Episode, arm: str, model: NextModel) -> tuple[np.ndarra
 
     ck = model.ck
     if list(ck.joint_names) != list(ep.recording.joint_names(arm) or ck.joint_names):
-        raise UserError(f"NEXT checkpoint joints {ck.joint_names} differ from the recording's {arm} joints",
-                        where=str(model.path), fix="pass the NEXT checkpoint calibrated on this arm")
+        raise UserError(
+            f"NEXT checkpoint joints {ck.joint_names} differ from the recording's {arm} joints",
+            where=str(model.path),
+            fix="pass the NEXT checkpoint calibrated on this arm",
+        )
     log = ep.to_plain(arm)
     if ck.units == "A":
         log.tau = np.asarray(log.extra["current"], float)
@@ -93,7 +109,9 @@ def _offline_tau_ext(ep: Episode, arm: str, model: NextModel) -> tuple[np.ndarra
         ts.append(seg.t)
         taus.append(seg.tau - tau_f)
     if not ts:
-        raise UserError(f"episode {episode_id(ep)}: too few {arm} joint states for NEXT", where=str(model.path))
+        raise UserError(
+            f"episode {episode_id(ep)}: too few {arm} joint states for NEXT", where=str(model.path)
+        )
     return np.concatenate(ts), np.concatenate(taus)
 
 
@@ -108,17 +126,20 @@ def _recorded_tau_ext(ep: Episode, arm: str) -> tuple[np.ndarray, np.ndarray] | 
     return ta.t, tau
 
 
-def episode_tau_ext(ep: Episode, arms: ArmSet, next_model: NextModel | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, str]:
+def episode_tau_ext(
+    ep: Episode, arms: ArmSet, next_model: NextModel | None = None
+) -> tuple[np.ndarray, np.ndarray, str]:
     """(t [s], tau_ext (N, sum of joints) [N*m], source) of an episode: every follower, on the first one's
     timeline. Source "recorded" or "NEXT <id> offline"."""
     parts = []
     for arm in arms.followers:
         got = _offline_tau_ext(ep, arm, next_model) if next_model is not None else _recorded_tau_ext(ep, arm)
         if got is None:
-            raise UserError(f"episode {episode_id(ep)} has no estimated tau_ext for {arm}",
-                            where=str(ep.recording.path),
-                            fix="pass --next CKPT to estimate it offline from the logged joint states")
+            raise UserError(
+                f"episode {episode_id(ep)} has no estimated tau_ext for {arm}",
+                where=str(ep.recording.path),
+                fix="pass --next CKPT to estimate it offline from the logged joint states",
+            )
         parts.append(got)
     t = parts[0][0]
     tau = np.concatenate([parts[0][1]] + [interp_linear(ti, yi, t) for ti, yi in parts[1:]], axis=1)
@@ -143,12 +164,14 @@ class EpisodeLabels:
         return np.where(i >= 0, self.phases[np.clip(i, 0, None)], P.FREE).astype(np.int8)
 
 
-def label_episode(ep: Episode, arms: ArmSet, th: Thresholds, next_model: NextModel | None = None
-                  ) -> EpisodeLabels:
+def label_episode(
+    ep: Episode, arms: ArmSet, th: Thresholds, next_model: NextModel | None = None
+) -> EpisodeLabels:
     t, tau, source = episode_tau_ext(ep, arms, next_model)
     score = P.contact_score(tau)
-    return EpisodeLabels(episode_id(ep), t, tau, score,
-                         P.label_phases(t, P.hysteresis(score, th.t_low, th.t_high)), source)
+    return EpisodeLabels(
+        episode_id(ep), t, tau, score, P.label_phases(t, P.hysteresis(score, th.t_low, th.t_high)), source
+    )
 
 
 PHASE_COLOURS = ("#ffffff", "#f5c26b", "#e4572e")
@@ -181,8 +204,11 @@ def plot_labels(lab: EpisodeLabels, th: Thresholds, path: Path) -> Path:
     a2.set_xlabel("time in episode [s]")
     a2.legend(fontsize=7, loc="upper right")
     sh = lab.shares()
-    a1.set_title(f"{lab.episode}: free {sh[0]:.0%}, pre-contact (orange) {sh[1]:.0%}, contact (red) {sh[2]:.0%}"
-                 f"  [{lab.source}]", fontsize=9)
+    a1.set_title(
+        f"{lab.episode}: free {sh[0]:.0%}, pre-contact (orange) {sh[1]:.0%}, contact (red) {sh[2]:.0%}"
+        f"  [{lab.source}]",
+        fontsize=9,
+    )
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)

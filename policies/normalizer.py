@@ -36,5 +36,7 @@ class Normalizer:
 
     @classmethod
     def from_dict(cls, d: dict) -> Normalizer:
-        return cls({k: np.asarray(v["mean"], np.float32) for k, v in d.items()},
-                   {k: np.asarray(v["std"], np.float32) for k, v in d.items()})
+        return cls(
+            {k: np.asarray(v["mean"], np.float32) for k, v in d.items()},
+            {k: np.asarray(v["std"], np.float32) for k, v in d.items()},
+        )

@@ -66,8 +66,9 @@ def label_phases(t: np.ndarray, contact: np.ndarray, pre_s: float = PRE_CONTACT_
     return out
 
 
-def phases_from_torque(t: np.ndarray, tau_ext: np.ndarray, t_low: float, t_high: float,
-                       pre_s: float = PRE_CONTACT_S) -> np.ndarray:
+def phases_from_torque(
+    t: np.ndarray, tau_ext: np.ndarray, t_low: float, t_high: float, pre_s: float = PRE_CONTACT_S
+) -> np.ndarray:
     """The whole labelling: tau_ext (N, J) at times t [s] -> phase per sample (N,) int8."""
     return label_phases(t, hysteresis(contact_score(tau_ext), t_low, t_high), pre_s)
 

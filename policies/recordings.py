@@ -31,12 +31,17 @@ class ArmSet:
     arm_models: tuple[str, ...]
 
     def describe(self) -> str:
-        return ", ".join(f"{f} ({m or '?'}: {len(j)} joints)"
-                         for f, j, m in zip(self.followers, self.joint_names, self.arm_models))
+        return ", ".join(
+            f"{f} ({m or '?'}: {len(j)} joints)"
+            for f, j, m in zip(self.followers, self.joint_names, self.arm_models)
+        )
 
     def to_dict(self) -> dict:
-        return {"followers": list(self.followers), "joint_names": [list(j) for j in self.joint_names],
-                "arm_models": list(self.arm_models)}
+        return {
+            "followers": list(self.followers),
+            "joint_names": [list(j) for j in self.joint_names],
+            "arm_models": list(self.arm_models),
+        }
 
 
 def recording_files(paths) -> list[Path]:
@@ -44,7 +49,9 @@ def recording_files(paths) -> list[Path]:
     out: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            out += sorted(f for f in p.iterdir() if f.is_file() and f.suffix == ".mcap" and ".tmp-" not in f.name)
+            out += sorted(
+                f for f in p.iterdir() if f.is_file() and f.suffix == ".mcap" and ".tmp-" not in f.name
+            )
         elif p.is_file():
             out.append(p)
         else:
@@ -87,8 +94,11 @@ def load_episodes(paths, *, keep_discarded: bool = False) -> tuple[list[Episode]
     """All usable episodes of the recordings under `paths`, and their common arm set."""
     files = recording_files(paths)
     if not files:
-        raise UserError("no recordings (.mcap) found", where=", ".join(map(str, paths)),
-                        fix="pass recording files or folders written by `factr2 teleop --record`")
+        raise UserError(
+            "no recordings (.mcap) found",
+            where=", ".join(map(str, paths)),
+            fix="pass recording files or folders written by `factr2 teleop --record`",
+        )
     episodes: list[Episode] = []
     arms: ArmSet | None = None
     first = None
@@ -103,16 +113,21 @@ def load_episodes(paths, *, keep_discarded: bool = False) -> tuple[list[Episode]
             skipped.append(f"{f}: {str(e).splitlines()[0][:160]}")
             continue
         if rec.truncated:
-            warnings.warn(f"{f}: truncated recording (recorder killed?); using what was flushed", stacklevel=2)
+            warnings.warn(
+                f"{f}: truncated recording (recorder killed?); using what was flushed", stacklevel=2
+            )
         if not this.followers:
             skipped.append(f"{f}: no follower joint states")
             continue
         if arms is None:
             arms, first = this, f
         elif this != arms:
-            raise UserError(f"episodes of different arms or joint sets: {first} has {arms.describe()}, "
-                            f"this has {this.describe()}", where=str(f),
-                            fix="train on recordings of one rig (one folder per rig)")
+            raise UserError(
+                f"episodes of different arms or joint sets: {first} has {arms.describe()}, "
+                f"this has {this.describe()}",
+                where=str(f),
+                fix="train on recordings of one rig (one folder per rig)",
+            )
         for ep in rec.episodes:
             if ep.outcome == "discard" and not keep_discarded:
                 continue
@@ -123,8 +138,11 @@ def load_episodes(paths, *, keep_discarded: bool = False) -> tuple[list[Episode]
         warnings.warn(f"skipped {s}", stacklevel=2)
     if not episodes:
         why = f" ({len(skipped)} unreadable: {skipped[0]})" if skipped else ""
-        raise UserError(f"no usable episodes{why}", where=", ".join(map(str, paths)),
-                        fix="record episodes with `factr2 teleop --record DIR` (discarded ones are left out)")
+        raise UserError(
+            f"no usable episodes{why}",
+            where=", ".join(map(str, paths)),
+            fix="record episodes with `factr2 teleop --record DIR` (discarded ones are left out)",
+        )
     return episodes, arms
 
 
@@ -140,5 +158,8 @@ def session_next_checkpoint(ep: Episode) -> str:
 def describe_rig(ep: Episode) -> dict:
     """Rig file and simulated flag of an episode's session (for checkpoints and exports)."""
     s = ep.recording.session
-    return {"rig_file": s.get("rig_file", ""), "simulated": s.get("simulated", "unknown"),
-            "joint_names": json.loads(s.get("joint_names", "{}") or "{}")}
+    return {
+        "rig_file": s.get("rig_file", ""),
+        "simulated": s.get("simulated", "unknown"),
+        "joint_names": json.loads(s.get("joint_names", "{}") or "{}"),
+    }

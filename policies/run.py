@@ -48,6 +48,7 @@ class RunOptions:
     val_fraction: float = 0.1
     progress: bool = True
     train: TrainConfig | None = None
+    overrides: dict | None = None  # PolicyConfig fields over the preset (tests, experiments)
 
 
 def data_hash(episodes) -> str:
@@ -60,7 +61,11 @@ def data_hash(episodes) -> str:
 
 
 def _compare(old: dict, new: dict) -> list[str]:
-    diff = [k for k in RESUME_KEYS if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)]
+    diff = [
+        k
+        for k in RESUME_KEYS
+        if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)
+    ]
     ot, nt = old.get("train", {}), new.get("train", {})
     diff += [f"train.{k}" for k in RESUME_TRAIN_KEYS if json.dumps(ot.get(k)) != json.dumps(nt.get(k))]
     return diff
@@ -70,11 +75,17 @@ def _check_out(o: RunOptions):
     out = Path(o.out)
     last = C.last_checkpoint(out)
     if o.resume and last is None:
-        raise UserError("--resume: no checkpoint in this folder", where=str(out),
-                        fix="drop --resume to start a new run, or name the folder of an earlier run")
+        raise UserError(
+            "--resume: no checkpoint in this folder",
+            where=str(out),
+            fix="drop --resume to start a new run, or name the folder of an earlier run",
+        )
     if not o.resume and (last is not None or (out / "metrics.jsonl").exists()):
-        raise UserError("this folder already holds a training run", where=str(out),
-                        fix="pass --resume to continue it, or another --out")
+        raise UserError(
+            "this folder already holds a training run",
+            where=str(out),
+            fix="pass --resume to continue it, or another --out",
+        )
     return last
 
 
@@ -95,8 +106,10 @@ def prepare(o: RunOptions, d: Dist):
     out = Path(o.out)
     last = _check_out(o)
     if tcfg.batch % d.world:
-        raise UserError(f"batch {tcfg.batch} is not a multiple of the {d.world} processes",
-                        fix="choose --batch divisible by --nproc")
+        raise UserError(
+            f"batch {tcfg.batch} is not a multiple of the {d.world} processes",
+            fix="choose --batch divisible by --nproc",
+        )
     episodes, arms = load_episodes(o.inputs)
     next_model = load_next(o.next) if o.next is not None else None
     th = resolve_thresholds(o.thresholds, next_model, episodes, arms)
@@ -106,17 +119,36 @@ def prepare(o: RunOptions, d: Dist):
     if o.image_size:
         pcfg.image_size = int(o.image_size)
     pcfg.backbone, pcfg.backbone_weights = o.backbone, o.backbone_weights
+    pcfg = replace(pcfg, **(o.overrides or {}))
     if d.main:  # rank 0 decodes the frame caches; the others then read them
-        data = build_dataset(episodes, arms, th=th, chunk=pcfg.chunk, image_size=pcfg.image_size,
-                             force=tcfg.force, rate_hz=o.rate_hz, next_model=next_model,
-                             val_fraction=o.val_fraction, seed=tcfg.seed)
+        data = build_dataset(
+            episodes,
+            arms,
+            th=th,
+            chunk=pcfg.chunk,
+            image_size=pcfg.image_size,
+            force=tcfg.force,
+            rate_hz=o.rate_hz,
+            next_model=next_model,
+            val_fraction=o.val_fraction,
+            seed=tcfg.seed,
+        )
     barrier(d)
     if not d.main:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            data = build_dataset(episodes, arms, th=th, chunk=pcfg.chunk, image_size=pcfg.image_size,
-                                 force=tcfg.force, rate_hz=o.rate_hz, next_model=next_model,
-                                 val_fraction=o.val_fraction, seed=tcfg.seed)
+            data = build_dataset(
+                episodes,
+                arms,
+                th=th,
+                chunk=pcfg.chunk,
+                image_size=pcfg.image_size,
+                force=tcfg.force,
+                rate_hz=o.rate_hz,
+                next_model=next_model,
+                val_fraction=o.val_fraction,
+                seed=tcfg.seed,
+            )
     train_idx, _ = data.split()
     if len(train_idx) < 1:
         raise UserError("no training samples", where=str(o.inputs[0]), fix="record more episodes")
@@ -125,34 +157,53 @@ def prepare(o: RunOptions, d: Dist):
     pcfg.force_dim = data.force.shape[1]
     pcfg.aux_force = method.aux_force
     named_next = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
-    meta = {"policy": pcfg.to_dict(), "method": o.method, "ratio": list(tcfg.ratio), "force": tcfg.force,
-            "features": data.names.to_dict(), "normalizer": data.norm.to_dict(), "phases": th.to_dict(),
-            "next_checkpoint": next_model.id if next_model is not None else named_next,
-            "tau_ext_source": "offline" if next_model is not None else "recorded",
-            "data_hash": data_hash(episodes), "episodes": data.episode_ids,
-            "val_episodes": [data.episode_ids[i] for i in data.val_episodes], "rate_hz": data.rate_hz,
-            "samples": {"train": int(len(train_idx)), "val": int(len(data) - len(train_idx))},
-            "rig": describe_rig(episodes[0]), "arms": arms.to_dict(), "software_version": software_version(),
-            "torch": torch.__version__, "world_size": d.world, "train": tcfg.to_dict()}
+    meta = {
+        "policy": pcfg.to_dict(),
+        "method": o.method,
+        "ratio": list(tcfg.ratio),
+        "force": tcfg.force,
+        "features": data.names.to_dict(),
+        "normalizer": data.norm.to_dict(),
+        "phases": th.to_dict(),
+        "next_checkpoint": next_model.id if next_model is not None else named_next,
+        "tau_ext_source": "offline" if next_model is not None else "recorded",
+        "data_hash": data_hash(episodes),
+        "episodes": data.episode_ids,
+        "val_episodes": [data.episode_ids[i] for i in data.val_episodes],
+        "rate_hz": data.rate_hz,
+        "samples": {"train": int(len(train_idx)), "val": int(len(data) - len(train_idx))},
+        "rig": describe_rig(episodes[0]),
+        "arms": arms.to_dict(),
+        "software_version": software_version(),
+        "torch": torch.__version__,
+        "world_size": d.world,
+        "train": tcfg.to_dict(),
+    }
     if o.resume:
         old = C.read_meta(last)
         diff = _compare(old, meta)
         if diff:
-            raise UserError(f"--resume: this folder's run has another configuration ({', '.join(diff)})",
-                            where=str(out), fix="resume with the same options and recordings, or use another --out")
+            raise UserError(
+                f"--resume: this folder's run has another configuration ({', '.join(diff)})",
+                where=str(out),
+                fix="resume with the same options and recordings, or use another --out",
+            )
     return data, pcfg, tcfg, meta, (last if o.resume else None)
 
 
-def run_training(o: RunOptions, d: Dist) -> dict:
+def run_training(o: RunOptions, d: Dist, stop_at: int | None = None) -> dict:
     data, pcfg, tcfg, meta, resume_from = prepare(o, d)
     if d.main:
         Path(o.out).mkdir(parents=True, exist_ok=True)
         n_tr = meta["samples"]["train"]
-        print(f"{len(data.episode_ids)} episodes, {n_tr} training / {meta['samples']['val']} validation samples "
-              f"at {data.rate_hz:.3g} Hz, cameras {', '.join(data.names.cameras)}; phases F/PC/C "
-              f"{' / '.join(f'{x:.0%}' for x in _shares(data))}; method {o.method}, ratio "
-              f"{format_ratio(tcfg.ratio)}, force {tcfg.force}; {d.world} process(es) on {d.device}")
-    return train(data, pcfg, tcfg, Path(o.out), meta, d, resume_from, o.progress)
+        print(
+            f"{len(data.episode_ids)} episodes, {n_tr} training / {meta['samples']['val']} validation "
+            "samples "
+            f"at {data.rate_hz:.3g} Hz, cameras {', '.join(data.names.cameras)}; phases F/PC/C "
+            f"{' / '.join(f'{x:.0%}' for x in _shares(data))}; method {o.method}, ratio "
+            f"{format_ratio(tcfg.ratio)}, force {tcfg.force}; {d.world} process(es) on {d.device}"
+        )
+    return train(data, pcfg, tcfg, Path(o.out), meta, d, resume_from, o.progress, stop_at)
 
 
 def _shares(data):

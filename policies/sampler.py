@@ -14,8 +14,13 @@ import numpy as np
 from policies.phases import PHASE_SHORT
 
 # the paper's ablation (Sec. 5, Table "upsampling"): which phases are up-sampled, as w_F : w_PC : w_C
-RATIO_PRESETS = {"uniform": (1.0, 1.0, 1.0), "C": (1.0, 1.0, 5.0), "PC": (1.0, 5.0, 1.0),
-                 "PC+C": (1.0, 3.0, 3.0), "first": (1.0, 5.0, 1.0)}
+RATIO_PRESETS = {
+    "uniform": (1.0, 1.0, 1.0),
+    "C": (1.0, 1.0, 5.0),
+    "PC": (1.0, 5.0, 1.0),
+    "PC+C": (1.0, 3.0, 3.0),
+    "first": (1.0, 5.0, 1.0),
+}
 DEFAULT_RATIO = RATIO_PRESETS["first"]
 
 
@@ -30,8 +35,10 @@ def parse_ratio(text: str) -> tuple[float, float, float]:
     except ValueError:
         w = ()
     if len(w) != 3 or not all(np.isfinite(x) and x >= 0 for x in w) or sum(w) <= 0:
-        raise ValueError(f"ratio {text!r} is not three non-negative numbers w_F:w_PC:w_C with a positive sum "
-                         f"(or one of {', '.join(RATIO_PRESETS)})")
+        raise ValueError(
+            f"ratio {text!r} is not three non-negative numbers w_F:w_PC:w_C with a positive sum "
+            f"(or one of {', '.join(RATIO_PRESETS)})"
+        )
     return w  # type: ignore[return-value]
 
 
@@ -61,8 +68,15 @@ class FirstSampler:
     """Weighted draws with replacement. samples_per_epoch defaults to the number of samples (an epoch sees
     as many draws as there are samples). epoch_indices(epoch) -> this rank's indices, in order."""
 
-    def __init__(self, phases: np.ndarray, ratio=DEFAULT_RATIO, seed: int = 0,
-                 samples_per_epoch: int | None = None, rank: int = 0, world: int = 1):
+    def __init__(
+        self,
+        phases: np.ndarray,
+        ratio=DEFAULT_RATIO,
+        seed: int = 0,
+        samples_per_epoch: int | None = None,
+        rank: int = 0,
+        world: int = 1,
+    ):
         if not 0 <= rank < world:
             raise ValueError(f"rank {rank} outside world {world}")
         self.p = sample_probabilities(phases, ratio)
@@ -76,7 +90,7 @@ class FirstSampler:
         return rng.choice(len(self.p), size=self.samples_per_epoch, replace=True, p=self.p)
 
     def epoch_indices(self, epoch: int) -> np.ndarray:
-        return self.global_indices(epoch)[self.rank::self.world]
+        return self.global_indices(epoch)[self.rank :: self.world]
 
     def batch(self, epoch: int, step_in_epoch: int, global_batch: int) -> tuple[np.ndarray, np.ndarray]:
         """(indices, positions) of this rank's share of global batch `step_in_epoch` of `epoch`: positions

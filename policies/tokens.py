@@ -10,6 +10,7 @@ import torch
 import torch.nn as nn
 
 from policies.config import PolicyConfig
+from policies.methods import gaussian_blur
 from policies.vision import IMAGENET_MEAN, IMAGENET_STD, make_backbone
 
 
@@ -36,7 +37,8 @@ def mlp(din: int, dout: int) -> nn.Sequential:
 
 
 class ObservationTokens(nn.Module):
-    """(images (B, M, 3, H, W) in [0, 1], state (B, S), force (B, F) or None) -> tokens (B, T, hidden)."""
+    """(images (B, M, H, W, 3) uint8, state (B, S), force (B, F) or None) -> tokens (B, T, hidden).
+    blur_sigma [px]: FACTR's training-time Gaussian blur (policies.methods), set per step by the loop."""
 
     def __init__(self, cfg: PolicyConfig):
         super().__init__()
@@ -46,12 +48,16 @@ class ObservationTokens(nn.Module):
         self.camera = nn.Embedding(max(cfg.n_cameras, 1), cfg.hidden)
         self.state = mlp(cfg.state_dim, cfg.hidden)
         self.force = mlp(cfg.force_dim, cfg.hidden) if cfg.force_dim > 0 else None
+        self.blur_sigma = 0.0
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
     def image_tokens(self, images: torch.Tensor) -> torch.Tensor:
         b, m = images.shape[:2]
-        x = (images.flatten(0, 1) - self.mean) / self.std
+        x = images.flatten(0, 1).permute(0, 3, 1, 2).float() / 255.0  # channels-last memory, no copy
+        if self.training and self.blur_sigma > 0:
+            x = gaussian_blur(x, self.blur_sigma)
+        x = (x - self.mean) / self.std
         f = self.proj(self.backbone(x))  # (B*M, hidden, h, w)
         f = f.flatten(2).transpose(1, 2)  # (B*M, h*w, hidden)
         f = f + sinusoidal(f.shape[1], f.shape[2]).to(f)[None]

@@ -25,7 +25,7 @@ from policies import checkpoint as C
 from policies.config import PolicyConfig
 from policies.curves import RunLog
 from policies.dataset import PolicyData, draw_crops
-from policies.methods import BLUR_SIGMA0_PX_224, METHODS, blur_sigma, gaussian_blur
+from policies.methods import BLUR_SIGMA0_PX_224, METHODS, blur_sigma
 from policies.phases import PHASE_SHORT
 from policies.sampler import DEFAULT_RATIO, FirstSampler
 
@@ -103,13 +103,25 @@ def total_steps(cfg: TrainConfig, sampler: FirstSampler) -> int:
     return cfg.steps or max(1, int(round(cfg.epochs * sampler.steps_per_epoch(cfg.batch))))
 
 
+def _global_means(d: Dist, values: list[torch.Tensor]) -> list[float]:
+    """Means over the ranks of per-rank batch means (equal shares: the global batch's mean)."""
+    t = torch.stack([v.float() for v in values])
+    if d.world > 1:
+        import torch.distributed as dist
+
+        dist.all_reduce(t)
+        t /= d.world
+    return t.cpu().tolist()
+
+
 def _to(batch: dict, device) -> dict:
     return {k: v.to(device, non_blocking=True) for k, v in batch.items()}
 
 
 @torch.no_grad()
-def evaluate(model, data: PolicyData, idx: np.ndarray, pcfg: PolicyConfig, device, max_n: int = 1024,
-             chunk: int = 64) -> dict[str, float]:
+def evaluate(
+    model, data: PolicyData, idx: np.ndarray, pcfg: PolicyConfig, device, max_n: int = 1024, chunk: int = 64
+) -> dict[str, float]:
     """Validation action loss (the objective's action term: L1 for ACT, velocity MSE for flow; fixed noise,
     no augmentation) over all validation samples and per phase (the paper's phase-wise validation loss)."""
     if not len(idx):
@@ -122,8 +134,8 @@ def evaluate(model, data: PolicyData, idx: np.ndarray, pcfg: PolicyConfig, devic
     noise = type(model).draw_noise(pcfg, len(idx), gen)
     losses = []
     for lo in range(0, len(idx), chunk):
-        b = _to(data.batch(idx[lo:lo + chunk]), device)
-        n = {k: v[lo:lo + chunk].to(device) for k, v in noise.items()}
+        b = _to(data.batch(idx[lo : lo + chunk]), device)
+        n = {k: v[lo : lo + chunk].to(device) for k, v in noise.items()}
         with _autocast(device):
             losses.append(model.loss(b, n)[1]["action"].float().cpu())
     model.train(was)
@@ -142,9 +154,19 @@ def _autocast(device):
     return torch.autocast("cpu", enabled=False)
 
 
-def train(data: PolicyData, pcfg: PolicyConfig, cfg: TrainConfig, run: Path, meta: dict, d: Dist,
-          resume_from: Path | None = None, progress: bool = True) -> dict:
-    """Train; checkpoints and logs in `run` (rank 0 writes). Returns the final metrics."""
+def train(
+    data: PolicyData,
+    pcfg: PolicyConfig,
+    cfg: TrainConfig,
+    run: Path,
+    meta: dict,
+    d: Dist,
+    resume_from: Path | None = None,
+    progress: bool = True,
+    stop_at: int | None = None,
+) -> dict:
+    """Train; checkpoints and logs in `run` (rank 0 writes). Returns the final metrics. stop_at: leave the
+    loop after that many steps (an interruption, as a kill after a checkpoint would be)."""
     torch.set_num_threads(cfg.threads or max(1, (os.cpu_count() or 1) // d.world))
     method = METHODS[cfg.method]
     train_idx, val_idx = data.split()
@@ -155,9 +177,12 @@ def train(data: PolicyData, pcfg: PolicyConfig, cfg: TrainConfig, run: Path, met
     model = C.make_model(pcfg).to(d.device)
     decay = [p for n, p in model.named_parameters() if p.ndim >= 2]
     no_decay = [p for n, p in model.named_parameters() if p.ndim < 2]
-    opt = torch.optim.AdamW([{"params": decay, "weight_decay": cfg.weight_decay},
-                             {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr, betas=cfg.betas,
-                            fused=d.device.type == "cuda")
+    opt = torch.optim.AdamW(
+        [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
+        lr=cfg.lr,
+        betas=cfg.betas,
+        fused=d.device.type == "cuda",
+    )
     start = 0
     if resume_from is not None:
         old = C.read_meta(resume_from)
@@ -177,20 +202,24 @@ def train(data: PolicyData, pcfg: PolicyConfig, cfg: TrainConfig, run: Path, met
     if d.main and progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=total, initial=start, unit="step", dynamic_ncols=True, desc=f"{pcfg.policy}/{cfg.method}")
+        bar = tqdm(
+            total=total, initial=start, unit="step", dynamic_ncols=True, desc=f"{pcfg.policy}/{cfg.method}"
+        )
     sigma0 = BLUR_SIGMA0_PX_224 * pcfg.image_size / 224.0
     t_last, n_last, last_val = time.perf_counter(), 0, {}
     model.train()
-    for s in range(start, total):
+    for s in range(start, min(total, stop_at or total)):
         epoch, k = divmod(s, spe)
         idx, pos = sampler.batch(epoch, k, cfg.batch)
         gen = torch.Generator().manual_seed(_seed(cfg.seed, s))
-        noise = {key: v[torch.from_numpy(pos)] for key, v in type(model).draw_noise(pcfg, cfg.batch, gen).items()}
+        noise = {
+            key: v[torch.from_numpy(pos)] for key, v in type(model).draw_noise(pcfg, cfg.batch, gen).items()
+        }
         crops = draw_crops(cfg.batch, gen)[torch.from_numpy(pos)]
         batch = _to(data.batch(train_idx[idx], crops), d.device)
         noise = _to(noise, d.device)
         if method.blur:
-            batch["images"] = gaussian_blur(batch["images"], blur_sigma(s, total, sigma0))
+            model.obs.blur_sigma = blur_sigma(s, total, sigma0)
         torch.manual_seed(_seed(cfg.seed, s, d.rank))  # dropout
         lr = lr_at(s, cfg, total)
         for g in opt.param_groups:
@@ -206,11 +235,17 @@ def train(data: PolicyData, pcfg: PolicyConfig, cfg: TrainConfig, run: Path, met
         done = s + 1
         if bar is not None:
             bar.update(1)
+        if done % cfg.log_every == 0 or done == total:
+            logged = _global_means(d, [loss.detach()] + [v.detach().float().mean() for v in parts.values()])
         if d.main and (done % cfg.log_every == 0 or done == total):
             now = time.perf_counter()
-            row = {"train/loss": loss.item(), "lr": lr, "train/grad_norm": float(gnorm),
-                   "samples_per_s": n_last / max(now - t_last, 1e-9)}
-            row.update({f"train/{k}": float(v.float().mean()) for k, v in parts.items()})
+            row = {
+                "train/loss": logged[0],
+                "lr": lr,
+                "train/grad_norm": float(gnorm),
+                "samples_per_s": n_last / max(now - t_last, 1e-9),
+            }
+            row.update({f"train/{k}": v for k, v in zip(parts, logged[1:])})
             log.log(done, row)
             t_last, n_last = now, 0
             if bar is not None:

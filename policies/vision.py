@@ -55,12 +55,37 @@ class ResNet18GN(nn.Module):
         chans = [64, 64, 128, 256, 512]
         for i in range(4):
             stride = 1 if i == 0 else 2
-            setattr(self, f"layer{i + 1}", nn.Sequential(BasicBlock(chans[i], chans[i + 1], stride),
-                                                         BasicBlock(chans[i + 1], chans[i + 1], 1)))
+            setattr(
+                self,
+                f"layer{i + 1}",
+                nn.Sequential(
+                    BasicBlock(chans[i], chans[i + 1], stride), BasicBlock(chans[i + 1], chans[i + 1], 1)
+                ),
+            )
 
     def forward(self, x):
         x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
         return self.layer4(self.layer3(self.layer2(self.layer1(x))))
+
+
+class ConvNetGN(nn.Module):
+    """A small encoder for quick CPU experiments and tests: four stride-2 3x3 conv + GroupNorm + ReLU stages
+    (32, 64, 128, 128 channels), feature map at 1/16 of the input."""
+
+    out_channels = 128
+
+    def __init__(self):
+        super().__init__()
+        chans, layers = [3, 32, 64, 128, 128], []
+        for cin, cout in zip(chans[:-1], chans[1:]):
+            layers += [nn.Conv2d(cin, cout, 3, 2, 1, bias=False), _gn(cout), nn.ReLU(inplace=True)]
+        self.body = nn.Sequential(*layers)
+
+    def forward(self, x):
+        return self.body(x)
+
+
+BACKBONES = {"resnet18-gn": ResNet18GN, "convnet-gn": ConvNetGN}
 
 
 class _Features(nn.Module):
@@ -77,6 +102,11 @@ class _Features(nn.Module):
 
 def _third_party(spec: str) -> nn.Module:
     lib, _, name = spec.partition(":")
+    if lib not in ("timm", "torchvision") or not name:
+        raise UserError(
+            f"unknown backbone {spec!r}",
+            fix=f"use one of {', '.join(BACKBONES)}, torchvision:NAME or timm:NAME",
+        )
     try:
         if lib == "timm":
             import timm
@@ -91,8 +121,10 @@ def _third_party(spec: str) -> nn.Module:
             c = body(torch.zeros(1, 3, 64, 64)).shape[1]
         return _Features(body, c)
     except Exception as e:  # import errors, unknown names: one line for the user
-        raise UserError(f"backbone {spec!r} unavailable ({type(e).__name__}: {str(e)[:80]})",
-                        fix="use --backbone resnet18-gn, or install a working torchvision/timm") from None
+        raise UserError(
+            f"backbone {spec!r} unavailable ({type(e).__name__}: {str(e)[:80]})",
+            fix="use --backbone resnet18-gn, or install a working torchvision/timm",
+        ) from None
 
 
 def load_weights_file(module: nn.Module, path: str | Path) -> tuple[list[str], list[str]]:
@@ -110,20 +142,27 @@ def load_weights_file(module: nn.Module, path: str | Path) -> tuple[list[str], l
             sd = torch.load(str(p), map_location="cpu", weights_only=True)
             sd = sd.get("state_dict", sd) if isinstance(sd, dict) else sd
     except Exception as e:
-        raise UserError(f"unreadable weights file ({type(e).__name__})", where=str(p),
-                        fix="pass a .safetensors or torch state-dict file") from None
+        raise UserError(
+            f"unreadable weights file ({type(e).__name__})",
+            where=str(p),
+            fix="pass a .safetensors or torch state-dict file",
+        ) from None
     own = module.state_dict()
     ok = {k: v for k, v in sd.items() if k in own and tuple(v.shape) == tuple(own[k].shape)}
     if not ok:
-        raise UserError("no tensor in the weights file matches the backbone", where=str(p),
-                        fix="use weights of the same architecture as --backbone")
+        raise UserError(
+            "no tensor in the weights file matches the backbone",
+            where=str(p),
+            fix="use weights of the same architecture as --backbone",
+        )
     module.load_state_dict(ok, strict=False)
     return sorted(set(own) - set(ok)), sorted(set(sd) - set(ok))
 
 
 def make_backbone(spec: str = "resnet18-gn", weights: str = "") -> nn.Module:
     """The image encoder for `spec` with `out_channels`; weights from a local file when named."""
-    m = ResNet18GN() if spec == "resnet18-gn" else _third_party(spec)
+    own = spec in BACKBONES
+    m = BACKBONES[spec]() if own else _third_party(spec)
     if weights:
-        load_weights_file(m if spec == "resnet18-gn" else m.body, weights)
+        load_weights_file(m if own else m.body, weights)
     return m

@@ -20,13 +20,24 @@ def _frame(k: int, cam: int, h: int = 32, w: int = 40) -> np.ndarray:
     """A bright square whose position encodes the time step (so images carry the state)."""
     img = np.full((h, w, 3), 40 + 60 * cam, np.uint8)
     x = (k // 3) % (w - 8)
-    img[8:16, x:x + 8] = 250
+    img[8:16, x : x + 8] = 250
     return img
 
 
-def write_recording(path, *, episodes: int = 2, seconds: float = 4.0, cameras=("wrist", "top"),
-                    tau_ext: bool = True, contact_at=(1.5,), contact_s: float = 1.0, seed: int = 0,
-                    n_joints: int = N_JOINTS, joint_names=None, simulated: bool = True) -> Path:
+def write_recording(
+    path,
+    *,
+    episodes: int = 2,
+    seconds: float = 4.0,
+    cameras=("wrist", "top"),
+    tau_ext: bool = True,
+    contact_at=(1.5,),
+    contact_s: float = 1.0,
+    seed: int = 0,
+    n_joints: int = N_JOINTS,
+    joint_names=None,
+    simulated: bool = True,
+) -> Path:
     """`episodes` episodes of `seconds` each; in each, tau_ext rises to 2 N*m per joint for `contact_s`
     at every time in `contact_at` (seconds into the episode) and is 0.01 N*m noise elsewhere."""
     path = Path(path)
@@ -36,7 +47,7 @@ def write_recording(path, *, episodes: int = 2, seconds: float = 4.0, cameras=("
     rec = Recorder(path, joint_names={"follower": names, "leader": names}, t0=0.0, metadata=meta)
     dt = 1.0 / RATE_HZ
     t = 0.0
-    for e in range(episodes):
+    for _ in range(episodes):
         t0 = t
         rec.start_episode(t, task="push")
         n = int(seconds * RATE_HZ)

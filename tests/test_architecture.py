@@ -35,10 +35,7 @@ def test_no_upward_imports(layer):
 
 
 # Imports inside hardware/ that may point back up for now: (file, the hardware part it imports).
-# hardware.sim.open_rig / serve_twin: aliases of hardware.connect for factr2_teleop callers not yet moved,
-# imported inside the function body (no module-level cycle). Remove when those callers import
-# hardware.connect.
-HARDWARE_CYCLE_ALLOWED = {("hardware/sim/__init__.py", "connect")}
+HARDWARE_CYCLE_ALLOWED: set[tuple[str, str]] = set()  # (file, part) imports exempt from the cycle check: none
 
 
 def _is_type_checking(node: ast.AST) -> bool:

@@ -223,7 +223,7 @@ def test_payload_at_the_flange_is_found_with_its_mass_and_centre(sample_arm):
     loaded = with_payload(model, 0.5, [0.03, 0.0, 0.04])
     runs = [pinocchio_arm(loaded, None, duration_s=15.0, seed=s, name=f"run{s}") for s in range(3)]
     dg = diagnose(basis, runs[:2], runs[2:])
-    assert [(e.family, e.wide) for e in dg.found()] == [("payload", True)]
+    assert [(e.family, e.wide, e.hyper["dynamics"]) for e in dg.found()] == [("payload", True, "full")]
     p = dg.model.effects[0].params()
     assert p["mass_kg"] == pytest.approx(0.5, rel=0.05) and p["distance_m"] == pytest.approx(0.05, abs=0.005)
     assert np.mean(dg.steps[-1].heldout_l1) <= 0.5 * np.mean(dg.steps[0].heldout_l1)

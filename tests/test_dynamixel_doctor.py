@@ -69,3 +69,20 @@ def test_can_hook_and_helpers(tmp_path):
     assert parse_ids("1-3,9") == [1, 2, 3, 9]
     assert latency_timer_advice("/dev/ttyUSB0", 16) and "echo 1" in latency_timer_advice("/dev/ttyUSB0", 16)
     assert latency_timer_advice("/dev/ttyUSB0", 1) is None
+
+
+def test_rig_checks_probe_each_device_with_its_kind_on_a_served_twin():
+    """`factr2 doctor --rig` goes through the device-kind registry: a twin's Dynamixel pty and its Piper on
+    a virtual CAN channel (this process), each probed with the rig's own config (SIMULATED devices)."""
+    from hardware.connect import serve_twin
+    from hardware.rigs import load_rig
+
+    rig = load_rig("sim-piper")
+    checks, notes = dr.rig_checks(rig, loop_hz=1.0)
+    assert checks == [] and len(notes) == 2  # "twin" endpoints: nothing to probe without a twin
+    with serve_twin(rig) as twin:
+        checks, notes = dr.rig_checks(rig.with_endpoints(twin.twin.endpoints), loop_hz=1.0)
+    assert notes == [] and [c.title.split()[0] for c in checks] == ["dynamixel", "CAN"]
+    assert not any(c.failed for c in checks), [f.line() for c in checks for f in c.findings]
+    assert sum("XL330-M288" in line for line in checks[0].details) == 7  # 6 joints + trigger
+    assert any("AgileX Piper" in f.message or "firmware" in f.message for f in checks[1].findings)

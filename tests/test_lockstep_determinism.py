@@ -58,12 +58,10 @@ def _scenario(slow: bool) -> dict[str, np.ndarray]:
 
 
 def test_a_slowed_client_records_bit_identical_arrays():
-    t0 = time.perf_counter()
     fast = _scenario(slow=False)
-    t_fast = time.perf_counter() - t0
+    t0 = time.perf_counter()
     slowed = _scenario(slow=True)
-    t_slow = time.perf_counter() - t0 - t_fast
-    assert t_slow > t_fast + 0.5 * SECONDS * RATE_HZ * 2 * SLOW_S  # the client really was slower
+    assert time.perf_counter() - t0 >= 2 * SECONDS * RATE_HZ * SLOW_S  # every command really slept
     assert len(fast["frames"]) > 1000 and np.ptp(fast["frames"][:, 0]) > 0.9 * SECONDS  # rig-clock stamps
     assert np.abs(fast["rows"][:, -6:]).max() > 1.0  # the push really loaded the arm (tau_ext) [N*m]
     for k, a in fast.items():

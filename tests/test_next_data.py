@@ -82,3 +82,14 @@ def test_build_windows_normalised_on_train_only():
     w = gather_windows(wd.x, wd.train_ends[:4], 10)
     assert w.shape == (4, 10, 9)
     assert np.all(wd.x_min <= wd.x_max)
+
+
+def test_segments_carry_the_arm_their_log_names():
+    from calibration.next.data import logged_arm
+
+    log = _log()
+    log.arm, log.arm_sha256 = "piper", "ab" * 32
+    segs = resample_log(log, 100.0)
+    assert segs[0].arm == "piper" and segs[0].joint_names == ("a", "b", "c") and segs[0].units == "A"
+    assert logged_arm(segs) == "piper"  # calibrate --from-logs needs no --arm for such logs
+    assert logged_arm(segs + resample_log(_log(seed=1), 100.0)) is None  # one log names none: unknown

@@ -53,3 +53,14 @@ def test_garbage_file(tmp_path):
 def test_real_ur5_log_loads(ur5_dir):
     log = load_plain_log(ur5_dir / "TEST.npz")
     assert log.units == "A" and log.n_joints == 6 and log.joint_names[1] == "shoulder"
+
+
+def test_logs_name_their_arm(tmp_path):
+    a = _arrays()
+    log = load_plain_log(save_plain_log(tmp_path / "a.npz", **a, arm=np.array("piper"),
+                                        arm_sha256=np.array("ab" * 32)))
+    assert log.arm == "piper" and log.arm_sha256 == "ab" * 32 and "arm" not in log.extra
+    assert load_plain_log(save_plain_log(tmp_path / "b.npz", **a)).arm == ""  # older logs: unknown
+    np.savez(tmp_path / "bad.npz", **a, arm=np.array([1.0, 2.0]))
+    with pytest.raises(ConfigError, match="arm is"):
+        load_plain_log(tmp_path / "bad.npz")

@@ -88,7 +88,9 @@ def test_phases_cli_without_tau_ext_or_next_is_one_line(tmp_path, capsys):
     write_recording(tmp_path / "a.mcap", episodes=1, seconds=1.0, cameras=(), tau_ext=False)
     rc = main(["episodes", "phases", str(tmp_path), "--thresholds", "1:3"])
     err = capsys.readouterr().err
-    assert rc == 2 and "no estimated tau_ext" in err and "--next" in err and len(err.strip().splitlines()) == 1
+    assert (
+        rc == 2 and "no estimated tau_ext" in err and "--next" in err and len(err.strip().splitlines()) == 1
+    )
     rc = main(["episodes", "phases", str(tmp_path)])
     err = capsys.readouterr().err
     assert rc == 2 and "--thresholds" in err

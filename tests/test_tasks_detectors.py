@@ -65,7 +65,7 @@ def test_seeds_reproduce_initial_conditions(name):
     def draw(seed):
         p = task.reset(m, d, np.random.default_rng(seed))
         mujoco.mj_forward(m, d)
-        return np.concatenate([d.qpos.copy(), m.body_pos.ravel().copy()]), p
+        return np.concatenate([d.qpos.copy(), d.mocap_pos.ravel().copy()]), p
 
     a, pa = draw(3)
     b, _ = draw(4)
@@ -80,3 +80,53 @@ def test_registry_errors_are_one_line():
         get_task("juggle")
     with pytest.raises(ConfigError, match="does not fit"):
         scene_model(load_arm("panda"), "table", get_task("peg-insert"))
+
+
+def test_wipe_detectors_force_band_and_coverage():
+    from hardware.sim.tasks import wipe as W
+
+    params = {"area_pos": np.array([0.3, 0.0, 0.0]), "area_yaw": 0.2}
+    c, s = np.cos(0.2), np.sin(0.2)
+
+    def obs(lx, ly, z=0.0, f=8.0):
+        return {"tip_pos": np.array([0.3 + c * lx - s * ly, s * lx + c * ly, z]), "force_n": f}
+
+    empty = np.zeros(W.grid_shape(), bool)
+    flags, cov = W.detect_wipe(obs(0.0, 0.0, z=0.05, f=0.0), params, empty)
+    assert flags.tolist() == [False, False, False] and not cov.any()  # above the mark
+    flags, cov = W.detect_wipe(obs(0.0, 0.0, f=30.0), params, empty)
+    assert flags.tolist() == [True, False, False] and not cov.any()  # pressing too hard wipes nothing
+    flags, cov = W.detect_wipe(obs(0.06, 0.0), params, empty)
+    assert not flags[0] and not cov.any()  # beside the mark
+    cov = empty
+    for lx in np.arange(-0.035, 0.036, 0.01):  # three strokes along the mark
+        for ly in (-0.02, 0.0, 0.02):
+            flags, cov = W.detect_wipe(obs(lx, ly), params, cov)
+    assert flags.tolist() == [True, True, True] and cov.mean() >= W.COVERAGE_MIN
+    part = empty
+    for lx in np.arange(-0.035, 0.036, 0.01):  # one stroke: a near miss on coverage
+        _, part = W.detect_wipe(obs(lx, 0.0), params, part)
+    assert part.mean() < W.COVERAGE_MIN
+
+
+def test_press_fit_detectors_seat_and_near_misses():
+    from hardware.sim.tasks import press_fit as P
+
+    base = np.array([0.3, 0.1, 0.0])
+    h = 0.5 * (P.SKIRT_H_M + P.CAP_H_M)
+
+    def obs(dx=0.0, edge=0.0, yaw=0.0, tilt=0.0, held=(True, True)):
+        R = _rz(yaw) @ np.array([[1, 0, 0], [0, np.cos(tilt), -np.sin(tilt)], [0, np.sin(tilt), np.cos(tilt)]])
+        return {"block_pos": base + [dx, 0.0, P.PLATE_TOP_M + edge + h], "block_rot": R, "base_pos": base,
+                "base_yaw": 0.0, "finger_touch": np.array(held)}
+
+    assert P.detect_press(obs(edge=0.0)).tolist()[1:] == [True, True]  # seated (grasp latched earlier)
+    assert P.detect_press(obs(edge=0.03))[0]  # held and lifted
+    assert P.detect_press(obs(edge=0.008))[1] and not P.detect_press(obs(edge=0.008))[2]  # on the studs
+    assert not P.detect_press(obs(edge=0.002))[2]  # 2 mm short of seated
+    assert not P.detect_press(obs(dx=0.003))[1]  # 3 mm off
+    assert not P.detect_press(obs(yaw=np.deg2rad(6)))[1]
+    assert P.detect_press(obs(yaw=np.pi / 2))[2]  # square symmetry
+    assert not P.detect_press(obs(tilt=np.deg2rad(4)))[2]
+    on_table = {**obs(), "block_pos": np.array([0.25, -0.1, h])}
+    assert not P.detect_press(on_table)[0]  # touched but not lifted

@@ -42,9 +42,9 @@ def test_rig_screen_connect_doctor_estop_and_quit(tmp_path):
             text = screen_text(app)
             assert "sim-piper [SIM]" in text and "disconnected" in text and "SIMULATED" in text
             await pilot.press("d")  # doctor while disconnected: probes the twin's servos over the wire
-            ok = await wait_for(pilot, lambda: "servos 1:" in screen_text(app), 30)
+            ok = await wait_for(pilot, lambda: "sync read of 7 servos" in screen_text(app), 30)
             assert ok, (app.runtime.messages[-3:], screen_text(app))
-            assert "OK    leader: servos 1:" in screen_text(app)
+            assert "XL330-M288" in screen_text(app) and "ERROR" not in screen_text(app)
             await connect(pilot, app)
             assert await wait_for(pilot, lambda: all(np.isfinite(d.read_ms) for d in app.runtime.statuses()))
             await pilot.pause(0.3)

@@ -55,6 +55,16 @@ def payload_columns(model, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np
                      for i in range(len(q))])
 
 
+def gravity_like(q: np.ndarray) -> np.ndarray:
+    """(N, n(n+1)) sin and cos of every contiguous joint-angle sum q_a + ... + q_b [rad]: the orientations a
+    serial arm's links can have relative to gravity, so any load's gravity torque is close to a combination
+    of them (the data-only basis' gravity part, and the gravity_load family without an arm description)."""
+    n = q.shape[1]
+    cq = np.cumsum(np.concatenate([np.zeros((len(q), 1)), q], 1), 1)
+    ang = np.stack([cq[:, b + 1] - cq[:, a] for a in range(n) for b in range(a, n)], 1)
+    return np.concatenate([np.sin(ang), np.cos(ang)], 1)
+
+
 class DataBasis:
     kind = "data-only"
     separable = True  # each joint has its own coefficients: an effect on joint j changes only joint j's fit
@@ -79,9 +89,7 @@ class DataBasis:
                 f"{len(self.pairs)} velocity products)")
 
     def blocks(self, seg: Segment) -> list[tuple[np.ndarray, np.ndarray]]:
-        cq = np.cumsum(np.concatenate([np.zeros((len(seg), 1)), seg.q], 1), 1)
-        ang = np.stack([cq[:, b + 1] - cq[:, a] for a, b in self.sums], 1)
-        grav = np.concatenate([np.sin(ang), np.cos(ang)], 1)
+        grav = gravity_like(seg.q)
         vel = np.stack([seg.qd[:, k] * seg.qd[:, m] for k, m in self.pairs], 1)
         out = []
         for j in range(self.n):

@@ -120,9 +120,11 @@ class Effect:
         name = names[j] if names is not None and j < len(names) else f"joint {j}"
         if self.family == "payload":
             d = p["distance_m"]
+            static = ("; its gravity only: the data show no inertia of it (a static load, e.g. a cable or "
+                      "hose weight)") if self.hyper.get("dynamics") == "gravity" else ""
             return (f"an unknown payload: about {p['mass_kg']:.2g} kg at {100 * d:.0f} cm from the flange "
                     f"(centre of mass {100 * p['com_x_m']:.1f}, {100 * p['com_y_m']:.1f}, "
-                    f"{100 * p['com_z_m']:.1f} cm in the last link's frame)")
+                    f"{100 * p['com_z_m']:.1f} cm in the last link's frame{static})")
         if self.family == "gravity_load":
             return (f"a gravity-like load on {name} (a payload or a wrong mass; no arm description, so its "
                     "mass and position are not identified)")
@@ -228,17 +230,15 @@ _FEATURES = {
         d, lambda a, b: _lagged(d.t[a:b], _rigid(e, d)[a:b], e.hyper["shift_s"])),
     "coupling": lambda e, d: np.stack([d.qd[:, e.hyper["other_joint"]],
                                        np.tanh(d.qd[:, e.hyper["other_joint"]] / SIGN_EPS)], 1),
-    "payload": lambda e, d: d.payload_columns(),
-    "gravity_load": lambda e, d: link_orientations(d.q),
+    "payload": lambda e, d: d.payload_columns(e.hyper.get("dynamics", "full")),
+    "gravity_load": lambda e, d: _gravity_like(d.q),
 }
 
 
-def link_orientations(q: np.ndarray) -> np.ndarray:
-    """(N, 2n) sin and cos of q_0 + ... + q_k for k = 0..n-1: the orientation of each link of a serial arm
-    whose axes are parallel. A load carried by the arm's end has a gravity torque on every joint that is a
-    combination of these (exact for a planar arm, the gravity-like family when no description is known)."""
-    a = np.cumsum(q, 1)
-    return np.concatenate([np.sin(a), np.cos(a)], 1)
+def _gravity_like(q: np.ndarray) -> np.ndarray:
+    from .basis import gravity_like  # the data-only basis' own gravity-like columns
+
+    return gravity_like(q)
 
 
 def _lagged(t: np.ndarray, x: np.ndarray, shift_s: float) -> np.ndarray:

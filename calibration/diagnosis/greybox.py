@@ -50,14 +50,18 @@ class Design:
             self._cache[key] = e.features(self)
         return self._cache[key]
 
-    def payload_columns(self) -> np.ndarray:
+    def payload_columns(self, dynamics: str = "full") -> np.ndarray:
         """(N, n, 4) torque per unit payload mass and first moment (basis.payload_columns) on the basis'
-        arm description (its `kinematics`)."""
-        if "payload" not in self._cache:
+        arm description (its `kinematics`); dynamics "gravity": of a static load (qd = qdd = 0)."""
+        key = ("payload", dynamics)
+        if key not in self._cache:
             from .basis import payload_columns
 
-            self._cache["payload"] = payload_columns(self.basis.kinematics, self.q, self.qd, self.qdd)
-        return self._cache["payload"]
+            z = np.zeros_like(self.qd)
+            moving = dynamics == "full"
+            self._cache[key] = payload_columns(self.basis.kinematics, self.q, self.qd if moving else z,
+                                               self.qdd if moving else z)
+        return self._cache[key]
 
 
 class GreyBox:

@@ -33,6 +33,7 @@ class LoopConfig:
     close: float = 0.5  # candidates scoring >= close x the best trace score are compared on held-out gain
     max_effects: int = 20
     min_score: float = 1e-3
+    worst_joint: bool = True  # a round that passes nothing tries the worst joint's best candidate if untried
 
 
 @dataclass
@@ -117,20 +118,24 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
             tries[who] = tries.get(who, 0) + 1
             tried = _try(model, c, train, held, l1, floor, cfg)
             if tried is None:
-                j = c.effect.joint
-                rejected.append({"effect": c.effect.family, "joint": j, "hyper": c.effect.hyper,
-                                 "score": round(c.score, 4), **c.evidence.get("heldout_check", {})})
-                chk = c.evidence["heldout_check"]
-                log(f"  rejected {c.effect.family} on {_where(c.effect)}: " + (chk.get("implausible") or
-                    f"held-out gain {chk['heldout_gain']:.4g} <= {chk['needed']:.4g}")
-                    + (f" -- evidence of {chk['evidence_of']} (candidates: {', '.join(chk['candidates'])})"
-                       if "evidence_of" in chk else ""))
+                _reject(c, rejected, log)
                 continue
             # a later (lower-ranked) close candidate must beat the kept one by the acceptance threshold too
             if accepted is None or tried[-1] > accepted[-1] + accepted[0].evidence["heldout_check"]["needed"]:
                 accepted = tried
             if c.score < close * cands[0].score:
                 break  # outside the close group the first that passes is kept
+        worst = int(np.argmax(l1))
+        if accepted is None and cfg.worst_joint and worst not in tries:
+            # before giving up, the joint with the largest held-out error gets one trial fit of its best
+            # candidate: scores are fractions of each joint's own residual, so near-perfect fits of tiny
+            # residuals on other joints can use up a round while that joint is never tried (only that one
+            # joint: one extra try per joint added spurious terms on the clean twin)
+            c = next((c for c in cands if not c.effect.wide and c.effect.joint == worst), None)
+            if c is not None:
+                accepted = _try(model, c, train, held, l1, floor, cfg)
+                if accepted is None:
+                    _reject(c, rejected, log)
         if accepted is None:
             break
         accepted = _simpler(model, accepted, train, held, l1, floor, cfg, log)
@@ -158,6 +163,17 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
         model, l1, rms = trial, l1_new, rms_new
     model, pruned = _prune(model, train, held, l1, floor, cfg, log)
     return Diagnosis(steps, model, train, held, cfg, rejected, pruned, declared)
+
+
+def _reject(c, rejected: list, log) -> None:
+    """Record (and log) a candidate that failed its trial fit, with the evidence of what failed."""
+    chk = c.evidence["heldout_check"]
+    rejected.append({"effect": c.effect.family, "joint": c.effect.joint, "hyper": c.effect.hyper,
+                     "score": round(c.score, 4), **chk})
+    log(f"  rejected {c.effect.family} on {_where(c.effect)}: " + (chk.get("implausible") or
+        f"held-out gain {chk['heldout_gain']:.4g} <= {chk['needed']:.4g}")
+        + (f" -- evidence of {chk['evidence_of']} (candidates: {', '.join(chk['candidates'])})"
+           if "evidence_of" in chk else ""))
 
 
 def _where(e: Effect) -> str:

@@ -54,12 +54,17 @@ def headline(dg: Diagnosis, names: list, meta: dict) -> str:
     u = meta.get("units", "")
     of = "the model's" if not meta.get("next_checkpoint") else "NEXT's"
     found = dg.found() if hasattr(dg, "found") else dg.model.effects
-    added = [s.added for s in dg.steps[1:] if s.added is not None]
-    if not found or not added:
+    def key(family, joint, hyper):
+        return family, joint, tuple(sorted(hyper.items()))
+
+    kept = {key(e.family, e.joint, e.hyper): e for e in found}
+    # the first step whose effect the final model still holds (an early find can be pruned later)
+    step = next((s.added for s in dg.steps[1:] if s.added is not None
+                 and key(s.added["effect"], s.added["joint"], s.added["hyper"]) in kept), None)
+    if step is None:
         return f"Nothing missing: no effect explains {of} held-out residual beyond the acceptance threshold"
-    first = next((e for e in found if (e.family, e.joint) == (added[0]["effect"], added[0]["joint"])),
-                 found[0])
-    ev = added[0]["evidence"]
+    first = kept[key(step["effect"], step["joint"], step["hyper"])]
+    ev = step["evidence"]
     b, a = ev["heldout_l1_joint_before"], ev["heldout_l1_joint_after"]
     where = "summed over joints" if first.wide else f"of {names[first.joint]}"
     more = f"; {len(found) - 1} more effect(s) below" if len(found) > 1 else ""

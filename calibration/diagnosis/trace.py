@@ -105,16 +105,21 @@ def candidates(model: GreyBox, d: Design, residual: np.ndarray, joints=None) -> 
             if k != j and float(np.sqrt(np.mean(d.qd[:, k] ** 2))) > MOVING:
                 trials.append(score(Effect("coupling", j, {"other_joint": k}), proj=own_motion))
         if getattr(model.basis, "offers_gravity_load", False):
-            trials.append(score(Effect("gravity_load", j)))
+            # one load, whatever the orientation columns it needs: ranked as a 2-column family
+            c = score(Effect("gravity_load", j))
+            c.evidence["columns"] = 2
+            trials.append(c)
         for c in trials:
             if c.effect.slot in taken:
                 continue
             c.evidence["explains_train_residual"] = round(c.score, 4)
             out.append(c)
     if getattr(model.basis, "kinematics", None) is not None:
-        c = _arm_wide(model, d, residual, Effect("payload", model.n - 1))
-        if c.effect.slot not in taken:
-            out.append(c)
+        # a payload moves with the arm (its inertia shows); a static load (a cable's weight) only weighs
+        for dyn in ("full", "gravity"):
+            c = _arm_wide(model, d, residual, Effect("payload", model.n - 1, {"dynamics": dyn}))
+            if c.effect.slot not in taken:
+                out.append(c)
     out.sort(key=rank)
     return out
 

@@ -51,6 +51,7 @@ class TwinCase:
     make: object  # () -> hook or None
     note: str = ""
     params: dict = field(default_factory=dict)
+    prior_weight: float | None = None  # the rigid part's pull toward the description (None: piper_basis's)
 
 
 def _one(j: int, fn):
@@ -161,7 +162,18 @@ TWIN_CASES: dict[str, TwinCase] = {
     "torque_constant_scale": TwinCase("torque_constant_scale", 2, lambda: _RigidLoad(2, "scale", 1.15),
                                       params={"scale": 1.15}),
     "coupling": TwinCase("coupling", 2, _coupling(2, 1, 1.0), params={"source_joint": 1, "fv": 1.0}),
+    # an unknown payload is a change of the last link's inertial parameters: a nearly free rigid part (the
+    # default 1e-3 pull toward the description) absorbs it, so this case uses the CLI's --prior-weight 1.0
+    "payload": TwinCase("payload", N_JOINTS - 1, lambda: _payload_hook(),
+                        note="0.3 kg 5 cm beyond the flange (hardware.sim.example_effects:piper_payload)",
+                        params={"mass_kg": 0.3, "distance_m": 0.05}, prior_weight=1.0),
 }
+
+
+def _payload_hook():
+    from hardware.sim.example_effects import piper_payload
+
+    return piper_payload
 
 
 def twin_rig(effects: dict[str, bool]):
@@ -217,15 +229,17 @@ def generate(folder, case: TwinCase, seconds: float = 60.0, heldout_seconds: flo
     return paths[0], paths[1]
 
 
-def piper_basis():
-    """The rigid part for twin logs: pinocchio regressor of the Piper description (as `--arm piper`)."""
+def piper_basis(prior_weight: float | None = None):
+    """The rigid part for twin logs: pinocchio regressor of the Piper description (as `--arm piper`), pulled
+    toward the description with `prior_weight` (default: PinocchioBasis's 1e-3; the CLI's is 1.0)."""
     from calibration.diagnosis.basis import PinocchioBasis
     from hardware.arms import load_arm
 
-    return PinocchioBasis(load_arm("piper").pinocchio_model())
+    model = load_arm("piper").pinocchio_model()
+    return PinocchioBasis(model) if prior_weight is None else PinocchioBasis(model, ridge=prior_weight)
 
 
-def diagnose_logs(train_paths, heldout_paths, declared=None, log=lambda s: None):
+def diagnose_logs(train_paths, heldout_paths, declared=None, log=lambda s: None, prior_weight=None):
     """`factr2 diagnose TRAIN --heldout HELD --arm piper` as a function (plus `declared` first-pass effects;
     with no held-out paths the last quarter of the single training run is held out)."""
     from calibration.diagnosis.data import load_segments, split_heldout
@@ -234,7 +248,7 @@ def diagnose_logs(train_paths, heldout_paths, declared=None, log=lambda s: None)
     runs = [load_segments(p) for p in train_paths]  # per file, its contact-free stretches
     held = [seg for p in heldout_paths for seg in load_segments(p)] or None
     train, held = split_heldout(runs, held)
-    return diagnose(piper_basis(), train, held, log=log, declared=declared)
+    return diagnose(piper_basis(prior_weight), train, held, log=log, declared=declared)
 
 
 def twin_own(effect) -> bool:

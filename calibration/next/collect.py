@@ -116,7 +116,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
                         contact_frac: float = 0.3, contact_ticks: int = 5,
                         progress: Callable[[float, float], bool | None] | None = None,
                         pushes: list[Push] | None = None) -> CollectedRun:
-    """Replay `traj` on the session's follower (RigSession of hardware.sim.open_rig). progress(done_s,
+    """Replay `traj` on the session's follower (RigSession of hardware.connect.open_rig). progress(done_s,
     total_s) is called every tick; returning True stops the run (operator stop). Raises ContactStop (with
     the partial run attached) unless `pushes` are given (twin only; guard off)."""
     from hardware.arms import load_arm

@@ -52,6 +52,13 @@ def resample_log(log, rate_hz: float = 100.0, max_gap_s: float = 0.1) -> list[Se
             for grid, res in resample(t[finite], arrays, rate_hz, max_gap_s=max_gap_s)]
 
 
+def logged_arm(segments) -> str | None:
+    """The arm description every segment's log names (plain_log `arm`), or None when a log names none or
+    they disagree: logs this app writes say which arm they come from, so --arm is only an override."""
+    named = {getattr(s, "arm", "") for s in segments}
+    return named.pop() if len(named) == 1 and "" not in named else None
+
+
 def make_inputs(q: np.ndarray, qd: np.ndarray, q_cmd: np.ndarray, inputs: str = "q,qd,dq") -> np.ndarray:
     """Per-sample network inputs (N, F): q [rad], q_dot [rad/s], q_cmd - q [rad] as `inputs` selects."""
     if inputs not in INPUT_SETS:

@@ -16,8 +16,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the initial conditions (default 0)")
     parser.add_argument("--mode", default=None, help="feedback mode (default: next with a checkpoint, "
                         "else dob; see factr2 teleop --help)")
-    parser.add_argument("--checkpoint", default=None, help="NEXT checkpoint (next.json from factr2 calibrate; "
-                        "default: the rig's, else the demo's cache)")
+    parser.add_argument("--checkpoint", default=None, help="NEXT checkpoint (next.json from factr2 calibrate;"
+                        " default: the rig's, else the demo's cache)")
     parser.add_argument("--no-cameras", action="store_true", help="record no camera frames (faster)")
 
 

@@ -30,14 +30,14 @@ def add_arguments(parser) -> None:
     p = sub.add_parser("merge", help="concatenate recordings (files or folders) into one")
     p.add_argument("path", type=Path, nargs="+")
     p.add_argument("-o", "--output", type=Path, required=True)
-    p = sub.add_parser("phases", help="FIRST phase labels: per-episode shares of free / pre-contact / contact "
-                       "and a PNG per episode (tau_ext with the phases shaded)")
+    p = sub.add_parser("phases", help="FIRST phase labels: per-episode shares of free / pre-contact / "
+                       "contact and a PNG per episode (tau_ext with the phases shaded)")
     p.add_argument("path", type=Path, nargs="+", help="recordings (.mcap) or folders of them")
     p.add_argument("--next", type=Path, default=None, metavar="CKPT",
-                   help="NEXT checkpoint: estimate tau_ext offline from the logged joint states (and take the "
-                   "default thresholds from its free-motion noise)")
+                   help="NEXT checkpoint: estimate tau_ext offline from the logged joint states (and take "
+                   "the default thresholds from its free-motion noise)")
     p.add_argument("--thresholds", default=None, metavar="LOW:HIGH",
-                   help="contact hysteresis on ||tau_ext||_1 [N*m] (default: from the NEXT checkpoint's noise)")
+                   help="contact hysteresis on ||tau_ext||_1 [N*m] (default: from NEXT's free-motion noise)")
     p.add_argument("--out", type=Path, default=None,
                    help="folder for the PNGs (default: phases/ beside the first recording)")
 
@@ -61,35 +61,33 @@ def run(args) -> int:
 def _phases(args) -> None:
     from hardware.errors import UserError
     from policies import labelling as L
-    from policies.phases import parse_thresholds
+    from policies.phases import CONTACT, onsets, parse_thresholds
+    from policies.recordings import load_episodes
 
     given = None
     if args.thresholds is not None:
         try:
             given = parse_thresholds(args.thresholds)
         except ValueError as e:
-            raise UserError(f"--thresholds {e}", fix="give LOW:HIGH in N*m, e.g. --thresholds 1.5:2.5") from None
-    from policies.recordings import load_episodes
-
+            raise UserError(f"--thresholds {e}", fix="give LOW:HIGH in N*m, e.g. 1.5:2.5") from None
     episodes, arms = load_episodes(args.path)
     model = L.load_next(args.next) if args.next is not None else None
     th = L.resolve_thresholds(given, model, episodes, arms)
+    labels = [L.label_episode(ep, arms, th, model) for ep in episodes]  # all checked before any PNG
     first = args.path[0]
     out = args.out or ((first if first.is_dir() else first.parent) / "phases")
     print(f"thresholds: T_low {th.t_low:.4g}, T_high {th.t_high:.4g} [N*m] ({th.source}); pre-contact 1 s")
-    print(f"{'episode':<40} {'seconds':>8} {'free':>6} {'pre':>6} {'contact':>8} {'onsets':>6}  source")
-    total = []
-    for ep in episodes:
-        lab = L.label_episode(ep, arms, th, model)
+    print(f"{'episode':<40} {'seconds':>8} {'free':>6} {'pre':>6} {'contact':>8} {'onsets':>6}  "
+          "source; figure")
+    n_total, weighted = 0, 0.0
+    for ep, lab in zip(episodes, labels):
         sh = lab.shares()
-        from policies.phases import CONTACT, onsets
-
         n_on = len(onsets(lab.phases == CONTACT))
-        total.append((len(lab.phases), sh))
         png = L.plot_labels(lab, th, out / f"{lab.episode.replace('#', '_ep')}.png")
         print(f"{lab.episode:<40} {ep.duration_s:8.1f} {sh[0]:6.1%} {sh[1]:6.1%} {sh[2]:8.1%} {n_on:6d}  "
               f"{lab.source}; {png}")
-    n = sum(k for k, _ in total)
-    if n:
-        sh = sum(k * s for k, s in total) / n
+        n_total += len(lab.phases)
+        weighted = weighted + len(lab.phases) * sh
+    if n_total:
+        sh = weighted / n_total
         print(f"{'all':<40} {'':>8} {sh[0]:6.1%} {sh[1]:6.1%} {sh[2]:8.1%}")

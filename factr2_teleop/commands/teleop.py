@@ -36,7 +36,9 @@ def options(args):
     return TeleopOptions(mode=args.mode, checkpoint=args.checkpoint, rate_hz=args.rate)
 
 
-def run(args) -> int:
+def execute(args) -> dict:
+    """Run the session; {"timing": TimingStats, "recording": path or None, "status": RecorderStatus or None,
+    "cameras": {name: CameraStats}} (bench/bench_teleop_record.py measures through this)."""
     from factr2_teleop.session.pairs import check_options
     from factr2_teleop.session.teleop import TeleopSession
     from factr2_teleop.teleop.rt import single_thread_blas
@@ -48,7 +50,7 @@ def run(args) -> int:
     opts = options(args)
     check_options(rig, opts)
     session = open_rig(rig, clock="realtime")
-    ts = None
+    ts, out = None, {"recording": None, "status": None, "cameras": {}}
     try:
         ts = TeleopSession(session, opts)
         for line in ts.describe():
@@ -63,14 +65,22 @@ def run(args) -> int:
             rec = ts.recording
             st = ts.close_recording("teleop stopped")
             if st is not None:
+                out.update(recording=rec.path, status=st, cameras=rec.camera_stats)
                 err = f" (error: {st.error})" if st.error else ""
-                print(f"recorded to {rec.path}{err}", file=sys.stderr)
+                print(f"recorded to {rec.path}{err}: {st.messages_written} messages, {st.frames_written} "
+                      f"frames, dropped {st.dropped_samples} samples / {st.dropped_frames} frames",
+                      file=sys.stderr)
                 _camera_lines(rec.camera_stats)
         session.close()
     loop = ts.loop
     if loop.error is not None and not isinstance(loop.error, KeyboardInterrupt):
         raise UserError(f"teleop stopped: {loop.error}", where="factr2 teleop", fix="see the messages above")
-    print(loop.timing.stats().line())
+    out["timing"] = loop.timing.stats()
+    return out
+
+
+def run(args) -> int:
+    print(execute(args)["timing"].line())
     return 0
 
 

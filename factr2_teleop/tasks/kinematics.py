@@ -43,7 +43,7 @@ def pose_error(T: np.ndarray, T_des: np.ndarray) -> np.ndarray:
 
 
 def ik_step(fk, jac, q: np.ndarray, T_des: np.ndarray, q_min, q_max, max_step_rad: float = 0.2) -> np.ndarray:
-    """One damped least-squares step toward T_des from q (fk(q) -> 4x4, jac(q) -> 6 x n), inside the limits."""
+    """One damped least-squares step toward T_des from q (fk(q) -> 4x4, jac(q) -> 6 x n), in limits."""
     e = pose_error(fk(q), T_des)
     w = np.array([1, 1, 1, IK_ROT_WEIGHT_M, IK_ROT_WEIGHT_M, IK_ROT_WEIGHT_M])
     J = jac(q) * w[:, None]

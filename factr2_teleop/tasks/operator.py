@@ -22,13 +22,13 @@ import numpy as np
 
 from factr2_teleop.tasks import kinematics as K
 
-HAND_K = 4.0  # N*m/rad: a firm grip on a small leader (the demo's relaxed hand is 3)
+HAND_K = 8.0  # N*m/rad: a firm grip on a small leader (the demo's relaxed hand is 3)
 HAND_D = 0.12  # N*m*s/rad
 HAND_TAU_MAX = 2.0  # N*m per joint
 TRIGGER_SPAN_RAD = 0.7  # leader trigger travel open -> closed (rig gripper_closed_rad - gripper_open_rad)
 TRIGGER_K = 0.6  # N*m per unit of trigger fraction error
 TRIGGER_TAU_MAX = 0.4  # N*m
-SERVO_KI = 3.0  # 1/s: how fast the operator removes the follower's joint error
+SERVO_KI = 0.5  # 1/s: how fast the operator removes the follower's joint error
 SERVO_MAX_RAD = 0.15  # rad: the most it leans into the leader beyond the reference
 DECIDE_EVERY = 5  # ticks: the script decides (IK, vision) at 100 Hz on a 500 Hz loop
 AIM_STEP_RAD = 0.03  # rad per joint and decision: the reference never jumps (no IK branch flips)
@@ -96,7 +96,7 @@ class Operator:
     """Holds the reference (q_des, grip) and turns it into hand torques; scripts drive it via moves.
 
     fk/jac: follower description (hardware.arms.dynamics.ArmDynamics.fk/.jacobian); q_min/q_max: follower
-    limits [rad]; to_leader: follower joints -> leader joints (the pair's JointMap.backward); dt: loop period."""
+    limits [rad]; to_leader: follower joints -> leader joints (the pair's JointMap.backward); dt: period."""
 
     def __init__(self, fk, jac, q_min, q_max, to_leader, dt: float, q_start):
         self.fk, self.jac, self.q_min, self.q_max = fk, jac, np.asarray(q_min), np.asarray(q_max)

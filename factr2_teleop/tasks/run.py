@@ -111,7 +111,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
            "phase_shares": shares, "phase_thresholds_nm": thresholds, "sim_s": sim_s, "wall_s": wall,
            "x_realtime": sim_s / wall if wall > 0 else float("nan"),
            "cpu_s": time.process_time() - c_cpu, "loop_overruns": timing.overruns,
-           "frames_written": getattr(status, "frames_written", 0), "samples_dropped": getattr(status, "dropped", 0),
+           "frames_written": getattr(status, "frames_written", 0),
+           "samples_dropped": getattr(status, "dropped", 0),
            "frames_dropped": getattr(status, "dropped_frames", 0), "cameras": cams,
            "recording": str(mcap), "results": res}
     summary_path.write_text(json.dumps(out, indent=1, default=float))
@@ -162,13 +163,16 @@ class PhaseLog:
 def summary_lines(out: dict) -> list[str]:
     lines = [f"{out['task']} on {out['rig']} (SIMULATED), feedback {out['mode']}, seed {out['seed']}",
              f"{'episodes':>22s}  {out['episodes']}",
-             f"{'success rate':>22s}  {out['success_rate'] * 100:.1f} %  (task progress {out['progress_mean']:.2f})",
-             f"{'episode length [s]':>22s}  mean {out['episode_s_mean']:.1f}  min {out['episode_s_min']:.1f}  "
+             f"{'success rate':>22s}  {out['success_rate'] * 100:.1f} %  "
+             f"(task progress {out['progress_mean']:.2f})",
+             f"{'episode length [s]':>22s}  mean {out['episode_s_mean']:.1f}  "
+             f"min {out['episode_s_min']:.1f}  "
              f"max {out['episode_s_max']:.1f}",
              f"{'retries per episode':>22s}  {out['retries_mean']:.2f}"]
     sh = out["phase_shares"]
     if sh:
-        lines.append(f"{'free / pre / contact':>22s}  {sh['free'] * 100:.1f} / {sh['pre_contact'] * 100:.1f} / "
+        lines.append(f"{'free / pre / contact':>22s}  {sh['free'] * 100:.1f} / "
+                     f"{sh['pre_contact'] * 100:.1f} / "
                      f"{sh['contact'] * 100:.1f} %  (NEXT phase labels)")
     lines += [f"{'wall time':>22s}  {out['wall_s']:.0f} s for {out['sim_s']:.0f} s simulated "
               f"({out['x_realtime']:.2f}x real time)",

@@ -16,15 +16,18 @@ from factr2_teleop.tasks.operator import DECIDE_EVERY, interp_pose
 from hardware.sim.tasks import peg_insert as PEG
 
 DECIDE_DT_S = DECIDE_EVERY / 500.0  # s: one decision (the loop runs at 500 Hz)
-FELT_NM = 0.05  # N*m: ||feedback torque||_1 on the leader a person notices as "it hit something"
+FELT_NM = 0.15  # N*m: ||feedback torque||_1 on the leader a person notices as "it hit something"
 P_MISALIGN = 0.35  # share of approaches that arrive misaligned (a person misjudges the hole)
 MAX_TRIES = 4  # insert attempts before giving up
-SEE_KI = 4.0  # 1/s: how fast the operator nudges a held tool onto where they want it (visual correction)
+SEE_KI = 0.8  # 1/s: how fast the operator nudges a held tool onto where they want it (visual correction)
 SEE_MAX_M = 0.01  # m: the largest such nudge
-ALIGNED_M = 0.0003  # m: "looks aligned" -- the operator pushes only then (or after ALIGN_PATIENCE_S)
+SEE_DEADBAND_M = 0.00015  # m: an error this small is left alone
+ALIGNED_M = 0.0008  # m: "looks aligned" -- the operator pushes only then (or after ALIGN_PATIENCE_S)
 ALIGN_PATIENCE_S = 2.5
-HOLD_DRIFT_M = 0.0004  # m: while the peg is out of the hole and further off line than this, the push pauses
+HOLD_DRIFT_M = 0.0015  # m: while the peg is out of the hole and further off line than this, the push pauses
+# (the hole's 2 mm chamfer guides a peg that is closer)
 DESCENT_SLACK_S = 3.0  # s: extra time a descent may take for its pauses
+STALL_S = 0.6  # s: a held peg that has not gone down 0.5 mm in this long is stuck
 
 
 def wait(op, seconds: float):
@@ -47,8 +50,10 @@ def move(op, T_to, seconds: float, tool=None, bump=None, T_from=None, seen=None)
 
 def aim_tool(op, T, tool=None, seen=None) -> None:
     """Aim the gripper (tool None) or the held tool at T, with the visual nudge (world xy)."""
-    if seen is not None:
-        op.nudge = np.clip(op.nudge + SEE_KI * DECIDE_DT_S * (T[:2, 3] - seen()[:2]), -SEE_MAX_M, SEE_MAX_M)
+    if seen is not None:  # slower than the joint lean under it (two integrators of one error would ring)
+        e = T[:2, 3] - seen()[:2]
+        e = np.where(np.abs(e) > SEE_DEADBAND_M, e - np.sign(e) * SEE_DEADBAND_M, 0.0)  # no hunting on stiction
+        op.nudge = np.clip(op.nudge + SEE_KI * DECIDE_DT_S * e, -SEE_MAX_M, SEE_MAX_M)
     T = T.copy()
     T[:2, 3] += op.nudge
     op.aim(T if tool is None else T @ np.linalg.inv(tool()))
@@ -71,7 +76,8 @@ def best_down_yaw(op, p, yaw: float, period: float) -> float:
     best, score = yaw, np.inf
     for k in range(-4, 5):
         y = yaw + k * period
-        q, e = K.solve_ik(op.fk, op.jac, op.q_des, K.pose(K.down_rotation(y), p), op.q_min, op.q_max, iters=30)
+        T = K.pose(K.down_rotation(y), p)
+        q, e = K.solve_ik(op.fk, op.jac, op.q_des, T, op.q_min, op.q_max, iters=30)
         s = abs(q[-1]) + 100.0 * np.linalg.norm(e[:3])
         if s < score:
             best, score = y, s
@@ -124,20 +130,22 @@ def peg_insert(op, params: dict, rng: np.random.Generator):
             a = rng.uniform(0, 2 * np.pi)
             off = rng.uniform(0.0015, 0.003) * np.array([np.cos(a), np.sin(a), 0.0])
         else:
-            dyaw = rng.choice([-1, 1]) * np.deg2rad(rng.uniform(4.0, 7.0))
+            dyaw = rng.choice([-1, 1]) * np.deg2rad(rng.uniform(3.0, 6.0))
     z_above = PEG.DEPTH_M + PEG.PEG_HALF[2] + 0.012  # peg centre with its bottom 12 mm above the fixture
     bump = np.array([rng.uniform(-0.02, 0.02), 0.0, rng.uniform(0.0, 0.04)])
     yield from move(op, _upright(target_yaw + dyaw, hole + off + [0, 0, z_above]), dur(2.0), tool=tool,
                     bump=bump)
-    for attempt in range(MAX_TRIES):
+    for _attempt in range(MAX_TRIES):
         T_goal = _upright(target_yaw + dyaw, hole + off + [0, 0, z_above])
+        grasped["T"] = _peg_in_hand(op)  # looks at how the peg sits now (a jam may have tilted it)
         yield from move(op, T_goal, dur(0.8), tool=tool, seen=seen)  # over the (believed) hole
         yield from _line_up(op, T_goal, tool, seen)
-        status = yield from _descend(op, T_goal, dur(1.6), out, tool, seen)
+        status = yield from _descend(op, T_goal, dur(2.4), out, tool, seen)
         if status == "inserted":
             break
         out["retries"] += 1
-        yield from move(op, T_goal @ K.pose(np.eye(3), [0, 0, 0.006]), dur(0.6), tool=tool, seen=seen)  # back off
+        back = T_goal @ K.pose(np.eye(3), [0, 0, 0.006])  # back off: up 6 mm
+        yield from move(op, back, dur(0.6), tool=tool, seen=seen)
         off, dyaw = np.zeros(3), 0.0  # looks again, closer: this time the estimate is right
     else:
         out["gave_up"] = True
@@ -173,6 +181,8 @@ def _descend(op, T_goal, seconds: float, out: dict, tool, seen):
     T_end[2, 3] = z_end
     ds = 1.0 / max(1, round(seconds / DECIDE_DT_S))
     s = 0.0
+    window = round(STALL_S / DECIDE_DT_S)
+    heights: list[float] = []
     for _ in range(round((seconds + DESCENT_SLACK_S) / DECIDE_DT_S)):
         T = interp_pose(T_goal, T_end, s)
         aim_tool(op, T, tool, seen)
@@ -185,10 +195,16 @@ def _descend(op, T_goal, seconds: float, out: dict, tool, seen):
         drift = np.linalg.norm(T[:2, 3] - seen()[:2])
         if entered or drift < HOLD_DRIFT_M:  # a person pauses the push while the peg drifts off line
             s = min(1.0, s + ds)
-        stalled = T[2, 3] - PEG.PEG_HALF[2] < m["bottom_z_m"] - 0.008
+        heights.append(m["bottom_z_m"])
+        out.setdefault("trace", []).append((round(op.p.t, 3), round(s, 3), round((T[2, 3] - PEG.PEG_HALF[2]) * 1e3, 2),
+                                            round(m["bottom_z_m"] * 1e3, 2), round(drift * 1e3, 2), round(op.p.felt_nm, 3)))
+        # it does not go down although the hand wants it well below: seen, not only felt
+        stalled = (len(heights) > window and heights[-window] - m["bottom_z_m"] < 0.0005
+                   and T[2, 3] - PEG.PEG_HALF[2] < m["bottom_z_m"] - 0.004)
         if not entered and (op.p.felt_nm > FELT_NM or stalled):
             out["felt"].append((round(op.p.t, 2), "feedback" if op.p.felt_nm > FELT_NM else "seen",
-                                np.round(m["lateral_m"] * 1e3, 2).tolist(), round(np.degrees(m["yaw_err_rad"]), 1),
+                                np.round(m["lateral_m"] * 1e3, 2).tolist(),
+                                round(np.degrees(m["yaw_err_rad"]), 1),
                                 round(np.degrees(m["tilt_rad"]), 1)))
             return "jammed"
     return "jammed"

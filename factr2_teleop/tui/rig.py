@@ -52,44 +52,22 @@ def doctor_findings(runtime) -> list[str]:
             "disconnect (c) and run the doctor again"
         )
         return lines
-    leaders = [d for d in rig.leaders if d.driver == "dynamixel"]
     twin = None
-    try:
-        if rig.simulated and leaders:
-            from hardware.sim import serve_twin
+    try:  # every device through its kind's probe (hardware.doctor.rig_checks), a twin's through the twin
+        if rig.simulated:
+            from hardware.connect import serve_twin
 
             twin = serve_twin(rig)
-            lines.append("INFO  SIMULATED rig: probing the twin's emulated servos through the real protocol")
-        for d in leaders:
-            cfg = d.config
-            port = twin.serial_ports[d.name] if twin is not None else cfg.port
-            ids = list(cfg.ids) + ([cfg.gripper_id] if cfg.gripper_id is not None else [])
-            rep = doctor.probe_dynamixel(
-                port,
-                int(cfg.baud),
-                ids,
-                rounds=20,
-                expect_model=cfg.model if isinstance(cfg.model, str) else None,
-            )
-            found = ", ".join(f"{s.id}:{s.model}" for s in rep.servos) or "none"
-            lines.append(
-                f"{'OK   ' if len(rep.servos) == len(ids) else 'ERROR'} {d.name}: servos {found}; "
-                f"sync read+write {rep.round_trip_s * 1e3:.2f} ms"
-            )
-            lines += [f.line() for f in rep.findings]
+            rig = rig.with_endpoints(twin.twin.endpoints)
+            lines.append("INFO  SIMULATED rig: probing the twin's emulated devices through their protocols")
+        checks, notes = doctor.rig_checks(rig)
+        lines += [f"INFO  {n}" for n in notes]
+        for chk in checks:
+            lines.append(f"{'ERROR' if chk.failed else 'OK   '} {chk.title}")
+            lines += [f"      {d}" for d in chk.details] + [f.line() for f in chk.findings]
     finally:
         if twin is not None:
             twin.stop()
-    for d in rig.followers:
-        cfg = d.config
-        ch = getattr(cfg, "channel", "twin")
-        if rig.simulated:
-            lines.append(f"INFO  {d.name}: CAN {d.driver} on the twin's virtual bus (connect to see it live)")
-        elif ch not in {c.name for c in cans}:
-            lines.append(
-                f"ERROR {d.name}: CAN interface {ch} not found -- fix: plug the adapter, "
-                f"`sudo ip link set {ch} up type can bitrate 1000000`"
-            )
     return lines
 
 

@@ -192,7 +192,7 @@ class RigRuntime:
         (seconds): call from a worker thread. UserError/ConfigError on failure, nothing left open."""
         if self.session is not None:
             return
-        from hardware.sim import open_rig
+        from hardware.connect import open_rig
 
         mode = self.clock_mode
         if mode == "auto":

@@ -121,21 +121,47 @@ class WorldSnapshot:
 
 
 class TwinCamera(MujocoCamera):
-    """A camera on a twin world. read() renders the live data under the world's lock (simple, for a UI);
-    snapshot() + render(snapshot) split the copy (stepping thread) from the rendering (camera thread), which
-    runs on a private MjData so MuJoCo never renders on the control thread nor blocks the physics."""
+    """A camera on a twin world, rendered in a process of its own (render_process.py: MuJoCo's renderer holds
+    the GIL while it draws). snapshot(t) copies the physics state (the stepping thread, microseconds);
+    render(snapshot) draws it there; read() does both now (for a UI)."""
 
     def __init__(self, config: MujocoCameraConfig, world, clock: Clock | None = None):
         super().__init__(config, world.model, world.data, clock)
         self.world = world
-        self._private = None
+        self._proc = None
         q = world.model.vis.quality  # visual only: physics does not read these
         q.shadowsize = min(int(q.shadowsize), TWIN_SHADOW_PX)
         q.offsamples = min(int(q.offsamples), TWIN_MSAA_SAMPLES)
 
-    def _grab(self) -> np.ndarray:
+    def connect(self) -> None:
+        if self._proc is not None:
+            return
+        import mujoco
+
+        from hardware.cameras.render_process import RenderProcess
+
+        cam = self.config.camera
+        if cam not in ("", "-1") and mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, cam) < 0:
+            raise CameraError(f"model has no camera {cam!r}", where=f"camera {self.name}",
+                              fix="use a <camera name=...> from the MJCF or '' for the free camera")
+        g = self.model.vis.global_
+        g.offwidth, g.offheight = max(self.config.width, g.offwidth), max(self.config.height, g.offheight)
         with self.world.lock:
-            return super()._grab()
+            model = self.model  # pickled for the render process while the stepper waits
+            self._proc = RenderProcess(model, [(self.name, cam, self.config.width, self.config.height)])
+        self.backend = "process"
+
+    def disconnect(self) -> None:
+        if self._proc is not None:
+            self._proc.close()
+            self._proc = None
+
+    @property
+    def is_connected(self) -> bool:
+        return self._proc is not None
+
+    def _grab(self) -> np.ndarray:
+        return self.render(self.snapshot(self.clock.now()))
 
     def snapshot(self, t: float) -> WorldSnapshot:
         d = self.world.data
@@ -144,16 +170,5 @@ class TwinCamera(MujocoCamera):
                                  d.mocap_quat.copy())
 
     def render(self, snap: WorldSnapshot) -> np.ndarray:
-        """An H x W x 3 uint8 frame of a snapshot (call from one thread: the renderer's GL context is its)."""
-        import mujoco
-
-        if self._private is None:
-            self._private = mujoco.MjData(self.model)
-        p = self._private
-        p.qpos[:], p.qvel[:] = snap.qpos, snap.qvel
-        p.mocap_pos[:], p.mocap_quat[:] = snap.mocap_pos, snap.mocap_quat
-        mujoco.mj_kinematics(self.model, p)
-        mujoco.mj_camlight(self.model, p)
-        cam = self.config.camera
-        self._renderer.update_scene(p, camera=cam if cam not in ("", "-1") else -1)
-        return self._renderer.render()
+        """An H x W x 3 uint8 frame of a snapshot (call from one thread at a time)."""
+        return self._proc.render(0, snap)

@@ -130,11 +130,15 @@ def set_free_pose(model, data, body: str, pos, yaw: float = 0.0) -> None:
     data.qvel[da:da + 6] = 0.0
 
 
-def set_static_pos(model, body: str, pos, yaw: float = 0.0) -> None:
-    """Move a static (world-fixed) body: its model pose; kinematics reads it every step."""
-    b = _body_id(model, body)
-    model.body_pos[b] = pos
-    model.body_quat[b] = yaw_quat(yaw)
+def set_static_pos(model, data, body: str, pos, yaw: float = 0.0) -> None:
+    """Move a fixed task object (a mocap body: fixed in the physics, placed per episode) to pos [m], yaw
+    [rad]. (Writing model.body_pos of a plain static body is not seen by a twin world, which lets resting
+    bodies sleep: its pose is not recomputed.)"""
+    k = model.body_mocapid[_body_id(model, body)]
+    if k < 0:
+        raise ValueError(f"task body {body!r} is not a mocap body")
+    data.mocap_pos[k] = pos
+    data.mocap_quat[k] = yaw_quat(yaw)
 
 
 def yaw_quat(yaw: float) -> np.ndarray:
@@ -236,8 +240,23 @@ def add_cameras(task: Task, spec: mujoco.MjSpec, look_at, wrist_body: str = "lin
     """A scene camera in front of and above the workspace looking at `look_at` [m], and a wrist camera on the
     follower's last link looking along its approach axis (+z of the link), the fingers in view."""
     pos = np.asarray(look_at, float) + np.array([0.42, 0.0, 0.32])
-    spec.worldbody.add_camera(name=task.scene_camera, pos=list(pos), fovy=50.0)
-    spec.camera(task.scene_camera).alt.xyaxes = look_at_xyaxes(pos, look_at)
+    spec.worldbody.add_camera(name=task.scene_camera, pos=list(pos), quat=list(xyaxes_quat(
+        look_at_xyaxes(pos, look_at))), fovy=50.0)
     body = spec.body(wrist_body)
-    if body is not None:  # 180 deg about x: the camera's view axis (-z) becomes the link's +z
-        body.add_camera(name=task.wrist_camera, pos=[0.045, 0.0, 0.06], quat=[0.0, 1.0, 0.0, 0.0], fovy=75.0)
+    if body is not None:  # view axis (-z of the camera) along the link's +z, tilted 20 deg toward the fingers
+        a = np.deg2rad(20.0)
+        spec_x, spec_y = [0.0, -1.0, 0.0], [-np.cos(a), 0.0, -np.sin(a)]
+        body.add_camera(name=task.wrist_camera, pos=[0.065, 0.0, 0.07],
+                        quat=list(xyaxes_quat(spec_x + spec_y)), fovy=80.0)
+
+
+def xyaxes_quat(xyaxes) -> np.ndarray:
+    """Quaternion (w x y z) of a frame given its x and y axes (MJCF xyaxes convention)."""
+    x = np.asarray(xyaxes[:3], float)
+    x /= np.linalg.norm(x)
+    y = np.asarray(xyaxes[3:], float)
+    y -= x * np.dot(x, y)
+    y /= np.linalg.norm(y)
+    q = np.zeros(4)
+    mujoco.mju_mat2Quat(q, np.column_stack([x, y, np.cross(x, y)]).ravel())
+    return q

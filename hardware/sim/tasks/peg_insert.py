@@ -18,6 +18,9 @@ CLEARANCE_M = 0.001  # hole width - peg width
 HOLE_HALF = PEG_HALF[0] + CLEARANCE_M / 2  # m
 DEPTH_M = 0.025  # fixture height = hole depth
 FIXTURE_HALF = 0.035  # m: outer half width
+CHAMFER_M = 0.002  # m: 45 deg lead-in around the hole's mouth (machined holes have one; a bare edge jams on
+# the follower's +-1 mm wander, docs/tasks.md). The straight part below it is DEPTH_M - CHAMFER_M deep.
+RAMP_THICK_M = 0.003  # m: thickness of the slab that forms each chamfer face
 FINGERS = ("gripper_body", "gripper_mirror_body")
 LIFT_M = 0.01  # grasp: peg bottom this far above the table, held by both fingers
 ALIGN_XY_M = 0.001  # align: peg axis within this of the hole axis (either direction of the hole frame)
@@ -73,21 +76,28 @@ class PegInsert(B.Task):
         peg.add_freejoint(name="peg")
         B.add_box(peg, "peg", PEG_HALF, rgba=(0.95, 0.55, 0.1, 1), mass=PEG_MASS_KG,
                   friction=(1.0, 0.005, 0.0001))
-        fix = spec.worldbody.add_body(name="fixture", pos=[0.29, 0.11, 0.0])
-        w, h, d = FIXTURE_HALF, HOLE_HALF, DEPTH_M / 2
+        fix = spec.worldbody.add_body(name="fixture", pos=[0.29, 0.11, 0.0], mocap=True)
+        w, h, c = FIXTURE_HALF, HOLE_HALF, CHAMFER_M
+        lo = (DEPTH_M - c) / 2  # half height of the walls below the chamfer
         t = (w - h) / 2  # wall half thickness
+        tc = (w - h - c) / 2  # half thickness of the top rim outside the chamfer
         grey = (0.35, 0.38, 0.45, 1)
-        for k, sy in enumerate((1, -1)):
-            B.add_box(fix, f"fixture_wall_y{k}", (w, t, d), pos=(0, sy * (h + t), d), rgba=grey)
-        for k, sx in enumerate((1, -1)):
-            B.add_box(fix, f"fixture_wall_x{k}", (t, h, d), pos=(sx * (h + t), 0, d), rgba=grey)
+        r2 = np.sqrt(0.5)
+        for k, ang in enumerate((0.0, np.pi / 2, np.pi, 1.5 * np.pi)):  # the four sides, each rotated about z
+            side = fix.add_body(name=f"fixture_side{k}", quat=[np.cos(ang / 2), 0, 0, np.sin(ang / 2)])
+            B.add_box(side, f"fixture_wall{k}", (w, t, lo), pos=(0, h + t, lo), rgba=grey)
+            B.add_box(side, f"fixture_rim{k}", (w, tc, c / 2), pos=(0, h + c + tc, DEPTH_M - c / 2), rgba=grey)
+            ramp = B.add_box(side, f"fixture_chamfer{k}", (w - c, c / r2 / 2, RAMP_THICK_M / 2),
+                             pos=(0, h + c / 2 + RAMP_THICK_M / 2 * r2, DEPTH_M - c / 2 - RAMP_THICK_M / 2 * r2),
+                             rgba=grey)
+            ramp.quat = [np.cos(np.pi / 8), np.sin(np.pi / 8), 0, 0]  # 45 deg about x: the slab's face
         B.add_cameras(self, spec, look_at=(0.28, 0.0, 0.02))
 
     def reset(self, model, data, rng) -> dict:
         hole = np.array([rng.uniform(*HOLE_X), rng.uniform(*HOLE_Y), 0.0])
         hole_yaw = rng.uniform(*HOLE_YAW)
         peg = np.array([rng.uniform(*PEG_X), rng.uniform(*PEG_Y), PEG_HALF[2] + 1e-4])
-        B.set_static_pos(model, "fixture", hole, hole_yaw)
+        B.set_static_pos(model, data, "fixture", hole, hole_yaw)
         B.set_free_pose(model, data, "peg", peg, rng.uniform(*PEG_YAW))
         return {"hole_pos": hole, "hole_yaw": hole_yaw, "peg_start": peg}
 

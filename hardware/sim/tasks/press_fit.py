@@ -43,7 +43,7 @@ BASE_X, BASE_Y, BASE_YAW = (0.26, 0.32), (0.08, 0.14), (-0.35, 0.35)
 
 def block_metrics(block_pos, block_rot, base_pos, base_yaw) -> dict:
     """Pure geometry: lateral offset of the block centre from the stud group's in the base frame [m] (2,),
-    tilt [rad], yaw error wrapped to the square's symmetry [rad], skirt edge height above the plate top [m]."""
+    tilt [rad], yaw error wrapped to the square's symmetry [rad], skirt edge above the plate top [m]."""
     R = np.asarray(block_rot, float)
     p = np.asarray(block_pos, float)
     c, s = np.cos(base_yaw), np.sin(base_yaw)
@@ -85,19 +85,22 @@ class PressFit(B.Task):
         z = -h + SKIRT_H_M / 2
         t = WALL_M / 2
         for k, sy in enumerate((1, -1)):
-            B.add_box(blk, f"block_skirt_y{k}", (OUTER_HALF, t, SKIRT_H_M / 2), pos=(0, sy * (INNER_HALF + t), z),
+            B.add_box(blk, f"block_skirt_y{k}", (OUTER_HALF, t, SKIRT_H_M / 2),
+                      pos=(0, sy * (INNER_HALF + t), z),
                       rgba=red, mass=BLOCK_MASS_KG * 0.1)
         for k, sx in enumerate((1, -1)):
-            B.add_box(blk, f"block_skirt_x{k}", (t, INNER_HALF, SKIRT_H_M / 2), pos=(sx * (INNER_HALF + t), 0, z),
+            B.add_box(blk, f"block_skirt_x{k}", (t, INNER_HALF, SKIRT_H_M / 2),
+                      pos=(sx * (INNER_HALF + t), 0, z),
                       rgba=red, mass=BLOCK_MASS_KG * 0.1)
-        base = spec.worldbody.add_body(name="base", pos=[0.29, 0.11, 0.0])
+        base = spec.worldbody.add_body(name="base", pos=[0.29, 0.11, 0.0], mocap=True)
         B.add_box(base, "base_plate", PLATE_HALF, pos=(0, 0, PLATE_HALF[2]), rgba=(0.2, 0.55, 0.25, 1))
         for i, sx in enumerate((1, -1)):
             for j, sy in enumerate((1, -1)):
                 x, y = sx * STUD_PITCH_M / 2, sy * STUD_PITCH_M / 2
-                g = base.add_geom(name=f"stud{i}{j}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[STUD_R_M, 0, 0],
+                base.add_geom(name=f"stud{i}{j}", type=mujoco.mjtGeom.mjGEOM_CAPSULE, size=[STUD_R_M, 0, 0],
                                   fromto=[x, y, PLATE_TOP_M, x, y, PLATE_TOP_M + 2 * STUD_HALF[2] - STUD_R_M],
-                                  rgba=[0.25, 0.65, 0.3, 1], solref=list(STUD_SOLREF), solimp=list(STUD_SOLIMP),
+                                  rgba=[0.25, 0.65, 0.3, 1], solref=list(STUD_SOLREF),
+                                  solimp=list(STUD_SOLIMP),
                                   friction=[0.8, 0.005, 0.0001], contype=B.OBJECT_CONTYPE,
                                   conaffinity=B.OBJECT_CONAFFINITY)
         B.add_cameras(self, spec, look_at=(0.28, 0.0, 0.02))
@@ -106,13 +109,14 @@ class PressFit(B.Task):
         base = np.array([rng.uniform(*BASE_X), rng.uniform(*BASE_Y), 0.0])
         base_yaw = rng.uniform(*BASE_YAW)
         blk = np.array([rng.uniform(*BLOCK_X), rng.uniform(*BLOCK_Y), 0.5 * (SKIRT_H_M + CAP_H_M) + 1e-4])
-        B.set_static_pos(model, "base", base, base_yaw)
+        B.set_static_pos(model, data, "base", base, base_yaw)
         B.set_free_pose(model, data, "block", blk, rng.uniform(*BLOCK_YAW))
         return {"base_pos": base, "base_yaw": base_yaw, "block_start": blk}
 
     def observe(self, model, data, params) -> dict:
         p, R = B.body_pose(model, data, "block")
-        return {"block_pos": p, "block_rot": R, "base_pos": params["base_pos"], "base_yaw": params["base_yaw"],
+        return {"block_pos": p, "block_rot": R, "base_pos": params["base_pos"],
+                "base_yaw": params["base_yaw"],
                 "finger_touch": B.touching(model, data, "block", FINGERS)}
 
     def detect(self, obs, params, memory) -> np.ndarray:

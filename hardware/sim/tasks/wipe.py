@@ -66,7 +66,7 @@ class Wipe(B.Task):
     episode_s = 40.0
 
     def add_objects(self, spec, arm) -> None:
-        mark = spec.worldbody.add_body(name="mark", pos=[0.3, 0.0, 0.0])
+        mark = spec.worldbody.add_body(name="mark", pos=[0.3, 0.0, 0.0], mocap=True)
         B.add_box(mark, "mark", (AREA_HALF[0], AREA_HALF[1], 0.0004), pos=(0, 0, 0.0004),
                   rgba=(0.2, 0.7, 0.95, 1), collide=False)
         B.add_cameras(self, spec, look_at=(0.3, 0.0, 0.0))
@@ -74,7 +74,7 @@ class Wipe(B.Task):
     def reset(self, model, data, rng) -> dict:
         p = np.array([rng.uniform(*AREA_X), rng.uniform(*AREA_Y), 0.0])
         yaw = rng.uniform(*AREA_YAW)
-        B.set_static_pos(model, "mark", p, yaw)
+        B.set_static_pos(model, data, "mark", p, yaw)
         return {"area_pos": p, "area_yaw": yaw}
 
     def observe(self, model, data, params) -> dict:
@@ -86,7 +86,8 @@ class Wipe(B.Task):
                 "force_n": sum(B.contact_force_between(model, data, f, ("world",)) for f in FINGERS)}
 
     def detect(self, obs, params, memory) -> np.ndarray:
-        flags, memory["covered"] = detect_wipe(obs, params, memory.get("covered", np.zeros(grid_shape(), bool)))
+        covered = memory.get("covered", np.zeros(grid_shape(), bool))
+        flags, memory["covered"] = detect_wipe(obs, params, covered)
         return flags
 
     def final_ok(self, obs, params, memory) -> bool:

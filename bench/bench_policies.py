@@ -1,0 +1,178 @@
+"""FIRST policy benchmarks (docs/benchmarks.md, "Policies"):
+
+  loader     samples/s of the training batch path (cached frames, RandomResizedCrop, normalisation), 2 cameras,
+             small preset (96 px), batch 128
+  train      optimiser steps/s x batch = samples/s, both presets, both policies (CPU here; CUDA if present)
+  latency    one action chunk on one core, small preset, 2 cameras (flow: encode once + 10 Euler steps)
+  phases     validation action loss per phase F / PC / C, `base-torque` vs `first`, same steps and seed
+             (needs recordings with contact: --recordings DIR, e.g. from `factr2 collect --task wipe`)
+
+    python bench/bench_policies.py [--only loader,train,latency] [--recordings DIR --steps 400]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from policies.checkpoint import make_model  # noqa: E402
+from policies.config import preset  # noqa: E402
+from policies.dataset import build_dataset, draw_crops  # noqa: E402
+from policies.labelling import Thresholds  # noqa: E402
+from policies.recordings import load_episodes  # noqa: E402
+
+
+def _synthetic(folder: Path, seconds: float = 20.0) -> Path:
+    from tests.policy_helpers import write_recording
+
+    return write_recording(folder / "bench.mcap", episodes=4, seconds=seconds, contact_at=(3.0, 9.0, 15.0))
+
+
+def bench_loader(folder: Path, n_batches: int = 40, batch: int = 128) -> dict:
+    eps, arms = load_episodes([folder])
+    data = build_dataset(eps, arms, th=Thresholds(1.0, 3.0, "bench"), image_size=96)
+    idx = np.flatnonzero(np.ones(len(data), bool))
+    gen = torch.Generator().manual_seed(0)
+    rng = np.random.default_rng(0)
+    data.batch(rng.choice(idx, batch), draw_crops(batch, gen))  # warm the page cache
+    t = time.perf_counter()
+    for _ in range(n_batches):
+        data.batch(rng.choice(idx, batch), draw_crops(batch, gen))
+    dt = time.perf_counter() - t
+    return {"samples_per_s": n_batches * batch / dt, "cameras": len(data.names.cameras), "image_px": 96,
+            "batch": batch, "threads": torch.get_num_threads()}
+
+
+def _fake_batch(cfg, b: int) -> dict:
+    g = torch.Generator().manual_seed(0)
+    s = cfg.image_size
+    return {"images": torch.randint(0, 256, (b, cfg.n_cameras, s, s, 3), generator=g, dtype=torch.uint8),
+            "state": torch.randn(b, cfg.state_dim, generator=g), "force": torch.randn(b, cfg.force_dim, generator=g),
+            "action": torch.randn(b, cfg.chunk, cfg.action_dim, generator=g),
+            "mask": torch.ones(b, cfg.chunk, dtype=torch.bool)}
+
+
+def bench_train(device: torch.device, steps: int = 3) -> list[dict]:
+    out = []
+    for name, batch in (("small", 32), ("paper", 4 if device.type == "cpu" else 128)):
+        for policy in ("flow", "act"):
+            cfg = preset(name, policy)
+            cfg.n_cameras, cfg.state_dim, cfg.force_dim, cfg.action_dim = 2, 7, 6, 7
+            torch.manual_seed(0)
+            model = make_model(cfg).to(device)
+            opt = torch.optim.AdamW(model.parameters(), lr=3e-4, weight_decay=0.05, betas=(0.9, 0.95))
+            b = {k: v.to(device) for k, v in _fake_batch(cfg, batch).items()}
+            noise = {k: v.to(device) for k, v in type(model).draw_noise(cfg, batch, torch.Generator()).items()}
+            ac = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast(
+                "cpu", enabled=False)
+
+            def step():
+                with ac:
+                    loss = model(b, noise)[0].float().mean()
+                loss.backward()
+                opt.step()
+                opt.zero_grad(set_to_none=True)
+
+            step()
+            if device.type == "cuda":
+                torch.cuda.synchronize()
+            t = time.perf_counter()
+            for _ in range(steps):
+                step()
+            if device.type == "cuda":
+                torch.cuda.synchronize()
+            dt = (time.perf_counter() - t) / steps
+            out.append({"preset": name, "policy": policy, "batch": batch, "device": str(device),
+                        "params_M": sum(p.numel() for p in model.parameters()) / 1e6,
+                        "step_s": dt, "samples_per_s": batch / dt})
+            print(json.dumps(out[-1]), flush=True)
+    return out
+
+
+def bench_latency(n: int = 30) -> list[dict]:
+    torch.set_num_threads(1)
+    out = []
+    for policy in ("flow", "act"):
+        cfg = preset("small", policy)
+        cfg.n_cameras, cfg.state_dim, cfg.force_dim, cfg.action_dim = 2, 7, 6, 7
+        torch.manual_seed(0)
+        model = make_model(cfg).eval()
+        b = _fake_batch(cfg, 1)
+        noise = type(model).draw_noise(cfg, 1, torch.Generator().manual_seed(0))
+        ts = []
+        with torch.inference_mode():
+            for _ in range(5):
+                model.predict(b, noise)
+            for _ in range(n):
+                t = time.perf_counter()
+                model.predict(b, noise)
+                ts.append(time.perf_counter() - t)
+        ms = np.asarray(ts) * 1e3
+        out.append({"policy": policy, "preset": "small", "cameras": 2, "threads": 1,
+                    "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
+                    "min_ms": float(ms.min())})
+        print(json.dumps(out[-1]), flush=True)
+    return out
+
+
+def bench_phases(recordings: Path, steps: int, out_dir: Path, thresholds=None, nxt=None) -> dict:
+    from policies.run import RunOptions, run_training
+    from policies.train import Dist, TrainConfig
+
+    res = {}
+    for method in ("base-torque", "first"):
+        run = out_dir / method
+        o = RunOptions(inputs=[recordings], out=run, policy="flow", method=method, thresholds=thresholds,
+                       next=nxt, progress=False,
+                       train=TrainConfig(steps=steps, batch=32, warmup=min(100, steps // 5), val_every=steps // 4,
+                                         ckpt_every=steps, log_every=10, seed=0))
+        t = time.perf_counter()
+        res[method] = run_training(o, Dist())
+        res[method]["train_s"] = time.perf_counter() - t
+        print(method, json.dumps(res[method]), flush=True)
+    return res
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--only", default="loader,train,latency")
+    ap.add_argument("--recordings", type=Path, default=None, help="recordings for the phase comparison")
+    ap.add_argument("--thresholds", default=None, help="LOW:HIGH for the phase comparison")
+    ap.add_argument("--next", type=Path, default=None)
+    ap.add_argument("--steps", type=int, default=400)
+    ap.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
+    a = ap.parse_args()
+    only = set(a.only.split(","))
+    results: dict = {"torch": torch.__version__, "cores": torch.get_num_threads()}
+    with tempfile.TemporaryDirectory() as tmp:
+        if "loader" in only:
+            folder = a.recordings or Path(tmp)
+            if a.recordings is None:
+                _synthetic(folder)
+            results["loader"] = bench_loader(folder)
+            print(json.dumps(results["loader"]), flush=True)
+        if "train" in only:
+            results["train"] = bench_train(torch.device("cuda" if torch.cuda.is_available() else "cpu"))
+        if "latency" in only:
+            results["latency"] = bench_latency()
+        if "phases" in only:
+            if a.recordings is None:
+                sys.exit("--only phases needs --recordings DIR")
+            th = tuple(float(x) for x in a.thresholds.split(":")) if a.thresholds else None
+            results["phases"] = bench_phases(a.recordings, a.steps, Path(tmp) / "runs", th, a.next)
+    if a.out:
+        a.out.write_text(json.dumps(results, indent=1))
+    print(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,48 @@
+"""`factr2 export lerobot RECORDING_OR_DIR... --out DIR`: recorded episodes as a LeRobotDataset v3.0 folder
+(state, tau_ext, action, images as mp4, and the FIRST phase of every frame); see policies/export_lerobot.py."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from hardware.errors import UserError
+
+HELP = "export recorded episodes (with FIRST phases) as a LeRobotDataset v3.0 folder"
+
+
+def add_arguments(parser) -> None:
+    sub = parser.add_subparsers(dest="format", metavar="FORMAT", required=True)
+    p = sub.add_parser("lerobot", help="LeRobotDataset v3.0: meta/, data/ parquet, videos/ mp4")
+    p.add_argument("inputs", type=Path, nargs="+", metavar="RECORDING_OR_DIR")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the dataset folder (must not exist)")
+    p.add_argument("--fps", type=int, default=None, help="frame rate (default: the camera rate, rounded)")
+    p.add_argument("--next", type=Path, default=None, metavar="CKPT",
+                   help="NEXT checkpoint: estimate tau_ext offline from the logged joint states")
+    p.add_argument("--thresholds", default=None, metavar="LOW:HIGH", help="contact hysteresis [N*m]")
+    p.add_argument("--robot-type", default="", help="info.json robot_type (default: factr2)")
+
+
+def run(args) -> int:
+    from policies.export_lerobot import export_lerobot
+    from policies.labelling import load_next, resolve_thresholds
+    from policies.phases import parse_thresholds
+    from policies.recordings import load_episodes
+
+    given = None
+    if args.thresholds is not None:
+        try:
+            given = parse_thresholds(args.thresholds)
+        except ValueError as e:
+            raise UserError(f"--thresholds {e}", fix="give LOW:HIGH in N*m") from None
+    if args.fps is not None and args.fps < 1:
+        raise UserError(f"--fps must be >= 1, got {args.fps}")
+    if args.out.exists():
+        raise UserError("output folder exists", where=str(args.out), fix="name a new --out folder")
+    episodes, arms = load_episodes(args.inputs)
+    model = load_next(args.next) if args.next is not None else None
+    th = resolve_thresholds(given, model, episodes, arms)
+    info = export_lerobot(episodes, arms, args.out, th, model, args.fps, args.robot_type)
+    print(f"{args.out}: LeRobotDataset {info['codebase_version']}, {info['total_episodes']} episodes, "
+          f"{info['total_frames']} frames at {info['fps']} fps, cameras "
+          f"{', '.join(k for k, f in info['features'].items() if f['dtype'] == 'video')}")
+    return 0

@@ -1,0 +1,156 @@
+"""Twin cameras render in a process of their own: MuJoCo's renderer holds the GIL while it rasterises
+(Mesa's llvmpipe on a machine without a GPU takes ~10 ms per 320x240 frame), which stalled a 500 Hz control
+loop in the same process by that much (measured: p99 of a 0.5 ms sleep loop 0.65 ms alone, 5.7-7.4 ms
+beside a render thread, 35 ms with llvmpipe on the calling thread). Here the control process only copies
+the physics state (WorldSnapshot) and waits on a pipe (GIL released) while the render process draws it into
+shared memory.
+
+    rp = RenderProcess(model, [("scene", "front", 320, 240)])   # spawns, loads the model, opens GL
+    rgb = rp.render(0, snapshot)                                 # H x W x 3 uint8 (a copy)
+    rp.close()
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+from multiprocessing import resource_tracker, shared_memory
+from multiprocessing.connection import Client, Listener
+
+import numpy as np
+
+from hardware.cameras.base import CameraError
+
+START_TIMEOUT_S = 30.0  # a cold start imports mujoco and opens an OpenGL context
+RENDER_TIMEOUT_S = 5.0
+
+
+def _serve(conn) -> None:
+    """The render process: one renderer per camera, requests (index, snapshot arrays) -> frame in shm."""
+    import mujoco
+
+    model, cams, shm_names = conn.recv()
+    from hardware.cameras.mujoco_camera import make_renderer
+
+    try:
+        data = mujoco.MjData(model)
+        renderers, views, shms = [], [], []
+        for (_name, _cam, w, h), shm_name in zip(cams, shm_names):
+            r, _backend = make_renderer(model, w, h)
+            renderers.append(r)
+            shm = shared_memory.SharedMemory(name=shm_name)
+            # this interpreter's resource tracker would unlink the parent's segment when it exits (Python
+            # < 3.13 registers attachments too): the parent owns and unlinks it
+            resource_tracker.unregister(shm._name, "shared_memory")
+            shms.append(shm)
+            views.append(np.ndarray((h, w, 3), np.uint8, buffer=shm.buf))
+        conn.send(("ready", ""))
+    except Exception as e:  # noqa: BLE001 -- reported to the parent as one line
+        conn.send(("error", f"{type(e).__name__}: {e}"))
+        return
+    while True:
+        try:
+            req = conn.recv()
+        except EOFError:
+            break
+        if req is None:
+            break
+        i, qpos, qvel, mocap_pos, mocap_quat = req
+        try:
+            data.qpos[:], data.qvel[:] = qpos, qvel
+            data.mocap_pos[:], data.mocap_quat[:] = mocap_pos, mocap_quat
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_camlight(model, data)
+            cam = cams[i][1]
+            renderers[i].update_scene(data, camera=cam if cam not in ("", "-1") else -1)
+            views[i][...] = renderers[i].render()
+            conn.send(("ok", ""))
+        except Exception as e:  # noqa: BLE001
+            conn.send(("error", f"{type(e).__name__}: {e}"))
+    for r in renderers:
+        r.close()
+    for shm in shms:
+        shm.close()
+
+
+class RenderProcess:
+    """cams: (name, MJCF camera, width, height) per camera; render(i, snapshot) from ONE thread at a time."""
+
+    def __init__(self, model, cams: list[tuple[str, str, int, int]]):
+        self.cams = list(cams)
+        self._shms = [shared_memory.SharedMemory(create=True, size=h * w * 3) for _n, _c, w, h in self.cams]
+        self._views = [np.ndarray((h, w, 3), np.uint8, buffer=s.buf)
+                       for (_n, _c, w, h), s in zip(self.cams, self._shms)]
+        # A new interpreter (`python -m`), not multiprocessing's spawn: spawn re-runs the user's __main__
+        # script in the child, and a fork would copy threads and GL state. A Unix socket with a one-time key.
+        self._dir = tempfile.mkdtemp(prefix="factr2-render-")
+        addr, key = os.path.join(self._dir, "sock"), secrets.token_bytes(16)
+        self._conn = self._proc = None
+        listener = Listener(addr, family="AF_UNIX", authkey=key)
+        try:
+            env = dict(os.environ, FACTR2_RENDER_ADDR=addr, FACTR2_RENDER_KEY=key.hex())
+            self._proc = subprocess.Popen([sys.executable, "-m", "hardware.cameras.render_process"], env=env,
+                                          stdin=subprocess.DEVNULL)
+            box: dict = {}
+            th = threading.Thread(target=lambda: box.setdefault("conn", listener.accept()), daemon=True)
+            th.start()
+            th.join(START_TIMEOUT_S)
+            listener.close()
+            if "conn" not in box:
+                raise CameraError("the render process did not start", where="twin cameras",
+                                  fix="check that `python -m hardware.cameras.render_process` runs")
+            self._conn = box["conn"]
+            self._conn.send((model, self.cams, [s.name for s in self._shms]))
+            if not self._conn.poll(START_TIMEOUT_S):
+                raise CameraError("the render process did not start", where="twin cameras",
+                                  fix="check that MuJoCo can render offscreen (MUJOCO_GL=egl or osmesa)")
+            kind, msg = self._conn.recv()
+            if kind != "ready":
+                raise CameraError(f"twin cameras cannot render: {msg}", where="twin cameras",
+                                  fix="install EGL or OSMesa (libegl1 / libosmesa6) and set MUJOCO_GL")
+        except BaseException:
+            self.close()
+            raise
+
+    def render(self, i: int, snap) -> np.ndarray:
+        self._conn.send((i, snap.qpos, snap.qvel, snap.mocap_pos, snap.mocap_quat))
+        if not self._conn.poll(RENDER_TIMEOUT_S):
+            raise CameraError("the render process stopped answering", where=f"camera {self.cams[i][0]}",
+                              fix="restart the session")
+        kind, msg = self._conn.recv()
+        if kind != "ok":
+            raise CameraError(f"render failed: {msg}", where=f"camera {self.cams[i][0]}",
+                              fix="see the message")
+        return self._views[i].copy()
+
+    def close(self) -> None:
+        try:
+            if self._conn is not None:
+                self._conn.send(None)
+            if self._proc is not None:
+                try:
+                    self._proc.wait(2.0)
+                except subprocess.TimeoutExpired:
+                    self._proc.kill()
+        except Exception:  # noqa: BLE001 -- closing must reach the shared memory
+            if self._proc is not None:
+                self._proc.kill()
+        self._conn = self._proc = None
+        for s in self._shms:
+            try:
+                s.close()
+                s.unlink()
+            except Exception:  # noqa: BLE001
+                pass
+        self._shms = []
+        shutil.rmtree(self._dir, ignore_errors=True)
+
+
+if __name__ == "__main__":  # the render process (RenderProcess starts it)
+    _serve(Client(os.environ["FACTR2_RENDER_ADDR"], family="AF_UNIX",
+                  authkey=bytes.fromhex(os.environ["FACTR2_RENDER_KEY"])))
