@@ -116,7 +116,8 @@ def test_press_fit_detectors_seat_and_near_misses():
     h = 0.5 * (P.SKIRT_H_M + P.CAP_H_M)
 
     def obs(dx=0.0, edge=0.0, yaw=0.0, tilt=0.0, held=(True, True)):
-        R = _rz(yaw) @ np.array([[1, 0, 0], [0, np.cos(tilt), -np.sin(tilt)], [0, np.sin(tilt), np.cos(tilt)]])
+        ct, st = np.cos(tilt), np.sin(tilt)
+        R = _rz(yaw) @ np.array([[1, 0, 0], [0, ct, -st], [0, st, ct]])
         return {"block_pos": base + [dx, 0.0, P.PLATE_TOP_M + edge + h], "block_rot": R, "base_pos": base,
                 "base_yaw": 0.0, "finger_touch": np.array(held)}
 

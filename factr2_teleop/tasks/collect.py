@@ -147,7 +147,7 @@ class EpisodeDriver:
                 op.decide(p, DECIDE_EVERY * self.pair.dt_s)
                 self._detect(r.t, p)
                 if r.t - self._t_state > self.task.episode_s:
-                    self._end_episode(r, {"gave_up": True, "timeout": True})
+                    self._end_episode(r, {**getattr(op, "log", {}), "gave_up": True, "timeout": True})
                     return
         self._apply_hand(r)
 
@@ -183,6 +183,7 @@ class EpisodeDriver:
         if self.op is None:
             self.op = Operator(*self._op_args, q_start=q0)
         self.op.grip = 0.0
+        self.op.log = {}
         self.op.p = self._percept(r)
         self.script = SCRIPTS[self.task.name](self.op, self.params, rng)
         self._ep_seed = ep_seed
@@ -214,7 +215,6 @@ class EpisodeDriver:
             duration_s=r.t - self._t_state, retries=int(info.get("retries", 0)),
             felt=len(info.get("felt", [])), gave_up=bool(info.get("gave_up", False)),
             t_start=self._t_state, t_end=r.t, params=_jsonable(self.params))
-        res.felt_log = info.get("felt", [])
         self.results.append(res)
         rec = self.ts.recording
         if rec is not None:

@@ -108,6 +108,7 @@ class Operator:
         self.q_ref_l = self.to_leader(self.q_des)
         self.qd_ref_l = np.zeros_like(self.q_ref_l)
         self.p: Percept | None = None
+        self.log: dict = {}  # the running script's record (retries, contacts felt)
         self.nudge = np.zeros(2)  # m, world xy: the visual correction of a held tool (scripts.aim_tool)
 
     # -- per tick --------------------------------------------------------------------------------------

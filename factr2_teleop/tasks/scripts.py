@@ -52,7 +52,8 @@ def aim_tool(op, T, tool=None, seen=None) -> None:
     """Aim the gripper (tool None) or the held tool at T, with the visual nudge (world xy)."""
     if seen is not None:  # slower than the joint lean under it (two integrators of one error would ring)
         e = T[:2, 3] - seen()[:2]
-        e = np.where(np.abs(e) > SEE_DEADBAND_M, e - np.sign(e) * SEE_DEADBAND_M, 0.0)  # no hunting on stiction
+        # a deadband: no hunting on the arm's stiction
+        e = np.where(np.abs(e) > SEE_DEADBAND_M, e - np.sign(e) * SEE_DEADBAND_M, 0.0)
         op.nudge = np.clip(op.nudge + SEE_KI * DECIDE_DT_S * e, -SEE_MAX_M, SEE_MAX_M)
     T = T.copy()
     T[:2, 3] += op.nudge
@@ -95,7 +96,7 @@ def peg_insert(op, params: dict, rng: np.random.Generator):
     def dur(s):
         return s * speed * rng.uniform(0.85, 1.15)
 
-    out = {"gave_up": False, "retries": 0, "felt": []}
+    out = op.log = {"gave_up": False, "retries": 0, "felt": []}  # op.log: read on a timeout too
     yield
     obs = op.p.obs
     peg_top = obs["peg_pos"] + [0, 0, PEG.PEG_HALF[2]]
@@ -196,8 +197,6 @@ def _descend(op, T_goal, seconds: float, out: dict, tool, seen):
         if entered or drift < HOLD_DRIFT_M:  # a person pauses the push while the peg drifts off line
             s = min(1.0, s + ds)
         heights.append(m["bottom_z_m"])
-        out.setdefault("trace", []).append((round(op.p.t, 3), round(s, 3), round((T[2, 3] - PEG.PEG_HALF[2]) * 1e3, 2),
-                                            round(m["bottom_z_m"] * 1e3, 2), round(drift * 1e3, 2), round(op.p.felt_nm, 3)))
         # it does not go down although the hand wants it well below: seen, not only felt
         stalled = (len(heights) > window and heights[-window] - m["bottom_z_m"] < 0.0005
                    and T[2, 3] - PEG.PEG_HALF[2] < m["bottom_z_m"] - 0.004)

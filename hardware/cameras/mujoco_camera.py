@@ -146,9 +146,11 @@ class TwinCamera(MujocoCamera):
                               fix="use a <camera name=...> from the MJCF or '' for the free camera")
         g = self.model.vis.global_
         g.offwidth, g.offheight = max(self.config.width, g.offwidth), max(self.config.height, g.offheight)
-        with self.world.lock:
-            model = self.model  # pickled for the render process while the stepper waits
-            self._proc = RenderProcess(model, [(self.name, cam, self.config.width, self.config.height)])
+        import pickle
+
+        with self.world.lock:  # a consistent copy (~1 ms); the process starts without the lock
+            blob = pickle.dumps(self.model)
+        self._proc = RenderProcess(blob, [(self.name, cam, self.config.width, self.config.height)])
         self.backend = "process"
 
     def disconnect(self) -> None:

@@ -5,7 +5,7 @@ beside a render thread, 35 ms with llvmpipe on the calling thread). Here the con
 the physics state (WorldSnapshot) and waits on a pipe (GIL released) while the render process draws it into
 shared memory.
 
-    rp = RenderProcess(model, [("scene", "front", 320, 240)])   # spawns, loads the model, opens GL
+    rp = RenderProcess(pickle.dumps(model), [("scene", "front", 320, 240)])   # starts, loads, opens GL
     rgb = rp.render(0, snapshot)                                 # H x W x 3 uint8 (a copy)
     rp.close()
 """
@@ -13,6 +13,7 @@ shared memory.
 from __future__ import annotations
 
 import os
+import pickle
 import secrets
 import shutil
 import subprocess
@@ -34,7 +35,8 @@ def _serve(conn) -> None:
     """The render process: one renderer per camera, requests (index, snapshot arrays) -> frame in shm."""
     import mujoco
 
-    model, cams, shm_names = conn.recv()
+    blob, cams, shm_names = conn.recv()
+    model = pickle.loads(blob)
     from hardware.cameras.mujoco_camera import make_renderer
 
     try:
@@ -81,7 +83,7 @@ def _serve(conn) -> None:
 class RenderProcess:
     """cams: (name, MJCF camera, width, height) per camera; render(i, snapshot) from ONE thread at a time."""
 
-    def __init__(self, model, cams: list[tuple[str, str, int, int]]):
+    def __init__(self, model_pickle: bytes, cams: list[tuple[str, str, int, int]]):
         self.cams = list(cams)
         self._shms = [shared_memory.SharedMemory(create=True, size=h * w * 3) for _n, _c, w, h in self.cams]
         self._views = [np.ndarray((h, w, 3), np.uint8, buffer=s.buf)
@@ -105,7 +107,7 @@ class RenderProcess:
                 raise CameraError("the render process did not start", where="twin cameras",
                                   fix="check that `python -m hardware.cameras.render_process` runs")
             self._conn = box["conn"]
-            self._conn.send((model, self.cams, [s.name for s in self._shms]))
+            self._conn.send((model_pickle, self.cams, [s.name for s in self._shms]))
             if not self._conn.poll(START_TIMEOUT_S):
                 raise CameraError("the render process did not start", where="twin cameras",
                                   fix="check that MuJoCo can render offscreen (MUJOCO_GL=egl or osmesa)")

@@ -128,7 +128,11 @@ class CameraStream:
             if t + 1e-9 < due:
                 continue
             cam = self.cameras[name]
-            self._due[name] = due + 1.0 / cam.config.fps * max(1, int((t - due) * cam.config.fps + 1e-9) + 1)
+            late = int((t - due) * cam.config.fps + 1e-9)  # whole frame periods missed (a stalled stepper)
+            self._due[name] = due + (late + 1) / cam.config.fps
+            if late:
+                with self._lock:
+                    self._stats[name].dropped += late
             snap = cam.snapshot(t)
             if self.clock.realtime:
                 try:

@@ -86,9 +86,11 @@ class PegInsert(B.Task):
         for k, ang in enumerate((0.0, np.pi / 2, np.pi, 1.5 * np.pi)):  # the four sides, each rotated about z
             side = fix.add_body(name=f"fixture_side{k}", quat=[np.cos(ang / 2), 0, 0, np.sin(ang / 2)])
             B.add_box(side, f"fixture_wall{k}", (w, t, lo), pos=(0, h + t, lo), rgba=grey)
-            B.add_box(side, f"fixture_rim{k}", (w, tc, c / 2), pos=(0, h + c + tc, DEPTH_M - c / 2), rgba=grey)
+            B.add_box(side, f"fixture_rim{k}", (w, tc, c / 2), pos=(0, h + c + tc, DEPTH_M - c / 2),
+                      rgba=grey)
             ramp = B.add_box(side, f"fixture_chamfer{k}", (w - c, c / r2 / 2, RAMP_THICK_M / 2),
-                             pos=(0, h + c / 2 + RAMP_THICK_M / 2 * r2, DEPTH_M - c / 2 - RAMP_THICK_M / 2 * r2),
+                             pos=(0, h + c / 2 + RAMP_THICK_M / 2 * r2,
+                                  DEPTH_M - c / 2 - RAMP_THICK_M / 2 * r2),
                              rgba=grey)
             ramp.quat = [np.cos(np.pi / 8), np.sin(np.pi / 8), 0, 0]  # 45 deg about x: the slab's face
         B.add_cameras(self, spec, look_at=(0.28, 0.0, 0.02))
