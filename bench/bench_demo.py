@@ -19,7 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-TABLE_MODES = ("none", "dob", "pp", "next", "ground_truth")
+from calibration.estimators import FEEDBACK_MODES
+
+TABLE_MODES = FEEDBACK_MODES
 
 
 def demo_run(seconds: float, out: Path) -> dict:

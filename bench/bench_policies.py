@@ -1,13 +1,13 @@
 """FIRST policy benchmarks (docs/benchmarks.md, "Policies"):
 
-  loader     samples/s of the training batch path (cached frames, RandomResizedCrop, normalisation), 2 cameras,
-             small preset (96 px), batch 128
-  train      optimiser steps/s x batch = samples/s, both presets, both policies (CPU here; CUDA if present)
-  latency    one action chunk on one core, small preset, 2 cameras (flow: encode once + 10 Euler steps)
-  phases     validation action loss per phase F / PC / C, `base-torque` vs `first`, same steps and seed
-             (needs recordings with contact: --recordings DIR, e.g. from `factr2 collect --task wipe`)
+loader     samples/s of the training batch path (cached frames, RandomResizedCrop, normalisation),
+           2 cameras, small preset (96 px), batch 128
+train      optimiser steps/s x batch = samples/s, both presets, both policies (CPU here; CUDA if present)
+latency    one action chunk on one core, small preset, 2 cameras (flow: encode once + 10 Euler steps)
+phases     validation action loss per phase F / PC / C, `base-torque` vs `first`, same steps and seed
+           (needs recordings with contact: --recordings DIR, e.g. from `factr2 collect --task wipe`)
 
-    python bench/bench_policies.py [--only loader,train,latency] [--recordings DIR --steps 400]
+  python bench/bench_policies.py [--only loader,train,latency] [--recordings DIR --steps 400]
 """
 
 from __future__ import annotations
@@ -48,17 +48,25 @@ def bench_loader(folder: Path, n_batches: int = 40, batch: int = 128) -> dict:
     for _ in range(n_batches):
         data.batch(rng.choice(idx, batch), draw_crops(batch, gen))
     dt = time.perf_counter() - t
-    return {"samples_per_s": n_batches * batch / dt, "cameras": len(data.names.cameras), "image_px": 96,
-            "batch": batch, "threads": torch.get_num_threads()}
+    return {
+        "samples_per_s": n_batches * batch / dt,
+        "cameras": len(data.names.cameras),
+        "image_px": 96,
+        "batch": batch,
+        "threads": torch.get_num_threads(),
+    }
 
 
 def _fake_batch(cfg, b: int) -> dict:
     g = torch.Generator().manual_seed(0)
     s = cfg.image_size
-    return {"images": torch.randint(0, 256, (b, cfg.n_cameras, s, s, 3), generator=g, dtype=torch.uint8),
-            "state": torch.randn(b, cfg.state_dim, generator=g), "force": torch.randn(b, cfg.force_dim, generator=g),
-            "action": torch.randn(b, cfg.chunk, cfg.action_dim, generator=g),
-            "mask": torch.ones(b, cfg.chunk, dtype=torch.bool)}
+    return {
+        "images": torch.randint(0, 256, (b, cfg.n_cameras, s, s, 3), generator=g, dtype=torch.uint8),
+        "state": torch.randn(b, cfg.state_dim, generator=g),
+        "force": torch.randn(b, cfg.force_dim, generator=g),
+        "action": torch.randn(b, cfg.chunk, cfg.action_dim, generator=g),
+        "mask": torch.ones(b, cfg.chunk, dtype=torch.bool),
+    }
 
 
 def bench_train(device: torch.device, steps: int = 3) -> list[dict]:
@@ -71,11 +79,16 @@ def bench_train(device: torch.device, steps: int = 3) -> list[dict]:
             model = make_model(cfg).to(device)
             opt = torch.optim.AdamW(model.parameters(), lr=3e-4, weight_decay=0.05, betas=(0.9, 0.95))
             b = {k: v.to(device) for k, v in _fake_batch(cfg, batch).items()}
-            noise = {k: v.to(device) for k, v in type(model).draw_noise(cfg, batch, torch.Generator()).items()}
-            ac = torch.autocast("cuda", dtype=torch.bfloat16) if device.type == "cuda" else torch.autocast(
-                "cpu", enabled=False)
+            noise = {
+                k: v.to(device) for k, v in type(model).draw_noise(cfg, batch, torch.Generator()).items()
+            }
+            ac = (
+                torch.autocast("cuda", dtype=torch.bfloat16)
+                if device.type == "cuda"
+                else torch.autocast("cpu", enabled=False)
+            )
 
-            def step():
+            def step(model=model, opt=opt, b=b, noise=noise, ac=ac):
                 with ac:
                     loss = model(b, noise)[0].float().mean()
                 loss.backward()
@@ -91,9 +104,17 @@ def bench_train(device: torch.device, steps: int = 3) -> list[dict]:
             if device.type == "cuda":
                 torch.cuda.synchronize()
             dt = (time.perf_counter() - t) / steps
-            out.append({"preset": name, "policy": policy, "batch": batch, "device": str(device),
-                        "params_M": sum(p.numel() for p in model.parameters()) / 1e6,
-                        "step_s": dt, "samples_per_s": batch / dt})
+            out.append(
+                {
+                    "preset": name,
+                    "policy": policy,
+                    "batch": batch,
+                    "device": str(device),
+                    "params_M": sum(p.numel() for p in model.parameters()) / 1e6,
+                    "step_s": dt,
+                    "samples_per_s": batch / dt,
+                }
+            )
             print(json.dumps(out[-1]), flush=True)
     return out
 
@@ -108,18 +129,28 @@ def bench_latency(n: int = 30) -> list[dict]:
         model = make_model(cfg).eval()
         b = _fake_batch(cfg, 1)
         noise = type(model).draw_noise(cfg, 1, torch.Generator().manual_seed(0))
-        ts = []
+        ts, cpu = [], []
         with torch.inference_mode():
             for _ in range(5):
                 model.predict(b, noise)
             for _ in range(n):
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.thread_time()
                 model.predict(b, noise)
                 ts.append(time.perf_counter() - t)
+                cpu.append(time.thread_time() - c)  # this thread's CPU time: the load cannot inflate it
         ms = np.asarray(ts) * 1e3
-        out.append({"policy": policy, "preset": "small", "cameras": 2, "threads": 1,
-                    "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
-                    "min_ms": float(ms.min())})
+        out.append(
+            {
+                "policy": policy,
+                "preset": "small",
+                "cameras": 2,
+                "threads": 1,
+                "median_ms": float(np.median(ms)),
+                "p90_ms": float(np.percentile(ms, 90)),
+                "min_ms": float(ms.min()),
+                "cpu_median_ms": float(np.median(cpu) * 1e3),
+            }
+        )
         print(json.dumps(out[-1]), flush=True)
     return out
 
@@ -131,10 +162,24 @@ def bench_phases(recordings: Path, steps: int, out_dir: Path, thresholds=None, n
     res = {}
     for method in ("base-torque", "first"):
         run = out_dir / method
-        o = RunOptions(inputs=[recordings], out=run, policy="flow", method=method, thresholds=thresholds,
-                       next=nxt, progress=False,
-                       train=TrainConfig(steps=steps, batch=32, warmup=min(100, steps // 5), val_every=steps // 4,
-                                         ckpt_every=steps, log_every=10, seed=0))
+        o = RunOptions(
+            inputs=[recordings],
+            out=run,
+            policy="flow",
+            method=method,
+            thresholds=thresholds,
+            next=nxt,
+            progress=False,
+            train=TrainConfig(
+                steps=steps,
+                batch=32,
+                warmup=min(100, steps // 5),
+                val_every=steps // 4,
+                ckpt_every=steps,
+                log_every=10,
+                seed=0,
+            ),
+        )
         t = time.perf_counter()
         res[method] = run_training(o, Dist())
         res[method]["train_s"] = time.perf_counter() - t

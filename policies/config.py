@@ -57,7 +57,8 @@ class PolicyConfig:
 
 def preset(name: str, policy: str = "flow") -> PolicyConfig:
     """The `paper` sizes, or `small`: sized for a laptop CPU (hidden 256, FF 512, 2 + 3 layers, 96 px; the
-    feed-forward width is 2x hidden rather than 4x to keep a flow chunk's 10 Euler steps near 30 ms on a core)."""
+    feed-forward width is 2x hidden rather than 4x to keep a flow chunk's 10 Euler steps near 30 ms on a
+    core)."""
     if name not in PRESETS:
         raise ValueError(f"preset {name!r}: one of {', '.join(PRESETS)}")
     if policy not in POLICIES:

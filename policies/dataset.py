@@ -302,7 +302,7 @@ def build_dataset(
     data = PolicyData(
         names,
         cat["state"].astype(np.float32),
-        cat["force"].astype(np.float32).reshape(-1, n_f),
+        cat["force"].astype(np.float32).reshape(len(cat["state"]), n_f),
         cat["action"].astype(np.float32),
         cat["mask"],
         cat["force_chunk"].astype(np.float32),

@@ -46,19 +46,29 @@ def _episode_rows(ep, arms, cams, fps, th, next_model):
     state, action = [], []
     for arm in arms.followers:
         js = ep.topic(S.joint_state_topic(arm))
-        state += [interp_linear(js.t, js.fields["q"], grid),
-                  interp_linear(js.t, np.nan_to_num(js.fields["gripper_pos"]), grid)[:, None]]
+        state += [
+            interp_linear(js.t, js.fields["q"], grid),
+            interp_linear(js.t, np.nan_to_num(js.fields["gripper_pos"]), grid)[:, None],
+        ]
         topic = S.command_topic(arm)
         if topic not in ep.recording.topics or len(ep.topic(topic)) < 2:
-            raise UserError(f"episode {ep.index} has no follower command ({topic}): no action to export",
-                            where=str(ep.recording.path), fix="record with a factr2 that logs the command")
+            raise UserError(
+                f"episode {ep.index} has no follower command ({topic}): no action to export",
+                where=str(ep.recording.path),
+                fix="record with a factr2 that logs the command",
+            )
         cmd = ep.topic(topic)
-        action += [interp_linear(cmd.t, cmd.fields["q"], grid),
-                   interp_linear(cmd.t, np.nan_to_num(cmd.fields["gripper"]), grid)[:, None]]
+        action += [
+            interp_linear(cmd.t, cmd.fields["q"], grid),
+            interp_linear(cmd.t, np.nan_to_num(cmd.fields["gripper"]), grid)[:, None],
+        ]
     lab = label_episode(ep, arms, th, next_model)
-    rows = {"observation.state": np.concatenate(state, 1), "action": np.concatenate(action, 1),
-            "observation.tau_ext": np.nan_to_num(interp_linear(lab.t, lab.tau_ext, grid)),
-            "phase": lab.at(grid).astype(np.int64)}
+    rows = {
+        "observation.state": np.concatenate(state, 1),
+        "action": np.concatenate(action, 1),
+        "observation.tau_ext": np.nan_to_num(interp_linear(lab.t, lab.tau_ext, grid)),
+        "phase": lab.at(grid).astype(np.int64),
+    }
     frame_idx = {c: np.searchsorted(ep.recording.frames(c).t, grid + 1e-6, side="right") - 1 for c in cams}
     ok = np.isfinite(rows["observation.state"]).all(1) & np.isfinite(rows["action"]).all(1)
     ok &= np.all([frame_idx[c] >= 0 for c in cams], axis=0) if cams else True
@@ -86,12 +96,25 @@ def _video_writer(path: Path, fps: int, width: int, height: int):
 
 def _stats(x: np.ndarray) -> dict:
     x = np.asarray(x, np.float64).reshape(len(x), -1)
-    return {"mean": x.mean(0).tolist(), "std": x.std(0).tolist(), "min": x.min(0).tolist(),
-            "max": x.max(0).tolist(), "count": [int(len(x))]}
+    return {
+        "mean": x.mean(0).tolist(),
+        "std": x.std(0).tolist(),
+        "min": x.min(0).tolist(),
+        "max": x.max(0).tolist(),
+        "count": [int(len(x))],
+    }
 
 
-def export_lerobot(episodes, arms, out: Path, th, next_model=None, fps: int | None = None,
-                   robot_type: str = "", progress=None) -> dict:
+def export_lerobot(
+    episodes,
+    arms,
+    out: Path,
+    th,
+    next_model=None,
+    fps: int | None = None,
+    robot_type: str = "",
+    progress=None,
+) -> dict:
     """Write the dataset to `out` (must not exist); returns info.json's dict."""
     import av
     import pandas as pd
@@ -104,8 +127,9 @@ def export_lerobot(episodes, arms, out: Path, th, next_model=None, fps: int | No
     recs = list(dict.fromkeys(ep.recording for ep in episodes))
     cams = sorted(set.intersection(*(set(r.cameras) for r in recs)))
     if not cams:
-        raise UserError("the recordings have no camera frames", where=str(recs[0].path),
-                        fix="record with cameras")
+        raise UserError(
+            "the recordings have no camera frames", where=str(recs[0].path), fix="record with cameras"
+        )
     fps = int(fps or round(camera_rate(episodes, cams)))
     tmp = Path(tempfile.mkdtemp(dir=out.parent if out.parent.exists() else None, prefix=f".{out.name}.tmp-"))
     try:
@@ -113,9 +137,15 @@ def export_lerobot(episodes, arms, out: Path, th, next_model=None, fps: int | No
         for c in cams:
             h, w = recs[0].frames(c).rgb(0).shape[:2]
             sizes[c] = (_even(h), _even(w))
-        writers = {c: _video_writer(tmp / VIDEO_PATH.format(video_key=f"observation.images.{c}", chunk_index=0,
-                                                            file_index=0), fps, sizes[c][1], sizes[c][0])
-                   for c in cams}
+        writers = {
+            c: _video_writer(
+                tmp / VIDEO_PATH.format(video_key=f"observation.images.{c}", chunk_index=0, file_index=0),
+                fps,
+                sizes[c][1],
+                sizes[c][0],
+            )
+            for c in cams
+        }
         img_sum = {c: np.zeros((3, 3)) for c in cams}  # per channel: sum, sum of squares, count
         img_min = {c: np.full(3, np.inf) for c in cams}
         img_max = {c: np.full(3, -np.inf) for c in cams}
@@ -148,24 +178,46 @@ def export_lerobot(episodes, arms, out: Path, th, next_model=None, fps: int | No
                         writers[c][0].mux(pkt)
                 if progress:
                     progress(n)
-            row_cols = dict(rows, timestamp=np.arange(n, dtype=np.float32) / fps,
-                            frame_index=np.arange(n), episode_index=np.full(n, len(ep_rows)),
-                            index=index + np.arange(n), task_index=np.full(n, t_idx))
+            row_cols = dict(
+                rows,
+                timestamp=np.arange(n, dtype=np.float32) / fps,
+                frame_index=np.arange(n),
+                episode_index=np.full(n, len(ep_rows)),
+                index=index + np.arange(n),
+                task_index=np.full(n, t_idx),
+            )
             for k, v in row_cols.items():
                 columns.setdefault(k, []).append(v)
-            rec = {"episode_index": len(ep_rows), "tasks": [task], "length": n, "data/chunk_index": 0,
-                   "data/file_index": 0, "dataset_from_index": index, "dataset_to_index": index + n,
-                   "meta/episodes/chunk_index": 0, "meta/episodes/file_index": 0,
-                   "factr2/source": f"{ep.recording.path.name}#{ep.index}"}
+            rec = {
+                "episode_index": len(ep_rows),
+                "tasks": [task],
+                "length": n,
+                "data/chunk_index": 0,
+                "data/file_index": 0,
+                "dataset_from_index": index,
+                "dataset_to_index": index + n,
+                "meta/episodes/chunk_index": 0,
+                "meta/episodes/file_index": 0,
+                "factr2/source": f"{ep.recording.path.name}#{ep.index}",
+            }
             for c in cams:
                 key = f"observation.images.{c}"
-                rec.update({f"videos/{key}/chunk_index": 0, f"videos/{key}/file_index": 0,
-                            f"videos/{key}/from_timestamp": t_from, f"videos/{key}/to_timestamp": t_from + n / fps})
+                rec.update(
+                    {
+                        f"videos/{key}/chunk_index": 0,
+                        f"videos/{key}/file_index": 0,
+                        f"videos/{key}/from_timestamp": t_from,
+                        f"videos/{key}/to_timestamp": t_from + n / fps,
+                    }
+                )
             ep_rows.append(rec)
             index += n
         if not ep_rows:
-            raise UserError("no frames to export (no episode has joint states, commands and frames together)",
-                            where=str(recs[0].path), fix="check the recordings with `factr2 episodes show`")
+            raise UserError(
+                "no frames to export (no episode has joint states, commands and frames together)",
+                where=str(recs[0].path),
+                fix="check the recordings with `factr2 episodes show`",
+            )
         for c in cams:
             out_c, st = writers[c]
             for pkt in st.encode():
@@ -173,51 +225,107 @@ def export_lerobot(episodes, arms, out: Path, th, next_model=None, fps: int | No
             out_c.close()
         cat = {k: np.concatenate(v) for k, v in columns.items()}
         arrays, features = {}, {}
-        names = {"observation.state": [n for a, j in zip(arms.followers, arms.joint_names)
-                                       for n in [f"{a}.{x}" for x in j] + [f"{a}.gripper"]],
-                 "action": [n for a, j in zip(arms.followers, arms.joint_names)
-                            for n in [f"{action_prefix(a)}.{x}" for x in j] + [f"{action_prefix(a)}.gripper"]],
-                 "observation.tau_ext": [f"{a}.{x}" for a, j in zip(arms.followers, arms.joint_names) for x in j]}
+        names = {
+            "observation.state": [
+                n
+                for a, j in zip(arms.followers, arms.joint_names)
+                for n in [f"{a}.{x}" for x in j] + [f"{a}.gripper"]
+            ],
+            "action": [
+                n
+                for a, j in zip(arms.followers, arms.joint_names)
+                for n in [f"{action_prefix(a)}.{x}" for x in j] + [f"{action_prefix(a)}.gripper"]
+            ],
+            "observation.tau_ext": [f"{a}.{x}" for a, j in zip(arms.followers, arms.joint_names) for x in j],
+        }
         for k in ("observation.state", "observation.tau_ext", "action"):
             v = cat[k].astype(np.float32)
             arrays[k] = pa.FixedSizeListArray.from_arrays(pa.array(v.reshape(-1)), v.shape[1])
             features[k] = {"dtype": "float32", "shape": [v.shape[1]], "names": names[k]}
-        features["phase"] = {"dtype": "int64", "shape": [1], "names": None,
-                             "description": ", ".join(f"{i}: {p}" for i, p in enumerate(PHASE_NAMES))}
+        features["phase"] = {
+            "dtype": "int64",
+            "shape": [1],
+            "names": None,
+            "description": ", ".join(f"{i}: {p}" for i, p in enumerate(PHASE_NAMES)),
+        }
         for c in cams:
             h, w = sizes[c]
             features[f"observation.images.{c}"] = {
-                "dtype": "video", "shape": [h, w, 3], "names": ["height", "width", "channels"],
-                "info": {"video.height": h, "video.width": w, "video.codec": "h264", "video.pix_fmt": "yuv420p",
-                         "video.is_depth_map": False, "video.fps": fps, "video.channels": 3, "has_audio": False}}
+                "dtype": "video",
+                "shape": [h, w, 3],
+                "names": ["height", "width", "channels"],
+                "info": {
+                    "video.height": h,
+                    "video.width": w,
+                    "video.codec": "h264",
+                    "video.pix_fmt": "yuv420p",
+                    "video.is_depth_map": False,
+                    "video.fps": fps,
+                    "video.channels": 3,
+                    "has_audio": False,
+                },
+            }
         arrays["phase"] = pa.array(cat["phase"].astype(np.int64))
         arrays["timestamp"] = pa.array(cat["timestamp"].astype(np.float32))
         for k in ("frame_index", "episode_index", "index", "task_index"):
             arrays[k] = pa.array(cat[k].astype(np.int64))
-        for k, dt in (("timestamp", "float32"), ("frame_index", "int64"), ("episode_index", "int64"),
-                      ("index", "int64"), ("task_index", "int64")):
+        for k, dt in (
+            ("timestamp", "float32"),
+            ("frame_index", "int64"),
+            ("episode_index", "int64"),
+            ("index", "int64"),
+            ("task_index", "int64"),
+        ):
             features[k] = {"dtype": dt, "shape": [1], "names": None}
         data_path = tmp / DATA_PATH.format(chunk_index=0, file_index=0)
         data_path.parent.mkdir(parents=True)
         pq.write_table(pa.table(arrays), data_path)
         (tmp / EPISODES_PATH).parent.mkdir(parents=True)
         pd.DataFrame(ep_rows).to_parquet(tmp / EPISODES_PATH, index=False)
-        pd.DataFrame({"task_index": list(tasks.values())}, index=pd.Index(list(tasks), name="task")).to_parquet(
-            tmp / "meta" / "tasks.parquet")
-        stats = {k: _stats(cat[k]) for k in ("observation.state", "observation.tau_ext", "action", "phase",
-                                             "timestamp", "frame_index", "episode_index", "index", "task_index")}
+        pd.DataFrame(
+            {"task_index": list(tasks.values())}, index=pd.Index(list(tasks), name="task")
+        ).to_parquet(tmp / "meta" / "tasks.parquet")
+        stats = {
+            k: _stats(cat[k])
+            for k in (
+                "observation.state",
+                "observation.tau_ext",
+                "action",
+                "phase",
+                "timestamp",
+                "frame_index",
+                "episode_index",
+                "index",
+                "task_index",
+            )
+        }
         for c in cams:
             s, ss, cnt = img_sum[c]
             mean = s / cnt
-            std = np.sqrt(np.maximum(ss / cnt - mean ** 2, 0))
+            std = np.sqrt(np.maximum(ss / cnt - mean**2, 0))
             col = lambda v: [[[float(x)]] for x in v]  # noqa: E731  (LeRobot's (3, 1, 1) per channel)
-            stats[f"observation.images.{c}"] = {"mean": col(mean), "std": col(std), "min": col(img_min[c]),
-                                                "max": col(img_max[c]), "count": [int(cnt[0])]}
-        info = {"codebase_version": CODEBASE_VERSION, "robot_type": robot_type or "factr2",
-                "total_episodes": len(ep_rows), "total_frames": int(index), "total_tasks": len(tasks),
-                "chunks_size": CHUNKS_SIZE, "data_files_size_in_mb": 100, "video_files_size_in_mb": 500,
-                "fps": fps, "splits": {"train": f"0:{len(ep_rows)}"}, "data_path": DATA_PATH,
-                "video_path": VIDEO_PATH, "features": features}
+            stats[f"observation.images.{c}"] = {
+                "mean": col(mean),
+                "std": col(std),
+                "min": col(img_min[c]),
+                "max": col(img_max[c]),
+                "count": [int(cnt[0])],
+            }
+        info = {
+            "codebase_version": CODEBASE_VERSION,
+            "robot_type": robot_type or "factr2",
+            "total_episodes": len(ep_rows),
+            "total_frames": int(index),
+            "total_tasks": len(tasks),
+            "chunks_size": CHUNKS_SIZE,
+            "data_files_size_in_mb": 100,
+            "video_files_size_in_mb": 500,
+            "fps": fps,
+            "splits": {"train": f"0:{len(ep_rows)}"},
+            "data_path": DATA_PATH,
+            "video_path": VIDEO_PATH,
+            "features": features,
+        }
         (tmp / "meta" / "info.json").write_text(json.dumps(info, indent=4))
         (tmp / "meta" / "stats.json").write_text(json.dumps(stats, indent=4))
         tmp.rename(out)

@@ -68,8 +68,9 @@ class DiTBlock(nn.Module):
         nn.init.zeros_(self.ada[1].bias)
         self.drop = nn.Dropout(cfg.dropout)
 
-    def forward(self, x, c, kv):
-        s1, g1, a1, s2, g2, a2 = self.ada(c).chunk(6, dim=-1)
+    def forward(self, x, mod, kv):
+        """mod: this block's adaLN output for the flow time (B, 6 hidden), see FlowPolicy.conditioning."""
+        s1, g1, a1, s2, g2, a2 = mod.chunk(6, dim=-1)
         x = x + a1[:, None] * self.drop(self.attn(_modulate(self.norm1(x), s1, g1)))
         x = x + self.drop(self.cross(self.norm_x(x), kv))
         return x + a2[:, None] * self.mlp(_modulate(self.norm2(x), s2, g2))
@@ -107,12 +108,18 @@ class FlowPolicy(nn.Module):
         memory = self.obs_norm(self.obs(batch["images"], batch["state"], batch.get("force")))
         return [blk.cross.kv(memory) for blk in self.blocks]
 
-    def velocity(self, x, alpha, memory):
+    def conditioning(self, alpha):
+        """Everything the flow time conditions: each block's adaLN output and the final one's (a list)."""
         c = self.time(timestep_embedding(alpha, self.cfg.hidden))
+        return [blk.ada(c) for blk in self.blocks] + [self.ada_out(c)]
+
+    def velocity(self, x, alpha, memory, cond=None):
+        """v (B, chunk, A) and the last hidden states. cond: conditioning(alpha) when already computed."""
+        cond = self.conditioning(alpha) if cond is None else cond
         h = self.x_in(x) + sinusoidal(x.shape[1], self.cfg.hidden).to(x)[None]
-        for blk, kv in zip(self.blocks, memory):
-            h = blk(h, c, kv)
-        shift, scale = self.ada_out(c).chunk(2, dim=-1)
+        for blk, kv, mod in zip(self.blocks, memory, cond):
+            h = blk(h, mod, kv)
+        shift, scale = cond[-1].chunk(2, dim=-1)
         h = _modulate(self.norm_out(h), shift, scale)
         return self.out(h), h
 
@@ -139,9 +146,11 @@ class FlowPolicy(nn.Module):
         memory = self.encode(batch)
         x = noise["x0"].to(memory[0][0])
         n = self.cfg.flow_steps
+        # the Euler times k/n are the same for every chunk: condition on all of them in one pass
+        cond = self.conditioning(torch.arange(n, device=x.device, dtype=x.dtype) / n)
         for k in range(n):
-            a = torch.full((len(x),), k / n, device=x.device, dtype=x.dtype)
-            x = x + self.velocity(x, a, memory)[0] / n
+            step = [m[k : k + 1].expand(len(x), -1) for m in cond]
+            x = x + self.velocity(x, None, memory, step)[0] / n
         return x
 
     def action_error(self, batch: dict, noise: dict) -> torch.Tensor:

@@ -54,7 +54,8 @@ class ObservationTokens(nn.Module):
 
     def image_tokens(self, images: torch.Tensor) -> torch.Tensor:
         b, m = images.shape[:2]
-        x = images.flatten(0, 1).permute(0, 3, 1, 2).float() / 255.0  # channels-last memory, no copy
+        # NCHW contiguous: the CPU convolutions run ~2x faster on it than on the channels-last view
+        x = images.flatten(0, 1).permute(0, 3, 1, 2).contiguous().float() / 255.0
         if self.training and self.blur_sigma > 0:
             x = gaussian_blur(x, self.blur_sigma)
         x = (x - self.mean) / self.std

@@ -33,8 +33,12 @@ def test_layout_info_and_stats(exported):
     stats = json.loads((ds / "meta" / "stats.json").read_text())
     assert set(stats) >= {"observation.state", "action", "observation.images.top", "phase"}
     assert np.asarray(stats["observation.images.top"]["mean"]).shape == (3, 1, 1)
-    for p in ("data/chunk-000/file-000.parquet", "meta/episodes/chunk-000/file-000.parquet", "meta/tasks.parquet",
-              "videos/observation.images.top/chunk-000/file-000.mp4"):
+    for p in (
+        "data/chunk-000/file-000.parquet",
+        "meta/episodes/chunk-000/file-000.parquet",
+        "meta/tasks.parquet",
+        "videos/observation.images.top/chunk-000/file-000.mp4",
+    ):
         assert (ds / p).is_file(), p
 
 
@@ -61,10 +65,14 @@ def test_rows_phases_and_video_frames_read_back(exported):
     from hardware.recording.reader import Recording
 
     rec = Recording(exported / "a.mcap")
-    first_ep1 = rec.frames("top").rgb(int(np.searchsorted(rec.frames("top").t, rec.episodes[1].t_start - 1e-6)))
+    first_ep1 = rec.frames("top").rgb(
+        int(np.searchsorted(rec.frames("top").t, rec.episodes[1].t_start - 1e-6))
+    )
     assert np.abs(frames[40].astype(int) - first_ep1.astype(int)).mean() < 6  # H.264 at crf 23
 
 
 def test_existing_output_is_refused(exported, capsys):
-    rc = main(["export", "lerobot", str(exported / "a.mcap"), "--out", str(exported / "ds"), "--thresholds", "1:3"])
+    rc = main(
+        ["export", "lerobot", str(exported / "a.mcap"), "--out", str(exported / "ds"), "--thresholds", "1:3"]
+    )
     assert rc == 2 and "output folder exists" in capsys.readouterr().err

@@ -54,7 +54,10 @@ def _losses(run):
 @pytest.mark.parametrize("policy", ["act", "flow"])
 def test_tiny_model_overfits_a_few_episodes(recordings, tmp_path, policy):
     torch.set_num_threads(1)
-    run_training(_opts(recordings, tmp_path / "run", policy, steps=(80 if policy == "act" else 150), val_fraction=0.0), Dist())
+    run_training(
+        _opts(recordings, tmp_path / "run", policy, steps=(80 if policy == "act" else 150), val_fraction=0.0),
+        Dist(),
+    )
     loss = _losses(tmp_path / "run")
     first, last = np.mean(loss[:3]), np.mean(loss[-10:])
     assert first / last > (10 if policy == "act" else 5), (first, last)
@@ -147,3 +150,43 @@ def test_two_process_gloo_ddp_matches_one_process(recordings, tmp_path):
     w1 = C.load_policy(tmp_path / "one")[0].state_dict()
     w2 = C.load_policy(tmp_path / "two")[0].state_dict()
     assert max(float((w1[k] - w2[k]).abs().max()) for k in w1) < 1e-4
+
+
+@pytest.mark.parametrize(
+    "method,force,check",
+    [
+        ("base", "tau_ext", lambda m, rows: m["policy"]["force_dim"] == 0 and m["force"] == "none"),
+        (
+            "base-torque",
+            "current",
+            lambda m, rows: m["features"]["observation.force"] == ["follower.joint.current"],
+        ),
+        ("factr", "tau_ext", lambda m, rows: m["ratio"] == [1, 1, 1]),
+        (
+            "tavla",
+            "tau_ext",
+            lambda m, rows: m["policy"]["aux_force"] and any("train/aux_force" in r for r in rows),
+        ),
+    ],
+)
+def test_every_method_trains_through_one_code_path(recordings, tmp_path, method, force, check):
+    torch.set_num_threads(1)
+    run = tmp_path / "run"
+    run_training(_opts(recordings, run, "act", steps=2, method=method, force=force), Dist())
+    meta = C.read_meta(run)
+    rows = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines()]
+    assert meta["method"] == method and check(meta, rows)
+
+
+def test_factr_blur_schedule_and_kernel():
+    from policies.methods import blur_sigma, gaussian_blur
+
+    assert (
+        blur_sigma(0, 100, 5.0) == 5.0 and blur_sigma(50, 100, 5.0) == 2.5 and blur_sigma(100, 100, 5.0) == 0
+    )
+    img = torch.zeros(1, 3, 32, 32)
+    img[..., 16, 16] = 1.0
+    out = gaussian_blur(img, 2.0)
+    assert out.sum().item() == pytest.approx(3.0, rel=1e-4)  # mass kept per channel
+    assert out[0, 0, 16, 16] < 0.05 and out[0, 0, 16, 18] > 0.01
+    assert torch.equal(gaussian_blur(img, 0.05), img)

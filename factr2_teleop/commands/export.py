@@ -1,5 +1,5 @@
-"""`factr2 export lerobot RECORDING_OR_DIR... --out DIR`: recorded episodes as a LeRobotDataset v3.0 folder
-(state, tau_ext, action, images as mp4, and the FIRST phase of every frame); see policies/export_lerobot.py."""
+"""`factr2 export lerobot RECORDING_OR_DIR... --out DIR`: recorded episodes as a LeRobotDataset v3.0
+folder (state, tau_ext, action, images as mp4, the FIRST phase of every frame); policies/export_lerobot.py."""
 
 from __future__ import annotations
 
@@ -14,10 +14,17 @@ def add_arguments(parser) -> None:
     sub = parser.add_subparsers(dest="format", metavar="FORMAT", required=True)
     p = sub.add_parser("lerobot", help="LeRobotDataset v3.0: meta/, data/ parquet, videos/ mp4")
     p.add_argument("inputs", type=Path, nargs="+", metavar="RECORDING_OR_DIR")
-    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the dataset folder (must not exist)")
+    p.add_argument(
+        "--out", type=Path, required=True, metavar="DIR", help="the dataset folder (must not exist)"
+    )
     p.add_argument("--fps", type=int, default=None, help="frame rate (default: the camera rate, rounded)")
-    p.add_argument("--next", type=Path, default=None, metavar="CKPT",
-                   help="NEXT checkpoint: estimate tau_ext offline from the logged joint states")
+    p.add_argument(
+        "--next",
+        type=Path,
+        default=None,
+        metavar="CKPT",
+        help="NEXT checkpoint: estimate tau_ext offline from the logged joint states",
+    )
     p.add_argument("--thresholds", default=None, metavar="LOW:HIGH", help="contact hysteresis [N*m]")
     p.add_argument("--robot-type", default="", help="info.json robot_type (default: factr2)")
 
@@ -42,7 +49,9 @@ def run(args) -> int:
     model = load_next(args.next) if args.next is not None else None
     th = resolve_thresholds(given, model, episodes, arms)
     info = export_lerobot(episodes, arms, args.out, th, model, args.fps, args.robot_type)
-    print(f"{args.out}: LeRobotDataset {info['codebase_version']}, {info['total_episodes']} episodes, "
-          f"{info['total_frames']} frames at {info['fps']} fps, cameras "
-          f"{', '.join(k for k, f in info['features'].items() if f['dtype'] == 'video')}")
+    print(
+        f"{args.out}: LeRobotDataset {info['codebase_version']}, {info['total_episodes']} episodes, "
+        f"{info['total_frames']} frames at {info['fps']} fps, cameras "
+        f"{', '.join(k for k, f in info['features'].items() if f['dtype'] == 'video')}"
+    )
     return 0

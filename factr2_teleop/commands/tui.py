@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from calibration.estimators import FEEDBACK_MODES
 from hardware.errors import UserError
 
 HELP = "terminal app: rig status, calibration wizard, force-feedback teleop, recording, episodes"
@@ -36,7 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rate", type=float, default=500.0, help="teleop loop rate [Hz] (default 500)")
     p.add_argument(
         "--feedback",
-        choices=("none", "dob", "pp", "next", "ground_truth"),
+        choices=FEEDBACK_MODES,
         help="initial feedback mode (default: ground_truth on twins, dob on real rigs)",
     )
     p.add_argument(
@@ -50,6 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    from factr2_teleop.session.pairs import modes_for
     from factr2_teleop.tui.app import Factr2App
     from factr2_teleop.tui.runtime import RigRuntime
 
@@ -64,9 +66,9 @@ def run(args) -> int:
     if args.pace < 0:
         raise UserError(f"--pace {args.pace} is negative", where="--pace", fix="use 1 (real time) or 0")
     runtime = RigRuntime(args.rig, clock=args.clock, pace=args.pace)  # ConfigError for a bad rig: one line
-    if args.feedback == "ground_truth" and not runtime.simulated:
+    if args.feedback is not None and args.feedback not in modes_for(runtime.rig):
         raise UserError(
-            "ground_truth feedback exists only on simulated rigs",
+            f"{args.feedback} feedback exists only on simulated rigs",
             where="--feedback",
             fix="use dob, pp or next",
         )

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field, fields, replace
 import mujoco
 import numpy as np
 
+from factr2_teleop.tasks import script_for
 from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept
-from factr2_teleop.tasks.scripts import SCRIPTS
 from hardware.errors import ConfigError
 from hardware.rigs.rig import CameraSpec, Rig, TwinSpec, load_rig
 from hardware.sim.tasks import StageTracker, Task, get_task
@@ -182,10 +182,9 @@ class EpisodeDriver:
         q0 = self.pair.map.forward(r.leader.q)
         if self.op is None:
             self.op = Operator(*self._op_args, q_start=q0)
-        self.op.grip = 0.0
-        self.op.log = {}
+        self.op.grip, self.op.servo_on, self.op.log = 0.0, True, {}
         self.op.p = self._percept(r)
-        self.script = SCRIPTS[self.task.name](self.op, self.params, rng)
+        self.script = script_for(self.task.name)(self.op, self.params, rng)
         self._ep_seed = ep_seed
         self._state, self._t_state = "settle", r.t
 

@@ -16,7 +16,7 @@ from hardware.sim.tasks import base as B
 AREA_HALF = (0.04, 0.03)  # m: an 80 x 60 mm mark
 CELL_M = 0.01
 TOOL_RADIUS_M = 0.012  # m: the closed fingers' footprint (24 x 20 mm) as a disc
-FORCE_BAND_N = (2.0, 20.0)  # N: normal force of fingers on table that counts as wiping
+FORCE_BAND_N = (2.0, 30.0)  # N: normal force of the fingers on the table that counts as wiping
 COVERAGE_MIN = 0.8
 REACH_HEIGHT_M = 0.02  # reach: fingertips within this of the table, over the mark
 FINGERS = ("gripper_body", "gripper_mirror_body")
@@ -60,7 +60,7 @@ def detect_wipe(obs: dict, params: dict, covered: np.ndarray) -> tuple[np.ndarra
 
 class Wipe(B.Task):
     name = "wipe"
-    title = "wipe an 80 x 60 mm mark with the closed gripper, pressing 2-20 N"
+    title = "wipe an 80 x 60 mm mark with the closed gripper, pressing 2-30 N"
     stages = ("reach", "contact", "coverage")
     arms = ("piper",)
     episode_s = 40.0
