@@ -155,7 +155,15 @@ def bench_latency(n: int = 30) -> list[dict]:
     return out
 
 
-def bench_phases(recordings: Path, steps: int, out_dir: Path, thresholds=None, nxt=None) -> dict:
+def bench_phases(
+    recordings: Path,
+    steps: int,
+    out_dir: Path,
+    thresholds=None,
+    nxt=None,
+    backbone: str = "convnet-gn",
+    batch: int = 32,
+) -> dict:
     from policies.run import RunOptions, run_training
     from policies.train import Dist, TrainConfig
 
@@ -169,15 +177,17 @@ def bench_phases(recordings: Path, steps: int, out_dir: Path, thresholds=None, n
             method=method,
             thresholds=thresholds,
             next=nxt,
+            backbone=backbone,
             progress=False,
             train=TrainConfig(
                 steps=steps,
-                batch=32,
+                batch=batch,
                 warmup=min(100, steps // 5),
                 val_every=steps // 4,
                 ckpt_every=steps,
                 log_every=10,
                 seed=0,
+                threads=1,  # on a shared 2-core host one thread per process runs faster than two
             ),
         )
         t = time.perf_counter()
@@ -194,8 +204,13 @@ def main() -> None:
     ap.add_argument("--thresholds", default=None, help="LOW:HIGH for the phase comparison")
     ap.add_argument("--next", type=Path, default=None)
     ap.add_argument("--steps", type=int, default=400)
+    ap.add_argument("--backbone", default="convnet-gn", help="phase comparison's image encoder")
+    ap.add_argument("--batch", type=int, default=32, help="phase comparison's batch")
     ap.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
+    ap.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     a = ap.parse_args()
+    if a.threads:
+        torch.set_num_threads(a.threads)
     only = set(a.only.split(","))
     results: dict = {"torch": torch.__version__, "cores": torch.get_num_threads()}
     with tempfile.TemporaryDirectory() as tmp:
@@ -213,7 +228,9 @@ def main() -> None:
             if a.recordings is None:
                 sys.exit("--only phases needs --recordings DIR")
             th = tuple(float(x) for x in a.thresholds.split(":")) if a.thresholds else None
-            results["phases"] = bench_phases(a.recordings, a.steps, Path(tmp) / "runs", th, a.next)
+            results["phases"] = bench_phases(
+                a.recordings, a.steps, Path(tmp) / "runs", th, a.next, a.backbone, a.batch
+            )
     if a.out:
         a.out.write_text(json.dumps(results, indent=1))
     print(json.dumps(results, indent=1))

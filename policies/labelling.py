@@ -67,7 +67,8 @@ def resolve_thresholds(
     model = next_model
     if model is None:
         named = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
-        if named and (Path(named).with_suffix(".json").exists()):
+        named = named.split("#")[0]  # sessions name "PATH#HASH"
+        if named and Path(named).with_suffix(".json").exists():
             model = load_next(named)
     if model is None:
         raise UserError(

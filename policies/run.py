@@ -120,35 +120,26 @@ def prepare(o: RunOptions, d: Dist):
         pcfg.image_size = int(o.image_size)
     pcfg.backbone, pcfg.backbone_weights = o.backbone, o.backbone_weights
     pcfg = replace(pcfg, **(o.overrides or {}))
-    if d.main:  # rank 0 decodes the frame caches; the others then read them
-        data = build_dataset(
-            episodes,
-            arms,
-            th=th,
-            chunk=pcfg.chunk,
-            image_size=pcfg.image_size,
-            force=tcfg.force,
-            rate_hz=o.rate_hz,
-            next_model=next_model,
-            val_fraction=o.val_fraction,
-            seed=tcfg.seed,
-        )
+    def build():
+        return build_dataset(episodes, arms, th=th, chunk=pcfg.chunk, image_size=pcfg.image_size,
+                             force=tcfg.force, rate_hz=o.rate_hz, next_model=next_model,
+                             val_fraction=o.val_fraction, seed=tcfg.seed)
+
+    # rank 0 decodes the frame caches first, the others then read them; an input error on rank 0 still
+    # reaches the barrier, and the others then meet the same error themselves (nobody waits forever)
+    data, err = None, None
+    if d.main:
+        try:
+            data = build()
+        except UserError as e:
+            err = e
     barrier(d)
+    if err is not None:
+        raise err
     if not d.main:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            data = build_dataset(
-                episodes,
-                arms,
-                th=th,
-                chunk=pcfg.chunk,
-                image_size=pcfg.image_size,
-                force=tcfg.force,
-                rate_hz=o.rate_hz,
-                next_model=next_model,
-                val_fraction=o.val_fraction,
-                seed=tcfg.seed,
-            )
+            data = build()
     train_idx, _ = data.split()
     if len(train_idx) < 1:
         raise UserError("no training samples", where=str(o.inputs[0]), fix="record more episodes")

@@ -37,13 +37,14 @@ def write_recording(
     n_joints: int = N_JOINTS,
     joint_names=None,
     simulated: bool = True,
+    metadata: dict | None = None,
 ) -> Path:
     """`episodes` episodes of `seconds` each; in each, tau_ext rises to 2 N*m per joint for `contact_s`
     at every time in `contact_at` (seconds into the episode) and is 0.01 N*m noise elsewhere."""
     path = Path(path)
     names = list(joint_names or NAMES[:n_joints])
     rng = np.random.default_rng(seed)
-    meta = {"simulated": "true" if simulated else "false", "task": "synthetic"}
+    meta = {"simulated": "true" if simulated else "false", "task": "synthetic", **(metadata or {})}
     rec = Recorder(path, joint_names={"follower": names, "leader": names}, t0=0.0, metadata=meta)
     dt = 1.0 / RATE_HZ
     t = 0.0

@@ -170,3 +170,20 @@ def test_next_offline_labels_from_the_logged_joint_states(tmp_path, capsys):
     rc = main(["episodes", "phases", str(tmp_path), "--next", str(ck_path), "--out", str(tmp_path / "ph")])
     out = capsys.readouterr().out
     assert rc == 0 and "NEXT next@" in out and len(list((tmp_path / "ph").glob("*.png"))) == 1
+
+
+def test_thresholds_default_from_the_checkpoint_the_session_names(tmp_path):
+    from policies.labelling import resolve_thresholds
+    from policies.recordings import load_episodes
+
+    ck_path = _next_checkpoint(tmp_path)
+    write_recording(
+        tmp_path / "a.mcap",
+        episodes=1,
+        seconds=1.0,
+        cameras=(),
+        metadata={"next_checkpoint": f"{ck_path}#0123abcd"},
+    )
+    eps, arms = load_episodes([tmp_path])
+    th = resolve_thresholds(None, None, eps, arms)
+    assert (th.t_low, th.t_high) == (pytest.approx(0.6), pytest.approx(0.9)) and "next@" in th.source

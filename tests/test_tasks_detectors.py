@@ -94,7 +94,7 @@ def test_wipe_detectors_force_band_and_coverage():
     empty = np.zeros(W.grid_shape(), bool)
     flags, cov = W.detect_wipe(obs(0.0, 0.0, z=0.05, f=0.0), params, empty)
     assert flags.tolist() == [False, False, False] and not cov.any()  # above the mark
-    flags, cov = W.detect_wipe(obs(0.0, 0.0, f=30.0), params, empty)
+    flags, cov = W.detect_wipe(obs(0.0, 0.0, f=45.0), params, empty)
     assert flags.tolist() == [True, False, False] and not cov.any()  # pressing too hard wipes nothing
     flags, cov = W.detect_wipe(obs(0.06, 0.0), params, empty)
     assert not flags[0] and not cov.any()  # beside the mark

@@ -62,10 +62,10 @@ PEG_PLACE = Place("peg", "hole", PEG.PEG_HALF[2], 0.018, engage_z_m=PEG.DEPTH_M,
                   home_z_m=PEG.DEPTH_M - PEG.INSERT_DEPTH_M, done_tol_m=-0.001)
 _BLOCK_H = 0.5 * (PF.SKIRT_H_M + PF.CAP_H_M)
 PRESS_PLACE = Place("block", "base", _BLOCK_H, 0.006, engage_z_m=PF.PLATE_TOP_M + 2 * PF.STUD_HALF[2],
-                    home_z_m=PF.PLATE_TOP_M, done_tol_m=PF.SEAT_TOL_M * 0.8, push_m=0.004,
+                    home_z_m=PF.PLATE_TOP_M, done_tol_m=PF.SEAT_TOL_M * 0.4, push_m=0.004,
                     touch_is_jam=False, press_on_top=True)
-PRESS_DEPTH_M = 0.006  # m: how far below the block's top the pressing fingertips aim
-PRESS_S = 2.5  # s: the longest press
+PRESS_DEPTH_M = 0.012  # m: how far below the block's top the pressing fingertips aim
+PRESS_S = 3.5  # s: the longest press
 
 
 def _upright(yaw: float, p) -> np.ndarray:
@@ -131,9 +131,9 @@ def pick_and_place(op, params: dict, rng: np.random.Generator, pl: Place):
         status = yield from _push_home(op, pl, T_goal, dur(2.4), out, tool, seen)
         if status == "home":
             break
-        if status == "engaged":
-            if (yield from _press_on_top(op, pl, dur)):
-                break
+        if status == "engaged":  # pressed on its top: it is no longer in the hand, whatever the result
+            out["gave_up"] = not (yield from _press_on_top(op, pl, dur))
+            break
         out["retries"] += 1
         yield from move(op, T_goal @ K.pose(np.eye(3), [0, 0, 0.006]), dur(0.6), tool=tool, seen=seen)
         off, dyaw = np.zeros(3), 0.0  # looks again, closer: this time the estimate is right
@@ -150,14 +150,19 @@ def _press_on_top(op, pl: Place, dur):
     """Let go of an engaged object, close the fingers above it and press its top until it is home (True)."""
     yield from grip(op, 0.0, dur(0.4))
     T = op.ee_pose_des()
-    yield from move(op, K.pose(T[:3, :3], T[:3, 3] + [0, 0, 0.03]), dur(0.6))
-    yield from grip(op, 1.0, dur(0.4))
+    yield from move(op, K.pose(T[:3, :3], T[:3, 3] + [0, 0, 0.04]), dur(0.6))
     o = op.p.obs
     R = o[f"{pl.obj}_rot"]
     top = o[f"{pl.obj}_pos"] + pl.half_h * (R[:, 2] if R[2, 2] >= 0 else -R[:, 2])
     tip = 0.01  # m: fingertips beyond the ee site
+    for _ in range(round(1.5 / DECIDE_DT_S)):  # closes the fingers only once they are seen clear of it
+        if not np.any(op.p.obs["finger_touch"]) and op.p.T_ee[2, 3] - tip > top[2] + 0.008:
+            break
+        yield
+    yield from grip(op, 1.0, dur(0.4))
     yield from move(op, K.pose(T[:3, :3], top + [0, 0, tip + 0.01]), dur(0.6))
     n = round(PRESS_S / DECIDE_DT_S)
+    reached = False
     for k in range(1, n + 1):
         a = min(1.0, 2.0 * k / n)  # down in the first half, then hold the push
         op.aim(K.pose(T[:3, :3], top + [0, 0, tip + 0.01 - a * (0.01 + PRESS_DEPTH_M)]))
@@ -165,11 +170,17 @@ def _press_on_top(op, pl: Place, dur):
         o = op.p.obs
         R = o[f"{pl.obj}_rot"]
         low = o[f"{pl.obj}_pos"] - pl.half_h * (R[:, 2] if R[2, 2] >= 0 else -R[:, 2])
-        if low[2] <= pl.home_z_m + pl.done_tol_m:
+        reached = bool(low[2] <= pl.home_z_m + pl.done_tol_m)
+        if reached:
+            yield from wait(op, 0.4)  # holds the push a moment: "click"
             break
     T = op.ee_pose_des()
-    yield from move(op, K.pose(T[:3, :3], T[:3, 3] + [0, 0, 0.02]), dur(0.5))
-    return bool(low[2] <= pl.home_z_m + pl.done_tol_m)
+    yield from move(op, K.pose(T[:3, :3], T[:3, 3] + [0, 0, 0.03]), dur(0.5))
+    for _ in range(round(1.5 / DECIDE_DT_S)):  # the fingers leave it before they open (they would drag it)
+        if not np.any(op.p.obs["finger_touch"]):
+            break
+        yield
+    return reached
 
 
 def _line_up(op, T_goal, tool, seen):
@@ -215,6 +226,8 @@ def _push_home(op, pl: Place, T_goal, seconds: float, out: dict, tool, seen):
         # pulled back; anything else that stops, or a peg that touches before entering, is a miss
         if pl.press_on_top and engaged and stalled:
             return "engaged"
+        if stalled and low[2] <= pl.home_z_m:  # deep enough and it stopped: in (it slid up in the fingers)
+            return "home"
         if (felt and pl.touch_is_jam) or (stalled and (pl.touch_is_jam or not engaged)):
             out["jams"] = out.get("jams", 0) + 1
             return "jammed"

@@ -86,6 +86,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
         ep = EpisodeDriver(ts, task, cfg.episodes, seed=cfg.seed, on_episode=done)
         ts.hooks.append(ep.on_tick)
         ts.hooks.append(lambda r: scores.add(r, ep))
+        srec = ts.recording
         try:
             ts.loop.run()
         finally:
@@ -93,7 +94,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
             if bar is not None:
                 bar.close()
         sim_s = s.clock.now() - scores.t0 if np.isfinite(scores.t0) else float("nan")
-        cams = (ts.recording or getattr(status, "camera_stats", None)) and {}
+        cams = {k: asdict(v) for k, v in (srec.camera_stats or {}).items()}  # hardware.cameras.stream stats
         timing = ts.loop.timing.stats()
     wall = time.perf_counter() - t_wall
     thresholds = _thresholds(ck)
@@ -178,4 +179,8 @@ def summary_lines(out: dict) -> list[str]:
               f"({out['x_realtime']:.2f}x real time)",
               f"{'recording':>22s}  {out['recording']} ({out['frames_written']} frames, "
               f"{out['samples_dropped']} samples dropped)"]
+    for name, c in (out.get("cameras") or {}).items():
+        lines.append(f"{'camera ' + name:>22s}  {c['captured']} / {c['expected']} frames, "
+                     f"{c['dropped']} dropped, "
+                     f"{c['failed']} failed")
     return lines

@@ -49,7 +49,8 @@ def wipe(op, params: dict, rng: np.random.Generator):
         aim_tool(op, _on_mark(params, x0, ROWS_Y[0], z, yaw), seen=tip)
         yield
         if op.p.felt_nm > FELT_NM:
-            out["felt"].append({"t": round(op.p.t, 2), "by": "feedback", "height_mm": round(tip()[2] * 1e3, 1)})
+            out["felt"].append({"t": round(op.p.t, 2), "by": "feedback",
+                                "height_mm": round(tip()[2] * 1e3, 1)})
             break
     op.servo_on = False  # from here the push is regulated by feel, not by leaning on the joint error
     depth = max(0.0, -z)

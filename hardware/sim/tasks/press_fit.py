@@ -21,7 +21,8 @@ STUD_PITCH_M = 0.016
 PLATE_HALF = (0.03, 0.03, 0.004)  # m: the base plate (its top at 8 mm)
 INTERFERENCE_M = 0.0002  # m per side: the skirt's inside is this much narrower than the studs' outside
 WALL_M = 0.003  # m: skirt wall thickness
-SKIRT_H_M = 0.008  # m: skirt height (= stud height)
+SKIRT_H_M = 0.009  # m: skirt height: 1 mm more than the studs, so a seated block rests on its skirt (stiff
+# contact with the plate), not on the soft stud tops, which pushed a pressed block back up by ~1 mm
 CAP_H_M = 0.012  # m: solid top part of the block
 BLOCK_MASS_KG = 0.02
 STUD_SOLREF = (0.01, 1.0)

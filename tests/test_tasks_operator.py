@@ -1,0 +1,51 @@
+"""The scripted operator's pure pieces: IK on the Piper description, pose interpolation, hand and lean laws."""
+
+import numpy as np
+
+from factr2_teleop.tasks import kinematics as K
+from factr2_teleop.tasks.operator import (
+    HAND_TAU_MAX,
+    SERVO_MAX_RAD,
+    hand_torque,
+    interp_pose,
+    servo_update,
+    trigger_torque,
+)
+
+
+def test_ik_reaches_top_down_poses_on_the_piper():
+    from hardware.arms import load_arm
+    from hardware.arms.dynamics import ArmDynamics
+
+    arm = load_arm("piper")
+    dyn, lim = ArmDynamics(arm), arm.limits
+    for p, yaw in (((0.27, -0.12, 0.05), 0.3), ((0.30, 0.11, 0.06), 1.0), ((0.30, 0.0, 0.02), 0.0)):
+        T = K.pose(K.down_rotation(yaw), p)
+        q, e = K.solve_ik(dyn.fk, dyn.jacobian, np.array(arm.q_home), T, lim.q_min, lim.q_max)
+        assert np.abs(e[:3]).max() < 1e-4 and np.abs(e[3:]).max() < 1e-3
+        assert np.all(q >= lim.q_min) and np.all(q <= lim.q_max)
+        assert np.allclose(dyn.fk(q)[:3, 2], [0, 0, -1], atol=1e-3)  # the approach axis points down
+
+
+def test_rotations_and_interpolation():
+    R = K.down_rotation(0.4)
+    assert np.allclose(R.T @ R, np.eye(3)) and np.isclose(np.linalg.det(R), 1.0)
+    assert np.allclose(K.rotation_error(R, R), 0.0)
+    Rz = K.down_rotation(0.0).T @ K.down_rotation(0.3)
+    assert np.isclose(np.linalg.norm(K.rotation_error(np.eye(3), Rz)), 0.3)
+    T0, T1 = K.pose(K.down_rotation(0.0), [0.2, 0, 0.1]), K.pose(K.down_rotation(0.5), [0.3, 0.1, 0.05])
+    assert np.allclose(interp_pose(T0, T1, 0.0), T0) and np.allclose(interp_pose(T0, T1, 1.0), T1)
+    mid = interp_pose(T0, T1, 0.5, bump=[0, 0, 0.02])
+    assert np.allclose(mid[:3, 3], [0.25, 0.05, 0.095])  # half way (min-jerk) plus the full bump
+
+
+def test_hand_lean_and_trigger_are_bounded():
+    tau = hand_torque(np.zeros(6), np.zeros(6), np.full(6, 5.0), np.zeros(6))
+    assert np.allclose(tau, HAND_TAU_MAX)
+    assert np.allclose(hand_torque(np.full(6, np.nan), np.zeros(6), np.zeros(6), np.zeros(6)), 0.0)
+    b = np.zeros(6)
+    for _ in range(10_000):
+        b = servo_update(b, np.ones(6), np.zeros(6), 0.01)
+    assert np.allclose(b, SERVO_MAX_RAD)
+    assert trigger_torque(0.0, 1.0) > 0 > trigger_torque(1.0, 0.0)
+    assert trigger_torque(float("nan"), 0.0) == 0.0
