@@ -59,7 +59,7 @@ class Place:
     # at its sides slips in the fingers before its studs give)
 
 PEG_PLACE = Place("peg", "hole", PEG.PEG_HALF[2], 0.018, engage_z_m=PEG.DEPTH_M,
-                  home_z_m=PEG.DEPTH_M - PEG.INSERT_DEPTH_M, done_tol_m=-0.001)
+                  home_z_m=PEG.DEPTH_M - PEG.INSERT_DEPTH_M, done_tol_m=-0.0005)
 _BLOCK_H = 0.5 * (PF.SKIRT_H_M + PF.CAP_H_M)
 PRESS_PLACE = Place("block", "base", _BLOCK_H, 0.006, engage_z_m=PF.PLATE_TOP_M + 2 * PF.STUD_HALF[2],
                     home_z_m=PF.PLATE_TOP_M, done_tol_m=PF.SEAT_TOL_M * 0.4, push_m=0.004,
@@ -231,7 +231,7 @@ def _push_home(op, pl: Place, T_goal, seconds: float, out: dict, tool, seen):
         if (felt and pl.touch_is_jam) or (stalled and (pl.touch_is_jam or not engaged)):
             out["jams"] = out.get("jams", 0) + 1
             return "jammed"
-    return "jammed"
+    return "home" if seen()[2] <= pl.home_z_m else "jammed"  # out of time: in deep enough, or not
 
 
 def peg_insert(op, params, rng):
