@@ -55,9 +55,10 @@ def execute(args) -> dict:
         ts = TeleopSession(session, opts)
         for line in ts.describe():
             print(line, file=sys.stderr)
-        if args.record:
-            ts.record(args.record, cameras=not args.no_cameras).start_episode("teleop")
-        ts.loop.start(duration_s=args.seconds)
+        rec = ts.record(args.record, cameras=not args.no_cameras) if args.record else None
+        ts.loop.start(duration_s=args.seconds)  # at once: a twin's unheld leader sinks until the loop runs
+        if rec is not None:
+            rec.start_episode("teleop")  # starts the cameras (a second or so) while the loop already runs
         _watch(ts.loop)
     finally:
         if ts is not None:

@@ -29,12 +29,18 @@ from hardware.cameras.base import CameraError
 
 START_TIMEOUT_S = 30.0  # a cold start imports mujoco and opens an OpenGL context
 RENDER_TIMEOUT_S = 5.0
+RASTER_THREADS = 1  # Mesa llvmpipe threads in the render process (LP_NUM_THREADS)
+RENDER_NICE = 10  # the render process's niceness: below the control loop
 
 
 def _serve(conn) -> None:
     """The render process: one renderer per camera, requests (index, snapshot arrays) -> frame in shm."""
     import mujoco
 
+    try:
+        os.nice(RENDER_NICE)
+    except OSError:  # not allowed here: render at normal priority
+        pass
     blob, cams, shm_names = conn.recv()
     model = pickle.loads(blob)
     from hardware.cameras.mujoco_camera import make_renderer
@@ -95,7 +101,10 @@ class RenderProcess:
         self._conn = self._proc = None
         listener = Listener(addr, family="AF_UNIX", authkey=key)
         try:
-            env = dict(os.environ, FACTR2_RENDER_ADDR=addr, FACTR2_RENDER_KEY=key.hex())
+            # Below the control loop: a frame may wait (it carries the time of the state it shows), a tick
+            # may not. One rasteriser thread: llvmpipe's default (one per core) took the loop's core.
+            env = dict(os.environ, FACTR2_RENDER_ADDR=addr, FACTR2_RENDER_KEY=key.hex(),
+                       LP_NUM_THREADS=os.environ.get("LP_NUM_THREADS", str(RASTER_THREADS)))
             self._proc = subprocess.Popen([sys.executable, "-m", "hardware.cameras.render_process"], env=env,
                                           stdin=subprocess.DEVNULL)
             box: dict = {}

@@ -27,7 +27,7 @@ import numpy as np
 from hardware.cameras.base import Camera
 from hardware.clock import Clock
 
-QUEUE_FRAMES = 3  # snapshots waiting per twin camera (~0.1 s at 30 Hz)
+QUEUE_FRAMES = 15  # snapshots waiting per twin camera (0.5 s at 30 Hz: a render burst is absorbed)
 LATE_FRACTION = 0.5  # a real camera's grab later than this many periods counts as late
 
 
