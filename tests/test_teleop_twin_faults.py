@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from factr2_teleop.demo.task import DemoConfig, DemoRun
 from calibration.estimators import make_estimator
+from factr2_teleop.demo.task import DemoConfig, DemoRun
 from factr2_teleop.teleop.pair import COUPLED
 from hardware.errors import UserError
 
