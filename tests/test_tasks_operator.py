@@ -1,4 +1,4 @@
-"""The scripted operator's pure pieces: IK on the Piper description, pose interpolation, hand and lean laws."""
+"""The scripted operator's pure pieces: IK on the Piper description, pose interpolation, hand and lean."""
 
 import numpy as np
 

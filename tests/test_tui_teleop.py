@@ -39,7 +39,7 @@ def test_teleop_records_two_episodes_listed_by_episodes_screen(tmp_path):
                 assert await wait_for(pilot, lambda: "REC * episode" in screen_text(app))
                 await wait_for(pilot, lambda: app.teleop.rec_state().duration_s > 0.1)
                 await pilot.press(outcome_key)
-                assert "rec: idle" in screen_text(app)
+                assert await wait_for(pilot, lambda: "rec: idle" in screen_text(app))  # next refresh
             await pilot.press("n")
             await pilot.press(*"slow start", "enter")  # space types a space in the note field
             assert app.runtime.messages[-1].endswith("note added: slow start") and not app.runtime.estopped
@@ -63,6 +63,7 @@ def test_teleop_records_two_episodes_listed_by_episodes_screen(tmp_path):
             await pilot.pause(0.5)
         rec = Recording(path)
         assert [e.outcome for e in rec.episodes] == ["success", "failure"]
+        assert rec.cameras == ["scene"] and all(len(e.frames("scene")) > 0 for e in rec.episodes)
         assert rec.session.get("simulated") == "true" and rec.session.get("feedback_mode") == "ground_truth"
         assert any(e["kind"] == "note" and e["text"] == "slow start" for e in rec.events)
 

@@ -58,7 +58,9 @@ def execute(args) -> dict:
         rec = ts.record(args.record, cameras=not args.no_cameras) if args.record else None
         ts.loop.start(duration_s=args.seconds)  # at once: a twin's unheld leader sinks until the loop runs
         if rec is not None:
-            rec.start_episode("teleop")  # starts the cameras (a second or so) while the loop already runs
+            for line in ts.start_cameras():  # a second or so to open, while the loop already runs
+                print(f"recording without it: {line}", file=sys.stderr)
+            rec.start_episode("teleop")
         _watch(ts.loop)
     finally:
         if ts is not None:

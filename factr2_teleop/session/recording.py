@@ -2,7 +2,7 @@
 the rig's cameras at their rate, the twin's ground truth (SIMULATED, labelled) and the loop's timing.
 
     rec = SessionRecording.open(out_dir, session, pairs, extra_meta={"feedback_mode": "next"})
-    rec.start_episode(task="wipe")      # also starts the cameras on first use
+    rec.start_episode(task="wipe")      # starts the cameras (start_cameras) on first use unless running
     loop = TeleopLoop(pairs, clock, rate, recorder=rec.on_tick)   # or call rec.on_tick from another hook
     rec.stop_episode("success"); rec.close()  -> RecorderStatus (+ rec.camera_stats)
 """
@@ -41,13 +41,14 @@ def session_path(out_dir: str | Path, stem: str) -> Path:
 
 
 class SessionRecording:
-    def __init__(self, recorder, session, pairs, rate_hz: float, cameras: bool = True):
+    def __init__(self, recorder, session, pairs, rate_hz: float, start_cameras=None):
+        """start_cameras: called before the first episode (the session's camera stream; frames come back
+        through frame()), or None to record no frames."""
         self.recorder, self.session, self.rate_hz = recorder, session, float(rate_hz)
         n = len(pairs)
         self._pairs = {p.cfg.name: (p, arm_prefix(p.cfg.name, n)) for p in pairs}
-        self._want_cameras = cameras and bool(session.cameras)
-        self.stream = None
-        self.camera_stats: dict = {}
+        self._start_cameras = start_cameras
+        self.camera_stats: dict = {}  # filled at close by the owner of the stream
         self._ticks = 0
         self._lock = threading.Lock()  # two loops (bimanual, real time) may share one file
         self.recording = False  # an episode is open
@@ -55,7 +56,7 @@ class SessionRecording:
     @classmethod
     def open(cls, out: str | Path, session, pairs, rate_hz: float, *, stem: str | None = None,
              extra_meta: dict | None = None, next_checkpoint: str = "", task: str = "",
-             cameras: bool = True, path: str | Path | None = None) -> SessionRecording:
+             start_cameras=None, path: str | Path | None = None) -> SessionRecording:
         """A new recording in folder `out` (or exactly `path`). UserError when it cannot be written."""
         from hardware.arms import load_arm
         from hardware.recording.session import describe_session
@@ -73,10 +74,10 @@ class SessionRecording:
         meta = describe_session(rig_path=rig.path, arm_files=arms, next_checkpoint=next_checkpoint, task=task,
                                 twin=session.twin is not None)
         meta.update({k: str(v) for k, v in (extra_meta or {}).items()})
-        if session.cameras and cameras:
+        if session.cameras and start_cameras is not None:
             meta["cameras"] = ",".join(session.cameras)
         rec = Recorder(p, joint_names=names, metadata=meta, t0=session.clock.now())
-        return cls(rec, session, pairs, rate_hz, cameras=cameras)
+        return cls(rec, session, pairs, rate_hz, start_cameras=start_cameras)
 
     @property
     def path(self) -> Path:
@@ -84,8 +85,8 @@ class SessionRecording:
 
     # -- episodes ----------------------------------------------------------------------------------------
     def start_episode(self, task: str = "") -> int:
-        if self._want_cameras and self.stream is None:
-            self._start_cameras()
+        if self._start_cameras is not None:
+            self._start_cameras()  # no-op once running
         ep = self.recorder.start_episode(self.session.clock.now(), task)
         self.recording = True
         return ep
@@ -94,14 +95,8 @@ class SessionRecording:
         self.recorder.stop_episode(self.session.clock.now(), outcome, text)
         self.recording = False
 
-    def _start_cameras(self) -> None:
-        from hardware.cameras.stream import CameraStream
-
-        self.stream = CameraStream(self.session.cameras, self.session.clock, sink=self._frame,
-                                   twin=self.session.twin)
-        self.stream.start()
-
-    def _frame(self, camera: str, t: float, rgb: np.ndarray) -> None:
+    def frame(self, camera: str, t: float, rgb: np.ndarray) -> None:
+        """A camera frame (the camera stream's thread): written while an episode records."""
         if self.recording:
             self.recorder.log_image(camera, t, rgb)
 
@@ -125,12 +120,8 @@ class SessionRecording:
 
     # -- end -----------------------------------------------------------------------------------------------
     def close(self, why: str = ""):
-        """Stop the cameras, end an open episode (kept, unlabelled, with a note), write the summary.
-        Returns the RecorderStatus. Never raises."""
-        if self.stream is not None:
-            self.stream.stop()
-            self.camera_stats = self.stream.stats()
-            self.stream = None
+        """End an open episode (kept, unlabelled, with a note), write the summary. Returns the
+        RecorderStatus. Never raises."""
         if self.recording:
             if why:
                 self.recorder.note(self.session.clock.now(), why)

@@ -4,9 +4,11 @@ The CLI (`factr2 teleop`), the terminal app's Teleop screen, the demo and task c
     ts = TeleopSession(rig_session, TeleopOptions(mode="next"))
     ts.hooks.append(fn)                         # fn(TickRecord) each tick, e.g. a virtual operator's hand
     rec = ts.record("recordings")               # optional: SessionRecording (cameras, truth, timing)
+    ts.loop.start()
+    ts.start_cameras()                          # optional: else the first episode starts them
     rec.start_episode("wipe")
-    ts.loop.run(duration_s=60)                  # or ts.loop.start() / ts.loop.stop()
-    ts.close_recording()
+    ...; ts.loop.stop()
+    ts.close_recording()                        # stops the cameras too; ts.camera_stats()
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ class TeleopSession:
         self.pairs = build_pairs(session, self.opts, next_estimators)
         self.hooks: list[Callable[[TickRecord], None]] = []
         self.recording: SessionRecording | None = None
+        self.cameras = None  # hardware.cameras.stream.CameraStream while it runs
+        self._camera_stats: dict = {}
         self._next_paths = dict(next_paths or {})
         self.loop = TeleopLoop(self.pairs, clock or session.clock, self.rate_hz, recorder=self._on_tick)
 
@@ -66,15 +70,48 @@ class TeleopSession:
         gains = {str(list(p.law.feedback.gain)) for p in self.pairs}
         meta["feedback_gain"] = ",".join(sorted(gains))
         meta.update(extra_meta or {})
-        self.recording = SessionRecording.open(out, self.session, self.pairs, self.rate_hz, stem=stem,
-                                               extra_meta=meta, next_checkpoint=self.next_checkpoint_id(),
-                                               task=task, cameras=cameras, path=path)
+        self.recording = SessionRecording.open(
+            out, self.session, self.pairs, self.rate_hz, stem=stem, extra_meta=meta,
+            next_checkpoint=self.next_checkpoint_id(), task=task, path=path,
+            start_cameras=self.start_cameras if cameras and self.session.cameras else None)
         return self.recording
 
     def close_recording(self, why: str = ""):
-        """Close the recording (an open episode ends unlabelled, with `why` as a note); its status or None."""
+        """Stop the cameras and close the recording (an open episode ends unlabelled, with `why` as a note);
+        its status or None. The recording's camera_stats hold the stream's counts."""
+        stats = self.stop_cameras()  # first: the frames still being rendered go to the recording
         rec, self.recording = self.recording, None
-        return None if rec is None else rec.close(why)
+        if rec is None:
+            return None
+        rec.camera_stats = stats
+        return rec.close(why)
+
+    # -- cameras -----------------------------------------------------------------------------------------
+    def start_cameras(self) -> list[str]:
+        """Capture the rig's cameras beside the loop (a second or so to open: call it from a worker, or
+        after the loop started); frames go to the recording while an episode records. Returns one line per
+        camera that could not start (teleop goes on without it). No-op if running."""
+        if self.cameras is not None or not self.session.cameras:
+            return []
+        from hardware.cameras.stream import CameraStream
+
+        self.cameras = CameraStream(self.session.cameras, self.session.clock, sink=self._frame,
+                                    twin=self.session.twin)
+        self.cameras.start()
+        return self.cameras.problems()
+
+    def stop_cameras(self) -> dict:
+        """Stop capturing; the per-camera counts (hardware.cameras.stream.CameraStats)."""
+        if self.cameras is not None:
+            self.cameras.stop()
+            self._camera_stats = self.cameras.stats()
+            self.cameras = None
+        return dict(self._camera_stats)
+
+    def _frame(self, camera: str, t: float, rgb) -> None:
+        rec = self.recording
+        if rec is not None:
+            rec.frame(camera, t, rgb)
 
     # -- per tick ----------------------------------------------------------------------------------------
     def _on_tick(self, r: TickRecord) -> None:

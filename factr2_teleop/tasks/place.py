@@ -34,6 +34,10 @@ HOLD_DRIFT_M = 0.0015  # m: while the object is out of its seat and further off 
 # pauses (the hole's 2 mm chamfer, the studs' rounded tops guide an object that is closer)
 DESCENT_SLACK_S = 3.0  # s: extra time a descent may take for its pauses
 STALL_S = 0.6  # s: an object that has not gone down 0.5 mm in this long while pushed is stuck
+GRASP_TRIES = 3
+ARRIVE_M = 0.002  # m: the gripper is "there" when seen this close to where it was sent
+ARRIVE_PATIENCE_S = 2.0
+DEEP_M = 0.01  # m: an object this far past where it engages that stops is left there (it slid in the hand)
 
 
 @dataclass(frozen=True)
@@ -81,17 +85,27 @@ def pick_and_place(op, params: dict, rng: np.random.Generator, pl: Place):
 
     out = op.log = {"gave_up": False, "retries": 0, "felt": []}  # op.log: read on a timeout too
     yield
-    obs = op.p.obs
-    top = obs[f"{pl.obj}_pos"] + [0, 0, pl.half_h]
-    grasp_p = top - [0, 0, pl.grasp_below_m]
-    yaw = best_down_yaw(op, grasp_p, yaw_of(obs[f"{pl.obj}_rot"]), np.pi / 2)
-    bump = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.0, 0.05)])
-    yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.07]), dur(1.8), bump=bump)
-    yield from move(op, K.pose(K.down_rotation(yaw), grasp_p), dur(1.0))
-    yield from wait(op, 0.3)
-    yield from grip(op, 1.0, dur(0.5))
-    yield from wait(op, 0.5)
-    yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.075]), dur(0.9))
+    for _grasp in range(GRASP_TRIES):
+        obs = op.p.obs
+        top = obs[f"{pl.obj}_pos"] + [0, 0, pl.half_h]
+        grasp_p = top - [0, 0, pl.grasp_below_m]
+        yaw = best_down_yaw(op, grasp_p, yaw_of(obs[f"{pl.obj}_rot"]), np.pi / 2)
+        bump = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.0, 0.05)])
+        yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.07]), dur(1.8), bump=bump)
+        T_grasp = K.pose(K.down_rotation(yaw), grasp_p)
+        yield from move(op, T_grasp, dur(1.0))
+        yield from _arrive(op, T_grasp)  # closes only with the fingers seen around the object
+        yield from grip(op, 1.0, dur(0.5))
+        yield from wait(op, 0.5)
+        yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.075]), dur(0.9))
+        if np.all(op.p.obs["finger_touch"]) and op.p.obs[f"{pl.obj}_pos"][2] > top[2] - pl.half_h + 0.03:
+            break
+        out["regrasps"] = out.get("regrasps", 0) + 1  # not in the hand: open, look again, grasp again
+        yield from grip(op, 0.0, dur(0.4))
+        yield from wait(op, 0.5)
+    else:
+        out["gave_up"] = True
+        return out
 
     def in_hand() -> np.ndarray:  # where the object sits in the gripper, as seen now
         o = op.p.obs
@@ -183,6 +197,14 @@ def _press_on_top(op, pl: Place, dur):
     return reached
 
 
+def _arrive(op, T):
+    """Wait (the lean keeps working) until the gripper is seen within ARRIVE_M of T, or patience runs out."""
+    for _ in range(round(ARRIVE_PATIENCE_S / DECIDE_DT_S)):
+        if np.linalg.norm(op.p.T_ee[:3, 3] - T[:3, 3]) < ARRIVE_M:
+            return
+        yield
+
+
 def _line_up(op, T_goal, tool, seen):
     """Hold over the target, nudging, until the object looks aligned for 0.2 s (or patience runs out)."""
     still = 0
@@ -226,8 +248,8 @@ def _push_home(op, pl: Place, T_goal, seconds: float, out: dict, tool, seen):
         # pulled back; anything else that stops, or a peg that touches before entering, is a miss
         if pl.press_on_top and engaged and stalled:
             return "engaged"
-        if stalled and low[2] <= pl.home_z_m:  # deep enough and it stopped: in (it slid up in the fingers)
-            return "home"
+        if stalled and low[2] <= pl.engage_z_m - DEEP_M:  # deep in and it stopped: left there (it slid up
+            return "home"  # in the fingers); the detectors decide whether that is deep enough
         if (felt and pl.touch_is_jam) or (stalled and (pl.touch_is_jam or not engaged)):
             out["jams"] = out.get("jams", 0) + 1
             return "jammed"

@@ -138,6 +138,11 @@ class TeleopController:
         self._ticks = 0
         self._thread = threading.Thread(target=self._run, name="factr2-tui-teleop", daemon=True)
         self._thread.start()
+        try:  # cameras run with teleop (this is a worker): recording an episode then starts at once
+            for line in self.ts.start_cameras():
+                self.rt.say(f"recording without it: {line}")
+        except Exception as e:  # noqa: BLE001 -- teleop goes on without frames; say why
+            self.rt.say(f"cameras unavailable: {e}")
         self.rt.say(f"teleop started: feedback {self.mode}, K_f {self.gain:.2f}, {self.rate_hz:.0f} Hz")
 
     def _run(self) -> None:
@@ -154,6 +159,8 @@ class TeleopController:
                 if q is not None and np.all(np.isfinite(q)) and q.shape == h.q_ref.shape:
                     h.q_ref = np.asarray(q, dtype=float).copy()
             self._close_recording(self.stop_reason)
+            if self.ts is not None:
+                self.ts.stop_cameras()
             self.rt.release("teleop")
 
     def stop(self) -> None:

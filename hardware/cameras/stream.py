@@ -28,6 +28,7 @@ from hardware.cameras.base import Camera
 from hardware.clock import Clock
 
 QUEUE_FRAMES = 15  # snapshots waiting per twin camera (0.5 s at 30 Hz: a render burst is absorbed)
+MAX_FAILURES = 10  # failed renders after which a camera is given up (the loop goes on without it)
 LATE_FRACTION = 0.5  # a real camera's grab later than this many periods counts as late
 
 
@@ -95,19 +96,19 @@ class CameraStream:
             self._observer = None
         self._t_last = self.clock.now()
         self._stop.set()
-        for q in self._queues.values():
-            try:
-                q.put_nowait(None)
-            except queue.Full:
-                pass
         for th in self._threads:
-            th.join(5.0)
+            th.join(10.0)
         self._threads = []
         for cam in self.cameras.values():
             try:
                 cam.disconnect()
             except Exception:  # noqa: BLE001 -- stopping must reach every camera
                 pass
+
+    def problems(self) -> list[str]:
+        """One line per camera that failed (for the shells to say)."""
+        return [f"camera {n}: {s.failed} failure(s), last: {s.error}" for n, s in self.stats().items()
+                if s.failed]
 
     def stats(self) -> dict[str, CameraStats]:
         """Per camera, with `expected` counted up to now (or the stop)."""
@@ -123,7 +124,7 @@ class CameraStream:
     # -- twin cameras -----------------------------------------------------------------------------------
     def _on_step(self, t: float) -> None:
         """On the twin's stepping thread after each advance: snapshot every camera whose frame is due."""
-        for name, q in self._queues.items():
+        for name, q in list(self._queues.items()):
             due = self._due[name]
             if t + 1e-9 < due:
                 continue
@@ -141,7 +142,7 @@ class CameraStream:
                     with self._lock:
                         self._stats[name].dropped += 1
             else:
-                while not self._stop.is_set():  # lockstep: wait for the renderer (keeps every frame)
+                while not self._stop.is_set() and name in self._queues:  # lockstep: wait for the renderer
                     try:
                         q.put(snap, timeout=0.5)
                         break
@@ -149,22 +150,31 @@ class CameraStream:
                         continue
 
     def _render_loop(self, name: str, cam, ready: threading.Event) -> None:
+        q = self._queues[name]
         try:
-            cam.connect()  # the GL context belongs to this thread
+            cam.connect()
         except Exception as e:  # noqa: BLE001 -- reported in stats; the loop goes on without this camera
             self._fail(name, e)
+            self._queues.pop(name, None)  # no more snapshots for it (lockstep would wait for them)
             ready.set()
             return
         ready.set()
-        q = self._queues[name]
-        while True:
-            snap = q.get()
+        while True:  # until stopped and drained: snapshots taken before the stop are still rendered
+            try:
+                snap = q.get(timeout=0.1)
+            except queue.Empty:
+                if self._stop.is_set():
+                    break
+                continue
             if snap is None:
                 break
             try:
                 rgb = cam.render(snap)
-            except Exception as e:  # noqa: BLE001
+            except Exception as e:  # noqa: BLE001 -- a dead render process: stop asking this camera
                 self._fail(name, e)
+                if not cam.is_connected or self.stats()[name].failed >= MAX_FAILURES:
+                    self._queues.pop(name, None)
+                    break
                 continue
             self._deliver(name, snap.t, rgb)
         cam.disconnect()
