@@ -12,6 +12,7 @@ shared memory.
 
 from __future__ import annotations
 
+import mmap
 import os
 import pickle
 import secrets
@@ -20,7 +21,6 @@ import subprocess
 import sys
 import tempfile
 import threading
-from multiprocessing import resource_tracker, shared_memory
 from multiprocessing.connection import Client, Listener
 
 import numpy as np
@@ -34,29 +34,27 @@ RENDER_NICE = 10  # the render process's niceness: below the control loop
 
 
 def _serve(conn) -> None:
-    """The render process: one renderer per camera, requests (index, snapshot arrays) -> frame in shm."""
+    """The render process: one renderer per camera, requests (index, snapshot arrays) -> frame in its
+    shared file mapping."""
     import mujoco
 
     try:
         os.nice(RENDER_NICE)
     except OSError:  # not allowed here: render at normal priority
         pass
-    blob, cams, shm_names = conn.recv()
+    blob, cams, paths = conn.recv()
     model = pickle.loads(blob)
     from hardware.cameras.mujoco_camera import make_renderer
 
     try:
         data = mujoco.MjData(model)
-        renderers, views, shms = [], [], []
-        for (_name, _cam, w, h), shm_name in zip(cams, shm_names):
+        renderers, views, maps = [], [], []
+        for (_name, _cam, w, h), path in zip(cams, paths):
             r, _backend = make_renderer(model, w, h)
             renderers.append(r)
-            shm = shared_memory.SharedMemory(name=shm_name)
-            # this interpreter's resource tracker would unlink the parent's segment when it exits (Python
-            # < 3.13 registers attachments too): the parent owns and unlinks it
-            resource_tracker.unregister(shm._name, "shared_memory")
-            shms.append(shm)
-            views.append(np.ndarray((h, w, 3), np.uint8, buffer=shm.buf))
+            with open(path, "r+b") as f:
+                maps.append(mmap.mmap(f.fileno(), h * w * 3))
+            views.append(np.ndarray((h, w, 3), np.uint8, buffer=maps[-1]))
         conn.send(("ready", ""))
     except Exception as e:  # noqa: BLE001 -- reported to the parent as one line
         conn.send(("error", f"{type(e).__name__}: {e}"))
@@ -82,8 +80,9 @@ def _serve(conn) -> None:
             conn.send(("error", f"{type(e).__name__}: {e}"))
     for r in renderers:
         r.close()
-    for shm in shms:
-        shm.close()
+    views.clear()
+    for m in maps:
+        m.close()
 
 
 class RenderProcess:
@@ -91,32 +90,44 @@ class RenderProcess:
 
     def __init__(self, model_pickle: bytes, cams: list[tuple[str, str, int, int]]):
         self.cams = list(cams)
-        self._shms = [shared_memory.SharedMemory(create=True, size=h * w * 3) for _n, _c, w, h in self.cams]
-        self._views = [np.ndarray((h, w, 3), np.uint8, buffer=s.buf)
-                       for (_n, _c, w, h), s in zip(self.cams, self._shms)]
+        # Frames come back through a file mapping both processes share (tmpfs where there is one): no
+        # multiprocessing.shared_memory, whose resource tracker needs a real stderr (a terminal UI has none)
+        base = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+        self._dir = tempfile.mkdtemp(prefix="factr2-render-", dir=base)
+        self._paths, self._maps, self._views = [], [], []
+        for k, (_n, _c, w, h) in enumerate(self.cams):
+            path = os.path.join(self._dir, f"frame{k}")
+            with open(path, "w+b") as f:
+                f.truncate(h * w * 3)
+                self._maps.append(mmap.mmap(f.fileno(), h * w * 3))
+            self._paths.append(path)
+            self._views.append(np.ndarray((h, w, 3), np.uint8, buffer=self._maps[-1]))
         # A new interpreter (`python -m`), not multiprocessing's spawn: spawn re-runs the user's __main__
         # script in the child, and a fork would copy threads and GL state. A Unix socket with a one-time key.
-        self._dir = tempfile.mkdtemp(prefix="factr2-render-")
         addr, key = os.path.join(self._dir, "sock"), secrets.token_bytes(16)
-        self._conn = self._proc = None
+        self._conn = self._proc = self._log = None
         listener = Listener(addr, family="AF_UNIX", authkey=key)
         try:
             # Below the control loop: a frame may wait (it carries the time of the state it shows), a tick
             # may not. One rasteriser thread: llvmpipe's default (one per core) took the loop's core.
             env = dict(os.environ, FACTR2_RENDER_ADDR=addr, FACTR2_RENDER_KEY=key.hex(),
                        LP_NUM_THREADS=os.environ.get("LP_NUM_THREADS", str(RASTER_THREADS)))
+            # its output goes to a log file (the caller's stdout/stderr may be no real file: a terminal UI)
+            self._log = open(os.path.join(self._dir, "render.log"), "wb")  # noqa: SIM115 (closed in close())
             self._proc = subprocess.Popen([sys.executable, "-m", "hardware.cameras.render_process"], env=env,
-                                          stdin=subprocess.DEVNULL)
+                                          stdin=subprocess.DEVNULL, stdout=self._log, stderr=self._log,
+                                          close_fds=True)
             box: dict = {}
             th = threading.Thread(target=lambda: box.setdefault("conn", listener.accept()), daemon=True)
             th.start()
             th.join(START_TIMEOUT_S)
             listener.close()
             if "conn" not in box:
-                raise CameraError("the render process did not start", where="twin cameras",
+                raise CameraError(f"the render process did not start ({self._log_tail()})",
+                                  where="twin cameras",
                                   fix="check that `python -m hardware.cameras.render_process` runs")
             self._conn = box["conn"]
-            self._conn.send((model_pickle, self.cams, [s.name for s in self._shms]))
+            self._conn.send((model_pickle, self.cams, self._paths))
             if not self._conn.poll(START_TIMEOUT_S):
                 raise CameraError("the render process did not start", where="twin cameras",
                                   fix="check that MuJoCo can render offscreen (MUJOCO_GL=egl or osmesa)")
@@ -127,6 +138,13 @@ class RenderProcess:
         except BaseException:
             self.close()
             raise
+
+    def _log_tail(self) -> str:
+        try:
+            text = open(os.path.join(self._dir, "render.log"), errors="replace").read().strip()
+        except OSError:
+            return "no log"
+        return text.splitlines()[-1] if text else "no output"
 
     def render(self, i: int, snap) -> np.ndarray:
         self._conn.send((i, snap.qpos, snap.qvel, snap.mocap_pos, snap.mocap_quat))
@@ -152,13 +170,12 @@ class RenderProcess:
             if self._proc is not None:
                 self._proc.kill()
         self._conn = self._proc = None
-        for s in self._shms:
-            try:
-                s.close()
-                s.unlink()
-            except Exception:  # noqa: BLE001
-                pass
-        self._shms = []
+        self._views = []
+        for m in self._maps:
+            m.close()
+        self._maps = []
+        if self._log is not None:
+            self._log.close()
         shutil.rmtree(self._dir, ignore_errors=True)
 
 
