@@ -12,6 +12,7 @@ follower on hold.
 from __future__ import annotations
 
 import logging
+import sys
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -33,6 +34,7 @@ DEFAULT_RATE_HZ = 500.0
 # and the rate holds on average; further behind, the schedule restarts from now. Back-to-back ticks are safe:
 # the safety layer's rate limits use the real time between commands.
 CATCH_UP_S = 0.02
+SWITCH_FRACTION = 0.25  # the GIL switch interval while a real-time loop runs, in loop periods
 __all__ = ["TeleopLoop", "TeleopSnapshot", "DEFAULT_RATE_HZ", "SOFT_START", "COUPLED", "HOLD", "FAULT",
            "STOPPED", "IDLE"]
 
@@ -98,6 +100,11 @@ class TeleopLoop:
         # small (50x256 @ 256x512), and a thread pool's hand-offs and spinning threads cost more than they
         # give next to the loop and the twin -- 0.66 vs 2.4 ms per estimate on the 2-core dev VM under load.
         blas = threadpool_limits(limits=1, user_api="blas")
+        # Python hands the GIL to a waiting thread only every switch interval (5 ms by default): a recorder,
+        # camera or twin thread holding it could delay a tick by that much. A quarter period bounds it.
+        switch = sys.getswitchinterval()
+        if self.clock.realtime:
+            sys.setswitchinterval(min(switch, SWITCH_FRACTION * self.period_s))
         try:
             for p in self.pairs:
                 p.begin(self.clock)
@@ -128,6 +135,7 @@ class TeleopLoop:
             raise
         finally:
             blas.restore_original_limits()
+            sys.setswitchinterval(switch)
             self._running = False
             fault = isinstance(self.error, Exception)
             self._make_safe("teleop fault" if fault else "teleop stopped", FAULT if fault else STOPPED)

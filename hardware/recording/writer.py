@@ -28,6 +28,7 @@ from hardware.recording import schemas as S
 from hardware.recording.protobuf_wire import encode_compressed_image
 from hardware.recording.session import session_metadata
 
+WRITER_YIELD_EVERY = 32  # messages the writer encodes between two hand-backs of the GIL (a tick waits less)
 _FLOAT_FIELDS = ("q", "q_dot", "tau_m", "current", "q_cmd", "temperature")
 
 
@@ -341,7 +342,7 @@ class Recorder:
                 while self._q and n < 2000:
                     self._write(self._q.popleft())
                     n += 1
-                    if n % 32 == 0:
+                    if n % WRITER_YIELD_EVERY == 0:
                         time.sleep(0)  # hand the GIL back so the control loop's wake-up is not delayed
                 now = time.monotonic()
                 if now - self._last_flush >= self._flush_interval:
