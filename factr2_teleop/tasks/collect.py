@@ -19,7 +19,7 @@ episodes the objects are put back for the next seed, as an assistant would (the 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -27,17 +27,10 @@ import numpy as np
 from factr2_teleop.tasks import script_for
 from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept
 from hardware.errors import ConfigError
-from hardware.rigs.rig import CameraSpec, Rig, TwinSpec, load_rig
+from hardware.rigs.rig import CameraSpec, Rig, load_rig
 from hardware.sim.tasks import StageTracker, Task, get_task
 
 SETTLE_S = 0.3  # s: the hand holds still after the soft start and after each reset
-
-
-@dataclass
-class TaskTwinSpec(TwinSpec):
-    """A rig's twin settings naming a task (until rig files carry `[twin] task`; Twin reads .task)."""
-
-    task: str | None = None
 
 
 def gripper_mapping(arm_name: str) -> dict:
@@ -64,7 +57,7 @@ def task_rig(rig: str | Rig, task: str | Task) -> Rig:
                           where=str(r.path), fix="use a single-arm rig such as sim-piper")
     fol = r.device(r.pairs[0][1])
     t.check_arm(fol.arm, where=f"{r.path}: follower {fol.name} ({fol.arm})")
-    twin = TaskTwinSpec(**{f.name: getattr(r.twin, f.name) for f in fields(TwinSpec)}, task=t.name)
+    twin = replace(r.twin, task=t.name)
     base = r.cameras[0] if r.cameras else CameraSpec("scene", "", 320, 240, 30.0)
     cams = [CameraSpec("scene", f"sim:{t.scene_camera}", base.width, base.height, base.fps),
             CameraSpec("wrist", f"sim:{t.wrist_camera}", base.width, base.height, base.fps)]

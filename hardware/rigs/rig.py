@@ -46,7 +46,7 @@ DEVICE_TWIN_KEYS = {"motors", "start_q", "params"}
 TOP_KEYS = {"rig", "leaders", "followers", "cameras", "twin", "pairs", "teleop"}
 RIG_KEYS = {"name", "description", "simulated"}
 CAMERA_KEYS = {"name": str, "source": str, "width": int, "height": int, "fps": float}
-TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene"}
+TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene", "task"}
 
 
 @dataclass
@@ -111,6 +111,7 @@ class TwinSpec:
     physics_hz: float = 1000.0
     control_hz: float = CONTROL_HZ_DEFAULT
     scene: str = "table"
+    task: str | None = None  # a contact-rich task's objects in the scene (hardware/sim/tasks; `factr2 tasks`)
 
 
 @dataclass
@@ -295,7 +296,8 @@ def _twin(t, f: str) -> TwinSpec:
     return TwinSpec(seed=_typed(t.get("seed", 0), int, f, "twin.seed"),
                     effect=None if eff is None else _typed(eff, str, f, "twin.effect"),
                     effects=dict(effects), physics_hz=hz, control_hz=chz,
-                    scene=_typed(t.get("scene", "table"), str, f, "twin.scene"))
+                    scene=_typed(t.get("scene", "table"), str, f, "twin.scene"),
+                    task=_typed(t["task"], str, f, "twin.task") if "task" in t else None)
 
 
 def _pairs(raw, leaders, followers, f: str) -> list[tuple[str, str]]:
