@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from factr2_teleop.commands.label_args import add_label_arguments, thresholds_arg
 from hardware.recording import episodes as E
 
 HELP = "list, show, trim, delete, merge or phase-label recorded episodes"
@@ -33,11 +34,7 @@ def add_arguments(parser) -> None:
     p = sub.add_parser("phases", help="FIRST phase labels: per-episode shares of free / pre-contact / "
                        "contact and a PNG per episode (tau_ext with the phases shaded)")
     p.add_argument("path", type=Path, nargs="+", help="recordings (.mcap) or folders of them")
-    p.add_argument("--next", type=Path, default=None, metavar="CKPT",
-                   help="NEXT checkpoint: estimate tau_ext offline from the logged joint states (and take "
-                   "the default thresholds from its free-motion noise)")
-    p.add_argument("--thresholds", default=None, metavar="LOW:HIGH",
-                   help="contact hysteresis on ||tau_ext||_1 [N*m] (default: from NEXT's free-motion noise)")
+    add_label_arguments(p)
     p.add_argument("--out", type=Path, default=None,
                    help="folder for the PNGs (default: phases/ beside the first recording)")
 
@@ -59,17 +56,11 @@ def run(args) -> int:
 
 
 def _phases(args) -> None:
-    from hardware.errors import UserError
     from policies import labelling as L
-    from policies.phases import CONTACT, onsets, parse_thresholds
+    from policies.phases import CONTACT, onsets
     from policies.recordings import load_episodes
 
-    given = None
-    if args.thresholds is not None:
-        try:
-            given = parse_thresholds(args.thresholds)
-        except ValueError as e:
-            raise UserError(f"--thresholds {e}", fix="give LOW:HIGH in N*m, e.g. 1.5:2.5") from None
+    given = thresholds_arg(args)
     episodes, arms = load_episodes(args.path)
     model = L.load_next(args.next) if args.next is not None else None
     th = L.resolve_thresholds(given, model, episodes, arms)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from factr2_teleop.commands.label_args import add_label_arguments, thresholds_arg
 from hardware.errors import UserError
 
 HELP = "export recorded episodes (with FIRST phases) as a LeRobotDataset v3.0 folder"
@@ -18,29 +19,16 @@ def add_arguments(parser) -> None:
         "--out", type=Path, required=True, metavar="DIR", help="the dataset folder (must not exist)"
     )
     p.add_argument("--fps", type=int, default=None, help="frame rate (default: the camera rate, rounded)")
-    p.add_argument(
-        "--next",
-        type=Path,
-        default=None,
-        metavar="CKPT",
-        help="NEXT checkpoint: estimate tau_ext offline from the logged joint states",
-    )
-    p.add_argument("--thresholds", default=None, metavar="LOW:HIGH", help="contact hysteresis [N*m]")
+    add_label_arguments(p)
     p.add_argument("--robot-type", default="", help="info.json robot_type (default: factr2)")
 
 
 def run(args) -> int:
     from policies.export_lerobot import export_lerobot
     from policies.labelling import load_next, resolve_thresholds
-    from policies.phases import parse_thresholds
     from policies.recordings import load_episodes
 
-    given = None
-    if args.thresholds is not None:
-        try:
-            given = parse_thresholds(args.thresholds)
-        except ValueError as e:
-            raise UserError(f"--thresholds {e}", fix="give LOW:HIGH in N*m") from None
+    given = thresholds_arg(args)
     if args.fps is not None and args.fps < 1:
         raise UserError(f"--fps must be >= 1, got {args.fps}")
     if args.out.exists():

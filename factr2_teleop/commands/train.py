@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from factr2_teleop.commands.label_args import add_label_arguments, thresholds_arg
 from hardware.errors import UserError
 
 HELP = "train a FIRST / ACT / flow-matching policy on recorded episodes (one or many processes)"
@@ -52,14 +53,7 @@ def add_arguments(p) -> None:
         default="tau_ext",
         help="force input: NEXT tau_ext (default) or raw motor current",
     )
-    p.add_argument(
-        "--next",
-        type=Path,
-        default=None,
-        metavar="CKPT",
-        help="NEXT checkpoint: estimate tau_ext offline from the logged joint states",
-    )
-    p.add_argument("--thresholds", default=None, metavar="LOW:HIGH", help="contact hysteresis [N*m]")
+    add_label_arguments(p)
     p.add_argument("--rate", type=float, default=None, help="policy rate [Hz] (default: the camera rate)")
     p.add_argument("--batch", type=int, default=128)
     p.add_argument("--lr", type=float, default=3e-4)
@@ -93,22 +87,17 @@ def add_arguments(p) -> None:
 
 
 def _options(args):
-    from policies.phases import parse_thresholds
     from policies.run import RunOptions
     from policies.sampler import parse_ratio
     from policies.train import TrainConfig
 
-    ratio = thresholds = None
+    ratio = None
     if args.ratio is not None:
         try:
             ratio = parse_ratio(args.ratio)
         except ValueError as e:
             raise UserError(f"--ratio: {e}", fix="e.g. --ratio 1:5:1") from None
-    if args.thresholds is not None:
-        try:
-            thresholds = parse_thresholds(args.thresholds)
-        except ValueError as e:
-            raise UserError(f"--thresholds {e}", fix="give LOW:HIGH in N*m") from None
+    thresholds = thresholds_arg(args)
     for name in ("steps", "batch", "val_every", "ckpt_every", "log_every"):
         v = getattr(args, name)
         if v is not None and v < 1:
