@@ -34,7 +34,7 @@ DEFAULT_RATE_HZ = 500.0
 # and the rate holds on average; further behind, the schedule restarts from now. Back-to-back ticks are safe:
 # the safety layer's rate limits use the real time between commands.
 CATCH_UP_S = 0.02
-SWITCH_FRACTION = 0.25  # the GIL switch interval while a real-time loop runs, in loop periods
+SWITCH_FRACTION = 0.05  # the GIL switch interval while a real-time loop runs, in loop periods
 __all__ = ["TeleopLoop", "TeleopSnapshot", "DEFAULT_RATE_HZ", "SOFT_START", "COUPLED", "HOLD", "FAULT",
            "STOPPED", "IDLE"]
 
