@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hardware.recording import schemas as S
-from hardware.recording.schemas import ACTION, signal_name  # noqa: F401  (the names of recorded fields)
+from hardware.recording.schemas import ACTION
 
 IMAGES = "observation.images."
 

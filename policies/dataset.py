@@ -26,7 +26,7 @@ from hardware.recording.reader import Episode, interp_linear
 from policies.frame_cache import camera_frames
 from policies.labelling import NextModel, Thresholds, label_episode
 from policies.normalizer import Normalizer
-from policies.recordings import ArmSet, episode_id
+from policies.recordings import ArmSet, episode_id, follower_state_action
 
 FORCE_SOURCES = ("tau_ext", "current", "none")
 CROP_SCALE = (0.8, 1.0)  # RandomResizedCrop: area share kept
@@ -191,18 +191,9 @@ def _episode_samples(
     state, action, force_parts = [], [], []
     for arm in arms.followers:
         js = ep.topic(S.joint_state_topic(arm))
-        grip = interp_linear(js.t, np.nan_to_num(js.fields["gripper_pos"]), grid)[:, None]
-        state.append(np.concatenate([interp_linear(js.t, js.fields["q"], grid), grip], axis=1))
-        cmd_topic = S.command_topic(arm)
-        if cmd_topic not in ep.recording.topics or len(ep.topic(cmd_topic)) < 2:
-            raise UserError(
-                f"episode {episode_id(ep)} has no follower command ({cmd_topic}): no action to learn",
-                where=str(ep.recording.path),
-                fix="record with `factr2 teleop --record` (factr2 >= the follower-command topic)",
-            )
-        cmd = ep.topic(cmd_topic)
-        g = interp_linear(cmd.t, np.nan_to_num(cmd.fields["gripper"]), grid)[:, None]
-        action.append(np.concatenate([interp_linear(cmd.t, cmd.fields["q"], grid), g], axis=1))
+        st, act = follower_state_action(ep, arm, grid, "learn")
+        state.append(st)
+        action.append(act)
         if force == "current":
             force_parts.append(interp_linear(js.t, js.fields["current"], grid))
     labels = label_episode(ep, arms, th, next_model)

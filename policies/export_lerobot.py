@@ -30,6 +30,7 @@ from hardware.recording.reader import interp_linear
 from policies.dataset import action_prefix, camera_rate
 from policies.labelling import label_episode
 from policies.phases import PHASE_NAMES
+from policies.recordings import follower_state_action
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000
@@ -45,23 +46,9 @@ def _episode_rows(ep, arms, cams, fps, th, next_model):
     grid = t0 + np.arange(max(n, 0)) / fps
     state, action = [], []
     for arm in arms.followers:
-        js = ep.topic(S.joint_state_topic(arm))
-        state += [
-            interp_linear(js.t, js.fields["q"], grid),
-            interp_linear(js.t, np.nan_to_num(js.fields["gripper_pos"]), grid)[:, None],
-        ]
-        topic = S.command_topic(arm)
-        if topic not in ep.recording.topics or len(ep.topic(topic)) < 2:
-            raise UserError(
-                f"episode {ep.index} has no follower command ({topic}): no action to export",
-                where=str(ep.recording.path),
-                fix="record with a factr2 that logs the command",
-            )
-        cmd = ep.topic(topic)
-        action += [
-            interp_linear(cmd.t, cmd.fields["q"], grid),
-            interp_linear(cmd.t, np.nan_to_num(cmd.fields["gripper"]), grid)[:, None],
-        ]
+        st, act = follower_state_action(ep, arm, grid, "export")
+        state.append(st)
+        action.append(act)
     lab = label_episode(ep, arms, th, next_model)
     rows = {
         "observation.state": np.concatenate(state, 1),

@@ -14,9 +14,11 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from hardware.errors import UserError
 from hardware.recording import schemas as S
-from hardware.recording.reader import Episode, Recording
+from hardware.recording.reader import Episode, Recording, interp_linear
 
 _FOLLOWER_JS = re.compile(r"^/((?:\w+_)?follower)/joint_state$")
 
@@ -163,3 +165,21 @@ def describe_rig(ep: Episode) -> dict:
         "simulated": s.get("simulated", "unknown"),
         "joint_names": json.loads(s.get("joint_names", "{}") or "{}"),
     }
+
+
+def follower_state_action(ep: Episode, arm: str, grid, purpose: str) -> tuple:
+    """One follower's state (q + gripper) and action (commanded q + gripper after the safety layer) on the
+    time grid [s]: ((T, J + 1), (T, J + 1)); NaN where a signal is missing. UserError when the episode has no
+    follower command (recorded before the command topic existed): purpose says what it was needed for."""
+    js = ep.topic(S.joint_state_topic(arm))
+    state = np.concatenate([interp_linear(js.t, js.fields["q"], grid),
+                            interp_linear(js.t, np.nan_to_num(js.fields["gripper_pos"]), grid)[:, None]], 1)
+    topic = S.command_topic(arm)
+    if topic not in ep.recording.topics or len(ep.topic(topic)) < 2:
+        raise UserError(f"episode {episode_id(ep)} has no follower command ({topic}): no action to {purpose}",
+                        where=str(ep.recording.path),
+                        fix="record with `factr2 teleop --record` (factr2 >= the follower-command topic)")
+    cmd = ep.topic(topic)
+    action = np.concatenate([interp_linear(cmd.t, cmd.fields["q"], grid),
+                             interp_linear(cmd.t, np.nan_to_num(cmd.fields["gripper"]), grid)[:, None]], 1)
+    return state, action

@@ -144,7 +144,6 @@ def build_pairs(session, opts: TeleopOptions, next_estimators: dict | None = Non
     if not rig.pairs:
         raise ConfigError("the rig pairs no leader with a follower", where=str(rig.path),
                           fix="add a [[pairs]] table or a leader")
-    check_options(rig, opts)
     rate = loop_rate_hz(rig, opts)
     tables, _ = rig_tables(rig)
     pairs = []

@@ -232,18 +232,17 @@ class ArmPair:
         est = self.estimator
         if est is None:
             return
-        inp = EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f, q_target_f=self.q_target)
         period = max(self.cfg.estimator_period_s, est.period_s)
         try:
             if now - self._t_est_run < period:
                 est.idle()  # spread the estimator's work over the ticks between its samples
                 if self.estimate is not None and self.estimate.valid:
-                    new = est.refresh(inp)  # the latest measured torque against the last model output
+                    new = est.refresh(self._input(now, fs, q_leader_f))  # this tick vs the last model
                     if new is not None:
                         self.estimate = new
                 return
             self._t_est_run = now
-            new = est.update(inp)
+            new = est.update(self._input(now, fs, q_leader_f))
         except Exception as e:  # noqa: BLE001 -- a failing estimator turns feedback off, not the arms
             self.estimator_errors += 1
             self.estimate = Estimate(tau_ext=np.full(self.follower.n_joints, np.nan), t=now,
@@ -252,6 +251,9 @@ class ArmPair:
             return
         if new is not None:
             self.estimate = new
+
+    def _input(self, now: float, fs: JointState, q_leader_f: np.ndarray) -> EstimatorInput:
+        return EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f, q_target_f=self.q_target)
 
     def _leader_inputs(self, now: float, ls: JointState, fs: JointState) -> LeaderInputs:
         est = self.estimate

@@ -1,5 +1,5 @@
 """The one per-tick record of an arm pair: what the loop hands to the recorder hook, the UI snapshot and the
-demo's metrics. Typed fields, not string keys; features() gives the flat names of hardware.features.
+demo's metrics. Typed fields, not string keys; a recording names the same values with hardware.features.
 
 The leader law's torque terms are named by leader_law.TERMS ("gravity", "friction", "barrier", "null_space",
 "damping", "feedback"); tau_term(name) reads one.
@@ -51,15 +51,3 @@ class TickRecord:
     def tau_feedback(self) -> np.ndarray | None:
         """The force-feedback term sent to the leader [N*m] (None when the law did not run)."""
         return self.leader_tau_terms.get("feedback")
-
-    def features(self, prefix: str = "") -> dict[str, np.ndarray | float]:
-        """The flat features of hardware.features (prefix: hardware.features.arm_prefix of the pair)."""
-        ld, fl, act = f"{prefix}leader", f"{prefix}follower", f"{prefix}action"
-        return {
-            f"{ld}.joint.pos": self.leader.q, f"{ld}.joint.vel": self.leader.q_dot,
-            f"{ld}.gripper.pos": self.leader.gripper_pos, f"{ld}.joint.tau_cmd": self.leader_tau_cmd,
-            f"{fl}.joint.pos": self.follower.q, f"{fl}.joint.vel": self.follower.q_dot,
-            f"{fl}.joint.tau": self.follower.tau_m, f"{fl}.joint.current": self.follower.current,
-            f"{fl}.joint.tau_ext": self.tau_ext, f"{fl}.gripper.pos": self.follower.gripper_pos,
-            f"{act}.joint.pos": self.action_q, f"{act}.gripper.pos": self.action_gripper,
-        }

@@ -80,6 +80,11 @@ class MujocoCamera(Camera):
     def connect(self) -> None:
         if self._renderer is not None:
             return
+        self._check_camera()
+        self._renderer, self.backend = make_renderer(self.model, self.config.width, self.config.height)
+
+    def _check_camera(self) -> None:
+        """CameraError when the MJCF has no such camera; grows the offscreen buffer to the frame size."""
         cam = self.config.camera
         if cam not in ("", "-1"):
             import mujoco
@@ -87,11 +92,8 @@ class MujocoCamera(Camera):
             if mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, cam) < 0:
                 raise CameraError(f"model has no camera {cam!r}", where=f"camera {self.name}",
                                   fix="use a <camera name=...> from the MJCF or '' for the free camera")
-        w, h = self.config.width, self.config.height
-        if w > self.model.vis.global_.offwidth or h > self.model.vis.global_.offheight:
-            self.model.vis.global_.offwidth = max(w, self.model.vis.global_.offwidth)
-            self.model.vis.global_.offheight = max(h, self.model.vis.global_.offheight)
-        self._renderer, self.backend = make_renderer(self.model, w, h)
+        g = self.model.vis.global_
+        g.offwidth, g.offheight = max(self.config.width, g.offwidth), max(self.config.height, g.offheight)
 
     def _grab(self) -> np.ndarray:
         cam = self.config.camera
@@ -136,17 +138,12 @@ class TwinCamera(MujocoCamera):
     def connect(self) -> None:
         if self._proc is not None:
             return
-        import mujoco
+        import pickle
 
         from hardware.cameras.render_process import RenderProcess
 
+        self._check_camera()
         cam = self.config.camera
-        if cam not in ("", "-1") and mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, cam) < 0:
-            raise CameraError(f"model has no camera {cam!r}", where=f"camera {self.name}",
-                              fix="use a <camera name=...> from the MJCF or '' for the free camera")
-        g = self.model.vis.global_
-        g.offwidth, g.offheight = max(self.config.width, g.offwidth), max(self.config.height, g.offheight)
-        import pickle
 
         with self.world.lock:  # a consistent copy (~1 ms); the process starts without the lock
             blob = pickle.dumps(self.model)
