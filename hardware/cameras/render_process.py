@@ -44,6 +44,7 @@ def _serve(conn) -> None:
         pass
     blob, cams, paths = conn.recv()
     model = pickle.loads(blob)
+    model.light_castshadow[:] = 0  # this copy only draws: no shadow pass (mujoco_camera.TWIN_MSAA_SAMPLES)
     from hardware.cameras.mujoco_camera import make_renderer
 
     try:
