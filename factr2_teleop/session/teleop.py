@@ -58,9 +58,12 @@ class TeleopSession:
         return ",".join(ids)
 
     def describe(self) -> list[str]:
-        sim = " (SIMULATED twin)" if self.session.twin is not None else ""
-        return [f"{p.cfg.name}: {p.leader.name} -> {p.follower.name}, feedback {p.mode}{sim}"
-                for p in self.pairs]
+        twin = self.session.twin
+        sim = " (SIMULATED twin)" if twin is not None else ""
+        lines = [f"{p.cfg.name}: {p.leader.name} -> {p.follower.name}, feedback {p.mode}{sim}"
+                 for p in self.pairs]
+        note = getattr(twin, "realtime_note", None)  # the twin's emulators at normal priority: say why
+        return lines + ([f"twin: {note}"] if note else [])
 
     # -- recording ---------------------------------------------------------------------------------------
     def record(self, out: str | Path, *, stem: str | None = None, extra_meta: dict | None = None,

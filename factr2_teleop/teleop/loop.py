@@ -25,6 +25,7 @@ from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, ST
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.timing import LoopTiming, TimingStats
 from hardware.clock import Clock
+from hardware.realtime import LOOP_PRIORITY, set_fifo, set_normal
 
 log = logging.getLogger("factr2.teleop")
 
@@ -105,6 +106,9 @@ class TeleopLoop:
         switch = sys.getswitchinterval()
         if self.clock.realtime:
             sys.setswitchinterval(min(switch, SWITCH_FRACTION * self.period_s))
+            why = set_fifo(LOOP_PRIORITY)
+            if why:
+                self._message(self.clock.now(), "loop", why)
         try:
             for p in self.pairs:
                 p.begin(self.clock)
@@ -136,6 +140,8 @@ class TeleopLoop:
         finally:
             blas.restore_original_limits()
             sys.setswitchinterval(switch)
+            if self.clock.realtime:
+                set_normal()
             self._running = False
             fault = isinstance(self.error, Exception)
             self._make_safe("teleop fault" if fault else "teleop stopped", FAULT if fault else STOPPED)

@@ -133,6 +133,14 @@ class DynamixelEmulator:
         self._thread.start()
 
     # -- public --------------------------------------------------------------------------------------
+    def set_realtime(self, priority: int) -> str | None:
+        """SCHED_FIFO for the serving thread (a real-time twin: servos answer in bounded time). None when set
+        (or nothing to set: in-process transport), else why not (hardware.realtime.set_fifo)."""
+        from hardware.realtime import set_fifo
+
+        th = self._thread
+        return None if th is None or th.native_id is None else set_fifo(priority, th.native_id)
+
     @property
     def port_path(self) -> str:
         return self._path

@@ -1,0 +1,39 @@
+"""hardware.realtime: SCHED_FIFO where allowed, one line why not, and the thread given back."""
+
+import os
+import threading
+
+import pytest
+
+from hardware.realtime import LOOP_PRIORITY, set_fifo, set_normal
+
+linux = pytest.mark.skipif(not hasattr(os, "sched_getscheduler"), reason="no POSIX scheduling here")
+
+
+@linux
+def test_fifo_is_set_and_given_back_or_said_why(monkeypatch):
+    monkeypatch.delenv("FACTR2_NO_RT", raising=False)
+    out = {}
+
+    def body():
+        tid = threading.get_native_id()
+        out["why"] = set_fifo(LOOP_PRIORITY)
+        out["during"] = os.sched_getscheduler(tid)
+        set_normal()
+        out["after"] = os.sched_getscheduler(tid)
+
+    th = threading.Thread(target=body)
+    th.start()
+    th.join()
+    if out["why"] is None:
+        assert out["during"] == os.SCHED_FIFO
+    else:  # not permitted here: one line, and the thread was left as it was
+        assert "\n" not in out["why"] and "normal priority" in out["why"]
+        assert out["during"] == os.SCHED_OTHER
+    assert out["after"] == os.SCHED_OTHER
+
+
+def test_switched_off_by_environment(monkeypatch):
+    monkeypatch.setenv("FACTR2_NO_RT", "1")
+    why = set_fifo(LOOP_PRIORITY)
+    assert why is not None and "FACTR2_NO_RT" in why
