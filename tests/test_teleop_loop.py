@@ -232,6 +232,17 @@ def test_timing_stats_ring_buffer():
     assert s.compute_p99_ms == pytest.approx(0.5)
     assert "Hz" in s.line()
     assert np.isnan(LoopTiming(500.0).stats().rate_hz)
+    assert np.isnan(s.cpu_mean_ms) and "loop CPU" not in s.line()  # not measured: not shown
+
+
+def test_timing_reports_the_loop_threads_cpu_as_a_share_of_the_period():
+    tm = LoopTiming(500.0, capacity=100)
+    for i in range(150):
+        tm.record(0.002 * i, 0.0015, 0.0004 if i % 2 else 0.0006)  # 0.5 ms mean of a 2 ms period
+    s = tm.stats()
+    assert s.cpu_mean_ms == pytest.approx(0.5) and s.cpu_share == pytest.approx(0.25)
+    assert s.cpu_p99_ms == pytest.approx(0.6)
+    assert "loop CPU 0.50 ms/tick (25 % of the period)" in s.line()
 
 
 def test_loop_timing_on_lockstep_clock_is_exact():

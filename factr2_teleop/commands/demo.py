@@ -179,11 +179,13 @@ def _print_summary(d: dict) -> None:
     def f(x, fmt):
         return "--" if x is None else format(x, fmt)
 
+    share = None if d.get("loop_cpu_share") is None else 100 * d["loop_cpu_share"]
     print(f"SIMULATED demo ({d['mode']}, {d['clock']} clock, {d['seconds']:g} s):")
     print(f"  loop {f(d['loop_hz'], '.1f')} Hz, period p50 {f(d['period_p50_ms'], '.2f')} ms "
           f"p99 {f(d['period_p99_ms'], '.2f')} ms max {f(d['period_max_ms'], '.1f')} ms, "
           f"{d['overruns']} overruns / {d['ticks']} ticks, "
-          f"CPU {f(d['cpu_ms_per_tick'], '.2f')} ms/tick")
+          f"CPU {f(d['cpu_ms_per_tick'], '.2f')} ms/tick (process), loop thread "
+          f"{f(d.get('loop_cpu_ms_per_tick'), '.2f')} ms/tick = {f(share, '.0f')} % of the period")
     print(f"  feedback_corr {f(d['feedback_corr'], '.3f')}, "
           f"feedback_lag {f(d['feedback_lag_ms'], '.1f')} ms, "
           f"tau_ext L1 contact {f(d['tau_ext_l1_contact'], '.2f')} / "

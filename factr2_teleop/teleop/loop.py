@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import sys
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -119,11 +120,11 @@ class TeleopLoop:
             t0 = self.clock.now()
             next_t, ticks = t0, 0
             while not self._stop.is_set():
-                t_start = self.clock.now()
+                t_start, cpu0 = self.clock.now(), time.thread_time()
                 self._tick_all(t_start)
                 ticks += 1
                 with self._lock:
-                    self.timing.record(t_start, self.clock.now() - t_start)
+                    self.timing.record(t_start, self.clock.now() - t_start, time.thread_time() - cpu0)
                 self._publish(t_start)
                 if (max_ticks is not None and ticks >= max_ticks) or \
                         (duration_s is not None and t_start - t0 + 1.5 * self.period_s >= duration_s):

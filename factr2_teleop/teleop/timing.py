@@ -1,7 +1,9 @@
 """Measured loop timing as a pure ring-buffer statistics object (no clock of its own, no threads).
 
-The loop calls record(t_start, compute_s) once per tick with the tick's start time on the rig clock; the
-period is the difference of consecutive starts. stats() summarises the last `capacity` ticks.
+The loop calls record(t_start, compute_s, cpu_s) once per tick with the start time on the rig clock; the
+period is the difference of consecutive starts. cpu_s is the CPU time the loop's own thread spent in the tick
+(time.thread_time): with hardware, or a twin serving from other threads, it is the app's cost alone, without
+the waits on the wire that compute_s includes. stats() summarises the last `capacity` ticks.
 """
 
 from __future__ import annotations
@@ -16,7 +18,9 @@ OVERRUN_FACTOR = 1.5  # a period longer than this times the target period counts
 @dataclass(frozen=True)
 class TimingStats:
     """rate_hz: 1 / mean period over the window; period_p50_ms / p99 / max [ms]; compute_p99_ms: time spent
-    inside the tick [ms]; overruns: cumulative periods > OVERRUN_FACTOR x target; ticks: cumulative."""
+    inside the tick [ms]; cpu_mean_ms / cpu_p99_ms: CPU of the loop's thread per tick [ms] and cpu_share: its
+    mean over the target period (the margin a slower machine eats; target <= 0.25); overruns: cumulative
+    periods > OVERRUN_FACTOR x target; ticks: cumulative."""
 
     target_hz: float
     rate_hz: float
@@ -26,12 +30,17 @@ class TimingStats:
     compute_p99_ms: float
     overruns: int
     ticks: int
+    cpu_mean_ms: float = float("nan")
+    cpu_p99_ms: float = float("nan")
+    cpu_share: float = float("nan")
 
     def line(self) -> str:
+        cpu = (f", loop CPU {self.cpu_mean_ms:.2f} ms/tick ({100 * self.cpu_share:.0f} % of the period)"
+               if self.cpu_mean_ms == self.cpu_mean_ms else "")
         return (f"{self.rate_hz:6.1f} Hz (target {self.target_hz:.0f}), "
                 f"period p50 {self.period_p50_ms:.2f} ms "
                 f"p99 {self.period_p99_ms:.2f} ms max {self.period_max_ms:.2f} ms, compute p99 "
-                f"{self.compute_p99_ms:.2f} ms, {self.overruns} overruns / {self.ticks} ticks")
+                f"{self.compute_p99_ms:.2f} ms{cpu}, {self.overruns} overruns / {self.ticks} ticks")
 
 
 class LoopTiming:
@@ -41,16 +50,19 @@ class LoopTiming:
         self.target_hz, self.capacity, self.overrun_factor = float(target_hz), int(capacity), overrun_factor
         self._periods = np.zeros(capacity)
         self._compute = np.zeros(capacity)
+        self._cpu = np.full(capacity, np.nan)
         self._n_periods = 0  # cumulative
         self._n_compute = 0
         self.ticks = 0
         self.overruns = 0
         self._t_last = float("nan")
 
-    def record(self, t_start: float, compute_s: float) -> None:
-        """One tick that started at t_start [s] and spent compute_s [s] in the loop body."""
+    def record(self, t_start: float, compute_s: float, cpu_s: float = float("nan")) -> None:
+        """One tick that started at t_start [s] and spent compute_s [s] in the loop body, cpu_s [s] of it
+        on the loop thread's CPU (NaN: not measured)."""
         self.ticks += 1
         self._compute[self._n_compute % self.capacity] = compute_s
+        self._cpu[self._n_compute % self.capacity] = cpu_s
         self._n_compute += 1
         if np.isfinite(self._t_last):
             period = t_start - self._t_last
@@ -73,8 +85,13 @@ class LoopTiming:
                                float(np.percentile(c, 99) * 1e3) if c.size else nan, self.overruns,
                                self.ticks)
         mean = float(np.mean(p))
+        cpu = self._cpu[: min(self._n_compute, self.capacity)]
+        cpu = cpu[np.isfinite(cpu)]
+        cpu_mean = float(np.mean(cpu)) if cpu.size else float("nan")
         return TimingStats(
             target_hz=self.target_hz, rate_hz=1.0 / mean if mean > 0 else float("inf"),
             period_p50_ms=float(np.percentile(p, 50) * 1e3), period_p99_ms=float(np.percentile(p, 99) * 1e3),
             period_max_ms=float(np.max(p) * 1e3), compute_p99_ms=float(np.percentile(c, 99) * 1e3),
-            overruns=self.overruns, ticks=self.ticks)
+            overruns=self.overruns, ticks=self.ticks, cpu_mean_ms=cpu_mean * 1e3,
+            cpu_p99_ms=float(np.percentile(cpu, 99) * 1e3) if cpu.size else float("nan"),
+            cpu_share=cpu_mean * self.target_hz)
