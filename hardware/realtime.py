@@ -43,3 +43,45 @@ def set_normal(native_id: int | None = None) -> None:
             os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
         except OSError:
             pass
+
+
+SERVICE_PRIORITY = 10  # every other Python thread of the loop's process while the loop runs (see below)
+
+
+class ProcessThreads:
+    """Raise the other Python threads of this process to SCHED_FIFO at a low priority while a real-time loop
+    runs, and give them back afterwards. Why: a thread at normal priority that holds the GIL can be preempted
+    by any other process (a browser, a build); the loop then waits for the GIL until that thread gets a core
+    again -- several ms on a busy machine, whatever the loop's own priority. At SERVICE_PRIORITY they are
+    never preempted by normal processes, yet every tick still preempts them (the loop, the twin and its
+    emulators are higher). Threads started later (a camera, a recorder) are raised by the next refresh()."""
+
+    def __init__(self, priority: int = SERVICE_PRIORITY):
+        self.priority = int(priority)
+        self._raised: set[int] = set()
+        self.note: str | None = None
+
+    def refresh(self) -> None:
+        if self.note is not None or not hasattr(os, "sched_getscheduler"):
+            return
+        me = threading.get_native_id()
+        for th in threading.enumerate():
+            tid = th.native_id
+            if tid is None or tid == me or tid in self._raised or not th.is_alive():
+                continue
+            try:
+                if os.sched_getscheduler(tid) != os.SCHED_OTHER:
+                    continue  # already real-time (the twin, an emulator): keep its own priority
+            except OSError:
+                continue  # ended meanwhile
+            why = set_fifo(self.priority, tid)
+            if why is not None and "refused" not in why:
+                self.note = why  # not permitted / off: stop trying
+                return
+            if why is None:
+                self._raised.add(tid)
+
+    def restore(self) -> None:
+        for tid in self._raised:
+            set_normal(tid)
+        self._raised.clear()

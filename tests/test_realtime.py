@@ -37,3 +37,27 @@ def test_switched_off_by_environment(monkeypatch):
     monkeypatch.setenv("FACTR2_NO_RT", "1")
     why = set_fifo(LOOP_PRIORITY)
     assert why is not None and "FACTR2_NO_RT" in why
+
+
+@linux
+def test_process_threads_are_raised_below_the_loop_and_given_back(monkeypatch):
+    from hardware.realtime import ProcessThreads
+
+    monkeypatch.delenv("FACTR2_NO_RT", raising=False)
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait, daemon=True)
+    other.start()
+    pt = ProcessThreads(priority=5)
+    try:
+        pt.refresh()
+        policy = os.sched_getscheduler(other.native_id)
+        if pt.note is None:  # permitted here: raised, and given back by restore()
+            assert policy == os.SCHED_FIFO and os.sched_getparam(other.native_id).sched_priority == 5
+            assert os.sched_getscheduler(threading.get_native_id()) == os.SCHED_OTHER  # the caller untouched
+        else:
+            assert policy == os.SCHED_OTHER
+    finally:
+        pt.restore()
+        assert os.sched_getscheduler(other.native_id) == os.SCHED_OTHER
+        stop.set()
+        other.join()

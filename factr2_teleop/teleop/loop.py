@@ -26,7 +26,7 @@ from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, ST
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.timing import LoopTiming, TimingStats
 from hardware.clock import Clock
-from hardware.realtime import LOOP_PRIORITY, set_fifo, set_normal
+from hardware.realtime import LOOP_PRIORITY, ProcessThreads, set_fifo, set_normal
 
 log = logging.getLogger("factr2.teleop")
 
@@ -37,6 +37,7 @@ DEFAULT_RATE_HZ = 500.0
 # the safety layer's rate limits use the real time between commands.
 CATCH_UP_S = 0.02
 SWITCH_FRACTION = 0.05  # the GIL switch interval while a real-time loop runs, in loop periods
+SERVICE_REFRESH_TICKS = 500  # ticks between two looks for new threads to raise (realtime.ProcessThreads)
 __all__ = ["TeleopLoop", "TeleopSnapshot", "DEFAULT_RATE_HZ", "SOFT_START", "COUPLED", "HOLD", "FAULT",
            "STOPPED", "IDLE"]
 
@@ -105,11 +106,14 @@ class TeleopLoop:
         # Python hands the GIL to a waiting thread only every switch interval (5 ms by default): a recorder,
         # camera or twin thread holding it could delay a tick by that much. A quarter period bounds it.
         switch = sys.getswitchinterval()
+        services = ProcessThreads()
         if self.clock.realtime:
             sys.setswitchinterval(min(switch, SWITCH_FRACTION * self.period_s))
             why = set_fifo(LOOP_PRIORITY)
             if why:
                 self._message(self.clock.now(), "loop", why)
+            else:
+                services.refresh()
         try:
             for p in self.pairs:
                 p.begin(self.clock)
@@ -129,6 +133,8 @@ class TeleopLoop:
                 if (max_ticks is not None and ticks >= max_ticks) or \
                         (duration_s is not None and t_start - t0 + 1.5 * self.period_s >= duration_s):
                     break
+                if ticks % SERVICE_REFRESH_TICKS == 0 and self.clock.realtime:
+                    services.refresh()  # threads started since (cameras, a recorder): off normal priority
                 next_t += self.period_s
                 now = self.clock.now()
                 if now > next_t + CATCH_UP_S:  # too far behind to make up: restart the schedule from now
@@ -143,6 +149,7 @@ class TeleopLoop:
             sys.setswitchinterval(switch)
             if self.clock.realtime:
                 set_normal()
+                services.restore()
             self._running = False
             fault = isinstance(self.error, Exception)
             self._make_safe("teleop fault" if fault else "teleop stopped", FAULT if fault else STOPPED)
