@@ -24,16 +24,16 @@ from calibration.estimators import FEEDBACK_MODES
 TABLE_MODES = FEEDBACK_MODES
 
 
-def demo_run(seconds: float, out: Path) -> dict:
+def demo_run(seconds: float, out: Path, rig: str = "sim-piper") -> dict:
     path = out / "demo.json"
     cmd = [sys.executable, "-m", "factr2_teleop.cli", "demo", "--headless", "--seconds", str(seconds),
-           "--json", str(path)]
+           "--json", str(path), "--rig", rig]
     print("$", " ".join(cmd[2:]), flush=True)
     subprocess.run(cmd, check=True)
     return json.loads(path.read_text())
 
 
-def wipe_table(seconds: float, out: Path) -> list[dict]:
+def wipe_table(seconds: float, out: Path, rig: str = "sim-piper") -> list[dict]:
     from factr2_teleop.demo import next_cache
     from factr2_teleop.demo.task import DemoConfig, DemoRun
     from factr2_teleop.session.pairs import load_next
@@ -42,12 +42,12 @@ def wipe_table(seconds: float, out: Path) -> list[dict]:
     for mode in TABLE_MODES:
         src = None
         if mode == "next":
-            path = next_cache.find_checkpoint("sim-piper")
+            path = next_cache.find_checkpoint(rig)
             if path is None:
                 print("next: no cached checkpoint (run `factr2 demo` once first); skipped", flush=True)
                 continue
             src = load_next(path, "piper")
-        run = DemoRun(DemoConfig(seconds=seconds, mode=mode, clock="lockstep", contact_force=True),
+        run = DemoRun(DemoConfig(seconds=seconds, mode=mode, clock="lockstep", contact_force=True, rig=rig),
                       next_source=src)
         try:
             run.run()
@@ -85,11 +85,13 @@ def main() -> int:
     ap.add_argument("--out", default="bench/out/demo")
     ap.add_argument("--skip-table", action="store_true")
     ap.add_argument("--skip-demo", action="store_true")
+    ap.add_argument("--rig", default="sim-piper", help="simulated rig (e.g. a copy with description_error = "
+                    "false: the twin simulates the description exactly)")
     a = ap.parse_args()
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     if not a.skip_demo:
-        d = demo_run(a.seconds, out)
+        d = demo_run(a.seconds, out, a.rig)
         ok = {"loop_hz >= 500": d["loop_hz"] >= 500 * 0.995, "period_p99_ms <= 4": d["period_p99_ms"] <= 4,
               "feedback_corr >= 0.9": (d["feedback_corr"] or 0) >= 0.9,
               "feedback_lag_ms <= 20": d["feedback_lag_ms"] is not None and d["feedback_lag_ms"] <= 20,
@@ -97,7 +99,7 @@ def main() -> int:
         for k, v in ok.items():
             print(f"{'PASS' if v else 'FAIL'}  {k}")
     if not a.skip_table:
-        rows = wipe_table(a.table_seconds, out)
+        rows = wipe_table(a.table_seconds, out, a.rig)
         (out / "wipe_modes.json").write_text(json.dumps(rows, indent=1))
         md = table_md(rows, a.table_seconds)
         (out / "wipe_modes.md").write_text(md)

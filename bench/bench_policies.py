@@ -3,11 +3,13 @@
 loader     samples/s of the training batch path (cached frames, RandomResizedCrop, normalisation),
            2 cameras, small preset (96 px), batch 128
 train      optimiser steps/s x batch = samples/s, both presets, both policies (CPU here; CUDA if present)
-latency    one action chunk on one core, small preset, 2 cameras (flow: encode once + 10 Euler steps)
+latency    one action chunk on one core, small preset, 2 cameras (flow: encode once + 10 Euler steps; and
+           its parts: the encoding, one velocity step), wall and the thread's CPU time
 phases     validation action loss per phase F / PC / C, `base-torque` vs `first`, same steps and seed
            (needs recordings with contact: --recordings DIR, e.g. from `factr2 collect --task wipe`)
 
-  python bench/bench_policies.py [--only loader,train,latency] [--recordings DIR --steps 400]
+  python bench/bench_policies.py [--only loader,train,latency] [--presets small]
+                                 [--recordings DIR --steps 400]
 """
 
 from __future__ import annotations
@@ -69,9 +71,10 @@ def _fake_batch(cfg, b: int) -> dict:
     }
 
 
-def bench_train(device: torch.device, steps: int = 3) -> list[dict]:
+def bench_train(device: torch.device, steps: int = 3, presets=("small", "paper")) -> list[dict]:
     out = []
-    for name, batch in (("small", 32), ("paper", 4 if device.type == "cpu" else 128)):
+    sizes = {"small": 32, "paper": 4 if device.type == "cpu" else 128}
+    for name, batch in ((n, sizes[n]) for n in presets):
         for policy in ("flow", "act"):
             cfg = preset(name, policy)
             cfg.n_cameras, cfg.state_dim, cfg.force_dim, cfg.action_dim = 2, 7, 6, 7
@@ -119,6 +122,31 @@ def bench_train(device: torch.device, steps: int = 3) -> list[dict]:
     return out
 
 
+def _cpu_ms(fn, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Wall and this thread's CPU time [ms] of n calls (the load of other processes cannot inflate the
+    second, only share the core's caches)."""
+    ts, cpu = [], []
+    for _ in range(n):
+        t, c = time.perf_counter(), time.thread_time()
+        fn()
+        ts.append(time.perf_counter() - t)
+        cpu.append(time.thread_time() - c)
+    return np.asarray(ts) * 1e3, np.asarray(cpu) * 1e3
+
+
+def _flow_parts(model, b: dict, noise: dict, n: int) -> dict:
+    """Where a flow chunk's time goes: the observation, once, then each Euler step (median CPU ms)."""
+    mem, k = model.encode(b), model.cfg.flow_steps
+    cond = model.conditioning(torch.arange(k, dtype=torch.float32) / k)
+    step = [[t[:1] for t in terms] for terms in cond]
+    return {
+        "encode_cpu_ms": float(np.median(_cpu_ms(lambda: model.encode(b), n)[1])),
+        "velocity_step_cpu_ms": float(
+            np.median(_cpu_ms(lambda: model.velocity(noise["x0"], None, mem, step), n)[1])
+        ),
+    }
+
+
 def bench_latency(n: int = 30) -> list[dict]:
     torch.set_num_threads(1)
     out = []
@@ -129,26 +157,25 @@ def bench_latency(n: int = 30) -> list[dict]:
         model = make_model(cfg).eval()
         b = _fake_batch(cfg, 1)
         noise = type(model).draw_noise(cfg, 1, torch.Generator().manual_seed(0))
-        ts, cpu = [], []
         with torch.inference_mode():
             for _ in range(5):
                 model.predict(b, noise)
-            for _ in range(n):
-                t, c = time.perf_counter(), time.thread_time()
-                model.predict(b, noise)
-                ts.append(time.perf_counter() - t)
-                cpu.append(time.thread_time() - c)  # this thread's CPU time: the load cannot inflate it
-        ms = np.asarray(ts) * 1e3
+            ms, cpu = _cpu_ms(lambda m=model, b=b, noise=noise: m.predict(b, noise), n)
+            part = _flow_parts(model, b, noise, n) if policy == "flow" else {}
         out.append(
             {
                 "policy": policy,
                 "preset": "small",
+                "backbone": cfg.backbone,
+                "hidden": cfg.hidden,
                 "cameras": 2,
                 "threads": 1,
                 "median_ms": float(np.median(ms)),
                 "p90_ms": float(np.percentile(ms, 90)),
                 "min_ms": float(ms.min()),
-                "cpu_median_ms": float(np.median(cpu) * 1e3),
+                "cpu_median_ms": float(np.median(cpu)),
+                "cpu_min_ms": float(cpu.min()),
+                **part,
             }
         )
         print(json.dumps(out[-1]), flush=True)
@@ -208,6 +235,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=32, help="phase comparison's batch")
     ap.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    ap.add_argument("--presets", default="small,paper", help="presets of the training benchmark")
     a = ap.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
@@ -221,7 +249,8 @@ def main() -> None:
             results["loader"] = bench_loader(folder)
             print(json.dumps(results["loader"]), flush=True)
         if "train" in only:
-            results["train"] = bench_train(torch.device("cuda" if torch.cuda.is_available() else "cpu"))
+            dev = torch.device("cuda" if torch.cuda.is_available() else "cpu")
+            results["train"] = bench_train(dev, presets=tuple(a.presets.split(",")))
         if "latency" in only:
             results["latency"] = bench_latency()
         if "phases" in only:

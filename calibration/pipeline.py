@@ -5,6 +5,7 @@ Calibration screen and the demo's first-run set-up: plan -> collect -> split -> 
     traj = plan_trajectory(rig, spec, cfg)
     run = collect(session, spec, traj, cfg, progress)            # one policy for an unexpected contact
     logs = write_logs(out, run, cfg, contact_eval=None)          # one held-out policy (split_mask)
+    (calibrate_rig also records the session as MCAP: out/data/calibration.mcap, one episode per replay)
     report = train_and_report(logs, out, spec.arm, cfg)
 
 Held-out policy: every k-th block of HELDOUT_BLOCK_S seconds (k = round(1 / heldout_frac)), spread over the
@@ -65,13 +66,14 @@ def plan_trajectory(rig, spec, cfg: CalibrationConfig):
                                    scene=rig.twin.scene if rig.simulated else "table")
 
 
-def collect(session, spec, traj, cfg: CalibrationConfig, progress: Callable | None = None):
-    """Replay traj on the follower and record it (calibration.next.collect). An unexpected contact keeps the
-    data before it when at least cfg.min_minutes remain (run.stopped says so), else raises ContactStop."""
+def collect(session, spec, traj, cfg: CalibrationConfig, progress: Callable | None = None, recorder=None):
+    """Replay traj on the follower and record it (calibration.next.collect; also to `recorder`, an MCAP
+    Recorder, when given). An unexpected contact keeps the data before it when at least cfg.min_minutes
+    remain (run.stopped says so), else raises ContactStop."""
     from calibration.next.collect import ContactStop, collect_free_motion
 
     try:
-        return collect_free_motion(session, spec.name, traj, progress=progress)
+        return collect_free_motion(session, spec.name, traj, progress=progress, recorder=recorder)
     except ContactStop as e:
         run = e.run
         keep = 0 if run is None else max(0, len(run.t) - int(CONTACT_TRIM_S * cfg.rate_hz))
@@ -113,16 +115,16 @@ def write_logs(out: str | Path, run, cfg: CalibrationConfig, contact_eval=None) 
 
 
 def train_and_report(logs: dict[str, Path], out: str | Path, arm: str, cfg: CalibrationConfig,
-                     callback=None) -> dict:
+                     callback=None, say: Callable[[str], None] | None = None) -> dict:
     """NEXT and the baselines on the logs of write_logs (calibration.report); report.json's dict."""
     from calibration.report import calibrate_from_logs
 
     evals = [logs["heldout"]] + ([logs["contact_eval"]] if "contact_eval" in logs else [])
     return calibrate_from_logs([logs["train"]], out, evals, arm=arm, cfg=cfg.train, rate_hz=cfg.rate_hz,
-                               observer_gain=cfg.observer_gain, callback=callback, plots=cfg.plots)
+                               observer_gain=cfg.observer_gain, callback=callback, plots=cfg.plots, say=say)
 
 
-def record_pushed_replay(session, spec, seconds: float, rate_hz: float, seed: int = 1):
+def record_pushed_replay(session, spec, seconds: float, rate_hz: float, seed: int = 1, recorder=None):
     """SIMULATED: replay a fresh coverage trajectory (seed >= 1: not the training data's) while the twin
     pushes links 3-6 (10-40 N, 0.5-1.5 s, one every ~3 s); the log carries the twin's ground truth (the mean
     over each sample period). The calibration's contact evaluation is seed 1; other seeds give independent
@@ -139,7 +141,28 @@ def record_pushed_replay(session, spec, seconds: float, rate_hz: float, seed: in
         direction /= np.linalg.norm(direction)
         pushes.append(Push(t, f"link{rng.integers(3, 7)}", tuple(rng.uniform(10, 40) * direction), d))
         t += d + rng.uniform(1.0, 3.0)
-    return collect_free_motion(session, spec.name, traj, pushes=pushes)
+    return collect_free_motion(session, spec.name, traj, pushes=pushes, recorder=recorder)
+
+
+RECORDING_NAME = "calibration.mcap"  # out/data/: the session's MCAP recording (docs/recording.md)
+
+
+def open_recording(out: str | Path, session, spec):
+    """The calibration session's MCAP Recorder (hardware.recording), out/data/calibration.mcap, named like
+    teleop's recordings: the rig, its arms and whether it is a twin in the session metadata, the follower's
+    joint states under its device name. A rerun into the same folder replaces the previous recording."""
+    from hardware.arms import load_arm
+    from hardware.recording.session import describe_session
+    from hardware.recording.writer import Recorder
+
+    rig = session.rig
+    arm = load_arm(spec.arm)
+    meta = describe_session(rig_path=rig.path, arm_files=[arm.mjcf_path], task="NEXT calibration",
+                            twin=session.twin is not None)
+    path = Path(out) / "data" / RECORDING_NAME
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return Recorder(path, joint_names={spec.name: list(arm.joint_names)}, metadata=meta,
+                    t0=session.clock.now(), overwrite=True)
 
 
 def calibrate_rig(session, spec, out: str | Path, cfg: CalibrationConfig, progress: Callable | None = None,
@@ -150,15 +173,29 @@ def calibrate_rig(session, spec, out: str | Path, cfg: CalibrationConfig, progre
     cfg.check()
     rig = session.rig
     traj = plan_trajectory(rig, spec, cfg)
-    run = collect(session, spec, traj, cfg, progress)
-    if run.stopped:
-        say(f"warning: {run.stopped}")
-    contact_eval = None
-    if rig.simulated and cfg.contact_eval_s > 0:
-        say(f"contact evaluation: {cfg.contact_eval_s:.0f} s replay with scripted pushes (SIMULATED)")
-        contact_eval = record_pushed_replay(session, spec, cfg.contact_eval_s, cfg.rate_hz, seed=1)
+    rec = open_recording(out, session, spec)
+    clock = session.clock
+    try:
+        rec.start_episode(clock.now(), "NEXT calibration: free-motion replay")
+        run = collect(session, spec, traj, cfg, progress, recorder=rec)
+        rec.stop_episode(clock.now(), None, run.stopped or "")
+        if run.stopped:
+            say(f"warning: {run.stopped}")
+        contact_eval = None
+        if rig.simulated and cfg.contact_eval_s > 0:
+            say(f"contact evaluation: {cfg.contact_eval_s:.0f} s replay with scripted pushes (SIMULATED)")
+            rec.start_episode(clock.now(), "NEXT calibration: contact evaluation with scripted pushes "
+                                           "(SIMULATED)")
+            contact_eval = record_pushed_replay(session, spec, cfg.contact_eval_s, cfg.rate_hz, seed=1,
+                                                recorder=rec)
+            rec.stop_episode(clock.now())
+    finally:
+        status = rec.close()
+    say(f"recorded {rec.path} ({status.messages_written} messages"
+        + (f"; {status.dropped_samples} dropped" if status.dropped_samples else "")
+        + (f"; {status.error}" if status.error else "") + ")")
     logs = write_logs(out, run, cfg, contact_eval)
-    report = train_and_report(logs, out, spec.arm, cfg, callback)
+    report = train_and_report(logs, out, spec.arm, cfg, callback, say)
     report.update(rig=rig.name, follower=spec.name, simulated=rig.simulated,
                   collision_checked=traj.collision_checked, stopped=run.stopped or None,
                   heldout={"policy": "blocks", "frac": cfg.heldout_frac, "block_s": HELDOUT_BLOCK_S})

@@ -24,11 +24,12 @@ import numpy as np
 from calibration import baselines
 from calibration.next.checkpoint import NextCheckpoint, save_checkpoint
 from calibration.next.data import Segment, build_windows, logged_arm, resample_log, split_blocks
+from calibration.next.data_prior import fit_data_prior
 from calibration.next.estimator import batch_tau_f
+from calibration.next.logs import read_logs
 from calibration.next.prior import PRIOR_KINDS, fit_prior, prior_torque
 from calibration.next.train import TrainConfig, available_cores, train
 from hardware.errors import ConfigError
-from hardware.recording.plain_log import load_plain_log
 
 METHODS = ("next", "prior", "observer", "filic", "raw", "ridge")  # prior: NEXT's physics prior alone
 
@@ -101,52 +102,121 @@ def score(ev: list[Evaluated]) -> dict:
     return res
 
 
-def _load_segments(paths, rate_hz: float, joint_names=None
-                   ) -> tuple[list[tuple[str, list[Segment]]], str, list]:
-    runs, units = [], None
+def _load_segments(paths, rate_hz: float, joint_names=None, say=None
+                   ) -> tuple[list[tuple[str, list[Segment], bool]], str, list, dict[str, list[str]]]:
+    """Every run of `paths` (calibration.next.logs: .npz or .mcap, defects handled and noted) resampled to
+    rate_hz -> ([(name, segments, has_q_cmd)], units, joint names, {name: notes})."""
+    runs, units, notes = [], None, {}
     for p in paths:
-        log = load_plain_log(p)
-        if units is None:
-            units, joint_names = log.units, joint_names or log.joint_names
-        if log.units != units:
-            raise ConfigError(f"torque signal in {log.units}, other logs in {units}", where=str(p),
-                              fix="give all logs the same signal (tau_m or current + torque_constant)")
-        if list(log.joint_names) != list(joint_names):
-            raise ConfigError(f"joints {log.joint_names} differ from {list(joint_names)}", where=str(p),
-                              fix="use logs of one arm (same joints, same order)")
-        segs = resample_log(log, rate_hz)
-        if not segs:
-            raise ConfigError("no usable samples after dropping NaN/inf", where=str(p), fix="check the log")
-        runs.append((log.name, segs))
-    return runs, units, list(joint_names)
+        for r in read_logs(p, rate_hz):
+            log = r.log
+            if units is None:
+                units, joint_names = log.units, joint_names or log.joint_names
+            if log.units != units:
+                raise ConfigError(f"torque signal in {log.units}, other logs in {units}", where=str(p),
+                                  fix="give all logs the same signal (tau_m or current + torque_constant)")
+            if list(log.joint_names) != list(joint_names):
+                raise ConfigError(f"joints {log.joint_names} differ from {list(joint_names)}", where=str(p),
+                                  fix="use logs of one arm (same joints, same order)")
+            segs = resample_log(log, rate_hz)
+            if not segs:
+                raise ConfigError("no usable samples after dropping corrupt rows", where=str(p),
+                                  fix="check the log")
+            if r.notes:
+                notes[r.name] = r.notes
+                if say is not None:
+                    for n in r.notes:
+                        say(f"{r.name}: {n}")
+            runs.append((r.name, segs, r.has_q_cmd))
+    return runs, units, list(joint_names), notes
 
 
 def _fit_prior(kind: str, arm: str | None, units: str, segments: list[Segment]):
-    """The physics prior NEXT trains on top of (None: the paper's plain NEXT); "auto" = identified when the
-    arm and a torque signal in N*m are known, else none."""
+    """The physics prior NEXT trains on top of (None: the paper's plain NEXT). "auto" = the best grey box
+    available: identified when the arm description and a torque signal in N*m are known, else data-only
+    (calibration.next.data_prior: no description needed, any units)."""
     if kind == "auto":
-        kind = "identified" if arm is not None and units == "N*m" else "none"
+        kind = "identified" if arm is not None and units == "N*m" else "data-only"
     if kind not in PRIOR_KINDS:
         raise ConfigError(f"unknown prior {kind!r}", where="--prior", fix=f"use one of {PRIOR_KINDS} or auto")
     if kind == "none":
         return None
+    if kind == "data-only":
+        return fit_data_prior([(s.t, s.q, s.qd, s.tau) for s in segments])
     if arm is None or units != "N*m":
         raise ConfigError(f"the {kind} prior needs the arm description and torque in N*m (have arm={arm}, "
                           f"units={units})", where="--prior",
-                          fix="pass --arm and logs with tau_m or a torque constant, or use --prior none")
+                          fix="pass --arm and logs with tau_m or a torque constant, or use --prior data-only")
     return fit_prior(kind, arm, [(s.t, s.q, s.qd, s.tau, s.temperature) for s in segments])
+
+
+def network_adds(methods: dict) -> dict:
+    """What the network adds over its prior, per joint, on held-out data: L1 of the prior alone ("prior";
+    the raw torque signal when there is no prior) vs prior + network ("next"), free and contact; `gain` =
+    prior - next (> 0: the network helps), `ratio` = next / prior."""
+    base = "prior" if methods["prior"]["free_l1"] is not None else "raw"
+    out = {"baseline": base}
+    for kind in ("free", "contact"):
+        p, n = methods[base][f"{kind}_l1"], methods["next"][f"{kind}_l1"]
+        if p is None or n is None:
+            out[kind] = None
+            continue
+        p, n = np.asarray(p), np.asarray(n)
+        out[kind] = {"prior_l1": p.tolist(), "next_l1": n.tolist(), "gain": (p - n).tolist(),
+                     "ratio": (n / np.maximum(p, 1e-12)).tolist(), "ratio_mean": float(n.mean() / p.mean())}
+    return out
+
+
+CONTACT_MARGIN_S = 0.3  # training leaves out samples this close to a logged contact [s]
+
+
+def free_parts(segs: list[Segment], margin_s: float = CONTACT_MARGIN_S, min_len: int = 2) -> list[Segment]:
+    """The free-motion stretches of training segments: a log with a contact flag (a twin recording with
+    pushes, e.g. the contact episode of a calibration MCAP) loses its contact samples and margin_s around
+    them; the rest is cut into contiguous segments (no window spans a cut)."""
+    out = []
+    for s in segs:
+        if s.contact is None or not np.any(s.contact):
+            out.append(s)
+            continue
+        near = np.convolve(s.contact.astype(float), np.ones(2 * int(margin_s * s.rate_hz) + 1), "same") > 0
+        edges = np.flatnonzero(np.diff(np.r_[0, (~near).astype(int), 0]))
+        out += [s.slice(lo, hi) for lo, hi in zip(edges[::2], edges[1::2]) if hi - lo >= min_len]
+    return out
+
+
+def _with_q_cmd(segs: list[Segment], use: bool) -> list[Segment]:
+    """Segments with q_cmd filled: a run without one gets q (q_cmd - q = 0: no tracking error known), and so
+    does every run when `use` is False (the inputs and the ridge then see the same zero feature)."""
+    return [replace(s, q_cmd=s.q.copy()) if (s.q_cmd is None or not use) else s for s in segs]
 
 
 def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(), arm: str | None = None,
                         cfg: TrainConfig | None = None, rate_hz: float = 100.0, observer_gain: float = 50.0,
-                        callback=None, plots: bool = True) -> dict:
-    """Train NEXT on free-motion plain logs, evaluate all, write out_dir; returns report.json's dict."""
+                        callback=None, plots: bool = True, say=None) -> dict:
+    """Train NEXT on free-motion logs (.npz or .mcap), evaluate all, write out_dir; returns report.json's
+    dict. say(line): warnings about the logs (corrupt rows dropped, no q_cmd, units) as they are read."""
     cfg = cfg or TrainConfig()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    runs, units, joint_names = _load_segments(train_paths, rate_hz)
+    runs, units, joint_names, notes = _load_segments(train_paths, rate_hz, say=say)
+    loaded = {}
+    for kind, paths in (("eval", eval_paths), ("unlabeled", unlabeled_paths)):
+        if paths:
+            eval_runs, eval_units, _, more = _load_segments(paths, rate_hz, joint_names, say=say)
+            if eval_units != units:
+                raise ConfigError(f"evaluation logs are in {eval_units}, training logs in {units}",
+                                  where=str(paths[0]), fix="evaluate on logs with the same torque signal")
+            loaded[kind] = eval_runs
+            notes.update(more)
+    has_cmd = all(h for _, _, h in runs) and all(h for rs in loaded.values() for _, _, h in rs)
+    fallback = None
+    if not has_cmd and "dq" in cfg.inputs.split(","):
+        fallback = f"inputs {cfg.inputs} -> q,qd: a log has no q_cmd"
+        cfg = replace(cfg, inputs="q,qd")
+        if say is not None:
+            say(f"warning: {fallback}")
     if arm is None:  # logs this app writes name their arm; an explicit arm overrides
-        arm = logged_arm([s for _, segs in runs for s in segs])
+        arm = logged_arm([s for _, segs, _ in runs for s in segs])
     pin_model = None
     if arm is not None:
         from hardware.arms import load_arm
@@ -156,7 +226,8 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
             raise ConfigError(f"arm {arm} has joints {list(desc.joint_names)}, logs have {joint_names}",
                               where=arm, fix="pass the --arm the logs were recorded on")
         pin_model = desc.pinocchio_model()
-    segments = [s for _, segs in runs for s in segs]
+    out.mkdir(parents=True, exist_ok=True)
+    segments = _with_q_cmd(free_parts([s for _, segs, _ in runs for s in segs]), has_cmd)
     prior = _fit_prior(cfg.prior, arm, units, segments)
     data = build_windows([s if prior is None else
                           replace(s, tau=s.tau - prior_torque(prior, s.t, s.q, s.qd, s.tau, s.temperature))
@@ -174,14 +245,9 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
                                   ("q", "qd", "q_cmd", "tau")))
     evaluated: list[Evaluated] = []
     files = {}
-    for kind, paths in (("eval", eval_paths), ("unlabeled", unlabeled_paths)):
-        if not paths:
-            continue
-        eval_runs, eval_units, _ = _load_segments(paths, rate_hz, joint_names)
-        if eval_units != units:
-            raise ConfigError(f"evaluation logs are in {eval_units}, training logs in {units}",
-                              where=str(paths[0]), fix="evaluate on logs with the same torque signal")
-        for name, segs in eval_runs:
+    for kind in ("eval", "unlabeled"):
+        for name, segs, _ in loaded.get(kind, []):
+            segs = _with_q_cmd(segs, has_cmd)
             ev = _concat(segs, [estimate_segment(s, ck, ridge, pin_model, observer_gain) for s in segs], name,
                          free_default=(kind == "eval"))
             evaluated.append(ev)
@@ -197,11 +263,16 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
         ests = [estimate_segment(s, ck, ridge, pin_model, observer_gain) for s in segments]
         top = score([_concat(segments, ests, "validation", True, masks)])
     report = {"units": units, "train_seconds": result.seconds,
+              "train_seconds_to_within_5pct": result.seconds_to_within_5pct,
+              "train_stop": result.stop_reason, "train_budget_s": _finite(cfg.max_seconds),
               "data_minutes": sum(len(s) for s in segments) / rate_hz / 60.0, "device": result.device,
-              "threads": cfg.threads or available_cores(), "epochs": result.epochs,
+              "threads": result.threads or cfg.threads or available_cores(), "epochs": result.epochs,
               "arm": arm, "joint_names": joint_names, "rate_hz": rate_hz,
-              "prior": prior.kind if prior is not None else "none",
-              "train_logs": [Path(p).name for p in train_paths], "methods": top}
+              "prior": prior.kind if prior is not None else "none", "inputs": cfg.inputs,
+              "inputs_fallback": fallback,
+              "train_logs": [name for name, _, _ in runs], "methods": top, "network_adds": network_adds(top)}
+    if notes:
+        report["log_notes"] = notes
     if files:
         report["files"] = files
     (out / "report.json").write_text(json.dumps(report, indent=1))
@@ -212,6 +283,10 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
                  **({"tau_ext_true": ev.truth} if ev.truth is not None else {}))
     write_markdown(report, evaluated, out, plots)
     return report
+
+
+def _finite(x: float) -> float | None:
+    return None if not np.isfinite(x) else float(x)
 
 
 def _fmt(x) -> str:
@@ -227,6 +302,16 @@ def write_markdown(report: dict, evaluated: list[Evaluated], out: Path, plots: b
              "| method | free motion | contact |", "|---|---|---|"]
     for m, v in report["methods"].items():
         lines.append(f"| {m} | {_fmt(v['free_l1_mean'])} | {_fmt(v['contact_l1_mean'])} |")
+    adds = report.get("network_adds") or {}
+    for kind in ("free", "contact"):
+        if adds.get(kind):
+            a = adds[kind]
+            lines += ["", f"What the network adds over {adds['baseline']}, held-out {kind} [{u}]: "
+                      f"x{a['ratio_mean']:.2f}", "",
+                      "| joint | " + " | ".join(report["joint_names"]) + " |",
+                      "|---|" + "---|" * len(report["joint_names"]),
+                      f"| {adds['baseline']} | " + " | ".join(_fmt(x) for x in a["prior_l1"]) + " |",
+                      "| next | " + " | ".join(_fmt(x) for x in a["next_l1"]) + " |"]
     for name, methods in report.get("files", {}).items():
         lines += ["", f"## {name}", "", "| method | free motion | contact |", "|---|---|---|"]
         lines += [f"| {m} | {_fmt(v['free_l1_mean'])} | {_fmt(v['contact_l1_mean'])} |"

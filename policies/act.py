@@ -68,7 +68,7 @@ class ACTPolicy(nn.Module):
         return mu, logvar
 
     def _decode(self, batch: dict, z: torch.Tensor):
-        tokens = self.obs(batch["images"], batch["state"], batch.get("force"))
+        tokens = self.obs.tokens(batch)
         x = torch.cat([self.latent_in(z)[:, None], tokens], dim=1)
         memory = self.encoder(x + sinusoidal(x.shape[1], x.shape[2]).to(x)[None])
         q = self.queries + sinusoidal(self.cfg.chunk, self.cfg.hidden).to(x)[None]

@@ -3,7 +3,7 @@
 Paper (appendix, policy table): ACT 4 encoder / 6 decoder layers, flow 6 decoder layers; 8 heads, hidden 768,
 FF 3072, dropout 0.1, sinusoidal positions, chunk 30; flow: 10 Euler steps, time ~ Beta(1, 1.5). The paper's
 image encoder is DINOv3-Base, whose weights cannot be fetched here: both presets default to a ResNet-18 with
-GroupNorm trained from scratch (policies.vision), 224 px for `paper`, 96 px for `small`.
+GroupNorm trained from scratch (policies.vision), 224 px for `paper`, 96 px for `small` (there up to layer3).
 The flow model has no observation transformer: its observation tokens (backbone cells, state and force MLP
 tokens) are the cross-attention memory of its decoder blocks directly (enc_layers is ACT's).
 """
@@ -28,6 +28,8 @@ class PolicyConfig:
     dropout: float = 0.1
     chunk: int = 30  # actions predicted per observation
     # inputs / outputs (filled from the data)
+    observation: str = "images"  # "images", "state" (PRIVILEGED twin object vector, no frames) or both
+    objects_dim: int = 0  # length of the privileged object vector (policies/privileged.py); 0: none
     n_cameras: int = 1
     image_size: int = 224  # square input [px], frames are cached at this size
     state_dim: int = 7  # follower joints + gripper
@@ -56,14 +58,18 @@ class PolicyConfig:
 
 
 def preset(name: str, policy: str = "flow") -> PolicyConfig:
-    """The `paper` sizes, or `small`: sized for a laptop CPU (hidden 256, FF 512, 2 + 3 layers, 96 px; the
-    feed-forward width is 2x hidden rather than 4x to keep a flow chunk's 10 Euler steps near 30 ms on a
-    core)."""
+    """The `paper` sizes, or `small`: sized for a laptop CPU, a flow chunk (encode once + 10 Euler steps) in
+    <= 30 ms on one core with 2 cameras (docs/benchmarks.md): hidden 256, FF 512 (2x, not 4x), 4 heads, ACT
+    2 + 3 layers, flow 2; 96 px through the ResNet-18 GN up to layer3 (policies.vision.ResNet18GN: its fourth
+    stage would see a 3 x 3 map). With 3 flow layers and the whole ResNet-18 a chunk took 47 ms: 17.7 ms of
+    backbone, 10 x 2.3 ms of velocity steps (docs/policies.md: why, and the training comparison)."""
     if name not in PRESETS:
         raise ValueError(f"preset {name!r}: one of {', '.join(PRESETS)}")
     if policy not in POLICIES:
         raise ValueError(f"policy {policy!r}: one of {', '.join(POLICIES)}")
     cfg = PolicyConfig(policy=policy)
     if name == "small":
-        cfg = replace(cfg, hidden=256, heads=4, enc_layers=2, dec_layers=3, ff=512, image_size=96)
+        layers = 2 if policy == "flow" else 3  # flow: DiT blocks, run 10x per chunk; ACT: decoder layers
+        cfg = replace(cfg, hidden=256, heads=4, enc_layers=2, dec_layers=layers, ff=512, image_size=96,
+                      backbone="resnet18-gn-l3")
     return cfg

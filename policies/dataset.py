@@ -4,6 +4,9 @@ camera rate) with
     observation.images.<cam>   the latest frame of each camera at or before the tick (cached uint8, S x S)
     observation.state          follower joint positions [rad] + gripper [m] (per follower arm)
     observation.force          tau_ext [N*m] (NEXT: recorded or offline), or motor current [A], or nothing
+    observation.state.objects  PRIVILEGED (twins only, `observation` "state" / "images+state"): the task
+                               objects' vector (policies/privileged.py) last recorded at or before the tick;
+                               "state" reads no frames at all
     action                     the next `chunk` commanded joint targets [rad] + gripper [m]
                                (/follower/command) from this tick on; past the episode end the last one is
                                repeated and masked out
@@ -23,14 +26,18 @@ import torch
 from hardware.errors import UserError
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
+from hardware.timeseries import hold_previous
 from policies.frame_cache import camera_frames
 from policies.labelling import NextModel, Thresholds, label_episode
 from policies.normalizer import Normalizer
+from policies.privileged import OBSERVATIONS, uses_images, uses_objects
 from policies.recordings import ArmSet, episode_id, follower_state_action
 
 FORCE_SOURCES = ("tau_ext", "current", "none")
 CROP_SCALE = (0.8, 1.0)  # RandomResizedCrop: area share kept
 CROP_RATIO = (3 / 4, 4 / 3)  # and aspect ratio range
+STATE_RATE_HZ = 30.0  # Hz: policy rate without cameras (`--obs state` on camera-less recordings): the twin
+# rigs' camera rate, so a state policy acts as often as an image policy would
 
 
 def action_prefix(follower: str) -> str:
@@ -44,14 +51,18 @@ class FeatureNames:
     force: list[str]
     action: list[str]
     cameras: list[str]
+    objects: list[str] = field(default_factory=list)  # element names of the privileged vector, [] if unused
 
     def to_dict(self) -> dict:
-        return {
+        out = {
             "observation.state": self.state,
             "observation.force": self.force,
             "action": self.action,
             "observation.images": [f"observation.images.{c}" for c in self.cameras],
         }
+        if self.objects:
+            out[S.TASK_OBJECTS_FEATURE] = self.objects
+        return out
 
 
 @dataclass
@@ -74,6 +85,7 @@ class PolicyData:
     image_size: int
     norm: Normalizer | None = None
     val_episodes: list[int] = field(default_factory=list)
+    objects: np.ndarray | None = None  # (N, O) float32 privileged object vector, None when not observed
 
     def __len__(self) -> int:
         return int(self.state.shape[0])
@@ -97,13 +109,15 @@ class PolicyData:
         """Torch batch of samples `idx`: images uint8 (B, M, S, S, 3) (the model converts them), the rest
         normalised float32; crops (B, 4) = RandomResizedCrop boxes (draw_crops) or None."""
         n = self.norm
-        img = self.images(idx)
-        if crops is not None:
-            img = resized_crop(img, crops.numpy())
-        out = {"images": torch.from_numpy(img), "state": torch.from_numpy(n.norm("state", self.state[idx])),
+        out = {"state": torch.from_numpy(n.norm("state", self.state[idx])),
                "action": torch.from_numpy(n.norm("action", self.action[idx])),
                "mask": torch.from_numpy(self.mask[idx]),
                "phase": torch.from_numpy(self.phase[idx].astype(np.int64))}
+        if self.names.cameras:
+            img = self.images(idx)
+            out["images"] = torch.from_numpy(resized_crop(img, crops.numpy()) if crops is not None else img)
+        if self.objects is not None:
+            out["objects"] = torch.from_numpy(n.norm("objects", self.objects[idx]))
         if self.force.shape[1]:
             out["force"] = torch.from_numpy(n.norm("force", self.force[idx]))
             out["force_chunk"] = torch.from_numpy(n.norm("force", self.force_chunk[idx]))
@@ -182,6 +196,7 @@ def _episode_samples(
     force: str,
     th: Thresholds,
     next_model: NextModel | None,
+    objects: bool = False,
 ) -> dict | None:
     js0 = ep.topic(S.joint_state_topic(arms.followers[0]))
     t0 = max([js0.t[0]] + [rec_frames_t[c][0] for c in cams if len(rec_frames_t[c])])
@@ -203,6 +218,10 @@ def _episode_samples(
     fvals = np.concatenate(force_parts, axis=1) if force_parts else np.zeros((len(grid), 0))
     fvals = np.nan_to_num(fvals)  # NEXT's first window (offline) has no estimate yet: 0 N*m
     ok = np.isfinite(state).all(1) & np.isfinite(action).all(1)
+    if objects:  # the latest vector at or before each tick, as a live policy has it (NaN before the first)
+        ob = ep.topic(S.TOPIC_TASK_OBJECTS)
+        ovals = hold_previous(ob.t, ob.fields["objects"], grid)  # all NaN when the episode has none
+        ok &= np.isfinite(ovals).all(1)
     fidx = (
         np.stack([np.searchsorted(rec_frames_t[c], grid + 1e-6, side="right") - 1 for c in cams], axis=1)
         if cams
@@ -222,6 +241,7 @@ def _episode_samples(
         "force_chunk": fc,
         "phase": labels.at(grid[keep]),
         "frame_idx": fidx[keep],
+        **({"objects": ovals[keep]} if objects else {}),
     }
 
 
@@ -239,24 +259,33 @@ def build_dataset(
     seed: int = 0,
     cameras: list[str] | None = None,
     progress=None,
+    observation: str = "images",
 ) -> PolicyData:
+    """observation: "images" (camera frames), "state" (the PRIVILEGED task-object vector, no frames read)
+    or "images+state" (policies/privileged.py)."""
     if force not in FORCE_SOURCES:
         raise ValueError(f"force {force!r}: one of {FORCE_SOURCES}")
+    if observation not in OBSERVATIONS:
+        raise ValueError(f"observation {observation!r}: one of {OBSERVATIONS}")
     recs = list(dict.fromkeys(ep.recording for ep in episodes))
-    cams = cameras if cameras is not None else sorted(set.intersection(*(set(r.cameras) for r in recs)))
-    if not cams:
+    common = sorted(set.intersection(*(set(r.cameras) for r in recs)))
+    cams = (cameras if cameras is not None else common) if uses_images(observation) else []
+    if uses_images(observation) and not cams:
         raise UserError(
             "the recordings have no camera frames (or no camera in all of them); both presets need images",
             where=str(recs[0].path),
-            fix="record with cameras (`factr2 teleop --record` on a rig with [[cameras]])",
+            fix="record with cameras (`factr2 teleop --record` on a rig with [[cameras]]), or train on the "
+            "twin's privileged object state with --obs state (task recordings of `factr2 collect`)",
         )
-    rate = rate_hz or camera_rate(episodes, cams)
+    object_names = _object_names(recs) if uses_objects(observation) else []
+    rate = rate_hz or (camera_rate(episodes, cams or common) if (cams or common) else STATE_RATE_HZ)
     frames = [{c: camera_frames(r, c, image_size, progress) for c in cams} for r in recs]
     frames_t = [{c: r.frames(c).t for c in cams} for r in recs]
     parts, ids = [], []
     for ep in episodes:
         ri = recs.index(ep.recording)
-        got = _episode_samples(ep, arms, cams, frames_t[ri], rate, chunk, force, th, next_model)
+        got = _episode_samples(ep, arms, cams, frames_t[ri], rate, chunk, force, th, next_model,
+                               bool(object_names))
         if got is None:
             continue
         got["episode"] = np.full(len(got["state"]), len(ids), np.int32)
@@ -286,6 +315,7 @@ def build_dataset(
             for n in (f"{action_prefix(a)}.joint.pos", f"{action_prefix(a)}.gripper.pos")
         ],
         cameras=list(cams),
+        objects=object_names,
     )
     n_val = int(round(val_fraction * len(ids))) if len(ids) >= 2 else 0
     n_val = min(max(n_val, 1 if val_fraction > 0 and len(ids) >= 2 else 0), len(ids) - 1)
@@ -306,13 +336,34 @@ def build_dataset(
         float(rate),
         int(image_size),
         val_episodes=val,
+        objects=cat["objects"].astype(np.float32) if object_names else None,
     )
     train_idx, _ = data.split()
-    data.norm = Normalizer.fit(
-        {
-            "state": data.state[train_idx],
-            "action": data.action[train_idx][:, 0],
-            "force": data.force[train_idx],
-        }
-    )
+    groups = {"state": data.state[train_idx], "action": data.action[train_idx][:, 0],
+              "force": data.force[train_idx]}
+    if data.objects is not None:
+        groups["objects"] = data.objects[train_idx]
+    data.norm = Normalizer.fit(groups)
     return data
+
+
+def _object_names(recs) -> list[str]:
+    """The PRIVILEGED object vector's element names, the same in every recording (UserError otherwise)."""
+    names = None
+    for r in recs:
+        got = r.task_object_names() if S.TOPIC_TASK_OBJECTS in r.topics else []
+        if not got:
+            raise UserError(
+                "no privileged object state (/task/objects) in this recording: --obs state needs twin task "
+                "demonstrations",
+                where=str(r.path),
+                fix="record them with `factr2 collect --rig sim-piper --task T`, or train on images",
+            )
+        if names is not None and got != names:
+            raise UserError(
+                f"recordings of different tasks: object vectors {len(names)} and {len(got)} long",
+                where=str(r.path),
+                fix="train on one task's recordings",
+            )
+        names = got
+    return names or []

@@ -18,8 +18,9 @@ from policies.config import PolicyConfig
 from policies.tokens import ObservationTokens, masked_mean, sinusoidal, timestep_embedding
 
 
-def _modulate(x, shift, scale):
-    return x * (1 + scale[:, None]) + shift[:, None]
+def _modulate(x, shift, scale1p):
+    """adaLN: x * (1 + scale) + shift in one fused op; shift and scale1p = 1 + scale are (B, 1, hidden)."""
+    return torch.addcmul(shift, x, scale1p)
 
 
 class Attention(nn.Module):
@@ -34,19 +35,20 @@ class Attention(nn.Module):
         self.qkv = nn.Linear(h, 2 * h if cross else 3 * h)  # cross: the memory's k, v
         self.proj = nn.Linear(h, h)
 
-    def _split(self, x):
+    def _heads(self, x, parts: int):
+        """(B, N, parts * hidden) -> `parts` tensors (B, heads, N, hidden / heads), views of one buffer."""
         b, n, d = x.shape
-        return x.view(b, n, self.heads, d // self.heads).transpose(1, 2)
+        return x.view(b, n, parts, self.heads, d // (parts * self.heads)).permute(2, 0, 3, 1, 4).unbind(0)
 
     def kv(self, memory):
-        k, v = self.qkv(memory).chunk(2, dim=-1)
-        return self._split(k), self._split(v)
+        """The memory's keys and values (B, heads, T, hidden / heads): once per chunk at inference."""
+        return self._heads(self.qkv(memory), 2)
 
     def forward(self, x, kv=None):
         if self.cross:
-            q, (k, v) = self._split(self.q(x)), kv
+            (q,), (k, v) = self._heads(self.q(x), 1), kv
         else:
-            q, k, v = (self._split(t) for t in self.qkv(x).chunk(3, dim=-1))
+            q, k, v = self._heads(self.qkv(x), 3)
         y = F.scaled_dot_product_attention(q, k, v, dropout_p=self.p if self.training else 0.0)
         return self.proj(y.transpose(1, 2).flatten(2))
 
@@ -69,11 +71,12 @@ class DiTBlock(nn.Module):
         self.drop = nn.Dropout(cfg.dropout)
 
     def forward(self, x, mod, kv):
-        """mod: this block's adaLN output for the flow time (B, 6 hidden), see FlowPolicy.conditioning."""
-        s1, g1, a1, s2, g2, a2 = mod.chunk(6, dim=-1)
-        x = x + a1[:, None] * self.drop(self.attn(_modulate(self.norm1(x), s1, g1)))
+        """mod: this block's six adaLN terms for the flow time, each (B, 1, hidden): shift, 1 + scale and gate
+        of the attention and of the MLP (FlowPolicy.conditioning)."""
+        s1, g1, a1, s2, g2, a2 = mod
+        x = torch.addcmul(x, a1, self.drop(self.attn(_modulate(self.norm1(x), s1, g1))))
         x = x + self.drop(self.cross(self.norm_x(x), kv))
-        return x + a2[:, None] * self.mlp(_modulate(self.norm2(x), s2, g2))
+        return torch.addcmul(x, a2, self.mlp(_modulate(self.norm2(x), s2, g2)))
 
 
 class FlowPolicy(nn.Module):
@@ -93,6 +96,8 @@ class FlowPolicy(nn.Module):
             nn.init.zeros_(m.weight)
             nn.init.zeros_(m.bias)
         self.aux_head = nn.Linear(h, cfg.force_dim) if cfg.aux_force and cfg.force_dim else None
+        # the chunk's position table, made once (not per Euler step); not saved: a function of the config
+        self.register_buffer("pos", sinusoidal(cfg.chunk, h)[None], persistent=False)
 
     @staticmethod
     def draw_noise(cfg: PolicyConfig, batch: int, gen: torch.Generator) -> dict:
@@ -105,22 +110,29 @@ class FlowPolicy(nn.Module):
 
     def encode(self, batch: dict) -> list:
         """The observation, once per chunk: each block's cross-attention keys and values of its tokens."""
-        memory = self.obs_norm(self.obs(batch["images"], batch["state"], batch.get("force")))
+        memory = self.obs_norm(self.obs.tokens(batch))
         return [blk.cross.kv(memory) for blk in self.blocks]
 
     def conditioning(self, alpha):
-        """Everything the flow time conditions: each block's adaLN output and the final one's (a list)."""
+        """Everything the flow time alpha (B,) conditions, each term (B, 1, hidden): per block its six adaLN
+        terms (shift, 1 + scale, gate; attention then MLP), then the output's shift and 1 + scale."""
         c = self.time(timestep_embedding(alpha, self.cfg.hidden))
-        return [blk.ada(c) for blk in self.blocks] + [self.ada_out(c)]
+        out = []
+        for ada, n in [(blk.ada, 6) for blk in self.blocks] + [(self.ada_out, 2)]:
+            terms = list(ada(c)[:, None].chunk(n, dim=-1))
+            for i in range(1, n, 3):  # the scales: 1 + scale once here rather than in every step
+                terms[i] = terms[i] + 1
+            out.append(terms)
+        return out
 
     def velocity(self, x, alpha, memory, cond=None):
         """v (B, chunk, A) and the last hidden states. cond: conditioning(alpha) when already computed."""
         cond = self.conditioning(alpha) if cond is None else cond
-        h = self.x_in(x) + sinusoidal(x.shape[1], self.cfg.hidden).to(x)[None]
+        h = self.x_in(x) + self.pos[:, : x.shape[1]]
         for blk, kv, mod in zip(self.blocks, memory, cond):
             h = blk(h, mod, kv)
-        shift, scale = cond[-1].chunk(2, dim=-1)
-        h = _modulate(self.norm_out(h), shift, scale)
+        shift, scale1p = cond[-1]
+        h = _modulate(self.norm_out(h), shift, scale1p)
         return self.out(h), h
 
     def forward(self, batch: dict, noise: dict):
@@ -140,17 +152,19 @@ class FlowPolicy(nn.Module):
             total = total + self.cfg.aux_weight * parts["aux_force"]
         return total, parts
 
-    @torch.no_grad()
+    @torch.no_grad()  # not inference_mode: callers may still modify the chunk in place
     def predict(self, batch: dict, noise: dict) -> torch.Tensor:
-        """Action chunk (B, chunk, A), normalised: Euler integration of v from x0 = noise["x0"]."""
+        """Action chunk (B, chunk, A), normalised: Euler integration of v from x0 = noise["x0"]. The
+        observation is encoded once (each block's cross-attention keys and values), and the Euler times k/n
+        are the same for every chunk, so their conditioning is one batched pass; each step then runs only
+        the chunk's own layers."""
         memory = self.encode(batch)
         x = noise["x0"].to(memory[0][0])
         n = self.cfg.flow_steps
-        # the Euler times k/n are the same for every chunk: condition on all of them in one pass
         cond = self.conditioning(torch.arange(n, device=x.device, dtype=x.dtype) / n)
         for k in range(n):
-            step = [m[k : k + 1].expand(len(x), -1) for m in cond]
-            x = x + self.velocity(x, None, memory, step)[0] / n
+            step = [[t[k : k + 1] for t in terms] for terms in cond]  # (1, 1, hidden): broadcast over B
+            x = torch.add(x, self.velocity(x, None, memory, step)[0], alpha=1.0 / n)
         return x
 
     def action_error(self, batch: dict, noise: dict) -> torch.Tensor:

@@ -47,7 +47,7 @@ def load_next(path) -> NextModel:
 class Thresholds:
     t_low: float
     t_high: float
-    source: str  # "given", or the checkpoint whose free-motion noise they derive from
+    source: str  # "given", "recording: ..." (the episodes' own scores) or "NEXT <id> ..." (its noise)
 
     def to_dict(self) -> dict:
         return {
@@ -58,12 +58,41 @@ class Thresholds:
         }
 
 
+THRESHOLD_SOURCES = ("recording", "next")  # --thresholds words; or LOW:HIGH [N*m]
+
+
 def resolve_thresholds(
-    given: tuple[float, float] | None, next_model: NextModel | None, episodes: list[Episode], arms: ArmSet
+    given, next_model: NextModel | None, episodes: list[Episode], arms: ArmSet
 ) -> Thresholds:
-    """Given thresholds, else from --next's noise, else from the checkpoint the recording session names."""
-    if given is not None:
-        return Thresholds(float(given[0]), float(given[1]), "given")
+    """given: (LOW, HIGH) [N*m]; "recording": from the episodes' own scores (Otsu,
+    policies.phases.recording_thresholds; tau_ext recorded, or from --next offline), the CLI's default;
+    "next" or None: from the free-motion noise of the --next checkpoint, else of the checkpoint the recording
+    session names (None keeps the library's former default for its callers)."""
+    if given == "recording":
+        return _recording_thresholds(episodes, arms, next_model)
+    if given is None or given == "next":
+        return _checkpoint_thresholds(next_model, episodes, arms)
+    return Thresholds(float(given[0]), float(given[1]), "given")
+
+
+def _recording_thresholds(episodes, arms, next_model) -> Thresholds:
+    scores = [P.contact_score(episode_tau_ext(ep, arms, next_model)[1]) for ep in episodes]
+    score = np.concatenate(scores) if scores else np.zeros(0)
+    try:
+        lo, hi = P.recording_thresholds(score)
+    except ValueError:
+        raise UserError(
+            "too few tau_ext samples to derive contact thresholds from the recordings",
+            where=str(episodes[0].recording.path) if episodes else "",
+            fix="pass --thresholds LOW:HIGH [N*m] (or --thresholds next: from the NEXT checkpoint)",
+        ) from None
+    n = int(np.sum(np.isfinite(score)))
+    eps = f"{len(episodes)} episode{'s' if len(episodes) != 1 else ''}"
+    src = f"recording: Otsu split of log ||tau_ext||_1, {eps}, {n} samples"
+    return Thresholds(lo, hi, src)
+
+
+def _checkpoint_thresholds(next_model, episodes, arms) -> Thresholds:
     model = next_model
     if model is None:
         named = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
@@ -74,14 +103,14 @@ def resolve_thresholds(
         raise UserError(
             "no NEXT checkpoint to derive the contact thresholds from (the recordings name none)",
             where=str(episodes[0].recording.path),
-            fix="pass --next CKPT (the NEXT checkpoint) or --thresholds LOW:HIGH [N*m]",
+            fix="pass --next CKPT (the NEXT checkpoint), or --thresholds recording or LOW:HIGH [N*m]",
         )
     val_l1 = (model.ck.metrics or {}).get("val_l1")
     if not val_l1:
         raise UserError(
             "the NEXT checkpoint has no free-motion noise (metrics.val_l1)",
             where=str(model.path),
-            fix="retrain it with `factr2 calibrate`, or pass --thresholds LOW:HIGH",
+            fix="retrain it with `factr2 calibrate`, or pass --thresholds recording or LOW:HIGH",
         )
     lo, hi = P.default_thresholds(val_l1)
     n = len(arms.followers)
@@ -127,11 +156,30 @@ def _recorded_tau_ext(ep: Episode, arm: str) -> tuple[np.ndarray, np.ndarray] | 
     return ta.t, tau
 
 
+_OFFLINE_MEMO: dict = {}  # (recording, episode, arms, NEXT id) -> episode_tau_ext of an offline NEXT pass
+_OFFLINE_MEMO_MAX = 64
+
+
 def episode_tau_ext(
     ep: Episode, arms: ArmSet, next_model: NextModel | None = None
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """(t [s], tau_ext (N, sum of joints) [N*m], source) of an episode: every follower, on the first one's
-    timeline. Source "recorded" or "NEXT <id> offline"."""
+    timeline. Source "recorded" or "NEXT <id> offline". An offline NEXT pass is remembered (read-only
+    arrays): the recording thresholds and the labels both need it, and it is the expensive part."""
+    if next_model is None:
+        return _episode_tau_ext(ep, arms, None)
+    st = Path(ep.recording.path).stat()  # a recording rewritten in place (trim, delete) is read again
+    key = (str(ep.recording.path), st.st_mtime_ns, st.st_size, ep.index, tuple(arms.followers), next_model.id)
+    if key not in _OFFLINE_MEMO:
+        if len(_OFFLINE_MEMO) >= _OFFLINE_MEMO_MAX:
+            _OFFLINE_MEMO.clear()
+        t, tau, source = _episode_tau_ext(ep, arms, next_model)
+        t.flags.writeable = tau.flags.writeable = False
+        _OFFLINE_MEMO[key] = (t, tau, source)
+    return _OFFLINE_MEMO[key]
+
+
+def _episode_tau_ext(ep: Episode, arms: ArmSet, next_model: NextModel | None):
     parts = []
     for arm in arms.followers:
         got = _offline_tau_ext(ep, arm, next_model) if next_model is not None else _recorded_tau_ext(ep, arm)

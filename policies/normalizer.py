@@ -1,5 +1,9 @@
 """Mean/std normalisation per feature group ("state", "force", "action"), stored in the checkpoint JSON.
-A dimension that never moves (std < STD_FLOOR, e.g. an arm without a gripper) keeps std 1: centred only."""
+A dimension that never moves (std < STD_CONSTANT, e.g. an arm without a gripper) keeps std 1: centred only.
+A dimension that barely moves in the demonstrations (a wrist roll held still) gets std STD_MIN, as the
+original ACT clips it: with its own tiny std (3e-3 rad measured on peg-insert demos) a few centirad elsewhere
+in a held-out episode became 20 normalised units, and the validation loss read 217 against a training loss
+of 0.2."""
 
 from __future__ import annotations
 
@@ -7,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-STD_FLOOR = 1e-6
+STD_CONSTANT = 1e-6  # below: the dimension is constant
+STD_MIN = 1e-2  # the smallest std used, in the feature's own units (rad, m, N*m)
 
 
 @dataclass
@@ -22,7 +27,8 @@ class Normalizer:
             x = np.asarray(x, np.float64).reshape(len(x), -1)
             m = x.mean(0) if len(x) else np.zeros(x.shape[1])
             s = x.std(0) if len(x) else np.ones(x.shape[1])
-            mean[k], std[k] = m.astype(np.float32), np.where(s < STD_FLOOR, 1.0, s).astype(np.float32)
+            s = np.where(s < STD_CONSTANT, 1.0, np.maximum(s, STD_MIN))
+            mean[k], std[k] = m.astype(np.float32), s.astype(np.float32)
         return cls(mean, std)
 
     def norm(self, key: str, x: np.ndarray) -> np.ndarray:

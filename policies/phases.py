@@ -6,11 +6,15 @@
     pre-contact: samples within `pre_s` (1 s) before an onset, never a contact sample, clipped at the start
     free: the rest
 
-Default thresholds come from the NEXT checkpoint's measured free-motion noise: its validation L1 per joint
-(metrics["val_l1"], the mean |tau_ext| the estimator reports in free motion, where the truth is 0). With
-s = sum_j val_l1_j (the mean free-motion score), T_low = LOW_X * s and T_high = HIGH_X * s. For a Gaussian
-residual on 6 joints the score's free-motion 99.9th percentile is ~2 s, so T_low sits above nearly all free
-noise and T_high adds margin against chattering. Both are overridable (`--thresholds LOW:HIGH`).
+Default thresholds come from the recordings themselves (`recording_thresholds`): contact only adds large
+scores, so the score distribution of an episode set is free-motion noise plus a contact part above it.
+T_low = Otsu's threshold of log f over every sample of the set (the split into two classes with the largest
+between-class variance, i.e. the valley between the noise and the contact), T_high = HIGH_RATIO * T_low.
+Nothing in it is fitted to data; it assumes the set has contact (a set without any is split inside its free
+motion: check the figures, or pass thresholds). The former source remains: the NEXT checkpoint's measured
+free-motion noise, its validation L1 per joint (metrics["val_l1"]): with s = sum_j val_l1_j (the mean
+free-motion score on the calibration replay), T_low = LOW_X * s and T_high = HIGH_X * s; on teleop motion,
+far from the replay, it sits well below the free-motion scores (docs/first.md). Both are overridable.
 """
 
 from __future__ import annotations
@@ -21,7 +25,9 @@ FREE, PRE_CONTACT, CONTACT = 0, 1, 2
 PHASE_NAMES = ("free", "pre-contact", "contact")
 PHASE_SHORT = ("F", "PC", "C")
 PRE_CONTACT_S = 1.0  # the paper's pre-contact window before each onset [s]
-LOW_X, HIGH_X = 2.0, 3.0  # thresholds as multiples of the mean free-motion score
+LOW_X, HIGH_X = 2.0, 3.0  # checkpoint source: thresholds as multiples of the mean free-motion score
+HIGH_RATIO = HIGH_X / LOW_X  # T_high / T_low of the recording source: the same hysteresis band
+OTSU_BINS = 256  # histogram of log f for Otsu's threshold
 
 
 def contact_score(tau_ext: np.ndarray) -> np.ndarray:
@@ -87,6 +93,37 @@ def default_thresholds(val_l1) -> tuple[float, float]:
     if not np.isfinite(s) or s <= 0:
         raise ValueError("the NEXT checkpoint has no usable free-motion noise (metrics.val_l1)")
     return LOW_X * s, HIGH_X * s
+
+
+def otsu_log_threshold(score: np.ndarray, bins: int = OTSU_BINS) -> float:
+    """Otsu's threshold of log(score) [same unit as score]: the split of the finite positive samples into a
+    low and a high class with the largest between-class variance, computed on a histogram of log(score)
+    between its 0.1 and 99.9 percentiles (outliers go to the end bins). Where several splits tie (an empty
+    gap between the classes), the middle of the tied ones. ValueError with fewer than 2 distinct values."""
+    s = np.asarray(score, dtype=float).ravel()
+    x = np.log(s[np.isfinite(s) & (s > 0)])
+    if len(x) < 2 or np.ptp(x) == 0:
+        raise ValueError("too few distinct contact scores to split")
+    lo, hi = np.percentile(x, [0.1, 99.9])
+    if hi <= lo:
+        lo, hi = x.min(), x.max()
+    h, edges = np.histogram(np.clip(x, lo, hi), bins=bins, range=(lo, hi))
+    p = h / h.sum()
+    centre = 0.5 * (edges[1:] + edges[:-1])
+    w0, m0 = np.cumsum(p)[:-1], np.cumsum(p * centre)[:-1]  # split after bin k, k = 0 .. bins - 2
+    mt = float(np.sum(p * centre))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        between = np.where((w0 > 0) & (w0 < 1), (mt * w0 - m0) ** 2 / (w0 * (1 - w0)), -np.inf)
+    best = np.flatnonzero(between >= between.max() * (1 - 1e-9))
+    k = best[len(best) // 2]
+    return float(np.exp(edges[k + 1]))
+
+
+def recording_thresholds(score: np.ndarray) -> tuple[float, float]:
+    """(T_low, T_high) from the scores of a whole episode set (see module doc): Otsu's threshold of log f,
+    and HIGH_RATIO times it."""
+    t_low = otsu_log_threshold(score)
+    return t_low, HIGH_RATIO * t_low
 
 
 def parse_thresholds(text: str) -> tuple[float, float]:

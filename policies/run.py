@@ -19,12 +19,12 @@ from policies.config import preset
 from policies.dataset import build_dataset
 from policies.labelling import load_next, resolve_thresholds
 from policies.methods import METHODS
-from policies.recordings import describe_rig, load_episodes, session_next_checkpoint
+from policies.recordings import describe_rig, episode_id, load_episodes, session_next_checkpoint
 from policies.sampler import format_ratio
 from policies.train import Dist, TrainConfig, barrier, train
 
 # what must match for --resume to continue the same run
-RESUME_KEYS = ("policy", "method", "ratio", "force", "data_hash", "phases", "rate_hz")
+RESUME_KEYS = ("policy", "method", "ratio", "force", "data_hash", "phases", "rate_hz", "observation")
 RESUME_TRAIN_KEYS = ("steps", "epochs", "batch", "lr", "weight_decay", "betas", "warmup", "grad_clip", "seed")
 
 
@@ -41,7 +41,7 @@ class RunOptions:
     thresholds: tuple | None = None
     rate_hz: float | None = None
     resume: bool = False
-    backbone: str = "resnet18-gn"
+    backbone: str = ""  # "": the preset's (small: resnet18-gn-l3, paper: resnet18-gn)
     backbone_weights: str = ""
     dropout: float | None = None
     image_size: int | None = None
@@ -49,6 +49,8 @@ class RunOptions:
     progress: bool = True
     train: TrainConfig | None = None
     overrides: dict | None = None  # PolicyConfig fields over the preset (tests, experiments)
+    observation: str = "images"  # policies.privileged.OBSERVATIONS: "state" = the twin objects (PRIVILEGED)
+    episodes: tuple | None = None  # episode ids ("FILE.mcap#N") to train on; None: every usable one
 
 
 def data_hash(episodes) -> str:
@@ -89,10 +91,22 @@ def _check_out(o: RunOptions):
     return last
 
 
+def _load(o: RunOptions):
+    """The run's episodes (only those o.episodes names, when it names some) and their arm set."""
+    episodes, arms = load_episodes(o.inputs)
+    if o.episodes is not None:
+        keep = set(o.episodes)
+        episodes = [e for e in episodes if episode_id(e) in keep]
+        if not episodes:
+            raise UserError("none of the chosen episodes is usable", where=", ".join(map(str, o.inputs)),
+                            fix="choose episodes that are not discarded")
+    return episodes, arms
+
+
 def precheck(o: RunOptions) -> None:
     """The cheap checks, once, before worker processes start (--nproc): folder, recordings, thresholds."""
     _check_out(o)
-    episodes, arms = load_episodes(o.inputs)
+    episodes, arms = _load(o)
     resolve_thresholds(o.thresholds, load_next(o.next) if o.next is not None else None, episodes, arms)
 
 
@@ -110,7 +124,7 @@ def prepare(o: RunOptions, d: Dist):
             f"batch {tcfg.batch} is not a multiple of the {d.world} processes",
             fix="choose --batch divisible by --nproc",
         )
-    episodes, arms = load_episodes(o.inputs)
+    episodes, arms = _load(o)
     next_model = load_next(o.next) if o.next is not None else None
     th = resolve_thresholds(o.thresholds, next_model, episodes, arms)
     pcfg = preset(o.preset, o.policy)
@@ -118,12 +132,12 @@ def prepare(o: RunOptions, d: Dist):
         pcfg.dropout = o.dropout
     if o.image_size:
         pcfg.image_size = int(o.image_size)
-    pcfg.backbone, pcfg.backbone_weights = o.backbone, o.backbone_weights
+    pcfg.backbone, pcfg.backbone_weights = o.backbone or pcfg.backbone, o.backbone_weights
     pcfg = replace(pcfg, **(o.overrides or {}))
     def build():
         return build_dataset(episodes, arms, th=th, chunk=pcfg.chunk, image_size=pcfg.image_size,
                              force=tcfg.force, rate_hz=o.rate_hz, next_model=next_model,
-                             val_fraction=o.val_fraction, seed=tcfg.seed)
+                             val_fraction=o.val_fraction, seed=tcfg.seed, observation=o.observation)
 
     # rank 0 decodes the frame caches first, the others then read them; an input error on rank 0 still
     # reaches the barrier, and the others then meet the same error themselves (nobody waits forever)
@@ -146,6 +160,8 @@ def prepare(o: RunOptions, d: Dist):
     pcfg.n_cameras = len(data.names.cameras)
     pcfg.state_dim, pcfg.action_dim = data.state.shape[1], data.action.shape[2]
     pcfg.force_dim = data.force.shape[1]
+    pcfg.observation = o.observation
+    pcfg.objects_dim = data.objects.shape[1] if data.objects is not None else 0
     pcfg.aux_force = method.aux_force
     named_next = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
     meta = {
@@ -154,6 +170,7 @@ def prepare(o: RunOptions, d: Dist):
         "ratio": list(tcfg.ratio),
         "force": tcfg.force,
         "features": data.names.to_dict(),
+        "observation": o.observation,
         "normalizer": data.norm.to_dict(),
         "phases": th.to_dict(),
         "next_checkpoint": next_model.id if next_model is not None else named_next,
@@ -182,7 +199,8 @@ def prepare(o: RunOptions, d: Dist):
     return data, pcfg, tcfg, meta, (last if o.resume else None)
 
 
-def run_training(o: RunOptions, d: Dist, stop_at: int | None = None) -> dict:
+def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress=None, stop=None) -> dict:
+    """on_progress / stop: policies.train.train's (an app's progress view and stop button)."""
     data, pcfg, tcfg, meta, resume_from = prepare(o, d)
     if d.main:
         Path(o.out).mkdir(parents=True, exist_ok=True)
@@ -190,11 +208,19 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None) -> dict:
         print(
             f"{len(data.episode_ids)} episodes, {n_tr} training / {meta['samples']['val']} validation "
             "samples "
-            f"at {data.rate_hz:.3g} Hz, cameras {', '.join(data.names.cameras)}; phases F/PC/C "
+            f"at {data.rate_hz:.3g} Hz, {_inputs(data)}; phases F/PC/C "
             f"{' / '.join(f'{x:.0%}' for x in _shares(data))}; method {o.method}, ratio "
             f"{format_ratio(tcfg.ratio)}, force {tcfg.force}; {d.world} process(es) on {d.device}"
         )
-    return train(data, pcfg, tcfg, Path(o.out), meta, d, resume_from, o.progress, stop_at)
+    return train(data, pcfg, tcfg, Path(o.out), meta, d, resume_from, o.progress, stop_at, on_progress, stop)
+
+
+def _inputs(data) -> str:
+    """What the policy sees besides joints and force, for the start-of-run line."""
+    parts = [f"cameras {', '.join(data.names.cameras)}"] if data.names.cameras else []
+    if data.objects is not None:
+        parts.append(f"PRIVILEGED object state ({data.objects.shape[1]} values, SIMULATED)")
+    return ", ".join(parts)
 
 
 def _shares(data):

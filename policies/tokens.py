@@ -1,6 +1,8 @@
 """Observation tokens shared by both policies (paper appendix): image features per camera (one token per
 feature-map cell of the shared backbone, plus a learned camera embedding), one MLP token for joints + gripper,
-one MLP token for the force input (tau_ext or current; absent for `base`). Sinusoidal positions."""
+one MLP token for the force input (tau_ext or current; absent for `base`). Sinusoidal positions.
+With `observation = "state"` (PRIVILEGED, twins only: policies/privileged.py) one MLP token for the task
+objects' vector replaces the image tokens (no backbone at all); "images+state" has both."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ import torch.nn as nn
 
 from policies.config import PolicyConfig
 from policies.methods import gaussian_blur
+from policies.privileged import uses_images, uses_objects
 from policies.vision import IMAGENET_MEAN, IMAGENET_STD, make_backbone
 
 
@@ -37,17 +40,21 @@ def mlp(din: int, dout: int) -> nn.Sequential:
 
 
 class ObservationTokens(nn.Module):
-    """(images (B, M, H, W, 3) uint8, state (B, S), force (B, F) or None) -> tokens (B, T, hidden).
+    """(images (B, M, H, W, 3) uint8 or None, state (B, S), force (B, F) or None, objects (B, O) or None)
+    -> tokens (B, T, hidden): [state, force?, objects?, image cells...].
     blur_sigma [px]: FACTR's training-time Gaussian blur (policies.methods), set per step by the loop."""
 
     def __init__(self, cfg: PolicyConfig):
         super().__init__()
         self.cfg = cfg
-        self.backbone = make_backbone(cfg.backbone, cfg.backbone_weights)
-        self.proj = nn.Conv2d(self.backbone.out_channels, cfg.hidden, 1)
-        self.camera = nn.Embedding(max(cfg.n_cameras, 1), cfg.hidden)
+        images = uses_images(cfg.observation)
+        self.backbone = make_backbone(cfg.backbone, cfg.backbone_weights) if images else None
+        if self.backbone is not None:
+            self.proj = nn.Conv2d(self.backbone.out_channels, cfg.hidden, 1)
+            self.camera = nn.Embedding(max(cfg.n_cameras, 1), cfg.hidden)
         self.state = mlp(cfg.state_dim, cfg.hidden)
         self.force = mlp(cfg.force_dim, cfg.hidden) if cfg.force_dim > 0 else None
+        self.objects = mlp(cfg.objects_dim, cfg.hidden) if uses_objects(cfg.observation) else None
         self.blur_sigma = 0.0
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
@@ -65,11 +72,20 @@ class ObservationTokens(nn.Module):
         f = f.view(b, m, -1, f.shape[-1]) + self.camera.weight[:m].view(1, m, 1, -1)
         return f.flatten(1, 2)
 
-    def forward(self, images, state, force=None) -> torch.Tensor:
+    def tokens(self, batch: dict) -> torch.Tensor:
+        """The tokens of a policy batch (keys images, state, force, objects: those the config uses)."""
+        return self(batch.get("images"), batch["state"], batch.get("force"), batch.get("objects"))
+
+    def forward(self, images, state, force=None, objects=None) -> torch.Tensor:
         toks = [self.state(state)[:, None]]
         if self.force is not None:
             toks.append(self.force(force)[:, None])
-        toks.append(self.image_tokens(images))
+        if self.objects is not None:
+            if objects is None:
+                raise ValueError("this policy observes the privileged object state: batch['objects'] missing")
+            toks.append(self.objects(objects)[:, None])
+        if self.backbone is not None:
+            toks.append(self.image_tokens(images))
         return torch.cat(toks, dim=1)
 
 

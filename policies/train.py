@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import math
 import os
+import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -164,9 +166,15 @@ def train(
     resume_from: Path | None = None,
     progress: bool = True,
     stop_at: int | None = None,
+    on_progress: Callable[[dict], None] | None = None,
+    stop: threading.Event | None = None,
 ) -> dict:
     """Train; checkpoints and logs in `run` (rank 0 writes). Returns the final metrics. stop_at: leave the
-    loop after that many steps (an interruption, as a kill after a checkpoint would be)."""
+    loop after that many steps (an interruption, as a kill after a checkpoint would be).
+
+    For an app driving one process (the terminal UI): on_progress(row) after every step on rank 0, row =
+    {"step", "total", "start"} plus the logged losses / validation metrics of that step; stop: when set, the
+    loop ends after the current step and writes a checkpoint there (kept for --resume)."""
     torch.set_num_threads(cfg.threads or max(1, (os.cpu_count() or 1) // d.world))
     method = METHODS[cfg.method]
     train_idx, val_idx = data.split()
@@ -258,6 +266,17 @@ def train(
             C.save(run / "checkpoints", done, model, opt, dict(meta, metrics=last_val), final=done == total)
         if done % cfg.ckpt_every == 0:
             barrier(d)  # the others wait while rank 0 writes, so a killed run has a consistent checkpoint
+        if d.main and on_progress is not None:
+            shown = {"step": done, "total": total, "start": start}
+            if done % cfg.log_every == 0 or done == total:
+                shown.update(row)
+            if done % cfg.val_every == 0 or done == total:
+                shown.update(last_val)
+            on_progress(shown)
+        if stop is not None and stop.is_set() and done < total:
+            if d.main and done % cfg.ckpt_every:
+                C.save(run / "checkpoints", done, model, opt, dict(meta, metrics=last_val))
+            break
     if bar is not None:
         bar.close()
     if log is not None:

@@ -44,16 +44,21 @@ class BasicBlock(nn.Module):
 
 
 class ResNet18GN(nn.Module):
-    out_channels = 512
+    """ResNet-18 with GroupNorm, torchvision's layout and names. stages = 3 stops after layer3 (256 channels,
+    1/16 of the input): at the small preset's 96 px the fourth stage works on a 3 x 3 map, where most of its
+    3 x 3 taps read padding, yet holds 8.4 M of the 11.2 M weights (34 MB to stream per chunk at batch 1);
+    layer3's 6 x 6 map gives 36 tokens per camera instead of 9."""
 
-    def __init__(self):
+    def __init__(self, stages: int = 4):
         super().__init__()
         self.conv1 = nn.Conv2d(3, 64, 7, 2, 3, bias=False)
         self.bn1 = _gn(64)
         self.relu = nn.ReLU(inplace=True)
         self.maxpool = nn.MaxPool2d(3, 2, 1)
         chans = [64, 64, 128, 256, 512]
-        for i in range(4):
+        self.stages = stages
+        self.out_channels = chans[stages]
+        for i in range(stages):
             stride = 1 if i == 0 else 2
             setattr(
                 self,
@@ -64,8 +69,16 @@ class ResNet18GN(nn.Module):
             )
 
     def forward(self, x):
-        x = self.maxpool(self.relu(self.bn1(self.conv1(x))))
-        return self.layer4(self.layer3(self.layer2(self.layer1(x))))
+        x = self.relu(self.bn1(self.conv1(x)))
+        if x.device.type == "cpu":
+            # CPU max pooling is ~15x faster channels-last (0.15 vs 2.3 ms on 2 x 64 x 48 x 48, one core);
+            # the convolutions are faster in NCHW, so only the pooling changes layout (same values)
+            x = self.maxpool(x.contiguous(memory_format=torch.channels_last)).contiguous()
+        else:
+            x = self.maxpool(x)
+        for i in range(self.stages):
+            x = getattr(self, f"layer{i + 1}")(x)
+        return x
 
 
 class ConvNetGN(nn.Module):
@@ -85,7 +98,11 @@ class ConvNetGN(nn.Module):
         return self.body(x)
 
 
-BACKBONES = {"resnet18-gn": ResNet18GN, "convnet-gn": ConvNetGN}
+BACKBONES = {
+    "resnet18-gn": ResNet18GN,
+    "resnet18-gn-l3": lambda: ResNet18GN(stages=3),  # the small preset's (see ResNet18GN)
+    "convnet-gn": ConvNetGN,
+}
 
 
 class _Features(nn.Module):

@@ -71,3 +71,35 @@ def test_scripted_push_is_labelled_contact_with_ground_truth():
     pushed = (t > 0.32) & (t < 0.48)
     assert a["contact"][pushed].all() and not a["contact"][t < 0.25].any() and not a["contact"][t > 0.6].any()
     assert np.abs(a["tau_ext_true"][pushed]).max() > 1.0  # the push shows in the twin's ground truth [N*m]
+
+
+def test_rig_calibration_is_recorded_as_mcap_and_calibrates_from_it(tmp_path):
+    """Issue 23, item 6: a calibration run on a rig is one MCAP session (free-motion replay and, on a twin,
+    the pushed contact replay as episodes), and `factr2 calibrate --from-logs` accepts it (the pushes are
+    left out of training by their contact flag)."""
+    sim = pytest.importorskip("hardware.connect")
+    from calibration.next.logs import read_logs
+    from calibration.next.train import TrainConfig
+    from calibration.pipeline import CalibrationConfig, calibrate_rig
+    from calibration.report import calibrate_from_logs
+    from hardware.recording.reader import Recording
+
+    tiny = TrainConfig(history=10, hidden=8, head_hidden=16, samples_per_epoch=256, max_epochs=1, threads=1,
+                       device="cpu", prior="none")
+    cfg = CalibrationConfig(minutes=0.2, contact_eval_s=4.0, train=tiny, plots=False, min_minutes=0.05)
+    said = []
+    with sim.open_rig("sim-piper", clock="lockstep") as session:
+        calibrate_rig(session, session.rig.followers[0], tmp_path / "cal", cfg, say=said.append)
+    mcap = tmp_path / "cal" / "data" / "calibration.mcap"
+    assert mcap.is_file() and any("calibration.mcap" in s for s in said)
+    rec = Recording(mcap)
+    assert len(rec.episodes) == 2 and rec.session["simulated"] == "true"
+    runs = read_logs(mcap)
+    free = np.load(tmp_path / "cal" / "data" / "free_motion.npz")
+    assert len(runs[0].log.t) == len(free["t"]) and np.allclose(runs[0].log.q, free["q"])
+    assert np.allclose(runs[0].log.q_cmd, free["q_cmd"]) and runs[0].log.arm == "piper"
+    assert runs[1].log.contact.any()  # the pushes, with the twin's ground truth
+    rep = calibrate_from_logs([mcap], tmp_path / "again", cfg=tiny, plots=False)
+    n_free = sum(int((~r.log.contact).sum()) if r.log.contact is not None else len(r.log.t) for r in runs)
+    assert rep["data_minutes"] * 60 * 100 < n_free  # contact samples (and a margin) were not trained on
+    assert rep["arm"] == "piper" and rep["prior"] == "none"

@@ -9,7 +9,7 @@ import torch
 from calibration.next.checkpoint import NextCheckpoint, load_checkpoint, save_checkpoint
 from calibration.next.data import Segment, build_windows
 from calibration.next.model import ModelConfig, NextModel
-from calibration.next.train import EarlyStopping, TrainConfig, lr_at, train
+from calibration.next.train import EarlyStopping, TrainConfig, lr_at, stopped_paying, train
 from hardware.errors import UserError
 
 torch.set_num_threads(1)
@@ -94,3 +94,47 @@ def test_lr_schedule_warmup_cosine_floor():
     assert lr_at(cfg, 300) == pytest.approx(1e-4) and lr_at(cfg, 10**6) == pytest.approx(1e-4)
     flat = TrainConfig(lr=1e-3, lr_peak=1e-3, lr_warmup_windows=0, lr_decay_windows=0)
     assert lr_at(flat, 0) == lr_at(flat, 10**6) == pytest.approx(1e-3)
+
+
+def test_lr_schedule_follows_the_wall_budget_when_it_is_further():
+    cfg = TrainConfig(lr=1e-3, lr_peak=5e-3, lr_warmup_windows=100, lr_decay_windows=200, lr_final=1e-4,
+                      max_seconds=10.0)
+    assert lr_at(cfg, 0, 0.0) == pytest.approx(1e-3)
+    assert lr_at(cfg, 0, 9.0) == pytest.approx(1e-4)  # 90 % of the budget spent: annealed, whatever was seen
+    assert lr_at(cfg, 100, 1.0) == pytest.approx(5e-3)  # windows further than time: windows rule
+
+
+def test_validation_gain_rule_stops_when_the_loss_stops_paying():
+    # best validation loss per epoch; rule: < 1 % gain over the last 3 epochs, never before epoch 4
+    assert not stopped_paying([1.0, 0.5, 0.4, 0.3], 0.01, 3, 4)
+    assert not stopped_paying([1.0, 0.5, 0.4, 0.3, 0.25], 0.01, 3, 4)
+    assert stopped_paying([1.0, 0.5, 0.4, 0.3, 0.2999, 0.2998, 0.2997], 0.01, 3, 4)
+    assert not stopped_paying([1.0, 1.0, 1.0, 1.0, 1.0], 0.01, 0, 0)  # rule off
+    data = build_windows(_synthetic_segments(), history=10, block_s=5.0)
+    res = train(data, _small_cfg(max_epochs=200, patience=1000, warmup=2, min_gain=0.5, gain_epochs=2),
+                progress_bar=False)
+    assert res.stop_reason == "validation gain" and res.epochs < 200
+    assert res.seconds_to_within_5pct is not None and res.seconds_to_within_5pct <= res.seconds
+    timed = train(data, _small_cfg(max_epochs=10**6, patience=10**6, gain_epochs=0, max_seconds=1.0),
+                  progress_bar=False)
+    assert timed.stop_reason == "budget" and timed.seconds < 3.0
+
+
+def test_thread_probe_keeps_the_faster_and_drops_to_one_thread_on_a_collapse():
+    import time
+
+    from calibration.next.train import ThreadProbe
+
+    probe = ThreadProbe(cores=2)
+    try:
+        for batch, took in ((0, 0.0), (1, 0.005), (2, 0.15), (3, 0.0)):  # probe: 2 threads faster
+            probe.before(0, batch)
+            time.sleep(took)
+            probe.after()
+        assert probe.threads == 2
+        probe.before(0, 4)
+        time.sleep(0.4)  # far over its probe: the machine got busy
+        probe.after()
+        assert probe.threads == 1 and torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(1)

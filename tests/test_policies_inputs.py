@@ -165,14 +165,17 @@ def test_next_offline_labels_from_the_logged_joint_states(tmp_path, capsys):
     log = eps[0].to_plain("follower")
     expect = log.tau - batch_tau_f(model.ck, log.q, log.qd, log.q_cmd)  # the log is uniform at 100 Hz already
     np.testing.assert_allclose(tau[9:], expect[9 : len(tau)], atol=1e-5)
-    th = resolve_thresholds(None, model, eps, arms)
+    th = resolve_thresholds("next", model, eps, arms)
     assert th.t_low == pytest.approx(2.0 * 0.3) and th.t_high == pytest.approx(3.0 * 0.3)
-    rc = main(["episodes", "phases", str(tmp_path), "--next", str(ck_path), "--out", str(tmp_path / "ph")])
+    assert resolve_thresholds(None, model, eps, arms) == th  # the library's former default stays
+    assert resolve_thresholds("recording", model, eps, arms).source.startswith("recording: Otsu")
+    rc = main(["episodes", "phases", str(tmp_path), "--next", str(ck_path), "--thresholds", "next",
+               "--out", str(tmp_path / "ph")])
     out = capsys.readouterr().out
     assert rc == 0 and "NEXT next@" in out and len(list((tmp_path / "ph").glob("*.png"))) == 1
 
 
-def test_thresholds_default_from_the_checkpoint_the_session_names(tmp_path):
+def test_thresholds_next_from_the_checkpoint_the_session_names(tmp_path):
     from policies.labelling import resolve_thresholds
     from policies.recordings import load_episodes
 
@@ -185,5 +188,18 @@ def test_thresholds_default_from_the_checkpoint_the_session_names(tmp_path):
         metadata={"next_checkpoint": f"{ck_path}#0123abcd"},
     )
     eps, arms = load_episodes([tmp_path])
-    th = resolve_thresholds(None, None, eps, arms)
+    th = resolve_thresholds("next", None, eps, arms)
     assert (th.t_low, th.t_high) == (pytest.approx(0.6), pytest.approx(0.9)) and "next@" in th.source
+
+
+def test_normaliser_clips_tiny_spreads_and_centres_constants():
+    from policies.normalizer import STD_MIN, Normalizer
+
+    rng = np.random.default_rng(0)
+    x = np.stack([rng.normal(0, 0.3, 500), rng.normal(0.1, 0.003, 500), np.full(500, 0.02)], 1)
+    n = Normalizer.fit({"state": x})
+    assert n.std["state"][0] == pytest.approx(0.3, rel=0.1)
+    assert n.std["state"][1] == pytest.approx(STD_MIN)  # barely moves: clipped, not amplified 100x
+    assert n.std["state"][2] == 1.0  # constant: centred only
+    z = n.norm("state", np.array([[0.0, 0.15, 0.02]]))
+    assert abs(z[0, 1]) < 6 and z[0, 2] == 0.0

@@ -91,6 +91,42 @@ def test_phases_cli_without_tau_ext_or_next_is_one_line(tmp_path, capsys):
     assert (
         rc == 2 and "no estimated tau_ext" in err and "--next" in err and len(err.strip().splitlines()) == 1
     )
-    rc = main(["episodes", "phases", str(tmp_path)])
+    rc = main(["episodes", "phases", str(tmp_path)])  # the default thresholds need tau_ext too
     err = capsys.readouterr().err
-    assert rc == 2 and "--thresholds" in err
+    assert rc == 2 and "no estimated tau_ext" in err and len(err.strip().splitlines()) == 1
+    rc = main(["episodes", "phases", str(tmp_path), "--thresholds", "next"])  # and no checkpoint is named
+    err = capsys.readouterr().err
+    assert rc == 2 and "--next" in err and len(err.strip().splitlines()) == 1
+
+
+def test_otsu_splits_noise_from_contact_in_log_space():
+    rng = np.random.default_rng(0)
+    noise = np.exp(rng.normal(np.log(0.4), 0.4, 8000))  # free motion: median 0.4 N*m
+    contact = np.exp(rng.normal(np.log(8.0), 0.6, 2000))  # contact: median 8 N*m
+    t = P.otsu_log_threshold(np.r_[noise, contact, np.nan, 0.0])  # NaN and 0 are ignored
+    assert 1.0 < t < 3.5, t  # the valley: above ~all of the noise, below ~98 % of the contact
+    assert np.mean(noise > t) < 0.01 and np.mean(contact < t) < 0.02
+    # the same split with contact the majority (a wiping task) and with the classes scaled together
+    t2 = P.otsu_log_threshold(np.r_[noise[:2000], contact, contact])
+    assert 1.0 < t2 < 3.5 and P.otsu_log_threshold(10 * np.r_[noise, contact]) == pytest.approx(10 * t, 0.05)
+    lo, hi = P.recording_thresholds(np.r_[noise, contact])
+    assert lo == pytest.approx(t) and hi == pytest.approx(P.HIGH_RATIO * t)
+    with pytest.raises(ValueError):
+        P.otsu_log_threshold(np.full(10, 0.5))
+
+
+def test_phases_cli_default_thresholds_come_from_the_recording(tmp_path, capsys):
+    from factr2_teleop.cli import main
+
+    # noise 0.01 N*m per joint, contact 2 N*m per joint (score 12) from 1.5 to 2.5 s of each 4 s episode
+    write_recording(tmp_path / "a.mcap", episodes=2, seconds=4.0, cameras=())
+    rc = main(["episodes", "phases", str(tmp_path), "--out", str(tmp_path / "ph")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    head = out.splitlines()[0]
+    assert "recording: Otsu" in head and "2 episodes, 800 samples" in head, head
+    lo, hi = (float(head.split(w)[1].split(",")[0].split()[0]) for w in ("T_low ", "T_high "))
+    assert 0.1 < lo < hi < 12.0, head  # between the noise (score ~0.05) and the contact (12)
+    row = next(line for line in out.splitlines() if line.startswith("a.mcap#0"))
+    free, pre, con = (float(x.rstrip("%")) for x in row.split()[2:5])
+    assert abs(pre - 25) < 1.5 and abs(con - 25) < 1.5 and abs(free - 50) < 1.5

@@ -43,24 +43,28 @@ def _opts(rec, out, policy="act", steps=20, **kw):
     )
 
 
+def _series(run, key):
+    return [r[key] for r in map(json.loads, (run / "metrics.jsonl").read_text().splitlines()) if key in r]
+
+
 def _losses(run):
-    return [
-        r["train/loss"]
-        for r in map(json.loads, (run / "metrics.jsonl").read_text().splitlines())
-        if "train/loss" in r
-    ]
+    return _series(run, "train/loss")
 
 
-@pytest.mark.parametrize("policy", ["act", "flow"])
-def test_tiny_model_overfits_a_few_episodes(recordings, tmp_path, policy):
+@pytest.mark.parametrize("policy,steps", [("act", 100), ("flow", 200)])
+def test_tiny_model_overfits_a_few_episodes(tmp_path, policy, steps):
+    """The imitation term (ACT: L1 of the chunk; flow: the velocity MSE) falls 10x on one 3 s episode (30
+    samples): more steps on fewer samples and a higher lr than the other tests. ACT's total loss is not
+    used: its KL term starts at ~60 and collapses by itself (measured: action term 20x, flow 47x)."""
     torch.set_num_threads(1)
+    write_recording(tmp_path / "rec" / "a.mcap", episodes=1, seconds=3.0)
+    run = tmp_path / "run"
     run_training(
-        _opts(recordings, tmp_path / "run", policy, steps=(80 if policy == "act" else 150), val_fraction=0.0),
-        Dist(),
+        _opts(tmp_path / "rec", run, policy, steps=steps, val_fraction=0.0, train=dict(lr=2e-3)), Dist()
     )
-    loss = _losses(tmp_path / "run")
+    loss = _series(run, "train/action")
     first, last = np.mean(loss[:3]), np.mean(loss[-10:])
-    assert first / last > (10 if policy == "act" else 5), (first, last)
+    assert len(loss) == steps and first / last > 10, (first, last)
 
 
 def test_checkpoint_round_trip_and_tensorboard(recordings, tmp_path):

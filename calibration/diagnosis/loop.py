@@ -2,11 +2,16 @@
 
 A candidate is accepted only when it lowers the held-out mean absolute error of its joint by more than
 max(rel_gain * that error, abs_gain * RMS of that joint's held-out target) and does not raise the mean over
-joints. Candidates are tried in trace-score order (at most `tries` per step). With an arm description,
-those whose trace score is within `close` of the best are all fitted, and a lower-ranked one replaces a
-higher-ranked one only when its held-out gain is larger by the acceptance threshold (the trace ranks on the
-training residual before the refit; two near-ties are told apart by what they do after it). With the
-data-only basis the trial fits keep the ridge chosen before the effect, so there the first that passes is
+joints. Candidates are tried in trace order (at most `tries` per step). With an arm description (or around
+NEXT) held-out gains compare across candidates, and of those that pass, the effect that removes the most of
+the arm's held-out residual is kept (mean square summed over joints, `heldout_explained`): the trace
+proposes candidates alternately by the torque they explain in the training residual (`trace.rank_explained`:
+an arm-wide payload first when it explains more N*m in total) and by the fraction of their own joint's
+residual (`trace.rank`: structure on a small joint); those within `close` of the best of either order are
+all fitted, and a later one replaces an earlier one only when it removes more by `rel_gain` of the arm's
+held-out mean square (the trace ranks on the training residual before the refit; near-ties are told apart
+by what they do after it). With the data-only basis the trial fits keep the ridge chosen before the effect,
+so their gains are not comparable: there candidates are tried by fraction and the first that passes is
 kept. Of nested families (an offset inside a spring) the simpler is kept unless the extra parameter earns the
 acceptance threshold on its own.
 """
@@ -21,7 +26,7 @@ import numpy as np
 from .basis import select_ridge
 from .effects import Effect
 from .greybox import Design, GreyBox, errors
-from .trace import candidates, rank
+from .trace import Candidate, candidates, rank, rank_explained
 
 
 @dataclass
@@ -30,7 +35,7 @@ class LoopConfig:
     abs_gain: float = 0.005
     tries: int = 4  # trial fits per round
     tries_per_joint: int = 2
-    close: float = 0.5  # candidates scoring >= close x the best trace score are compared on held-out gain
+    close: float = 0.5  # candidates >= close x the best of either trace order are compared on held-out gain
     max_effects: int = 20
     min_score: float = 1e-3
     worst_joint: bool = True  # a round that passes nothing tries the worst joint's best candidate if untried
@@ -102,10 +107,11 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
         accepted = None
         # With a data-only basis the trial fits use the ridge chosen before the effect (it is re-chosen only
         # for the effect kept), so their held-out gains are not comparable: the trace order decides there.
-        close = cfg.close if not hasattr(basis, "per_joint") else np.inf
+        comparable = not hasattr(basis, "per_joint")
+        order, near = proposals(cands, cfg.close if comparable else np.inf, comparable)
         tries: dict[int, int] = {}
-        for c in cands:
-            if accepted is not None and c.score < close * cands[0].score:
+        for c in order:
+            if accepted is not None and not near(c):
                 break  # a close candidate passed; the weaker ones are not compared
             if sum(tries.values()) >= cfg.tries:
                 break
@@ -116,14 +122,15 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
             if tries.get(who, 0) >= cfg.tries_per_joint:
                 continue
             tries[who] = tries.get(who, 0) + 1
-            tried = _try(model, c, train, held, l1, floor, cfg)
+            tried = _try(model, c, train, held, (l1, rms), floor, cfg)
             if tried is None:
                 _reject(c, rejected, log)
                 continue
-            # a later (lower-ranked) close candidate must beat the kept one by the acceptance threshold too
-            if accepted is None or tried[-1] > accepted[-1] + accepted[0].evidence["heldout_check"]["needed"]:
+            # a later close candidate must explain more of the arm's held-out residual than the kept one, by
+            # the relative acceptance threshold
+            if accepted is None or tried[-1] > accepted[-1] + cfg.rel_gain * float(np.sum(rms ** 2)):
                 accepted = tried
-            if c.score < close * cands[0].score:
+            if not near(c):
                 break  # outside the close group the first that passes is kept
         worst = int(np.argmax(l1))
         if accepted is None and cfg.worst_joint and worst not in tries:
@@ -133,12 +140,12 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
             # joint: one extra try per joint added spurious terms on the clean twin)
             c = next((c for c in cands if not c.effect.wide and c.effect.joint == worst), None)
             if c is not None:
-                accepted = _try(model, c, train, held, l1, floor, cfg)
+                accepted = _try(model, c, train, held, (l1, rms), floor, cfg)
                 if accepted is None:
                     _reject(c, rejected, log)
         if accepted is None:
             break
-        accepted = _simpler(model, accepted, train, held, l1, floor, cfg, log)
+        accepted = _simpler(model, accepted, train, held, (l1, rms), floor, cfg, log)
         accepted = accepted[:5]
         c, trial, l1_new, rms_new, ltr_new = accepted
         added = c.effect.__class__(c.effect.family, c.effect.joint, dict(c.effect.hyper))
@@ -163,6 +170,31 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
         model, l1, rms = trial, l1_new, rms_new
     model, pruned = _prune(model, train, held, l1, floor, cfg, log)
     return Diagnosis(steps, model, train, held, cfg, rejected, pruned, declared)
+
+
+def proposals(cands: list[Candidate], close: float, by_units: bool):
+    """The order in which a round's candidates (sorted by `trace.rank`) are tried, and near(c): whether c is
+    close enough to the best to be compared on held-out gain rather than skipped once one has passed.
+    by_units (held-out gains comparable: an arm description, NEXT): alternately the next best by torque
+    explained (`trace.rank_explained`) and by fraction of its own joint's residual, so the effect removing
+    the most N*m is tried first and small joints' structure is still tried; near: within `close` of the best
+    fraction or of the most explained (sum of squares). Else the fraction order alone."""
+    best = cands[0].score if cands else 0.0
+    most = max((c.explained ** 2 for c in cands), default=0.0)
+
+    def near(c: Candidate) -> bool:
+        return c.score >= close * best or (by_units and c.explained ** 2 >= close * most)
+
+    if not by_units:
+        return list(cands), near
+    units = sorted(cands, key=rank_explained)
+    order, seen = [], set()
+    for pair in zip(units, cands):
+        for c in pair:
+            if id(c) not in seen:
+                seen.add(id(c))
+                order.append(c)
+    return order, near
 
 
 def _reject(c, rejected: list, log) -> None:
@@ -190,16 +222,20 @@ def _need(e: Effect, l1, floor, cfg: LoopConfig) -> float:
     return float(max(cfg.rel_gain * _l1_of(e, l1), np.sum(floor) if e.wide else floor[e.joint]))
 
 
-def _try(model: GreyBox, c, train: Design, held: Design, l1, floor, cfg: LoopConfig):
-    """Fit the model with candidate c -> (c, trial, l1, rms, train l1, margin) when its joint's held-out L1
-    (arm-wide effects: the sum over joints) drops by more than the threshold (margin = drop - threshold)
-    and the mean does not rise; else None."""
+def _try(model: GreyBox, c, train: Design, held: Design, before, floor, cfg: LoopConfig):
+    """Fit the model with candidate c -> (c, trial, l1, rms, train l1, explained) when its joint's held-out
+    L1 (arm-wide effects: the sum over joints) drops by more than the threshold and the mean does not rise;
+    else None. before: (held-out L1, held-out RMS) per joint without c. explained: what c removes from the
+    arm's held-out residual, mean square summed over joints [units^2] (`heldout_explained`)."""
+    l1, rms = before
     trial = model.with_effect(c.effect).fit(train)
     t_l1, t_rms, t_ltr = _eval(trial, train, held)
     gain = _l1_of(c.effect, l1) - _l1_of(c.effect, t_l1)
     need = _need(c.effect, l1, floor, cfg)
+    ex = heldout_explained(rms, t_rms)
     c.evidence.update({"heldout_l1_joint_before": round(_l1_of(c.effect, l1), 6),
-                       "heldout_l1_joint_after": round(_l1_of(c.effect, t_l1), 6)})
+                       "heldout_l1_joint_after": round(_l1_of(c.effect, t_l1), 6),
+                       "heldout_explained_units": round(float(np.sqrt(max(ex, 0.0))), 6)})
     c.evidence["heldout_check"] = {"heldout_gain": gain, "needed": need}
     fitted = next(e for e in trial.effects if e.key == c.effect.key)
     why = fitted.implausible()
@@ -207,14 +243,23 @@ def _try(model: GreyBox, c, train: Design, held: Design, l1, floor, cfg: LoopCon
         c.evidence["heldout_check"].update({"implausible": why, **fitted.evidence_of()})
         return None
     if gain > need and t_l1.mean() <= l1.mean():
-        return c, trial, t_l1, t_rms, t_ltr, gain - need
+        return c, trial, t_l1, t_rms, t_ltr, ex
     return None
+
+
+def heldout_explained(rms_before, rms_after) -> float:
+    """What an effect removes from the arm's held-out residual: the drop of its mean square summed over
+    joints [units^2] (negative when it adds). Squares, not L1: squared residuals of independent parts add, so
+    a smooth load under a joint's friction step is credited with its full size, where the L1 of the sum
+    falls by much less (on the twin, a 0.3 kg payload lowered the held-out L1 of the loaded joints less than
+    the base's friction term lowered the base's, while removing twice its mean square)."""
+    return float(np.sum(np.square(rms_before)) - np.sum(np.square(rms_after)))
 
 
 SIMPLER = {"position_spring": "current_offset"}  # family -> the nested family with fewer parameters
 
 
-def _simpler(model: GreyBox, accepted, train: Design, held: Design, l1, floor, cfg: LoopConfig, log):
+def _simpler(model: GreyBox, accepted, train: Design, held: Design, before, floor, cfg: LoopConfig, log):
     """Occam between nested families: a spring k*(q - q_ref) + c whose slope does not lower the held-out
     error by the acceptance threshold is an offset."""
     c = accepted[0]
@@ -224,10 +269,9 @@ def _simpler(model: GreyBox, accepted, train: Design, held: Design, l1, floor, c
     alt = Effect(fam, c.effect.joint)
     if alt.slot in {e.slot for e in model.effects}:
         return accepted
-    from .trace import Candidate
-
-    cand = Candidate(alt, c.score, {**c.evidence, "columns": 1, "simpler_than": c.effect.family})
-    tried = _try(model, cand, train, held, l1, floor, cfg)
+    cand = Candidate(alt, c.score, {**c.evidence, "columns": 1, "simpler_than": c.effect.family},
+                     c.explained, c.residual)
+    tried = _try(model, cand, train, held, before, floor, cfg)
     j = c.effect.joint
     need = max(cfg.rel_gain * accepted[2][j], floor[j])
     if tried is not None and tried[2][j] - accepted[2][j] <= need:

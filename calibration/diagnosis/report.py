@@ -59,8 +59,9 @@ def headline(dg: Diagnosis, names: list, meta: dict) -> str:
 
     kept = {key(e.family, e.joint, e.hyper): e for e in found}
     # the first step whose effect the final model still holds (an early find can be pruned later)
-    step = next((s.added for s in dg.steps[1:] if s.added is not None
-                 and key(s.added["effect"], s.added["joint"], s.added["hyper"]) in kept), None)
+    k = next((k for k, s in enumerate(dg.steps) if k and s.added is not None
+              and key(s.added["effect"], s.added["joint"], s.added["hyper"]) in kept), None)
+    step = None if k is None else dg.steps[k].added
     if step is None:
         return f"Nothing missing: no effect explains {of} held-out residual beyond the acceptance threshold"
     first = kept[key(step["effect"], step["joint"], step["hyper"])]
@@ -68,9 +69,13 @@ def headline(dg: Diagnosis, names: list, meta: dict) -> str:
     b, a = ev["heldout_l1_joint_before"], ev["heldout_l1_joint_after"]
     where = "summed over joints" if first.wide else f"of {names[first.joint]}"
     more = f"; {len(found) - 1} more effect(s) below" if len(found) > 1 else ""
+    # the loop ranks on the held-out mean square it removes (summed over joints; L1 of a sum is not a sum)
+    ms = float(np.sum(np.square(dg.steps[k - 1].heldout_rms)))
+    sq = (f"; {100 * ev['heldout_explained_units'] ** 2 / ms:.0f} % of the arm's held-out mean square"
+          if "heldout_explained_units" in ev and ms > 0 else "")
     return (f"{first.describe(u, names)[0].upper()}{first.describe(u, names)[1:]} explains "
             f"{100 * (b - a) / max(b, 1e-12):.0f} % of {of} held-out residual {where} "
-            f"(L1 {b:.3g} -> {a:.3g} {u}){more}")
+            f"(L1 {b:.3g} -> {a:.3g} {u}{sq}){more}")
 
 
 def _binned(x, y, bins=50):

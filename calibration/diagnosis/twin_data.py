@@ -176,17 +176,18 @@ def _payload_hook():
     return piper_payload
 
 
-def twin_rig(effects: dict[str, bool]):
-    """sim-piper with only the follower (no leader to simulate) and the given actuator switches."""
+def twin_rig(effects: dict[str, bool], description_error: bool = True):
+    """sim-piper with only the follower (no leader to simulate) and the given actuator switches;
+    description_error: the twin's arm is its true body, not the description (hardware/arms/true_body.py)."""
     from hardware.rigs import load_rig
 
     r = load_rig("sim-piper")
-    tw = replace(r.twin, effects={**r.twin.effects, **effects})
+    tw = replace(r.twin, effects={**r.twin.effects, **effects}, description_error=description_error)
     return replace(r, leaders=[], cameras=[], pairs=[], twin=tw)
 
 
 def record(seconds: float, seed: int, hook, effects: dict[str, bool], twin_seed: int = 0,
-           rate_hz: float = 100.0) -> dict[str, np.ndarray]:
+           rate_hz: float = 100.0, description_error: bool = True) -> dict[str, np.ndarray]:
     """One lockstep free-motion run of about `seconds` (coverage trajectory, seed `seed`) -> plain-log arrays.
     The twin's own temperature is not read by the driver, so no temperature array is logged."""
     from calibration.next.collect import ContactStop, collect_free_motion
@@ -194,7 +195,7 @@ def record(seconds: float, seed: int, hook, effects: dict[str, bool], twin_seed:
     from hardware.connect import open_rig
 
     traj = arm_coverage_trajectory("piper", minutes=seconds / 60.0, rate_hz=rate_hz, seed=seed)
-    with open_rig(twin_rig(effects), clock="lockstep", effect=hook, seed=twin_seed) as s:
+    with open_rig(twin_rig(effects, description_error), clock="lockstep", effect=hook, seed=twin_seed) as s:
         try:
             run = collect_free_motion(s, "follower", traj, move_speed=0.5)
         except ContactStop as e:  # the coarse contact guard tripped: keep what was recorded, say so
@@ -208,7 +209,8 @@ def record(seconds: float, seed: int, hook, effects: dict[str, bool], twin_seed:
 
 
 def generate(folder, case: TwinCase, seconds: float = 60.0, heldout_seconds: float = 30.0,
-             effects: dict[str, bool] | None = None, seed: int = 0, reuse: bool = False) -> tuple[Path, Path]:
+             effects: dict[str, bool] | None = None, seed: int = 0, reuse: bool = False,
+             description_error: bool = True) -> tuple[Path, Path]:
     """Write train.npz (trajectory seed `seed`) and heldout.npz (a different trajectory, seed+100) for
     `case` into `folder`; returns their paths. reuse: keep logs already there (lockstep runs are
     deterministic, so the same arguments give the same logs)."""
@@ -222,7 +224,7 @@ def generate(folder, case: TwinCase, seconds: float = 60.0, heldout_seconds: flo
         if reuse and (folder / f"{name}.npz").exists():
             paths.append(folder / f"{name}.npz")
             continue
-        arrays = record(secs, s, case.make(), eff, twin_seed=s)
+        arrays = record(secs, s, case.make(), eff, twin_seed=s, description_error=description_error)
         p = folder / f"{name}.npz"
         save_plain_log(p, **arrays)
         paths.append(p)

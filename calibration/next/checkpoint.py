@@ -16,7 +16,7 @@ from safetensors.torch import load_file, save_file
 
 from calibration.next.data import Normalizer
 from calibration.next.model import ModelConfig, NextModel
-from calibration.next.prior import Prior
+from calibration.next.prior import Prior, prior_from_dict
 from hardware.errors import ConfigError, UserError
 
 FORMAT = "factr2-next/1"
@@ -36,7 +36,7 @@ class NextCheckpoint:
     data_hash: str = ""
     train_config: dict | None = None
     metrics: dict | None = None
-    prior: Prior | None = None  # tau_f = prior + network; None: the network alone (the paper's NEXT)
+    prior: Prior | None = None  # or data_prior.DataPrior; tau_f = prior + network; None: the network alone
 
     @property
     def history(self) -> int:
@@ -80,7 +80,7 @@ def load_checkpoint(path: str | Path, arm: str | None = None, joint_names: list[
         cfg = ModelConfig(**meta["model"])
         model = NextModel(cfg)
         model.load_state_dict(load_file(str(w_path)))
-        prior = Prior.from_dict(meta["prior"], len(meta["joint_names"])) if meta.get("prior") else None
+        prior = prior_from_dict(meta["prior"], len(meta["joint_names"])) if meta.get("prior") else None
     except (ValueError, KeyError, TypeError, RuntimeError, OSError) as e:
         raise ConfigError(f"not a readable NEXT checkpoint ({type(e).__name__}: {str(e)[:80]})",
                           where=str(j_path), fix="retrain with `factr2 calibrate`") from None

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -115,10 +115,12 @@ def residual_exceeds(r: np.ndarray, tau_max: np.ndarray, frac: float) -> bool:
 def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_speed: float = 0.3,
                         contact_frac: float = 0.3, contact_ticks: int = 5,
                         progress: Callable[[float, float], bool | None] | None = None,
-                        pushes: list[Push] | None = None) -> CollectedRun:
+                        pushes: list[Push] | None = None, recorder=None) -> CollectedRun:
     """Replay `traj` on the session's follower (RigSession of hardware.connect.open_rig). progress(done_s,
     total_s) is called every tick; returning True stops the run (operator stop). Raises ContactStop (with
-    the partial run attached) unless `pushes` are given (twin only; guard off)."""
+    the partial run attached) unless `pushes` are given (twin only; guard off). recorder: a
+    hardware.recording Recorder; every recorded sample also goes to it, under the follower's name (its joint
+    state with q_cmd = the target sent, and the twin's ground truth), as teleop records."""
     from hardware.arms import load_arm
     from hardware.arms.dynamics import ArmDynamics
 
@@ -176,6 +178,10 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
                 gt = truth(follower_name, average_s=dt)  # the mean over this sample period
                 run.tau_ext_true.append(np.asarray(gt.tau_ext)[: arm.n_joints])
                 run.contact.append(bool(gt.contact) or bool(np.any(np.asarray(gt.tau_push) != 0.0)))
+            if recorder is not None:
+                recorder.log_joint_state(follower_name, st.t, replace(st, q_cmd=np.asarray(q_ref, float)))
+                if truth is not None:
+                    recorder.log_ground_truth(follower_name, st.t, run.tau_ext_true[-1], run.contact[-1])
         if progress is not None and progress((k + 1) * dt, len(plan) * dt):
             follower.hold("operator stop")
             run.stopped = "operator"

@@ -28,12 +28,14 @@ INPUT_SETS = ("q", "q,qd", "q,qd,dq")
 def resample_log(log, rate_hz: float = 100.0, max_gap_s: float = 0.1) -> list[Segment]:
     """Resample a PlainLog (hardware.recording.plain_log) onto a `rate_hz` grid; split at gaps > max_gap_s.
 
-    Linear interpolation of q, qd, q_cmd, tau (and tau_ext_true, temperature); `contact` takes the nearest
-    earlier sample (hardware.timeseries.resample). Samples with any non-finite value are dropped first
-    (treated as a gap).
+    Linear interpolation of q, qd, q_cmd (None when not logged), tau (and tau_ext_true, temperature);
+    `contact` takes the nearest earlier sample (hardware.timeseries.resample). Samples with any non-finite
+    value are dropped first (treated as a gap).
     """
     t = np.asarray(log.t, float)
-    arrays = {"q": log.q, "qd": log.qd, "q_cmd": log.q_cmd, "tau": log.tau}
+    arrays = {"q": log.q, "qd": log.qd, "tau": log.tau}
+    if log.q_cmd is not None:  # None: not logged (calibration.next.logs; inputs then fall back to q, q_dot)
+        arrays["q_cmd"] = log.q_cmd
     if log.tau_ext_true is not None:
         arrays["tau_ext_true"] = log.tau_ext_true
     finite = np.ones(len(t), bool)
@@ -147,6 +149,8 @@ def data_hash(segments: list[Segment]) -> str:
     h = hashlib.sha256()
     for s in segments:
         for a in (s.q, s.qd, s.q_cmd, s.tau):
+            if a is None:
+                continue
             h.update(np.ascontiguousarray(a, np.float64).tobytes())
     return h.hexdigest()[:16]
 

@@ -45,7 +45,7 @@ from calibration.estimate import (  # noqa: F401  (re-exported: the flags of NEX
 from calibration.next.checkpoint import NextCheckpoint, weights_numpy
 from calibration.next.data import make_inputs
 from calibration.next.lstm_runs import CarriedRun, ExactWindows, LstmWeights
-from calibration.next.prior import PriorStream, prior_torque
+from calibration.next.prior import make_stream, prior_torque
 from calibration.next.train import predict_series
 
 CARRIED_TOL = 0.01  # the carried state may move the network output by <= 1 % of its validation L1, per joint
@@ -113,7 +113,7 @@ class NextEstimator:
             raise ValueError("the carried state needs a 2-layer LSTM checkpoint")
         else:
             self._buf = np.zeros((self.H, self.cfg.n_in), np.float32)
-        self._prior = PriorStream(ck.prior, ck.rate_hz) if ck.prior is not None else None
+        self._prior = make_stream(ck.prior, ck.rate_hz) if ck.prior is not None else None
         self.reset()
 
     @property
@@ -184,8 +184,8 @@ class NextEstimator:
         """One control tick. q [rad], q_dot [rad/s], q_cmd [rad], tau_m [N*m or A as the checkpoint],
         temperature [degC] per joint (used by a prior with a temperature term)."""
         try:
-            x_raw = make_inputs(np.asarray(q, float), np.asarray(q_dot, float), np.asarray(q_cmd, float),
-                                self.ck.inputs)
+            x_raw = make_inputs(np.asarray(q, float), np.asarray(q_dot, float),
+                                None if q_cmd is None else np.asarray(q_cmd, float), self.ck.inputs)
             tau = np.asarray(tau_m, float).reshape(self.n_j)
         except (ValueError, TypeError):
             self.reset()

@@ -43,7 +43,8 @@ from functools import lru_cache
 import numpy as np
 import pinocchio as pin
 
-PRIOR_KINDS = ("none", "description", "identified")
+PRIOR_KINDS = ("none", "description", "identified", "data-only")  # data-only: calibration.next.data_prior
+ARM_KINDS = ("description", "identified")  # the kinds this module fits (they need the arm description)
 ACCEL_CUTOFF_HZ = 20.0  # the fit's low-pass on the residual [Hz]
 FILTER_ORDER = 2  # first-order sections in cascade, fit and estimate (2: half the noise of 1, a bit more lag)
 # The estimate's adaptive low-pass, chosen by bench/tune_next_filter.py on pushed twin runs that are not the
@@ -101,7 +102,7 @@ class Prior:
     def from_dict(cls, d: dict, n_joints: int | None = None) -> Prior:
         """Inverse of to_dict; ValueError on an unknown kind or version, or (with n_joints) arrays of the
         wrong size or non-finite values."""
-        if d.get("kind") not in PRIOR_KINDS[1:]:
+        if d.get("kind") not in ARM_KINDS:
             raise ValueError(f"prior kind {d.get('kind')!r}")
         if d.get("version") != 2:
             raise ValueError("prior from an older version of factr2 (retrain it)")
@@ -248,10 +249,32 @@ class PriorStream:
         return np.asarray(tau, float) - self._lp(tau_m - pred, dt)
 
 
+def prior_from_dict(d: dict, n_joints: int | None = None):
+    """A checkpoint's prior of any kind (Prior or data_prior.DataPrior); ValueError when unreadable."""
+    if d.get("kind") == "data-only":
+        from calibration.next.data_prior import DataPrior
+
+        return DataPrior.from_dict(d, n_joints)
+    return Prior.from_dict(d, n_joints)
+
+
+def make_stream(p, rate_hz: float | None = None):
+    """The one-sample-at-a-time form of a prior of any kind (PriorStream or data_prior.DataPriorStream)."""
+    if p.kind == "data-only":
+        from calibration.next.data_prior import DataPriorStream
+
+        return DataPriorStream(p, rate_hz)
+    return PriorStream(p, rate_hz)
+
+
 def prior_torque(p: Prior, t: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray,
                  temperature: np.ndarray | None = None) -> np.ndarray:
     """The prior's part of tau_f [N*m] for every sample of one run (N, n), filters started at its first
-    sample: tau_m - F(tau_m - prior)."""
+    sample: tau_m - F(tau_m - prior). A data-only prior (calibration.next.data_prior) in the log's units."""
+    if p.kind == "data-only":
+        from calibration.next.data_prior import data_prior_torque
+
+        return data_prior_torque(p, t, q, qd, tau)
     s = PriorStream(p)
     dts = np.diff(np.asarray(t, float), prepend=t[0])  # the first sample starts the filters: its step unused
     return np.array([s.update(q[k], qd[k], tau[k], None if temperature is None else temperature[k], dts[k])
@@ -335,7 +358,7 @@ def fit_prior(kind: str, arm: str, runs: list[tuple]) -> Prior:
     if kind == "description":
         return description_prior(arm)
     if kind != "identified":
-        raise ValueError(f"prior must be one of {PRIOR_KINDS[1:]}, got {kind!r}")
+        raise ValueError(f"prior must be one of {ARM_KINDS}, got {kind!r}")
     m = pinocchio_model(arm)
     runs = [tuple(np.asarray(x, float) for x in r[:4]) + (None if len(r) < 5 or r[4] is None
                                                            else np.asarray(r[4], float),)

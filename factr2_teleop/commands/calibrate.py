@@ -1,16 +1,19 @@
 """`factr2 calibrate`: train NEXT (learned free-space inverse dynamics) and compare it with the baselines.
 
-From existing logs (plain .npz, hardware/recording/plain_log.py):
+From existing logs (plain .npz, hardware/recording/plain_log.py, or MCAP recordings: one run per episode):
     factr2 calibrate --from-logs A.npz B.npz --eval C.npz --out runs/cal1 [--arm piper]
-With logs that carry current and no torque constant, every estimate is in A.
+With logs that carry current and no torque constant, every estimate is in A. Logs without q_cmd train on
+(q, q_dot); corrupt rows are dropped with a warning (calibration/next/logs.py).
 """
 
 from __future__ import annotations
 
-import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from calibration.next.train import TRAIN_BUDGET_S, TrainConfig
 from calibration.pipeline import CONTACT_EVAL_S, HELDOUT_FRAC, MIN_MINUTES, OBSERVER_GAIN
 from hardware.errors import UserError
 
@@ -18,7 +21,8 @@ HELP = "train NEXT external-torque estimation from free-motion logs and compare 
 
 
 def add_arguments(p) -> None:
-    p.add_argument("--from-logs", nargs="+", metavar="LOG.npz", help="free-motion plain logs to train on")
+    p.add_argument("--from-logs", nargs="+", metavar="LOG", help="free-motion logs to train on: plain .npz "
+                   "logs or .mcap recordings (a --rig run's data/calibration.mcap)")
     p.add_argument("--eval", nargs="*", default=[], metavar="LOG.npz",
                    help="held-out logs: free motion (scored vs 0) unless they carry contact/tau_ext_true")
     p.add_argument("--eval-unlabeled", nargs="*", default=[], metavar="LOG.npz",
@@ -43,13 +47,20 @@ def add_arguments(p) -> None:
     p.add_argument("--arch", choices=("lstm", "gru", "mlp"), default="lstm", help="network (ablation)")
     p.add_argument("--history", type=int, default=50, help="window length H in samples (default 50)")
     p.add_argument("--inputs", choices=("q", "q,qd", "q,qd,dq"), default="q,qd,dq", help="inputs (ablation)")
-    p.add_argument("--prior", choices=("auto", "none", "description", "identified"), default="auto",
-                   help="physics prior under the network: identified = the arm description corrected by "
-                        "least squares on this data (+ friction, thermal drift of the torque constant, "
-                        "ripple); description = as described; none = the paper's plain NEXT; auto (default) "
-                        "= identified when the arm is known and torque is in N*m")
+    p.add_argument("--hidden", type=int, default=TrainConfig.hidden,
+                   help=f"LSTM width (default {TrainConfig.hidden}; the paper's is 128)")
+    p.add_argument("--prior", choices=("auto", "none", "description", "identified", "data-only"),
+                   default="auto",
+                   help="physics prior under the network: identified = the arm description corrected "
+                        "by least squares on this data (+ friction, thermal drift of the torque constant, "
+                        "ripple); description = as described; data-only = a grey box fitted by ridge "
+                        "without any description (gravity-, inertia-, Coriolis-like functions + friction); "
+                        "none = the paper's plain NEXT; auto (default) = identified when the arm is known "
+                        "and torque is in N*m, else data-only")
     p.add_argument("--max-epochs", type=int, default=400)
-    p.add_argument("--max-seconds", type=float, default=math.inf, help="stop training after this long")
+    p.add_argument("--max-seconds", type=float, default=TRAIN_BUDGET_S,
+                   help=f"training budget [s] (default {TRAIN_BUDGET_S:g}; it usually stops earlier, when "
+                        "the validation loss stops improving by 1 %% per 5 epochs; inf: no budget)")
     p.add_argument("--device", default="auto", help="torch device: auto (cuda if present), cpu, cuda")
     p.add_argument("--observer-gain", type=float, default=OBSERVER_GAIN,
                    help="momentum observer gain K_o [1/s]")
@@ -88,16 +99,34 @@ def _run_on_rig(args, train_cfg) -> int:
     return 0
 
 
-def _print_summary(report: dict, out: Path) -> None:
+def summary_lines(report: dict) -> list[str]:
+    """What `factr2 calibrate` prints: training, every method's held-out L1, what the network adds."""
     u = report["units"]
     sim = " (SIMULATED twin)" if report.get("simulated") else ""
-    print(f"trained on {report['data_minutes']:.1f} min{sim} in {report['train_seconds']:.0f} s "
-          f"({report['device']}); estimates in {u}; physics prior: {report.get('prior', 'none')}",
-          file=sys.stderr)
+    t5 = report.get("train_seconds_to_within_5pct")
+    lines = [f"trained on {report['data_minutes']:.1f} min{sim} in {report['train_seconds']:.0f} s "
+             f"({report['device']}, {report.get('threads')} thread(s); within 5 % of the final validation "
+             f"loss after {'--' if t5 is None else f'{t5:.0f}'} s; stopped: "
+             f"{report.get('train_stop') or '--'}); "
+             f"inputs {report.get('inputs')}; estimates in {u}; physics prior: {report.get('prior', 'none')}"]
     for m, v in report["methods"].items():
         free, con = v["free_l1_mean"], v["contact_l1_mean"]
-        print(f"  {m:9s} free L1 {'--' if free is None else f'{free:.4f}'}  "
-              f"contact L1 {'--' if con is None else f'{con:.4f}'} [{u}]")
+        lines.append(f"  {m:9s} free L1 {'--' if free is None else f'{free:.4f}'}  "
+                     f"contact L1 {'--' if con is None else f'{con:.4f}'} [{u}]")
+    adds = report.get("network_adds") or {}
+    base = "the prior" if adds.get("baseline") == "prior" else "the raw signal (no prior)"
+    for kind in ("free", "contact"):
+        a = adds.get(kind)
+        if a:
+            per = " ".join(f"{g:+.3f}" for g in a["gain"])
+            lines.append(f"  the network over {base}, held-out {kind}: L1 {np.mean(a['prior_l1']):.4f} -> "
+                         f"{np.mean(a['next_l1']):.4f} [{u}] (x{a['ratio_mean']:.2f}); gain per joint {per}")
+    return lines
+
+
+def _print_summary(report: dict, out: Path) -> None:
+    for line in summary_lines(report):
+        print(line, file=sys.stderr)
     print(f"wrote {out / 'report.md'}")
 
 
@@ -112,11 +141,11 @@ def _check_files(paths, flag: str) -> list[Path]:
 
 
 def run(args) -> int:
-    from calibration.next.train import TrainConfig
     from calibration.report import calibrate_from_logs
 
     if args.rig:
         return _run_on_rig(args, TrainConfig(arch=args.arch, history=args.history, inputs=args.inputs,
+                                             hidden=args.hidden,
                                              max_epochs=args.max_epochs, max_seconds=args.max_seconds,
                                              device=args.device, prior=args.prior))
     if not args.from_logs:
@@ -127,12 +156,13 @@ def run(args) -> int:
     train_paths = _check_files(args.from_logs, "--from-logs")
     eval_paths = _check_files(args.eval, "--eval")
     unlabeled = _check_files(args.eval_unlabeled, "--eval-unlabeled")
-    cfg = TrainConfig(arch=args.arch, history=args.history, inputs=args.inputs, max_epochs=args.max_epochs,
+    cfg = TrainConfig(arch=args.arch, history=args.history, inputs=args.inputs, hidden=args.hidden,
+                      max_epochs=args.max_epochs,
                       max_seconds=args.max_seconds, device=args.device, prior=args.prior)
     try:
         report = calibrate_from_logs(train_paths, args.out, eval_paths, unlabeled, arm=args.arm, cfg=cfg,
                                      rate_hz=args.rate_hz, observer_gain=args.observer_gain,
-                                     plots=not args.no_plots)
+                                     plots=not args.no_plots, say=lambda s: print(s, file=sys.stderr))
     except ValueError as e:  # too little data for one window, etc.
         raise UserError(str(e), where="factr2 calibrate", fix="give longer free-motion logs") from None
     _print_summary(report, Path(args.out))

@@ -1,5 +1,5 @@
 """The phase-labelling options shared by `factr2 train`, `factr2 export lerobot` and `factr2 episodes phases`
-(policies.labelling does the work): --next CKPT and --thresholds LOW:HIGH."""
+(policies.labelling does the work): --next CKPT and --thresholds recording|next|LOW:HIGH."""
 
 from __future__ import annotations
 
@@ -10,21 +10,25 @@ from hardware.errors import UserError
 
 def add_label_arguments(p) -> None:
     p.add_argument("--next", type=Path, default=None, metavar="CKPT",
-                   help="NEXT checkpoint: estimate tau_ext offline from the logged joint states (and take "
-                        "the default thresholds from its free-motion noise)")
-    p.add_argument("--thresholds", default=None, metavar="LOW:HIGH",
-                   help="contact hysteresis on ||tau_ext||_1 [N*m] (default: from the NEXT checkpoint's "
-                        "noise)")
+                   help="NEXT checkpoint: estimate tau_ext offline from the logged joint states")
+    p.add_argument("--thresholds", default=None, metavar="recording|next|LOW:HIGH",
+                   help="contact hysteresis on ||tau_ext||_1 [N*m]: LOW:HIGH, or derived: `recording` "
+                        "(default: Otsu's split of the recordings' own scores) or `next` (the NEXT "
+                        "checkpoint's free-motion noise: --next, else the one the recordings name)")
 
 
 def thresholds_arg(args):
-    """The parsed --thresholds (policies.phases), or None; UserError with the fix for a bad value."""
+    """The parsed --thresholds as policies.labelling.resolve_thresholds takes it: (LOW, HIGH), "next", or
+    "recording" (also when absent: the commands' default); UserError with the fix for a bad value."""
+    from policies.labelling import THRESHOLD_SOURCES
     from policies.phases import parse_thresholds
 
     if args.thresholds is None:
-        return None
+        return "recording"
+    if args.thresholds in THRESHOLD_SOURCES:
+        return args.thresholds
     try:
         return parse_thresholds(args.thresholds)
     except ValueError as e:
-        raise UserError(f"--thresholds {e}", where="--thresholds",
-                        fix="give LOW:HIGH in N*m, e.g. --thresholds 1.5:2.5") from None
+        raise UserError(str(e), where="--thresholds",
+                        fix="give LOW:HIGH in N*m (e.g. 1.5:2.5), `recording` or `next`") from None

@@ -54,6 +54,15 @@ def add_arguments(p) -> None:
         help="force input: NEXT tau_ext (default) or raw motor current",
     )
     add_label_arguments(p)
+    from policies.privileged import OBSERVATIONS
+
+    p.add_argument(
+        "--obs",
+        choices=OBSERVATIONS,
+        default="images",
+        help="what the policy sees besides joints and force: camera frames (default), or `state`: the twin "
+        "task objects' poses, PRIVILEGED and SIMULATED (recorded by `factr2 collect`; no frames read)",
+    )
     p.add_argument("--rate", type=float, default=None, help="policy rate [Hz] (default: the camera rate)")
     p.add_argument("--batch", type=int, default=128)
     p.add_argument("--lr", type=float, default=3e-4)
@@ -63,8 +72,9 @@ def add_arguments(p) -> None:
     p.add_argument("--image-size", type=int, default=None, help="input size [px] (default: the preset's)")
     p.add_argument(
         "--backbone",
-        default="resnet18-gn",
-        help="resnet18-gn (default), convnet-gn (small, fast), torchvision:NAME or timm:NAME",
+        default="",
+        help="resnet18-gn, resnet18-gn-l3 (up to layer3), convnet-gn (small, fast), torchvision:NAME or "
+        "timm:NAME (default: the preset's, small resnet18-gn-l3, paper resnet18-gn)",
     )
     p.add_argument("--backbone-weights", default="", metavar="FILE", help="local weights for the backbone")
     p.add_argument(
@@ -137,6 +147,7 @@ def _options(args):
         progress=not args.no_progress,
         train=tcfg,
         overrides=overrides,
+        observation=args.obs,
     )
 
 
@@ -196,6 +207,7 @@ def _argv(args) -> list[str]:
             "image_size",
             "backbone",
             "backbone_weights",
+            "obs",
             "val_every",
             "ckpt_every",
             "log_every",

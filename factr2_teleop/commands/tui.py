@@ -8,7 +8,8 @@ import argparse
 from calibration.estimators import FEEDBACK_MODES
 from hardware.errors import UserError
 
-HELP = "terminal app: rig status, calibration wizard, force-feedback teleop, recording, episodes"
+HELP = ("terminal app: rig status, calibration wizard, force-feedback teleop and recording, episodes, "
+        "FIRST training, policy rollout")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -48,6 +48,12 @@ def run(args) -> int:
             else:
                 print(f"  {d.name}: no wire protocol (driver {d.driver!r}: open the rig in-process with "
                       "hardware.connect.open_rig)", flush=True)
+        for d in rig.leaders + rig.followers:
+            err = server.twin.devices[d.name].body_error
+            if err is not None:  # docs/twin.md "The true body"
+                r = err.mass_true / err.mass_desc
+                print(f"  {d.name}: true body, link masses x{r.min():.2f}-{r.max():.2f} of the description "
+                      f"'{err.arm}' (seed {err.seed}; [twin] description_error = false: exact)", flush=True)
         if server.twin.hook_spec:
             print(f"  undeclared effect on the followers: {server.twin.hook_spec}", flush=True)
         print("Ctrl-C to stop", flush=True)

@@ -15,7 +15,7 @@ from calibration.estimators import (
     SIMULATED_ONLY_MODES,
     make_estimator,
 )
-from factr2_teleop.teleop.leader_law import arm_model_fns
+from factr2_teleop.teleop.leader_law import arm_model_fns, leader_gravity_file
 from factr2_teleop.teleop.loop import DEFAULT_RATE_HZ
 from factr2_teleop.teleop.pair import ArmPair, PairConfig
 from hardware.errors import ConfigError, UserError
@@ -137,9 +137,11 @@ def pair_config(table: dict, mode: str, opts: TeleopOptions, where: str) -> Pair
     return cfg
 
 
-def build_pairs(session, opts: TeleopOptions, next_estimators: dict | None = None) -> list[ArmPair]:
+def build_pairs(session, opts: TeleopOptions, next_estimators: dict | None = None,
+                pair_class: type[ArmPair] = ArmPair) -> list[ArmPair]:
     """One ArmPair per rig pair (UserError/ConfigError when one cannot be built; nothing is commanded).
-    next_estimators: follower name -> an already loaded NEXT estimator (optional)."""
+    next_estimators: follower name -> an already loaded NEXT estimator (optional); pair_class: an ArmPair
+    subclass with another per-tick law (the policy rollout's), built from the same pieces."""
     rig = session.rig
     if not rig.pairs:
         raise ConfigError("the rig pairs no leader with a follower", where=str(rig.path),
@@ -153,8 +155,8 @@ def build_pairs(session, opts: TeleopOptions, next_estimators: dict | None = Non
         mode = feedback_mode(rig, fspec, opts)
         cfg = pair_config(tables[name], mode, opts, where=f"{rig.path}: [teleop] {name}")
         est = pair_estimator(mode, session, fspec, follower, opts, rate, (next_estimators or {}).get(fname))
-        grav, jac = arm_model_fns(lspec.arm)
-        pair = ArmPair(leader, follower, cfg, 1.0 / rate, gravity_fn=grav, jacobian_fn=jac, estimator=est)
+        grav, jac = arm_model_fns(lspec.arm, leader_gravity_file(rig, lname))  # identified g(q), if any
+        pair = pair_class(leader, follower, cfg, 1.0 / rate, gravity_fn=grav, jacobian_fn=jac, estimator=est)
         pair.mode = mode
         pairs.append(pair)
     return pairs

@@ -52,6 +52,9 @@ class SessionRecording:
         self._ticks = 0
         self._lock = threading.Lock()  # two loops (bimanual, real time) may share one file
         self.recording = False  # an episode is open
+        # [t_start, t_stop] of every episode [s, rig clock]: a frame belongs to an episode by its timestamp,
+        # not by when its render finished (a twin camera renders behind the lockstep stepper)
+        self._spans: list[list[float]] = []
 
     @classmethod
     def open(cls, out: str | Path, session, pairs, rate_hz: float, *, stem: str | None = None,
@@ -87,17 +90,23 @@ class SessionRecording:
     def start_episode(self, task: str = "") -> int:
         if self._start_cameras is not None:
             self._start_cameras()  # no-op once running
-        ep = self.recorder.start_episode(self.session.clock.now(), task)
+        t = self.session.clock.now()
+        ep = self.recorder.start_episode(t, task)
+        self._spans.append([t, float("inf")])
         self.recording = True
         return ep
 
     def stop_episode(self, outcome: str | None = None, text: str = "") -> None:
-        self.recorder.stop_episode(self.session.clock.now(), outcome, text)
+        t = self.session.clock.now()
+        self.recorder.stop_episode(t, outcome, text)
+        if self._spans:
+            self._spans[-1][1] = t
         self.recording = False
 
     def frame(self, camera: str, t: float, rgb: np.ndarray) -> None:
-        """A camera frame (the camera stream's thread): written while an episode records."""
-        if self.recording:
+        """A camera frame (the camera stream's thread) taken at t [s]: written when t lies in an episode,
+        even if it arrives after that episode stopped (the file is still open)."""
+        if any(t0 <= t <= t1 for t0, t1 in reversed(self._spans)):
             self.recorder.log_image(camera, t, rgb)
 
     # -- per tick (the loop's thread) --------------------------------------------------------------------

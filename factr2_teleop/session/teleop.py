@@ -24,13 +24,14 @@ from factr2_teleop.teleop.record import TickRecord
 
 class TeleopSession:
     def __init__(self, session, opts: TeleopOptions | None = None, *, clock=None,
-                 next_estimators: dict | None = None, next_paths: dict | None = None):
+                 next_estimators: dict | None = None, next_paths: dict | None = None, pair_class=None):
         """session: an open rig (hardware open_rig); clock: the loop's clock (default the session's; the demo
         passes one that steps its twin); next_estimators / next_paths: per follower, an already loaded NEXT
-        estimator and the checkpoint it came from (the demo's cache)."""
+        estimator and the checkpoint it came from (the demo's cache); pair_class: see build_pairs."""
         self.session, self.opts = session, opts or TeleopOptions()
         self.rate_hz = loop_rate_hz(session.rig, self.opts)
-        self.pairs = build_pairs(session, self.opts, next_estimators)
+        self.pairs = build_pairs(session, self.opts, next_estimators,
+                                 **({"pair_class": pair_class} if pair_class else {}))
         self.hooks: list[Callable[[TickRecord], None]] = []
         self.recording: SessionRecording | None = None
         self.cameras = None  # hardware.cameras.stream.CameraStream while it runs

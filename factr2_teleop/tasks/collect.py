@@ -14,6 +14,8 @@ lets the script decide every DECIDE_EVERY ticks from what it sees (the twin's st
 feedback torque), updates the task's stage detectors, marks stages in the recording (progress events) and
 ends each episode with its outcome (success / failure: failed demonstrations are kept, labelled). Between
 episodes the objects are put back for the next seed, as an assistant would (the arm is clear above them).
+The bookkeeping (placing, detecting, recording, outcome) is TaskEpisodes, shared with the policy rollout
+(factr2_teleop/session/rollout_episodes.py): the scripted operator and a policy are two drivers of it.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from hardware.rigs.rig import CameraSpec, Rig, load_rig
 from hardware.sim.tasks import StageTracker, Task, get_task
 
 SETTLE_S = 0.3  # s: the hand holds still after the soft start and after each reset
+EPISODE_SEED_STRIDE = 100_003  # episode k of a session seeded S has seed S * stride + k
 
 
 def gripper_mapping(arm_name: str) -> dict:
@@ -85,12 +88,20 @@ class EpisodeResult:
     params: dict = field(default_factory=dict)
 
 
-class EpisodeDriver:
-    """The per-tick hook: operator + script + detectors + episode bookkeeping (see the module doc)."""
+def episode_seed(seed: int, k: int) -> int:
+    """The seed of episode k of a session seeded `seed` (collection and rollout alike: a benchmark picks
+    rollout seeds whose episodes never met a demonstration's initial conditions)."""
+    return int(seed) * EPISODE_SEED_STRIDE + int(k)
+
+
+class TaskEpisodes:
+    """Episode bookkeeping of a twin task, whoever drives the arm (the scripted operator through the leader
+    here, a policy in factr2_teleop/session/rollout.py): objects placed per episode from its seed, stage
+    detection, the recording's episode start / progress marks / stop with the outcome, the results; the loop
+    stops after the last episode. A driver subclass calls _reset_episode, rec_start, _detect_obs and
+    _end_episode, and implements _begin_episode (called for every episode after the first too)."""
 
     def __init__(self, ts, task: Task, episodes: int, seed: int = 0, on_episode=None):
-        from hardware.arms.dynamics import ArmDynamics
-
         self.ts, self.task, self.episodes, self.seed = ts, task, int(episodes), int(seed)
         self.on_episode = on_episode  # callable(EpisodeResult) after each episode (progress bar)
         s = ts.session
@@ -99,16 +110,91 @@ class EpisodeDriver:
         fname, self.lname = self.pair.follower.name, self.pair.leader.name
         self.world = self.twin.devices[fname].world
         self.model, self.data = self.world.model, self.world.data
-        self.ee_site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "ee")
-        dyn = ArmDynamics(s.rig.device(fname).arm)
-        lim = self.pair.follower.safety.limits
-        self._op_args = (dyn.fk, dyn.jacobian, lim.q_min, lim.q_max, self.pair.map.backward,
-                         self.pair.dt_s)
         self.results: list[EpisodeResult] = []
         self._k = 0
         self._state = "wait"  # wait (soft start) -> settle -> run -> (next episode) ... -> done
         self._t_state = float("nan")
         self._ep = -1
+
+    def _begin_episode(self, r) -> None:
+        raise NotImplementedError
+
+    def _reset_episode(self) -> np.random.Generator:
+        """The next episode's objects placed for its seed; returns the episode's generator."""
+        self._ep += 1
+        self._ep_seed = episode_seed(self.seed, self._ep)
+        rng = np.random.default_rng(self._ep_seed)
+        with self.world.lock:
+            self.params = self.task.reset(self.model, self.data, rng)
+            mujoco.mj_forward(self.model, self.data)
+        self.tracker = StageTracker(self.task.stages)
+        return rng
+
+    def observe(self) -> dict:
+        """The task's objects as the twin has them now (call on the stepping thread)."""
+        return self.task.observe(self.model, self.data, self.params)
+
+    def rec_start(self) -> None:
+        rec = self.ts.recording
+        if rec is not None:
+            rec.start_episode(self.task.name)
+            rec.recorder.note(self.ts.session.clock.now(), json.dumps(
+                {"task": self.task.name, "episode_seed": self._ep_seed, "params": _jsonable(self.params)}))
+        self._t_state = self.ts.session.clock.now()
+
+    def _log_objects(self, t: float, obs: dict) -> None:
+        """PRIVILEGED (SIMULATED): the objects' state as one vector on /task/objects, at the script's
+        decision rate, for policies trained with `--obs state` (policies/privileged.py: order, units)."""
+        rec = self.ts.recording
+        if rec is not None and rec.recording:
+            from policies.privileged import objects_vector
+
+            rec.recorder.log_task_objects(t, *objects_vector(obs, self.params))
+
+    def _detect_obs(self, t: float, obs: dict) -> None:
+        flags = self.task.detect(obs, self.params, self.tracker.memory)
+        for name in self.tracker.update(flags, t - self._t_state):
+            rec = self.ts.recording
+            if rec is not None:
+                rec.recorder.mark_progress(t, self.tracker.progress, name)
+
+    def _end_episode(self, r, info: dict) -> None:
+        obs = self.task.observe(self.model, self.data, self.params)
+        ok = bool(self.tracker.done.all()) and self.task.final_ok(obs, self.params, self.tracker.memory)
+        outcome = "success" if ok else "failure"
+        res = EpisodeResult(
+            index=self._ep, seed=self._ep_seed, outcome=outcome, progress=self.tracker.progress,
+            stages={s: (None if np.isnan(x) else round(float(x), 3))
+                    for s, x in zip(self.task.stages, self.tracker.t_done)},
+            duration_s=r.t - self._t_state, retries=int(info.get("retries", 0)),
+            felt=len(info.get("felt", [])), gave_up=bool(info.get("gave_up", False)),
+            t_start=self._t_state, t_end=r.t, params=_jsonable(self.params))
+        self.results.append(res)
+        rec = self.ts.recording
+        if rec is not None:
+            rec.stop_episode(outcome, json.dumps({k: v for k, v in res.__dict__.items() if k != "params"}))
+        if self.on_episode is not None:
+            self.on_episode(res)
+        if len(self.results) >= self.episodes:
+            self._state = "done"
+            self.ts.loop.stop()
+        else:
+            self._begin_episode(r)
+
+
+class EpisodeDriver(TaskEpisodes):
+    """The per-tick hook: operator + script + detectors + episode bookkeeping (see the module doc)."""
+
+    def __init__(self, ts, task: Task, episodes: int, seed: int = 0, on_episode=None):
+        from hardware.arms.dynamics import ArmDynamics
+
+        super().__init__(ts, task, episodes, seed, on_episode)
+        fname = self.pair.follower.name
+        self.ee_site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "ee")
+        dyn = ArmDynamics(self.ts.session.rig.device(fname).arm)
+        lim = self.pair.follower.safety.limits
+        self._op_args = (dyn.fk, dyn.jacobian, lim.q_min, lim.q_max, self.pair.map.backward,
+                         self.pair.dt_s)
         self.op: Operator | None = None
 
     # -- the hook ----------------------------------------------------------------------------------------
@@ -132,6 +218,7 @@ class EpisodeDriver:
                     self.rec_start()
             else:
                 op.p = p  # what the script sees at this decision
+                self._log_objects(r.t, p.obs)
                 try:
                     next(self.script)
                 except StopIteration as stop:
@@ -165,59 +252,17 @@ class EpisodeDriver:
                        obs=self.task.observe(self.model, self.data, self.params))
 
     def _begin_episode(self, r) -> None:
-        self._ep += 1
-        ep_seed = self.seed * 100_003 + self._ep
-        rng = np.random.default_rng(ep_seed)
-        with self.world.lock:
-            self.params = self.task.reset(self.model, self.data, rng)
-            mujoco.mj_forward(self.model, self.data)
-        self.tracker = StageTracker(self.task.stages)
+        rng = self._reset_episode()
         q0 = self.pair.map.forward(r.leader.q)
         if self.op is None:
             self.op = Operator(*self._op_args, q_start=q0)
         self.op.grip, self.op.servo_on, self.op.log = 0.0, True, {}
         self.op.p = self._percept(r)
         self.script = script_for(self.task.name)(self.op, self.params, rng)
-        self._ep_seed = ep_seed
         self._state, self._t_state = "settle", r.t
 
-    def rec_start(self) -> None:
-        rec = self.ts.recording
-        if rec is not None:
-            rec.start_episode(self.task.name)
-            rec.recorder.note(self.ts.session.clock.now(), json.dumps(
-                {"task": self.task.name, "episode_seed": self._ep_seed, "params": _jsonable(self.params)}))
-        self._t_state = self.ts.session.clock.now()
-
     def _detect(self, t: float, p: Percept) -> None:
-        flags = self.task.detect(p.obs, self.params, self.tracker.memory)
-        for name in self.tracker.update(flags, t - self._t_state):
-            rec = self.ts.recording
-            if rec is not None:
-                rec.recorder.mark_progress(t, self.tracker.progress, name)
-
-    def _end_episode(self, r, info: dict) -> None:
-        obs = self.task.observe(self.model, self.data, self.params)
-        ok = bool(self.tracker.done.all()) and self.task.final_ok(obs, self.params, self.tracker.memory)
-        outcome = "success" if ok else "failure"
-        res = EpisodeResult(
-            index=self._ep, seed=self._ep_seed, outcome=outcome, progress=self.tracker.progress,
-            stages={s: (None if np.isnan(x) else round(float(x), 3))
-                    for s, x in zip(self.task.stages, self.tracker.t_done)},
-            duration_s=r.t - self._t_state, retries=int(info.get("retries", 0)),
-            felt=len(info.get("felt", [])), gave_up=bool(info.get("gave_up", False)),
-            t_start=self._t_state, t_end=r.t, params=_jsonable(self.params))
-        self.results.append(res)
-        rec = self.ts.recording
-        if rec is not None:
-            rec.stop_episode(outcome, json.dumps({k: v for k, v in res.__dict__.items() if k != "params"}))
-        if self.on_episode is not None:
-            self.on_episode(res)
-        if len(self.results) >= self.episodes:
-            self._state = "done"
-            self.ts.loop.stop()
-        else:
-            self._begin_episode(r)
+        self._detect_obs(t, p.obs)
 
 
 def _jsonable(d: dict) -> dict:

@@ -97,7 +97,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
         cams = {k: asdict(v) for k, v in (srec.camera_stats or {}).items()}  # hardware.cameras.stream stats
         timing = ts.loop.timing.stats()
     wall = time.perf_counter() - t_wall
-    thresholds = _thresholds(ck)
+    thresholds = _thresholds(ck, scores)
     shares = scores.shares(ep.results, thresholds)
     res = [asdict(r) for r in ep.results]
     ok = [r["outcome"] == "success" for r in res]
@@ -120,14 +120,17 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
     return out
 
 
-def _thresholds(ck: str | None) -> list | None:
-    """Phase-label thresholds (T_low, T_high) [N*m] from the NEXT checkpoint's free-motion noise."""
-    if ck is None:
+def _thresholds(ck: str | None, scores) -> list | None:
+    """Phase-label thresholds (T_low, T_high) [N*m] of a NEXT session: the labels' default, Otsu's split of
+    the session's own scores (policies.phases.recording_thresholds, docs/first.md); None without NEXT."""
+    if ck is None or not scores.tau:
         return None
-    from policies.phases import default_thresholds
+    from policies.phases import contact_score, recording_thresholds
 
-    val = json.loads(Path(ck).read_text()).get("metrics", {}).get("val_l1")
-    return list(default_thresholds(val)) if val else None
+    try:
+        return list(recording_thresholds(contact_score(np.asarray(scores.tau, float))))
+    except ValueError:  # too few distinct scores to split
+        return None
 
 
 class PhaseLog:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -318,11 +319,38 @@ def pinocchio_jacobian(model, frame: str) -> Callable[[np.ndarray], np.ndarray]:
     return jac
 
 
-def arm_model_fns(arm) -> tuple[Callable[[np.ndarray], np.ndarray], Callable[[np.ndarray], np.ndarray]]:
+def arm_model_fns(arm, gravity_file=None) -> tuple[Callable[[np.ndarray], np.ndarray],
+                                                  Callable[[np.ndarray], np.ndarray]]:
     """(gravity_fn, jacobian_fn) of an arm description (hardware.arms name or ArmDescription), each on its own
     pinocchio Data (hardware.arms.dynamics.ArmDynamics): hand them to LeaderLaw / ArmPair. The loop thread is
-    the only caller while teleop runs."""
+    the only caller while teleop runs. gravity_file: a leader gravity identification (`factr2 leader-gravity`,
+    calibration/leader_gravity.py) whose fitted link masses and first moments replace the description's in
+    g(q); ConfigError if it was made for another description."""
     from hardware.arms.dynamics import ArmDynamics
 
     dyn = ArmDynamics(arm)
-    return dyn.gravity, dyn.jacobian
+    if gravity_file is None:
+        return dyn.gravity, dyn.jacobian
+    from calibration import leader_gravity
+
+    params = leader_gravity.load(gravity_file, dyn.arm)
+    return pinocchio_gravity(leader_gravity.model_with_params(dyn.model, params)), dyn.jacobian
+
+
+def leader_gravity_path(rig, leader: str) -> Path:
+    """Where `factr2 leader-gravity` writes a leader's identification and teleop reads it: $FACTR2_CACHE
+    (default ~/.cache/factr2, beside the demo's NEXT cache) / leader-gravity / <rig> / <leader>.json. A
+    twin's true body comes from the rig file's [twin] seed (hardware/arms/true_body.py), so a twin's file
+    names it (<leader>-seed<N>.json; -exact when the rig turns description_error off)."""
+    from factr2_teleop.demo.next_cache import cache_dir
+
+    name = leader
+    if rig.simulated:
+        name += f"-seed{rig.twin.seed}" + ("" if getattr(rig.twin, "description_error", True) else "-exact")
+    return cache_dir() / "leader-gravity" / Path(str(rig.name)).stem / f"{name}.json"
+
+
+def leader_gravity_file(rig, leader: str) -> Path | None:
+    """The identification teleop uses for this leader (None: none made yet; g(q) is the description's)."""
+    p = leader_gravity_path(rig, leader)
+    return p if p.is_file() else None

@@ -1,4 +1,5 @@
-"""The factr2 terminal app: four screens (Rig, Calibrate, Teleop, Episodes) over one rig runtime.
+"""The factr2 terminal app: six screens (Rig, Calibrate, Teleop, Episodes, Train, Rollout) over one rig
+runtime.
 
 SPACE is the emergency stop on every screen (leaders torque off, followers hold, the running activity ends);
 in a text field (note, rig path) space types a space and ctrl+space is the emergency stop. Quitting (q,
@@ -21,9 +22,15 @@ from factr2_teleop.tui.calib_ctl import CalibrationRun
 from factr2_teleop.tui.calibration import CalibrationScreen
 from factr2_teleop.tui.episodes import EpisodesScreen
 from factr2_teleop.tui.rig import RigScreen
+from factr2_teleop.tui.rollout import RolloutScreen
+from factr2_teleop.tui.rollout_ctl import RolloutRun
 from factr2_teleop.tui.runtime import RigRuntime
 from factr2_teleop.tui.teleop import TeleopScreen
 from factr2_teleop.tui.teleop_ctl import TeleopController
+from factr2_teleop.tui.train_ctl import Choices, TrainingRun
+from factr2_teleop.tui.training import TrainingScreen
+
+TRAINING_STOP_WAIT_S = 120.0  # quitting waits this long for the training step in flight and its checkpoint
 
 
 class Factr2App(App):
@@ -35,6 +42,8 @@ class Factr2App(App):
         "calibration": CalibrationScreen,
         "teleop": TeleopScreen,
         "episodes": EpisodesScreen,
+        "training": TrainingScreen,
+        "rollout": RolloutScreen,
     }
     DEFAULT_MODE = "rig"
     BINDINGS = [
@@ -44,6 +53,8 @@ class Factr2App(App):
         Binding("2", "switch_mode('calibration')", "Calibrate", show=False),
         Binding("3", "switch_mode('teleop')", "Teleop", show=False),
         Binding("4", "switch_mode('episodes')", "Episodes", show=False),
+        Binding("5", "switch_mode('training')", "Train", show=False),
+        Binding("6", "switch_mode('rollout')", "Rollout", show=False),
         Binding("q", "quit_safe", "Quit", show=False),
         Binding("ctrl+q,ctrl+c", "quit_safe", "Quit", show=False, priority=True),
     ]
@@ -59,6 +70,7 @@ class Factr2App(App):
         connect: bool = False,
         mode: str | None = None,
         light: bool = False,
+        train_threads: int = 0,
     ):
         super().__init__()
         if light:
@@ -70,6 +82,14 @@ class Factr2App(App):
         self.calibration_thread: threading.Thread | None = None
         self.cal_minutes, self.cal_epochs = float(cal_minutes), int(cal_epochs)
         self.cal_samples_per_epoch = int(cal_samples_per_epoch)
+        self.training: TrainingRun | None = None
+        self.train_choices = Choices()
+        self.train_threads = int(train_threads)  # torch threads for training (0: every core)
+        self.rollout: RolloutRun | None = None
+        self.rollout_task: str | None = None  # a twin task, or None: the operator marks episodes
+        self.rollout_episodes = 1
+        self.rollout_limit_s: float | None = None  # [s] per episode; None: the task's own
+        self.rollout_record = True  # into OUT/recordings, listed by the Episodes screen
         self._connect_on_start = connect
         self._closed = False
 
@@ -107,7 +127,13 @@ class Factr2App(App):
         return None
 
     def stop_activities(self) -> None:
-        """End teleop and calibration (each leaves the arms safe). Never raises."""
+        """End teleop and calibration (each leaves the arms safe) and training (a checkpoint is kept).
+        Never raises."""
+        if self.training is not None and self.training.running:
+            self.training.stop("app closing")
+        if self.rollout is not None and self.rollout.running:
+            self.rollout.stop("app closing")
+            self.rollout.join(10.0)
         if self.teleop.running:
             try:
                 self.teleop.stop()
@@ -117,6 +143,33 @@ class Factr2App(App):
             self.calibration.abort("stopped")
         if self.calibration_thread is not None:
             self.calibration_thread.join(10.0)
+        if self.training is not None:
+            self.training.join(TRAINING_STOP_WAIT_S)
+
+    def start_rollout(self, run: str) -> None:
+        """Roll the trained `run` out on this rig (session.rollout.run_rollout opens the rig itself, so the
+        app's connection is closed first, in the worker). UserError when something else holds the rig."""
+        from factr2_teleop.session.rollout import RolloutOptions
+
+        rt = self.runtime
+        rt.claim("rollout", need_connection=False)
+        opts = RolloutOptions(
+            rig=str(rt.rig.path),
+            policy=Path(run),
+            task=self.rollout_task,
+            episodes=self.rollout_episodes,
+            max_seconds=self.rollout_limit_s,
+            record=self.out_dir / "recordings" if self.rollout_record else None,
+        )
+        def after() -> None:
+            rt.release("rollout")
+            self.say("rollout over: the rig is free (c on the Rig screen connects the app again)")
+
+        ro = RolloutRun(opts, say=self.say, before=rt.disconnect, after=after)
+        self.rollout = ro
+        ro.start()
+        self.say(f"rollout of {Path(run).name} on {rt.rig.name}"
+                 + (f", task {self.rollout_task}" if self.rollout_task else ", you mark the outcome (s/y/n)"))
 
     # -- emergency stop -------------------------------------------------------------------------------------
     def check_action(self, action: str, parameters: tuple) -> bool | None:
@@ -135,7 +188,14 @@ class Factr2App(App):
             if self.calibration is not None:
                 self.calibration.abort("emergency stop")
 
-        line = self.runtime.estop(stop_activity)
+        if self.rollout is not None and self.rollout.running:  # the rollout holds the rig, not the runtime
+            self.runtime.estopped = True
+            problems = self.rollout.estop()
+            line = "E-STOP: rollout ended, follower HOLD, leader torque OFF" + (
+                f" -- PROBLEMS: {problems}" if problems else "")
+            self.say(line)
+        else:
+            line = self.runtime.estop(stop_activity)
         self.notify(line, title="EMERGENCY STOP", severity="error", timeout=4)
 
     # -- quitting -------------------------------------------------------------------------------------------
@@ -152,7 +212,9 @@ class Factr2App(App):
         self.runtime.shutdown()
         # drop the loop's ruckig objects now, not at interpreter exit (nanobind then reports "leaks")
         self.teleop.loop = None
+        self.teleop.ts = None  # its pairs hold the soft start's ruckig objects too
         self.calibration = None
+        self.rollout = None
         import gc
 
         gc.collect()

@@ -11,7 +11,7 @@ from textual.widgets import Footer, Static
 
 from hardware.errors import UserError
 
-SCREEN_KEYS = " screens: 1 Rig  2 Calibrate  3 Teleop  4 Episodes | q quit (arms left safe)"
+SCREEN_KEYS = " 1 Rig  2 Calibrate  3 Teleop  4 Episodes  5 Train  6 Rollout | q quit (arms left safe)"
 
 
 class StatusBar(Static):

@@ -1,5 +1,6 @@
-"""Episodes screen: the recorded episodes in the output folder (duration, outcome, contact share) and a text
-plot of the selected one (follower joint positions and estimated external torque)."""
+"""Episodes screen: the recorded episodes in the output folder (duration, outcome, contact share; policy
+rollouts too), a text plot of the selected one (follower joint positions and estimated external torque), and
+the training runs (OUT/runs: step, final or stopped, validation loss)."""
 
 from __future__ import annotations
 
@@ -13,8 +14,18 @@ from textual.containers import VerticalScroll
 from textual.widgets import Static
 
 from factr2_teleop.tui.base import BaseScreen
+from factr2_teleop.tui.train_ctl import list_runs, run_lines
 
 ROWS_SHOWN = 6
+
+
+def short_name(name: str, width: int = 26) -> str:
+    """A recording's file name in `width` characters: its start (rig or rollout task) and its end (time)."""
+    name = name.removesuffix(".mcap")
+    if len(name) <= width:
+        return name
+    head = (width - 1) // 2
+    return name[:head] + "~" + name[-(width - 1 - head):]
 
 
 def episode_table(rows, selected: int) -> list[str]:
@@ -26,12 +37,13 @@ def episode_table(rows, selected: int) -> list[str]:
     for i, r in enumerate(rows[lo : lo + ROWS_SHOWN], start=lo):
         mark = ">" if i == selected else " "
         if r.error:
-            out.append(f"{mark} {i:>2} {r.file.name[-26:]:<26} {'-':>2} {r.outcome:<10} {r.error}"[:79])
+            out.append(f"{mark} {i:>2} {short_name(r.file.name):<26} {'-':>2} {r.outcome:<10} {r.error}"[:79])
             continue
         contact = "-" if not np.isfinite(r.contact_share) else f"{100 * r.contact_share:.0f}%"
         dur = "-" if not np.isfinite(r.duration_s) else f"{r.duration_s:.2f}s"
         out.append(
-            f"{mark} {i:>2} {r.file.name[-26:]:<26} {r.index:>2} {r.outcome:<10} {dur:>8} {contact:>7}  "
+            f"{mark} {i:>2} {short_name(r.file.name):<26} {r.index:>2} {r.outcome:<10} {dur:>8} "
+            f"{contact:>7}  "
             f"{r.task}"[:79]
         )
     total = sum(r.duration_s for r in rows if not r.error and np.isfinite(r.duration_s))
@@ -88,10 +100,12 @@ class EpisodesScreen(BaseScreen):
 
     def compose_body(self) -> ComposeResult:
         self.rows: list = []
+        self.runs: list = []
         self.selected = 0
         with VerticalScroll(id="body"):
             yield Static(markup=False, id="ep-head")
             yield Static(markup=False, id="ep-table")
+            yield Static(markup=False, id="ep-runs")
             yield Static(markup=False, id="ep-plot")
 
     def on_mount(self) -> None:
@@ -110,18 +124,21 @@ class EpisodesScreen(BaseScreen):
             f"recordings in {self.folder}   keys: up/down select, enter plot, l reload"
         )
         self.query_one("#ep-table", Static).update("\n".join(episode_table(self.rows, self.selected)))
+        head = f"training runs in {self.app.out_dir / 'runs'} (Train screen, key 5):"
+        self.query_one("#ep-runs", Static).update("\n".join([head, *run_lines(self.runs)]))
 
     def action_reload(self) -> None:
         from hardware.recording.episodes import list_episodes
 
         folder = self.folder
 
-        def load():
-            if not folder.exists():
-                return []
-            return list_episodes(folder)
+        runs = self.app.out_dir / "runs"
 
-        def done(rows) -> None:
+        def load():
+            return (list_episodes(folder) if folder.exists() else []), list_runs(runs)
+
+        def done(result) -> None:
+            rows, self.runs = result
             self.rows = rows
             self.selected = min(self.selected, max(len(rows) - 1, 0))
             self.refresh_view()

@@ -192,6 +192,9 @@ class RigRuntime:
         (seconds): call from a worker thread. UserError/ConfigError on failure, nothing left open."""
         if self.session is not None:
             return
+        if self.activity == "rollout":
+            raise UserError("a policy rollout has the rig", where="TUI",
+                            fix="stop it on the Rollout screen (x)")
         from hardware.connect import open_rig
 
         mode = self.clock_mode
@@ -302,10 +305,11 @@ class RigRuntime:
         return line
 
     # -- exclusive use by one activity ------------------------------------------------------------------
-    def claim(self, activity: str) -> None:
-        """Take the rig for `activity`; UserError if not connected or another activity runs."""
+    def claim(self, activity: str, need_connection: bool = True) -> None:
+        """Take the rig for `activity`; UserError if not connected (when it needs the connection: a policy
+        rollout opens the rig itself) or another activity runs."""
         with self._lock:
-            if self.session is None:
+            if self.session is None and need_connection:
                 raise UserError("no rig connected", where="TUI", fix="connect on the Rig screen (key c)")
             if self.activity is not None:
                 raise UserError(f"{self.activity} is running", where="TUI", fix=f"stop {self.activity} first")

@@ -12,6 +12,7 @@ import numpy as np
 
 SPARK = " ▁▂▃▄▅▆▇█"
 PLOT_MARKS = "123456789abcdef"
+SHADES = " .:"  # text_plot background per FIRST phase: free, pre-contact, contact
 
 
 def fmt(x: float, width: int = 6, prec: int = 2) -> str:
@@ -88,10 +89,18 @@ def eta(s: float) -> str:
 
 
 def text_plot(
-    t: np.ndarray, y: np.ndarray, width: int = 60, height: int = 8, title: str = "", unit: str = ""
+    t: np.ndarray,
+    y: np.ndarray,
+    width: int = 60,
+    height: int = 8,
+    title: str = "",
+    unit: str = "",
+    shade: np.ndarray | None = None,
 ) -> str:
     """A scatter plot of the columns of y (N, n) against t (N,) with one mark per column ('1', '2', ...),
-    a y-axis with min/max labels and a t-axis line. Overlaps show the higher column's mark."""
+    a y-axis with min/max labels and a t-axis line. Overlaps show the higher column's mark.
+    shade (N,) ints: a level per sample; each plot column's background is SHADES[highest level in it]
+    (FIRST phases: ' ' free, '.' pre-contact, ':' contact)."""
     t = np.asarray(t, dtype=float).reshape(-1)
     y = np.asarray(y, dtype=float)
     if y.ndim == 1:
@@ -104,8 +113,13 @@ def text_plot(
     if math.isclose(lo, hi):
         lo, hi = lo - 1.0, hi + 1.0
     t0, t1 = float(t[0]), float(t[-1])
-    grid = [[" "] * width for _ in range(height)]
     cols = np.clip(((t - t0) / max(t1 - t0, 1e-12) * (width - 1)).round().astype(int), 0, width - 1)
+    background = [" "] * width
+    if shade is not None:
+        level = np.zeros(width, dtype=int)
+        np.maximum.at(level, cols, np.clip(np.asarray(shade, dtype=int).reshape(-1), 0, len(SHADES) - 1))
+        background = [SHADES[v] for v in level]
+    grid = [list(background) for _ in range(height)]
     for j in range(y.shape[1]):
         rows = ((hi - y[:, j]) / (hi - lo) * (height - 1)).round()
         for c, r in zip(cols, rows):

@@ -4,6 +4,7 @@
     for ep in rec.episodes:
         js = ep.topic("/follower/joint_state")  # TopicArrays: js.t [s], js.fields["q"] (N, n) [rad]
         sig = ep.signals()                       # {"follower.joint.pos": (t, values), ...} own timestamps
+                                                 # (twin tasks: "observation.state.objects", PRIVILEGED)
         grid = ep.resample(rate_hz=100.0)        # {"t": grid, "follower.joint.pos": (M, n), ...}
         log = ep.to_plain("follower")            # a hardware.recording.plain_log.PlainLog
 
@@ -231,6 +232,12 @@ class Recording:
         ta = self._d.topics.get(S.joint_state_topic(arm))
         names = (ta.meta.get("joint_names", "") if ta else "").split(",")
         return [n for n in names if n]
+
+    def task_object_names(self) -> list[str]:
+        """Element names of the PRIVILEGED task-object vector (/task/objects, read back as
+        "observation.state.objects"; twin only); [] when the recording has none."""
+        ta = self._d.topics.get(S.TOPIC_TASK_OBJECTS)
+        return [n for n in (ta.meta.get("joint_names", "") if ta else "").split(",") if n]
 
     def time_span(self) -> tuple[float, float]:
         """(first, last) sample time [s] over all topics and cameras; (nan, nan) when empty."""

@@ -25,6 +25,10 @@ STATS_METADATA = "factr2.recorder_stats"  # written on a clean close only
 
 TOPIC_EVENTS = "/events"
 TOPIC_LOOP = "/loop/timing"
+# PRIVILEGED (twins only): the task objects' state as one flat vector (policies/privileged.py builds it);
+# read back as this feature name, a policy input in place of camera frames (`factr2 train --obs state`)
+TOPIC_TASK_OBJECTS = "/task/objects"
+TASK_OBJECTS_FEATURE = "observation.state.objects"
 
 
 def joint_state_topic(arm: str) -> str:
@@ -135,15 +139,27 @@ LOOP_TIMING = Schema("factr2.LoopTiming", "control-loop timing, one sample per t
     _f("late_s", "s", "float", False, "late", "how late this tick started versus its deadline"),
     _f("overruns", "", "int", False, "overruns", "ticks that missed their deadline so far"),
 ))
+TASK_OBJECTS = Schema(
+    "factr2.TaskObjects",
+    "PRIVILEGED, twin only (simulated): the task objects' state, flattened in the order the channel's "
+    "`names` metadata lists (policies/privileged.py); never available on real hardware",
+    (_f("objects", "m, rad, 1 or N (per element: see names)", "float", True, "objects",
+        "object poses [m] (positions), rotation-matrix entries [1], yaws [rad], finger contacts (0/1), "
+        "contact force [N]"),),
+)
 NUMERIC_SCHEMAS: dict[str, Schema] = {s.name: s for s in (JOINT_STATE, EXTERNAL_TORQUE, TORQUE_COMMAND,
-                                                           FOLLOWER_COMMAND, GROUND_TRUTH, LOOP_TIMING)}
+                                                           FOLLOWER_COMMAND, GROUND_TRUTH, LOOP_TIMING,
+                                                           TASK_OBJECTS)}
 EVENT_SCHEMA_NAME = "factr2.Event"
 ACTION = "action"  # the arm prefix of the follower's command: the policy's action (hardware/features.py)
 
 
 def signal_name(topic: str, schema_name: str, feature: str) -> str:
     """Flat name of a recorded numeric field: "<arm>.<feature>", with the follower's command topic named as
-    the action ("/follower/command" q -> "action.joint.pos"; "/left_follower/command" -> "left_action...")."""
+    the action ("/follower/command" q -> "action.joint.pos"; "/left_follower/command" -> "left_action..."),
+    and the privileged task-object vector as "observation.state.objects"."""
+    if schema_name == TASK_OBJECTS.name:
+        return TASK_OBJECTS_FEATURE  # not an arm's signal: the policy's privileged state input
     arm = topic.split("/")[1]
     if schema_name == FOLLOWER_COMMAND.name:
         arm = arm[: -len("follower")] + ACTION if arm.endswith("follower") else f"{arm}_{ACTION}"

@@ -190,6 +190,13 @@ class Recorder:
                            "force": f}))
 
     @_never_raises
+    def log_task_objects(self, t: float, values, names) -> bool:
+        """PRIVILEGED (twin only): the task objects' state vector (policies/privileged.py); `names` (one per
+        element, fixed for the session) go into the channel's metadata on first use."""
+        self._joint_names.setdefault(S.TOPIC_TASK_OBJECTS.split("/")[1], [str(n) for n in names])
+        return self._put((S.TASK_OBJECTS, S.TOPIC_TASK_OBJECTS, {"t": float(t), "objects": _vec(values)}))
+
+    @_never_raises
     def log_loop_timing(self, t: float, period_s: float, busy_s: float, late_s: float, overruns: int) -> bool:
         return self._put((S.LOOP_TIMING, S.TOPIC_LOOP, {"t": float(t), "period_s": float(period_s),
                                                         "busy_s": float(busy_s), "late_s": float(late_s),

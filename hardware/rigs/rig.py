@@ -9,7 +9,8 @@ A rig is a TOML file (built-in ones live next to this module; see docs/twin.md f
     [[followers]]    driver (a follower kind: "piper" | "damiao" | "sim"), arm, + the kind's config fields
                      (channel, ...), next_checkpoint, [followers.limits], [followers.twin]
     [[cameras]]      name, source, width, height, fps
-    [twin]           seed, effect ("MODULE:FUNCTION"), [twin.effects] (bool per actuator effect)
+    [twin]           seed, effect ("MODULE:FUNCTION"), [twin.effects] (bool per actuator effect),
+                     description_error (bool, default true: the twin's arms are not their descriptions)
 
 load_rig(name_or_path) validates everything up front; every problem is a ConfigError naming the file, the
 field and the fix. Ports and channels of simulated rigs are "twin": open_rig/serve_twin fill in the twin's
@@ -46,7 +47,7 @@ DEVICE_TWIN_KEYS = {"motors", "start_q", "params"}
 TOP_KEYS = {"rig", "leaders", "followers", "cameras", "twin", "pairs", "teleop"}
 RIG_KEYS = {"name", "description", "simulated"}
 CAMERA_KEYS = {"name": str, "source": str, "width": int, "height": int, "fps": float}
-TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene", "task"}
+TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene", "task", "description_error"}
 
 
 @dataclass
@@ -112,6 +113,9 @@ class TwinSpec:
     control_hz: float = CONTROL_HZ_DEFAULT
     scene: str = "table"
     task: str | None = None  # a contact-rich task's objects in the scene (hardware/sim/tasks; `factr2 tasks`)
+    # true: each twin arm simulates a true body that differs from its published description as a real unit
+    # does (hardware/arms/true_body.py, per seed); false: the twin simulates the description exactly
+    description_error: bool = True
 
 
 @dataclass
@@ -297,7 +301,9 @@ def _twin(t, f: str) -> TwinSpec:
                     effect=None if eff is None else _typed(eff, str, f, "twin.effect"),
                     effects=dict(effects), physics_hz=hz, control_hz=chz,
                     scene=_typed(t.get("scene", "table"), str, f, "twin.scene"),
-                    task=_typed(t["task"], str, f, "twin.task") if "task" in t else None)
+                    task=_typed(t["task"], str, f, "twin.task") if "task" in t else None,
+                    description_error=_typed(t.get("description_error", True), bool, f,
+                                             "twin.description_error"))
 
 
 def _pairs(raw, leaders, followers, f: str) -> list[tuple[str, str]]:

@@ -16,6 +16,11 @@ physics_hz (1 kHz default): per step the CAN emulators take pending commands (po
 and the CAN emulators send the feedback due (emit). Dynamixel requests are answered by the emulator's
 thread from the latest state.
 
+Each arm's world simulates its true body (hardware/arms/true_body.py: the description with a real unit's mass,
+COM, inertia and armature errors, drawn from the RIG's [twin] seed: one physical unit per rig file, whatever
+seed a session passes for its noise; TwinDevice.body_error says what was drawn) unless the rig's [twin]
+description_error is false; the drivers, the app and its models only see the description.
+
 Time: sim time t starts at 0; the rig clock reads t + offset (rig_time()). Emulators stamp frames and
 servo ticks with rig_time(), never with the wall clock, so a lockstep run is the same on any machine.
 Three ways to drive it: attach(lockstep_clock); start_realtime() (a thread); or the caller's own thread
@@ -34,8 +39,10 @@ from typing import TYPE_CHECKING
 import mujoco
 import numpy as np
 
+from hardware.arms.true_body import BodyError, description_errors, true_body
 from hardware.clock import Clock
 from hardware.errors import ConfigError
+from hardware.realtime import EMULATOR_PRIORITY, TWIN_PRIORITY, set_fifo
 from hardware.registry import EmulatorContext, device_kind
 from hardware.sim.actuators import ActuatorParams, Effects
 from hardware.sim.effects_hook import load_hook
@@ -71,6 +78,7 @@ class TwinDevice:
     emulator: object | None = None
     bus: object | None = None
     endpoint: str | None = None
+    body_error: BodyError | None = None  # how the simulated arm differs from its description (None: exact)
 
 
 def _effects(spec: dict[str, bool]) -> Effects:
@@ -108,6 +116,7 @@ class Twin:
         self.rig = rig
         self.seed = rig.twin.seed if seed is None else int(seed)
         self.effects = _effects(rig.twin.effects)
+        self.description_error = bool(getattr(rig.twin, "description_error", True))
         hook_spec = effect if effect is not None else rig.twin.effect
         self.hook = None
         if hook_spec:
@@ -136,21 +145,24 @@ class Twin:
         self._t_offset = 0.0
         self.lock = threading.RLock()
         self._rt_thread: threading.Thread | None = None
+        self.realtime_note: str | None = None  # why the real-time twin runs at normal priority, if it does
         self._rt_stop = threading.Event()
         self.overruns = 0
         self._step_observers: list = []  # add_step_observer
         self.steps = 0
         try:
             for k, dev in enumerate(rig.followers):
-                self._add(dev, load_arm(dev.arm), follower=True, seed=self.seed + 101 * k)
+                self._add(dev, load_arm(dev.arm), follower=True, seed=self.seed + 101 * k,
+                          body_seed=rig.twin.seed + 101 * k)
             for k, dev in enumerate(rig.leaders):
-                self._add(dev, load_arm(dev.arm), follower=False, seed=self.seed + 7919 + 101 * k)
+                self._add(dev, load_arm(dev.arm), follower=False, seed=self.seed + 7919 + 101 * k,
+                          body_seed=rig.twin.seed + 7919 + 101 * k)
         except BaseException:
             self.close()
             raise
 
     # -- construction ----------------------------------------------------------------------------------
-    def _add(self, dev: DeviceSpec, arm, follower: bool, seed: int) -> None:
+    def _add(self, dev: DeviceSpec, arm, follower: bool, seed: int, body_seed: int) -> None:
         if follower:
             model = scene_model(arm, self.rig.twin.scene, self.task)
             # resting free objects sleep (no contact work until something touches them); the arm's tree is
@@ -159,6 +171,12 @@ class Twin:
         else:
             model = mujoco.MjModel.from_xml_path(str(arm.mjcf_path))  # the leader: its own world, no contacts
             model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        body_error = None
+        # the twin's physics runs on the true body; the app keeps the description. The body comes from the
+        # rig's seed, not the session's: a calibration, its held-out runs and later sessions with other noise
+        # seeds all meet the same unit, as on a real arm
+        if self.description_error:
+            model, body_error = true_body(model, arm, body_seed, description_errors(arm.name, arm.role))
         model.opt.timestep = self.dt / self.substeps
         world = MujocoWorld(model, name=dev.name)
         kind = device_kind(dev.driver, where=f"rig {dev.name}")
@@ -181,7 +199,8 @@ class Twin:
         lo, hi = model.jnt_range[jids].T
         limited = model.jnt_limited[jids] > 0
         world.set_qpos(bank, np.where(limited, np.clip(q0, lo, hi), q0))
-        td = TwinDevice(spec=dev, world=world, bank=bank, n_arm=arm.n_joints, wire=kind.wire)
+        td = TwinDevice(spec=dev, world=world, bank=bank, n_arm=arm.n_joints, wire=kind.wire,
+                        body_error=body_error)
         self.worlds.append(world)
         self.devices[dev.name] = td
         if kind.wire is not None:
@@ -291,6 +310,12 @@ class Twin:
         self.rebase(time.monotonic())
         self._rt_thread = threading.Thread(target=self._realtime_loop, name="factr2-twin", daemon=True)
         self._rt_thread.start()
+        # hardware answers in bounded time whatever else the host runs: the emulators that stand in for it,
+        # and the physics behind them, run at real-time priority where the OS allows (hardware.realtime)
+        why = set_fifo(TWIN_PRIORITY, self._rt_thread.native_id)
+        for e in self._dxl_emus:
+            why = e.set_realtime(EMULATOR_PRIORITY) or why
+        self.realtime_note = why  # None, or one line saying why the twin runs at normal priority
 
     def _realtime_loop(self) -> None:
         while not self._rt_stop.is_set():

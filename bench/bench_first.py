@@ -1,0 +1,331 @@
+"""The FIRST benchmark on the twin's tasks (SIMULATED; paper Sec. 5, issue #20 item 2).
+
+Per task: collect N scripted demonstrations through the full teleop stack (`factr2 collect`'s code path,
+lockstep, NEXT feedback, collection seed A), train `base`, `base-torque` and `first` (1:5:1) with S training
+seeds each on the SAME demonstrations, roll every policy out R episodes on initial conditions drawn from
+seed B (never used for a demonstration, never used to choose anything), and on one task also the paper's
+ablation C (1:1:5) and PC+C (1:3:3); PC (1:5:1) is the `first` runs themselves (the same ratio). Reported:
+success and task progress (mean and spread over the training seeds) per task, and each run's validation
+loss per phase F / PC / C.
+
+    python bench/bench_first.py --quick --out /tmp/fb                 # a few-minute smoke run
+    python bench/bench_first.py --out /tmp/fb_full --jobs 2            # the CPU configuration (--obs state)
+    python bench/bench_first.py --obs images --out DIR                 # the same code path on camera frames
+    python bench/bench_first.py --out /tmp/fb_full --write-docs        # table + chart into docs/first.md
+
+`--obs state` (default) trains on the PRIVILEGED object state of the twin (policies/privileged.py), not on
+images: labelled so everywhere. `--out` is resumable: finished demonstrations, training runs and rollouts are
+kept and skipped (an interrupted training run resumes from its last checkpoint).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.first_report import aggregate, write_docs, write_report  # noqa: E402
+
+DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, factr2_teleop/tasks/collect.py)
+EVAL_SEED = 2  # rollout seed: range B, disjoint from A (checked on the episodes' recorded seeds)
+METHOD_CELLS = {"base": ("base", None), "base-torque": ("base-torque", None), "first": ("first", (1, 5, 1))}
+ABLATION_CELLS = {"C": ("first", (1, 1, 5)), "PC+C": ("first", (1, 3, 3))}  # PC = the `first` cell (1:5:1)
+RIG = "sim-piper"
+
+
+@dataclass
+class BenchConfig:
+    out: str = "bench_first"
+    obs: str = "state"
+    tasks: list = field(default_factory=lambda: ["peg-insert", "press-fit", "wipe"])
+    demos: int = 50
+    seeds: int = 3
+    rollouts: int = 25  # per policy: the issue's 50 do not fit 3 h here (docs/first.md, "Benchmark")
+    steps: int = 300  # optimiser steps per training run (sized in docs/first.md, "Benchmark")
+    batch: int = 128
+    policy: str = "flow"
+    ablation_task: str = ""  # "" = the first task
+    thresholds: tuple | str = "recording"  # FIRST labels: from each task's demonstrations (as `factr2 train`)
+    max_seconds: float | None = None  # rollout episode limit [s]; None = the task's own
+    jobs: int = 2  # worker processes (each training run then uses cores / jobs torch threads)
+    next_checkpoint: str = ""  # "" = the demo's cached NEXT for sim-piper (made once when missing)
+    quick: bool = False  # the smoke configuration (QUICK): said in the report
+
+    def cells(self, task: str) -> dict:
+        out = dict(METHOD_CELLS)
+        if task == (self.ablation_task or self.tasks[0]):
+            out.update(ABLATION_CELLS)
+        return out
+
+
+QUICK = {"tasks": ["wipe"], "demos": 4, "seeds": 1, "rollouts": 2, "steps": 40, "batch": 32}
+
+
+# -- the three stages (each a job: a function of picklable arguments, its result kept as JSON) -------------
+def _json(path: Path, obj) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(obj, indent=1, default=float))
+    os.replace(tmp, path)  # written whole or not at all: a killed run leaves no half result
+
+
+def collect_demos(cfg: BenchConfig, task: str, checkpoint: str) -> dict:
+    """The task's demonstrations (factr2 collect's function), kept in OUT/TASK/demos."""
+    from factr2_teleop.tasks.run import CollectConfig, collect, output_paths
+
+    folder = Path(cfg.out) / task / "demos"
+    cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(folder), seed=DEMO_SEED, mode="next",
+                       checkpoint=checkpoint, cameras=cfg.obs != "state")
+    mcap, summary = output_paths(cc, RIG)
+    if summary.is_file():
+        return json.loads(summary.read_text())
+    shutil.rmtree(folder, ignore_errors=True)  # an interrupted collection: start it again
+    return collect(cc, progress=False)
+
+
+def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
+    """One training run (policies.run, as `factr2 train`), resumed from its checkpoint if interrupted."""
+    import torch
+
+    from policies.checkpoint import last_checkpoint, read_meta
+    from policies.run import RunOptions, run_training
+    from policies.train import Dist, TrainConfig
+
+    run = Path(cfg.out) / task / cell / f"seed{seed}"
+    done = run / "train.json"
+    if done.is_file():
+        return json.loads(done.read_text())
+    method, ratio = cfg.cells(task)[cell]
+    demos = Path(cfg.out) / task / "demos"
+    last = last_checkpoint(run)
+    if last is None:
+        shutil.rmtree(run, ignore_errors=True)
+    tc = TrainConfig(steps=cfg.steps, batch=cfg.batch, warmup=min(500, max(1, cfg.steps // 10)),
+                     val_every=max(1, cfg.steps // 4), ckpt_every=max(1, cfg.steps // 4), log_every=10,
+                     seed=seed, threads=max(1, (os.cpu_count() or 1) // cfg.jobs))
+    opts = RunOptions(inputs=[demos], out=run, policy=cfg.policy, method=method,
+                      ratio=ratio, preset="small", thresholds=cfg.thresholds, observation=cfg.obs,
+                      progress=False, train=tc, resume=last is not None)
+    t, c = time.perf_counter(), time.process_time()
+    run_training(opts, Dist())
+    meta = read_meta(run)
+    out = {"task": task, "cell": cell, "method": method, "ratio": meta["ratio"], "seed": seed,
+           "val": meta.get("metrics", {}), "samples": meta["samples"], "steps": meta["step"],
+           "phases": meta["phases"], "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
+           "torch_threads": torch.get_num_threads(), "run": str(run)}
+    _json(done, out)
+    return out
+
+
+def rollout_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
+    """R rollouts of one trained policy on the evaluation seed (factr2 rollout's function)."""
+    from factr2_teleop.session.rollout import RolloutOptions, run_rollout
+
+    run = Path(cfg.out) / task / cell / f"seed{seed}"
+    done = run / "rollout.json"
+    if done.is_file():
+        return json.loads(done.read_text())
+    kw = {"rig": RIG, "policy": str(run), "task": task, "episodes": cfg.rollouts, "seed": EVAL_SEED,
+          "record": None, "progress": False}
+    if cfg.max_seconds is not None and "max_seconds" in {f.name for f in fields(RolloutOptions)}:
+        kw["max_seconds"] = cfg.max_seconds
+    t, c = time.perf_counter(), time.process_time()
+    res = run_rollout(RolloutOptions(**kw))
+    out = {"task": task, "cell": cell, "seed": seed, "success_rate": res["success_rate"],
+           "mean_progress": res["mean_progress"], "stage_rates": res.get("stage_rates"),
+           "episodes": res.get("episodes"), "timing": res.get("timing"),
+           "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
+    _json(done, out)
+    return out
+
+
+# -- orchestration ------------------------------------------------------------------------------------------
+def next_checkpoint(cfg: BenchConfig) -> str:
+    """The NEXT checkpoint the demonstrations' feedback and labels use (the demo's cache, made if missing)."""
+    from factr2_teleop.demo.next_cache import create_checkpoint, find_checkpoint
+
+    ck = find_checkpoint(RIG, cfg.next_checkpoint or None)
+    if ck is None:
+        ck = create_checkpoint(RIG, say=print)
+    return str(ck)
+
+
+def _run_jobs(cfg: BenchConfig, fn, jobs: list[tuple], label: str) -> list[dict]:
+    """fn(cfg, *args) for every job, in cfg.jobs worker processes (spawned: MuJoCo and torch start clean)."""
+    t = time.perf_counter()
+    print(f"{label}: {len(jobs)} job(s) on {cfg.jobs} worker(s)", flush=True)
+    if cfg.jobs <= 1:
+        out = []
+        for args in jobs:
+            out.append(fn(cfg, *args))
+            _done(label, args, t)
+        return out
+    import multiprocessing as mp
+
+    with ProcessPoolExecutor(cfg.jobs, mp_context=mp.get_context("spawn")) as ex:
+        futs = [ex.submit(fn, cfg, *args) for args in jobs]
+        out = []
+        for args, f in zip(jobs, futs):
+            out.append(f.result())
+            _done(label, args, t)
+        return out
+
+
+def _done(label: str, args: tuple, t0: float) -> None:
+    what = " ".join(str(a) for a in args if not str(a).endswith(".json"))
+    print(f"  {label} {what}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
+
+
+def check_disjoint_seeds(demos: dict, rollouts: list[dict]) -> dict:
+    """Episode seeds of demonstrations (range A) and rollouts (range B), per task; ValueError on overlap."""
+    out = {}
+    for task, d in demos.items():
+        a = {r["seed"] for r in d.get("results", [])}
+        b = {e["seed"] for r in rollouts if r["task"] == task for e in (r.get("episodes") or [])
+             if isinstance(e, dict) and "seed" in e}
+        if a & b:
+            raise ValueError(f"{task}: rollout seeds overlap demonstration seeds: {sorted(a & b)[:5]}")
+        out[task] = {"demo_seeds": [min(a), max(a)] if a else None,
+                     "rollout_seeds": [min(b), max(b)] if b else None}
+    return out
+
+
+class _Elapsed:
+    """Wall time per stage [s], kept in a JSON and summed over invocations (a resumed run adds its own)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.totals = json.loads(path.read_text()) if path.is_file() else {}
+
+    @contextmanager
+    def __call__(self, stage: str):
+        t = time.perf_counter()
+        yield
+        self.totals[stage] = self.totals.get(stage, 0.0) + time.perf_counter() - t
+        _json(self.path, self.totals)
+
+
+SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds",
+                  "next_checkpoint")  # what the kept results depend on (tasks and seeds may be added)
+
+
+def check_resume(cfg: BenchConfig, out: Path) -> None:
+    """A resumed OUT must have been started with the same settings (its kept results were made with them)."""
+    old_path = out / "config.json"
+    if not old_path.is_file():
+        return
+    old, new = json.loads(old_path.read_text()), json.loads(json.dumps(asdict(cfg)))
+    diff = [k for k in SAME_ON_RESUME if old.get(k) != new.get(k)]
+    if diff:
+        was = ", ".join(f"{k} {old.get(k)}" for k in diff)
+        raise SystemExit(f"{out}: its kept results were made with other settings ({was}); "
+                         "use another --out or the same options")
+
+
+def run_bench(cfg: BenchConfig) -> dict:
+    out = Path(cfg.out)
+    check_resume(cfg, out)
+    out.mkdir(parents=True, exist_ok=True)
+    _json(out / "config.json", asdict(cfg))
+    ck = next_checkpoint(cfg)
+    elapsed = _Elapsed(out / "elapsed.json")  # wall time of the stages, summed over resumed invocations
+    with elapsed("collect"):
+        demos = dict(zip(cfg.tasks, _run_jobs(cfg, collect_demos, [(t, ck) for t in cfg.tasks], "collect")))
+    cells = [(task, cell, s) for task in cfg.tasks for cell in cfg.cells(task) for s in range(cfg.seeds)]
+    with elapsed("train"):
+        trains = _run_jobs(cfg, train_cell, cells, "train")
+    with elapsed("rollout"):
+        rolls = _run_jobs(cfg, rollout_cell, cells, "rollout")
+    timing = {f"{k}_wall_s": v for k, v in elapsed.totals.items()}
+    timing["total_wall_s"] = sum(elapsed.totals.values())
+    timing.update({"collect_cpu_s": sum(d.get("cpu_s", 0.0) for d in demos.values()),
+                   "train_cpu_s": sum(r["cpu_s"] for r in trains),
+                   "rollout_cpu_s": sum(r["cpu_s"] for r in rolls)})
+    results = {
+        "simulated": True,
+        "observation": cfg.obs + (" (PRIVILEGED twin object state, no images)" if cfg.obs == "state" else ""),
+        "config": asdict(cfg), "next_checkpoint": ck, "seeds": check_disjoint_seeds(demos, rolls),
+        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                    "python": platform.python_version(), "loadavg_end": os.getloadavg()},
+        "timing": timing,
+        "demos": {k: {x: v[x] for x in ("episodes", "success_rate", "progress_mean", "phase_shares",
+                                        "phase_thresholds_nm", "sim_s", "wall_s", "cpu_s") if x in v}
+                  for k, v in demos.items()},
+        "train": trains, "rollout": rolls,
+    }
+    results["summary"] = aggregate(trains, rolls)
+    _json(out / "results.json", results)
+    write_report(results, out)
+    return results
+
+
+def parse_args(argv=None) -> tuple[BenchConfig, bool]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="bench_first", help="results folder (resumable)")
+    ap.add_argument("--obs", choices=("state", "images"), default="state",
+                    help="state: PRIVILEGED object poses, the CPU configuration; images: camera frames (GPU)")
+    ap.add_argument("--tasks", default=None, help="comma-separated (default: every task)")
+    ap.add_argument("--demos", type=int, default=None)
+    ap.add_argument("--seeds", type=int, default=None, help="training seeds per method")
+    ap.add_argument("--rollouts", type=int, default=None, help="rollout episodes per trained policy")
+    ap.add_argument("--steps", type=int, default=None, help="optimiser steps per training run")
+    ap.add_argument("--batch", type=int, default=None)
+    ap.add_argument("--policy", choices=("flow", "act"), default="flow")
+    ap.add_argument("--ablation-task", default="", help="task with the C / PC+C ablation (default: first)")
+    ap.add_argument("--thresholds", default="recording", metavar="recording|next|LOW:HIGH",
+                    help="FIRST label thresholds [N*m] (default: from the demonstrations, as factr2 train)")
+    ap.add_argument("--max-seconds", type=float, default=None, help="rollout episode limit [s]")
+    ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2: both cores here)")
+    ap.add_argument("--next", default="", help="NEXT checkpoint (default: the demo's cache)")
+    ap.add_argument("--quick", action="store_true", help="a few-minute smoke configuration: " + str(QUICK))
+    ap.add_argument("--write-docs", action="store_true",
+                    help="only write OUT's table and chart into docs/first.md / docs/first_bench.png")
+    a = ap.parse_args(argv)
+    cfg = BenchConfig(out=a.out, obs=a.obs, policy=a.policy, ablation_task=a.ablation_task,
+                      max_seconds=a.max_seconds, jobs=max(1, a.jobs), next_checkpoint=a.next)
+    if a.quick:
+        cfg.quick = True
+        for k, v in QUICK.items():
+            setattr(cfg, k, v)
+    for k in ("demos", "seeds", "rollouts", "steps", "batch"):
+        if getattr(a, k) is not None:
+            setattr(cfg, k, getattr(a, k))
+    if a.tasks:
+        cfg.tasks = [t.strip() for t in a.tasks.split(",") if t.strip()]
+    cfg.thresholds = a.thresholds
+    if a.thresholds not in ("recording", "next"):
+        try:
+            lo, hi = (float(x) for x in a.thresholds.split(":"))
+        except ValueError:
+            ap.error(f"--thresholds {a.thresholds!r}: LOW:HIGH in N*m, e.g. 6:9")
+        cfg.thresholds = (lo, hi)
+    return cfg, a.write_docs
+
+
+def main(argv=None) -> int:
+    cfg, docs_only = parse_args(argv)
+    if docs_only:
+        results = json.loads((Path(cfg.out) / "results.json").read_text())
+        write_docs(results, Path(cfg.out), Path(__file__).resolve().parents[1] / "docs")
+        return 0
+    from hardware.sim.tasks import get_task
+
+    for task in cfg.tasks:
+        get_task(task)  # an unknown task: one line (ConfigError), before anything runs
+    res = run_bench(cfg)
+    print((Path(cfg.out) / "table.md").read_text())
+    print(f"wall {res['timing']['total_wall_s']:.0f} s; results {cfg.out}/results.json")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,168 @@
+"""The FIRST benchmark's report (bench/bench_first.py): per task and method, success and task progress over
+the training seeds (mean and sample standard deviation), the validation loss per phase; a markdown table, a
+bar chart, and the block of docs/first.md between the markers below."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+PHASES = ("F", "PC", "C")
+DOCS_BEGIN = "<!-- bench_first:begin (written by bench/bench_first.py --write-docs) -->"
+DOCS_END = "<!-- bench_first:end -->"
+METHOD_ORDER = ("base", "base-torque", "first")
+ABLATION_ORDER = ("C", "first", "PC+C")  # the `first` cell is PC (1:5:1)
+ABLATION_LABEL = {"C": "C (1:1:5)", "first": "PC (1:5:1) = first", "PC+C": "PC+C (1:3:3)"}
+
+
+def _mean_std(x: list[float]) -> tuple[float, float]:
+    a = np.asarray([v for v in x if v is not None and np.isfinite(v)], float)
+    if not a.size:
+        return float("nan"), float("nan")
+    return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
+
+
+def aggregate(trains: list[dict], rolls: list[dict]) -> dict:
+    """{task: {cell: {success / progress mean and sd over seeds, val loss per phase (mean), ...}}}"""
+    out: dict = {}
+    for tr in trains:
+        out.setdefault(tr["task"], {}).setdefault(tr["cell"], {"train": [], "roll": []})["train"].append(tr)
+    for r in rolls:
+        out.setdefault(r["task"], {}).setdefault(r["cell"], {"train": [], "roll": []})["roll"].append(r)
+    summary: dict = {}
+    for task, cells in out.items():
+        for cell, d in cells.items():
+            s: dict = {"seeds": len(d["roll"]), "ratio": d["train"][0]["ratio"] if d["train"] else None,
+                       "method": d["train"][0]["method"] if d["train"] else cell}
+            s["success_mean"], s["success_std"] = _mean_std([r["success_rate"] for r in d["roll"]])
+            s["progress_mean"], s["progress_std"] = _mean_std([r["mean_progress"] for r in d["roll"]])
+            s["rollouts_per_seed"] = [len(r.get("episodes") or []) for r in d["roll"]]
+            for p in ("",) + tuple(f"_{x}" for x in PHASES):
+                s[f"val_loss{p}"], s[f"val_loss{p}_std"] = _mean_std(
+                    [t["val"].get(f"val/loss{p}") for t in d["train"]])
+            summary.setdefault(task, {})[cell] = s
+    return summary
+
+
+def _pct(m: float, s: float) -> str:
+    return "n/a" if not np.isfinite(m) else f"{100 * m:.0f} ± {100 * s:.0f} %"
+
+
+def _prog(m: float, s: float) -> str:
+    return "n/a" if not np.isfinite(m) else f"{m:.2f} ± {s:.2f}"
+
+
+def _val(s: dict) -> str:
+    return " / ".join("n/a" if not np.isfinite(s[f"val_loss_{p}"]) else f"{s[f'val_loss_{p}']:.3f}"
+                      for p in PHASES)
+
+
+def _row(label: str, s: dict) -> str:
+    ratio = ":".join(f"{x:g}" for x in s["ratio"]) if s["ratio"] else "?"
+    return (f"| {label} | {ratio} | {_pct(s['success_mean'], s['success_std'])} | "
+            f"{_prog(s['progress_mean'], s['progress_std'])} | {_val(s)} | {s['seeds']} x "
+            f"{max(s['rollouts_per_seed'] or [0])} |")
+
+
+HEADER = ("| method | w_F:w_PC:w_C | success (mean ± sd over seeds) | task progress | val loss F / PC / C | "
+          "seeds x rollouts |\n|---|---|---|---|---|---|")
+
+
+def _ranges(seeds: dict) -> str:
+    def r(x):
+        return f"{x[0]}-{x[1]}" if x else "?"
+
+    return "; ".join(f"{t} demonstrations {r(s['demo_seeds'])}, rollouts {r(s['rollout_seeds'])}"
+                     for t, s in seeds.items())
+
+
+def table(results: dict) -> str:
+    cfg, summ, tm = results["config"], results["summary"], results["timing"]
+    smoke = ("**Smoke run (`--quick`): far too small to compare the methods; it shows that the pipeline "
+             "runs end to end.** " if cfg.get("quick") else "")
+    lines = [f"{smoke}SIMULATED (MuJoCo twin `sim-piper`), observation: {results['observation']}; "
+             f"{cfg['policy']} policy, small preset, {cfg['steps']} steps x batch {cfg['batch']}; "
+             f"{cfg['demos']} demonstrations per task, {cfg['rollouts']} rollouts per policy on other "
+             f"initial conditions (episode seeds: {_ranges(results['seeds'])}).", ""]
+    for task in cfg["tasks"]:
+        cells = summ.get(task, {})
+        d = results["demos"].get(task, {})
+        sh = d.get("phase_shares") or {}
+        shares = " / ".join(f"{100 * sh.get(k, np.nan):.0f}" for k in ("free", "pre_contact", "contact"))
+        lo, hi = d.get("phase_thresholds_nm") or (np.nan, np.nan)
+        lines += [f"**{task}** (demonstrations: {d.get('episodes', '?')} episodes, scripted success "
+                  f"{100 * d.get('success_rate', np.nan):.0f} %; FIRST labels at {lo:.2f} / {hi:.2f} N*m: "
+                  f"free / pre-contact / contact {shares} %)", "", HEADER]
+        lines += [_row(m, cells[m]) for m in METHOD_ORDER if m in cells]
+        lines.append("")
+        if "C" in cells:
+            lines += [f"**{task}, ablation** (the re-sampling ratio, method `first`)", "", HEADER]
+            lines += [_row(ABLATION_LABEL[m], cells[m]) for m in ABLATION_ORDER if m in cells]
+            lines.append("")
+    m = results["machine"]
+    lines.append(f"Wall time {tm['total_wall_s'] / 60:.1f} min (collect {tm['collect_wall_s'] / 60:.1f}, "
+                 f"train {tm['train_wall_s'] / 60:.1f}, rollouts {tm['rollout_wall_s'] / 60:.1f}) on "
+                 f"{m['cpus']} CPUs, {cfg['jobs']} job(s), load average at the end {m['loadavg_end'][0]:.1f} "
+                 f"({m['platform']}); CPU time of the jobs {tm['collect_cpu_s'] / 60:.1f} + "
+                 f"{tm['train_cpu_s'] / 60:.1f} + {tm['rollout_cpu_s'] / 60:.1f} core-min.")
+    return "\n".join(lines) + "\n"
+
+
+def chart(results: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cfg, summ = results["config"], results["summary"]
+    tasks = [t for t in cfg["tasks"] if t in summ]
+    abl = next((t for t in tasks if "C" in summ[t]), None)
+    n = 2 + (abl is not None)
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 3.4), squeeze=False)
+    width = 0.8 / len(METHOD_ORDER)
+    panels = ((axes[0, 0], "success", "success rate"), (axes[0, 1], "progress", "task progress"))
+    for ax, key, title in panels:
+        for k, m in enumerate(METHOD_ORDER):
+            mean = [summ[t].get(m, {}).get(f"{key}_mean", np.nan) for t in tasks]
+            sd = [summ[t].get(m, {}).get(f"{key}_std", np.nan) for t in tasks]
+            ax.bar(np.arange(len(tasks)) + (k - 1) * width, mean, width, yerr=sd, capsize=3, label=m)
+        ax.set_xticks(np.arange(len(tasks)), tasks)
+        ax.set_ylim(0, 1.05)
+        ax.set_title(title)
+    axes[0, 0].legend(fontsize=8)
+    if abl is not None:
+        ax = axes[0, 2]
+        cells = [c for c in ABLATION_ORDER if c in summ[abl]]
+        x = np.arange(len(cells))
+        for k, key in enumerate(("success", "progress")):
+            ax.bar(x + (k - 0.5) * 0.38, [summ[abl][c][f"{key}_mean"] for c in cells], 0.38,
+                   yerr=[summ[abl][c][f"{key}_std"] for c in cells], capsize=3, label=key)
+        ax.set_xticks(x, [ABLATION_LABEL[c].split(" =")[0] for c in cells], fontsize=8)
+        ax.set_ylim(0, 1.05)
+        ax.set_title(f"ablation ({abl})")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"FIRST on the twin's tasks (SIMULATED, obs: {cfg['obs']}; mean ± sd over "
+                 f"{cfg['seeds']} training seed(s))", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_report(results: dict, out: Path) -> None:
+    (out / "table.md").write_text(table(results))
+    chart(results, out / "first_bench.png")
+
+
+def write_docs(results: dict, out: Path, docs: Path) -> None:
+    """Replace docs/first.md's block between DOCS_BEGIN and DOCS_END with OUT's table; copy the chart."""
+    page = docs / "first.md"
+    text = page.read_text()
+    if DOCS_BEGIN not in text or DOCS_END not in text:
+        raise SystemExit(f"{page}: the markers {DOCS_BEGIN!r} ... {DOCS_END!r} are missing")
+    head, rest = text.split(DOCS_BEGIN, 1)
+    _, tail = rest.split(DOCS_END, 1)
+    block = f"{DOCS_BEGIN}\n{table(results)}\n![FIRST benchmark](first_bench.png)\n{DOCS_END}"
+    page.write_text(head + block + tail)
+    shutil.copyfile(out / "first_bench.png", docs / "first_bench.png")

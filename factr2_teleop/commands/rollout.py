@@ -1,0 +1,119 @@
+"""`factr2 rollout`: a trained policy drives a rig's follower through the same drivers, safety layer and
+NEXT estimator as teleop; on a twin task the episodes are judged by the task's detectors (docs/rollout.md).
+
+Keys (real rigs, or twins without --task; the terminal must be this process's): s = the next stage reached,
+y = success, n = failure (each ends the episode), q = end the episode unlabelled and stop. Ctrl-C holds the
+follower and stops.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import threading
+from pathlib import Path
+
+HELP = "roll a trained policy out on a rig (twin or real): episodes, success, stages, timing"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--rig", default="sim-piper", help="rig name or file (default: sim-piper)")
+    parser.add_argument("--policy", required=True, type=Path,
+                        help="RUN folder of factr2 train, or a step-*.json")
+    parser.add_argument("--task", default=None, help="a twin task (factr2 tasks); without it the operator "
+                        "marks stages and outcomes with keys")
+    parser.add_argument("--episodes", type=int, default=1, help="episodes (default 1)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="episode k is placed with seed S * 100003 + k, as factr2 collect does: use a "
+                        "seed your demonstrations did not (default 0)")
+    parser.add_argument("--record", type=Path, default=None,
+                        help="write the rollouts as one MCAP in this folder")
+    parser.add_argument("--max-seconds", type=float, default=None,
+                        help="episode time limit [s] (default: the task's)")
+    parser.add_argument("--next", type=Path, default=None, help="a NEXT checkpoint other than the policy's "
+                        "(used, and said)")
+    parser.add_argument("--mode", default=None, help="estimator when the policy names no NEXT checkpoint "
+                        "(default: the rig's)")
+    parser.add_argument("--realtime", action="store_true", help="a twin in real time (timing), not lockstep")
+    parser.add_argument("--schedule", choices=("ensemble", "receding"), default=None,
+                        help="chunk execution (default: ACT ensemble, flow receding)")
+    parser.add_argument("--ensemble-m", type=float, default=0.01, help="temporal ensembling weight exp(-m i)")
+    parser.add_argument("--k-exec", type=int, default=None,
+                        help="receding horizon: steps executed per chunk (default a third of the chunk)")
+    parser.add_argument("--json", type=Path, default=None, help="write the summary JSON here")
+
+
+def summary_lines(out: dict) -> list[str]:
+    t = out["timing"]
+    sim = " (SIMULATED)" if out["simulated"] else ""
+    lines = [f"rollout of {out['policy']} on {out['rig']}{sim}, task {out['task'] or '(operator-marked)'}, "
+             f"seed {out['seed']}, schedule {out['schedule']}, feedback {out['feedback_mode']}"]
+    if out.get("note"):
+        lines.append(f"note: {out['note']}")
+    n = len(out["episodes"])
+    ok = sum(e["outcome"] == "success" for e in out["episodes"])
+    lines += [f"{'episodes':>26s}  {n}" + ("  (interrupted)" if out["interrupted"] else ""),
+              f"{'success rate':>26s}  {ok} / {n} = {100 * out['success_rate']:.1f} %",
+              f"{'mean task progress':>26s}  {out['mean_progress']:.2f}"]
+    for s, r in out["stage_rates"].items():
+        lines.append(f"{'stage ' + s:>26s}  {100 * r:.0f} % reached")
+    lines += [f"{'loop':>26s}  {t['loop_rate_hz']:.1f} Hz (target {t['loop_target_hz']:.0f}), period "
+              f"p99 {t['period_p99_ms']:.2f} ms, max {t['period_max_ms']:.2f} ms, {t['overruns']} overruns / "
+              f"{t['ticks']} ticks [{t['clock']}]",
+              f"{'chunk latency':>26s}  mean {t['chunk_latency_mean_ms']:.1f} ms, "
+              f"p99 {t['chunk_latency_p99_ms']:.1f} ms ({t['chunks']} chunks)",
+              f"{'action age':>26s}  mean {t['action_age_mean_ms']:.1f} ms, "
+              f"p99 {t['action_age_p99_ms']:.1f} ms",
+              f"{'commands':>26s}  {t['commands_sent']} sent, {t['command_violations']} outside the "
+              f"limits at the wire; chunks refused: {t['refused_nonfinite']} non-finite, "
+              f"{t['refused_outside_limits']} outside the limits; holds {t['holds'] or 0}",
+              f"{'wall time':>26s}  {out['wall_s']:.0f} s"]
+    if out.get("recording"):
+        lines.append(f"{'recording':>26s}  {out['recording']}")
+    return lines
+
+
+def _key_reader(marks) -> threading.Thread | None:
+    """Single keys from the terminal into `marks` (cbreak mode, restored at exit); None without a TTY."""
+    if not sys.stdin.isatty():
+        return None
+    import atexit
+    import termios
+    import tty
+
+    fd = sys.stdin.fileno()
+    old = termios.tcgetattr(fd)
+    tty.setcbreak(fd)
+    atexit.register(termios.tcsetattr, fd, termios.TCSADRAIN, old)
+
+    def read():
+        while True:
+            ch = sys.stdin.read(1)
+            if not ch:
+                return
+            if ch.lower() in "synq":
+                marks.put(ch.lower())
+
+    th = threading.Thread(target=read, name="factr2-keys", daemon=True)
+    th.start()
+    return th
+
+
+def run(args) -> int:
+    import queue
+
+    from factr2_teleop.session.rollout import RolloutOptions, run_rollout
+
+    marks = queue.SimpleQueue()
+    opts = RolloutOptions(rig=args.rig, policy=args.policy, task=args.task, episodes=args.episodes,
+                          seed=args.seed, record=args.record, max_seconds=args.max_seconds, next=args.next,
+                          realtime=args.realtime, mode=args.mode, schedule=args.schedule,
+                          ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks)
+    if args.task is None and _key_reader(marks) is not None:
+        print("keys: s = next stage reached, y = success, n = failure, q = stop; Ctrl-C holds and stops")
+    out = run_rollout(opts)
+    for line in summary_lines(out):
+        print(line)
+    if args.json is not None:
+        args.json.write_text(json.dumps(out, indent=1, default=float))
+    return 130 if out["interrupted"] else 0

@@ -1,0 +1,196 @@
+"""The arm pair of a policy rollout and the policy's per-tick follower target (the shell around the pure
+scheduling in policies/rollout/schedule.py).
+
+RolloutPair is built by the session layer exactly like a teleop pair (build_pairs: the rig's [teleop] table,
+the feedback mode and its estimator) and ticked by the same TeleopLoop; only the law differs: the follower
+gets target_fn's target, through Follower.command (the role's safety layer: position limits, rate limit,
+non-finite rejection) after the pair's coupled-phase rate limit, and the leader is passive (zero torque).
+When target_fn has no target, the follower holds (Follower.hold: the safe state) and the pair says why once.
+
+PolicyTarget is that target_fn: per episode, home (a jerk-limited move to the start pose, gripper open) ->
+settle -> run (observations to the PolicyRunner at its request period, chunks into the ChunkSchedule, the
+interpolated target out); its owner (session/rollout.py) moves it between phases.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+
+import numpy as np
+
+from factr2_teleop.teleop.pair import COUPLED, HOLD, ArmPair
+from factr2_teleop.teleop.record import TickRecord
+from factr2_teleop.teleop.soft_start import rate_limit
+from hardware.errors import DeviceError
+from hardware.types import FollowerCommand
+from policies.rollout.runner import arm_observation
+from policies.rollout.schedule import ChunkSchedule
+
+HOME, SETTLE, RUN, IDLE = "home", "settle", "run", "idle"
+NOT_FAULTS = ("waiting",)  # hold reasons that are no fault (not counted as holds)
+# s: in real time an observation waits for frames at most this old (a camera that stopped, or a twin camera's
+# render process still warming up: the policy must not see the arm as it was)
+FRAME_MAX_AGE_S = 0.1
+
+
+class RolloutPair(ArmPair):
+    """ArmPair whose follower follows target_fn(now [s], follower JointState) -> (q (n,) [rad] or None,
+    gripper [m] or None, why None); the leader gets zero torque. holds: hold entries by reason."""
+
+    @staticmethod
+    def target_fn(now: float, fs):  # replaced by the rollout's PolicyTarget
+        return None, None, "no policy attached"
+
+    def begin(self, clock=None) -> None:
+        """Wait for data from both arms; the leader passive, the follower held where it is."""
+        clock = clock or self.leader.clock
+        t_end = clock.now() + self.cfg.start_timeout_s
+        while True:
+            ls, fs = self.leader.read(), self.follower.read()
+            if np.all(np.isfinite(fs.q)) and np.all(np.isfinite(ls.q)):
+                break
+            if clock.now() >= t_end:
+                self.make_safe("no data at start")
+                raise DeviceError(f"no joint data within {self.cfg.start_timeout_s:.1f} s",
+                                  where=self.cfg.name,
+                                  fix="check power, cables and the port/channel in the rig")
+            clock.sleep(self.dt_s)
+        self._t_ok = {"leader": ls.t, "follower": fs.t}
+        self.q_home = np.asarray(fs.q, dtype=float).copy()
+        self.leader.zero_torque("policy rollout: the leader is passive")
+        self.follower.hold("policy rollout: waiting")
+        self.phase = HOLD
+        self.holds: Counter = Counter()  # holds by reason (entries and changes of reason)
+        self._hold_why: str | None = None
+
+    def tick(self, now: float) -> TickRecord:
+        cfg = self.cfg
+        dt = now - self._t_prev if np.isfinite(self._t_prev) else self.dt_s
+        dt = min(max(dt, 0.0), 3.0 * self.dt_s)
+        self._t_prev = now
+        ls, fs = self.leader.read(), self.follower.read()
+        leader_ok = self._ok("leader", ls, now, cfg.leader_stale_s)
+        follower_ok = self._ok("follower", fs, now, cfg.follower_stale_s)
+        q_ref = self.q_target if self.q_target is not None else fs.q
+        if follower_ok:
+            self._tick_estimator(now, fs, q_ref)
+        zero = np.zeros(self.leader.n_joints)
+        tau_sent = self.leader.command_torque(zero) if leader_ok else zero
+        self.sent = None
+        if follower_ok:
+            q, grip, why = self.target_fn(now, fs)
+        else:
+            q, grip, why = None, None, "follower data stale"
+        if q is None:
+            if self.phase != HOLD:
+                self.follower.hold(why)
+                self.phase = HOLD
+            kind = why.split(" (")[0].split(":")[0]
+            if kind != self._hold_why:  # a hold entered, or its kind of reason changed: said once, counted
+                if not why.startswith(NOT_FAULTS):
+                    self.holds[kind] += 1
+                self._say(f"follower on hold: {why}")
+            self._hold_why = kind
+            self.q_target = None
+        else:
+            prev = self.q_target if self.q_target is not None else np.asarray(fs.q, dtype=float)
+            self.q_target = rate_limit(np.asarray(q, dtype=float), prev, self.soft.rate, dt)
+            self.sent = self.follower.command(FollowerCommand(q=self.q_target, gripper=grip))
+            self._hold_why = None
+            if self.phase != COUPLED:
+                self.phase = COUPLED
+                self._say("follower follows the policy's schedule", logging.INFO)
+        self.last = self._record(now, ls, fs, tau_sent, None)
+        return self.last
+
+
+class PolicyTarget:
+    """The follower target of a rollout, tick by tick (the pair's target_fn; runs on the loop's thread).
+
+    runner: policies.rollout.PolicyRunner (started); schedule: ChunkSchedule; frames: callable(now) ->
+    {camera: RGB frame of now} or None while they are not there; objects: callable -> the PRIVILEGED
+    object vector (twin tasks) or None; gripper_range: (min, max) [m] the policy's gripper target is
+    clamped to."""
+
+    def __init__(self, pair: RolloutPair, runner, schedule: ChunkSchedule, frames, objects=None,
+                 gripper_range=(-np.inf, np.inf), gripper_open: float | None = None):
+        self.pair, self.runner, self.schedule = pair, runner, schedule
+        self.frames, self.objects = frames, objects
+        self.gripper_range, self.gripper_open = gripper_range, gripper_open
+        self.n = pair.follower.n_joints
+        self.arm = "follower"
+        self.state = IDLE
+        self.started = False
+        self._t_next = -np.inf
+        self._home_done = False
+        self.ages_s: list[float] = []  # age of the executed action per run tick [s]
+        lim = pair.follower.safety.limits
+        self._q_min, self._q_max = np.asarray(lim.q_min), np.asarray(lim.q_max)
+        self.clamped = 0  # run ticks whose target lay outside the joint limits (the safety layer clamped it)
+
+    # -- phases (the owner calls these) -----------------------------------------------------------------
+    def home(self, fs) -> None:
+        self.started = True
+        self.pair.soft.reset(np.asarray(fs.q, dtype=float))
+        self._home_done = False
+        self.state = HOME
+
+    @property
+    def at_home(self) -> bool:
+        return self._home_done
+
+    def settle(self) -> None:
+        self.state = SETTLE
+
+    def run(self, now: float) -> None:
+        self.runner.take()  # chunks of an earlier episode are dropped
+        self.schedule.clear()
+        self._t_next = now
+        self.state = RUN
+
+    def idle(self) -> None:
+        self.state = IDLE
+
+    # -- per tick ------------------------------------------------------------------------------------------
+    def __call__(self, now: float, fs):
+        if self.state == HOME:
+            q, done = self.pair.soft.step(self.pair.q_home)
+            self._home_done = self._home_done or bool(done)
+            return q, self.gripper_open, None
+        if self.state == SETTLE:
+            return self.pair.q_home, self.gripper_open, None
+        if self.state != RUN:
+            return None, None, "waiting: between episodes" if self.started else "waiting to start"
+        if now >= self._t_next:
+            obs = self.observation(fs, now)
+            if obs is not None:
+                self.runner.submit(obs, now)  # inline (lockstep): the chunk is ready below
+                self._t_next = now + self.schedule.period_s
+        for c in self.runner.take():
+            self.schedule.add(c)  # a refused chunk holds via target() below, with the reason
+        a, why, age = self.schedule.target(now)
+        if a is None:
+            return None, None, why
+        self.ages_s.append(age)
+        q = a[: self.n]
+        self.clamped += int(bool(np.any(q < self._q_min) or np.any(q > self._q_max)))
+        grip = float(np.clip(a[self.n], *self.gripper_range)) if len(a) > self.n else None
+        return q, grip, None
+
+    def observation(self, fs, now: float) -> dict | None:
+        """The flat observation now (None while a camera the policy needs has no frame of the last
+        FRAME_MAX_AGE_S)."""
+        est = self.pair.estimate
+        tau = est.tau_ext if est is not None else np.full(self.n, np.nan)
+        obs = arm_observation(self.arm, fs, tau)
+        if self.runner.cameras:
+            frames = self.frames(now)
+            if frames is None:
+                return None
+            obs.update({f"observation.images.{c}": rgb for c, rgb in frames.items()})
+        if self.runner.uses_objects:
+            from hardware.recording.schemas import TASK_OBJECTS_FEATURE
+
+            obs[TASK_OBJECTS_FEATURE] = self.objects()
+        return obs

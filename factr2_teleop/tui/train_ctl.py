@@ -1,0 +1,317 @@
+"""FIRST training behind the Training screen (no Textual): which episodes, the phase-label preview, the run's
+choices, and one training run in a worker thread -- the same `policies.run.run_training` as `factr2 train`
+(no second copy), with the progress callback and stop flag of `policies.train.train`.
+
+Stopping (key x, the emergency stop, quitting the app) ends the run after its current step and writes a
+checkpoint there; `resume` continues it exactly (policies.train: step s alone fixes its batch and noise).
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from hardware.errors import UserError
+
+# which recorded episodes may train (discarded ones never do: policies.recordings leaves them out)
+OUTCOME_FILTERS = {
+    "all": ("success", "failure", "unlabelled", "incomplete"),
+    "success": ("success",),
+    "success+unlabelled": ("success", "unlabelled"),
+}
+RATIO_CHOICES = ("default", "PC", "C", "PC+C", "uniform")  # "default": the method's own (first: 1:5:1)
+STEP_CHOICES = (0, 20, 100, 500, 2000, 10000)  # optimiser steps; 0: TrainConfig's 20 epochs (the paper's)
+SIZE_CHOICES = ("small", "paper", "tryout")
+# "tryout": a few-second model to walk through the workflow (not a usable policy): the small preset shrunk
+TRYOUT_OVERRIDES = dict(
+    hidden=64, heads=2, enc_layers=1, dec_layers=2, ff=128, backbone="convnet-gn", image_size=32, dropout=0.0
+)
+TRYOUT_BATCH = 16
+PAPER_CHOICES = "paper: flow or ACT, first 1:5:1, preset paper (hidden 768), 20 epochs, batch 128"
+HISTORY = 400  # logged points kept for the charts
+
+
+def usable(row, outcome_filter: str) -> bool:
+    """Whether an Episodes-screen row (hardware.recording.episodes.EpisodeRow) may train under the filter."""
+    if row.error or row.index < 0 or row.file.suffix != ".mcap":
+        return False
+    return row.outcome in OUTCOME_FILTERS[outcome_filter]
+
+
+def episode_key(row) -> str:
+    """The row's episode id as policies.recordings.episode_id names it ("FILE.mcap#N")."""
+    return f"{row.file.name}#{row.index}"
+
+
+@dataclass
+class Choices:
+    """What the screen lets the user pick (defaults preselected: flow, first, its 1:5:1, small, 20 epochs)."""
+
+    policy: str = "flow"
+    method: str = "first"
+    ratio: str = "default"
+    size: str = "small"
+    steps: int = 0
+    thresholds: tuple[float, float] | None = None  # [N*m]; None: from the recordings' NEXT checkpoint
+
+    def cycle(self, name: str, options, d: int = 1) -> str:
+        options = list(options)
+        cur = getattr(self, name)
+        value = options[(options.index(cur) + d) % len(options)] if cur in options else options[0]
+        setattr(self, name, value)
+        return value
+
+    def ratio_weights(self) -> tuple[float, float, float]:
+        from policies.methods import METHODS
+        from policies.sampler import RATIO_PRESETS
+
+        return METHODS[self.method].ratio if self.ratio == "default" else RATIO_PRESETS[self.ratio]
+
+    def describe(self) -> str:
+        from policies.sampler import format_ratio
+
+        steps = f"{self.steps} steps" if self.steps else "20 epochs"
+        return (
+            f"policy {self.policy} (p)  method {self.method} (m)  ratio {format_ratio(self.ratio_weights())}"
+            f" (r)  size {self.size} (z)  {steps} ([ ])"
+        )
+
+
+def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Path, threads: int = 0):
+    """policies.run.RunOptions for these choices (the CLI's `factr2 train` builds the same)."""
+    from policies.run import RunOptions
+    from policies.sampler import RATIO_PRESETS
+    from policies.train import TrainConfig
+
+    tryout = choices.size == "tryout"
+    tcfg = TrainConfig(steps=choices.steps, threads=threads)
+    if tryout:
+        tcfg = replace(tcfg, batch=TRYOUT_BATCH, warmup=min(tcfg.warmup, 10), log_every=1, val_every=10,
+                       ckpt_every=50)
+    elif choices.steps:
+        every = max(1, choices.steps // 20)
+        tcfg = replace(tcfg, log_every=every, val_every=max(every, choices.steps // 10))
+    return RunOptions(
+        inputs=[recordings],
+        out=out,
+        policy=choices.policy,
+        method=choices.method,
+        ratio=None if choices.ratio == "default" else RATIO_PRESETS[choices.ratio],
+        preset="small" if tryout else choices.size,
+        thresholds=choices.thresholds,
+        progress=False,
+        train=tcfg,
+        overrides=dict(TRYOUT_OVERRIDES) if tryout else None,
+        episodes=tuple(episodes),
+    )
+
+
+def resume_options(run: Path, recordings: Path, threads: int = 0):
+    """RunOptions that continue the run in `run` (its checkpoint names policy, method, ratio, thresholds,
+    train settings and episodes; the recordings are looked up in `recordings`)."""
+    from policies import checkpoint as C
+    from policies.config import PolicyConfig
+    from policies.run import RunOptions
+    from policies.train import TrainConfig
+
+    meta = C.read_meta(run)
+    fixed = ("policy", "n_cameras", "state_dim", "force_dim", "action_dim", "aux_force")
+    overrides = {k: v for k, v in meta["policy"].items() if k not in fixed and k in PolicyConfig().__dict__}
+    tr = dict(meta["train"], threads=threads)
+    tr["betas"] = tuple(tr["betas"])
+    tr["ratio"] = tuple(tr["ratio"])
+    ph = meta.get("phases", {})
+    given = (ph["t_low"], ph["t_high"]) if ph.get("source") == "given" else None
+    return RunOptions(
+        inputs=[recordings],
+        out=Path(run),
+        policy=meta["policy"]["policy"],
+        method=meta["method"],
+        ratio=tuple(meta["ratio"]),
+        preset="small",
+        force=meta["force"],
+        thresholds=given,
+        resume=True,
+        progress=False,
+        train=TrainConfig(**tr),
+        overrides=overrides,
+        episodes=tuple(meta["episodes"]),
+    )
+
+
+@dataclass
+class RunRow:
+    """One training run in OUT/runs: its newest checkpoint's step of total, final or not, validation loss."""
+
+    path: Path
+    policy: str
+    method: str
+    step: int
+    total: int
+    final: bool
+    val_loss: float
+
+
+def list_runs(folder: Path) -> list[RunRow]:
+    """Every run folder with a checkpoint under `folder`, newest first."""
+    from policies import checkpoint as C
+
+    rows = []
+    if not Path(folder).is_dir():
+        return rows
+    for d in sorted((p for p in Path(folder).iterdir() if p.is_dir()), reverse=True):
+        last = C.last_checkpoint(d)
+        if last is None:
+            continue
+        try:
+            m = json.loads(last.read_text())
+        except ValueError:
+            continue
+        val = float(m.get("metrics", {}).get("val/loss", float("nan")))
+        rows.append(RunRow(d, m.get("policy", {}).get("policy", "?"), m.get("method", "?"),
+                           int(m.get("step", 0)), int(m.get("total_steps", 0)), bool(m.get("final")), val))
+    return rows
+
+
+def run_lines(rows: list[RunRow], limit: int = 4) -> list[str]:
+    out = []
+    for r in rows[:limit]:
+        state = f"final, {r.step} steps" if r.final else f"stopped {r.step}/{r.total}: u resumes"
+        val = "-" if not np.isfinite(r.val_loss) else f"{r.val_loss:.4g}"
+        out.append(f"  {r.path.name[:26]:<26} {r.policy + '/' + r.method:<12} {state:<27} val {val}"[:79])
+    return out or ["  (no runs yet)"]
+
+
+# -- phase-label preview ---------------------------------------------------------------------------------
+@dataclass
+class LabelPreview:
+    """FIRST labels of the chosen episodes: thresholds and, per episode id, its policies.labelling labels."""
+
+    thresholds: object  # policies.labelling.Thresholds
+    labels: dict = field(default_factory=dict)
+
+
+def label_preview(recordings: Path, episodes: list[str], thresholds) -> LabelPreview:
+    """Label the chosen episodes as `factr2 episodes phases` does. Blocking (reads recordings): a worker.
+    UserError when the thresholds cannot be found (no NEXT checkpoint named, none given)."""
+    import warnings
+
+    from policies import labelling as L
+    from policies.recordings import episode_id, load_episodes
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        eps, arms = load_episodes([recordings])
+    keep = set(episodes)
+    eps = [e for e in eps if episode_id(e) in keep]
+    if not eps:
+        raise UserError("no usable episode chosen", where=str(recordings), fix="include one (enter)")
+    try:
+        th = L.resolve_thresholds(thresholds, None, eps, arms)
+    except UserError:
+        raise UserError("these recordings name no NEXT checkpoint to take contact thresholds from",
+                        where="Train", fix="press h and set LOW:HIGH [N*m]") from None
+    return LabelPreview(th, {episode_id(e): L.label_episode(e, arms, th) for e in eps})
+
+
+# -- the run ----------------------------------------------------------------------------------------------
+@dataclass
+class TrainState:
+    """What the screen shows. status: idle | preparing | training | stopping | stopped | done | failed."""
+
+    status: str = "idle"
+    step: int = 0
+    total: int = 0
+    start: int = 0
+    eta_s: float = float("nan")
+    losses: list = field(default_factory=list)  # training loss per logged step
+    val: dict = field(default_factory=dict)  # "val/loss", "val/loss_F", ... -> values per evaluation
+    line: str = ""
+    run_dir: str = ""
+
+
+class TrainingRun:
+    """One training run (new or resumed) in a worker thread; snapshot() for the screen, stop() keeps a
+    checkpoint."""
+
+    def __init__(self, opts, say=None):
+        self.opts = opts
+        self.say = say or (lambda text: None)
+        self.state = TrainState(run_dir=str(opts.out))
+        self.stop_event = threading.Event()
+        self._lock = threading.Lock()
+        self._t0, self._step0 = float("nan"), 0
+        self.thread: threading.Thread | None = None
+
+    @property
+    def running(self) -> bool:
+        return self.thread is not None and self.thread.is_alive()
+
+    def start(self) -> None:
+        self.thread = threading.Thread(target=self.run, name="factr2-tui-training", daemon=True)
+        self.thread.start()
+
+    def stop(self, why: str = "stopped") -> None:
+        if self.running and not self.stop_event.is_set():
+            self.stop_event.set()
+            with self._lock:
+                self.state.status = "stopping"
+                self.state.line = f"{why}: finishing the step, keeping a checkpoint"
+
+    def join(self, timeout_s: float | None = None) -> None:
+        if self.thread is not None:
+            self.thread.join(timeout_s)
+
+    def snapshot(self) -> TrainState:
+        with self._lock:
+            s = self.state
+            return replace(s, losses=list(s.losses), val={k: list(v) for k, v in s.val.items()})
+
+    def _progress(self, row: dict) -> None:
+        now = time.monotonic()
+        with self._lock:
+            s = self.state
+            if s.status == "preparing":  # the first step is done: time the rest from here
+                s.status, self._t0, self._step0 = "training", now, int(row["step"])
+                s.line = f"training -> {self.opts.out}"
+            s.step, s.total, s.start = int(row["step"]), int(row["total"]), int(row["start"])
+            if s.step > self._step0:
+                s.eta_s = (s.total - s.step) * (now - self._t0) / (s.step - self._step0)
+            if "train/loss" in row:
+                s.losses = (s.losses + [float(row["train/loss"])])[-HISTORY:]
+            for k, v in row.items():
+                if k.startswith("val/"):
+                    s.val[k] = (s.val.get(k, []) + [float(v)])[-HISTORY:]
+
+    def run(self) -> None:
+        import torch
+
+        from policies.run import run_training
+        from policies.train import Dist
+
+        with self._lock:
+            self.state.status = "preparing"
+            self.state.line = "reading recordings, labelling phases, building the dataset ..."
+        try:
+            d = Dist(device=torch.device("cuda" if torch.cuda.is_available() else "cpu"))
+            run_training(self.opts, d, on_progress=self._progress, stop=self.stop_event)
+        except UserError as e:
+            self._end("failed", str(e))
+            return
+        except Exception as e:  # noqa: BLE001 -- shown on screen; the app keeps running
+            self._end("failed", f"{type(e).__name__}: {e}")
+            return
+        if self.stop_event.is_set() and self.state.step < self.state.total:
+            self._end("stopped", f"stopped at step {self.state.step}: checkpoint kept in {self.opts.out}")
+        else:
+            self._end("done", f"{self.opts.out}/checkpoints (last), curves.png beside")
+
+    def _end(self, status: str, line: str) -> None:
+        with self._lock:
+            self.state.status, self.state.line = status, line
+        self.say(f"training {status}: {line}")

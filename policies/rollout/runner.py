@@ -1,0 +1,192 @@
+"""A trained policy at rollout: load a run, build the model's input from the flat observation a live rig
+gives, predict a chunk, un-normalise it; inference inline (lockstep twins: simulated time stands still
+meanwhile) or on a thread of its own (real time: the control loop never waits for the network).
+
+    runner = PolicyRunner("RUN")                      # or RUN/checkpoints/step-*.json
+    runner.check_arm("piper", joint_names)            # UserError (one line) for another arm / joint set
+    runner.start(threaded=True)
+    runner.submit(obs, t_obs)                         # obs: flat feature name -> value (see `observation`)
+    for chunk in runner.take(): ...                   # schedule.Chunk, stamped with t_obs
+    runner.stop()
+
+The input is built by feature name from the names and normaliser the checkpoint stores (the ones training
+used): observation.state = the listed follower features concatenated ([rad], [m]), observation.force =
+tau_ext [N*m] (or current [A]), observation.state.objects = the PRIVILEGED twin object vector
+(policies/privileged.py), observation.images.<cam> = the camera's latest RGB frame resized to the model's
+input like the training frames (policies/frame_cache.py).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import torch
+from PIL import Image
+
+from hardware.errors import UserError
+from hardware.recording.schemas import TASK_OBJECTS_FEATURE
+from policies.checkpoint import load_policy
+from policies.rollout.schedule import Chunk
+
+IMAGES = "observation.images."
+
+
+def resize_frame(rgb: np.ndarray, size: int) -> np.ndarray:
+    """A camera frame (H, W, 3) uint8 as the model's (size, size, 3) input: the whole field of view,
+    bilinear, the way policies.frame_cache resizes the recorded frames."""
+    return np.asarray(Image.fromarray(np.asarray(rgb, np.uint8)).resize((size, size), Image.BILINEAR))
+
+
+def arm_observation(arm: str, state, tau_ext) -> dict:
+    """One follower's flat observation ({arm}.joint.pos [rad], {arm}.gripper.pos [m], {arm}.joint.current
+    [A], ..., {arm}.joint.tau_ext [N*m]) from its JointState and the estimator's tau_ext."""
+    out = {f"{arm}.{k}": v for k, v in state.features().items()}
+    out[f"{arm}.joint.tau_ext"] = np.asarray(tau_ext, dtype=float)
+    return out
+
+
+class PolicyRunner:
+    def __init__(self, path: str | Path, seed: int = 0):
+        self.model, self.meta, self.norm = load_policy(path)
+        self.path = Path(self.meta["_path"])
+        self.cfg = self.model.cfg
+        f = self.meta["features"]
+        self.state_names: list[str] = list(f["observation.state"])
+        self.force_names: list[str] = list(f.get("observation.force") or [])
+        self.object_names: list[str] = list(f.get(TASK_OBJECTS_FEATURE) or [])
+        self.cameras = [n[len(IMAGES):] for n in f.get("observation.images") or []]
+        self.action_names: list[str] = list(f["action"])
+        self.rate_hz = float(self.meta["rate_hz"])
+        self.dt = 1.0 / self.rate_hz
+        self._gen = torch.Generator().manual_seed(int(seed))
+        self._seq = 0
+        self._cond = threading.Condition()
+        self._pending: tuple | None = None  # (obs, t_obs, seq): the newest request (older ones are dropped)
+        self._out: deque[Chunk] = deque()
+        self._thread: threading.Thread | None = None
+        self._stop = False
+        self.threaded = False
+        self.latencies_s: list[float] = []  # inference wall time per chunk
+        self.error: BaseException | None = None
+
+    # -- what the checkpoint was trained for ---------------------------------------------------------
+    @property
+    def policy(self) -> str:
+        return self.cfg.policy
+
+    @property
+    def uses_objects(self) -> bool:
+        return bool(self.object_names)
+
+    def describe(self) -> str:
+        obs = ", ".join(x for x in (
+            "joints+gripper", self.force_names and f"force ({self.meta.get('force')})",
+            self.cameras and f"cameras {', '.join(self.cameras)}",
+            self.object_names and "PRIVILEGED object state") if x)
+        return (f"{self.cfg.policy} policy, method {self.meta.get('method')}, step {self.meta.get('step')}, "
+                f"{self.rate_hz:.3g} Hz, chunk {self.cfg.chunk}; observes {obs}")
+
+    def check_arm(self, arm_model: str, joint_names: list[str], where: str = "--policy") -> None:
+        """UserError unless the checkpoint was trained on one follower of this arm model and joint set."""
+        arms = self.meta.get("arms") or {}
+        followers = list(arms.get("followers") or [])
+        if len(followers) != 1:
+            raise UserError(f"policy trained on {len(followers)} follower arms; rollout drives one",
+                            where=str(self.path), fix="train on single-arm recordings")
+        model = (arms.get("arm_models") or [""])[0]
+        joints = list((arms.get("joint_names") or [[]])[0])
+        if model and model != arm_model:
+            raise UserError(f"policy trained for arm {model!r}, the rig's follower is {arm_model!r}",
+                            where=str(self.path), fix="roll it out on a rig with that arm")
+        if joints != list(joint_names):
+            raise UserError(f"policy trained on joints {joints}, the rig's follower has {list(joint_names)}",
+                            where=str(self.path), fix="roll it out on a rig with that joint set")
+        if self.cfg.action_dim != len(joint_names) + 1:
+            raise UserError(f"policy acts on {self.cfg.action_dim} values, the follower has "
+                            f"{len(joint_names)} joints + gripper", where=str(self.path),
+                            fix="roll it out on the arm it was trained for")
+
+    # -- one chunk ---------------------------------------------------------------------------------------
+    def batch(self, obs: dict) -> dict:
+        """The model's input (batch of one) from a flat observation (feature name -> value)."""
+        def cat(names):
+            return np.concatenate([np.atleast_1d(np.asarray(obs[n], dtype=np.float32)) for n in names])[None]
+
+        out = {"state": torch.from_numpy(self.norm.norm("state", cat(self.state_names)))}
+        if self.force_names:
+            out["force"] = torch.from_numpy(self.norm.norm("force", np.nan_to_num(cat(self.force_names))))
+        if self.object_names:
+            vec = np.asarray(obs[TASK_OBJECTS_FEATURE], np.float32)[None]
+            out["objects"] = torch.from_numpy(self.norm.norm("objects", vec))
+        if self.cameras:
+            s = self.cfg.image_size
+            img = np.stack([resize_frame(obs[IMAGES + c], s) for c in self.cameras])[None]
+            out["images"] = torch.from_numpy(img)
+        return out
+
+    def infer(self, obs: dict, t_obs: float, seq: int = 0) -> Chunk:
+        """Predict one chunk (raw units) for an observation taken at t_obs [s]."""
+        t0 = time.perf_counter()
+        b = self.batch(obs)
+        noise = self.model.draw_noise(self.cfg, 1, self._gen)
+        with torch.inference_mode():
+            z = self.model.predict(b, noise)[0].float().numpy()
+        actions = np.asarray(self.norm.denorm("action", z), dtype=float)
+        lat = time.perf_counter() - t0
+        self.latencies_s.append(lat)
+        return Chunk(t_obs=float(t_obs), actions=actions, dt=self.dt, seq=seq, latency_s=lat)
+
+    # -- inline or threaded ------------------------------------------------------------------------------
+    def start(self, threaded: bool) -> None:
+        """threaded: inference on a daemon thread (real time); else submit() predicts at once."""
+        self.threaded = bool(threaded)
+        if self.threaded and self._thread is None:
+            self._stop = False
+            self._thread = threading.Thread(target=self._work, name="factr2-policy", daemon=True)
+            self._thread.start()
+
+    def submit(self, obs: dict, t_obs: float) -> int:
+        """Ask for a chunk for this observation; returns its request number. Never waits when threaded
+        (a request not yet started is replaced by the newer one)."""
+        self._seq += 1
+        if not self.threaded:
+            self._out.append(self.infer(obs, t_obs, self._seq))
+            return self._seq
+        with self._cond:
+            self._pending = (obs, t_obs, self._seq)
+            self._cond.notify()
+        return self._seq
+
+    def take(self) -> list[Chunk]:
+        """The chunks finished since the last call (oldest first)."""
+        out = []
+        while self._out:
+            out.append(self._out.popleft())
+        return out
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        with self._cond:
+            self._stop = True
+            self._cond.notify()
+        t, self._thread = self._thread, None
+        if t is not None:
+            t.join(timeout_s)
+
+    def _work(self) -> None:
+        while True:
+            with self._cond:
+                while self._pending is None and not self._stop:
+                    self._cond.wait()
+                if self._stop:
+                    return
+                obs, t_obs, seq = self._pending
+                self._pending = None
+            try:
+                self._out.append(self.infer(obs, t_obs, seq))
+            except Exception as e:  # noqa: BLE001 -- the loop sees no new chunk and holds; the error is kept
+                self.error = e
+                return

@@ -1,0 +1,192 @@
+"""Action-chunk scheduling at rollout, as pure functions on arrays (tested directly), plus ChunkSchedule, the
+small stateful shell the control loop asks for a target every tick.
+
+A chunk is the policy's answer to one observation: actions (H, A) in raw units (joint targets [rad] +
+gripper [m]), actions[i] meant for t_obs + i * dt, dt = 1 / the policy rate (the rate its training samples
+were taken at). The loop runs faster (500 Hz): targets are interpolated linearly between chunk steps, and
+the part of a chunk that lies before the current time (the inference latency) is simply never executed.
+
+Two ways to execute chunks (both configurable):
+- temporal ensembling (ACT, Zhao et al. 2023): a chunk is requested every policy step; the target at time t
+  is the weighted mean of every chunk still covering t, weights exp(-m * i) with i = 0 the OLDEST chunk
+  (the original's order and m = 0.01): an old prediction changes slowly what a new one adds.
+- receding horizon (flow, Diffusion-Policy style): a chunk is requested every K policy steps and the newest
+  one is executed, so the first K steps of each chunk (plus the latency) are what runs.
+
+Age of the executed action [s]: time now minus the observation time of the newest chunk used.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+ACT_ENSEMBLE_M = 0.01  # the original ACT's temporal-ensembling weight constant (per chunk)
+STALL_S = 0.2  # s: a chunk this late (after it was due) holds the follower
+# rad: a chunk reaching further beyond a joint limit is refused; closer, the safety layer clamps it.
+# Demonstrations work at the limits (peg-insert: joint 3 at 0, joint 5 within 0.01 rad of 1.22), so a
+# regression error of a few hundredths there is normal (0.05 rad refused a trained policy near joint 5)
+LIMIT_TOL_RAD = 0.15
+ENSEMBLE, RECEDING = "ensemble", "receding"
+
+
+@dataclass(frozen=True)
+class Chunk:
+    """actions (H, A) raw units for t_obs + i * dt [s]; seq: request number; latency_s: inference time
+    [s, wall]."""
+
+    t_obs: float
+    actions: np.ndarray
+    dt: float
+    seq: int = 0
+    latency_s: float = 0.0
+
+    @property
+    def t_end(self) -> float:
+        """Time of the last action [s]."""
+        return self.t_obs + (len(self.actions) - 1) * self.dt
+
+
+def ensemble_weights(n: int, m: float = ACT_ENSEMBLE_M) -> np.ndarray:
+    """(n,) normalised weights exp(-m * i), i = 0 the oldest of n chunks."""
+    w = np.exp(-float(m) * np.arange(n))
+    return w / w.sum()
+
+
+def interp_chunk(actions: np.ndarray, t_obs: float, dt: float, t: float) -> np.ndarray | None:
+    """The chunk's target at time t [s], linear between its steps; actions[0] before t_obs; None after its
+    last step (the chunk is used up)."""
+    u = (t - t_obs) / dt
+    h = len(actions)
+    if u <= 0:
+        return np.asarray(actions[0], dtype=float)
+    if u > h - 1:
+        return None
+    i = min(int(np.floor(u)), h - 2) if h > 1 else 0
+    if h == 1:
+        return np.asarray(actions[0], dtype=float)
+    f = u - i
+    return (1.0 - f) * np.asarray(actions[i], dtype=float) + f * np.asarray(actions[i + 1], dtype=float)
+
+
+def ensembled_target(chunks: list[Chunk], t: float,
+                     m: float = ACT_ENSEMBLE_M) -> tuple[np.ndarray | None, int]:
+    """Temporal ensembling at t over the chunks (oldest first) that still cover t: (target, newest index
+    used) or (None, -1) when none does."""
+    vals, used = [], []
+    for k, c in enumerate(chunks):
+        a = interp_chunk(c.actions, c.t_obs, c.dt, t)
+        if a is not None:
+            vals.append(a)
+            used.append(k)
+    if not vals:
+        return None, -1
+    w = ensemble_weights(len(vals), m)
+    return np.tensordot(w, np.stack(vals), axes=1), used[-1]
+
+
+def receding_target(chunks: list[Chunk], t: float) -> tuple[np.ndarray | None, int]:
+    """Receding horizon at t: the newest chunk's target (target, its index) or (None, -1) when used up."""
+    if not chunks:
+        return None, -1
+    a = interp_chunk(chunks[-1].actions, chunks[-1].t_obs, chunks[-1].dt, t)
+    return (a, len(chunks) - 1) if a is not None else (None, -1)
+
+
+def request_period_s(mode: str, dt: float, k_exec: int) -> float:
+    """How often a chunk is requested [s]: every policy step (ensembling) or every K steps (receding)."""
+    return dt if mode == ENSEMBLE else max(int(k_exec), 1) * dt
+
+
+def overdue_s(t: float, t_obs_newest: float, period_s: float) -> float:
+    """How late the next chunk is at t [s]: it was due one request period after the newest chunk's
+    observation (negative: not due yet)."""
+    return t - (t_obs_newest + period_s)
+
+
+def chunk_problem(actions: np.ndarray, q_min: np.ndarray, q_max: np.ndarray,
+                  tol: float = 0.0) -> str | None:
+    """Why a chunk must not run, or None: non-finite values, or a joint target outside [q_min - tol,
+    q_max + tol] [rad] (joints: the first len(q_min) columns; the gripper column is clamped, not judged)."""
+    a = np.asarray(actions, dtype=float)
+    if not np.all(np.isfinite(a)):
+        return "policy output not finite"
+    n = len(q_min)
+    q = a[:, :n]
+    lo, hi = q < np.asarray(q_min) - tol, q > np.asarray(q_max) + tol
+    if lo.any() or hi.any():
+        step, j = np.argwhere(lo | hi)[0]
+        bound = q_min[j] if lo[step, j] else q_max[j]
+        return (f"policy target outside the joint limits (joint {j + 1}: {q[step, j]:.3f} rad, "
+                f"limit {bound:.3f})")
+    return None
+
+
+@dataclass
+class ChunkSchedule:
+    """The loop's view of the policy: add() each chunk as it arrives, target(t) every tick.
+
+    mode: ENSEMBLE or RECEDING; m: ensembling constant; k_exec: steps executed per chunk (receding);
+    q_min / q_max [rad]: the follower's limits (a chunk more than tol beyond them is refused; a target
+    closer to them is clamped by the safety layer, which a held pose at a limit needs); stall_s: lateness that
+    holds. Counters: chunks accepted, refused (non-finite / outside the limits)."""
+
+    mode: str
+    dt: float
+    q_min: np.ndarray
+    q_max: np.ndarray
+    m: float = ACT_ENSEMBLE_M
+    k_exec: int = 10
+    stall_s: float = STALL_S
+    tol: float = LIMIT_TOL_RAD
+    chunks: list[Chunk] = field(default_factory=list)
+    accepted: int = 0
+    nonfinite: int = 0
+    outside_limits: int = 0
+    problem: str | None = None  # the newest chunk's problem: holds until a good chunk arrives
+
+    @property
+    def period_s(self) -> float:
+        return request_period_s(self.mode, self.dt, self.k_exec)
+
+    def add(self, chunk: Chunk) -> str | None:
+        """Take a chunk; returns why it was refused (and the schedule holds), or None."""
+        why = chunk_problem(chunk.actions, self.q_min, self.q_max, self.tol)
+        if why is not None:
+            if why.startswith("policy output not finite"):
+                self.nonfinite += 1
+            else:
+                self.outside_limits += 1
+            self.problem = why
+            self.chunks.clear()  # nothing of a policy gone wrong is executed any more
+            return why
+        self.problem = None
+        self.accepted += 1
+        self.chunks.append(chunk)
+        keep = int(np.ceil((len(chunk.actions) * chunk.dt) / self.period_s)) + 1
+        del self.chunks[:-keep]  # older chunks no longer cover any time ahead
+        return None
+
+    def target(self, t: float) -> tuple[np.ndarray | None, str | None, float]:
+        """(target (A,) or None, why None, age of the executed action [s])."""
+        if self.problem is not None:
+            return None, self.problem, float("nan")
+        if not self.chunks:
+            return None, "waiting for the policy's first chunk", float("nan")
+        late = overdue_s(t, self.chunks[-1].t_obs, self.period_s)
+        if late > self.stall_s:
+            why = f"policy stalled: no new chunk {1e3 * self.stall_s:.0f} ms after one was due"
+            return None, why, float("nan")
+        if self.mode == ENSEMBLE:
+            a, k = ensembled_target(self.chunks, t, self.m)
+        else:
+            a, k = receding_target(self.chunks, t)
+        if a is None:
+            return None, "policy chunks used up", float("nan")
+        return a, None, t - self.chunks[k].t_obs
+
+    def clear(self) -> None:
+        """Forget every chunk (a new episode)."""
+        self.chunks.clear()
+        self.problem = None

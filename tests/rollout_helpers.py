@@ -1,0 +1,41 @@
+"""A tiny policy for the rollout tests, trained in a few seconds on a real (short) recording of the
+peg-insert twin rig: the follower held still through the full teleop stack, both task cameras recorded."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+TINY = dict(hidden=32, heads=2, enc_layers=1, dec_layers=1, ff=64, backbone="convnet-gn", image_size=32,
+            dropout=0.0, chunk=8)
+
+
+def record_task_session(out: Path, seconds: float = 1.2) -> Path:
+    """One episode of `seconds` on task_rig(sim-piper, peg-insert), lockstep, feedback dob, with cameras."""
+    from factr2_teleop.session.pairs import TeleopOptions
+    from factr2_teleop.session.teleop import TeleopSession
+    from factr2_teleop.tasks.collect import task_rig
+    from hardware.connect import open_rig
+
+    rig = task_rig("sim-piper", "peg-insert")
+    path = Path(out) / "held.mcap"
+    with open_rig(rig, clock="lockstep", seed=0) as s:
+        ts = TeleopSession(s, TeleopOptions(mode="dob"))
+        rec = ts.record(out, path=path, task="peg-insert")
+        rec.start_episode("peg-insert")
+        try:
+            ts.loop.run(duration_s=seconds)
+        finally:
+            rec.stop_episode("failure")
+            ts.close_recording()
+    return path
+
+
+def train_tiny(rec: Path, out: Path, policy: str = "flow", steps: int = 4) -> Path:
+    from policies.run import RunOptions, run_training
+    from policies.train import Dist, TrainConfig
+
+    train = TrainConfig(steps=steps, batch=8, lr=1e-3, warmup=1, log_every=1, val_every=1000, ckpt_every=1000,
+                        threads=1)
+    run_training(RunOptions(inputs=[rec], out=out, policy=policy, method="base-torque", thresholds=(1.0, 3.0),
+                            progress=False, overrides=dict(TINY), train=train, val_fraction=0.0), Dist())
+    return out

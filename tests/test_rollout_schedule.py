@@ -1,0 +1,118 @@
+"""Rollout chunk scheduling as pure functions: ACT temporal-ensembling weights, flow receding horizon,
+interpolation from the policy rate to the loop rate, the age of the executed action, refusals and stalls;
+and which NEXT checkpoint a policy names."""
+
+import hashlib
+import json
+
+import numpy as np
+import pytest
+
+from factr2_teleop.session.rollout import next_matches, resolve_next
+from hardware.errors import UserError
+from policies.rollout.schedule import (
+    ENSEMBLE,
+    RECEDING,
+    STALL_S,
+    Chunk,
+    ChunkSchedule,
+    chunk_problem,
+    ensemble_weights,
+    ensembled_target,
+    interp_chunk,
+    overdue_s,
+    receding_target,
+    request_period_s,
+)
+
+DT = 0.1
+LIM = (np.full(2, -1.0), np.full(2, 1.0))
+
+
+def ramp(t_obs, h=5, slope=1.0, offset=0.0):
+    """A chunk whose joint targets equal slope * (time - 0) + offset, gripper 0."""
+    t = t_obs + DT * np.arange(h)
+    a = np.stack([slope * t + offset, -slope * t, np.zeros(h)], 1)
+    return Chunk(t_obs=t_obs, actions=a, dt=DT)
+
+
+def test_ensemble_weights_are_the_original_act_exponential_oldest_first():
+    w = ensemble_weights(4, 0.01)
+    np.testing.assert_allclose(w, np.exp(-0.01 * np.arange(4)) / np.exp(-0.01 * np.arange(4)).sum())
+    assert w[0] > w[-1] and abs(w.sum() - 1) < 1e-12
+    np.testing.assert_allclose(ensemble_weights(3, 0.0), np.full(3, 1 / 3))
+    assert ensemble_weights(2, 5.0)[0] > 0.99  # a large m trusts the oldest prediction
+
+
+def test_interpolation_between_chunk_steps_and_used_up():
+    c = ramp(1.0)
+    np.testing.assert_allclose(interp_chunk(c.actions, c.t_obs, DT, 1.0 + 0.25 * DT)[0], 1.025)
+    np.testing.assert_allclose(interp_chunk(c.actions, c.t_obs, DT, 0.5), c.actions[0])  # before: first
+    np.testing.assert_allclose(interp_chunk(c.actions, c.t_obs, DT, c.t_end), c.actions[-1])
+    assert interp_chunk(c.actions, c.t_obs, DT, c.t_end + 1e-3) is None
+
+
+def test_temporal_ensembling_weights_every_chunk_covering_now():
+    old, new = ramp(0.0, offset=0.0), ramp(0.1, offset=0.3)
+    a, k = ensembled_target([old, new], 0.2, m=0.01)
+    w = ensemble_weights(2, 0.01)
+    np.testing.assert_allclose(a[0], w[0] * 0.2 + w[1] * 0.5)
+    assert k == 1
+    a, k = ensembled_target([old, new], 0.45, m=0.01)  # the old chunk ends at 0.4: only the new one
+    np.testing.assert_allclose(a[0], 0.75)
+    assert ensembled_target([old], 1.0) == (None, -1)
+
+
+def test_receding_horizon_runs_the_newest_chunk_and_requests_every_k_steps():
+    a, k = receding_target([ramp(0.0), ramp(0.1, offset=0.3)], 0.15)
+    np.testing.assert_allclose(a[0], 0.45)
+    assert k == 1
+    assert request_period_s(RECEDING, DT, 3) == pytest.approx(0.3)
+    assert request_period_s(ENSEMBLE, DT, 3) == pytest.approx(DT)
+    assert overdue_s(1.0, 0.5, 0.3) == pytest.approx(0.2)
+
+
+def test_schedule_age_refusals_and_stall():
+    s = ChunkSchedule(mode=RECEDING, dt=DT, q_min=LIM[0], q_max=LIM[1], k_exec=2)
+    assert s.target(0.0)[0] is None and "first chunk" in s.target(0.0)[1]
+    assert s.add(ramp(0.0, slope=0.5)) is None
+    a, why, age = s.target(0.13)
+    assert why is None and age == pytest.approx(0.13) and a[0] == pytest.approx(0.065)
+    # late by less than STALL_S after the next chunk was due (0.2 s): still running
+    assert s.target(0.2 + STALL_S - 0.01)[0] is not None
+    a, why, _ = s.target(0.2 + STALL_S + 0.01)
+    assert a is None and why.startswith("policy stalled")
+    bad = ramp(0.3)
+    nan = Chunk(t_obs=0.3, actions=np.where(np.arange(3) == 1, np.nan, bad.actions), dt=DT)
+    assert s.add(nan) == "policy output not finite" and s.nonfinite == 1
+    assert s.target(0.31)[0] is None and s.chunks == []
+    far = Chunk(t_obs=0.4, actions=bad.actions + np.array([5.0, 0.0, 0.0]), dt=DT)
+    assert "outside the joint limits (joint 1" in s.add(far) and s.outside_limits == 1
+    assert s.target(0.41)[0] is None
+    assert s.add(ramp(0.5, slope=0.1)) is None  # a good chunk ends the hold
+    assert s.target(0.55)[0] is not None
+
+
+def test_chunk_problem_judges_joints_not_the_gripper():
+    a = np.zeros((3, 3))
+    a[:, 2] = 7.0  # gripper column: clamped by the caller, never a refusal
+    assert chunk_problem(a, *LIM) is None
+    a[1, 1] = -1.5
+    assert "joint 2" in chunk_problem(a, *LIM)
+    assert chunk_problem(a, *LIM, tol=0.6) is None
+
+
+def test_the_next_checkpoint_a_policy_names(tmp_path):
+    ck = tmp_path / "next.json"
+    ck.write_text(json.dumps({"data_hash": "abcdef0123456789"}))
+    sha = hashlib.sha256(ck.read_bytes()).hexdigest()[:12]
+    assert next_matches(f"{ck}#abcdef012345", ck) and not next_matches(f"{ck}#000000000000", ck)
+    assert next_matches(f"next@{sha}", ck) and not next_matches("next@000000000000", ck)
+    assert resolve_next({"next_checkpoint": f"{ck}#abcdef012345"}, None) == (ck, "")
+    assert resolve_next({"next_checkpoint": ""}, None) == (None, "")
+    with pytest.raises(UserError, match="not here"):
+        resolve_next({"next_checkpoint": f"{tmp_path}/gone.json#abcdef012345"}, None)
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps({"data_hash": "ffff"}))
+    path, note = resolve_next({"next_checkpoint": f"{ck}#abcdef012345"}, other)
+    assert path == other and "NOT the checkpoint the policy was trained with" in note
