@@ -61,3 +61,23 @@ def test_process_threads_are_raised_below_the_loop_and_given_back(monkeypatch):
         assert os.sched_getscheduler(other.native_id) == os.SCHED_OTHER
         stop.set()
         other.join()
+
+
+def test_cpu_wake_latency_request_is_held_while_open(tmp_path, monkeypatch):
+    import struct
+
+    from hardware.realtime import CpuWakeLatency
+
+    monkeypatch.delenv("FACTR2_NO_RT", raising=False)
+    dev = tmp_path / "cpu_dma_latency"  # stands in for the PM QoS device: what is written, and when
+    dev.write_bytes(b"")
+    req = CpuWakeLatency(str(dev))
+    assert req.active and req.note is None
+    assert struct.unpack("i", dev.read_bytes()) == (0,)  # 0 us allowed
+    req.close()
+    assert not req.active
+    gone = CpuWakeLatency(str(tmp_path / "absent"))  # no PM QoS here: nothing to ask, nothing said
+    assert not gone.active and gone.note is None
+    monkeypatch.setenv("FACTR2_NO_RT", "1")
+    off = CpuWakeLatency(str(dev))
+    assert not off.active and "FACTR2_NO_RT" in off.note

@@ -82,7 +82,9 @@ def test_record_train_quit_mid_training_then_resume(tmp_path):
             assert await wait_for(pilot, lambda: "1 of 1 usable episodes chosen" in screen_text(app))
             await pilot.press("o", "o")  # back to all
             assert await wait_for(pilot, lambda: "2 of 2 usable" in screen_text(app))
-            # recordings made with ground-truth feedback name no NEXT checkpoint: the preview says what to do
+            # default: thresholds from the recordings' own contact scores (factr2 train's default); these
+            # demonstrations (ground-truth feedback, no contact) hold no scores to split: the preview says so
+            assert await wait_for(pilot, lambda: "contact thresholds from the recordings" in screen_text(app))
             ask = "press h and set LOW:HIGH"
             assert await wait_for(pilot, lambda: ask in screen_text(app)), screen_text(app)
             await pilot.press("h", *"0.5:1", "enter")

@@ -26,7 +26,7 @@ from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, ST
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.timing import LoopTiming, TimingStats
 from hardware.clock import Clock
-from hardware.realtime import LOOP_PRIORITY, ProcessThreads, set_fifo, set_normal
+from hardware.realtime import LOOP_PRIORITY, CpuWakeLatency, ProcessThreads, set_fifo, set_normal
 
 log = logging.getLogger("factr2.teleop")
 
@@ -107,6 +107,7 @@ class TeleopLoop:
         # camera or twin thread holding it could delay a tick by that much. A quarter period bounds it.
         switch = sys.getswitchinterval()
         services = ProcessThreads()
+        wake = None
         if self.clock.realtime:
             sys.setswitchinterval(min(switch, SWITCH_FRACTION * self.period_s))
             why = set_fifo(LOOP_PRIORITY)
@@ -114,6 +115,9 @@ class TeleopLoop:
                 self._message(self.clock.now(), "loop", why)
             else:
                 services.refresh()
+            wake = CpuWakeLatency()
+            if wake.note:
+                self._message(self.clock.now(), "loop", wake.note)
         try:
             for p in self.pairs:
                 p.begin(self.clock)
@@ -150,6 +154,8 @@ class TeleopLoop:
             if self.clock.realtime:
                 set_normal()
                 services.restore()
+                if wake is not None:
+                    wake.close()
             self._running = False
             fault = isinstance(self.error, Exception)
             self._make_safe("teleop fault" if fault else "teleop stopped", FAULT if fault else STOPPED)

@@ -57,7 +57,9 @@ class Choices:
     ratio: str = "default"
     size: str = "small"
     steps: int = 0
-    thresholds: tuple[float, float] | None = None  # [N*m]; None: from the recordings' NEXT checkpoint
+    # [N*m] (LOW, HIGH); "recording": from the episodes' own contact scores, `factr2 train`'s default;
+    # "next": from the free-motion noise of the NEXT checkpoint the recordings name
+    thresholds: tuple[float, float] | str = "recording"
 
     def cycle(self, name: str, options, d: int = 1) -> str:
         options = list(options)
@@ -126,7 +128,9 @@ def resume_options(run: Path, recordings: Path, threads: int = 0):
     tr["betas"] = tuple(tr["betas"])
     tr["ratio"] = tuple(tr["ratio"])
     ph = meta.get("phases", {})
-    given = (ph["t_low"], ph["t_high"]) if ph.get("source") == "given" else None
+    src = str(ph.get("source", ""))
+    given = ((ph["t_low"], ph["t_high"]) if src == "given" else "recording" if src.startswith("recording")
+             else None)
     return RunOptions(
         inputs=[recordings],
         out=Path(run),
@@ -213,9 +217,12 @@ def label_preview(recordings: Path, episodes: list[str], thresholds) -> LabelPre
         raise UserError("no usable episode chosen", where=str(recordings), fix="include one (enter)")
     try:
         th = L.resolve_thresholds(thresholds, None, eps, arms)
-    except UserError:
+    except UserError as e:
+        if thresholds not in (None, "next"):
+            raise UserError(e.what, where="Train", fix="press h and set LOW:HIGH [N*m]") from None
         raise UserError("these recordings name no NEXT checkpoint to take contact thresholds from",
-                        where="Train", fix="press h and set LOW:HIGH [N*m]") from None
+                        where="Train",
+                        fix="press h and set LOW:HIGH [N*m] (empty: from the recordings)") from None
     return LabelPreview(th, {episode_id(e): L.label_episode(e, arms, th) for e in eps})
 
 

@@ -70,14 +70,15 @@ def progress_lines(st) -> list[str]:
 
 
 class ThresholdDialog(ModalScreen[str | None]):
-    """Contact thresholds LOW:HIGH [N*m] on ||tau_ext||_1 (empty: from the recordings' NEXT checkpoint)."""
+    """Contact thresholds LOW:HIGH [N*m] on ||tau_ext||_1 (empty: from the recordings' own scores; "next":
+    from their NEXT checkpoint)."""
 
     BINDINGS = [Binding("escape", "cancel", "Cancel")]
 
     def compose(self) -> ComposeResult:
         with Vertical(id="picker"):
-            yield Static("Contact thresholds LOW:HIGH [N*m] (empty: from NEXT). Enter: set, Escape: cancel",
-                         markup=False)
+            yield Static("Contact thresholds LOW:HIGH [N*m] (empty: from the recordings; next: from NEXT). "
+                         "Enter: set, Escape: cancel", markup=False)
             yield Input(placeholder="e.g. 1.5:2.5", id="thresholds")
 
     def on_input_submitted(self, ev: Input.Submitted) -> None:
@@ -149,7 +150,8 @@ class TrainingScreen(BaseScreen):
             "\n".join(choice_rows(self.rows, self.chosen, self.selected, self.preview))
         )
         c = self.app.train_choices
-        th = "from NEXT" if c.thresholds is None else f"{c.thresholds[0]:g}:{c.thresholds[1]:g} N*m"
+        th = ("from the recordings" if c.thresholds == "recording" else "from NEXT"
+              if c.thresholds in (None, "next") else f"{c.thresholds[0]:g}:{c.thresholds[1]:g} N*m")
         self.query_one("#tr-choices", Static).update(
             "\n".join([c.describe(), f"contact thresholds {th} (h)", T.PAPER_CHOICES])
         )
@@ -273,7 +275,9 @@ class TrainingScreen(BaseScreen):
             if text is None:
                 return
             try:
-                self.app.train_choices.thresholds = parse_thresholds(text) if text else None
+                text = text.strip()
+                self.app.train_choices.thresholds = (parse_thresholds(text) if text not in ("", "next")
+                                                     else text or "recording")
             except ValueError as e:
                 self.app.say(f"thresholds {e}: give LOW:HIGH in N*m, e.g. 1.5:2.5")
                 return

@@ -26,11 +26,12 @@ from multiprocessing.connection import Client, Listener
 import numpy as np
 
 from hardware.cameras.base import CameraError
+from hardware.realtime import register_helper_process, unregister_helper_process
 
 START_TIMEOUT_S = 30.0  # a cold start imports mujoco and opens an OpenGL context
 RENDER_TIMEOUT_S = 5.0
 RASTER_THREADS = 1  # Mesa llvmpipe threads in the render process (LP_NUM_THREADS)
-RENDER_NICE = 10  # the render process's niceness: below the control loop
+RENDER_NICE = 10  # the render process's niceness: below the control loop (without a real-time loop)
 
 
 def _serve(conn) -> None:
@@ -118,6 +119,7 @@ class RenderProcess:
             self._proc = subprocess.Popen([sys.executable, "-m", "hardware.cameras.render_process"], env=env,
                                           stdin=subprocess.DEVNULL, stdout=self._log, stderr=self._log,
                                           close_fds=True)
+            register_helper_process(self._proc.pid)  # raised with a real-time loop (hardware.realtime)
             box: dict = {}
             th = threading.Thread(target=lambda: box.setdefault("conn", listener.accept()), daemon=True)
             th.start()
@@ -170,6 +172,8 @@ class RenderProcess:
         except Exception:  # noqa: BLE001 -- closing must reach the shared memory
             if self._proc is not None:
                 self._proc.kill()
+        if self._proc is not None:
+            unregister_helper_process(self._proc.pid)
         self._conn = self._proc = None
         self._views = []
         for m in self._maps:
