@@ -65,13 +65,7 @@ class RolloutPair(ArmPair):
         self._hold_why: str | None = None
 
     def tick(self, now: float) -> TickRecord:
-        cfg = self.cfg
-        dt = now - self._t_prev if np.isfinite(self._t_prev) else self.dt_s
-        dt = min(max(dt, 0.0), 3.0 * self.dt_s)
-        self._t_prev = now
-        ls, fs = self.leader.read(), self.follower.read()
-        leader_ok = self._ok("leader", ls, now, cfg.leader_stale_s)
-        follower_ok = self._ok("follower", fs, now, cfg.follower_stale_s)
+        dt, ls, fs, leader_ok, follower_ok = self._read_both(now)
         q_ref = self.q_target if self.q_target is not None else fs.q
         if follower_ok:
             self._tick_estimator(now, fs, q_ref)

@@ -180,13 +180,7 @@ class ArmPair:
 
     def tick(self, now: float) -> TickRecord:
         """One control period. Returns the record of this tick (also kept as self.last)."""
-        cfg = self.cfg
-        dt = now - self._t_prev if np.isfinite(self._t_prev) else self.dt_s
-        dt = min(max(dt, 0.0), 3.0 * self.dt_s)
-        self._t_prev = now
-        ls, fs = self.leader.read(), self.follower.read()
-        leader_ok = self._ok("leader", ls, now, cfg.leader_stale_s)
-        follower_ok = self._ok("follower", fs, now, cfg.follower_stale_s)
+        dt, ls, fs, leader_ok, follower_ok = self._read_both(now)
         q_leader_f = self.map.forward(ls.q)
         if follower_ok:
             self._tick_estimator(now, fs, q_leader_f)
@@ -221,6 +215,16 @@ class ArmPair:
         return self.last
 
     # -- pieces ---------------------------------------------------------------------------------------
+    def _read_both(self, now: float) -> tuple[float, JointState, JointState, bool, bool]:
+        """The start of every tick (teleop and rollout pairs): this tick's dt [s] (clamped to 0..3 periods),
+        both arms' states, and whether each is fresh."""
+        dt = now - self._t_prev if np.isfinite(self._t_prev) else self.dt_s
+        dt = min(max(dt, 0.0), 3.0 * self.dt_s)
+        self._t_prev = now
+        ls, fs = self.leader.read(), self.follower.read()
+        return (dt, ls, fs, self._ok("leader", ls, now, self.cfg.leader_stale_s),
+                self._ok("follower", fs, now, self.cfg.follower_stale_s))
+
     def _ok(self, who: str, st: JointState, now: float, max_age: float) -> bool:
         """Fresh: finite, and a complete sample within max_age (a lost read now and then is tolerated,
         silence is not: it holds the follower within max_age + one tick)."""
