@@ -32,6 +32,11 @@ NOT_FAULTS = ("waiting",)  # hold reasons that are no fault (not counted as hold
 # s: in real time an observation waits for frames at most this old (a camera that stopped, or a twin camera's
 # render process still warming up: the policy must not see the arm as it was)
 FRAME_MAX_AGE_S = 0.1
+# s: the passive leader is read and re-sent zero torque this often, not every tick: it takes no part in the
+# law, and its reads and writes were 40 % of a rollout tick's CPU (2 Dynamixel bus transactions). 20 ms keeps
+# both its watchdog (hardware/safety.py DEFAULT_WATCHDOG_S, 50 ms) and its recorded pose (the recording's
+# 30 Hz frames) fed.
+LEADER_SERVICE_PERIOD_S = 0.02
 
 
 class RolloutPair(ArmPair):
@@ -63,14 +68,18 @@ class RolloutPair(ArmPair):
         self.phase = HOLD
         self.holds: Counter = Counter()  # holds by reason (entries and changes of reason)
         self._hold_why: str | None = None
+        self._t_leader = -np.inf
 
     def tick(self, now: float) -> TickRecord:
-        dt, ls, fs, leader_ok, follower_ok = self._read_both(now)
+        service = now >= self._t_leader  # the passive leader's turn (LEADER_SERVICE_PERIOD_S)
+        if service:
+            self._t_leader = now + LEADER_SERVICE_PERIOD_S - 0.5 * self.dt_s  # half a tick: no drift to n+1
+        dt, ls, fs, leader_ok, follower_ok = self._read_both(now, read_leader=service)
         q_ref = self.q_target if self.q_target is not None else fs.q
         if follower_ok:
             self._tick_estimator(now, fs, q_ref)
         zero = np.zeros(self.leader.n_joints)
-        tau_sent = self.leader.command_torque(zero) if leader_ok else zero
+        tau_sent = self.leader.command_torque(zero) if (leader_ok and service) else zero
         self.sent = None
         if follower_ok:
             q, grip, why = self.target_fn(now, fs)

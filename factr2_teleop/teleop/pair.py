@@ -102,6 +102,7 @@ class ArmPair:
         self.last: TickRecord | None = None
         self.sent: SafeFollowerCommand | None = None  # what reached the follower this tick
         self._t_ok = {"leader": -np.inf, "follower": -np.inf}  # time of the last complete sample [s]
+        self._leader_ok = False
 
     # -- helpers -------------------------------------------------------------------------------------
     def _say(self, text: str, level: int = logging.WARNING) -> None:
@@ -215,15 +216,21 @@ class ArmPair:
         return self.last
 
     # -- pieces ---------------------------------------------------------------------------------------
-    def _read_both(self, now: float) -> tuple[float, JointState, JointState, bool, bool]:
+    def _read_both(self, now: float, read_leader: bool = True
+                   ) -> tuple[float, JointState, JointState, bool, bool]:
         """The start of every tick (teleop and rollout pairs): this tick's dt [s] (clamped to 0..3 periods),
-        both arms' states, and whether each is fresh."""
+        both arms' states, and whether each is fresh. read_leader=False (a rollout's passive leader between
+        its service ticks) keeps the leader's last state and verdict."""
         dt = now - self._t_prev if np.isfinite(self._t_prev) else self.dt_s
         dt = min(max(dt, 0.0), 3.0 * self.dt_s)
         self._t_prev = now
-        ls, fs = self.leader.read(), self.follower.read()
-        return (dt, ls, fs, self._ok("leader", ls, now, self.cfg.leader_stale_s),
-                self._ok("follower", fs, now, self.cfg.follower_stale_s))
+        if read_leader:
+            ls = self.leader.read()
+            self._leader_ok = self._ok("leader", ls, now, self.cfg.leader_stale_s)
+        else:
+            ls = self.leader.last_state
+        fs = self.follower.read()
+        return dt, ls, fs, self._leader_ok, self._ok("follower", fs, now, self.cfg.follower_stale_s)
 
     def _ok(self, who: str, st: JointState, now: float, max_age: float) -> bool:
         """Fresh: finite, and a complete sample within max_age (a lost read now and then is tolerated,
