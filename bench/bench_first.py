@@ -159,27 +159,6 @@ def next_checkpoint(cfg: BenchConfig) -> str:
     return str(ck)
 
 
-def _run_jobs(cfg: BenchConfig, fn, jobs: list[tuple], label: str) -> list[dict]:
-    """fn(cfg, *args) for every job, in cfg.jobs worker processes (spawned: MuJoCo and torch start clean)."""
-    t = time.perf_counter()
-    print(f"{label}: {len(jobs)} job(s) on {cfg.jobs} worker(s)", flush=True)
-    if cfg.jobs <= 1:
-        out = []
-        for args in jobs:
-            out.append(fn(cfg, *args))
-            _done(label, args, t)
-        return out
-    import multiprocessing as mp
-
-    with ProcessPoolExecutor(cfg.jobs, mp_context=mp.get_context("spawn")) as ex:
-        futs = [ex.submit(fn, cfg, *args) for args in jobs]
-        out = []
-        for args, f in zip(jobs, futs):
-            out.append(f.result())
-            _done(label, args, t)
-        return out
-
-
 def _done(label: str, args: tuple, t0: float) -> None:
     what = " ".join(str(a) for a in args if not str(a).endswith(".json"))
     print(f"  {label} {what}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -231,20 +210,58 @@ def check_resume(cfg: BenchConfig, out: Path) -> None:
                          "use another --out or the same options")
 
 
+def run_pipeline(cfg: BenchConfig, ck: str) -> tuple[dict, list[dict], list[dict]]:
+    """Every job of the benchmark in cfg.jobs workers, each started as soon as what it needs is there: a
+    task's training runs when its demonstrations are, a policy's rollouts when its training is (no worker
+    idles at a stage boundary: 3 collections on 2 workers left one idle for a whole collection)."""
+    cells = [(task, cell, s) for task in cfg.tasks for cell in cfg.cells(task) for s in range(cfg.seeds)]
+    demos, trains, rolls = {}, {}, {}
+    t0 = time.perf_counter()
+    if cfg.jobs <= 1:
+        for task in cfg.tasks:
+            demos[task] = collect_demos(cfg, task, ck)
+            _done("collect", (task,), t0)
+        for c in cells:
+            trains[c] = train_cell(cfg, *c)
+            _done("train", c, t0)
+            rolls[c] = rollout_cell(cfg, *c)
+            _done("rollout", c, t0)
+        return demos, [trains[c] for c in cells], [rolls[c] for c in cells]
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, wait
+
+    print(f"{len(cfg.tasks)} collection(s), {len(cells)} training run(s) and as many rollout sets on "
+          f"{cfg.jobs} worker(s)", flush=True)
+    with ProcessPoolExecutor(cfg.jobs, mp_context=mp.get_context("spawn")) as ex:
+        running = {ex.submit(collect_demos, cfg, t, ck): ("collect", (t,)) for t in cfg.tasks}
+        while running:
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for f in done:
+                stage, args = running.pop(f)
+                res = f.result()
+                _done(stage, args, t0)
+                if stage == "collect":
+                    demos[args[0]] = res
+                    for c in cells:
+                        if c[0] == args[0]:
+                            running[ex.submit(train_cell, cfg, *c)] = ("train", c)
+                elif stage == "train":
+                    trains[args] = res
+                    running[ex.submit(rollout_cell, cfg, *args)] = ("rollout", args)
+                else:
+                    rolls[args] = res
+    return {t: demos[t] for t in cfg.tasks}, [trains[c] for c in cells], [rolls[c] for c in cells]
+
+
 def run_bench(cfg: BenchConfig) -> dict:
     out = Path(cfg.out)
     check_resume(cfg, out)
     out.mkdir(parents=True, exist_ok=True)
     _json(out / "config.json", asdict(cfg))
     ck = next_checkpoint(cfg)
-    elapsed = _Elapsed(out / "elapsed.json")  # wall time of the stages, summed over resumed invocations
-    with elapsed("collect"):
-        demos = dict(zip(cfg.tasks, _run_jobs(cfg, collect_demos, [(t, ck) for t in cfg.tasks], "collect")))
-    cells = [(task, cell, s) for task in cfg.tasks for cell in cfg.cells(task) for s in range(cfg.seeds)]
-    with elapsed("train"):
-        trains = _run_jobs(cfg, train_cell, cells, "train")
-    with elapsed("rollout"):
-        rolls = _run_jobs(cfg, rollout_cell, cells, "rollout")
+    elapsed = _Elapsed(out / "elapsed.json")  # wall time, summed over resumed invocations
+    with elapsed("pipeline"):
+        demos, trains, rolls = run_pipeline(cfg, ck)
     timing = {f"{k}_wall_s": v for k, v in elapsed.totals.items()}
     timing["total_wall_s"] = sum(elapsed.totals.values())
     timing.update({"collect_cpu_s": sum(d.get("cpu_s", 0.0) for d in demos.values()),

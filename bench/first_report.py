@@ -102,11 +102,12 @@ def table(results: dict) -> str:
             lines += [_row(ABLATION_LABEL[m], cells[m]) for m in ABLATION_ORDER if m in cells]
             lines.append("")
     m = results["machine"]
-    lines.append(f"Wall time {tm['total_wall_s'] / 60:.1f} min (collect {tm['collect_wall_s'] / 60:.1f}, "
-                 f"train {tm['train_wall_s'] / 60:.1f}, rollouts {tm['rollout_wall_s'] / 60:.1f}) on "
+    stages = [f"{k[:-7]} {v / 60:.1f}" for k, v in tm.items()
+              if k.endswith("_wall_s") and k != "total_wall_s"]
+    lines.append(f"Wall time {tm['total_wall_s'] / 60:.1f} min ({', '.join(stages)}) on "
                  f"{m['cpus']} CPUs, {cfg['jobs']} job(s), load average at the end {m['loadavg_end'][0]:.1f} "
-                 f"({m['platform']}); CPU time of the jobs {tm['collect_cpu_s'] / 60:.1f} + "
-                 f"{tm['train_cpu_s'] / 60:.1f} + {tm['rollout_cpu_s'] / 60:.1f} core-min.")
+                 f"({m['platform']}); CPU time of the jobs: collection {tm['collect_cpu_s'] / 60:.1f}, "
+                 f"training {tm['train_cpu_s'] / 60:.1f}, rollouts {tm['rollout_cpu_s'] / 60:.1f} core-min.")
     return "\n".join(lines) + "\n"
 
 
