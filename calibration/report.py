@@ -231,7 +231,7 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
     prior = _fit_prior(cfg.prior, arm, units, segments)
     data = build_windows([s if prior is None else
                           replace(s, tau=s.tau - prior_torque(prior, s.t, s.q, s.qd, s.tau, s.temperature))
-                          for s in segments], cfg.history, cfg.inputs)
+                          for s in segments], cfg.history, cfg.inputs, normalize=cfg.normalize)
     result = train(data, cfg, callback=callback)
     ck = NextCheckpoint(model=result.model, normalizer=data.normalizer, arm=arm or "",
                         joint_names=joint_names, units=units, inputs=cfg.inputs, rate_hz=rate_hz,

@@ -87,8 +87,19 @@ class Normalizer:
     y_std: np.ndarray
 
     @classmethod
-    def fit(cls, x: np.ndarray, y: np.ndarray, eps: float = 1e-6) -> Normalizer:
-        return cls(x.mean(0), np.maximum(x.std(0), eps), y.mean(0), np.maximum(y.std(0), eps))
+    def fit(cls, x: np.ndarray, y: np.ndarray, eps: float = 1e-6, kind: str = "zscore") -> Normalizer:
+        """kind "zscore": mean / standard deviation; "robust": median / (interquartile range / 1.349) (the
+        same scale for Gaussian data; a few large samples -- fast runs, spikes -- do not shrink the rest)."""
+        if kind == "zscore":
+            return cls(x.mean(0), np.maximum(x.std(0), eps), y.mean(0), np.maximum(y.std(0), eps))
+        if kind != "robust":
+            raise ValueError(f"normaliser kind {kind!r}: use zscore or robust")
+
+        def loc_scale(a):
+            q25, q50, q75 = np.percentile(a, [25, 50, 75], axis=0)
+            return q50, np.maximum((q75 - q25) / 1.349, eps)
+
+        return cls(*loc_scale(x), *loc_scale(y))
 
     def norm_x(self, x):
         return (x - self.x_mean) / self.x_std
@@ -156,7 +167,7 @@ def data_hash(segments: list[Segment]) -> str:
 
 
 def build_windows(segments: list[Segment], history: int = 50, inputs: str = "q,qd,dq",
-                  block_s: float = 10.0, val_every: int = 5) -> WindowData:
+                  block_s: float = 10.0, val_every: int = 5, normalize: str = "zscore") -> WindowData:
     """Concatenate segments, split into train/validation blocks, fit the normaliser on the train blocks."""
     if not segments:
         raise ValueError("no data segments to train on")
@@ -172,7 +183,7 @@ def build_windows(segments: list[Segment], history: int = 50, inputs: str = "q,q
     if len(train_ends) == 0:
         raise ValueError(f"not enough data for one window of {history} samples")
     train_rows = np.concatenate([offsets[si] + np.arange(lo, hi) for si, lo, hi in train_b])
-    norm = Normalizer.fit(x_raw[train_rows], y_raw[train_rows])
+    norm = Normalizer.fit(x_raw[train_rows], y_raw[train_rows], kind=normalize)
     return WindowData(x=norm.norm_x(x_raw).astype(np.float32), y=norm.norm_y(y_raw).astype(np.float32),
                       train_ends=train_ends, val_ends=val_ends, normalizer=norm,
                       x_min=x_raw[train_rows].min(0), x_max=x_raw[train_rows].max(0), history=history,

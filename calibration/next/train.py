@@ -69,6 +69,8 @@ class TrainConfig:
     threads: int = 0  # 0: every core this process may use, or 1 when that is faster now (ThreadProbe)
     device: str = "auto"  # "auto": cuda when available, else cpu
     seed: int = 0
+    normalize: str = "zscore"  # normaliser of inputs and targets (data.Normalizer.fit): zscore, robust
+    input_noise: float = 0.0  # augmentation: Gaussian noise of this std (normalised units) on training inputs
     prior: str = "none"  # physics prior under the network (calibration.next.prior): none, description,
     # identified, or auto (identified when the arm and a torque signal in N*m are known, else none)
 
@@ -287,7 +289,10 @@ def train(data: WindowData, cfg: TrainConfig | None = None,
             e = torch.as_tensor(ends[i:i + cfg.batch_size], device=dev)
             for group in opt.param_groups:
                 group["lr"] = lr_at(cfg, seen, time.perf_counter() - t0)
-            pred = model(x[e[:, None] + offs[None, :]])
+            xb = x[e[:, None] + offs[None, :]]
+            if cfg.input_noise > 0:  # augmentation (off by default): a model robust to sensor noise
+                xb = xb + cfg.input_noise * torch.randn_like(xb)
+            pred = model(xb)
             loss = loss_fn(pred, y[e])
             opt.zero_grad(set_to_none=True)
             loss.backward()

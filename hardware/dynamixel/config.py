@@ -17,7 +17,9 @@ class DynamixelLeaderConfig:
     torque_constant_nm_per_a: per-joint K override [N*m/A] (None: the model's stall torque / stall current,
     see hardware/dynamixel/models.py). gripper_model: trigger servo model (None: the first joint's model).
     rx_timeout_ms: how long one sync read waits for replies (None: 2 x USB latency timer + wire time
-    + 4 ms; + 10 ms on a pty, i.e. a twin)."""
+    + 4 ms; + 10 ms on a pty, i.e. a twin). fast_sync_read: read the chain with Fast Sync Read (0x8A, one
+    status packet for all servos, firmware v45+; less CPU per tick): "auto" tries it at connect and falls
+    back to plain sync read with one start-up warning, true requires it (else connect fails), false never."""
 
     port: str
     ids: list[int]
@@ -35,4 +37,5 @@ class DynamixelLeaderConfig:
     torque_constant_nm_per_a: list[float] | None = None
     gripper_model: str | None = None
     rx_timeout_ms: float | None = None
+    fast_sync_read: bool | str = "auto"
     extra: dict = field(default_factory=dict)

@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hardware.dynamixel import protocol as p
+from hardware.dynamixel.fast_sync import FAST_SYNC_READ_MIN_FIRMWARE, build_fast_status
 from hardware.dynamixel.models import resolve_models
 from hardware.dynamixel.servo_table import FIRMWARE_VERSION, ServoTable
 
@@ -63,6 +64,8 @@ class DynamixelEmulator:
     57600; the default baud is the rig's 4 Mbit/s). A servo ignores packets when the rate the client set on
     the pty (termios) differs from its Baud Rate(8), as garbage on a real wire would be.
     emulate_return_delay: sleep Return Delay Time(9) before each reply, like the firmware.
+    firmware: Firmware Version(6), one for all or one per id (default 52); below v45 a servo does not know
+    Fast Sync Read (0x8A) and stays silent in it, as old firmware does.
     clock: () -> s for the servos' Realtime Tick (default the wall clock; a twin passes the rig clock so
     that a lockstep run reads no wall time).
     """
@@ -86,6 +89,7 @@ class DynamixelEmulator:
         seed: int | None = None,
         transport: str = "pty",
         clock: Callable[[], float] | None = None,
+        firmware: int | list[int] = FIRMWARE_VERSION,
     ):
         if transport not in ("pty", "inprocess"):
             raise ValueError(f"transport must be 'pty' or 'inprocess', got {transport!r}")
@@ -102,9 +106,10 @@ class DynamixelEmulator:
         indices = list(range(n)) if indices is None else list(indices)
         signs = [1.0] * n if signs is None else list(signs)
         offsets = [0.0] * n if offsets_rad is None else list(offsets_rad)
+        fws = [int(firmware)] * n if isinstance(firmware, int) else [int(f) for f in firmware]
         self.servos: list[ServoTable] = [
-            ServoTable(i, m, idx, float(s), float(o), return_delay, operating_mode, baud_code)
-            for i, m, idx, s, o in zip(ids, mods, indices, signs, offsets)
+            ServoTable(i, m, idx, float(s), float(o), return_delay, operating_mode, baud_code, fw)
+            for i, m, idx, s, o, fw in zip(ids, mods, indices, signs, offsets, fws)
         ]
         self.parser = p.PacketParser()
         self.dropped = self.replies = self.instructions = self.write_overflows = 0
@@ -314,6 +319,9 @@ class DynamixelEmulator:
         if inst == p.INST_SYNC_WRITE:
             self._sync_write(prm)
             return
+        if inst == p.INST_FAST_SYNC_READ:
+            self._fast_sync_read(prm)
+            return
         for s in self._live(pkt.id):
             err, data = self._execute(s, inst, prm)
             if err is None:
@@ -326,7 +334,7 @@ class DynamixelEmulator:
 
     def _execute(self, s: ServoTable, inst: int, prm: bytes) -> tuple[int | None, bytes]:
         if inst == p.INST_PING:
-            return p.ERR_NONE, p.le(s.model.model_number, 2) + bytes([FIRMWARE_VERSION])
+            return p.ERR_NONE, p.le(s.model.model_number, 2) + bytes([s.table[p.ADDR_FIRMWARE_VERSION[0]]])
         if inst == p.INST_READ:
             if len(prm) != 4:
                 return p.ERR_DATA_LENGTH, b""
@@ -414,6 +422,28 @@ class DynamixelEmulator:
             return
         for (s, _, _), r in zip(targets, replies):  # each answers after the previous, its return delay apart
             self._send(s, r)
+
+    def _fast_sync_read(self, prm: bytes) -> None:
+        """Fast sync read (addr, len, ids...): one packet for the chain (hardware.dynamixel.fast_sync); a
+        listed servo that is silent or whose firmware predates the instruction leaves its slot empty."""
+        if len(prm) < 5:
+            return
+        a, n = p.from_le(prm[:2]), p.from_le(prm[2:4])
+        live = {s.id: s for s in self._live(p.BROADCAST_ID)}
+        fw = p.ADDR_FIRMWARE_VERSION[0]
+        targets = [live.get(i) for i in prm[4:]]
+        targets = [s if s and s.table[fw] >= FAST_SYNC_READ_MIN_FIRMWARE else None for s in targets]
+        present = [s for s in targets if s is not None]
+        if not present:
+            return
+        self._refresh(present)
+        blocks = [
+            None if s is None
+            else (s.id, p.ERR_DATA_RANGE | s.alert, b"") if a + n > p.CONTROL_TABLE_SIZE
+            else (s.id, s.alert, bytes(s.table[a : a + n]))
+            for s in targets
+        ]
+        self._send(present[0], build_fast_status(blocks, n))
 
     def _sync_write(self, prm: bytes) -> None:
         if len(prm) < 4:

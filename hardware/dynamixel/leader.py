@@ -1,8 +1,8 @@
 """DynamixelLeader: a GELLO-style leader arm of Dynamixel X servos in current mode (dynamixel-sdk only).
 
-Per tick: ONE sync read of present current/velocity/position (addresses 126..135, 10 bytes; 8 from 128
-without current) and ONE sync write of goal current (102). Joint convention (config):
-q_joint = sign * (q_servo - offset_rad); joint torque tau = sign * K * servo current.
+Per tick: ONE sync read (a Fast Sync Read where the chain has it: fast_sync.py) of present current/velocity/
+position (126..135, 10 bytes; 8 from 128 without current) and ONE sync write of goal current (102).
+Joint convention (config): q_joint = sign * (q_servo - offset_rad); joint torque tau = sign * K * current.
 
 Multi-turn: present position restarts within one turn at power-on, so at connect each servo's angle is
 moved by the 2*pi multiple that brings it closest to its stored offset (the joint then reads within
@@ -24,6 +24,7 @@ from hardware.clock import Clock
 from hardware.dynamixel import protocol as p
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.config import DynamixelLeaderConfig
+from hardware.dynamixel.fast_sync import choose_fast_sync_read, fast_sync_read_bytes, plain_sync_read_bytes
 from hardware.dynamixel.models import ServoModel, get_model, model_name, resolve_models
 from hardware.errors import ConfigError, DeviceError, DeviceNotFound
 from hardware.roles import Leader
@@ -110,6 +111,9 @@ class DynamixelLeader(Leader):
                     where=f"leader {c.name}",
                     fix=f"give one {field_name} entry per joint",
                 )
+        if not (c.fast_sync_read is True or c.fast_sync_read is False or c.fast_sync_read == "auto"):
+            raise ConfigError(f"fast_sync_read is {c.fast_sync_read!r}", where=f"leader {c.name}",
+                              fix='use "auto", true or false')
         if any(s not in (1, -1) for s in c.signs):
             raise ConfigError("signs must be +1 or -1", where=f"leader {c.name}", fix="fix the signs list")
         all_ids = list(c.ids) + ([c.gripper_id] if c.gripper_id is not None else [])
@@ -146,6 +150,7 @@ class DynamixelLeader(Leader):
         self.warnings: list[str] = []
         self.round_trip_s = float("nan")
         self.rx_timeout_ms = float("nan")
+        self.fast_read = False  # Fast Sync Read in use (chosen at connect, see config.fast_sync_read)
         self.servo_info: dict[int, dict] = {}
         self.lost_reads = 0  # sync reads where at least one servo did not answer
         self.failed_writes = 0
@@ -202,17 +207,29 @@ class DynamixelLeader(Leader):
                 bus.write(c.gripper_id, p.ADDR_RETURN_DELAY_TIME, 0)
         self._read_group = bus.make_sync_read(self.read_ids, self.field)
         self._write_group = bus.make_sync_write(joint_ids, p.ADDR_GOAL_CURRENT)
-        n_bytes = len(self.read_ids) * (11 + self.field[1]) + 14 + len(self.read_ids)
-        self.rx_timeout_ms = (
-            c.rx_timeout_ms if c.rx_timeout_ms is not None else bus.rx_timeout_ms(n_bytes, len(self.read_ids))
+        m, ln = len(self.read_ids), self.field[1]
+        plain_ms, fast_ms = (  # sized for n status packets, or for the one longer fast packet
+            bus.rx_timeout_ms(n_bytes, m) if c.rx_timeout_ms is None else c.rx_timeout_ms
+            for n_bytes in (plain_sync_read_bytes(m, ln), fast_sync_read_bytes(m, ln))
         )
+        self.rx_timeout_ms, self.fast_read = plain_ms, False
         self._init_positions(bus)
+        firmware = {i: self.servo_info[i]["firmware"] for i in self.read_ids}
+        fast, why = choose_fast_sync_read(c.fast_sync_read, bus, self._read_group, self.read_ids, fast_ms,
+                                          firmware)
+        if fast:
+            self.rx_timeout_ms, self.fast_read = fast_ms, True
+        elif c.fast_sync_read is True:
+            raise DeviceError(f"fast sync read not supported by {why}", where=f"leader {c.name} {c.port}",
+                              fix='update the firmware (Dynamixel Wizard) or set fast_sync_read = "auto"')
+        elif why:
+            self._warn(f"leader {c.name}: fast sync read not supported by {why}: plain sync read")
         for dxl_id in joint_ids:
             bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 1)
         self._torque_on = True
         zero = {i: p.le(0, 2) for i in joint_ids}
         self.round_trip_s, complete = bus.measure_round_trip(
-            self._read_group, self.read_ids, self.rx_timeout_ms, self._write_group, zero
+            self._read_group, self.read_ids, self.rx_timeout_ms, self._write_group, zero, fast=self.fast_read
         )
         hz = 1.0 / self.round_trip_s if self.round_trip_s > 0 else float("inf")
         if hz < c.loop_hz:
@@ -296,7 +313,7 @@ class DynamixelLeader(Leader):
                 "leader is not connected", where=f"leader {self.config.name}", fix="call connect() first"
             )
         n, rc = self.n_joints, self.config.read_current
-        got = self.bus.sync_read(self._read_group, self.read_ids, self.rx_timeout_ms)
+        got = self.bus.sync_read(self._read_group, self.read_ids, self.rx_timeout_ms, self.fast_read)
         prev = self._last_state
         m = len(self.read_ids)  # joints, then the trigger (if any)
         all_fresh = len(got) == m

@@ -12,7 +12,7 @@ import time
 from hardware.dynamixel import protocol as p
 from hardware.dynamixel.models import ServoModel
 
-FIRMWARE_VERSION = 52
+FIRMWARE_VERSION = 52  # default Firmware Version(6) of an emulated servo (>= 45: has Fast Sync Read)
 _U16 = struct.Struct("<H")
 _POS_VEL = struct.Struct("<II")  # Present Velocity(128) then Present Position(132): adjacent
 _PRESENT_VEL, _PRESENT_CUR = p.ADDR_PRESENT_VELOCITY[0], p.ADDR_PRESENT_CURRENT[0]
@@ -39,12 +39,13 @@ class ServoTable:
         return_delay: int,
         operating_mode: int,
         baud_code: int,
+        firmware: int = FIRMWARE_VERSION,
     ):
         self.model, self.index, self.sign, self.offset_rad = model, index, sign, offset_rad
         t = bytearray(p.CONTROL_TABLE_SIZE)
         self.table = t
         self._put(p.ADDR_MODEL_NUMBER, model.model_number)
-        self._put(p.ADDR_FIRMWARE_VERSION, FIRMWARE_VERSION)
+        self._put(p.ADDR_FIRMWARE_VERSION, firmware)
         self._put(p.ADDR_ID, dxl_id)
         self.id = dxl_id  # cached: looked up on every packet
         self._put(p.ADDR_BAUD_RATE, baud_code)
