@@ -185,7 +185,8 @@ def _print_summary(d: dict) -> None:
           f"p99 {f(d['period_p99_ms'], '.2f')} ms max {f(d['period_max_ms'], '.1f')} ms, "
           f"{d['overruns']} overruns / {d['ticks']} ticks, "
           f"CPU {f(d['cpu_ms_per_tick'], '.2f')} ms/tick (process), loop thread "
-          f"{f(d.get('loop_cpu_ms_per_tick'), '.2f')} ms/tick = {f(share, '.0f')} % of the period")
+          f"{f(d.get('loop_cpu_ms_per_tick'), '.2f')} ms/tick = {f(share, '.0f')} % of the period "
+          f"(+ {f(d.get('loop_twin_cpu_ms_per_tick'), '.2f')} ms/tick of twin work on its thread)")
     print(f"  feedback_corr {f(d['feedback_corr'], '.3f')}, "
           f"feedback_lag {f(d['feedback_lag_ms'], '.1f')} ms, "
           f"tau_ext L1 contact {f(d['tau_ext_l1_contact'], '.2f')} / "

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from factr2_teleop.teleop.record import TickRecord
+from hardware import sim_cpu
 from hardware.errors import UserError
 from hardware.features import arm_prefix
 from hardware.recording.arm_tick import record_arm_tick
@@ -121,7 +122,8 @@ class SessionRecording:
             self._ticks += 1
             twin = self.session.twin
             if twin is not None and self._ticks % TRUTH_EVERY == 0:  # SIMULATED: the twin's truth
-                gt = twin.device_ground_truth(pair.follower.name, TRUTH_EVERY / self.rate_hz)
+                with sim_cpu.simulated():  # privileged twin work, not the app's CPU (hardware/sim_cpu.py)
+                    gt = twin.device_ground_truth(pair.follower.name, TRUTH_EVERY / self.rate_hz)
                 n = pair.follower.n_joints
                 self.recorder.log_ground_truth(f"{pre}follower", r.t, gt.tau_ext[:n], gt.contact)
             if self._ticks % TIMING_EVERY == 0 and np.isfinite(r.loop_period_s):

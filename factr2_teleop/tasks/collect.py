@@ -28,6 +28,7 @@ import numpy as np
 
 from factr2_teleop.tasks import script_for
 from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept
+from hardware import sim_cpu
 from hardware.errors import ConfigError
 from hardware.rigs.rig import CameraSpec, Rig, load_rig
 from hardware.sim.tasks import StageTracker, Task, get_task
@@ -199,6 +200,10 @@ class EpisodeDriver(TaskEpisodes):
 
     # -- the hook ----------------------------------------------------------------------------------------
     def on_tick(self, r) -> None:
+        with sim_cpu.simulated():  # the simulated operator and the twin's detectors: not the app's CPU
+            self._on_tick(r)
+
+    def _on_tick(self, r) -> None:
         self._k += 1
         if self._state == "done":
             return

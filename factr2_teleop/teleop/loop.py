@@ -25,6 +25,7 @@ from threadpoolctl import threadpool_limits
 from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, STOPPED, ArmPair
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.timing import LoopTiming, TimingStats
+from hardware import sim_cpu
 from hardware.clock import Clock
 from hardware.realtime import LOOP_PRIORITY, CpuWakeLatency, ProcessThreads, set_fifo, set_normal
 
@@ -128,11 +129,12 @@ class TeleopLoop:
             t0 = self.clock.now()
             next_t, ticks = t0, 0
             while not self._stop.is_set():
-                t_start, cpu0 = self.clock.now(), time.thread_time()
+                t_start, cpu0, sim0 = self.clock.now(), time.thread_time(), sim_cpu.charged()
                 self._tick_all(t_start)
                 ticks += 1
-                with self._lock:
-                    self.timing.record(t_start, self.clock.now() - t_start, time.thread_time() - cpu0)
+                cpu, sim = time.thread_time() - cpu0, sim_cpu.charged() - sim0
+                with self._lock:  # the loop's own CPU: what a twin did on this thread is kept apart (sim_cpu)
+                    self.timing.record(t_start, self.clock.now() - t_start, cpu - sim, sim)
                 self._publish(t_start)
                 if (max_ticks is not None and ticks >= max_ticks) or \
                         (duration_s is not None and t_start - t0 + 1.5 * self.period_s >= duration_s):

@@ -2,8 +2,9 @@
 
 The loop calls record(t_start, compute_s, cpu_s) once per tick with the start time on the rig clock; the
 period is the difference of consecutive starts. cpu_s is the CPU time the loop's own thread spent in the tick
-(time.thread_time): with hardware, or a twin serving from other threads, it is the app's cost alone, without
-the waits on the wire that compute_s includes. stats() summarises the last `capacity` ticks.
+(time.thread_time) less what an in-process twin emulator did on it (hardware/sim_cpu.py): the app's cost
+alone, as with hardware, without the waits on the wire that compute_s includes. stats() summarises the last
+`capacity` ticks.
 """
 
 from __future__ import annotations
@@ -19,8 +20,10 @@ OVERRUN_FACTOR = 1.5  # a period longer than this times the target period counts
 class TimingStats:
     """rate_hz: 1 / mean period over the window; period_p50_ms / p99 / max [ms]; compute_p99_ms: time spent
     inside the tick [ms]; cpu_mean_ms / cpu_p99_ms: CPU of the loop's thread per tick [ms] and cpu_share: its
-    mean over the target period (the margin a slower machine eats; target <= 0.25); overruns: cumulative
-    periods > OVERRUN_FACTOR x target; ticks: cumulative."""
+    mean over the target period (the margin a slower machine eats; target <= 0.25), the loop's own: without
+    sim_cpu_mean_ms, the CPU a twin did on the loop's thread (in-process emulator, simulated hand, ground
+    truth: hardware/sim_cpu.py; 0 with hardware); overruns: cumulative periods > OVERRUN_FACTOR x target;
+    ticks: cumulative."""
 
     target_hz: float
     rate_hz: float
@@ -33,9 +36,11 @@ class TimingStats:
     cpu_mean_ms: float = float("nan")
     cpu_p99_ms: float = float("nan")
     cpu_share: float = float("nan")
+    sim_cpu_mean_ms: float = 0.0
 
     def line(self) -> str:
-        cpu = (f", loop CPU {self.cpu_mean_ms:.2f} ms/tick ({100 * self.cpu_share:.0f} % of the period)"
+        twin = f" + twin {self.sim_cpu_mean_ms:.2f} ms on its thread" if self.sim_cpu_mean_ms > 0 else ""
+        cpu = (f", loop CPU {self.cpu_mean_ms:.2f} ms/tick ({100 * self.cpu_share:.0f} % of the period){twin}"
                if self.cpu_mean_ms == self.cpu_mean_ms else "")
         return (f"{self.rate_hz:6.1f} Hz (target {self.target_hz:.0f}), "
                 f"period p50 {self.period_p50_ms:.2f} ms "
@@ -51,18 +56,21 @@ class LoopTiming:
         self._periods = np.zeros(capacity)
         self._compute = np.zeros(capacity)
         self._cpu = np.full(capacity, np.nan)
+        self._sim = np.zeros(capacity)
         self._n_periods = 0  # cumulative
         self._n_compute = 0
         self.ticks = 0
         self.overruns = 0
         self._t_last = float("nan")
 
-    def record(self, t_start: float, compute_s: float, cpu_s: float = float("nan")) -> None:
+    def record(self, t_start: float, compute_s: float, cpu_s: float = float("nan"),
+               sim_s: float = 0.0) -> None:
         """One tick that started at t_start [s] and spent compute_s [s] in the loop body, cpu_s [s] of it
-        on the loop thread's CPU (NaN: not measured)."""
+        on the loop thread's CPU for the app (NaN: not measured) and sim_s [s] for a twin (sim_cpu)."""
         self.ticks += 1
         self._compute[self._n_compute % self.capacity] = compute_s
         self._cpu[self._n_compute % self.capacity] = cpu_s
+        self._sim[self._n_compute % self.capacity] = sim_s
         self._n_compute += 1
         if np.isfinite(self._t_last):
             period = t_start - self._t_last
@@ -88,10 +96,11 @@ class LoopTiming:
         cpu = self._cpu[: min(self._n_compute, self.capacity)]
         cpu = cpu[np.isfinite(cpu)]
         cpu_mean = float(np.mean(cpu)) if cpu.size else float("nan")
+        sim_mean = float(np.mean(self._sim[: min(self._n_compute, self.capacity)]))
         return TimingStats(
             target_hz=self.target_hz, rate_hz=1.0 / mean if mean > 0 else float("inf"),
             period_p50_ms=float(np.percentile(p, 50) * 1e3), period_p99_ms=float(np.percentile(p, 99) * 1e3),
             period_max_ms=float(np.max(p) * 1e3), compute_p99_ms=float(np.percentile(c, 99) * 1e3),
             overruns=self.overruns, ticks=self.ticks, cpu_mean_ms=cpu_mean * 1e3,
             cpu_p99_ms=float(np.percentile(cpu, 99) * 1e3) if cpu.size else float("nan"),
-            cpu_share=cpu_mean * self.target_hz)
+            cpu_share=cpu_mean * self.target_hz, sim_cpu_mean_ms=sim_mean * 1e3)

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hardware import sim_cpu
 from hardware.errors import UserError
 from hardware.rigs.rig import Rig, list_rigs, load_rig
 from hardware.types import (
@@ -112,6 +113,10 @@ class VirtualHand:
         self.operator = None  # a teleop.virtual_operator.VirtualOperator driving the hand, or None
 
     def apply(self, t: float, q: np.ndarray, q_dot: np.ndarray) -> None:
+        with sim_cpu.simulated():  # the simulated hand: not the app's CPU (hardware/sim_cpu.py)
+            self._apply(t, q, q_dot)
+
+    def _apply(self, t: float, q: np.ndarray, q_dot: np.ndarray) -> None:
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(q_dot))):
             return
         if self.operator is not None:
