@@ -188,9 +188,11 @@ class _Elapsed:
     @contextmanager
     def __call__(self, stage: str):
         t = time.perf_counter()
-        yield
-        self.totals[stage] = self.totals.get(stage, 0.0) + time.perf_counter() - t
-        _json(self.path, self.totals)
+        try:
+            yield
+        finally:  # an interrupted invocation's time counts too (main turns SIGTERM into SystemExit)
+            self.totals[stage] = self.totals.get(stage, 0.0) + time.perf_counter() - t
+            _json(self.path, self.totals)
 
 
 SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds",
@@ -338,6 +340,9 @@ def main(argv=None) -> int:
 
     for task in cfg.tasks:
         get_task(task)  # an unknown task: one line (ConfigError), before anything runs
+    import signal
+
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # killed: keep the elapsed time (resumable)
     res = run_bench(cfg)
     print((Path(cfg.out) / "table.md").read_text())
     print(f"wall {res['timing']['total_wall_s']:.0f} s; results {cfg.out}/results.json")
