@@ -57,3 +57,24 @@ def test_uint_mapping_clamps_and_handles_nan():
     assert float_to_uint(float("nan"), -1, 1, 12) == 0
     assert float_to_uint(5, -1, 1, 12) == 4095 and float_to_uint(-5, -1, 1, 12) == 0
     assert uint_to_float(4095, -1, 1, 12) == 1.0 and uint_to_float(0, -1, 1, 12) == -1.0
+
+
+def test_send_batch_and_take_pending_match_one_frame_at_a_time():
+    """A feedback burst sent with send_batch reaches every other bus on the channel exactly as the same
+    frames sent one by one (ids, data, order), and take_pending drains what recv(0) would return."""
+    tx, rx_a, rx_b = FastVirtualBus("cb-batch"), FastVirtualBus("cb-batch"), VirtualBus("cb-batch")
+    try:
+        frames = [(0x2A1 + k, bytes([k, 255 - k, 7])) for k in range(5)]
+        tx.send_batch(frames)
+        for arb_id, data in frames:
+            tx.send_fresh(arb_id, data)
+        got = rx_a.take_pending()
+        assert [(m.arbitration_id, bytes(m.data)) for m in got] == frames + frames
+        assert all(not m.is_extended_id and m.is_rx for m in got)
+        plain = [rx_b.recv(0) for _ in range(10)]
+        assert [(m.arbitration_id, bytes(m.data)) for m in plain] == frames + frames
+        assert rx_a.take_pending() == [] and rx_b.recv(0) is None
+        assert tx.take_pending() == []  # own frames are not received (receive_own_messages off)
+    finally:
+        for b in (tx, rx_a, rx_b):
+            b.shutdown()

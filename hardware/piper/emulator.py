@@ -72,22 +72,21 @@ class PiperEmulator(CanEmulatorIO):
         self.ctrl_mode, self.move_mode, self.mit_mode, self.speed_pct = P.CTRL_STANDBY, P.MOVE_J, 0, 100
         self.arm_status = 0
         self.fault_flags = np.zeros(6, dtype=np.int64)
-        self._q_target = np.full(6, np.nan)
+        self._q_target = np.full(7, np.nan)  # J1..J6 [rad], gripper stroke [m]
         self._mit = np.zeros((6, 5))
         self._all6 = np.arange(6)
         self._pos_dirty = self._mit_dirty = 0  # bit masks of joints with a batched command
+        self._idx_cache: dict[int, np.ndarray] = {}  # joint bit mask -> index array (_dirty_joints)
         self._next_fast = self._next_slow = -np.inf
 
     # -- host -> arm -------------------------------------------------------------------------------------
     def poll(self) -> int:
         """Handle every pending command frame; returns how many arrived."""
-        recv, decode, n = self.bus.recv, self.decoder.decode, 0
-        while True:
-            msg = recv(0)
-            if msg is None:
-                break
+        decode, n, lossy = self.decoder.decode, 0, bool(self.drop_prob)  # (as _lost: no draw at 0)
+        take = self._take_pending
+        for msg in take() if take is not None else iter(lambda: self.bus.recv(0), None):
             n += 1
-            if self._lost():
+            if lossy and self._lost():
                 continue
             r = decode(msg.arbitration_id, msg.data, msg.is_extended_id,
                        msg.is_remote_frame or msg.is_error_frame)
@@ -128,16 +127,28 @@ class PiperEmulator(CanEmulatorIO):
     def _flush(self) -> None:
         """Push the joint targets / MIT commands batched since the last flush to the bank (one call each)."""
         if self._pos_dirty:
-            idx = [j for j in range(6) if self._pos_dirty >> j & 1 and self.enabled[j]]
-            if idx:
-                self.bank.command_position(np.array(idx), self._q_target[idx])
+            idx = self._dirty_joints(self._pos_dirty)
+            if idx is not None:
+                self.bank.command_position(idx.copy(), self._q_target[idx])
             self._pos_dirty = 0
         if self._mit_dirty:
-            idx = [j for j in range(6) if self._mit_dirty >> j & 1 and self.enabled[j]]
-            if idx:
+            idx = self._dirty_joints(self._mit_dirty)
+            if idx is not None:
                 m = self._mit[idx]
-                self.bank.command_mit(np.array(idx), m[:, 0], m[:, 1], m[:, 2], m[:, 3], m[:, 4])
+                self.bank.command_mit(idx.copy(), m[:, 0], m[:, 1], m[:, 2], m[:, 3], m[:, 4])
             self._mit_dirty = 0
+
+    def _dirty_joints(self, dirty: int) -> np.ndarray | None:
+        """Indices of the enabled joints among the bit mask `dirty` (bit 6: the gripper, set only while it is
+        enabled); None: none. Cached per mask (the same one or two masks come every tick)."""
+        en = self.enabled.tolist()
+        mask = sum(1 << j for j in range(6) if dirty >> j & 1 and en[j]) | (dirty & 1 << 6)
+        if not mask:
+            return None
+        idx = self._idx_cache.get(mask)
+        if idx is None:
+            idx = self._idx_cache[mask] = np.array([j for j in range(7) if mask >> j & 1])
+        return idx
 
     def _accepts_targets(self) -> bool:
         return (self.ctrl_mode == P.CTRL_CAN and self.mit_mode == P.MIT_MODE_POSVEL
@@ -166,10 +177,12 @@ class PiperEmulator(CanEmulatorIO):
             return
         on = code in (P.GRIPPER_ENABLE, P.GRIPPER_ENABLE_CLEAR)
         if on != self.gripper_enabled:
+            self._flush()  # a batched stroke goes to the gripper before it is switched
             self.bank.enable(np.array([6]), on)
             self.gripper_enabled = on
-        if on:
-            self.bank.command_position(np.array([6]), np.array([stroke_m]))
+        if on:  # batched with the joint targets (one bank call a tick instead of two; same bank state)
+            self._q_target[6] = stroke_m
+            self._pos_dirty |= 1 << 6
 
     def _on_query(self, motor: int, kind: int) -> None:
         if not 1 <= motor <= 6:
@@ -190,37 +203,34 @@ class PiperEmulator(CanEmulatorIO):
         if not (fast or slow):
             return 0
         r = self.bank.read()
-        send, n = self._send, 0
+        out = []  # (id, data) in sending order: one batch onto the bus
+        send = out.append
         q = r.q.tolist()  # Python floats: the codec's round() is ~20x slower on numpy scalars
         if fast:
             self._next_fast = _next_tick(self._next_fast, t, 1.0 / FAST_HZ)
-            lim = self.joint_limits_rad
-            over = ((r.q[:6] < lim[:, 0]) | (r.q[:6] > lim[:, 1])).tolist()
-            limit_bits = sum(1 << j for j in range(6) if over[j])
-            send(P.ID_STATUS, P.encode_status(self.ctrl_mode, self.arm_status, self.move_mode, limit_bits, 0))
+            lim = self.joint_limits_rad.tolist()  # Python float compares, as numpy's (NaN: not over)
+            limit_bits = sum(1 << j for j in range(6) if q[j] < lim[j][0] or q[j] > lim[j][1])
+            status = P.encode_status(self.ctrl_mode, self.arm_status, self.move_mode, limit_bits, 0)
+            send((P.ID_STATUS, status))
             for k in range(3):
-                send(P.ID_JOINT_FB[k], P.encode_joint_pair(q[2 * k], q[2 * k + 1]))
+                send((P.ID_JOINT_FB[k], P.encode_joint_pair(q[2 * k], q[2 * k + 1])))
             cur, v = (r.current[:6] * self._current_scale).tolist(), r.q_dot.tolist()
             for j in range(6):
-                send(P.ID_HIGH_SPEED[j], P.encode_high_speed(v[j], cur[j], q[j]))
-            n += 10
+                send((P.ID_HIGH_SPEED[j], P.encode_high_speed(v[j], cur[j], q[j])))
             if self.has_gripper:
                 g_status = GRIPPER_ENABLED_BIT if self.gripper_enabled else 0
-                send(P.ID_GRIPPER_FB, P.encode_gripper_fb(q[6], float(r.tau_m[6]), g_status))
-                n += 1
+                send((P.ID_GRIPPER_FB, P.encode_gripper_fb(q[6], float(r.tau_m[6]), g_status)))
             if self.fk is not None:
-                for i, d in zip(P.ID_END_POSE, P.encode_end_pose(self.fk(r.q[:6])), strict=True):
-                    send(i, d)
-                n += 3
+                out.extend(zip(P.ID_END_POSE, P.encode_end_pose(self.fk(r.q[:6])), strict=True))
         if slow:
             self._next_slow = _next_tick(self._next_slow, t, 1.0 / SLOW_HZ)
             temp, cur, en = r.temperature.tolist(), np.abs(r.current).tolist(), r.enabled.tolist()
             flags = self.fault_flags.tolist()
             for j in range(6):
                 bits = P.flags_to_low_speed(flags[j], en[j])
-                send(P.ID_LOW_SPEED[j], P.encode_low_speed(SUPPLY_V, temp[j], temp[j], bits, cur[j]))
-            n += 6
-        return n
+                send((P.ID_LOW_SPEED[j], P.encode_low_speed(SUPPLY_V, temp[j], temp[j], bits, cur[j])))
+        self._send_all(out)
+        return len(out)
 
 
 def _next_tick(prev: float, t: float, period: float) -> float:

@@ -217,6 +217,12 @@ def mit_torque(q: np.ndarray, v: np.ndarray, q_d: np.ndarray, v_d: np.ndarray, k
     return kp * (q_d - q) + kd * (v_d - v) + tau_ff
 
 
+def clamp_(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """x <- min(max(x, lo), hi) in place; returns x (the hot loops' clamp without temporaries)."""
+    np.maximum(x, lo, out=x)
+    return np.minimum(x, hi, out=x)
+
+
 def saturate_current(i: np.ndarray, i_max: np.ndarray, on: bool = True) -> np.ndarray:
     """Drive current limit [A]."""
     return np.minimum(np.maximum(i, -i_max), i_max) if on else i

@@ -56,3 +56,18 @@ def load_hook(spec: str | HookFn, n_check: int | None = None) -> HookFn:
             raise ConfigError(f"effect {label!r} returned shape {tau.shape}, expected ({n_check},) finite",
                               where=where, fix="return one torque [N*m] per arm joint")
     return fn
+
+
+def call_hook(fn: HookFn, t: float, q: np.ndarray, v: np.ndarray, k: int,
+              n: int) -> tuple[np.ndarray, str | None]:
+    """The hook's load on the first k of n joints at (t [s], q [rad], v [rad/s]) -> (tau [N*m] (n,), None),
+    or (zeros, why) when it raises or returns a wrong shape or non-finite values: a broken effect must not
+    stop the physics (the bank counts and shows it)."""
+    try:
+        tau = np.asarray(fn(t, q[:k].copy(), v[:k].copy()), dtype=float).reshape(-1)
+        if tau.shape == (k,) and np.all(np.isfinite(tau)):
+            return (tau if k == n else np.concatenate([tau, np.zeros(n - k)])), None
+        why = f"returned shape {tau.shape} or non-finite values"
+    except Exception as e:
+        why = f"{type(e).__name__}: {e}"
+    return np.zeros(n), why

@@ -3,23 +3,23 @@
 A MujocoWorld (hardware/sim/world.py) owns the MjModel/MjData; each control tick (1 ms by default) every
 bank computes its motor torques from the current command modes and writes them, minus the drive's internal
 loads (friction, ripple, the undeclared hook), into qfrc_applied; the firmware's damping and friction's
-slope go into dof_damping so MuJoCo integrates them implicitly; then mj_step. Position targets streamed at a
-steady rate are interpolated over the measured command period (as servo drives do in cyclic position
-mode), so a 100 Hz stream gives a smooth setpoint rather than a staircase. Gravity is never compensated
-inside the sim: the motors carry it. read() returns what the firmware reports (motor-side position after
+slope go into dof_damping so MuJoCo integrates them implicitly; then mj_step. Streamed position targets are
+interpolated as servo drives do (hardware/sim/targets.py). Gravity is never compensated inside the sim: the
+motors carry it. read() returns what the firmware reports (motor-side position after
 backlash, noisy velocity, quantised noisy current, tau_m = K * current). Ground truth lives in world.py.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
 from hardware.sim import actuators as act
+from hardware.sim.effects_hook import HookFn, call_hook
 from hardware.sim.motors import MODE_CURRENT, MODE_DISABLED, MODE_MIT, MODE_POSITION, MotorReading
+from hardware.sim.targets import TargetPath
 
 if TYPE_CHECKING:
     from hardware.sim.world import MujocoWorld
@@ -30,7 +30,6 @@ NOISE_BLOCK = 1024  # physics steps per block of pre-drawn sensor noise
 THERMAL_EVERY = 10  # physics steps between winding-temperature updates
 
 _ONE_DOF_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
-HookFn = Callable[[float, np.ndarray, np.ndarray], np.ndarray]
 
 
 def _as_slice(idx: np.ndarray):
@@ -87,10 +86,8 @@ class MujocoBank:
         self.mode = np.full(self.n, MODE_DISABLED, dtype=int)
         self._sel_cache: dict[tuple[int, ...], slice | np.ndarray] = {}
         self._masks()
-        self.q_goal, self.q_set, self.integ = q0.copy(), q0.copy(), np.zeros(self.n)
-        # streamed-target interpolation: the target path is q_goal - irate * max(t_end - t, 0) [rad]
-        self.t_last_cmd = np.full(self.n, -np.inf)
-        self._irate, self._t_end, self._t_end_max = np.zeros(self.n), np.zeros(self.n), -np.inf
+        self.q_set, self.integ = q0.copy(), np.zeros(self.n)
+        self.targets = TargetPath(q0, self.p.pos_interp_max_s)  # streamed targets, interpolated
         self.q_d, self.v_d = q0.copy(), np.zeros(self.n)
         self.kp, self.kd, self.tau_ff = np.zeros(self.n), np.zeros(self.n), np.zeros(self.n)
         self.i_cmd = np.zeros(self.n)
@@ -105,6 +102,9 @@ class MujocoBank:
         self.vel_scale = np.ones(self.n)  # firmware speed setting (0..1] scaling pos_vel_max
         # per-step constants (the hot loop avoids fancy indexing and recomputation)
         self.qsl, self.dsl = _as_slice(self.qadr), _as_slice(self.dadr)
+        contiguous = isinstance(self.qsl, slice) and isinstance(self.dsl, slice)
+        self._views = (d.qpos[self.qsl], d.qvel[self.dsl], d.qfrc_applied[self.dsl],
+                       m.dof_damping[self.dsl]) if contiguous else None  # see _joint_state
         self._zeros = np.zeros(self.n)
         self._half_play = 0.5 * self.p.backlash
         self._has_play = bool(np.any(self.p.backlash > 0))
@@ -128,27 +128,30 @@ class MujocoBank:
     # -- MotorBank ---------------------------------------------------------------------------------------
     def read(self) -> MotorReading:
         p, ef = self.p, self.p.effects
-        with self.world.lock:
-            d = self.world.data
-            q, v = d.qpos[self.qsl], d.qvel[self.dsl]
+        with self.world.lock:  # fresh temporaries updated in place, same operation order (see _apply)
+            q, v = self._joint_state()
             if ef.backlash and self._has_play:
-                theta = np.minimum(np.maximum(self.theta, q - self._half_play), q + self._half_play)
+                theta = np.maximum(self.theta, q - self._half_play)
+                np.minimum(theta, q + self._half_play, out=theta)
             else:
                 theta = q.copy()
             if ef.quantisation and self._pos_lsb_on:
                 theta = act.quantise(theta, p.position_lsb)
-            cur = self.current
+            cur = self.kd_eff * v  # self.current: (tau_e - kd_eff * v) / kt
+            np.subtract(self.tau_e, cur, out=cur)
+            cur *= self._inv_kt
+            v = v.copy()
             if ef.velocity_noise or ef.current_noise:
                 z = self._noise()
                 if ef.velocity_noise:
-                    v = v + p.velocity_noise * z[0]
+                    v += p.velocity_noise * z[0]
                 if ef.current_noise:
-                    cur = cur + p.current_noise * z[1]
+                    cur += p.current_noise * z[1]
             if ef.quantisation and self._cur_lsb_on:
                 cur = np.rint(cur * self._inv_cur_lsb) * self._cur_lsb if self._cur_lsb_all \
                     else act.quantise(cur, p.current_lsb)
-            return MotorReading(t=float(d.time), q=theta, q_dot=np.array(v), current=cur, tau_m=p.kt * cur,
-                                temperature=self.temp.copy(), enabled=self.mode != MODE_DISABLED)
+            return MotorReading(t=float(self.world.data.time), q=theta, q_dot=v, current=cur,
+                                tau_m=p.kt * cur, temperature=self.temp.copy(), enabled=self._enabled.copy())
 
     def _noise(self) -> np.ndarray:
         """Two standard-normal rows (velocity, current) for the current physics step. A function of (seed,
@@ -165,7 +168,7 @@ class MujocoBank:
         """(selector, joint tuple) for joint indices idx: a slice for a contiguous run (numpy views, cheaper
         than fancy indexing on every command), else the index array. Cached per index set; an index outside
         the bank raises IndexError as fancy indexing would."""
-        key = tuple(np.atleast_1d(idx).tolist())
+        key = tuple((idx if type(idx) is np.ndarray and idx.ndim == 1 else np.atleast_1d(idx)).tolist())
         sel = self._sel_cache.get(key)
         if sel is None:
             a = np.asarray(key, dtype=int)
@@ -178,39 +181,18 @@ class MujocoBank:
     def command_position(self, idx, q) -> None:
         with self.world.lock:
             sel, key = self._sel(idx)
-            fresh = [j for j in key if self._mode_list[j] != MODE_POSITION]
+            modes = self._mode_list
+            fresh = () if self._all_in(MODE_POSITION, key) else [j for j in key if modes[j] != MODE_POSITION]
             if fresh:  # bumpless switch into position mode: setpoint and target at the motor, no integral
                 self.integ[fresh] = 0.0
-                self._reset_targets(fresh, self.theta[fresh])
-                self.t_last_cmd[fresh] = -np.inf
-            self._new_targets(sel, q)
+                self._reset_targets(fresh, self.theta[fresh], forget=True)
+            self.targets.new(sel, q, float(self.world.data.time))
             self._set_mode(sel, MODE_POSITION, key)
 
-    def _new_targets(self, sel, q) -> None:
-        """Firmware interpolation: a target that comes pos_interp_max_s [s] or less after the previous one is
-        reached linearly over that measured period, starting from where the setpoint path is now; a first
-        target, or one after a longer pause, applies at once (the velocity ramp still limits the move)."""
-        now = float(self.world.data.time)
-        period = now - self.t_last_cmd[sel]
-        stream = (period > 0) & (period <= self.p.pos_interp_max_s[sel])
-        start = self._interp_target(now)[sel]  # where the target path is now
-        span = np.where(stream, period, 1.0)
-        self._irate[sel] = np.where(stream, (q - start) / span, 0.0)
-        self._t_end[sel] = np.where(stream, now + span, now)
-        self._t_end_max = float(self._t_end.max())
-        self.t_last_cmd[sel] = now
-        self.q_goal[sel] = q
-
-    def _interp_target(self, t: float) -> np.ndarray:
-        """Where the interpolated target path is at time t [s] (q_goal itself once every joint got there)."""
-        if t >= self._t_end_max:
-            return self.q_goal
-        return self.q_goal - self._irate * np.maximum(self._t_end - t, 0.0)
-
-    def _reset_targets(self, idx, q) -> None:
+    def _reset_targets(self, idx, q, forget: bool = False) -> None:
         """Targets (and setpoints) of joints idx jump to q [rad]: no interpolation in progress."""
-        self.q_goal[idx] = self.q_set[idx] = q
-        self._irate[idx] = 0.0
+        self.targets.reset(idx, q, forget)
+        self.q_set[idx] = q
 
     def command_mit(self, idx, q, v, kp, kd, tau_ff) -> None:
         with self.world.lock:
@@ -227,9 +209,20 @@ class MujocoBank:
     def _set_mode(self, sel, mode: int, key: tuple[int, ...]) -> None:
         """Mode of joints sel (key: the same joints as a tuple); the masks are rebuilt only when a mode
         changes (commands come every tick)."""
-        if not all(self._mode_list[j] == mode for j in key):
+        if not self._all_in(mode, key):
             self.mode[sel] = mode
             self._masks()
+
+    def _all_in(self, mode: int, key: tuple[int, ...]) -> bool:
+        """Joints key are all in `mode`; the answer is kept until a mode changes (the same joints are
+        commanded in the same mode every tick: spares the per-joint checks)."""
+        ck = (mode, key)
+        if ck in self._in_mode:
+            return True
+        ok = all(self._mode_list[j] == mode for j in key)
+        if ok:
+            self._in_mode.add(ck)
+        return ok
 
     def enable(self, idx, on: bool) -> None:
         """on: disabled joints start holding their current position; off: torque off (brake if fitted)."""
@@ -260,6 +253,7 @@ class MujocoBank:
         """Period of the firmware law [s] (= the physics step unless the twin decimates control)."""
         self._ctrl_dt = float(dt)
         self._ramp_step = self.p.pos_vel_max * self.vel_scale * dt
+        self._neg_ramp_step = -self._ramp_step
         self._ki_dt = self.p.pos_ki * dt
 
     # -- stepping (called by MujocoWorld with its lock held) --------------------------------------------
@@ -269,8 +263,10 @@ class MujocoBank:
         gripper or trigger motor next to the arm's joints)."""
         m = self.mode
         self._mode_list = m.tolist()
+        self._in_mode: set[tuple[int, tuple[int, ...]]] = set()  # (mode, joints) known all in it (_all_in)
         self._pos, self._mit, self._cur = m == MODE_POSITION, m == MODE_MIT, m == MODE_CURRENT
         self._off = m == MODE_DISABLED
+        self._enabled = ~self._off  # read()'s enabled
         self._any = tuple(bool(x.any()) for x in (self._pos, self._mit, self._cur, self._off))
         self._uniform = bool(np.all(m == m[0]))
         self._fpos, self._fmit, self._fcur = (x.astype(float) for x in (self._pos, self._mit, self._cur))
@@ -282,23 +278,28 @@ class MujocoBank:
         The firmware law is split as tau = tau_e - kd_eff * v: the stiffness/feed-forward part tau_e is held
         over the tick, the damping kd_eff (with the friction slope) goes into dof_damping so MuJoCo
         integrates it implicitly -- stable for any MIT kd the safety layer allows. A joint whose torque would
-        exceed the drive limit is saturated explicitly instead (kd_eff = 0 there)."""
-        p, ef, d = self.p, self.p.effects, self.world.data
-        q, v = d.qpos[self.qsl], d.qvel[self.dsl]
+        exceed the drive limit is saturated explicitly instead (kd_eff = 0 there).
+        Speed: on 7-vectors each numpy call costs far more than its arithmetic, so temporaries are updated in
+        place and constants precomputed, each operation in the plain formula's order (bit-identical)."""
+        p, ef = self.p, self.p.effects
+        q, v = self._joint_state()
         if ef.backlash and self._has_play:
-            self.theta = th = np.minimum(np.maximum(self.theta, q - self._half_play), q + self._half_play)
+            th = np.maximum(self.theta, q - self._half_play)
+            self.theta = th = np.minimum(th, q + self._half_play, out=th)
         else:
             self.theta = th = q
         any_pos, any_mit, any_cur, any_off = self._any
         uniform = self._uniform
         tau_e, kd = self._zeros, self._zeros
         if any_pos:
-            step = self._interp_target(t) - self.q_set
-            self.q_set = self.q_set + np.minimum(np.maximum(step, -self._ramp_step), self._ramp_step)
-            err = self.q_set - th
+            step = self.targets.at(t) - self.q_set
+            q_set = self.q_set = self.q_set + act.clamp_(step, self._neg_ramp_step, self._ramp_step)
+            err = q_set - th
             tau_e = p.pos_kp * err
             if self._has_ki:
-                integ = np.minimum(np.maximum(self.integ + self._ki_dt * err, self._neg_i_max), p.pos_i_max)
+                integ = self._ki_dt * err
+                integ += self.integ
+                act.clamp_(integ, self._neg_i_max, p.pos_i_max)
                 if not uniform:
                     integ *= self._fpos
                 self.integ = integ
@@ -315,32 +316,50 @@ class MujocoBank:
         no_kd = not (any_pos or any_mit)  # current mode / disabled only: no implicit damping from the law
         if ef.saturation:
             if no_kd:  # the request is tau_e itself: a plain clamp
-                tau_e = np.minimum(np.maximum(tau_e, self._neg_tau_lim), self._tau_lim)
+                tau_e = act.clamp_(tau_e.copy(), self._neg_tau_lim, self._tau_lim)
             else:
-                est = tau_e - kd * v
-                lim = np.minimum(np.maximum(est, self._neg_tau_lim), self._tau_lim)
+                est = kd * v
+                np.subtract(tau_e, est, out=est)
+                lim = act.clamp_(est.copy(), self._neg_tau_lim, self._tau_lim)
                 sat = lim != est
                 if np.count_nonzero(sat):  # (ndarray.any costs ~3 us on a 7-vector here)
-                    tau_e, kd = np.where(sat, lim, tau_e), np.where(sat, 0.0, kd)
+                    np.copyto(tau_e, lim, where=sat)  # tau_e is this tick's own array here; kd may not be
+                    kd = kd.copy()
+                    kd[sat] = 0.0
         self.tau_e, self.kd_eff = tau_e, kd
         ks = self._kt_scale
-        net = ks * tau_e + self.tau_hand
+        net = ks * tau_e
+        net += self.tau_hand
         if ef.ripple and self._has_ripple:
-            self.tau_ripple = p.ripple_amp * np.sin(p.ripple_cycles * q + p.ripple_phase)
-            net = net - self.tau_ripple
+            r = p.ripple_cycles * q
+            r += p.ripple_phase
+            np.sin(r, out=r)
+            r *= p.ripple_amp
+            self.tau_ripple = r
+            net -= r
         if self.hook is not None:
             self.tau_hook = self._call_hook(t, q, v)
-            net = net - self.tau_hook
-        damp, f0 = act.linearised_friction(v, p, self._fric_k)
-        self._fric = (damp, f0)
-        net = net - f0
+            net -= self.tau_hook
+        damp, f0 = self._fric = act.linearised_friction(v, p, self._fric_k)  # kept apart: tau_friction
+        net -= f0
         if not no_kd:
-            damp = damp + ks * kd
+            damp = ks * kd + damp
         if p.brake and any_off:
             net = net - np.where(self._off, BRAKE_KP * (q - self.q_brake), 0.0)
             damp = damp + np.where(self._off, BRAKE_KD, 0.0)
-        d.qfrc_applied[self.dsl] = net
-        self.world.model.dof_damping[self.dsl] = damp
+        self._write(net, damp)
+
+    def _joint_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """(qpos, qvel) of the bank's joints: the cached views (MjData keeps its buffers) when contiguous."""
+        d = self.world.data
+        return self._views[:2] if self._views else (d.qpos[self.qsl], d.qvel[self.dsl])
+
+    def _write(self, net: np.ndarray, damp: np.ndarray) -> None:
+        """net torque into qfrc_applied [N*m], implicit damping into dof_damping [N*m*s/rad]."""
+        if self._views:
+            self._views[2][:], self._views[3][:] = net, damp
+        else:
+            self.world.data.qfrc_applied[self.dsl], self.world.model.dof_damping[self.dsl] = net, damp
 
     @property
     def tau_cmd(self) -> np.ndarray:
@@ -379,16 +398,10 @@ class MujocoBank:
         return self.tau_ripple + self.tau_hook
 
     def _call_hook(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        k = self.hook_n
-        try:
-            tau = np.asarray(self.hook(t, q[:k].copy(), v[:k].copy()), dtype=float).reshape(-1)
-            if tau.shape == (k,) and np.all(np.isfinite(tau)):
-                return tau if k == self.n else np.concatenate([tau, np.zeros(self.n - k)])
-            self.hook_last_error = f"returned shape {tau.shape} or non-finite values"
-        except Exception as e:  # a broken effect must not stop the physics; counted and shown
-            self.hook_last_error = f"{type(e).__name__}: {e}"
-        self.hook_errors += 1
-        return np.zeros(self.n)
+        tau, err = call_hook(self.hook, t, q, v, self.hook_n, self.n)
+        if err is not None:
+            self.hook_errors, self.hook_last_error = self.hook_errors + 1, err
+        return tau
 
     def true_state(self) -> tuple[np.ndarray, np.ndarray]:
         d = self.world.data
