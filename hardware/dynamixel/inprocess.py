@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import itertools
 import threading
-import time
 import weakref
 
 import dynamixel_sdk as sdk
@@ -95,9 +94,8 @@ class InProcessPortHandler(sdk.PortHandler):
         emu = self._emu
         if emu is None or emu.closed:
             return 0  # like a port whose device went away: the sdk reports COMM_TX_FAIL
-        t0 = time.thread_time()
-        self._rx += emu.serve(bytes(packet), self.baudrate)
-        sim_cpu.charge(time.thread_time() - t0)  # the servos' work, not the app's (hardware/sim_cpu.py)
+        with sim_cpu.simulated():  # the servos' work, not the app's (hardware/sim_cpu.py)
+            self._rx += emu.serve(bytes(packet), self.baudrate)
         return len(packet)
 
     def isPacketTimeout(self):  # noqa: N802 -- sdk name
