@@ -3,6 +3,7 @@ connect (and its fallback), and failed reads on damaged replies (SIMULATED chain
 
 from __future__ import annotations
 
+import dynamixel_sdk as sdk
 import numpy as np
 import pytest
 
@@ -79,8 +80,11 @@ def test_fast_and_plain_read_identical_bytes_and_the_sdk_parses_the_reply():
             fast = bus.sync_read(grp, IDS, 20.0, fast=True)
             assert len(plain) == 4 and fast == plain
             assert b"\xff\xff\xfd" in plain[1][0] and fast[4][1] & p.ERR_ALERT_BIT
-            assert grp.fastSyncRead() == 0  # dynamixel-sdk's own parser of the same reply
-            assert {i: bytes(grp.data_dict[i]) for i in IDS} == {i: d for i, (d, _) in plain.items()}
+            sdk_grp = sdk.GroupSyncRead(bus.port, bus.ph, *FIELD)  # dynamixel-sdk's own host side
+            for i in IDS:
+                sdk_grp.addParam(i)
+            assert sdk_grp.fastSyncRead() == 0
+            assert {i: bytes(sdk_grp.data_dict[i]) for i in IDS} == {i: d for i, (d, _) in plain.items()}
         bus.close()
 
 

@@ -1,10 +1,12 @@
-"""A thin shell over dynamixel-sdk (PortHandler, PacketHandler 2.0, GroupSyncRead/Write) for one port.
+"""A thin shell over dynamixel-sdk (PortHandler, PacketHandler 2.0) for one port.
 
 Turns sdk result codes into UserErrors with a fix, recovers a port left busy by Ctrl-C (COMM_PORT_BUSY),
-and does sync reads whose per-servo replies are collected one by one so a lost reply only stales that
-servo. Used by DynamixelLeader and by `factr2 doctor`. No fake fallback: a missing port is an error.
-A port named "inproc:..." is a lockstep twin's in-process emulator (hardware/dynamixel/inprocess.py): the
-same sdk calls run on an InProcessPortHandler; it exists only in the process that serves it.
+and does sync reads whose per-servo replies are taken one by one so a lost reply only stales that servo.
+The two per-tick transactions (sync read, sync write) are framed and parsed by this package's codec
+(sync_io.py says why: the sdk's packet layer cost 100+ us per tick); the sdk opens the port and runs every
+other transaction. Used by DynamixelLeader and by `factr2 doctor`. No fake fallback: a missing port is an
+error. A port named "inproc:..." is a lockstep twin's in-process emulator (hardware/dynamixel/inprocess.py):
+the same calls run on an InProcessPortHandler; it exists only in the process that serves it.
 """
 
 from __future__ import annotations
@@ -16,8 +18,14 @@ import dynamixel_sdk as sdk
 import serial
 
 from hardware.dynamixel import protocol as p
-from hardware.dynamixel.fast_sync import split_fast_status
 from hardware.dynamixel.inprocess import InProcessPortHandler, is_inprocess
+from hardware.dynamixel.sync_io import (
+    SyncReadGroup,
+    SyncWriteGroup,
+    fast_sync_read,
+    plain_sync_read,
+    write_only,
+)
 from hardware.errors import ConfigError, DeviceError, DeviceNotFound
 from hardware.serial_ports import read_latency_timer
 
@@ -184,60 +192,34 @@ class DynamixelBus:
             )
 
     # -- per-tick group transactions -------------------------------------------------------------------
-    def make_sync_read(self, ids: list[int], field: tuple[int, int]) -> sdk.GroupSyncRead:
-        g = sdk.GroupSyncRead(self.port, self.ph, field[0], field[1])
-        for i in ids:
-            g.addParam(i)
-        return g
+    def make_sync_read(self, ids: list[int], field: tuple[int, int]) -> SyncReadGroup:
+        return SyncReadGroup(list(ids), field[0], field[1])
 
-    def make_sync_write(self, ids: list[int], field: tuple[int, int]) -> sdk.GroupSyncWrite:
-        g = sdk.GroupSyncWrite(self.port, self.ph, field[0], field[1])
-        for i in ids:
-            g.addParam(i, [0] * field[1])
-        return g
+    def make_sync_write(self, ids: list[int], field: tuple[int, int]) -> SyncWriteGroup:
+        return SyncWriteGroup(list(ids), field[0], field[1])
 
     def sync_read(
-        self, group: sdk.GroupSyncRead, ids: list[int], timeout_ms: float, fast: bool = False
+        self, group: SyncReadGroup, ids: list[int], timeout_ms: float, fast: bool = False
     ) -> dict[int, tuple[bytes, int]]:
         """One sync read; {id: (data, status error byte)} for the servos that answered in time.
 
-        fast: Fast Sync Read (0x8A, hardware/dynamixel/fast_sync.py): the sdk sends it and receives the one
-        status packet (ids must be the group's, in its order); a reply that is corrupt or cut short gives
-        the servos whose blocks came intact before the damage, garbage gives {} -- never an exception."""
+        fast: Fast Sync Read (0x8A, hardware/dynamixel/fast_sync.py). ids must be the group's, in its order.
+        A reply that is corrupt or cut short gives the servos whose blocks came intact before the damage,
+        garbage gives {} -- never an exception (sync_io.py)."""
+        if list(ids) != group.ids:
+            raise ValueError(f"sync read ids {list(ids)} are not the group's {group.ids}")
         port = self._ready()
-        if (group.fastSyncReadTxPacket() if fast else group.txPacket()) != sdk.COMM_SUCCESS:
-            port.is_using = False
-            return {}
-        port.setPacketTimeoutMillis(timeout_ms)
-        if fast:
-            try:
-                pkt, res = self.ph.rxPacket(port, True)
-            except (IndexError, ValueError):  # the sdk's parser on bytes it did not expect: a failed read
-                pkt, res = [], sdk.COMM_RX_CORRUPT
-            finally:
-                port.is_using = False
-            return split_fast_status(pkt, ids, group.data_length, res == sdk.COMM_SUCCESS)
-        out: dict[int, tuple[bytes, int]] = {}
-        n = group.data_length
-        for i in ids:  # after a timeout later ids are only taken if already buffered (the clock ran out)
-            data, res, err = self.ph.readRx(port, i, n)
-            if res == sdk.COMM_SUCCESS and len(data) == n:
-                out[i] = (bytes(data), int(err))
-        port.is_using = False
-        return out
+        return (fast_sync_read if fast else plain_sync_read)(port, group, timeout_ms)
 
-    def sync_write(self, group: sdk.GroupSyncWrite, values: dict[int, bytes]) -> bool:
-        self._ready()
-        for i, d in values.items():
-            group.changeParam(i, list(d))
-        return group.txPacket() == sdk.COMM_SUCCESS
+    def sync_write(self, group: SyncWriteGroup, values: dict[int, bytes]) -> bool:
+        return write_only(self._ready(), group.packet(values))
 
     def measure_round_trip(
         self,
-        read_group: sdk.GroupSyncRead,
+        read_group: SyncReadGroup,
         ids: list[int],
         timeout_ms: float,
-        write_group: sdk.GroupSyncWrite | None = None,
+        write_group: SyncWriteGroup | None = None,
         values: dict[int, bytes] | None = None,
         n: int = 20,
         fast: bool = False,

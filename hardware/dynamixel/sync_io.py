@@ -1,0 +1,134 @@
+"""The leader's two per-tick transactions (sync read, sync write) built and parsed with this package's codec.
+
+Why not dynamixel-sdk's GroupSyncRead / GroupSyncWrite for these two: the sdk builds every packet as a list
+of Python ints, byte-stuffs and checksums it byte by byte, and rebuilds the constant sync read instruction
+each tick -- measured 100+ us of the loop's 2 ms tick on a 2-vCPU VM (issue #24, bench/profile_tick.py).
+Here the sync read instruction is built once (it never changes), the sync write is framed by
+protocol.build_instruction (the codec the emulator and the tests use: one source for the wire format) and
+replies are parsed by protocol.PacketParser / fast_sync.split_fast_status. The bytes on the wire are the
+ones the sdk would send (tests/test_dynamixel_sync_io.py compares them); the sdk still opens the port and
+runs every other transaction (ping, read, write).
+
+A transaction holds the port's `is_using` flag as the sdk's do, so DynamixelBus._ready() recovers a port
+left busy by Ctrl-C the same way. Receiving spins on port.readPort() until the reply is complete or the
+port's packet timeout passes, exactly like the sdk's rxPacket.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from hardware.dynamixel import protocol as p
+from hardware.dynamixel.fast_sync import FAST_HEADER_LEN, _FAST_PREFIX, fast_status_len, split_fast_status
+
+
+@dataclass
+class SyncReadGroup:
+    """One sync read of `length` bytes from `address` on servos `ids` (in this order); instruction packets
+    for the plain (0x82) and fast (0x8A) variants, built once."""
+
+    ids: list[int]
+    address: int
+    length: int
+    plain_packet: bytes = field(init=False, repr=False)
+    fast_packet: bytes = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        self.ids = [int(i) for i in self.ids]
+        params = p.sync_read_params(self.address, self.length, self.ids)
+        self.plain_packet = p.build_instruction(p.BROADCAST_ID, p.INST_SYNC_READ, params)
+        self.fast_packet = p.build_instruction(p.BROADCAST_ID, p.INST_FAST_SYNC_READ, params)
+
+    @property
+    def data_length(self) -> int:  # the sdk group's name (fast_sync.py and older callers use it)
+        return self.length
+
+    @property
+    def fast_reply_len(self) -> int:
+        """Bytes of the fast reply on the wire (header + LEN; the reply is not stuffed)."""
+        return 7 + fast_status_len(len(self.ids), self.length)
+
+
+@dataclass
+class SyncWriteGroup:
+    """One sync write of `length` bytes to `address` on servos `ids`."""
+
+    ids: list[int]
+    address: int
+    length: int
+
+    def packet(self, values: dict[int, bytes]) -> bytes:
+        """The instruction for values {id: `length` bytes}; ids outside the group are refused."""
+        for i, d in values.items():
+            if i not in self.ids or len(d) != self.length:
+                raise ValueError(f"sync write: servo {i} with {len(d)} bytes is not in this group "
+                                 f"({self.ids}, {self.length} bytes each)")
+        return p.build_instruction(p.BROADCAST_ID, p.INST_SYNC_WRITE,
+                                   p.sync_write_params(self.address, self.length, values))
+
+
+def _begin(port, packet: bytes) -> bool:
+    """Claim the port, drop stale bytes, send packet; False (port released) if it was busy or short."""
+    if port.is_using:
+        return False
+    port.is_using = True
+    port.clearPort()
+    if port.writePort(packet) != len(packet):
+        port.is_using = False
+        return False
+    return True
+
+
+def write_only(port, packet: bytes) -> bool:
+    """Send an instruction that has no reply (a sync write)."""
+    if not _begin(port, packet):
+        return False
+    port.is_using = False
+    return True
+
+
+def fast_sync_read(port, group: SyncReadGroup, timeout_ms: float) -> dict[int, tuple[bytes, int]]:
+    """{id: (data, error byte)} from one Fast Sync Read; a reply cut short or corrupt gives the intact blocks
+    before the damage, garbage gives {} (never raises)."""
+    if not _begin(port, group.fast_packet):
+        return {}
+    try:
+        port.setPacketTimeoutMillis(timeout_ms)
+        want, buf = group.fast_reply_len, bytearray()
+        while True:
+            buf += port.readPort(want - len(buf))
+            i = buf.find(_FAST_PREFIX)
+            if i != 0:  # bytes before the reply's header (an echo, line noise); keep a possible partial one
+                del buf[: i if i > 0 else max(len(buf) - len(_FAST_PREFIX) + 1, 0)]
+            if len(buf) >= want or port.isPacketTimeout():
+                break
+    finally:
+        port.is_using = False
+    if len(buf) < FAST_HEADER_LEN:
+        return {}
+    return split_fast_status(bytes(buf), group.ids, group.length, crc_checked=False)
+
+
+def plain_sync_read(port, group: SyncReadGroup, timeout_ms: float) -> dict[int, tuple[bytes, int]]:
+    """{id: (data, error byte)} for the servos whose status packet came intact before the timeout. A status
+    with an error number carries no data and is left out, as the sdk's readRx does."""
+    if not _begin(port, group.plain_packet):
+        return {}
+    out: dict[int, tuple[bytes, int]] = {}
+    parser = p.PacketParser()
+    per_status = 11 + group.length
+    try:
+        port.setPacketTimeoutMillis(timeout_ms)
+        wanted = set(group.ids)
+        while True:
+            # stuffing can lengthen a status packet: take whatever is waiting, at least what is still due
+            chunk = port.readPort(max(per_status * (len(wanted) - len(out)), port.getBytesAvailable()))
+            for pkt in parser.feed(chunk) if chunk else ():
+                if (pkt.is_status and pkt.id in wanted and len(pkt.params) == group.length
+                        and not pkt.error & 0x7F):
+                    out[pkt.id] = (pkt.params, pkt.error)
+            if len(out) == len(wanted) or port.isPacketTimeout():
+                break
+    finally:
+        port.is_using = False
+    return out
