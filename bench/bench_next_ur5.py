@@ -5,6 +5,7 @@ on held-out runs the training never saw, plus training times.
 
     python bench/bench_next_ur5.py [--threads 0] [--max-seconds 60] [--train RUN,...] [--heldout RUN,...]
                                    [--inputs q,qd,dq] [--rate-hz 100] [--hidden 64] [--priors auto,none]
+                                   [--gate crossfit|heldout|none] [--validation blocks|runs|auto]
 
 Train: Movement_No1-No6 free-motion runs; held out: Movement_No7_Acc_slow_Verify_Model_short and TEST (other
 trajectories). L1 [A] is the mean over joints of the mean |estimate| on the held-out free motion (truth 0).
@@ -41,7 +42,8 @@ def run_one(prior: str, train_runs, eval_runs, out: Path, rate_hz: float = 100.0
             "epochs": rep["epochs"], "threads": rep["threads"], "wall_s": time.perf_counter() - t0,
             "free_l1_A": {m: v["free_l1_mean"] for m, v in rep["methods"].items()},
             "free_l1_A_per_joint": {m: v["free_l1"] for m, v in rep["methods"].items()},
-            "per_file": per_file, "network_adds": rep["network_adds"]}
+            "per_file": per_file, "network_adds": rep["network_adds"],
+            "gate": json.loads((out / "next.json").read_text())["model"].get("gate")}
 
 
 def table(results: dict) -> list[str]:
@@ -76,6 +78,8 @@ def main() -> int:
     ap.add_argument("--history", type=int, default=50)
     ap.add_argument("--rate-hz", type=float, default=100.0)
     ap.add_argument("--priors", default="auto,none")
+    ap.add_argument("--gate", default="crossfit", help="TrainConfig.gate: crossfit, heldout, none")
+    ap.add_argument("--validation", default="blocks", help="TrainConfig.validation: blocks, runs, auto")
     ap.add_argument("--tag", default="", help="name of this experiment in bench/out/next_ur5.json")
     args = ap.parse_args()
     if not UR5.is_dir():
@@ -89,13 +93,14 @@ def main() -> int:
         results[prior] = run_one(prior, args.train.split(","), args.heldout.split(","),
                                  out / f"next_ur5_{prior}", threads=args.threads, max_seconds=budget,
                                  max_epochs=args.max_epochs, inputs=args.inputs, hidden=args.hidden,
-                                 history=args.history, rate_hz=args.rate_hz)
+                                 history=args.history, rate_hz=args.rate_hz, gate=args.gate,
+                                 validation=args.validation)
         r = results[prior]
         f = r["free_l1_A"]
         print(f"prior {prior} ({r['prior']}, inputs {r['inputs']}): NEXT {f['next']:.3f} A, prior "
               f"{f['prior'] or float('nan'):.3f}, ridge {f['ridge']:.3f}, raw {f['raw']:.3f}; {r['epochs']} "
               f"epochs, {r['train_seconds']:.0f} s ({r['stop']}), within 5 % after "
-              f"{r['seconds_to_within_5pct']:.0f} s, {r['threads']} thread(s)", flush=True)
+              f"{r['seconds_to_within_5pct']:.0f} s, {r['threads']} thread(s); gate {r['gate']}", flush=True)
     print("\n".join(table(results)))
     path = out / "next_ur5.json"
     old = json.loads(path.read_text()) if path.is_file() else {}

@@ -36,10 +36,13 @@ sys.path.insert(0, str(ROOT / "bench"))
 
 from bench_next_ur5 import EVAL_RUNS, TRAIN_RUNS, UR5  # noqa: E402
 
-SEEDS = 3  # seeds of the default variant (seed spread and the ensemble)
+SEEDS = 3  # seeds of the SEEDED variants (seed spread and the ensemble)
 # name (its --variants key: the part before the first space) -> TrainConfig fields
 VARIANTS: dict[str, dict] = {
-    "default": {},
+    "default": {},  # since issue 23 item 4: the cross-fitted per-joint gate (calibration.next.gate)
+    "blocks (before: block validation, no gate)": {"gate": "none"},
+    "runs-gate (whole-run validation, gate fitted on that run)": {"validation": "runs", "gate": "heldout"},
+    "runs-nogate (whole-run validation, no gate)": {"validation": "runs", "gate": "none"},
     "long (150 s budget, 20 epochs)": {"max_seconds": 150.0, "max_epochs": 20},
     "short (3 epochs)": {"max_epochs": 3, "warmup": 3},
     "q-qd-inputs (no q_cmd - q)": {"inputs": "q,qd"},
@@ -50,6 +53,7 @@ VARIANTS: dict[str, dict] = {
     "weight decay 1e-2": {"weight_decay": 1e-2},
     "plain (--prior none)": {"prior": "none"},
 }
+SEEDED = ("default", "blocks", "runs-gate", "runs-nogate")  # keys of the variants trained with SEEDS seeds
 
 
 def _pin_stub() -> None:
@@ -82,7 +86,9 @@ def run_one(job: dict) -> dict:
     t = time.perf_counter()
     rep = calibrate_from_logs([data / f"{r}.npz" for r in job["train"]], job["out"],
                               [data / f"{r}.npz" for r in job["eval"]], cfg=cfg, plots=False)
+    model = json.loads((Path(job["out"]) / "next.json").read_text())["model"]
     return {**{k: job[k] for k in ("variant", "fold", "seed", "out")}, "wall_s": time.perf_counter() - t,
+            "gate": model.get("gate"),
             "train_seconds": rep["train_seconds"], "epochs": rep["epochs"], "stop": rep["train_stop"],
             "l1": {m: v["free_l1_mean"] for m, v in rep["methods"].items()},
             "per_file": {f: {m: v["free_l1_mean"] for m, v in ms.items()} for f, ms in rep["files"].items()}}
@@ -102,7 +108,7 @@ def jobs_for(variants: list[str], data: Path, out: Path, n_folds: int = len(TRAI
                                                    for r in TRAIN_RUNS]
     jobs = []
     for v in variants:
-        for seed in range(SEEDS if v == "default" else 1):
+        for seed in range(SEEDS if v.split(" ")[0] in SEEDED else 1):
             for fold, train, ev in folds[:n_folds + 1]:
                 name = f"v{list(VARIANTS).index(v)}_s{seed}_{fold}"
                 jobs.append({"variant": v, "fold": fold, "seed": seed, "train": train, "eval": ev,
@@ -134,6 +140,10 @@ def summarise(results: list[dict]) -> dict:
         seeds = [r for r in results if r["variant"] == v and r["fold"] == "heldout"]
         if len(seeds) > 1:
             row["heldout_next_seeds"] = [r["l1"]["next"] for r in seeds]
+            row["cv_next_seeds"] = [_cv_mean([r for r in results if r["variant"] == v and r["seed"] == s
+                                              and r["fold"] != "heldout"], "next")
+                                    for s in sorted({r["seed"] for r in seeds})]
+            row["heldout_gate_seeds"] = [r["gate"] for r in seeds]
             row["heldout_ensemble"] = ensemble_l1([r["out"] for r in seeds], EVAL_RUNS)
             cv_ens = []
             for fold in TRAIN_RUNS:
@@ -192,8 +202,13 @@ def main() -> int:
               f"{r['train_seconds']:.0f} |")
         if "heldout_ensemble" in r:
             seeds = ", ".join(f"{x:.3f}" for x in r["heldout_next_seeds"])
+            cv_seeds = ", ".join(f"{x:.3f}" for x in r["cv_next_seeds"])
+            print(f"| {v}: seeds | {cv_seeds} | | | {seeds} | | | |")
             print(f"| {v}: ensemble of {len(r['heldout_next_seeds'])} seeds | {r['cv_ensemble']:.3f} | | | "
-                  f"{r['heldout_ensemble']:.3f} (seeds {seeds}) | | | |")
+                  f"{r['heldout_ensemble']:.3f} | | | |")
+            for g in r["heldout_gate_seeds"]:
+                if g is not None:
+                    print(f"|   gate (all six runs) | {' '.join(f'{x:.2f}' for x in g)} | | | | | | |")
     return 0
 
 

@@ -183,16 +183,16 @@ class MomentumObserver(Estimator):
     def update(self, inp: EstimatorInput) -> Estimate | None:
         st = inp.follower
         q, qd, tau_m = st.q, st.q_dot, st.tau_m
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(qd)) and np.all(np.isfinite(tau_m))):
+        if not (np.isfinite(q).all() and np.isfinite(qd).all() and np.isfinite(tau_m).all()):
             return None
-        M = self.mass(q)
         if self._p0 is None:
-            self._p0, self._t_prev = M @ qd, st.t
+            self._p0, self._t_prev = self.mass(q) @ qd, st.t
             return Estimate(tau_ext=-self._r, t=st.t, flags=FLAG_UNCONVERGED)  # not converged yet
         dt = st.t - self._t_prev
-        if dt <= 0:  # no new follower sample: same estimate, same data time
+        if dt <= 0:  # no new follower sample: same estimate, same data time (M(q) not needed)
             return Estimate(tau_ext=-self._r, t=self._t_prev)
         self._t_prev = st.t
+        M = self.mass(q)
         beta = self.gravity(q) - self.coriolis(q, qd).T @ qd
         self._integral, self._r = momentum_observer_step(self._integral, self._r, M @ qd, self._p0, tau_m,
                                                          beta, dt, self.k_o)

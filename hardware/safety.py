@@ -160,17 +160,23 @@ class SafetyLayer:
         if self._q_prev is None:
             self._q_prev = safe_start_target(q_meas, lim)
         dt = self._dt(now)
-        qv, tv = _vec(cmd.q, n), _vec(cmd.tau_ff, n, 0.0)
+        qv = _vec(cmd.q, n)
         q, c1 = limit_position_target(qv, self._q_prev, dt, lim)
-        tau, c2 = limit_torque(tv, self._tau_prev, dt, lim)
+        bad = _n_bad(qv)
+        if cmd.tau_ff is None:  # no feed-forward: zero passes every torque limit unchanged (falling is free)
+            tau, c2 = np.zeros(n), 0
+        else:
+            tv = _vec(cmd.tau_ff, n, 0.0)
+            tau, c2 = limit_torque(tv, self._tau_prev, dt, lim)
+            bad += _n_bad(tv)
         kp = kd = None
-        c3 = bad = 0
+        c3 = 0
         if cmd.kp is not None or cmd.kd is not None:
             kpv, kdv = _vec(cmd.kp, n, 0.0), _vec(cmd.kd, n, self.hold_kd)
             kp, kd, c3 = limit_gains(kpv, kdv, lim)
-            bad = _n_bad(kpv) + _n_bad(kdv)
-        self.rejected += _n_bad(qv) + _n_bad(tv) + bad
-        grip = cmd.gripper if cmd.gripper is None or np.isfinite(cmd.gripper) else None
+            bad += _n_bad(kpv) + _n_bad(kdv)
+        self.rejected += bad
+        grip = cmd.gripper if cmd.gripper is None or math.isfinite(cmd.gripper) else None
         self.clipped += c1 + c2 + c3
         self._q_prev, self._tau_prev = q, tau
         self.watchdog.feed_command(now)

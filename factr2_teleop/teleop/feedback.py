@@ -13,6 +13,7 @@ Pure functions on numpy arrays; FeedbackGate keeps the few values that carry fro
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,7 +63,7 @@ class FeedbackConfig:
 # -- pure functions ---------------------------------------------------------------------------------
 def contact_score(tau_ext: np.ndarray) -> float:
     """||tau_ext||_1 [N*m] over the follower joints (the paper's contact score f_t); NaN if any is NaN."""
-    return float(np.sum(np.abs(np.asarray(tau_ext, dtype=float))))
+    return float(np.abs(np.asarray(tau_ext, dtype=float)).sum())
 
 
 def contact_hysteresis(score: float, in_contact: bool, t_high: float, t_low: float) -> bool:
@@ -76,12 +77,12 @@ def contact_hysteresis(score: float, in_contact: bool, t_high: float, t_low: flo
 
 def estimate_fresh(now: float, t_est: float, max_age_s: float, fresh_flag: bool = True) -> bool:
     """The estimate may be fed back: flagged fresh and computed from data at most max_age_s old."""
-    return bool(fresh_flag) and np.isfinite(t_est) and (now - t_est) <= max_age_s
+    return bool(fresh_flag) and math.isfinite(t_est) and (now - t_est) <= max_age_s
 
 
 def ramp_toward(gate: float, target: float, dt_s: float, ramp_in_s: float, ramp_out_s: float) -> float:
     """Move gate in [0, 1] linearly toward target: full scale in ramp_in_s going up, ramp_out_s going down."""
-    dt = max(float(dt_s), 0.0) if np.isfinite(dt_s) else 0.0
+    dt = max(float(dt_s), 0.0) if math.isfinite(dt_s) else 0.0
     if target > gate:
         step = np.inf if ramp_in_s <= 0 else dt / ramp_in_s
         return float(min(target, gate + step))
@@ -97,9 +98,9 @@ def feedback_torque(tau_ext_leader: np.ndarray, gain: np.ndarray, gate: float,
 
 def ema(prev: float, x: float, beta: float) -> float:
     """beta * prev + (1 - beta) * x; a NaN prev restarts from x, a NaN x keeps prev."""
-    if not np.isfinite(x):
+    if not math.isfinite(x):
         return prev
-    if not np.isfinite(prev):
+    if not math.isfinite(prev):
         return float(x)
     return float(beta * prev + (1.0 - beta) * x)
 
@@ -139,17 +140,17 @@ class FeedbackGate:
         """tau_ext_leader: estimate mapped onto the leader joints [N*m] (None: no estimator);
         score_nm: ||tau_ext||_1 on the follower joints; t_est: time of the data it came from [s]."""
         cfg = self.cfg
-        dt = now - self._t_prev if np.isfinite(self._t_prev) else 0.0
+        dt = now - self._t_prev if math.isfinite(self._t_prev) else 0.0
         self._t_prev = now
         message = None
         self.gripper_effort_ema = ema(self.gripper_effort_ema, gripper_effort, cfg.gripper_ema_beta)
-        g_eff = self.gripper_effort_ema if np.isfinite(self.gripper_effort_ema) else 0.0
+        g_eff = self.gripper_effort_ema if math.isfinite(self.gripper_effort_ema) else 0.0
         gripper_tau = min(max(cfg.gripper_gain * g_eff, -cfg.gripper_clip_nm), cfg.gripper_clip_nm)
         if not cfg.enabled or tau_ext_leader is None:
             self.gate, self.contact = 0.0, False
             return FeedbackResult(np.zeros(self.n), 0.0, False, False, None, gripper_tau)
         tau = np.asarray(tau_ext_leader, dtype=float)
-        if tau.shape != (self.n,) or not np.all(np.isfinite(tau)) or not np.isfinite(score_nm):
+        if tau.shape != (self.n,) or not np.isfinite(tau).all() or not math.isfinite(score_nm):
             # No value to ramp out with: drop the feedback at once (falling torque is the safe direction).
             self.nan_events += 1
             if not self._nan_active:  # say it once per episode, not every tick

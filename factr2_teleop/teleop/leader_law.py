@@ -250,7 +250,7 @@ class LeaderLaw:
         n, cfg = self.n, self.cfg
         q = np.asarray(inp.q, dtype=float)
         qd = np.asarray(inp.q_dot, dtype=float)
-        if not np.all(np.isfinite(qd)):
+        if not np.isfinite(qd).all():
             qd = np.where(np.isfinite(qd), qd, 0.0)
         terms: dict[str, np.ndarray] = {}
         g = self.gravity(q) if cfg.gravity.enabled else np.zeros(n)
@@ -275,7 +275,7 @@ class LeaderLaw:
         total = np.zeros(n)
         for v in terms.values():
             total += v
-        if not np.all(np.isfinite(total)):  # a NaN model output never reaches the leader
+        if not np.isfinite(total).all():  # a NaN model output never reaches the leader
             total = np.where(np.isfinite(total), total, 0.0)
         tau, capped = cap_total(total, self.cap)
         return LeaderOutput(tau=tau, terms=terms, gate=fb.gate, contact=fb.contact, fresh=fb.fresh,

@@ -9,6 +9,7 @@ Torques map back by virtual work (tau_a . dq_a = tau_b . dq_b): tau_a[index[j]] 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -78,7 +79,7 @@ class JointMap:
 
     def gripper_forward(self, g_a: float) -> float | None:
         """Gripper a -> b, clamped; None when a has no finite gripper reading (keep the b gripper)."""
-        if g_a is None or not np.isfinite(g_a):
+        if g_a is None or not math.isfinite(g_a):
             return None
-        c = self.cfg
-        return float(np.clip(c.gripper_offset + c.gripper_scale * g_a, c.gripper_min, c.gripper_max))
+        c = self.cfg  # floats: min/max, not np.clip (500 Hz)
+        return float(min(max(c.gripper_offset + c.gripper_scale * g_a, c.gripper_min), c.gripper_max))

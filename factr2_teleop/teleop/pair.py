@@ -9,6 +9,7 @@ both are fresh and close enough ; fault / stopped (both safe: leader zero torque
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -68,14 +69,14 @@ class PairConfig:
 
 
 def _fresh(st: JointState, now: float, max_age: float) -> bool:
-    return bool(np.all(np.isfinite(st.q))) and np.isfinite(st.t) and now - st.t <= max_age
+    return bool(np.isfinite(st.q).all()) and math.isfinite(st.t) and now - st.t <= max_age
 
 
 def _complete(st: JointState) -> bool:
     """A sample in which every joint is new: drivers re-stamp a partial/failed read with the read time and
     flag the joints that kept old values (STATUS_STALE / STATUS_COMM_LOST), so age alone cannot tell."""
     status = getattr(st, "status", None)
-    return status is None or not bool(np.any(np.asarray(status, dtype=np.uint32) & _STALE_BITS))
+    return status is None or not bool((np.asarray(status, dtype=np.uint32) & _STALE_BITS).any())
 
 
 class ArmPair:
@@ -221,7 +222,7 @@ class ArmPair:
         """The start of every tick (teleop and rollout pairs): this tick's dt [s] (clamped to 0..3 periods),
         both arms' states, and whether each is fresh. read_leader=False (a rollout's passive leader between
         its service ticks) keeps the leader's last state and verdict."""
-        dt = now - self._t_prev if np.isfinite(self._t_prev) else self.dt_s
+        dt = now - self._t_prev if math.isfinite(self._t_prev) else self.dt_s
         dt = min(max(dt, 0.0), 3.0 * self.dt_s)
         self._t_prev = now
         if read_leader:
@@ -235,9 +236,10 @@ class ArmPair:
     def _ok(self, who: str, st: JointState, now: float, max_age: float) -> bool:
         """Fresh: finite, and a complete sample within max_age (a lost read now and then is tolerated,
         silence is not: it holds the follower within max_age + one tick)."""
-        if _fresh(st, now, max_age) and _complete(st):
+        finite = bool(np.isfinite(st.q).all())
+        if finite and math.isfinite(st.t) and now - st.t <= max_age and _complete(st):
             self._t_ok[who] = st.t
-        return bool(np.all(np.isfinite(st.q))) and now - self._t_ok[who] <= max_age
+        return finite and now - self._t_ok[who] <= max_age
 
     def _tick_estimator(self, now: float, fs: JointState, q_leader_f: np.ndarray) -> None:
         est = self.estimator

@@ -58,7 +58,7 @@ def mismatch_error(q_follower: np.ndarray, q_goal: np.ndarray, max_rad: np.ndarr
 def rate_limit(q_target: np.ndarray, q_prev: np.ndarray, v_max: np.ndarray, dt_s: float) -> np.ndarray:
     """q_target moved at most v_max*dt from q_prev [rad]; non-finite targets keep q_prev."""
     q = np.asarray(q_target, dtype=float)
-    if not np.all(np.isfinite(q)):
+    if not np.isfinite(q).all():
         q = np.where(np.isfinite(q), q, q_prev)
     step = v_max * max(float(dt_s), 0.0)
     return clamp(q, q_prev - step, q_prev + step)

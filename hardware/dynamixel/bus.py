@@ -214,6 +214,10 @@ class DynamixelBus:
     def sync_write(self, group: SyncWriteGroup, values: dict[int, bytes]) -> bool:
         return write_only(self._ready(), group.packet(values))
 
+    def sync_write_ints(self, group: SyncWriteGroup, values) -> bool:
+        """sync_write of one signed integer per servo in the group's id order."""
+        return write_only(self._ready(), group.packet_ints(values))
+
     def measure_round_trip(
         self,
         read_group: SyncReadGroup,
