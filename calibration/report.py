@@ -270,7 +270,10 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
               "arm": arm, "joint_names": joint_names, "rate_hz": rate_hz,
               "prior": prior.kind if prior is not None else "none", "inputs": cfg.inputs,
               "inputs_fallback": fallback,
-              "train_logs": [name for name, _, _ in runs], "methods": top, "network_adds": network_adds(top)}
+              "train_logs": [name for name, _, _ in runs], "methods": top, "network_adds": network_adds(top),
+              # the share of the network's correction kept per joint, fitted on runs it never saw
+              # (calibration.next.gate; None: no gate, fewer than 3 runs)
+              "network_gate": result.gate, "validation": result.validation, "val_runs": result.val_runs}
     if notes:
         report["log_notes"] = notes
     if files:
@@ -312,6 +315,9 @@ def write_markdown(report: dict, evaluated: list[Evaluated], out: Path, plots: b
                       "|---|" + "---|" * len(report["joint_names"]),
                       f"| {adds['baseline']} | " + " | ".join(_fmt(x) for x in a["prior_l1"]) + " |",
                       "| next | " + " | ".join(_fmt(x) for x in a["next_l1"]) + " |"]
+    if report.get("network_gate") is not None:
+        lines += ["", "Share of the network's correction kept per joint (gate fitted on runs it never saw, "
+                  "calibration/next/gate.py): " + " ".join(f"{g:.2f}" for g in report["network_gate"])]
     for name, methods in report.get("files", {}).items():
         lines += ["", f"## {name}", "", "| method | free motion | contact |", "|---|---|---|"]
         lines += [f"| {m} | {_fmt(v['free_l1_mean'])} | {_fmt(v['contact_l1_mean'])} |"

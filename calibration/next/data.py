@@ -9,6 +9,9 @@ Pipeline, top to bottom:
   3. split_blocks(): each segment is cut into contiguous blocks (default 10 s); every k-th block goes to
      validation. Windows are drawn entirely inside one block, so no train window shares a sample with a
      validation window (neighbouring samples are nearly identical: a random split would leak).
+     With >= MIN_RUNS runs (segments grouped by their log's name), split_runs() also holds out whole runs:
+     what training validates on then (TrainConfig.validation) is a trajectory it never saw -- extrapolation,
+     the error that matters on a new task -- instead of blocks of runs it trains on (interpolation).
   4. Normalizer: per-feature mean/std of inputs and targets, fitted on the training blocks only; stored with
      the model (checkpoint metadata) together with the training input range used for the OOD flag.
 """
@@ -131,6 +134,24 @@ def split_blocks(lengths: list[int], block_len: int, val_every: int = 5, offset:
     return train, val
 
 
+MIN_RUNS = 3  # fewer runs: holding one out would leave too little to train on, so blocks validate
+
+
+def split_runs(names: list[str], lengths: list[int], val_every: int = 5, offset: int = 2
+               ) -> tuple[list[tuple[int, int, int]], list[tuple[int, int, int]]] | None:
+    """Whole-run split: segments are grouped into runs by name (in order of first appearance; "" is one
+    run); run r is held out when (r + offset) % val_every == 0 -- the same rule as the blocks', counted in
+    runs -- or, when that picks none, the last run. Returns (train, val) lists of whole segments
+    (index, 0, length), or None with fewer than MIN_RUNS runs."""
+    runs = list(dict.fromkeys(names))
+    if len(runs) < MIN_RUNS:
+        return None
+    held = {r for i, r in enumerate(runs) if (i + offset) % val_every == 0} or {runs[-1]}
+    train = [(i, 0, n) for i, (nm, n) in enumerate(zip(names, lengths)) if nm not in held]
+    val = [(i, 0, n) for i, (nm, n) in enumerate(zip(names, lengths)) if nm in held]
+    return train, val
+
+
 def window_ends(blocks: list[tuple[int, int, int]], offsets: list[int], history: int) -> np.ndarray:
     """Global indices (into the concatenated segments) of the last sample of every full window that lies
     entirely inside one block. `offsets[si]` is the start of segment si in the concatenation."""
@@ -154,6 +175,12 @@ class WindowData:
     data_hash: str
     n_samples: int
     meta: dict = field(default_factory=dict)
+    # whole-run split (split_runs; empty arrays / [] when there are fewer than MIN_RUNS runs)
+    run_train_ends: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    run_val_ends: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    val_runs: list[str] = field(default_factory=list)
+    run_index: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))  # (N,) run of each sample
+    # (runs = segments grouped by name, numbered in order of first appearance)
 
 
 def data_hash(segments: list[Segment]) -> str:
@@ -184,10 +211,34 @@ def build_windows(segments: list[Segment], history: int = 50, inputs: str = "q,q
         raise ValueError(f"not enough data for one window of {history} samples")
     train_rows = np.concatenate([offsets[si] + np.arange(lo, hi) for si, lo, hi in train_b])
     norm = Normalizer.fit(x_raw[train_rows], y_raw[train_rows], kind=normalize)
+    names = [getattr(s, "name", "") for s in segments]
+    run_no = {nm: i for i, nm in enumerate(dict.fromkeys(names))}
+    by_run = split_runs(names, lengths, val_every)
+    run_tr, run_val = ((window_ends(b, offsets, history) for b in by_run) if by_run
+                       else (np.zeros(0, np.int64), np.zeros(0, np.int64)))
+    if len(run_tr) == 0 or len(run_val) == 0:  # a held-out run too short for one window: blocks only
+        run_tr, run_val = np.zeros(0, np.int64), np.zeros(0, np.int64)
+    val_runs = list(dict.fromkeys(names[si] for si, _, _ in by_run[1])) if len(run_val) else []
+    # the normaliser stays the blocks' in either case: a scale of inputs, not a fit to the held-out run
     return WindowData(x=norm.norm_x(x_raw).astype(np.float32), y=norm.norm_y(y_raw).astype(np.float32),
                       train_ends=train_ends, val_ends=val_ends, normalizer=norm,
                       x_min=x_raw[train_rows].min(0), x_max=x_raw[train_rows].max(0), history=history,
-                      inputs=inputs, data_hash=data_hash(segments), n_samples=len(x_raw))
+                      inputs=inputs, data_hash=data_hash(segments), n_samples=len(x_raw),
+                      run_train_ends=run_tr, run_val_ends=run_val, val_runs=val_runs,
+                      run_index=np.repeat([run_no[nm] for nm in names], lengths).astype(np.int64))
+
+
+VALIDATIONS = ("auto", "blocks", "runs")
+
+
+def validation_split(data: WindowData, validation: str = "auto") -> tuple[np.ndarray, np.ndarray, str]:
+    """(train ends, validation ends, "blocks" or "runs") as TrainConfig.validation asks: "auto" = whole
+    held-out runs when the data has them (>= MIN_RUNS runs), else blocks; "runs" without them -> blocks."""
+    if validation not in VALIDATIONS:
+        raise ValueError(f"validation must be one of {VALIDATIONS}, got {validation!r}")
+    if validation != "blocks" and len(data.run_val_ends):
+        return data.run_train_ends, data.run_val_ends, "runs"
+    return data.train_ends, data.val_ends, "blocks"
 
 
 def gather_windows(x: np.ndarray, ends: np.ndarray, history: int) -> np.ndarray:

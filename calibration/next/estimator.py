@@ -13,6 +13,10 @@ Two ways to run the LSTM (calibration.next.lstm_runs), chosen per checkpoint:
   audit's window output, and until the exact windows have filled (H - 2 ticks) the carried estimate comes
   with FLAG_UNVERIFIED. `mode` says which is running.
 
+Gate (checkpoints whose ModelConfig has `gate`, calibration.next.gate): the network's correction is scaled
+per joint by alpha in [0, 1], folded into the head's last layer (LstmWeights) or applied by the model (torch
+path): the same arithmetic as batch_tau_f.
+
 Physics prior (checkpoints trained with `prior`, calibration.next.prior): tau_f = prior part + network; the
 prior runs one sample at a time (PriorStream: the same midpoint acceleration as training, and the
 checkpoint's low-pass of the residual measured - predicted torque) and restarts with the window. It needs
@@ -100,7 +104,7 @@ class NextEstimator:
         self.audits_done = 0
         self.audit_failed = False
         if self._fast:
-            self._wt = LstmWeights(weights_numpy(ck.model))
+            self._wt = LstmWeights(weights_numpy(ck.model), ck.model.cfg.gate, ck.model.cfg.gate_offset)
             if use_carried:
                 tol = carried_tolerance(ck) if audit_tol is None else np.broadcast_to(audit_tol, (self.n_j,))
                 if tol is None:

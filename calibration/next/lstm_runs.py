@@ -39,13 +39,19 @@ def _layer(w: dict[str, np.ndarray], layer: int) -> tuple[np.ndarray, np.ndarray
 class LstmWeights:
     """The 2-layer LSTM + 2-layer MLP head of a NextModel (weights_numpy dict) as float32 numpy arrays."""
 
-    def __init__(self, w: dict[str, np.ndarray]):
+    def __init__(self, w: dict[str, np.ndarray], gate=None, gate_offset=None):
+        """gate, gate_offset: the model's per-output gate (ModelConfig; None: none), folded into the head's
+        last layer -- output = gate * (h @ W + b) + offset -- so the gate costs nothing per tick."""
         self.wih1, self.whh1, self.b1 = _layer(w, 0)
         wih2, whh2, self.b2 = _layer(w, 1)
         self.w2 = np.concatenate([wih2, whh2], axis=0)  # [h1, h2] @ W2 in one product
         self.hidden = self.whh1.shape[0]
         self.hw1, self.hb1 = w["head.0.weight"].T.copy(), w["head.0.bias"]
         self.hw2, self.hb2 = w["head.3.weight"].T.copy(), w["head.3.bias"]
+        if gate is not None:
+            g = np.asarray(gate, np.float32)
+            self.hw2 = (self.hw2 * g[None, :]).astype(np.float32)
+            self.hb2 = (self.hb2 * g + np.asarray(gate_offset, np.float32)).astype(np.float32)
 
     def project(self, x: np.ndarray, out: np.ndarray) -> np.ndarray:
         """Layer 1's input projection of one normalised sample (shared by every run)."""

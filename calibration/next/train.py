@@ -28,16 +28,19 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 import torch
 from torch import nn
 
-from calibration.next.data import WindowData, n_inputs
+from calibration.next.data import WindowData, n_inputs, validation_split
+from calibration.next.gate import CROSSFIT_SHARE, crossfit_folds, fit_gate, gate_offset
 from calibration.next.model import ModelConfig, NextModel
+from calibration.next.threads import ThreadProbe  # noqa: F401  (re-exported: tests and older imports)
 
 TRAIN_BUDGET_S = 60.0  # default wall budget of a training the user waits for [s] (issue 23)
+GATES = ("crossfit", "heldout", "none")  # TrainConfig.gate (calibration.next.gate)
 
 
 @dataclass
@@ -71,6 +74,11 @@ class TrainConfig:
     seed: int = 0
     normalize: str = "zscore"  # normaliser of inputs and targets (data.Normalizer.fit): zscore, robust
     input_noise: float = 0.0  # augmentation: Gaussian noise of this std (normalised units) on training inputs
+    validation: str = "blocks"  # what early stopping / best weights are chosen on (data.validation_split):
+    # blocks of every run; runs = whole held-out runs when the logs have >= 3; auto = runs when there are
+    gate: str = "crossfit"  # per-joint scale alpha in [0, 1] of the network's correction, fitted on runs it
+    # never saw (calibration.next.gate): crossfit (with >= 3 runs; the UR5's default), heldout (on the
+    # validation runs), none. Single-run logs (the twin) get no gate either way.
     prior: str = "none"  # physics prior under the network (calibration.next.prior): none, description,
     # identified, or auto (identified when the arm and a torque signal in N*m are known, else none)
 
@@ -110,50 +118,6 @@ def stopped_paying(best_curve: list[float], min_gain: float, gain_epochs: int, w
     return before - now < min_gain * before
 
 
-class ThreadProbe:
-    """Picks the CPU thread count while training: on a machine shared with other work, oneDNN's LSTM on 2
-    threads can run 10x slower than on 1 (a descheduled thread stalls every barrier; measured 24 vs 380
-    windows/s at load 12 on 2 cores, 1611 vs ~800 when quiet). Every PROBE_EVERY epochs, batch 1 runs on
-    all cores and batch 2 on one thread, each timed; the rest run on the faster. Because the costly failure
-    is many threads on a machine that just got busy, every batch on all cores is timed too, and one slower
-    than COLLAPSE x its probe drops to one thread until the next probe."""
-
-    PROBE_EVERY = 4
-    COLLAPSE = 2.5
-
-    def __init__(self, cores: int):
-        self.cores, self.threads = cores, cores
-        self._timing: dict[int, float] = {}
-        self._t = None
-        self._n = None
-        self._probing = False
-
-    def before(self, epoch: int, batch: int) -> None:
-        if self.cores <= 1:
-            return
-        self._probing = epoch % self.PROBE_EVERY == 0 and batch in (1, 2)
-        if epoch % self.PROBE_EVERY == 0 and batch == 3 and len(self._timing) == 2:  # both timed
-            self.threads = min(self._timing, key=self._timing.get)
-            torch.set_num_threads(self.threads)
-        if self._probing:
-            self._n = self.cores if batch == 1 else 1
-            torch.set_num_threads(self._n)
-        else:
-            self._n = self.threads
-        self._t = time.perf_counter()
-
-    def after(self) -> None:
-        if self._t is None:
-            return
-        took = time.perf_counter() - self._t
-        self._t = None
-        if self._probing:
-            self._timing[self._n] = took
-        elif self._n > 1 and took > self.COLLAPSE * self._timing.get(self._n, math.inf):
-            self.threads = 1
-            torch.set_num_threads(1)
-
-
 @dataclass
 class Progress:
     """What a progress callback sees after every epoch. Return True from the callback to stop early."""
@@ -164,6 +128,7 @@ class Progress:
     best_val_loss: float
     elapsed_s: float
     max_epochs: int
+    stage: str = ""  # "" for the model that is kept; "gate fold k/K" while the gate's fold models train
 
 
 @dataclass
@@ -181,6 +146,9 @@ class TrainResult:
     carried_max_diff: list[float] | None = None  # per joint, data units (carried_state_diff); None: no RNN
     stop_reason: str = ""  # "validation gain", "budget", "patience", "max_epochs", "callback"
     threads: int = 0  # CPU threads the training ended on (ThreadProbe)
+    validation: str = "blocks"  # what it validated on: "blocks" or "runs" (whole held-out runs)
+    val_runs: list[str] = field(default_factory=list)  # the held-out runs' names (validation "runs")
+    gate: list[float] | None = None  # per joint alpha (calibration.next.gate), None: no gate
 
     @property
     def seconds_to_within_5pct(self) -> float | None:
@@ -238,8 +206,52 @@ def predict_windows(model: NextModel, x: torch.Tensor, ends: np.ndarray, history
 def train(data: WindowData, cfg: TrainConfig | None = None,
           callback: Callable[[Progress], bool | None] | None = None, progress_bar: bool | None = None
           ) -> TrainResult:
-    """Train NEXT on `data` (calibration.next.data.build_windows). Deterministic for a given seed on CPU."""
+    """Train NEXT on `data` (calibration.next.data.build_windows). Deterministic for a given seed on CPU
+    without a budget. With gate "crossfit" and >= 3 runs: first the fold models of the gate (CROSSFIT_SHARE
+    of the budget together; calibration.next.gate), then the final model on every run in the rest (at
+    least a quarter of the budget); seconds and curve count from the start of the first."""
     cfg = cfg or TrainConfig()
+    if cfg.gate not in GATES:
+        raise ValueError(f"gate must be one of {GATES}, got {cfg.gate!r}")
+    t0 = time.perf_counter()
+    folds = crossfit_folds(data.run_index, data.train_ends, data.val_ends) if cfg.gate == "crossfit" else []
+    alpha = _crossfit_alpha(data, cfg, folds, callback, progress_bar) if folds else None
+    spent = time.perf_counter() - t0
+    final = replace(cfg, max_seconds=max(cfg.max_seconds - spent, 0.25 * cfg.max_seconds))
+    res = _train(data, final, *validation_split(data, cfg.validation), callback, progress_bar, alpha)
+    res.config, res.seconds = cfg, res.seconds + spent
+    res.curve = [(t + spent, v) for t, v in res.curve]
+    return res
+
+
+def _crossfit_alpha(data: WindowData, cfg: TrainConfig, folds, callback=None, progress_bar=None
+                    ) -> np.ndarray | None:
+    """The cross-fitted gate: each fold model (the final model's procedure on the other folds' runs, its
+    share of the budget) predicts every window of its held-out runs (at most 2 x max_val_windows, evenly
+    strided); alpha per joint from all of them pooled, in the data's units. The callback sees the fold
+    models' epochs too (Progress.stage); None (no gate) when it asked to stop."""
+    fold_cfg = replace(cfg, max_seconds=cfg.max_seconds * CROSSFIT_SHARE / len(folds), gate="none")
+    ym, ys = data.normalizer.y_mean, data.normalizer.y_std
+    x = torch.as_tensor(data.x)
+    corr, resid = [], []
+    for k, (tr, va, held) in enumerate(folds):
+        fold = _train(data, fold_cfg, tr, va, "blocks", callback, progress_bar, None, memory=False,
+                      stage=f"gate fold {k + 1}/{len(folds)}")
+        if fold.stop_reason == "callback":
+            return None
+        model = fold.model
+        held = held[np.linspace(0, len(held) - 1, min(len(held), 2 * cfg.max_val_windows)).astype(int)]
+        corr.append(predict_windows(model, x, held, cfg.history).numpy() * ys + ym)
+        resid.append(data.y[held] * ys + ym)
+    return fit_gate(np.concatenate(corr), np.concatenate(resid))
+
+
+def _train(data: WindowData, cfg: TrainConfig, train_ends: np.ndarray, val_all: np.ndarray, used: str,
+           callback, progress_bar: bool | None, gate: np.ndarray | None, memory: bool = True,
+           stage: str = "") -> TrainResult:
+    """One training on the given window ends (used: "blocks" or "runs", what val_all is); gate: alpha to
+    apply to the best weights (None: none, or fitted here on the validation runs with cfg.gate "heldout");
+    memory: measure the carried state's fading memory afterwards."""
     torch.manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     dev = pick_device(cfg.device)
@@ -257,7 +269,8 @@ def train(data: WindowData, cfg: TrainConfig | None = None,
     x = torch.as_tensor(data.x, device=dev)
     y = torch.as_tensor(data.y, device=dev)
     offs = torch.arange(-cfg.history + 1, 1, device=dev)
-    val_ends = data.val_ends if len(data.val_ends) else data.train_ends
+    val_all = val_all if len(val_all) else train_ends
+    val_ends = val_all
     if len(val_ends) > cfg.max_val_windows:
         val_ends = val_ends[np.linspace(0, len(val_ends) - 1, cfg.max_val_windows).astype(int)]
     val_y = y[torch.as_tensor(val_ends, device=dev)]
@@ -268,7 +281,8 @@ def train(data: WindowData, cfg: TrainConfig | None = None,
     show = sys.stderr.isatty() if progress_bar is None else progress_bar
     from tqdm import tqdm  # local import: only training needs it
 
-    bar = tqdm(total=cfg.max_epochs, disable=not show, desc="NEXT training", unit="epoch", leave=False)
+    desc = f"NEXT training ({stage})" if stage else "NEXT training"
+    bar = tqdm(total=cfg.max_epochs, disable=not show, desc=desc, unit="epoch", leave=False)
     curve: list[tuple[float, float]] = []
     t0 = time.perf_counter()
     predict_windows(model, x, val_ends, cfg.history)  # timed once untrained: the budget's reserve below
@@ -278,8 +292,8 @@ def train(data: WindowData, cfg: TrainConfig | None = None,
     seen = 0
     for epoch in range(cfg.max_epochs):  # noqa: B007 -- epoch is reported after the loop
         model.train()
-        n = min(cfg.samples_per_epoch, len(data.train_ends))
-        ends = rng.choice(data.train_ends, size=n, replace=False)
+        n = min(cfg.samples_per_epoch, len(train_ends))
+        ends = rng.choice(train_ends, size=n, replace=False)
         total = torch.zeros((), device=dev)  # summed on the device: no host sync per batch
         for i in range(0, n, cfg.batch_size):
             if time.perf_counter() - t0 + 3 * eval_s > cfg.max_seconds:  # room left for the last evaluations
@@ -314,7 +328,7 @@ def train(data: WindowData, cfg: TrainConfig | None = None,
         bar.update(1)
         bar.set_postfix(train=f"{total / n:.4f}", val=f"{val_loss:.4f}", best=f"{stopper.best:.4f}")
         if callback is not None and callback(Progress(epoch, total / n, val_loss, stopper.best, elapsed,
-                                                      cfg.max_epochs)):
+                                                      cfg.max_epochs, stage)):
             reason = "callback"
             break
         out_of_time = elapsed + 3 * eval_s > cfg.max_seconds
@@ -327,16 +341,24 @@ def train(data: WindowData, cfg: TrainConfig | None = None,
     model.load_state_dict(best_state)
     model.eval()
     pred = predict_windows(model, x, val_ends, cfg.history)
+    ym, ys = data.normalizer.y_mean, data.normalizer.y_std
+    if gate is None and used == "runs" and cfg.gate == "heldout":  # fitted on the runs it never saw
+        gate = fit_gate(pred.cpu().numpy() * ys + ym, val_y.cpu().numpy() * ys + ym)
+    if gate is not None:
+        model.set_gate(gate.tolist(), gate_offset(gate, ym, ys).tolist())
+        pred = pred * model.gate_scale + model.gate_shift  # the gated model's output, without a new pass
     l1 = ((pred - val_y).abs().mean(0).cpu().numpy() * data.normalizer.y_std).tolist()
     seconds = time.perf_counter() - t0
     carried = None
-    if model.rnn is not None:  # not training time: measured once on the trained model
-        ends = (data.val_ends if len(data.val_ends) else data.train_ends)[:2 * cfg.max_val_windows]  # bounded
+    if model.rnn is not None and memory:  # not training time: measured once on the trained model
+        ends = val_all[:2 * cfg.max_val_windows]  # bounded
         carried = (carried_state_diff(model, x, ends, cfg.history) * data.normalizer.y_std).tolist()
     return TrainResult(model=model.cpu(), model_config=mcfg, config=cfg, device=str(dev),
                        seconds=seconds, epochs=epoch + 1, best_epoch=stopper.best_epoch,
                        best_val_loss=stopper.best, curve=curve, val_l1=l1, carried_max_diff=carried,
-                       stop_reason=reason, threads=probe.threads)
+                       stop_reason=reason, threads=probe.threads, validation=used,
+                       val_runs=data.val_runs if used == "runs" else [],
+                       gate=None if gate is None else gate.tolist())
 
 
 @torch.no_grad()
@@ -354,7 +376,7 @@ def carried_state_diff(model: NextModel, x: torch.Tensor, ends: np.ndarray, hist
             continue
         start = int(run[0]) - history + 1
         out, _ = model.rnn(x[start:int(run[-1]) + 1][None])
-        carried = model.head(out[0, history - 1:])
+        carried = model.output(out[0, history - 1:])
         window = predict_windows(model, x, run, history)
         worst = torch.maximum(worst, (carried - window).abs().amax(0))
     return worst.cpu().numpy()

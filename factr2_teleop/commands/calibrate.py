@@ -121,6 +121,10 @@ def summary_lines(report: dict) -> list[str]:
             per = " ".join(f"{g:+.3f}" for g in a["gain"])
             lines.append(f"  the network over {base}, held-out {kind}: L1 {np.mean(a['prior_l1']):.4f} -> "
                          f"{np.mean(a['next_l1']):.4f} [{u}] (x{a['ratio_mean']:.2f}); gain per joint {per}")
+    gate = report.get("network_gate")
+    if gate is not None:
+        lines.append("  share of the network's correction kept per joint (fitted on runs it never saw): "
+                     + " ".join(f"{g:.2f}" for g in gate))
     return lines
 
 

@@ -186,7 +186,9 @@ def _print_summary(d: dict) -> None:
           f"{d['overruns']} overruns / {d['ticks']} ticks, "
           f"CPU {f(d['cpu_ms_per_tick'], '.2f')} ms/tick (process), loop thread "
           f"{f(d.get('loop_cpu_ms_per_tick'), '.2f')} ms/tick = {f(share, '.0f')} % of the period "
-          f"(+ {f(d.get('loop_twin_cpu_ms_per_tick'), '.2f')} ms/tick of twin work on its thread)")
+          f"(+ {f(d.get('loop_twin_cpu_ms_per_tick'), '.2f')} ms/tick of twin work on its thread"
+          + (f"; NEXT in its own process {d['next_worker_cpu_ms_per_tick']:.2f} ms/tick"
+             if d.get("next_worker_cpu_ms_per_tick") is not None else "") + ")")
     print(f"  feedback_corr {f(d['feedback_corr'], '.3f')}, "
           f"feedback_lag {f(d['feedback_lag_ms'], '.1f')} ms, "
           f"tau_ext L1 contact {f(d['tau_ext_l1_contact'], '.2f')} / "

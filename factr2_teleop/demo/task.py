@@ -154,6 +154,7 @@ class DemoResult:
     loop_cpu_ms_per_tick: float = float("nan")  # the loop thread's own CPU per tick (real time: no twin)
     loop_cpu_share: float = float("nan")  # loop_cpu_ms_per_tick over the period (target <= 0.25 at 500 Hz)
     loop_twin_cpu_ms_per_tick: float = float("nan")  # the twin's work on the loop's thread (hardware/sim_cpu)
+    next_worker_cpu_ms_per_tick: float = float("nan")  # NEXT's own process, if used (calibration/next/worker)
     hand_push_n: float = float("nan")  # mean Cartesian force the virtual hand pushes into the table [N]
     hand_tau_l1_wipe_nm: float = float("nan")
     peak_contact_force_n: float = float("nan")
@@ -313,6 +314,7 @@ class DemoRun:
             cpu_ms_per_tick=self.cpu_s / max(st.ticks, 1) * 1e3,
             loop_cpu_ms_per_tick=st.cpu_mean_ms, loop_cpu_share=st.cpu_share,
             loop_twin_cpu_ms_per_tick=st.sim_cpu_mean_ms,
+            next_worker_cpu_ms_per_tick=1e3 * getattr(self.pair.estimator, "cpu_s", np.nan) / (st.ticks or 1),
             hand_push_n=float(wipe.get("force_n", float("nan"))),
             hand_tau_l1_wipe_nm=float(wipe.get("tau_l1_nm", float("nan"))),
             peak_contact_force_n=float(np.max(fw)) if fw.size else float("nan"),

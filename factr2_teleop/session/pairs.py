@@ -32,7 +32,7 @@ class TeleopOptions:
     mode: FEEDBACK_MODES; checkpoint: NEXT checkpoint for every follower (mode next); rate_hz: loop rate [Hz];
     gain: feedback gain K_f [leader N*m per follower N*m], one value or one per joint; feedback: other
     FeedbackConfig keys over the rig's (clip_nm, t_high_nm, t_low_nm, ...); pp_stiffness_nm_per_rad and
-    dob_gain_per_s: the pp and dob estimators' constants."""
+    dob_gain_per_s: the pp and dob estimators' constants; next_worker: see below."""
 
     mode: str | None = None
     checkpoint: str | None = None
@@ -41,6 +41,9 @@ class TeleopOptions:
     feedback: dict = field(default_factory=dict)
     pp_stiffness_nm_per_rad: float | list = PP_STIFFNESS_NM_PER_RAD
     dob_gain_per_s: float | list = DOB_GAIN_PER_S
+    # NEXT in its own process on a real-time clock (calibration/next/worker.py): its LSTM off the loop's
+    # thread; False keeps it inline. Lockstep clocks always run it inline (determinism).
+    next_worker: bool = True
 
 
 def rig_tables(rig) -> tuple[dict[str, dict], dict]:
@@ -100,7 +103,9 @@ def load_next(path: str | Path, arm: str):
     if not p.is_file():
         raise UserError(f"NEXT checkpoint {p} not found", where="NEXT checkpoint",
                         fix="run `factr2 calibrate` (or the Calibration screen) first, or pick another mode")
-    return NextEstimator(load_checkpoint(p, arm=arm), defer=True)
+    est = NextEstimator(load_checkpoint(p, arm=arm), defer=True)
+    est.source = (str(p), arm)  # what a worker process loads the same estimator from (pair_estimator)
+    return est
 
 
 def pair_estimator(mode: str, session, fspec, follower, opts: TeleopOptions, rate_hz: float, next_est=None):
@@ -117,6 +122,13 @@ def pair_estimator(mode: str, session, fspec, follower, opts: TeleopOptions, rat
                             fix="pass --checkpoint DIR/next.json (from `factr2 calibrate`) or set "
                                 "next_checkpoint in the rig")
         next_est = load_next(ck, fspec.arm)
+    source = getattr(next_est, "source", None)
+    if mode == "next" and opts.next_worker and session.clock.realtime and source is not None:
+        from calibration.next.worker import NextWorker
+
+        worker = NextWorker(*source, follower.n_joints, loop_period_s=1.0 / rate_hz)
+        worker.next = next_est  # the same checkpoint loaded here: its metadata (data hash); never stepped
+        return worker
     return make_estimator(mode, follower.n_joints, follower_arm=fspec.arm, dob_gain=opts.dob_gain_per_s,
                           pp_stiffness_nm_per_rad=opts.pp_stiffness_nm_per_rad, next_estimator=next_est,
                           loop_period_s=1.0 / rate_hz, truth=truth)

@@ -214,13 +214,15 @@ class CalibrationRun:
         self._set(step="train", progress=0.0, eta_s=float("nan"), line="training NEXT")
 
         def cb(p) -> bool:
-            with self._lock:
-                self.state.epoch_losses.append((p.epoch, p.train_loss, p.val_loss))
+            if not p.stage:  # the loss plot shows the kept model, not the gate's fold models
+                with self._lock:
+                    self.state.epoch_losses.append((p.epoch, p.train_loss, p.val_loss))
             frac = (p.epoch + 1) / max(p.max_epochs, 1)
             self._set(
                 progress=frac,
                 eta_s=p.elapsed_s / frac * (1 - frac),
-                line=f"epoch {p.epoch + 1}/{p.max_epochs}  train {p.train_loss:.4f}  val {p.val_loss:.4f}",
+                line=f"{p.stage + ': ' if p.stage else ''}epoch {p.epoch + 1}/{p.max_epochs}  "
+                     f"train {p.train_loss:.4f}  val {p.val_loss:.4f}",
             )
             return self.abort_reason is not None
 

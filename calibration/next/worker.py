@@ -1,0 +1,191 @@
+"""NEXT in its own process (issue #24): the control loop posts each model sample and picks estimates up
+without waiting, so the LSTM's arithmetic (~0.1 ms per 2 ms tick on a 2-vCPU VM, the largest single share
+of the loop's own CPU) runs on another core instead of inside the loop's period.
+
+    est = NextWorker(checkpoint_path, arm, n_joints, loop_period_s)   # spawns; ready or UserError
+    est.update(inp) / est.refresh(inp) / est.idle()                   # calibration.estimators protocol
+    est.close()
+
+What changes against NextAdapter on the loop's thread: an estimate arrives about one control tick after
+its sample (the worker answers while the loop sleeps), and between model samples refresh() still gives
+tau_m(now) - tau_f of the newest prediction, so contact shows in the feedback at once. Only real-time
+clocks use it (factr2_teleop.session.pairs): lockstep runs keep NEXT inline, where the tick order is the
+determinism (issue #24 item 4). The child builds the same NextEstimator from the checkpoint file (not
+pickled: its LSTM state shares memory between numpy and torch).
+
+Failure is loud and safe: a worker that dies, or falls MAX_IN_FLIGHT samples behind, raises in update();
+the pair then turns feedback off with a message (factr2_teleop.teleop.pair). Messages are raw float64
+rows (no pickling per sample): ~3 us per tick on the loop's side.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+import weakref
+
+import numpy as np
+
+from calibration.estimate import Estimate
+from calibration.estimators import Estimator, EstimatorInput, NextAdapter
+from hardware.errors import UserError
+from hardware.types import JointState
+
+READY_TIMEOUT_S = 60.0  # s: the child imports torch and loads the checkpoint (2-5 s on a 2-vCPU VM)
+MAX_IN_FLIGHT = 25  # samples posted and not answered (0.25 s at 100 Hz): the worker cannot keep up
+
+
+# -- wire format (pure) ------------------------------------------------------------------------------
+def pack_sample(inp: EstimatorInput) -> bytes:
+    """[t, follower t, has target, q, q_dot, q_cmd, tau_m, temperature, q_target] as float64 bytes."""
+    st, tgt = inp.follower, inp.q_target_f
+    n = len(st.q)
+    return np.concatenate(([inp.t, st.t, 0.0 if tgt is None else 1.0], st.q, st.q_dot, st.q_cmd, st.tau_m,
+                           st.temperature, np.full(n, np.nan) if tgt is None else tgt)).tobytes()
+
+
+def unpack_sample(buf: bytes, n: int) -> EstimatorInput:
+    a = np.frombuffer(buf, np.float64)
+    v = [a[3 + k * n: 3 + (k + 1) * n].copy() for k in range(6)]
+    st = JointState(t=float(a[1]), q=v[0], q_dot=v[1], q_cmd=v[2], tau_m=v[3], current=np.full(n, np.nan),
+                    temperature=v[4], status=np.zeros(n, np.uint32))
+    return EstimatorInput(t=float(a[0]), follower=st, q_leader_f=np.full(n, np.nan),
+                          q_target_f=v[5] if a[2] else None)
+
+
+def pack_result(e: Estimate | None, ood_count: int, cpu_s: float, n: int) -> bytes:
+    """[has estimate, t, flags, ood count, worker CPU s, tau_ext, tau_f (NaN: none), has tau_f]."""
+    if e is None:
+        return np.concatenate(([0.0, np.nan, 0.0, ood_count, cpu_s], np.full(2 * n + 1, np.nan))).tobytes()
+    tau_f = e.tau_f
+    return np.concatenate(([1.0, e.t, float(e.flags), ood_count, cpu_s], e.tau_ext,
+                           np.full(n, np.nan) if tau_f is None else tau_f,
+                           [0.0 if tau_f is None else 1.0])).tobytes()
+
+
+def unpack_result(buf: bytes, n: int) -> tuple[Estimate | None, int, float]:
+    """(estimate or None while warming up, ood count, worker CPU [s])."""
+    a = np.frombuffer(buf, np.float64)
+    ood, cpu = int(a[3]), float(a[4])
+    if not a[0]:
+        return None, ood, cpu
+    tau_f = a[5 + n: 5 + 2 * n].copy() if a[5 + 2 * n] else None
+    return Estimate(tau_ext=a[5: 5 + n].copy(), t=float(a[1]), flags=int(a[2]), tau_f=tau_f), ood, cpu
+
+
+# -- the child -------------------------------------------------------------------------------------
+def _serve(conn, path: str, arm: str, n: int, loop_period_s: float) -> None:
+    """Build NEXT from the checkpoint, answer every sample with the estimate of it, until the pipe closes."""
+    try:
+        import torch
+
+        from calibration.next.checkpoint import load_checkpoint
+        from calibration.next.estimator import NextEstimator
+
+        torch.set_num_threads(1)  # one core for the worker: the loop and its twin have the others
+        adapter = NextAdapter(NextEstimator(load_checkpoint(path, arm=arm)), loop_period_s)
+    except Exception as e:  # noqa: BLE001 -- reported to the parent as one line
+        conn.send(("error", f"{type(e).__name__}: {e}"))
+        return
+    conn.send(("ready", adapter.period_s))
+    c0 = time.process_time()  # the CPU it spends answering, not loading
+    while True:
+        try:
+            buf = conn.recv_bytes()
+        except (EOFError, OSError):
+            return  # the loop closed the pipe or its process ended
+        est = adapter.update(unpack_sample(buf, n))
+        conn.send_bytes(pack_result(est, adapter.ood_count, time.process_time() - c0, n))
+
+
+# -- the loop's side ---------------------------------------------------------------------------------
+class NextWorker(Estimator):
+    """calibration.estimators.NextAdapter's behaviour with NEXT in a child process (module docstring)."""
+
+    def __init__(self, path: str, arm: str, n: int, loop_period_s: float = 0.0,
+                 ready_timeout_s: float = READY_TIMEOUT_S):
+        ctx = mp.get_context("spawn")  # a fresh interpreter: no inherited threads, locks or twin state
+        self.n = n
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(child, str(path), arm, n, loop_period_s),
+                                 name="factr2-next", daemon=True)
+        self._proc.start()
+        child.close()
+        self._finalizer = weakref.finalize(self, _stop, self._conn, self._proc)
+        if not self._conn.poll(ready_timeout_s):
+            self.close()
+            raise UserError(f"the NEXT worker process did not start in {ready_timeout_s:.0f} s",
+                            where="NEXT estimator", fix="check the machine's load, or run without feedback")
+        kind, value = self._conn.recv()
+        if kind != "ready":
+            self.close()
+            raise UserError(f"the NEXT worker could not load {path}: {value}", where="NEXT estimator",
+                            fix="re-run `factr2 calibrate`, or pick another feedback mode")
+        self.period_s = float(value)
+        self.ood_count = 0
+        self.flags = 0
+        self.cpu_s = 0.0  # CPU time [s] the worker spent answering samples so far
+        self.in_flight = 0  # samples posted and not yet answered
+        self._held: Estimate | None = None  # newest estimate not yet handed to the loop
+        self._tau_f: np.ndarray | None = None
+
+    def _take(self) -> None:
+        """Read every answer waiting, keep the newest estimate (raises when the worker died)."""
+        conn = self._conn
+        try:
+            while self.in_flight and conn.poll(0):
+                est, self.ood_count, self.cpu_s = unpack_result(conn.recv_bytes(), self.n)
+                self.in_flight -= 1
+                if est is None:  # warming up (or restarting after a bad sample): no estimate yet
+                    self._tau_f, self._held = None, None
+                    continue
+                self.flags = est.flags
+                self._tau_f = est.tau_f if est.valid else None
+                self._held = est
+        except (EOFError, OSError) as e:
+            raise RuntimeError(f"the NEXT worker process stopped ({type(e).__name__})") from None
+        if not self._proc.is_alive() and self.in_flight:
+            raise RuntimeError(f"the NEXT worker process ended (exit code {self._proc.exitcode})")
+
+    def _give(self) -> Estimate | None:
+        est, self._held = self._held, None
+        return est
+
+    def update(self, inp: EstimatorInput) -> Estimate | None:
+        if self.in_flight >= MAX_IN_FLIGHT:
+            raise RuntimeError(f"the NEXT worker is {self.in_flight} samples behind: it cannot keep up")
+        try:
+            self._conn.send_bytes(pack_sample(inp))
+        except (BrokenPipeError, OSError) as e:
+            raise RuntimeError(f"the NEXT worker process stopped ({type(e).__name__})") from None
+        self.in_flight += 1
+        self._take()
+        return self._give()
+
+    def refresh(self, inp: EstimatorInput) -> Estimate | None:
+        """A new estimate when one arrived, else this tick's tau_m - the newest predicted free torque (as
+        NextAdapter.refresh)."""
+        self._take()
+        new = self._give()
+        if new is not None:
+            return new
+        tau_m = np.asarray(inp.follower.tau_m, dtype=float)
+        if self._tau_f is None or tau_m.shape != self._tau_f.shape or not np.isfinite(tau_m).all():
+            return None
+        return Estimate(tau_ext=tau_m - self._tau_f, t=inp.follower.t, tau_f=self._tau_f)
+
+    def idle(self) -> None:
+        self._take()
+
+    def close(self) -> None:
+        self._finalizer()
+
+
+def _stop(conn, proc) -> None:
+    try:
+        conn.close()  # the child's recv ends with EOFError and it returns
+    finally:
+        proc.join(1.0)
+        if proc.is_alive():
+            proc.terminate()
+            proc.join(1.0)
