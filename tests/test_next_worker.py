@@ -81,7 +81,7 @@ def test_worker_estimates_equal_the_inline_adapter(tmp_path):
         assert n_est > 10 and worker.ood_count == inline.ood_count and worker.cpu_s > 0
     finally:
         worker.close()
-    assert not worker._proc.is_alive()
+    assert worker._proc.poll() is not None
 
 
 def test_a_dead_worker_raises_and_a_missing_checkpoint_is_a_user_error(tmp_path):
@@ -90,7 +90,7 @@ def test_a_dead_worker_raises_and_a_missing_checkpoint_is_a_user_error(tmp_path)
     path = save_checkpoint(_ck(history=12, n_j=N), tmp_path / "next")
     worker = NextWorker(str(path), "test", N)
     worker._proc.kill()
-    worker._proc.join(5)
+    worker._proc.wait(5)
     inp = _inputs(2)[0]
     with pytest.raises(RuntimeError, match="NEXT worker"):
         for _ in range(3):

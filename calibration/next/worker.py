@@ -11,7 +11,9 @@ its sample (the worker answers while the loop sleeps), and between model samples
 tau_m(now) - tau_f of the newest prediction, so contact shows in the feedback at once. Only real-time
 clocks use it (factr2_teleop.session.pairs): lockstep runs keep NEXT inline, where the tick order is the
 determinism (issue #24 item 4). The child builds the same NextEstimator from the checkpoint file (not
-pickled: its LSTM state shares memory between numpy and torch).
+pickled: its LSTM state shares memory between numpy and torch), in a fresh interpreter started with
+`python -m calibration.next.worker` over a socket pair -- not multiprocessing's spawn, which re-imports the
+caller's __main__ (a script without a main guard, stdin, a notebook).
 
 Failure is loud and safe: a worker that dies, or falls MAX_IN_FLIGHT samples behind, raises in update();
 the pair then turns feedback off with a message (factr2_teleop.teleop.pair). Messages are raw float64
@@ -20,9 +22,13 @@ rows (no pickling per sample): ~3 us per tick on the loop's side.
 
 from __future__ import annotations
 
-import multiprocessing as mp
+import argparse
+import socket
+import subprocess
+import sys
 import time
 import weakref
+from multiprocessing.connection import Connection
 
 import numpy as np
 
@@ -104,19 +110,20 @@ class NextWorker(Estimator):
 
     def __init__(self, path: str, arm: str, n: int, loop_period_s: float = 0.0,
                  ready_timeout_s: float = READY_TIMEOUT_S):
-        ctx = mp.get_context("spawn")  # a fresh interpreter: no inherited threads, locks or twin state
         self.n = n
-        self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(child, str(path), arm, n, loop_period_s),
-                                 name="factr2-next", daemon=True)
-        self._proc.start()
-        child.close()
+        ours, theirs = socket.socketpair()
+        # a fresh interpreter: no inherited threads, locks or twin state
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "calibration.next.worker", "--fd", str(theirs.fileno()), str(path), arm,
+             str(n), repr(float(loop_period_s))], pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
+        theirs.close()
+        self._conn = Connection(ours.detach())
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._proc)
-        if not self._conn.poll(ready_timeout_s):
-            self.close()
-            raise UserError(f"the NEXT worker process did not start in {ready_timeout_s:.0f} s",
-                            where="NEXT estimator", fix="check the machine's load, or run without feedback")
-        kind, value = self._conn.recv()
+        try:
+            ready = self._conn.poll(ready_timeout_s)
+            kind, value = self._conn.recv() if ready else ("error", f"no answer in {ready_timeout_s:.0f} s")
+        except (EOFError, OSError):
+            kind, value = "error", f"the process ended (exit code {self._proc.poll()})"
         if kind != "ready":
             self.close()
             raise UserError(f"the NEXT worker could not load {path}: {value}", where="NEXT estimator",
@@ -144,8 +151,8 @@ class NextWorker(Estimator):
                 self._held = est
         except (EOFError, OSError) as e:
             raise RuntimeError(f"the NEXT worker process stopped ({type(e).__name__})") from None
-        if not self._proc.is_alive() and self.in_flight:
-            raise RuntimeError(f"the NEXT worker process ended (exit code {self._proc.exitcode})")
+        if self.in_flight and self._proc.poll() is not None:
+            raise RuntimeError(f"the NEXT worker process ended (exit code {self._proc.returncode})")
 
     def _give(self) -> Estimate | None:
         est, self._held = self._held, None
@@ -185,7 +192,24 @@ def _stop(conn, proc) -> None:
     try:
         conn.close()  # the child's recv ends with EOFError and it returns
     finally:
-        proc.join(1.0)
-        if proc.is_alive():
-            proc.terminate()
-            proc.join(1.0)
+        try:
+            proc.wait(1.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(1.0)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """The child: `python -m calibration.next.worker --fd FD CHECKPOINT ARM N LOOP_PERIOD_S`."""
+    ap = argparse.ArgumentParser(description="NEXT estimator worker (started by NextWorker)")
+    ap.add_argument("--fd", type=int, required=True)
+    ap.add_argument("path")
+    ap.add_argument("arm")
+    ap.add_argument("n", type=int)
+    ap.add_argument("loop_period_s", type=float)
+    a = ap.parse_args(argv)
+    _serve(Connection(a.fd), a.path, a.arm, a.n, a.loop_period_s)
+
+
+if __name__ == "__main__":
+    main()
