@@ -35,6 +35,7 @@ import numpy as np
 from calibration.estimate import Estimate
 from calibration.estimators import Estimator, EstimatorInput, NextAdapter
 from hardware.errors import UserError
+from hardware.realtime import ESTIMATOR_PRIORITY, register_helper_process, unregister_helper_process
 from hardware.types import JointState
 
 READY_TIMEOUT_S = 60.0  # s: the child imports torch and loads the checkpoint (2-5 s on a 2-vCPU VM)
@@ -118,6 +119,8 @@ class NextWorker(Estimator):
              str(n), repr(float(loop_period_s))], pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
         theirs.close()
         self._conn = Connection(ours.detach())
+        # raised with the loop's threads while a real-time loop runs (hardware.realtime.ProcessThreads)
+        register_helper_process(self._proc.pid, ESTIMATOR_PRIORITY)
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._proc)
         try:
             ready = self._conn.poll(ready_timeout_s)
@@ -133,6 +136,10 @@ class NextWorker(Estimator):
         self.flags = 0
         self.cpu_s = 0.0  # CPU time [s] the worker spent answering samples so far
         self.in_flight = 0  # samples posted and not yet answered
+        self._posted: list[float] = []  # monotonic time each unanswered sample was posted [s]
+        self.answers = 0
+        self.answer_delay_sum_s = self.answer_delay_max_s = 0.0  # post -> picked up by the loop [s]
+        self.answer_delay_max_at = 0  # the answer (count) that took longest
         self._held: Estimate | None = None  # newest estimate not yet handed to the loop
         self._tau_f: np.ndarray | None = None
 
@@ -143,6 +150,11 @@ class NextWorker(Estimator):
             while self.in_flight and conn.poll(0):
                 est, self.ood_count, self.cpu_s = unpack_result(conn.recv_bytes(), self.n)
                 self.in_flight -= 1
+                delay = time.monotonic() - self._posted.pop(0)
+                self.answers += 1
+                self.answer_delay_sum_s += delay
+                if delay > self.answer_delay_max_s:
+                    self.answer_delay_max_s, self.answer_delay_max_at = delay, self.answers
                 if est is None:  # warming up (or restarting after a bad sample): no estimate yet
                     self._tau_f, self._held = None, None
                     continue
@@ -166,6 +178,7 @@ class NextWorker(Estimator):
         except (BrokenPipeError, OSError) as e:
             raise RuntimeError(f"the NEXT worker process stopped ({type(e).__name__})") from None
         self.in_flight += 1
+        self._posted.append(time.monotonic())
         self._take()
         return self._give()
 
@@ -189,6 +202,7 @@ class NextWorker(Estimator):
 
 
 def _stop(conn, proc) -> None:
+    unregister_helper_process(proc.pid)
     try:
         conn.close()  # the child's recv ends with EOFError and it returns
     finally:

@@ -68,6 +68,7 @@ class DemoConfig:
     dynamixel_transport: str = "inprocess"
     # ground truth (0.3 ms per read) every this many ticks for the metrics; 0: 2 in real time, 1 in lockstep
     truth_every: int = 0
+    next_worker: bool = True  # NEXT in its own process on a real-time clock (TeleopOptions.next_worker)
 
     def options(self):
         """The session layer's TeleopOptions of this configuration."""
@@ -75,7 +76,8 @@ class DemoConfig:
 
         fb = {"clip_nm": self.clip_nm, "t_high_nm": self.t_high_nm, "t_low_nm": self.t_low_nm}
         return TeleopOptions(mode=self.mode, rate_hz=self.rate_hz, gain=list(self.gain), feedback=fb,
-                             pp_stiffness_nm_per_rad=self.pp_stiffness, dob_gain_per_s=self.dob_gain)
+                             pp_stiffness_nm_per_rad=self.pp_stiffness, dob_gain_per_s=self.dob_gain,
+                             next_worker=self.next_worker)
 
 
 def task_script(q_home: np.ndarray, seconds: float) -> OperatorScript:
