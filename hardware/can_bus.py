@@ -10,6 +10,7 @@ a twin runs tens of thousands of frames per simulated second in lockstep.
 
 from __future__ import annotations
 
+import collections
 import errno
 import os
 import queue
@@ -54,6 +55,7 @@ class FastVirtualBus(VirtualBus):
     def __init__(self, channel="channel-0", clock: Callable[[], float] | None = None, **kwargs):
         super().__init__(channel=channel, **kwargs)
         self._stamp = clock or time.time
+        self._expanded: collections.deque[can.Message] = collections.deque()  # a burst's frames, not yet read
         with channels_lock:
             i = next(i for i, q in enumerate(self.channel) if q is self.queue)
             self.queue = queue.SimpleQueue()  # type: ignore[assignment]
@@ -88,17 +90,24 @@ class FastVirtualBus(VirtualBus):
 
     def send_batch(self, frames) -> None:
         """send_fresh for each (arb_id, data) of frames, in order, all stamped with one clock reading (a
-        device's feedback burst: the twin's clock does not move within it). One open check and one
-        receiver list for the burst (an emulator sends ~2,400 frames per simulated second)."""
+        device's feedback burst: the twin's clock does not move within it). A FastVirtualBus receiver gets
+        the burst as ONE queue item (_Burst), turned into Messages only when read as Messages (recv,
+        take_pending) and never by take_pending_raw; a plain python-can VirtualBus on the channel gets one
+        Message per frame (an emulator sends ~2,400 frames per simulated second)."""
         if not self._open:
             self._check_if_open()  # raises
         ts, ch, own_q, own_too = self._stamp(), self.channel_id, self.queue, self.receive_own_messages
-        to = [(q.put_nowait, q is not own_q) for q in self.channel if own_too or q is not own_q]
+        frames = tuple(frames)  # a snapshot: the burst is read later (data are bytes: immutable)
         msg = can.Message  # _data_frame written out (a call less per frame)
-        for arb_id, data in frames:
-            dlc = len(data)
-            for put, is_rx in to:
-                put(msg(ts, arb_id, False, False, False, ch, dlc, data, False, is_rx))
+        for q in self.channel:
+            if q is own_q and not own_too:
+                continue
+            is_rx = q is not own_q
+            if type(q) is queue.SimpleQueue:  # a FastVirtualBus
+                q.put_nowait(_Burst(ts, ch, is_rx, frames))
+                continue
+            for arb_id, data in frames:
+                q.put_nowait(msg(ts, arb_id, False, False, False, ch, len(data), data, False, is_rx))
 
     def take_pending(self) -> list[can.Message]:
         """Every frame waiting now, in order, without blocking (what recv(0) returns until None, with one
@@ -110,23 +119,88 @@ class FastVirtualBus(VirtualBus):
             return out
         if not self._open:
             self._check_if_open()  # raises
-        q, out = self.queue, []
+        q, out = self.queue, list(self._expanded)
+        self._expanded.clear()
         empty, get = q.empty, q.get_nowait  # this bus is the queue's only consumer: non-empty -> get works
         while not empty():
-            out.append(get())
+            item = get()
+            if type(item) is _Burst:
+                out += item.messages()
+            else:
+                out.append(item)
+        return out
+
+    def take_pending_raw(self) -> list[tuple[int, bytes, bool, bool]] | None:
+        """Every frame waiting now as (arb_id, data, is_extended_id, is_remote_or_error), in order, without
+        building Message objects for bursts (a driver's drain of a twin's feedback stream); None when
+        filters are set (use take_pending)."""
+        if self._filters is not None:
+            return None
+        if not self._open:
+            self._check_if_open()  # raises
+        out = [(m.arbitration_id, m.data, m.is_extended_id, m.is_remote_frame or m.is_error_frame)
+               for m in self._expanded]
+        self._expanded.clear()
+        q = self.queue
+        empty, get = q.empty, q.get_nowait
+        while not empty():
+            item = get()
+            if type(item) is _Burst:
+                out += [(arb_id, data, False, False) for arb_id, data in item.frames]
+            else:
+                out.append((item.arbitration_id, item.data, item.is_extended_id,
+                            item.is_remote_frame or item.is_error_frame))
         return out
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
         if timeout == 0 and self._filters is None:
             self._check_if_open()
+            if self._expanded:
+                return self._expanded.popleft()
             q = self.queue
             if q.empty():  # cheaper than raising queue.Empty on every idle poll
                 return None
             try:
-                return q.get_nowait()
+                item = q.get_nowait()
             except queue.Empty:
                 return None
+            return self._first(item)
         return super().recv(timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        """python-can's receive hook (recv with a timeout or filters): bursts come out frame by frame."""
+        if self._expanded:
+            return self._expanded.popleft(), False
+        msg, filtered = super()._recv_internal(timeout)
+        return (self._first(msg) if msg is not None else None), filtered
+
+    def _first(self, item):
+        """A queue item as one Message: a burst's first frame (the others wait in _expanded)."""
+        if type(item) is not _Burst:
+            return item
+        msgs = item.messages()
+        self._expanded.extend(msgs[1:])
+        return msgs[0] if msgs else None
+
+
+class _Burst(tuple):
+    """One device feedback burst in a FastVirtualBus receive queue: (ts, channel, is_rx, frames), frames
+    ((arb_id, data), ...) standard data frames all stamped ts."""
+
+    __slots__ = ()
+
+    def __new__(cls, ts: float, channel, is_rx: bool, frames: tuple):
+        return tuple.__new__(cls, (ts, channel, is_rx, frames))
+
+    @property
+    def frames(self) -> tuple:
+        return self[3]
+
+    def messages(self) -> list[can.Message]:
+        ts, ch, is_rx, frames = self
+        msg = can.Message
+        return [msg(ts, arb_id, False, False, False, ch, len(data), data, False, is_rx)
+                for arb_id, data in frames]
 
 
 def _data_frame(ts: float, arb_id: int, data: bytes, channel, is_rx: bool) -> can.Message:
@@ -256,6 +330,7 @@ class CanLink:
         self.rx_frames = 0
         self._send_fresh = getattr(bus, "send_fresh", None)  # FastVirtualBus shortcuts
         self._take_pending = getattr(bus, "take_pending", None)
+        self._take_raw = getattr(bus, "take_pending_raw", None)
         if hasattr(bus, "set_clock"):  # a virtual bus stamps frames with the driver's clock, not wall time
             bus.set_clock(clock.now)
 
@@ -275,8 +350,17 @@ class CanLink:
         self.tx_frames += 1
         return True
 
-    def drain(self, push) -> int:
-        """Hand every pending frame to push(msg) without blocking; returns how many."""
+    def drain(self, push, push_raw=None) -> int:
+        """Hand every pending frame to push(msg) without blocking; returns how many. push_raw(arb_id, data,
+        is_extended_id, is_remote_or_error): the same without a Message object, used on a FastVirtualBus (a
+        twin's feedback stream: its bursts are never turned into Messages)."""
+        if push_raw is not None and self._take_raw is not None:
+            frames = self._take_raw()
+            if frames is not None:
+                for f in frames:
+                    push_raw(*f)
+                self.rx_frames += len(frames)
+                return len(frames)
         if self._take_pending is not None:  # FastVirtualBus: one call for the lot
             msgs = self._take_pending()
             for msg in msgs:

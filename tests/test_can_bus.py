@@ -78,3 +78,40 @@ def test_send_batch_and_take_pending_match_one_frame_at_a_time():
     finally:
         for b in (tx, rx_a, rx_b):
             b.shutdown()
+
+
+def _key(m):
+    return (m.timestamp, m.arbitration_id, bytes(m.data), m.dlc, m.is_rx, m.is_extended_id, m.channel)
+
+
+def test_a_burst_reads_the_same_every_way():
+    """A send_batch burst is one queue item on a FastVirtualBus receiver: recv(0), recv(timeout), recv with
+    filters, take_pending and take_pending_raw all give its frames, in order, as single frames would."""
+    clock = LockstepClock(1.5)
+    tx = FastVirtualBus("cb-burst", clock=clock.now)
+    rxs = [FastVirtualBus("cb-burst") for _ in range(5)]
+    try:
+        frames = [(0x2A1 + k, bytes([k, 7])) for k in range(4)]
+        one = FastVirtualBus("cb-burst-ref", clock=clock.now)
+        ref_rx = FastVirtualBus("cb-burst-ref")
+        for arb_id, data in frames:
+            one.send_fresh(arb_id, data)
+        want = [_key(m) for m in ref_rx.take_pending()]
+        tx.send_batch(frames)
+        tx.send_fresh(0x99, b"\x01")  # a single frame after the burst keeps its place
+        want1 = want + [(1.5, 0x99, b"\x01", 1, True, False, "cb-burst")]
+        want = [(t, a, d, n, r, e, "cb-burst") for t, a, d, n, r, e, _ in want] + want1[-1:]
+        a, b, c, d, e = rxs
+        assert [_key(a.recv(0)) for _ in range(5)] == want and a.recv(0) is None
+        assert [_key(b.recv(0.01)) for _ in range(5)] == want and b.recv(0.001) is None
+        c.set_filters([{"can_id": 0x2A2, "can_mask": 0x7FF}])
+        assert _key(c.recv(0.05)) == want[1] and c.recv(0.001) is None  # (recv(0) gives up on a mismatch)
+        assert [_key(m) for m in d.take_pending()] == want
+        assert e.recv(0) is not None  # the burst's first frame as a Message, the rest raw
+        assert e.take_pending_raw() == [(a_, d_, False, False) for a_, d_ in frames[1:]] + [(0x99, b"\x01",
+                                                                                           False, False)]
+        c.set_filters(None)
+        assert c.take_pending_raw() == []
+    finally:
+        for bus in (tx, one, ref_rx, *rxs):
+            bus.shutdown()

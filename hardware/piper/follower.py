@@ -140,12 +140,15 @@ class PiperFollower(Follower):
     def _push(self, msg) -> None:
         self.decoder.push_msg(msg, self.clock.now())
 
+    def _push_raw(self, arb_id: int, data, is_ext: bool, is_special: bool) -> None:
+        self.decoder.push(arb_id, data, self.clock.now(), is_ext, is_special)
+
     def _read(self) -> JointState | None:
         if self.link is None:
             return None
         now = self.clock.now()
         ok_before = self.decoder.counters.ok
-        self.link.drain(self._push)
+        self.link.drain(self._push, self._push_raw)
         if self._hold is not None and self.in_safe_state and not now - self._t_hold_sent < HOLD_RESEND_S:
             self._to_wire(self._hold)
         if self.decoder.counters.ok == ok_before:
