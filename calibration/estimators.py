@@ -84,6 +84,13 @@ class GroundTruthEstimator(Estimator):
         return Estimate(tau_ext=tau if self.n is None else tau[: self.n], t=inp.follower.t)
 
 
+def next_period_s(rate_hz: float | None, loop_period_s: float) -> float:
+    """How often a loop runs NEXT [s]: the checkpoint's sample period, a quarter tick early (a model period
+    that is a whole number of ticks must not slip by one tick); 0 (every tick) without a rate."""
+    rate = float(rate_hz or 0.0)
+    return max(0.0, 1.0 / rate - 0.25 * loop_period_s) if rate > 0 else 0.0
+
+
 class NextAdapter(Estimator):
     """Drives calibration.next.estimator.NextEstimator from the loop at the checkpoint's rate (period_s). Its
     output is already tau_m - tau_f_hat. q_cmd: the follower's reported target (JointState.q_cmd) when it has
@@ -93,9 +100,8 @@ class NextAdapter(Estimator):
 
     def __init__(self, next_estimator, loop_period_s: float = 0.0):
         self.next = next_estimator
-        rate = float(getattr(getattr(next_estimator, "ck", None), "rate_hz", 0.0) or 0.0)
-        # a quarter tick early: a model period that is a whole number of ticks must not slip by one tick
-        self.period_s = max(0.0, 1.0 / rate - 0.25 * loop_period_s) if rate > 0 else 0.0
+        ck = getattr(next_estimator, "ck", None)
+        self.period_s = next_period_s(getattr(ck, "rate_hz", 0.0), loop_period_s)
         self.ood_count = 0
         self.flags = FLAG_OK
         self._tau_f: np.ndarray | None = None  # free-space torque of the last valid estimate [N*m]

@@ -13,7 +13,6 @@ from calibration.estimators import EstimatorInput, NextAdapter
 from calibration.next.checkpoint import save_checkpoint
 from calibration.next.estimator import NextEstimator
 from calibration.next.worker import NextWorker, pack_result, pack_sample, unpack_result, unpack_sample
-from hardware.errors import UserError
 from hardware.types import JointState
 from tests.test_next_estimator import _ck, _stream
 
@@ -58,8 +57,10 @@ def _answer(worker: NextWorker, timeout_s: float = 10.0) -> None:
 def test_worker_estimates_equal_the_inline_adapter(tmp_path):
     path = save_checkpoint(_ck(history=12, n_j=N), tmp_path / "next")
     inline = NextAdapter(NextEstimator(_ck(history=12, n_j=N)), 0.002)
-    worker = NextWorker(str(path), "test", N, 0.002)
+    worker = NextWorker(str(path), "test", N, 0.002, rate_hz=100.0)
     try:
+        assert worker.update(_inputs(1)[0]) is None or worker.ready  # returns at once while it starts
+        worker.wait_ready()
         assert worker.period_s == inline.period_s
         n_est = 0
         for inp in _inputs():
@@ -84,11 +85,14 @@ def test_worker_estimates_equal_the_inline_adapter(tmp_path):
     assert worker._proc.poll() is not None
 
 
-def test_a_dead_worker_raises_and_a_missing_checkpoint_is_a_user_error(tmp_path):
-    with pytest.raises(UserError, match="could not load"):
-        NextWorker(str(tmp_path / "none.json"), "test", N)
+def test_a_dead_worker_raises_and_a_failed_start_says_why(tmp_path):
+    bad = NextWorker(str(tmp_path / "none.json"), "test", N)
+    with pytest.raises(RuntimeError, match="could not load .*none.json"):
+        bad.wait_ready(30.0)
+    bad.close()
     path = save_checkpoint(_ck(history=12, n_j=N), tmp_path / "next")
     worker = NextWorker(str(path), "test", N)
+    worker.wait_ready()
     worker._proc.kill()
     worker._proc.wait(5)
     inp = _inputs(2)[0]

@@ -2,7 +2,7 @@
 without waiting, so the LSTM's arithmetic (~0.1 ms per 2 ms tick on a 2-vCPU VM, the largest single share
 of the loop's own CPU) runs on another core instead of inside the loop's period.
 
-    est = NextWorker(checkpoint_path, arm, n_joints, loop_period_s)   # spawns; ready or UserError
+    est = NextWorker(checkpoint_path, arm, n_joints, loop_period_s, rate_hz)   # starts it, returns at once
     est.update(inp) / est.refresh(inp) / est.idle()                   # calibration.estimators protocol
     est.close()
 
@@ -33,8 +33,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from calibration.estimate import Estimate
-from calibration.estimators import Estimator, EstimatorInput, NextAdapter
-from hardware.errors import UserError
+from calibration.estimators import Estimator, EstimatorInput, NextAdapter, next_period_s
 from hardware.realtime import ESTIMATOR_PRIORITY, register_helper_process, unregister_helper_process
 from hardware.types import JointState
 
@@ -109,9 +108,14 @@ def _serve(conn, path: str, arm: str, n: int, loop_period_s: float) -> None:
 class NextWorker(Estimator):
     """calibration.estimators.NextAdapter's behaviour with NEXT in a child process (module docstring)."""
 
-    def __init__(self, path: str, arm: str, n: int, loop_period_s: float = 0.0,
+    def __init__(self, path: str, arm: str, n: int, loop_period_s: float = 0.0, rate_hz: float = 0.0,
                  ready_timeout_s: float = READY_TIMEOUT_S):
+        """Starts the child and returns at once (the loop does not wait ~2-5 s for it, while a leader
+        without torque sags): until it is ready, update() gives no estimate (NEXT warms up anyway). rate_hz:
+        the checkpoint's sample rate (period_s, as NextAdapter)."""
         self.n = n
+        self.period_s = next_period_s(rate_hz, loop_period_s)
+        self._path, self._deadline = str(path), time.monotonic() + ready_timeout_s
         ours, theirs = socket.socketpair()
         # a fresh interpreter: no inherited threads, locks or twin state
         self._proc = subprocess.Popen(
@@ -122,16 +126,7 @@ class NextWorker(Estimator):
         # raised with the loop's threads while a real-time loop runs (hardware.realtime.ProcessThreads)
         register_helper_process(self._proc.pid, ESTIMATOR_PRIORITY)
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._proc)
-        try:
-            ready = self._conn.poll(ready_timeout_s)
-            kind, value = self._conn.recv() if ready else ("error", f"no answer in {ready_timeout_s:.0f} s")
-        except (EOFError, OSError):
-            kind, value = "error", f"the process ended (exit code {self._proc.poll()})"
-        if kind != "ready":
-            self.close()
-            raise UserError(f"the NEXT worker could not load {path}: {value}", where="NEXT estimator",
-                            fix="re-run `factr2 calibrate`, or pick another feedback mode")
-        self.period_s = float(value)
+        self.ready = False
         self.ood_count = 0
         self.flags = 0
         self.cpu_s = 0.0  # CPU time [s] the worker spent answering samples so far
@@ -142,6 +137,31 @@ class NextWorker(Estimator):
         self.answer_delay_max_at = 0  # the answer (count) that took longest
         self._held: Estimate | None = None  # newest estimate not yet handed to the loop
         self._tau_f: np.ndarray | None = None
+
+    def _check_ready(self, wait_s: float = 0.0) -> bool:
+        """True once the child said it is ready; raises (feedback off, with why) when it failed or did not
+        answer within ready_timeout_s."""
+        if self.ready:
+            return True
+        try:
+            if not self._conn.poll(wait_s):
+                if time.monotonic() > self._deadline:
+                    raise RuntimeError(f"the NEXT worker did not start in {READY_TIMEOUT_S:.0f} s")
+                return False
+            kind, value = self._conn.recv()
+        except (EOFError, OSError):
+            kind, value = "error", f"the process ended (exit code {self._proc.poll()})"
+        if kind != "ready":
+            raise RuntimeError(f"the NEXT worker could not load {self._path}: {value}")
+        self.ready = True
+        return True
+
+    def wait_ready(self, timeout_s: float = READY_TIMEOUT_S) -> None:
+        """Block until the child is ready (tests, benchmarks); raises as _check_ready."""
+        t_end = time.monotonic() + timeout_s
+        while not self._check_ready(min(0.1, max(t_end - time.monotonic(), 0.0))):
+            if time.monotonic() > t_end:
+                raise RuntimeError(f"the NEXT worker did not start in {timeout_s:.0f} s")
 
     def _take(self) -> None:
         """Read every answer waiting, keep the newest estimate (raises when the worker died)."""
@@ -171,6 +191,8 @@ class NextWorker(Estimator):
         return est
 
     def update(self, inp: EstimatorInput) -> Estimate | None:
+        if not self._check_ready():
+            return None  # still starting: no estimate yet (the sample is not needed: NEXT warms up after)
         if self.in_flight >= MAX_IN_FLIGHT:
             raise RuntimeError(f"the NEXT worker is {self.in_flight} samples behind: it cannot keep up")
         try:

@@ -126,7 +126,8 @@ def pair_estimator(mode: str, session, fspec, follower, opts: TeleopOptions, rat
     if mode == "next" and opts.next_worker and session.clock.realtime and source is not None:
         from calibration.next.worker import NextWorker
 
-        worker = NextWorker(*source, follower.n_joints, loop_period_s=1.0 / rate_hz)
+        worker = NextWorker(*source, follower.n_joints, loop_period_s=1.0 / rate_hz,
+                            rate_hz=next_est.ck.rate_hz)
         worker.next = next_est  # the same checkpoint loaded here: its metadata (data hash); never stepped
         return worker
     return make_estimator(mode, follower.n_joints, follower_arm=fspec.arm, dob_gain=opts.dob_gain_per_s,
