@@ -30,6 +30,7 @@ from hardware.errors import ConfigError, DeviceError, DeviceNotFound
 from hardware.serial_ports import read_latency_timer
 
 USB_DEFAULT_LATENCY_MS = 16  # FTDI default, assumed when sysfs cannot be read on a ttyUSB port
+WHOLE_READ_BYTES = 32  # a read this long is a whole reply (sync_io), not the sdk's header probe
 READ_BLOCK_S = 0.001  # s: longest one sdk readPort() call may block (see open())
 RX_MARGIN_MS = 4.0
 # A pty is a twin/emulator on this host: its replies come late only when the OS starves a thread, not because
@@ -58,7 +59,9 @@ class BufferedPortHandler(sdk.PortHandler):
     def readPort(self, length):  # noqa: N802 -- sdk name
         if len(self._rx) < length:
             want = length - len(self._rx)
-            self._rx += self.ser.read(max(want, self.ser.in_waiting))
+            # a whole reply asked for at once (sync_io: the fast reply's length) needs no in_waiting ioctl;
+            # the sdk's small reads (11 bytes, then the rest) take whatever is waiting with them
+            self._rx += self.ser.read(want if want >= WHOLE_READ_BYTES else max(want, self.ser.in_waiting))
         out = bytes(self._rx[:length])
         del self._rx[:length]
         return out
@@ -113,6 +116,10 @@ class DynamixelBus:
         # asked for are in, so latency is unchanged and the spin is gone.
         if not inproc:
             ph.ser.timeout = READ_BLOCK_S
+            # pyserial's blocking write follows every os.write with a select() until the tty is writable
+            # again (a second syscall, ~15 us on the dev VM, twice per tick); non-blocking it returns the
+            # bytes written, and a short count (a full tty buffer: a dead adapter) is a failed write
+            ph.ser.write_timeout = 0
         self.port = ph
 
     def close(self) -> None:
