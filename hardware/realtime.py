@@ -48,8 +48,10 @@ def set_normal(native_id: int | None = None) -> None:
 
 SERVICE_PRIORITY = 10  # every other Python thread of the loop's process while the loop runs (see below)
 HELPER_PRIORITY = 5  # processes that stand in for hardware beside the loop (a twin camera's renderer)
-ESTIMATOR_PRIORITY = 20  # an estimator's own process (NEXT's worker): feedback goes stale without it
-# (measured: at normal priority beside a real-time loop on 2 vCPUs, answers came up to 138 ms late)
+ESTIMATOR_PRIORITY = 8  # an estimator's own process (NEXT's worker): feedback goes stale without it
+# (at normal priority beside a real-time loop on 2 vCPUs its answers came up to 138 ms late). Below
+# SERVICE_PRIORITY: above it, it preempted the loop's own service threads while one held the GIL, and the
+# loop waited (measured: "leader data stale (24 ms old)" holds in `factr2 teleop` on the twin)
 
 _helper_pids: dict[int, int] = {}  # pid -> priority while a real-time loop runs
 

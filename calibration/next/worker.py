@@ -123,8 +123,6 @@ class NextWorker(Estimator):
              str(n), repr(float(loop_period_s))], pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
         theirs.close()
         self._conn = Connection(ours.detach())
-        # raised with the loop's threads while a real-time loop runs (hardware.realtime.ProcessThreads)
-        register_helper_process(self._proc.pid, ESTIMATOR_PRIORITY)
         self._finalizer = weakref.finalize(self, _stop, self._conn, self._proc)
         self.ready = False
         self.ood_count = 0
@@ -154,6 +152,9 @@ class NextWorker(Estimator):
         if kind != "ready":
             raise RuntimeError(f"the NEXT worker could not load {self._path}: {value}")
         self.ready = True
+        # raised with the loop's threads while a real-time loop runs (hardware.realtime.ProcessThreads) --
+        # once ready: its start-up (importing torch) must not run at a real-time priority
+        register_helper_process(self._proc.pid, ESTIMATOR_PRIORITY)
         return True
 
     def wait_ready(self, timeout_s: float = READY_TIMEOUT_S) -> None:
