@@ -81,3 +81,38 @@ def test_cpu_wake_latency_request_is_held_while_open(tmp_path, monkeypatch):
     monkeypatch.setenv("FACTR2_NO_RT", "1")
     off = CpuWakeLatency(str(dev))
     assert not off.active and "FACTR2_NO_RT" in off.note
+
+
+@linux
+def test_loop_cpu_pins_the_loop_alone_and_gives_everything_back(monkeypatch):
+    from hardware.realtime import LoopCpu
+
+    monkeypatch.delenv("FACTR2_NO_RT", raising=False)
+    allowed = set(os.sched_getaffinity(0))
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait, daemon=True)
+    other.start()
+    pin = LoopCpu()
+    try:
+        pin.start()
+        if len(allowed) < 2:
+            assert pin.note and pin.cpu is None
+        else:
+            assert pin.note is None and pin.cpu == max(allowed)
+            assert os.sched_getaffinity(0) == {pin.cpu}  # the caller: the loop's thread, alone
+            assert os.sched_getaffinity(other.native_id) == allowed - {pin.cpu}
+            late = threading.Thread(target=stop.wait, daemon=True)  # started later: inherits the pin ...
+            late.start()
+            pin.refresh()  # ... until the next refresh moves it
+            assert os.sched_getaffinity(late.native_id) == allowed - {pin.cpu}
+    finally:
+        pin.restore()
+        assert os.sched_getaffinity(0) == allowed and os.sched_getaffinity(other.native_id) == allowed
+        if len(allowed) > 1:
+            assert os.sched_getaffinity(late.native_id) == allowed  # not left on the loop's CPU
+        stop.set()
+        other.join()
+    monkeypatch.setenv("FACTR2_NO_RT", "1")
+    off = LoopCpu()
+    off.start()
+    assert "off" in off.note and os.sched_getaffinity(0) == allowed

@@ -27,7 +27,7 @@ from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.timing import LoopTiming, TimingStats
 from hardware import sim_cpu
 from hardware.clock import Clock
-from hardware.realtime import LOOP_PRIORITY, CpuWakeLatency, ProcessThreads, set_fifo, set_normal
+from hardware.realtime import LOOP_PRIORITY, CpuWakeLatency, LoopCpu, ProcessThreads, set_fifo, set_normal
 
 log = logging.getLogger("factr2.teleop")
 
@@ -108,6 +108,7 @@ class TeleopLoop:
         # camera or twin thread holding it could delay a tick by that much. A quarter period bounds it.
         switch = sys.getswitchinterval()
         services = ProcessThreads()
+        pin = LoopCpu()
         wake = None
         if self.clock.realtime:
             sys.setswitchinterval(min(switch, SWITCH_FRACTION * self.period_s))
@@ -116,6 +117,9 @@ class TeleopLoop:
                 self._message(self.clock.now(), "loop", why)
             else:
                 services.refresh()
+            pin.start()  # the loop's thread alone on one CPU, the rest of the process on the others
+            if pin.note:
+                self._message(self.clock.now(), "loop", pin.note)
             wake = CpuWakeLatency()
             if wake.note:
                 self._message(self.clock.now(), "loop", wake.note)
@@ -141,6 +145,7 @@ class TeleopLoop:
                     break
                 if ticks % SERVICE_REFRESH_TICKS == 0 and self.clock.realtime:
                     services.refresh()  # threads started since (cameras, a recorder): off normal priority
+                    pin.refresh()  # ... and off the loop's CPU
                 next_t += self.period_s
                 now = self.clock.now()
                 if now > next_t + CATCH_UP_S:  # too far behind to make up: restart the schedule from now
@@ -156,6 +161,7 @@ class TeleopLoop:
             if self.clock.realtime:
                 set_normal()
                 services.restore()
+                pin.restore()
                 if wake is not None:
                     wake.close()
             self._running = False
