@@ -176,8 +176,8 @@ class LoopCpu:
         self._allowed: set[int] = set()
         if not hasattr(os, "sched_setaffinity"):
             self.note = "CPU affinity: not available on this OS (threads float)"
-        elif os.environ.get("FACTR2_NO_RT"):
-            self.note = "CPU affinity: off (FACTR2_NO_RT is set)"
+        elif os.environ.get("FACTR2_NO_RT") or os.environ.get("FACTR2_NO_PIN"):
+            self.note = "CPU affinity: off (FACTR2_NO_RT or FACTR2_NO_PIN is set)"
         else:
             self._allowed = set(os.sched_getaffinity(0))
             if len(self._allowed) < 2:
