@@ -91,6 +91,15 @@ def next_period_s(rate_hz: float | None, loop_period_s: float) -> float:
     return max(0.0, 1.0 / rate - 0.25 * loop_period_s) if rate > 0 else 0.0
 
 
+def refresh_with(tau_f: np.ndarray | None, follower: JointState) -> Estimate | None:
+    """tau_ext = the follower's measured torque now - tau_f, the newest predicted free torque [N*m] (NEXT
+    between its samples; NextAdapter and the worker's NextWorker); None without a usable tau_f or tau_m."""
+    tau_m = np.asarray(follower.tau_m, dtype=float)
+    if tau_f is None or tau_m.shape != tau_f.shape or not np.isfinite(tau_m).all():
+        return None
+    return Estimate(tau_ext=tau_m - tau_f, t=follower.t, tau_f=tau_f)
+
+
 class NextAdapter(Estimator):
     """Drives calibration.next.estimator.NextEstimator from the loop at the checkpoint's rate (period_s). Its
     output is already tau_m - tau_f_hat. q_cmd: the follower's reported target (JointState.q_cmd) when it has
@@ -124,10 +133,7 @@ class NextAdapter(Estimator):
         """A control tick between two model samples: tau_ext = this tick's tau_m - the last predicted free
         torque. The free torque changes slowly; contact shows in tau_m at once, so feedback does not wait up
         to a model period (10 ms at 100 Hz) for it. None when there is no valid prediction to use."""
-        tau_m = np.asarray(inp.follower.tau_m, dtype=float)
-        if self._tau_f is None or tau_m.shape != self._tau_f.shape or not np.all(np.isfinite(tau_m)):
-            return None
-        return Estimate(tau_ext=tau_m - self._tau_f, t=inp.follower.t, tau_f=self._tau_f)
+        return refresh_with(self._tau_f, inp.follower)
 
     def idle(self) -> None:
         """A control tick without a new sample: let a deferring estimator step some of its pending runs."""

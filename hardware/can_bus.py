@@ -117,13 +117,8 @@ class FastVirtualBus(VirtualBus):
             while (msg := self.recv(0)) is not None:
                 out.append(msg)
             return out
-        if not self._open:
-            self._check_if_open()  # raises
-        q, out = self.queue, list(self._expanded)
-        self._expanded.clear()
-        empty, get = q.empty, q.get_nowait  # this bus is the queue's only consumer: non-empty -> get works
-        while not empty():
-            item = get()
+        out: list[can.Message] = []
+        for item in self._take_items():
             if type(item) is _Burst:
                 out += item.messages()
             else:
@@ -136,20 +131,25 @@ class FastVirtualBus(VirtualBus):
         filters are set (use take_pending)."""
         if self._filters is not None:
             return None
-        if not self._open:
-            self._check_if_open()  # raises
-        out = [(m.arbitration_id, m.data, m.is_extended_id, m.is_remote_frame or m.is_error_frame)
-               for m in self._expanded]
-        self._expanded.clear()
-        q = self.queue
-        empty, get = q.empty, q.get_nowait
-        while not empty():
-            item = get()
+        out: list[tuple[int, bytes, bool, bool]] = []
+        for item in self._take_items():
             if type(item) is _Burst:
                 out += [(arb_id, data, False, False) for arb_id, data in item.frames]
             else:
                 out.append((item.arbitration_id, item.data, item.is_extended_id,
                             item.is_remote_frame or item.is_error_frame))
+        return out
+
+    def _take_items(self) -> list:
+        """Every receive-queue item waiting now (Messages and _Bursts), a burst's frames already read as
+        Messages first, without blocking (no filters: take_pending / take_pending_raw check)."""
+        if not self._open:
+            self._check_if_open()  # raises
+        q, out = self.queue, list(self._expanded)
+        self._expanded.clear()
+        empty, get = q.empty, q.get_nowait  # this bus is the queue's only consumer: non-empty -> get works
+        while not empty():
+            out.append(get())
         return out
 
     def recv(self, timeout: float | None = None) -> can.Message | None:

@@ -33,7 +33,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from calibration.estimate import Estimate
-from calibration.estimators import Estimator, EstimatorInput, NextAdapter, next_period_s
+from calibration.estimators import Estimator, EstimatorInput, NextAdapter, next_period_s, refresh_with
 from hardware.realtime import ESTIMATOR_PRIORITY, register_helper_process, unregister_helper_process
 from hardware.types import JointState
 
@@ -115,7 +115,8 @@ class NextWorker(Estimator):
         the checkpoint's sample rate (period_s, as NextAdapter)."""
         self.n = n
         self.period_s = next_period_s(rate_hz, loop_period_s)
-        self._path, self._deadline = str(path), time.monotonic() + ready_timeout_s
+        self._path, self._timeout_s = str(path), ready_timeout_s
+        self._deadline = time.monotonic() + ready_timeout_s
         ours, theirs = socket.socketpair()
         # a fresh interpreter: no inherited threads, locks or twin state
         self._proc = subprocess.Popen(
@@ -132,9 +133,16 @@ class NextWorker(Estimator):
         self._posted: list[float] = []  # monotonic time each unanswered sample was posted [s]
         self.answers = 0
         self.answer_delay_sum_s = self.answer_delay_max_s = 0.0  # post -> picked up by the loop [s]
-        self.answer_delay_max_at = 0  # the answer (count) that took longest
         self._held: Estimate | None = None  # newest estimate not yet handed to the loop
         self._tau_f: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, next_est, n: int, loop_period_s: float) -> NextWorker:
+        """The worker for a NextEstimator loaded here by factr2_teleop.session.pairs.load_next (its `source`:
+        checkpoint path and arm); `next` keeps that estimator for its checkpoint's metadata (not stepped)."""
+        worker = cls(*next_est.source, n, loop_period_s=loop_period_s, rate_hz=next_est.ck.rate_hz)
+        worker.next = next_est
+        return worker
 
     def _check_ready(self, wait_s: float = 0.0) -> bool:
         """True once the child said it is ready; raises (feedback off, with why) when it failed or did not
@@ -144,7 +152,7 @@ class NextWorker(Estimator):
         try:
             if not self._conn.poll(wait_s):
                 if time.monotonic() > self._deadline:
-                    raise RuntimeError(f"the NEXT worker did not start in {READY_TIMEOUT_S:.0f} s")
+                    raise RuntimeError(f"the NEXT worker did not start in {self._timeout_s:.0f} s")
                 return False
             kind, value = self._conn.recv()
         except (EOFError, OSError):
@@ -174,18 +182,16 @@ class NextWorker(Estimator):
                 delay = time.monotonic() - self._posted.pop(0)
                 self.answers += 1
                 self.answer_delay_sum_s += delay
-                if delay > self.answer_delay_max_s:
-                    self.answer_delay_max_s, self.answer_delay_max_at = delay, self.answers
+                self.answer_delay_max_s = max(self.answer_delay_max_s, delay)
                 if est is None:  # warming up (or restarting after a bad sample): no estimate yet
                     self._tau_f, self._held = None, None
                     continue
                 self.flags = est.flags
                 self._tau_f = est.tau_f if est.valid else None
                 self._held = est
-        except (EOFError, OSError) as e:
-            raise RuntimeError(f"the NEXT worker process stopped ({type(e).__name__})") from None
-        if self.in_flight and self._proc.poll() is not None:
-            raise RuntimeError(f"the NEXT worker process ended (exit code {self._proc.returncode})")
+        except (EOFError, OSError) as e:  # a child that ended closed its end (no waitpid per tick needed)
+            raise RuntimeError(f"the NEXT worker process stopped ({type(e).__name__}, exit code "
+                               f"{self._proc.poll()})") from None
 
     def _give(self) -> Estimate | None:
         est, self._held = self._held, None
@@ -212,10 +218,7 @@ class NextWorker(Estimator):
         new = self._give()
         if new is not None:
             return new
-        tau_m = np.asarray(inp.follower.tau_m, dtype=float)
-        if self._tau_f is None or tau_m.shape != self._tau_f.shape or not np.isfinite(tau_m).all():
-            return None
-        return Estimate(tau_ext=tau_m - self._tau_f, t=inp.follower.t, tau_f=self._tau_f)
+        return refresh_with(self._tau_f, inp.follower)
 
     def idle(self) -> None:
         self._take()

@@ -122,14 +122,10 @@ def pair_estimator(mode: str, session, fspec, follower, opts: TeleopOptions, rat
                             fix="pass --checkpoint DIR/next.json (from `factr2 calibrate`) or set "
                                 "next_checkpoint in the rig")
         next_est = load_next(ck, fspec.arm)
-    source = getattr(next_est, "source", None)
-    if mode == "next" and opts.next_worker and session.clock.realtime and source is not None:
+    if mode == "next" and opts.next_worker and session.clock.realtime and hasattr(next_est, "source"):
         from calibration.next.worker import NextWorker
 
-        worker = NextWorker(*source, follower.n_joints, loop_period_s=1.0 / rate_hz,
-                            rate_hz=next_est.ck.rate_hz)
-        worker.next = next_est  # the same checkpoint loaded here: its metadata (data hash); never stepped
-        return worker
+        return NextWorker.of(next_est, follower.n_joints, 1.0 / rate_hz)
     return make_estimator(mode, follower.n_joints, follower_arm=fspec.arm, dob_gain=opts.dob_gain_per_s,
                           pp_stiffness_nm_per_rad=opts.pp_stiffness_nm_per_rad, next_estimator=next_est,
                           loop_period_s=1.0 / rate_hz, truth=truth)

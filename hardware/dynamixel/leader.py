@@ -347,9 +347,7 @@ class DynamixelLeader(Leader):
         if alert.any():
             st.status[alert[:n]] |= np.uint32(STATUS_DRIVER_ERROR)
         if m > n and fresh[n]:
-            c, g = self.config, self.gripper_model
-            st.gripper_pos = trigger_fraction(self._q_servo[n], c.gripper_open_rad, c.gripper_closed_rad)
-            st.gripper_effort = g.torque_constant * raw[n, 0] * g.amps_per_unit if rc else float("nan")
+            st.gripper_pos, st.gripper_effort = self._trigger(int(raw[n, 0]))
         if self._torque_on:
             st.status |= np.uint32(STATUS_ENABLED)
         self.lost_reads += 1
@@ -374,16 +372,21 @@ class DynamixelLeader(Leader):
         status = (self._status_enabled if self._torque_on else self._status_zero).copy()
         if any(e & p.ERR_ALERT_BIT for e in errs[:n]):
             status[np.array([bool(e & p.ERR_ALERT_BIT) for e in errs[:n]])] |= np.uint32(STATUS_DRIVER_ERROR)
-        grip_pos, grip_effort = prev.gripper_pos, prev.gripper_effort
-        if len(ids) > n:
-            c, g = self.config, self.gripper_model
-            grip_pos = trigger_fraction(float(self._q_servo[n]), c.gripper_open_rad, c.gripper_closed_rad)
-            grip_effort = g.torque_constant * float(raw[n, 0]) * g.amps_per_unit if rc else float("nan")
+        grip_pos, grip_effort = self._trigger(int(raw[n, 0])) if len(ids) > n else (prev.gripper_pos,
+                                                                                     prev.gripper_effort)
         nan = self._nan_n
         return JointState(t=t, q=servo_to_joint(self._q_servo[:n], self.signs, self.offsets),
                           q_dot=self.signs * p.velocity_units_to_rad_s(raw[:n, 1]), tau_m=tau, current=cur,
                           q_cmd=nan.copy(), temperature=nan.copy(), status=status,
                           gripper_pos=grip_pos, gripper_effort=grip_effort)
+
+    def _trigger(self, current_units: int) -> tuple[float, float]:
+        """(gripper_pos, gripper_effort [N*m]) of the trigger servo just read (its angle in _q_servo)."""
+        c, g = self.config, self.gripper_model
+        pos = trigger_fraction(float(self._q_servo[self.n_joints]), c.gripper_open_rad, c.gripper_closed_rad)
+        if not c.read_current:
+            return pos, float("nan")
+        return pos, g.torque_constant * float(current_units) * g.amps_per_unit
 
     def _send_torque_safe(self, safe: SafeLeaderTorque) -> None:
         if self.bus is None:
