@@ -38,8 +38,11 @@ from bench.first_report import aggregate, write_docs, write_report  # noqa: E402
 
 DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, factr2_teleop/tasks/collect.py)
 EVAL_SEED = 2  # rollout seed: range B, disjoint from A (checked on the episodes' recorded seeds)
-METHOD_CELLS = {"base": ("base", None), "base-torque": ("base-torque", None), "first": ("first", (1, 5, 1))}
-ABLATION_CELLS = {"C": ("first", (1, 1, 5)), "PC+C": ("first", (1, 3, 3))}  # PC = the `first` cell (1:5:1)
+CURVE_SEED = 4  # rollout seed of the learning curve (bench/first_curve.py): never the evaluation's
+# the paper's comparison; the second table: base and the ratio ablation (PC = the first cell)
+HEADLINE_CELLS = {"base-torque": ("base-torque", None), "first": ("first", (1, 5, 1))}
+SECOND_CELLS = {"base": ("base", None), "C": ("first", (1, 1, 5)), "PC+C": ("first", (1, 3, 3))}
+TABLES = ("headline", "second", "all")  # which cells a run trains: each one fits a working session
 RIG = "sim-piper"
 
 
@@ -50,10 +53,13 @@ class BenchConfig:
     tasks: list = field(default_factory=lambda: ["peg-insert", "press-fit", "wipe"])
     demos: int = 50
     seeds: int = 3
-    rollouts: int = 25  # per policy: the issue's 50 do not fit 3 h here (docs/first.md, "Benchmark")
-    steps: int = 300  # optimiser steps per training run (sized in docs/first.md, "Benchmark")
-    batch: int = 128
+    rollouts: int = 32  # per policy: 3 seeds x 32 = 96 per cell, a 95 % Wilson interval within +-10 points
+    steps: int = 4000  # optimiser steps per training run: from the learning curve (docs/first.md)
+    batch: int = 256
     policy: str = "flow"
+    preset: str = ""  # "": the observation's default (state: the MLP flow head; images: small)
+    table: str = "all"  # headline: base-torque and first on every task; second: base, C, PC+C on one task
+    include_failed: bool = False  # train on failed demonstrations too (the paper trains on successes)
     ablation_task: str = ""  # "" = the first task
     thresholds: tuple | str = "recording"  # FIRST labels: from each task's demonstrations (as `factr2 train`)
     max_seconds: float | None = None  # rollout episode limit [s]; None = the task's own
@@ -62,13 +68,15 @@ class BenchConfig:
     quick: bool = False  # the smoke configuration (QUICK): said in the report
 
     def cells(self, task: str) -> dict:
-        out = dict(METHOD_CELLS)
-        if task == (self.ablation_task or self.tasks[0]):
-            out.update(ABLATION_CELLS)
+        out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
+        if self.table in ("second", "all") and task == (self.ablation_task or self.tasks[0]):
+            out.update(SECOND_CELLS)
+            out["first"] = HEADLINE_CELLS["first"]  # PC (1:5:1) of the ablation
         return out
 
 
 QUICK = {"tasks": ["wipe"], "demos": 4, "seeds": 1, "rollouts": 2, "steps": 40, "batch": 32}
+CELL_ORDER = ("base", "base-torque", "first", "C", "PC+C")
 
 
 # -- the three stages (each a job: a function of picklable arguments, its result kept as JSON) -------------
@@ -109,14 +117,14 @@ def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
     last = last_checkpoint(run)
     if last is None:
         shutil.rmtree(run, ignore_errors=True)
-    tc = TrainConfig(steps=cfg.steps, batch=cfg.batch, warmup=min(500, max(1, cfg.steps // 10)),
-                     val_every=max(1, cfg.steps // 4), ckpt_every=max(1, cfg.steps // 4), log_every=10,
-                     seed=seed, threads=max(1, (os.cpu_count() or 1) // cfg.jobs))
+    # the warm-up / validation / checkpoint periods: fitted to the run's length by the loop
+    tc = TrainConfig(steps=cfg.steps, batch=cfg.batch, log_every=10, seed=seed,
+                     threads=max(1, (os.cpu_count() or 1) // cfg.jobs))
     opts = RunOptions(inputs=[demos], out=run, policy=cfg.policy, method=method,
-                      ratio=ratio, preset="small", thresholds=cfg.thresholds, observation=cfg.obs,
-                      progress=False, train=tc, resume=last is not None)
+                      ratio=ratio, preset=cfg.preset, thresholds=cfg.thresholds, observation=cfg.obs,
+                      progress=False, train=tc, resume=last is not None, include_failed=cfg.include_failed)
     t, c = time.perf_counter(), time.process_time()
-    run_training(opts, Dist())
+    run_training(opts, Dist(device=torch.device("cuda" if torch.cuda.is_available() else "cpu")))
     meta = read_meta(run)
     out = {"task": task, "cell": cell, "method": method, "ratio": meta["ratio"], "seed": seed,
            "val": meta.get("metrics", {}), "samples": meta["samples"], "steps": meta["step"],
@@ -195,8 +203,9 @@ class _Elapsed:
             _json(self.path, self.totals)
 
 
+# what the kept results depend on (tasks and seeds may be added)
 SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds",
-                  "next_checkpoint")  # what the kept results depend on (tasks and seeds may be added)
+                  "next_checkpoint", "preset", "include_failed")
 
 
 def check_resume(cfg: BenchConfig, out: Path) -> None:
@@ -216,7 +225,8 @@ def run_pipeline(cfg: BenchConfig, ck: str) -> tuple[dict, list[dict], list[dict
     """Every job of the benchmark in cfg.jobs workers, each started as soon as what it needs is there: a
     task's training runs when its demonstrations are, a policy's rollouts when its training is (no worker
     idles at a stage boundary: 3 collections on 2 workers left one idle for a whole collection)."""
-    cells = [(task, cell, s) for task in cfg.tasks for cell in cfg.cells(task) for s in range(cfg.seeds)]
+    cells = [(task, cell, s) for task in cfg.tasks for cell in CELL_ORDER if cell in cfg.cells(task)
+             for s in range(cfg.seeds)]
     demos, trains, rolls = {}, {}, {}
     t0 = time.perf_counter()
     if cfg.jobs <= 1:
@@ -270,7 +280,7 @@ def run_bench(cfg: BenchConfig) -> dict:
                    "train_cpu_s": sum(r["cpu_s"] for r in trains),
                    "rollout_cpu_s": sum(r["cpu_s"] for r in rolls)})
     results = {
-        "simulated": True,
+        "simulated": True, "command": " ".join(["python", "bench/bench_first.py", *sys.argv[1:]]),
         "observation": cfg.obs + (" (PRIVILEGED twin object state, no images)" if cfg.obs == "state" else ""),
         "config": asdict(cfg), "next_checkpoint": ck, "seeds": check_disjoint_seeds(demos, rolls),
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
@@ -299,6 +309,11 @@ def parse_args(argv=None) -> tuple[BenchConfig, bool]:
     ap.add_argument("--steps", type=int, default=None, help="optimiser steps per training run")
     ap.add_argument("--batch", type=int, default=None)
     ap.add_argument("--policy", choices=("flow", "act"), default="flow")
+    ap.add_argument("--preset", default="", help="policy preset (default: the observation's: state / small)")
+    ap.add_argument("--table", choices=TABLES, default="all",
+                    help="headline: base-torque and first on every task; second: base and the ablation C, "
+                    "PC+C on --ablation-task (PC = first); all: both (each fits a session on 2 cores)")
+    ap.add_argument("--include-failed", action="store_true", help="train on failed demonstrations too")
     ap.add_argument("--ablation-task", default="", help="task with the C / PC+C ablation (default: first)")
     ap.add_argument("--thresholds", default="recording", metavar="recording|next|LOW:HIGH",
                     help="FIRST label thresholds [N*m] (default: from the demonstrations, as factr2 train)")
@@ -310,7 +325,8 @@ def parse_args(argv=None) -> tuple[BenchConfig, bool]:
                     help="only write OUT's table and chart into docs/first.md / docs/first_bench.png")
     a = ap.parse_args(argv)
     cfg = BenchConfig(out=a.out, obs=a.obs, policy=a.policy, ablation_task=a.ablation_task,
-                      max_seconds=a.max_seconds, jobs=max(1, a.jobs), next_checkpoint=a.next)
+                      max_seconds=a.max_seconds, jobs=max(1, a.jobs), next_checkpoint=a.next, preset=a.preset,
+                      table=a.table, include_failed=a.include_failed)
     if a.quick:
         cfg.quick = True
         for k, v in QUICK.items():

@@ -26,6 +26,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hardware.recording import Recorder, Recording  # noqa: E402
+from hardware.recording.cache import cache_dir  # noqa: E402
 from hardware.types import STATUS_ENABLED, JointState  # noqa: E402
 
 N_JOINTS = 7
@@ -128,7 +129,7 @@ def run(seconds: float, out_dir: Path, workdir: Path) -> dict:
         "cpus_on_machine": os.cpu_count(), "load_avg_1min": round(os.getloadavg()[0], 2),
         "switch_interval_s": sys.getswitchinterval(),
     }
-    shutil.rmtree(path.with_name(path.name + ".factr2cache"), ignore_errors=True)
+    shutil.rmtree(cache_dir(path), ignore_errors=True)
     t0 = time.perf_counter()
     r = Recording(path)  # decode the MCAP and build the cache
     res["read_uncached_s"] = round(time.perf_counter() - t0, 3)

@@ -17,6 +17,17 @@ ABLATION_ORDER = ("C", "first", "PC+C")  # the `first` cell is PC (1:5:1)
 ABLATION_LABEL = {"C": "C (1:1:5)", "first": "PC (1:5:1) = first", "PC+C": "PC+C (1:3:3)"}
 
 
+def wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson score interval (lo, hi) of a success rate k / n; (0, 1) when n is 0."""
+    if n <= 0:
+        return 0.0, 1.0
+    p = k / n
+    d = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / d
+    h = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return float(max(0.0, c - h)), float(min(1.0, c + h))
+
+
 def _mean_std(x: list[float]) -> tuple[float, float]:
     a = np.asarray([v for v in x if v is not None and np.isfinite(v)], float)
     if not a.size:
@@ -39,11 +50,70 @@ def aggregate(trains: list[dict], rolls: list[dict]) -> dict:
             s["success_mean"], s["success_std"] = _mean_std([r["success_rate"] for r in d["roll"]])
             s["progress_mean"], s["progress_std"] = _mean_std([r["mean_progress"] for r in d["roll"]])
             s["rollouts_per_seed"] = [len(r.get("episodes") or []) for r in d["roll"]]
+            succ = [_outcomes(r) for r in sorted(d["roll"], key=lambda r: r["seed"])]
+            s["per_seed"] = [float(np.mean(x)) if x else float("nan") for x in succ]
+            s["k"], s["n"] = int(sum(map(sum, succ))), int(sum(map(len, succ)))
+            s["wilson"] = wilson(s["k"], s["n"])
             for p in ("",) + tuple(f"_{x}" for x in PHASES):
                 s[f"val_loss{p}"], s[f"val_loss{p}_std"] = _mean_std(
                     [t["val"].get(f"val/loss{p}") for t in d["train"]])
             summary.setdefault(task, {})[cell] = s
     return summary
+
+
+def _outcomes(roll: dict) -> list[int]:
+    """1 / 0 per rollout episode, in episode order (the same initial conditions for every policy)."""
+    return [int(e.get("outcome") == "success") for e in roll.get("episodes") or [] if isinstance(e, dict)]
+
+
+def raw_results(results: dict) -> dict:
+    """docs/first_results.json: {task: {method: {"seeds": [{"seed", "success": [0/1], "progress": [...]}]}},
+    "config": {...}}: every rollout, so anyone can re-plot or re-test."""
+    out: dict = {}
+    for r in sorted(results["rollout"], key=lambda r: (r["task"], r["cell"], r["seed"])):
+        eps = [e for e in r.get("episodes") or [] if isinstance(e, dict)]
+        out.setdefault(r["task"], {}).setdefault(r["cell"], {"seeds": []})["seeds"].append(
+            {"seed": r["seed"], "success": _outcomes(r),
+             "progress": [float(e.get("progress", 0.0)) for e in eps],
+             "episode_seeds": [e.get("seed") for e in eps], "stage_rates": r.get("stage_rates")})
+    out["config"] = {"command": results.get("command"), "observation": results["observation"],
+                     "machine": results["machine"], "bench": results["config"], "simulated": True,
+                     "timing": results["timing"]}
+    return out
+
+
+def mcnemar_p(b: int, c: int) -> float:
+    """Exact two-sided McNemar p-value for b vs c discordant pairs (binomial, p = 1/2)."""
+    from math import comb
+
+    n = b + c
+    if n == 0:
+        return 1.0
+    k = min(b, c)
+    return float(min(1.0, 2 * sum(comb(n, i) for i in range(k + 1)) / 2 ** n))
+
+
+def paired(results: dict, task: str, a: str = "first", b: str = "base-torque") -> dict | None:
+    """a against b on one task, paired by training seed (same seed: same demonstrations, sampler seed and
+    initial weights) and by rollout episode (every policy starts from the same initial conditions)."""
+    ra = {r["seed"]: r for r in results["rollout"] if r["task"] == task and r["cell"] == a}
+    rb = {r["seed"]: r for r in results["rollout"] if r["task"] == task and r["cell"] == b}
+    seeds = sorted(set(ra) & set(rb))
+    if not seeds:
+        return None
+    diffs, only_a, only_b, both, neither = [], 0, 0, 0, 0
+    for sd in seeds:
+        xa, xb = _outcomes(ra[sd]), _outcomes(rb[sd])
+        n = min(len(xa), len(xb))
+        diffs.append(float(np.mean(xa[:n]) - np.mean(xb[:n])) if n else float("nan"))
+        for u, v in zip(xa[:n], xb[:n]):
+            only_a += u and not v
+            only_b += v and not u
+            both += u and v
+            neither += not u and not v
+    return {"seeds": seeds, "diff_per_seed": diffs, "diff_mean": float(np.nanmean(diffs)),
+            "only_a": int(only_a), "only_b": int(only_b), "both": int(both), "neither": int(neither),
+            "mcnemar_p": mcnemar_p(int(only_a), int(only_b))}
 
 
 def _pct(m: float, s: float) -> str:
@@ -61,13 +131,28 @@ def _val(s: dict) -> str:
 
 def _row(label: str, s: dict) -> str:
     ratio = ":".join(f"{x:g}" for x in s["ratio"]) if s["ratio"] else "?"
-    return (f"| {label} | {ratio} | {_pct(s['success_mean'], s['success_std'])} | "
+    lo, hi = s.get("wilson", (np.nan, np.nan))
+    per_seed = " / ".join("n/a" if not np.isfinite(x) else f"{100 * x:.0f}" for x in s.get("per_seed", []))
+    pooled = ("n/a" if not s.get("n")
+              else f"**{100 * s['k'] / s['n']:.0f} %** [{100 * lo:.0f}, {100 * hi:.0f}]")
+    return (f"| {label} | {ratio} | {pooled} | {per_seed} | "
             f"{_prog(s['progress_mean'], s['progress_std'])} | {_val(s)} | {s['seeds']} x "
             f"{max(s['rollouts_per_seed'] or [0])} |")
 
 
-HEADER = ("| method | w_F:w_PC:w_C | success (mean ± sd over seeds) | task progress | val loss F / PC / C | "
-          "seeds x rollouts |\n|---|---|---|---|---|---|")
+HEADER = ("| method | w_F:w_PC:w_C | success, pooled [95 % Wilson] | per seed [%] | task progress (mean ± sd "
+          "over seeds) | val loss F / PC / C | seeds x rollouts |\n|---|---|---|---|---|---|---|")
+
+
+def _paired_line(p: dict | None) -> str:
+    if p is None:
+        return ""
+    d = " / ".join(f"{100 * x:+.0f}" for x in p["diff_per_seed"])
+    return (f"Paired, first against base-torque: per training seed {d} points "
+            f"(mean {100 * p['diff_mean']:+.1f}); "
+            f"per initial condition (the same {p['both'] + p['neither'] + p['only_a'] + p['only_b']} "
+            f"episodes): both succeed {p['both']}, only first {p['only_a']}, only base-torque {p['only_b']}, "
+            f"neither {p['neither']}; exact McNemar p = {p['mcnemar_p']:.3f}.")
 
 
 def _ranges(seeds: dict) -> str:
@@ -83,7 +168,8 @@ def table(results: dict) -> str:
     smoke = ("**Smoke run (`--quick`): far too small to compare the methods; it shows that the pipeline "
              "runs end to end.** " if cfg.get("quick") else "")
     lines = [f"{smoke}SIMULATED (MuJoCo twin `sim-piper`), observation: {results['observation']}; "
-             f"{cfg['policy']} policy, small preset, {cfg['steps']} steps x batch {cfg['batch']}; "
+             f"{cfg['policy']} policy, {cfg.get('preset') or 'default'} preset, {cfg['steps']} steps x batch "
+             f"{cfg['batch']}, EMA weights; "
              f"{cfg['demos']} demonstrations per task, {cfg['rollouts']} rollouts per policy on other "
              f"initial conditions (episode seeds: {_ranges(results['seeds'])}).", ""]
     for task in cfg["tasks"]:
@@ -96,7 +182,7 @@ def table(results: dict) -> str:
                   f"{100 * d.get('success_rate', np.nan):.0f} %; FIRST labels at {lo:.2f} / {hi:.2f} N*m: "
                   f"free / pre-contact / contact {shares} %)", "", HEADER]
         lines += [_row(m, cells[m]) for m in METHOD_ORDER if m in cells]
-        lines.append("")
+        lines += ["", _paired_line(paired(results, task)), ""]
         if "C" in cells:
             lines += [f"**{task}, ablation** (the re-sampling ratio, method `first`)", "", HEADER]
             lines += [_row(ABLATION_LABEL[m], cells[m]) for m in ABLATION_ORDER if m in cells]
@@ -123,12 +209,20 @@ def chart(results: dict, path: Path) -> None:
     n = 2 + (abl is not None)
     fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 3.4), squeeze=False)
     width = 0.8 / len(METHOD_ORDER)
-    panels = ((axes[0, 0], "success", "success rate"), (axes[0, 1], "progress", "task progress"))
+    panels = ((axes[0, 0], "success", "success rate (pooled, 95 % Wilson)"),
+              (axes[0, 1], "progress", "task progress (mean ± sd over seeds)"))
     for ax, key, title in panels:
         for k, m in enumerate(METHOD_ORDER):
-            mean = [summ[t].get(m, {}).get(f"{key}_mean", np.nan) for t in tasks]
-            sd = [summ[t].get(m, {}).get(f"{key}_std", np.nan) for t in tasks]
-            ax.bar(np.arange(len(tasks)) + (k - 1) * width, mean, width, yerr=sd, capsize=3, label=m)
+            if key == "success":  # pooled over seeds, 95 % Wilson interval
+                cells = [summ[t].get(m, {}) for t in tasks]
+                mean = [c["k"] / c["n"] if c.get("n") else np.nan for c in cells]
+                wl = [c.get("wilson", (np.nan, np.nan)) for c in cells]
+                err = np.abs(np.array([[mu - w[0] for mu, w in zip(mean, wl)],
+                                       [w[1] - mu for mu, w in zip(mean, wl)]]))
+            else:
+                mean = [summ[t].get(m, {}).get(f"{key}_mean", np.nan) for t in tasks]
+                err = [summ[t].get(m, {}).get(f"{key}_std", np.nan) for t in tasks]
+            ax.bar(np.arange(len(tasks)) + (k - 1) * width, mean, width, yerr=err, capsize=3, label=m)
         ax.set_xticks(np.arange(len(tasks)), tasks)
         ax.set_ylim(0, 1.05)
         ax.set_title(title)
@@ -144,15 +238,18 @@ def chart(results: dict, path: Path) -> None:
         ax.set_ylim(0, 1.05)
         ax.set_title(f"ablation ({abl})")
         ax.legend(fontsize=8)
-    fig.suptitle(f"FIRST on the twin's tasks (SIMULATED, obs: {cfg['obs']}; mean ± sd over "
-                 f"{cfg['seeds']} training seed(s))", fontsize=10)
+    fig.suptitle(f"FIRST on the twin's tasks (SIMULATED, obs: {cfg['obs']}; {cfg['seeds']} training seed(s))",
+                 fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
 def write_report(results: dict, out: Path) -> None:
+    import json
+
     (out / "table.md").write_text(table(results))
+    (out / "first_results.json").write_text(json.dumps(raw_results(results), indent=1, default=float))
     chart(results, out / "first_bench.png")
 
 
@@ -167,3 +264,4 @@ def write_docs(results: dict, out: Path, docs: Path) -> None:
     block = f"{DOCS_BEGIN}\n{table(results)}\n![FIRST benchmark](first_bench.png)\n{DOCS_END}"
     page.write_text(head + block + tail)
     shutil.copyfile(out / "first_bench.png", docs / "first_bench.png")
+    shutil.copyfile(out / "first_results.json", docs / "first_results.json")

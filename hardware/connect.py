@@ -170,7 +170,7 @@ def make_cameras(rig: Rig, twin: Twin | None, clock: Clock) -> dict:
             dev = dev or rig.followers[0].name
             if dev not in twin.devices:
                 raise ConfigError(f"camera {c.name}: no twin device {dev!r}", where=f"{rig.path}: cameras",
-                                  fix=f"use one of {sorted(twin.devices)}")
+                                  fix=f"use one of {', '.join(sorted(twin.devices))}")
             world = twin.devices[dev].world
             cfg = MujocoCameraConfig(name=c.name, width=c.width, height=c.height, fps=c.fps, camera=cam)
             out[c.name] = _twin_camera(cfg, world, clock)

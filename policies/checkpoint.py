@@ -24,8 +24,11 @@ KEEP = 2  # older periodic checkpoints beyond this many are removed (the final o
 def make_model(cfg: PolicyConfig):
     from policies.act import ACTPolicy
     from policies.flow import FlowPolicy
+    from policies.flow_mlp import FlowMLPPolicy
 
-    return (FlowPolicy if cfg.policy == "flow" else ACTPolicy)(cfg)
+    if cfg.policy == "flow":
+        return (FlowMLPPolicy if cfg.head == "mlp" else FlowPolicy)(cfg)
+    return ACTPolicy(cfg)
 
 
 def _optim_tensors(opt: torch.optim.Optimizer) -> dict[str, torch.Tensor]:
@@ -49,20 +52,34 @@ def save(
     opt: torch.optim.Optimizer | None,
     meta: dict,
     final: bool = False,
+    ema: torch.nn.Module | None = None,
+    keep: int = KEEP,
 ) -> Path:
-    """Write step-<step>.{safetensors,json[,optim.safetensors]} and point `last` at it; returns the JSON."""
+    """Write step-<step>.{safetensors,json[,optim.safetensors][,ema.safetensors]} and point `last` at it;
+    returns the JSON. `weights` are the trained model's (what --resume continues), `weights_ema` its
+    moving average (what load_policy gives by default). keep: periodic checkpoints kept, 0 = all."""
     folder.mkdir(parents=True, exist_ok=True)
     stem = folder / f"step-{step:07d}"
-    sd = {k: v.detach().float().cpu().contiguous() for k, v in model.state_dict().items()}
+
+    def state(m):
+        return {k: v.detach().float().cpu().contiguous() for k, v in m.state_dict().items()}
+
+    sd = state(model)
     _write_atomic(stem.with_suffix(".safetensors"), lambda p: save_file(sd, str(p)))
+    extra = {}
+    if ema is not None:
+        sd_ema = state(ema)
+        _write_atomic(Path(f"{stem}.ema.safetensors"), lambda p: save_file(sd_ema, str(p)))
+        extra["weights_ema"] = f"{stem.name}.ema.safetensors"
     if opt is not None:
         _write_atomic(Path(f"{stem}.optim.safetensors"), lambda p: save_file(_optim_tensors(opt), str(p)))
-    meta = dict(meta, format=FORMAT, step=step, final=final, weights=stem.with_suffix(".safetensors").name)
+    meta = dict(meta, format=FORMAT, step=step, final=final, weights=stem.with_suffix(".safetensors").name,
+                **extra)
     _write_atomic(stem.with_suffix(".json"), lambda p: p.write_text(json.dumps(meta, indent=1)))
     _write_atomic(folder / "last", lambda p: p.write_text(stem.name + "\n"))
     periodic = sorted(p for p in folder.glob("step-*.json") if not json.loads(p.read_text()).get("final"))
-    for old in periodic[:-KEEP]:
-        for suffix in (".json", ".safetensors", ".optim.safetensors"):
+    for old in periodic[:-keep] if keep > 0 else []:
+        for suffix in (".json", ".safetensors", ".optim.safetensors", ".ema.safetensors"):
             Path(str(old.with_suffix("")) + suffix).unlink(missing_ok=True)
     return stem.with_suffix(".json")
 
@@ -98,13 +115,16 @@ def read_meta(path: Path) -> dict:
     return meta
 
 
-def load_policy(path) -> tuple[torch.nn.Module, dict, Normalizer]:
-    """(model in eval mode, checkpoint JSON, normaliser) from a RUN folder or a step-*.json."""
+def load_policy(path, ema: bool = True) -> tuple[torch.nn.Module, dict, Normalizer]:
+    """(model in eval mode, checkpoint JSON, normaliser) from a RUN folder or a step-*.json. ema: the moving
+    average of the weights where the checkpoint has one (meta["weights_used"] says which were loaded)."""
     meta = read_meta(Path(path))
     cfg = PolicyConfig.from_dict(meta["policy"])
     cfg.backbone_weights = ""  # the checkpoint's weights include the backbone
     model = make_model(cfg)
-    weights = Path(meta["_path"]).with_name(meta["weights"])
+    key = "weights_ema" if ema and meta.get("weights_ema") else "weights"
+    meta["weights_used"] = "ema" if key == "weights_ema" else "trained"
+    weights = Path(meta["_path"]).with_name(meta[key])
     try:
         model.load_state_dict(load_file(str(weights)))
     except (OSError, RuntimeError) as e:

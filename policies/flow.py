@@ -79,6 +79,24 @@ class DiTBlock(nn.Module):
         return torch.addcmul(x, a2, self.mlp(_modulate(self.norm2(x), s2, g2)))
 
 
+def flow_matching_loss(model, batch: dict, noise: dict) -> tuple[torch.Tensor, dict]:
+    """Per-sample loss (B,) and its parts for either velocity field (FlowPolicy, flow_mlp.FlowMLPPolicy):
+    ||v(x_a, a, o) - (x1 - x0)||^2 on the valid chunk steps, plus aux_weight x the future-force MSE when the
+    model has TA-VLA's head."""
+    x1 = batch["action"]
+    x0, a = noise["x0"].to(x1), noise["alpha"].to(x1)
+    xa = (1 - a)[:, None, None] * x0 + a[:, None, None] * x1
+    v, h = model.velocity(xa, a, model.encode(batch))
+    fm = masked_mean(F.mse_loss(v, x1 - x0, reduction="none"), batch["mask"])
+    parts, total = {"action": fm}, fm
+    if model.aux_head is not None:
+        parts["aux_force"] = masked_mean(
+            F.mse_loss(model.aux_force(h), batch["force_chunk"], reduction="none"), batch["mask"]
+        )
+        total = total + model.cfg.aux_weight * parts["aux_force"]
+    return total, parts
+
+
 class FlowPolicy(nn.Module):
     def __init__(self, cfg: PolicyConfig):
         super().__init__()
@@ -139,18 +157,11 @@ class FlowPolicy(nn.Module):
         return self.loss(batch, noise)  # DDP wraps forward: the training step is the loss
 
     def loss(self, batch: dict, noise: dict) -> tuple[torch.Tensor, dict]:
-        x1 = batch["action"]
-        x0, a = noise["x0"].to(x1), noise["alpha"].to(x1)
-        xa = (1 - a)[:, None, None] * x0 + a[:, None, None] * x1
-        v, h = self.velocity(xa, a, self.encode(batch))
-        fm = masked_mean(F.mse_loss(v, x1 - x0, reduction="none"), batch["mask"])
-        parts, total = {"action": fm}, fm
-        if self.aux_head is not None:
-            parts["aux_force"] = masked_mean(
-                F.mse_loss(self.aux_head(h), batch["force_chunk"], reduction="none"), batch["mask"]
-            )
-            total = total + self.cfg.aux_weight * parts["aux_force"]
-        return total, parts
+        return flow_matching_loss(self, batch, noise)
+
+    def aux_force(self, h):
+        """TA-VLA's future force chunk (B, chunk, F) from the last hidden states."""
+        return self.aux_head(h)
 
     @torch.no_grad()  # not inference_mode: callers may still modify the chunk in place
     def predict(self, batch: dict, noise: dict) -> torch.Tensor:

@@ -1,6 +1,7 @@
-"""Camera frames decoded once into a uint8 array at the model's input size, cached beside the recording:
-RECORDING.mcap.policy-frames/<camera>-<size>.npy (N, size, size, 3) and its key (the MCAP's size, mtime and
-head/tail hash, as the array cache uses). Training reads it memory-mapped: never a JPEG decode per sample.
+"""Camera frames decoded once into a uint8 array at the model's input size, cached in the user's cache
+folder, not beside the recording: derived_dir(RECORDING, "policy-frames")/<camera>-<size>.npy (N, size, size,
+3) and its key (the MCAP's size, mtime and head/tail hash, as the array cache uses). Training reads it
+memory-mapped: never a JPEG decode per sample.
 
 Frames are resized to size x size whole (the aspect ratio is not kept: the full field of view stays in the
 image; RandomResizedCrop then works on that). Written to a temporary name and renamed: never half a cache.
@@ -17,12 +18,12 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from hardware.recording.cache import cache_key
+from hardware.recording.cache import cache_key, derived_dir
 from hardware.recording.reader import Recording
 
 
 def cache_folder(path: Path) -> Path:
-    return path.with_name(path.name + ".policy-frames")
+    return derived_dir(path, "policy-frames")  # the user's cache folder, not their data folder
 
 
 def decode_resized(jpeg: bytes, size: int) -> np.ndarray:
@@ -48,7 +49,10 @@ def camera_frames(rec: Recording, camera: str, size: int, progress=None) -> np.n
         out[i] = decode_resized(frames.jpeg(i), size)
         if progress is not None:
             progress(1)
-    folder.mkdir(exist_ok=True)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return out  # no cache folder: the frames are decoded anyway, just not kept
     fd, tmp = tempfile.mkstemp(dir=folder, prefix=f".{camera}-{size}.", suffix=".npy")
     try:
         with os.fdopen(fd, "wb") as f:

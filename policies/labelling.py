@@ -4,6 +4,11 @@ tau_ext comes from the recording (/<arm>/tau_ext, what NEXT estimated live), or,
 (`--next CKPT`), from that checkpoint run offline over the logged follower joint states (episodes recorded
 without an estimate, or with an older model). Bimanual rigs: the score sums every follower's joints, on the
 first follower's timeline, and so do the thresholds (one noise floor per arm).
+
+Tare on grasp (policies.tare, on by default): while a follower's gripper holds an object, the object's load,
+estimated on the free motion right after the grasp, is taken out of that arm's tau_ext before the score, for
+the labels and for the recording thresholds alike. The policy's force input (EpisodeLabels.tau_ext) stays
+the raw estimate, and so does live force feedback (teleop never labels).
 """
 
 from __future__ import annotations
@@ -18,7 +23,9 @@ from hardware.errors import UserError
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
 from policies import phases as P
+from policies import tare as T
 from policies.recordings import ArmSet, episode_id, session_next_checkpoint
+from policies.tare_recording import episode_tare
 
 
 @dataclass
@@ -48,35 +55,55 @@ class Thresholds:
     t_low: float
     t_high: float
     source: str  # "given", "recording: ..." (the episodes' own scores) or "NEXT <id> ..." (its noise)
+    tare: str = "off"  # held-load tare of the scores they apply to: policies.tare.TARE_METHODS
 
     def to_dict(self) -> dict:
-        return {
-            "t_low": self.t_low,
-            "t_high": self.t_high,
-            "source": self.source,
-            "pre_contact_s": P.PRE_CONTACT_S,
-        }
+        """A training run's meta["phases"]; "tare" only when the scores were tared (a run from before the
+        tare, or with --no-tare, reads the same and so resumes)."""
+        d = {"t_low": self.t_low, "t_high": self.t_high, "source": self.source,
+             "pre_contact_s": P.PRE_CONTACT_S}
+        return d | ({"tare": self.tare} if self.tare != "off" else {})
 
 
 THRESHOLD_SOURCES = ("recording", "next")  # --thresholds words; or LOW:HIGH [N*m]
+TARE_DEFAULT = "payload"  # measured against the twin's truth (docs/first.md, bench/label_truth.py)
+
+
+@dataclass(frozen=True)
+class LabelChoice:
+    """What a label command asked for: the thresholds (as resolve_thresholds takes them) and the tare
+    method (policies.tare.TARE_METHODS; `--no-tare` is "off")."""
+
+    thresholds: object
+    tare: str = TARE_DEFAULT
 
 
 def resolve_thresholds(
-    given, next_model: NextModel | None, episodes: list[Episode], arms: ArmSet
+    given, next_model: NextModel | None, episodes: list[Episode], arms: ArmSet, tare: str | None = None
 ) -> Thresholds:
     """given: (LOW, HIGH) [N*m]; "recording": from the episodes' own scores (Otsu,
     policies.phases.recording_thresholds; tau_ext recorded, or from --next offline), the CLI's default;
     "next" or None: from the free-motion noise of the --next checkpoint, else of the checkpoint the recording
-    session names (None keeps the library's former default for its callers)."""
+    session names (None keeps the library's former default for its callers); or a LabelChoice carrying one
+    of these and the tare. tare: policies.tare.TARE_METHODS (default TARE_DEFAULT); the recording source
+    splits the tared scores, and the labels of these thresholds are tared alike."""
+    if isinstance(given, LabelChoice):
+        given, tare = given.thresholds, given.tare if tare is None else tare
+    tare = TARE_DEFAULT if tare is None else tare
+    if tare not in T.TARE_METHODS:
+        raise UserError(f"unknown tare method {tare!r}", fix=f"one of {', '.join(T.TARE_METHODS)}")
     if given == "recording":
-        return _recording_thresholds(episodes, arms, next_model)
-    if given is None or given == "next":
-        return _checkpoint_thresholds(next_model, episodes, arms)
-    return Thresholds(float(given[0]), float(given[1]), "given")
+        th = _recording_thresholds(episodes, arms, next_model, tare)
+    elif given is None or given == "next":
+        th = _checkpoint_thresholds(next_model, episodes, arms)
+    else:
+        th = Thresholds(float(given[0]), float(given[1]), "given")
+    th.tare = tare
+    return th
 
 
-def _recording_thresholds(episodes, arms, next_model) -> Thresholds:
-    scores = [P.contact_score(episode_tau_ext(ep, arms, next_model)[1]) for ep in episodes]
+def _recording_thresholds(episodes, arms, next_model, tare: str) -> Thresholds:
+    scores = [episode_scores(ep, arms, tare, next_model)[0] for ep in episodes]
     score = np.concatenate(scores) if scores else np.zeros(0)
     try:
         lo, hi = P.recording_thresholds(score)
@@ -88,7 +115,8 @@ def _recording_thresholds(episodes, arms, next_model) -> Thresholds:
         ) from None
     n = int(np.sum(np.isfinite(score)))
     eps = f"{len(episodes)} episode{'s' if len(episodes) != 1 else ''}"
-    src = f"recording: Otsu split of log ||tau_ext||_1, {eps}, {n} samples"
+    tared = ", tared" if tare != "off" else ""
+    src = f"recording: Otsu split of log ||tau_ext||_1{tared}, {eps}, {n} samples"
     return Thresholds(lo, hi, src)
 
 
@@ -195,14 +223,29 @@ def _episode_tau_ext(ep: Episode, arms: ArmSet, next_model: NextModel | None):
     return t, tau, ("recorded" if next_model is None else f"NEXT {next_model.id} offline")
 
 
+def episode_scores(ep: Episode, arms: ArmSet, tare: str, next_model: NextModel | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """(score (N,) of the tared tau_ext, raw score (N,), held (N,) bool, tare note) [N*m] on the times of
+    episode_tau_ext (tare "off": the raw score twice)."""
+    t, tau, _ = episode_tau_ext(ep, arms, next_model)
+    raw = P.contact_score(tau)
+    if tare == "off":
+        return raw, raw, np.zeros(len(t), bool), ""
+    load, held, note = episode_tare(ep, arms, t, tau, tare)
+    return P.contact_score(T.tared(tau, load)), raw, held, note
+
+
 @dataclass
 class EpisodeLabels:
     episode: str
     t: np.ndarray  # [s] the tau_ext samples' times
-    tau_ext: np.ndarray  # (N, J) [N*m]
-    score: np.ndarray  # (N,) ||tau_ext||_1
+    tau_ext: np.ndarray  # (N, J) [N*m], as estimated (not tared: the policy's force input)
+    score: np.ndarray  # (N,) ||tau_ext - held load||_1 [N*m]: what the labels split (raw without tare)
     phases: np.ndarray  # (N,) int8: policies.phases.FREE / PRE_CONTACT / CONTACT
     source: str
+    raw_score: np.ndarray | None = None  # (N,) ||tau_ext||_1 before the tare (None: same as score)
+    held: np.ndarray | None = None  # (N,) bool: a gripper holds an object (tared there)
+    tare: str = "off"
 
     def shares(self) -> np.ndarray:
         return P.phase_shares(self.phases)
@@ -216,11 +259,13 @@ class EpisodeLabels:
 def label_episode(
     ep: Episode, arms: ArmSet, th: Thresholds, next_model: NextModel | None = None
 ) -> EpisodeLabels:
+    """Phases of one episode with th's thresholds on the score th.tare asks for (raw or tared)."""
     t, tau, source = episode_tau_ext(ep, arms, next_model)
-    score = P.contact_score(tau)
-    return EpisodeLabels(
-        episode_id(ep), t, tau, score, P.label_phases(t, P.hysteresis(score, th.t_low, th.t_high)), source
-    )
+    score, raw, held, note = episode_scores(ep, arms, th.tare, next_model)
+    if th.tare != "off":
+        source += f"; tare {th.tare}" + (f" ({note})" if note else "")
+    phases = P.label_phases(t, P.hysteresis(score, th.t_low, th.t_high))
+    return EpisodeLabels(episode_id(ep), t, tau, score, phases, source, raw, held, th.tare)
 
 
 PHASE_COLOURS = ("#ffffff", "#f5c26b", "#e4572e")
@@ -237,7 +282,14 @@ def plot_labels(lab: EpisodeLabels, th: Thresholds, path: Path) -> Path:
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 5), sharex=True)
     for j in range(lab.tau_ext.shape[1]):
         a1.plot(t, lab.tau_ext[:, j], lw=0.8, label=f"j{j + 1}")
-    a2.plot(t, lab.score, color="k", lw=0.8, label="||tau_ext||_1")
+    tared = lab.tare != "off" and lab.raw_score is not None
+    if tared:
+        a2.plot(t, lab.raw_score, color="0.6", lw=0.6, alpha=0.6, label="||tau_ext||_1 raw")
+    a2.plot(t, lab.score, color="k", lw=0.8,
+            label=f"||tau_ext - held load||_1 (tare {lab.tare})" if tared else "||tau_ext||_1")
+    if tared and lab.held is not None and lab.held.any():
+        a2.fill_between(t, 0, 1, where=lab.held, transform=a2.get_xaxis_transform(), color="#4c72b0",
+                        alpha=0.08, lw=0, label="gripper holds an object")
     a2.axhline(th.t_high, color="#e4572e", ls="--", lw=0.8, label=f"T_high {th.t_high:.3g}")
     a2.axhline(th.t_low, color="#4c72b0", ls="--", lw=0.8, label=f"T_low {th.t_low:.3g}")
     edges = np.flatnonzero(np.diff(lab.phases.astype(int))) + 1
@@ -255,8 +307,8 @@ def plot_labels(lab: EpisodeLabels, th: Thresholds, path: Path) -> Path:
     sh = lab.shares()
     a1.set_title(
         f"{lab.episode}: free {sh[0]:.0%}, pre-contact (orange) {sh[1]:.0%}, contact (red) {sh[2]:.0%}"
-        f"  [{lab.source}]",
-        fontsize=9,
+        f"\n[{lab.source}]",
+        fontsize=8,
     )
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

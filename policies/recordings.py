@@ -3,7 +3,8 @@ with the arm set checked once for all of them.
 
 A corrupt or unreadable recording is skipped with a warning when others remain; none left is a UserError.
 Episodes labelled "discard" are left out (the operator threw them away); so are episodes without follower
-joint-state samples.
+joint-state samples. Training also leaves out failed and incomplete episodes by default (`training_episodes`):
+the paper trains on successful demonstrations, and an episode cut off by a killed recorder ends mid-motion.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 from hardware.errors import UserError
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, Recording, interp_linear
+from hardware.recording.recover import drop_superseded
 
 _FOLLOWER_JS = re.compile(r"^/((?:\w+_)?follower)/joint_state$")
 
@@ -47,13 +49,14 @@ class ArmSet:
 
 
 def recording_files(paths) -> list[Path]:
-    """Every .mcap under the given files/folders (folders: their .mcap files, not recursive), sorted."""
+    """Every .mcap under the given files/folders (folders: their .mcap files, not recursive), sorted; in a
+    folder, a damaged file whose `factr2 recover` copy is beside it is left out (the copy holds its data)."""
     out: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            out += sorted(
+            out += drop_superseded(sorted(
                 f for f in p.iterdir() if f.is_file() and f.suffix == ".mcap" and ".tmp-" not in f.name
-            )
+            ))
         elif p.is_file():
             out.append(p)
         else:
@@ -99,7 +102,8 @@ def load_episodes(paths, *, keep_discarded: bool = False) -> tuple[list[Episode]
         raise UserError(
             "no recordings (.mcap) found",
             where=", ".join(map(str, paths)),
-            fix="pass recording files or folders written by `factr2 teleop --record`",
+            fix="pass recording files or folders written by `factr2 collect --out DIR` (twin tasks) or "
+            "`factr2 teleop --record DIR`",
         )
     episodes: list[Episode] = []
     arms: ArmSet | None = None
@@ -143,9 +147,48 @@ def load_episodes(paths, *, keep_discarded: bool = False) -> tuple[list[Episode]
         raise UserError(
             f"no usable episodes{why}",
             where=", ".join(map(str, paths)),
-            fix="record episodes with `factr2 teleop --record DIR` (discarded ones are left out)",
+            fix="record episodes with `factr2 collect --out DIR` or `factr2 teleop --record DIR` (discarded "
+            "ones are left out)",
         )
     return episodes, arms
+
+
+def incomplete(ep: Episode) -> bool:
+    """The episode was cut off: no stop (recorder killed), or a file without episodes that is truncated."""
+    return ep.outcome == "incomplete" or (ep.outcome == "session" and bool(ep.recording.truncated))
+
+
+def training_episodes(episodes, *, include_failed: bool = False, keep_incomplete: bool = False):
+    """The episodes a training run uses, and the skipped ones as {"episode": id, "why": ...}.
+
+    Failed demonstrations (a task's detector or the operator said "failure") and incomplete episodes are
+    skipped unless asked for. Episodes without a verdict (a teleop recording without a task) are kept: there
+    is nothing to say they failed."""
+    kept, skipped = [], []
+    for ep in episodes:
+        if ep.outcome == "failure" and not include_failed:
+            skipped.append({"episode": episode_id(ep), "why": "failed"})
+        elif incomplete(ep) and not keep_incomplete:
+            skipped.append({"episode": episode_id(ep), "why": "incomplete"})
+        else:
+            kept.append(ep)
+    return kept, skipped
+
+
+def _count(n: int, what: str) -> str:
+    return f"{n} {what} episode" + ("s" if n != 1 else "")
+
+
+def skipped_line(skipped: list[dict]) -> str:
+    """One line for the user: how many episodes were skipped, why, and the flag that keeps them ("" none)."""
+    failed = sum(s["why"] == "failed" for s in skipped)
+    cut = sum(s["why"] == "incomplete" for s in skipped)
+    parts = []
+    if failed:
+        parts.append(f"{_count(failed, 'failed')} (--include-failed keeps them)")
+    if cut:
+        parts.append(f"{_count(cut, 'incomplete')} (recording cut off; --keep-incomplete keeps them)")
+    return "skipped " + ", ".join(parts) if parts else ""
 
 
 def episode_id(ep: Episode) -> str:

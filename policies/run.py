@@ -15,11 +15,18 @@ from hardware.errors import UserError
 from hardware.recording.cache import cache_key
 from hardware.recording.session import software_version
 from policies import checkpoint as C
-from policies.config import preset
+from policies.config import default_preset, preset
 from policies.dataset import build_dataset
 from policies.labelling import load_next, resolve_thresholds
 from policies.methods import METHODS
-from policies.recordings import describe_rig, episode_id, load_episodes, session_next_checkpoint
+from policies.recordings import (
+    describe_rig,
+    episode_id,
+    load_episodes,
+    session_next_checkpoint,
+    skipped_line,
+    training_episodes,
+)
 from policies.sampler import format_ratio
 from policies.train import Dist, TrainConfig, barrier, train
 
@@ -35,7 +42,7 @@ class RunOptions:
     policy: str = "flow"
     method: str = "first"
     ratio: tuple | None = None  # None: the method's default
-    preset: str = "small"
+    preset: str = ""  # "": policies.config.default_preset(observation)
     force: str = "tau_ext"
     next: Path | None = None
     thresholds: tuple | None = None
@@ -51,6 +58,8 @@ class RunOptions:
     overrides: dict | None = None  # PolicyConfig fields over the preset (tests, experiments)
     observation: str = "images"  # policies.privileged.OBSERVATIONS: "state" = the twin objects (PRIVILEGED)
     episodes: tuple | None = None  # episode ids ("FILE.mcap#N") to train on; None: every usable one
+    include_failed: bool = False  # train on failed demonstrations too (default: successful + unlabelled)
+    keep_incomplete: bool = False  # train on episodes cut off by a killed recorder too
 
 
 def data_hash(episodes) -> str:
@@ -92,7 +101,8 @@ def _check_out(o: RunOptions):
 
 
 def _load(o: RunOptions):
-    """The run's episodes (only those o.episodes names, when it names some) and their arm set."""
+    """The run's episodes (only those o.episodes names, when it names some), their arm set, and the
+    episodes skipped as failed or incomplete ([{"episode": id, "why": ...}])."""
     episodes, arms = load_episodes(o.inputs)
     if o.episodes is not None:
         keep = set(o.episodes)
@@ -100,13 +110,21 @@ def _load(o: RunOptions):
         if not episodes:
             raise UserError("none of the chosen episodes is usable", where=", ".join(map(str, o.inputs)),
                             fix="choose episodes that are not discarded")
-    return episodes, arms
+    kept, skipped = training_episodes(episodes, include_failed=o.include_failed,
+                                      keep_incomplete=o.keep_incomplete)
+    if not kept:
+        raise UserError(
+            f"no episode to train on: {skipped_line(skipped)}",
+            where=", ".join(map(str, o.inputs)),
+            fix="collect successful demonstrations, or pass the flag named to train on these",
+        )
+    return kept, arms, skipped
 
 
 def precheck(o: RunOptions) -> None:
     """The cheap checks, once, before worker processes start (--nproc): folder, recordings, thresholds."""
     _check_out(o)
-    episodes, arms = _load(o)
+    episodes, arms, _ = _load(o)
     resolve_thresholds(o.thresholds, load_next(o.next) if o.next is not None else None, episodes, arms)
 
 
@@ -124,10 +142,14 @@ def prepare(o: RunOptions, d: Dist):
             f"batch {tcfg.batch} is not a multiple of the {d.world} processes",
             fix="choose --batch divisible by --nproc",
         )
-    episodes, arms = _load(o)
+    episodes, arms, skipped = _load(o)
     next_model = load_next(o.next) if o.next is not None else None
     th = resolve_thresholds(o.thresholds, next_model, episodes, arms)
-    pcfg = preset(o.preset, o.policy)
+    name = o.preset or default_preset(o.observation)
+    if name == "state" and o.observation != "state":
+        raise UserError(f"preset state takes no images, the observation is {o.observation}",
+                        where="--preset state", fix="train with --obs state, or --preset small|paper")
+    pcfg = preset(name, o.policy)
     if o.dropout is not None:
         pcfg.dropout = o.dropout
     if o.image_size:
@@ -166,6 +188,7 @@ def prepare(o: RunOptions, d: Dist):
     named_next = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
     meta = {
         "policy": pcfg.to_dict(),
+        "preset": name,
         "method": o.method,
         "ratio": list(tcfg.ratio),
         "force": tcfg.force,
@@ -178,6 +201,11 @@ def prepare(o: RunOptions, d: Dist):
         "data_hash": data_hash(episodes),
         "episodes": data.episode_ids,
         "val_episodes": [data.episode_ids[i] for i in data.val_episodes],
+        # left out by default (failed demonstrations, episodes cut off), and the flags that kept the others
+        "skipped_episodes": skipped,
+        "tasks": _tasks(episodes),  # what rollout checks its --task against (session/task_check.py)
+        "include_failed": o.include_failed,
+        "keep_incomplete": o.keep_incomplete,
         "rate_hz": data.rate_hz,
         "samples": {"train": int(len(train_idx)), "val": int(len(data) - len(train_idx))},
         "rig": describe_rig(episodes[0]),
@@ -204,6 +232,8 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
     data, pcfg, tcfg, meta, resume_from = prepare(o, d)
     if d.main:
         Path(o.out).mkdir(parents=True, exist_ok=True)
+        if meta["skipped_episodes"]:
+            print(skipped_line(meta["skipped_episodes"]))
         n_tr = meta["samples"]["train"]
         print(
             f"{len(data.episode_ids)} episodes, {n_tr} training / {meta['samples']['val']} validation "
@@ -213,6 +243,16 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
             f"{format_ratio(tcfg.ratio)}, force {tcfg.force}; {d.world} process(es) on {d.device}"
         )
     return train(data, pcfg, tcfg, Path(o.out), meta, d, resume_from, o.progress, stop_at, on_progress, stop)
+
+
+def _tasks(episodes) -> dict:
+    """Task name -> number of training episodes (the episode's task, else its session's; unnamed left out)."""
+    out: dict = {}
+    for ep in episodes:
+        name = ep.task or ep.recording.session.get("task", "")
+        if name:
+            out[name] = out.get(name, 0) + 1
+    return out
 
 
 def _inputs(data) -> str:

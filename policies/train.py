@@ -50,7 +50,11 @@ class TrainConfig:
     method: str = "first"
     ratio: tuple[float, float, float] = DEFAULT_RATIO
     force: str = "tau_ext"
-    threads: int = 0  # torch threads per process (0: cores / processes)
+    threads: int = 0  # torch threads per process (0: chosen from the free cores, policies.train.pick_threads)
+    ema: bool = True  # keep an exponential moving average of the weights (ema_decay): rollouts use it
+    ema_power: float = 0.75  # EMA decay at step s: min(ema_max, 1 - (1 + s) ** -ema_power) (Diffusion Policy)
+    ema_max: float = 0.9999
+    keep_checkpoints: int = 2  # periodic checkpoints kept (the final one always stays); 0: every one
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -95,6 +99,64 @@ def lr_at(step: int, cfg: TrainConfig, total: int) -> float:
         return cfg.lr * (step + 1) / cfg.warmup
     frac = (step - cfg.warmup) / max(1, total - cfg.warmup)
     return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(1.0, frac)))
+
+
+def clamp_schedule(cfg: TrainConfig, total: int) -> tuple[TrainConfig, list[str]]:
+    """The warm-up, validation and checkpoint periods fitted to a run of `total` steps, and one note per
+    change: warm-up at most a tenth of the run (a 400-step run would otherwise train entirely in the 500-step
+    warm-up), validation and checkpoints at least 4 times per run (one point at the end is no curve)."""
+    from dataclasses import replace
+
+    quarter = max(1, total // 4)
+    new = replace(cfg, warmup=min(cfg.warmup, max(1, total // 10)), val_every=min(cfg.val_every, quarter),
+                  ckpt_every=min(cfg.ckpt_every, quarter))
+    notes = [f"{name.replace('_', ' ')} {getattr(cfg, name)} -> {getattr(new, name)} steps (run of {total})"
+             for name in ("warmup", "val_every", "ckpt_every") if getattr(new, name) != getattr(cfg, name)]
+    return new, notes
+
+
+def pick_threads(requested: int, world: int) -> tuple[int, str]:
+    """(torch threads, why) for one training process of `world`: the cores this process may use, shared by
+    the processes of the run, less the cores other work keeps busy now (the 1-minute load average). Two
+    threads on two cores thrash as soon as anything else runs (measured 35 samples/s against 320 on one
+    thread: a descheduled thread stalls every barrier), so a busy machine gets fewer threads, and the
+    ThreadProbe in the loop drops to one when several turn out slower."""
+    from calibration.next.train import available_cores
+
+    if requested > 0:
+        return requested, "as asked (--threads)"
+    cores = available_cores()
+    share = max(1, cores // max(1, world))
+    try:
+        busy = os.getloadavg()[0]
+    except OSError:  # not available on this OS
+        busy = 0.0
+    free = max(1, int(cores - busy + 0.5))
+    n = max(1, min(share, free))
+    return n, f"{n} of {cores} cores (load {busy:.1f}{f', {world} processes' if world > 1 else ''})"
+
+
+class Ema:
+    """Exponential moving average of a model's weights (buffers copied): the weights that are evaluated and
+    rolled out. Decay at step s: min(ema_max, 1 - (1 + s) ** -power), Diffusion Policy's warm-up, so early
+    steps follow the model closely and the average lengthens as training settles."""
+
+    def __init__(self, model: torch.nn.Module, power: float, max_decay: float):
+        import copy
+
+        self.model = copy.deepcopy(model).eval().requires_grad_(False)
+        self.power, self.max_decay = power, max_decay
+
+    def decay(self, step: int) -> float:
+        return min(self.max_decay, 1.0 - (1.0 + step) ** -self.power)
+
+    @torch.no_grad()
+    def update(self, model: torch.nn.Module, step: int) -> None:
+        d = self.decay(step)
+        ema_p = [p for p in self.model.parameters()]
+        torch._foreach_lerp_(ema_p, [p.detach() for p in model.parameters()], 1.0 - d)
+        for b_ema, b in zip(self.model.buffers(), model.buffers()):
+            b_ema.copy_(b)
 
 
 def _seed(*parts: int) -> int:
@@ -150,6 +212,24 @@ def evaluate(
     return out
 
 
+def slow_hint(sps: float, best: float, threads: int) -> str:
+    """One line when training runs far below the speed this run already reached (other work took cores)."""
+    try:
+        load = f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+    except OSError:
+        load = "other work on the cores"
+    fix = "pass --threads 1" if threads > 1 else "stop the other work or train on a GPU"
+    return (f"training runs at {sps:.0f} samples/s, {best:.0f} earlier in this run ({load}, {threads} "
+            f"thread(s)): {fix}")
+
+
+def _say(bar, text: str) -> None:
+    if bar is not None:
+        bar.write(text)
+    else:
+        print(text, flush=True)
+
+
 def _autocast(device):
     if device.type == "cuda":
         return torch.autocast("cuda", dtype=torch.bfloat16)
@@ -175,11 +255,16 @@ def train(
     For an app driving one process (the terminal UI): on_progress(row) after every step on rank 0, row =
     {"step", "total", "start"} plus the logged losses / validation metrics of that step; stop: when set, the
     loop ends after the current step and writes a checkpoint there (kept for --resume)."""
-    torch.set_num_threads(cfg.threads or max(1, (os.cpu_count() or 1) // d.world))
+    n_threads, why_threads = pick_threads(cfg.threads, d.world)
+    torch.set_num_threads(n_threads)
     method = METHODS[cfg.method]
     train_idx, val_idx = data.split()
     sampler = FirstSampler(data.phase[train_idx], cfg.ratio, cfg.seed, rank=d.rank, world=d.world)
     total = total_steps(cfg, sampler)
+    asked = cfg
+    cfg, notes = clamp_schedule(cfg, total)
+    if d.main and progress:
+        print(f"torch threads: {why_threads}" + "".join(f"; {n}" for n in notes), flush=True)
     spe = sampler.steps_per_epoch(cfg.batch)
     torch.manual_seed(cfg.seed)  # identical initial weights on every rank
     model = C.make_model(pcfg).to(d.device)
@@ -192,20 +277,29 @@ def train(
         fused=d.device.type == "cuda",
     )
     start = 0
+    ema = Ema(model, cfg.ema_power, cfg.ema_max) if cfg.ema else None
     if resume_from is not None:
         old = C.read_meta(resume_from)
         from safetensors.torch import load_file
 
         model.load_state_dict(load_file(str(Path(old["_path"]).with_name(old["weights"]))))
+        if ema is not None and old.get("weights_ema"):
+            ema.model.load_state_dict(load_file(str(Path(old["_path"]).with_name(old["weights_ema"]))))
         C.load_optimizer(opt, Path(old["_path"]))
         start = int(old["step"])
+    probe = None
+    if n_threads > 1 and cfg.threads <= 0:
+        from calibration.next.threads import ThreadProbe
+
+        probe = ThreadProbe(n_threads)  # re-checks 1 thread against n every 400 steps, drops on a collapse
     net = model
     if d.world > 1:
         from torch.nn.parallel import DistributedDataParallel as DDP
 
         net = DDP(model, device_ids=[d.local_rank] if d.device.type == "cuda" else None)
     log = RunLog(run, start) if d.main else None
-    meta = dict(meta, train=cfg.to_dict(), total_steps=total, steps_per_epoch=spe)
+    meta = dict(meta, train=asked.to_dict(), total_steps=total, steps_per_epoch=spe,
+                schedule={k: getattr(cfg, k) for k in ("warmup", "val_every", "ckpt_every")})
     bar = None
     if d.main and progress:
         from tqdm import tqdm
@@ -215,8 +309,16 @@ def train(
         )
     sigma0 = BLUR_SIGMA0_PX_224 * pcfg.image_size / 224.0
     t_last, n_last, last_val = time.perf_counter(), 0, {}
+    best_sps, hinted = 0.0, False
+    from policies.cost_hint import CostHint  # CPU image runs: what a step costs and the run will take
+
+    cost = (CostHint(total - start, observation=pcfg.observation, device=d.device.type, batch=cfg.batch)
+            if d.main and progress else None)
+    eval_model = ema.model if ema is not None else model
     model.train()
     for s in range(start, min(total, stop_at or total)):
+        if probe is not None:
+            probe.before(s // 100, s % 100)
         epoch, k = divmod(s, spe)
         idx, pos = sampler.batch(epoch, k, cfg.batch)
         gen = torch.Generator().manual_seed(_seed(cfg.seed, s))
@@ -239,10 +341,16 @@ def train(
         gnorm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
         opt.step()
         opt.zero_grad(set_to_none=True)
+        if ema is not None:
+            ema.update(model, s)
+        if probe is not None:
+            probe.after()
         n_last += cfg.batch
         done = s + 1
         if bar is not None:
             bar.update(1)
+        if cost is not None and (line := cost.tick(done - start, time.perf_counter())):
+            _say(bar, line)
         if done % cfg.log_every == 0 or done == total:
             logged = _global_means(d, [loss.detach()] + [v.detach().float().mean() for v in parts.values()])
         if d.main and (done % cfg.log_every == 0 or done == total):
@@ -258,12 +366,20 @@ def train(
             t_last, n_last = now, 0
             if bar is not None:
                 bar.set_postfix(loss=f"{row['train/loss']:.4f}", sps=f"{row['samples_per_s']:.0f}")
+            best_sps = max(best_sps, row["samples_per_s"])
+            if not hinted and done - start >= 100 and row["samples_per_s"] < 0.3 * best_sps:
+                hinted = True
+                _say(bar, slow_hint(row["samples_per_s"], best_sps, torch.get_num_threads()))
         if d.main and (done % cfg.val_every == 0 or done == total):
-            last_val = evaluate(model, data, val_idx, pcfg, d.device, cfg.val_max)
+            last_val = evaluate(eval_model, data, val_idx, pcfg, d.device, cfg.val_max)
+            if ema is not None and last_val:
+                raw = evaluate(model, data, val_idx, pcfg, d.device, cfg.val_max)
+                last_val.update({f"{k}_raw": v for k, v in raw.items()})
             if last_val:
                 log.log(done, last_val)
         if d.main and (done % cfg.ckpt_every == 0 or done == total):
-            C.save(run / "checkpoints", done, model, opt, dict(meta, metrics=last_val), final=done == total)
+            C.save(run / "checkpoints", done, model, opt, dict(meta, metrics=last_val), final=done == total,
+                   ema=ema.model if ema is not None else None, keep=cfg.keep_checkpoints)
         if done % cfg.ckpt_every == 0:
             barrier(d)  # the others wait while rank 0 writes, so a killed run has a consistent checkpoint
         if d.main and on_progress is not None:
@@ -275,7 +391,8 @@ def train(
             on_progress(shown)
         if stop is not None and stop.is_set() and done < total:
             if d.main and done % cfg.ckpt_every:
-                C.save(run / "checkpoints", done, model, opt, dict(meta, metrics=last_val))
+                C.save(run / "checkpoints", done, model, opt, dict(meta, metrics=last_val),
+                       ema=ema.model if ema is not None else None, keep=cfg.keep_checkpoints)
             break
     if bar is not None:
         bar.close()

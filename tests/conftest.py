@@ -2,10 +2,19 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import pytest
+
+# the recordings' array and frame caches of this test session go to a folder of its own (subprocesses
+# inherit it), not into the user's ~/.cache/factr2; the demo's NEXT cache ($FACTR2_CACHE) stays shared
+_CACHE = tempfile.mkdtemp(prefix="factr2-test-recording-cache-")
+os.environ.setdefault("FACTR2_RECORDING_CACHE", _CACHE)
+atexit.register(shutil.rmtree, _CACHE, True)
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("FACTR2_SHARED", REPO.parent / "shared"))

@@ -38,9 +38,16 @@ def write_recording(
     joint_names=None,
     simulated: bool = True,
     metadata: dict | None = None,
+    outcomes=None,
+    objects: int = 0,
+    task: str = "push",
 ) -> Path:
     """`episodes` episodes of `seconds` each; in each, tau_ext rises to 2 N*m per joint for `contact_s`
-    at every time in `contact_at` (seconds into the episode) and is 0.01 N*m noise elsewhere."""
+    at every time in `contact_at` (seconds into the episode) and is 0.01 N*m noise elsewhere.
+    outcomes: one per episode ("success" default, "failure", None: stopped unlabelled, "incomplete": never
+    stopped, as when the recorder is killed). objects: that many PRIVILEGED object values ("obj0", ...) per
+    tick on /task/objects, as `factr2 collect` writes on a twin."""
+    outcomes = list(outcomes or ["success"] * episodes)
     path = Path(path)
     names = list(joint_names or NAMES[:n_joints])
     rng = np.random.default_rng(seed)
@@ -48,9 +55,9 @@ def write_recording(
     rec = Recorder(path, joint_names={"follower": names, "leader": names}, t0=0.0, metadata=meta)
     dt = 1.0 / RATE_HZ
     t = 0.0
-    for _ in range(episodes):
+    for e in range(episodes):
         t0 = t
-        rec.start_episode(t, task="push")
+        rec.start_episode(t, task=task)
         n = int(seconds * RATE_HZ)
         phase = rng.uniform(0, 2 * np.pi)
         for k in range(n):
@@ -73,11 +80,15 @@ def write_recording(
                 in_contact = any(c <= k * dt < c + contact_s for c in contact_at)
                 tau = np.full(n_joints, 2.0) if in_contact else rng.normal(0, 0.01, n_joints)
                 rec.log_external_torque("follower", tk, tau, in_contact)
+            if objects:
+                names_o = [f"obj{i}" for i in range(objects)]
+                rec.log_task_objects(tk, q[0] + np.arange(objects, dtype=float), names_o)
             if k % int(RATE_HZ / CAMERA_HZ) == 0:
                 for ci, cam in enumerate(cameras):
                     rec.log_image(cam, tk, _frame(k, ci))
         t = t0 + n * dt
-        rec.stop_episode(t, "success")
+        if outcomes[e] != "incomplete":
+            rec.stop_episode(t, outcomes[e])
         t += 0.5
     rec.close()
     return path

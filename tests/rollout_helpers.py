@@ -37,5 +37,6 @@ def train_tiny(rec: Path, out: Path, policy: str = "flow", steps: int = 4) -> Pa
     train = TrainConfig(steps=steps, batch=8, lr=1e-3, warmup=1, log_every=1, val_every=1000, ckpt_every=1000,
                         threads=1)
     run_training(RunOptions(inputs=[rec], out=out, policy=policy, method="base-torque", thresholds=(1.0, 3.0),
-                            progress=False, overrides=dict(TINY), train=train, val_fraction=0.0), Dist())
+                            progress=False, overrides=dict(TINY), train=train, val_fraction=0.0,
+                            include_failed=True), Dist())  # the held-still episode is labelled a failure
     return out

@@ -76,3 +76,42 @@ def test_existing_output_is_refused(exported, capsys):
         ["export", "lerobot", str(exported / "a.mcap"), "--out", str(exported / "ds"), "--thresholds", "1:3"]
     )
     assert rc == 2 and "output folder exists" in capsys.readouterr().err
+
+
+RIG_30FPS = '[[cameras]]\nname = "top"\nsource = "sim:top"\nfps = 30\n'
+
+
+def test_state_only_export_with_privileged_objects(tmp_path, capsys):
+    """`collect --no-cameras` recordings: a valid dataset without videos, at the state-only rate, with the
+    twin's object state as a labelled feature."""
+    import pandas as pd
+
+    write_recording(tmp_path / "a.mcap", episodes=2, seconds=2.0, cameras=(), objects=3)
+    rc = main(["export", "lerobot", str(tmp_path / "a.mcap"), "--out", str(tmp_path / "ds"), "--thresholds",
+               "1:3"])
+    out = capsys.readouterr().out
+    assert rc == 0 and "state only (no cameras)" in out and "PRIVILEGED" in out, out
+    info = json.loads((tmp_path / "ds" / "meta" / "info.json").read_text())
+    assert info["fps"] == 30 and info["video_path"] is None
+    assert not [k for k, f in info["features"].items() if f["dtype"] == "video"]
+    obj = info["features"]["observation.state.objects"]
+    assert obj["names"] == ["obj0", "obj1", "obj2"] and "PRIVILEGED" in obj["description"]
+    data = pd.read_parquet(tmp_path / "ds" / "data" / "chunk-000" / "file-000.parquet")
+    assert len(data) == info["total_frames"] >= 2 * 55  # 2 s at 30 fps each, less the span's ends
+    assert np.isfinite(np.stack(data["observation.state.objects"].to_numpy())).all()
+    stats = json.loads((tmp_path / "ds" / "meta" / "stats.json").read_text())
+    assert "observation.state.objects" in stats and not (tmp_path / "ds" / "videos").exists()
+
+
+@pytest.mark.parametrize("rig_fps,warned", [(10, False), (30, True)])
+def test_fps_is_the_rig_files_checked_against_the_frames(tmp_path, capsys, rig_fps, warned):
+    """The nominal camera rate from the rig file, not a median interval rounded down (29 for 30 Hz), and
+    a warning when the frames' timestamps disagree with it."""
+    rig = RIG_30FPS.replace("30", str(rig_fps))
+    write_recording(tmp_path / "a.mcap", episodes=1, seconds=2.0, metadata={"rig_toml": rig})
+    rc = main(["export", "lerobot", str(tmp_path / "a.mcap"), "--out", str(tmp_path / "ds"), "--thresholds",
+               "1:3"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert json.loads((tmp_path / "ds" / "meta" / "info.json").read_text())["fps"] == rig_fps
+    assert ("rig file says 30 fps but its frames came at 10" in err) == warned, err

@@ -76,6 +76,7 @@ def test_phases_cli_prints_shares_and_writes_pngs(tmp_path, capsys):
     assert "a.mcap#0" in out and "a.mcap#1" in out
     pngs = sorted((tmp_path / "ph").glob("*.png"))
     assert len(pngs) == 2 and all(p.stat().st_size > 5000 for p in pngs)
+    assert [p.name for p in pngs] == ["a_ep0.png", "a_ep1.png"]
     # 4 s episode, contact 1.5..2.5 s, pre-contact 0.5..1.5 s: 25 % / 25 % / 50 % free
     row = next(line for line in out.splitlines() if line.startswith("a.mcap#0"))
     free, pre, con = (float(x.rstrip("%")) for x in row.split()[2:5])

@@ -78,9 +78,15 @@ def test_checkpoint_round_trip_and_tensorboard(recordings, tmp_path):
     assert set(norm.mean) == {"state", "action", "force"}
     from safetensors.torch import load_file
 
-    saved = load_file(str(run / "checkpoints" / meta["weights"]))
+    assert meta["weights_used"] == "ema"  # the moving average is what rollouts get by default
+    saved = load_file(str(run / "checkpoints" / meta["weights_ema"]))
     for k, v in model.state_dict().items():
         assert torch.equal(saved[k], v), k
+    trained, meta_t, _ = C.load_policy(run, ema=False)
+    saved = load_file(str(run / "checkpoints" / meta_t["weights"]))
+    assert meta_t["weights_used"] == "trained"
+    assert all(torch.equal(saved[k], v) for k, v in trained.state_dict().items())
+    assert any(not torch.equal(v, trained.state_dict()[k]) for k, v in model.state_dict().items())
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     acc = EventAccumulator(str(run / "tensorboard"))

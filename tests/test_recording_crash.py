@@ -216,3 +216,26 @@ def test_malformed_samples_are_counted_not_raised(tmp_path):
     st = rec.close()
     assert st.error is None and st.warning and st.dropped_samples == 2 and st.dropped_frames == 1
     assert len(Recording(tmp_path / "m.mcap").topic("/follower/joint_state")) == 1
+
+
+def test_recovered_copy_is_listed_in_place_of_the_damaged_file(tmp_path, capsys):
+    """`factr2 recover FILE` writes FILE.recovered.mcap beside FILE: every folder reader (episodes list,
+    train, export, the app) then uses the copy alone, not both (each episode listed once)."""
+    from hardware.recording.episodes import list_episodes
+    from policies.recordings import recording_files
+
+    path = tmp_path / "s.mcap"
+    record_session(path, n=3000, episodes=2, flush_interval_s=0.05, chunk_size=32 * 1024).close()
+    data = path.read_bytes()
+    path.unlink()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 3 // 4])
+    assert cli_main(["recover", str(cut)]) == 0
+    assert "cut.recovered.mcap in its place" in capsys.readouterr().out
+    assert recording_files([tmp_path]) == [tmp_path / "cut.recovered.mcap"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rows = list_episodes(tmp_path)
+    assert {r.file.name for r in rows} == {"cut.recovered.mcap"}
+    assert len({r.index for r in rows}) == len(rows) >= 1
+    assert recording_files([cut]) == [cut]  # named explicitly, a file is still read

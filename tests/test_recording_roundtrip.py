@@ -121,3 +121,17 @@ def test_cached_read_speed(tmp_path):
     dt = min(dts)
     assert rec.from_cache and js[1].fields["q"].shape == (n, 6) and not np.isinf(total)
     assert 2 * n / dt > 1e6, f"{2 * n / dt:.3g} joint-state samples/s from the cache"
+
+
+def test_caches_stay_out_of_the_data_folder(tmp_path):
+    """The array cache and the policies' frame cache live in the user's cache folder, not beside the
+    recording: a `factr2 collect` folder holds only what was recorded."""
+    from policies.frame_cache import camera_frames
+
+    path = tmp_path / "data" / "s.mcap"
+    path.parent.mkdir()
+    record_session(path, n=200).close()
+    rec = Recording(path)
+    camera_frames(rec, rec.cameras[0], 16)
+    assert Recording(path).from_cache
+    assert sorted(p.name for p in path.parent.iterdir()) == ["s.mcap"]

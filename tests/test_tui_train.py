@@ -45,6 +45,10 @@ def test_choices_give_the_paper_defaults_and_run_options(tmp_path):
     o = T.run_options(c, tmp_path, ["a.mcap#0"], tmp_path / "run")
     assert o.ratio == (1.0, 5.0, 1.0) and o.preset == "small" and o.overrides["hidden"] == 64
     assert o.episodes == ("a.mcap#0",) and o.train.batch == T.TRYOUT_BATCH
+    # the screen's default filter is `factr2 train`'s: no failed or incomplete episode; "all" keeps them
+    assert T.DEFAULT_FILTER == "success+unlabelled" and not (o.include_failed or o.keep_incomplete)
+    o = T.run_options(c, tmp_path, ["a.mcap#0"], tmp_path / "run", outcomes="all")
+    assert o.include_failed and o.keep_incomplete
 
 
 def _frames(app) -> int:
@@ -77,10 +81,13 @@ def test_record_train_quit_mid_training_then_resume(tmp_path):
         async with app.run_test(size=SIZE) as pilot:
             await record_demos(pilot, app)
             await pilot.press("5")
-            assert await wait_for(pilot, lambda: "2 of 2 usable episodes chosen" in screen_text(app))
-            await pilot.press("o")  # success only: the failure drops out
+            # default: successful and unlabelled demonstrations, as `factr2 train`: the failure is left out
             assert await wait_for(pilot, lambda: "1 of 1 usable episodes chosen" in screen_text(app))
-            await pilot.press("o", "o")  # back to all
+            await pilot.press("o")  # all: the failure joins
+            assert await wait_for(pilot, lambda: "2 of 2 usable episodes chosen" in screen_text(app))
+            await pilot.press("o")  # success only
+            assert await wait_for(pilot, lambda: "1 of 1 usable episodes chosen" in screen_text(app))
+            await pilot.press("o", "o")  # back to all: the run then keeps the failure (include_failed)
             assert await wait_for(pilot, lambda: "2 of 2 usable" in screen_text(app))
             # default: thresholds from the recordings' own contact scores (factr2 train's default); these
             # demonstrations (ground-truth feedback, no contact) hold no scores to split: the preview says so
@@ -91,7 +98,7 @@ def test_record_train_quit_mid_training_then_resume(tmp_path):
             assert await wait_for(pilot, lambda: "shading: '.' pre-contact" in screen_text(app), 30)
             assert "free/pre/contact" in screen_text(app) and " %" in screen_text(app)
             await pilot.press("z", "z")  # small -> paper -> tryout
-            await pilot.press("right_square_bracket")  # 20 steps
+            await pilot.press(*["left_square_bracket"] * 5)  # the shortest: 20 steps (lengths in order)
             assert "size tryout" in screen_text(app) and "20 steps" in screen_text(app)
             assert "ratio 1:5:1" in screen_text(app) and "paper: flow or ACT" in screen_text(app)
             await pilot.press("g")
@@ -103,7 +110,7 @@ def test_record_train_quit_mid_training_then_resume(tmp_path):
             assert "step 20/20" in text and "train loss" in text and "val all" in text, text
             done_run = app.training.opts.out
             # a longer run, then quit while it trains
-            for _ in range(4):
+            for _ in range(6):
                 await pilot.press("right_square_bracket")  # 10000 steps: it will not end by itself
             await pilot.press("g")
             assert await wait_for(pilot, lambda: app.training.snapshot().step >= 3, 120)

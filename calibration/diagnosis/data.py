@@ -198,7 +198,7 @@ def _lenient_npz(path: Path) -> Segment:
                         fix="pass a .npz written by numpy.savez") from None
     keys = set(d.files)
     if not {"t", "q"} <= keys or not ({"tau_m", "current"} & keys):
-        raise UserError(f"missing arrays (has {sorted(keys)})", where=str(path),
+        raise UserError(f"missing arrays (has {', '.join(sorted(keys))})", where=str(path),
                         fix="a plain log needs t, q and tau_m [N*m] or current [A]")
     units = "N*m" if "tau_m" in keys else "A"
     y = d["tau_m"] if units == "N*m" else d["current"]

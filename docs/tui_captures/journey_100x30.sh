@@ -28,7 +28,8 @@ cap 22_train_no_thresholds_100x30
 key h; sleep 0.5; tmux send-keys -t $S "1:2" ; sleep 0.3; key Enter
 waitfor "shading:" 60; sleep 1
 cap 23_train_phase_preview_100x30
-key z; key z; key "]"
+key z; key z
+for _ in 1 2 3 4 5; do key "["; done  # the shortest length, 20 steps (the keys run in order of length)
 sleep 0.5
 cap 24_train_choices_tryout_100x30
 key g

@@ -50,7 +50,9 @@ def resolve_mode(args) -> tuple[str, Path | None, str | None]:
     if path is None and args.mode == "auto" and args.no_calibrate:
         return "dob", None, "no cached NEXT checkpoint (--no-calibrate)"
     if path is None:
-        _say(f"no NEXT checkpoint for {args.rig} yet: one-time set-up on the twin (about 2-3 min)")
+        _say(f"no NEXT checkpoint for {args.rig} yet: one-time set-up on the twin "
+             f"({next_cache.DEMO_MINUTES:g} min of SIMULATED free motion as fast as the CPU goes, then at "
+             f"most {next_cache.DEMO_TRAIN_S:.0f} s of training; progress shown)")
         show = sys.stderr.isatty()
         last = [0.0]
 

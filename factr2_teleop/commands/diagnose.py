@@ -80,8 +80,9 @@ def _kinematics(name: str | None, segs, n: int):
                             fix="pass --arm NAME_OR_MJCF_PATH of the arm, or --arm none") from None
         logged = {s.joint_names for s in segs if s.arm == name and s.joint_names}
         if logged and logged != {tuple(desc.joint_names)}:
-            raise UserError(f"the logs' joints {sorted(logged)[0]} are not arm {name}'s "
-                            f"{list(desc.joint_names)}", where="--arm", fix="pass the arm the logs come from")
+            raise UserError(f"the logs' joints {', '.join(sorted(logged)[0])} are not arm {name}'s "
+                            f"{', '.join(desc.joint_names)}", where="--arm",
+                            fix="pass the arm the logs come from")
         stale = {s.arm_sha256 for s in segs if s.arm == name and s.arm_sha256} - {desc.sha256}
         if stale:
             print(f"note: arm description {name} changed since the logs were written (sha256 "

@@ -67,14 +67,17 @@ def _phases(args) -> None:
     labels = [L.label_episode(ep, arms, th, model) for ep in episodes]  # all checked before any PNG
     first = args.path[0]
     out = args.out or ((first if first.is_dir() else first.parent) / "phases")
-    print(f"thresholds: T_low {th.t_low:.4g}, T_high {th.t_high:.4g} [N*m] ({th.source}); pre-contact 1 s")
+    tare = "off (--no-tare)" if th.tare == "off" else f"{th.tare} (held loads removed from grasp to release)"
+    print(f"thresholds: T_low {th.t_low:.4g}, T_high {th.t_high:.4g} [N*m] ({th.source}); pre-contact 1 s; "
+          f"tare {tare}")
     print(f"{'episode':<40} {'seconds':>8} {'free':>6} {'pre':>6} {'contact':>8} {'onsets':>6}  "
           "source; figure")
     n_total, weighted = 0, 0.0
     for ep, lab in zip(episodes, labels):
         sh = lab.shares()
         n_on = len(onsets(lab.phases == CONTACT))
-        png = L.plot_labels(lab, th, out / f"{lab.episode.replace('#', '_ep')}.png")
+        name, _, index = lab.episode.partition("#")  # "a.mcap#3" -> a_ep3.png
+        png = L.plot_labels(lab, th, out / f"{Path(name).stem}{'_ep' + index if index else ''}.png")
         print(f"{lab.episode:<40} {ep.duration_s:8.1f} {sh[0]:6.1%} {sh[1]:6.1%} {sh[2]:8.1%} {n_on:6d}  "
               f"{lab.source}; {png}")
         n_total += len(lab.phases)

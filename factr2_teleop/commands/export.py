@@ -3,10 +3,12 @@ folder (state, tau_ext, action, images as mp4, the FIRST phase of every frame); 
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from factr2_teleop.commands.label_args import add_label_arguments, thresholds_arg
 from hardware.errors import UserError
+from hardware.recording import schemas as S
 
 HELP = "export recorded episodes (with FIRST phases) as a LeRobotDataset v3.0 folder"
 
@@ -18,7 +20,8 @@ def add_arguments(parser) -> None:
     p.add_argument(
         "--out", type=Path, required=True, metavar="DIR", help="the dataset folder (must not exist)"
     )
-    p.add_argument("--fps", type=int, default=None, help="frame rate (default: the camera rate, rounded)")
+    p.add_argument("--fps", type=int, default=None,
+                   help="rows per second (default: the camera's rate in the rig file; no cameras: 30)")
     add_label_arguments(p)
     p.add_argument("--robot-type", default="", help="info.json robot_type (default: factr2)")
 
@@ -37,9 +40,13 @@ def run(args) -> int:
     model = load_next(args.next) if args.next is not None else None
     th = resolve_thresholds(given, model, episodes, arms)
     info = export_lerobot(episodes, arms, args.out, th, model, args.fps, args.robot_type)
+    for line in info["factr2/warnings"]:
+        print(f"warning: {line}", file=sys.stderr)
+    cams = [k.rsplit(".", 1)[-1] for k, f in info["features"].items() if f["dtype"] == "video"]
+    extra = ", PRIVILEGED object state (SIMULATED)" if S.TASK_OBJECTS_FEATURE in info["features"] else ""
     print(
         f"{args.out}: LeRobotDataset {info['codebase_version']}, {info['total_episodes']} episodes, "
-        f"{info['total_frames']} frames at {info['fps']} fps, cameras "
-        f"{', '.join(k for k, f in info['features'].items() if f['dtype'] == 'video')}"
+        f"{info['total_frames']} frames at {info['fps']} fps, "
+        + (f"cameras {', '.join(cams)}" if cams else "state only (no cameras)") + extra
     )
     return 0

@@ -1,5 +1,5 @@
 """The phase-labelling options shared by `factr2 train`, `factr2 export lerobot` and `factr2 episodes phases`
-(policies.labelling does the work): --next CKPT and --thresholds recording|next|LOW:HIGH."""
+(policies.labelling does the work): --next CKPT, --thresholds recording|next|LOW:HIGH and --no-tare."""
 
 from __future__ import annotations
 
@@ -15,20 +15,25 @@ def add_label_arguments(p) -> None:
                    help="contact hysteresis on ||tau_ext||_1 [N*m]: LOW:HIGH, or derived: `recording` "
                         "(default: Otsu's split of the recordings' own scores) or `next` (the NEXT "
                         "checkpoint's free-motion noise: --next, else the one the recordings name)")
+    p.add_argument("--no-tare", action="store_true",
+                   help="score the raw tau_ext: no tare of a held object's load (by default the load, "
+                        "estimated on the free motion right after each grasp, is removed until the release)")
 
 
 def thresholds_arg(args):
-    """The parsed --thresholds as policies.labelling.resolve_thresholds takes it: (LOW, HIGH), "next", or
-    "recording" (also when absent: the commands' default); UserError with the fix for a bad value."""
-    from policies.labelling import THRESHOLD_SOURCES
+    """The parsed --thresholds and --no-tare as policies.labelling.resolve_thresholds takes them: a
+    LabelChoice of (LOW, HIGH), "next", or "recording" (also when absent: the commands' default) and the tare
+    method ("off" with --no-tare); UserError with the fix for a bad value."""
+    from policies.labelling import TARE_DEFAULT, THRESHOLD_SOURCES, LabelChoice
     from policies.phases import parse_thresholds
 
+    tare = "off" if getattr(args, "no_tare", False) else TARE_DEFAULT
     if args.thresholds is None:
-        return "recording"
+        return LabelChoice("recording", tare)
     if args.thresholds in THRESHOLD_SOURCES:
-        return args.thresholds
+        return LabelChoice(args.thresholds, tare)
     try:
-        return parse_thresholds(args.thresholds)
+        return LabelChoice(parse_thresholds(args.thresholds), tare)
     except ValueError as e:
         raise UserError(str(e), where="--thresholds",
                         fix="give LOW:HIGH in N*m (e.g. 1.5:2.5), `recording` or `next`") from None

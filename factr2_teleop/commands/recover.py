@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from hardware.recording.recover import recover
+from hardware.recording.recover import recover, recovered_path
 
 HELP = "rewrite a truncated or damaged .mcap recording into a valid one"
 
@@ -20,6 +20,9 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     report = recover(args.file, args.output, in_place=args.in_place)
     print(report.summary())
+    if not args.in_place and args.output is None:
+        print(f"{args.file} stays as it was; folder readers (episodes list, train, export, the app) now use "
+              f"{recovered_path(args.file).name} in its place")
     for w in report.warnings:
         print(f"warning: {w}")
     return 0

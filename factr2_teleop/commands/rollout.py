@@ -40,6 +40,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--ensemble-m", type=float, default=0.01, help="temporal ensembling weight exp(-m i)")
     parser.add_argument("--k-exec", type=int, default=None,
                         help="receding horizon: steps executed per chunk (default a third of the chunk)")
+    parser.add_argument("--force", action="store_true", help="roll out on a task the policy's demonstrations "
+                        "did not come from (refused without it)")
     parser.add_argument("--json", type=Path, default=None, help="write the summary JSON here")
 
 
@@ -66,11 +68,20 @@ def summary_lines(out: dict) -> list[str]:
               f"p99 {t['action_age_p99_ms']:.1f} ms",
               f"{'commands':>26s}  {t['commands_sent']} sent, {t['command_violations']} outside the "
               f"limits at the wire; chunks refused: {t['refused_nonfinite']} non-finite, "
-              f"{t['refused_outside_limits']} outside the limits; holds {t['holds'] or 0}",
+              f"{t['refused_outside_limits']} outside the limits; holds {_holds(t['holds'])}",
               f"{'wall time':>26s}  {out['wall_s']:.0f} s"]
     if out.get("recording"):
         lines.append(f"{'recording':>26s}  {out['recording']}")
     return lines
+
+
+def _holds(holds) -> str:
+    """Follower holds by reason, in words: "6 (policy target outside the joint limits)", or "0"."""
+    if not holds:
+        return "0"
+    if not isinstance(holds, dict):
+        return str(holds)
+    return ", ".join(f"{n} ({why})" for why, n in sorted(holds.items(), key=lambda kv: -kv[1]))
 
 
 def _key_reader(marks) -> threading.Thread | None:
@@ -108,7 +119,14 @@ def run(args) -> int:
     opts = RolloutOptions(rig=args.rig, policy=args.policy, task=args.task, episodes=args.episodes,
                           seed=args.seed, record=args.record, max_seconds=args.max_seconds, next=args.next,
                           realtime=args.realtime, mode=args.mode, schedule=args.schedule,
-                          ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks)
+                          ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks, force=args.force)
+    if args.force and args.task:
+        from factr2_teleop.session.task_check import task_mismatch
+        from policies.checkpoint import read_meta
+
+        why = task_mismatch(read_meta(args.policy), args.task)
+        if why:
+            print(f"warning: {why}: rolled out anyway (--force)", file=sys.stderr)
     if args.task is None and _key_reader(marks) is not None:
         print("keys: s = next stage reached, y = success, n = failure, q = stop; Ctrl-C holds and stops")
     out = run_rollout(opts)

@@ -41,12 +41,24 @@ def add_arguments(p) -> None:
         "default 1:5:1 for first, uniform otherwise",
     )
     p.add_argument(
-        "--preset", choices=PRESETS, default="small", help="small (CPU) or paper (the paper's sizes)"
+        "--preset", choices=PRESETS, default=None,
+        help="state (low-dimensional inputs, the default with --obs state), small (images on a CPU, the "
+        "default otherwise) or paper (the paper's sizes)"
     )
     g = p.add_mutually_exclusive_group()
     g.add_argument("--steps", type=int, default=None, help="optimiser steps")
     g.add_argument("--epochs", type=float, default=None, help="passes over the training samples (default 20)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
+    p.add_argument(
+        "--include-failed",
+        action="store_true",
+        help="train on failed demonstrations too (default: they are skipped, counted in one line)",
+    )
+    p.add_argument(
+        "--keep-incomplete",
+        action="store_true",
+        help="train on episodes cut off by a killed recorder too (default: skipped)",
+    )
     p.add_argument(
         "--force",
         choices=[f for f in FORCE_SOURCES if f != "none"],
@@ -134,7 +146,7 @@ def _options(args):
         policy=args.policy,
         method=args.method,
         ratio=ratio,
-        preset=args.preset,
+        preset=args.preset or "",
         force=args.force,
         next=args.next,
         thresholds=thresholds,
@@ -148,6 +160,8 @@ def _options(args):
         train=tcfg,
         overrides=overrides,
         observation=args.obs,
+        include_failed=args.include_failed,
+        keep_incomplete=args.keep_incomplete,
     )
 
 
@@ -179,7 +193,8 @@ def _overrides(items: list[str]) -> dict:
 def _argv(args) -> list[str]:
     """This command's options back as arguments (for the worker processes), less --nproc."""
     out = ["train", *map(str, args.inputs)]
-    flags = {"resume": "--resume", "no_progress": "--no-progress"}
+    flags = {"resume": "--resume", "no_progress": "--no-progress", "include_failed": "--include-failed",
+             "keep_incomplete": "--keep-incomplete", "no_tare": "--no-tare"}
     for dest, value in sorted(vars(args).items()):
         if dest in ("inputs", "nproc", "command", "debug", "_run") or value is None or dest.startswith("_"):
             continue

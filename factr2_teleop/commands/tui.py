@@ -22,6 +22,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="DIR",
         help="folder for recordings/ and calibration/ (default ./factr2_out)",
     )
+    p.add_argument("--recordings", default=None, metavar="DIR",
+                   help="recordings folder to list, train on and record into (default OUT/recordings), e.g. "
+                   "a `factr2 collect --out` folder")
+    p.add_argument("--runs", default=None, metavar="DIR",
+                   help="training runs folder, or one `factr2 train --out` run (default OUT/runs)")
     p.add_argument("--connect", action="store_true", help="connect to the rig at start")
     p.add_argument(
         "--clock",
@@ -66,6 +71,10 @@ def run(args) -> int:
         )
     if args.pace < 0:
         raise UserError(f"--pace {args.pace} is negative", where="--pace", fix="use 1 (real time) or 0")
+    from factr2_teleop.tui.folders import check_folder
+
+    folders = {k: check_folder(v, k, where=f"--{k}") if v is not None else None
+               for k, v in (("recordings", args.recordings), ("runs", args.runs))}
     runtime = RigRuntime(args.rig, clock=args.clock, pace=args.pace)  # ConfigError for a bad rig: one line
     if args.feedback is not None and args.feedback not in modes_for(runtime.rig):
         raise UserError(
@@ -82,6 +91,8 @@ def run(args) -> int:
         connect=args.connect,
         mode=args.feedback,
         light=args.light,
+        recordings_dir=folders["recordings"],
+        runs_dir=folders["runs"],
     )
     try:
         app.run()

@@ -26,7 +26,9 @@ CACHE_VERSION = 7  # bumped when checkpoints change (2: prior with filtering, te
 
 
 def cache_dir() -> Path:
-    return Path(os.environ.get("FACTR2_CACHE") or Path.home() / ".cache" / "factr2")
+    from hardware.recording.cache import cache_home
+
+    return cache_home()  # one cache folder for the app: NEXT here, recordings' arrays and frames beside
 
 
 def cached_checkpoint(rig: str) -> Path:

@@ -164,10 +164,21 @@ class DemoResult:
     messages: list = field(default_factory=list)
 
     def to_json(self) -> dict:
+        """The metrics; a value not measured in this run is null, and `null_fields` says why (JSON has no
+        NaN, and a bare null reads like a bug)."""
         def num(x):
             return None if isinstance(x, float) and not np.isfinite(x) else x
-        return {k: ([num(v) for v in val] if isinstance(val, list) and k != "messages" else num(val))
-                for k, val in self.__dict__.items()}
+        out = {k: ([num(v) for v in val] if isinstance(val, list) and k != "messages" else num(val))
+               for k, val in self.__dict__.items()}
+        why = "not measured in this run (docs/demo.md)"
+        out["null_fields"] = {k: NULL_WHY.get(k, why) for k, v in out.items() if v is None}
+        return out
+
+
+# why a metric can be null (docs/demo.md)
+_FORCE_WHY = ("the follower's contact force is measured only in the wipe-table benchmark runs "
+              "(bench/bench_demo.py, contact_force=True), not in `factr2 demo`")
+NULL_WHY = {"peak_contact_force_n": _FORCE_WHY, "mean_contact_force_n": _FORCE_WHY}
 
 
 class DemoRun:

@@ -49,7 +49,10 @@ class RolloutOptions:
     schedule: "ensemble" / "receding" (default ACT ensemble, flow receding); ensemble_m; k_exec; threaded:
     inference on its own thread (default: in real time only); marks: a queue.SimpleQueue of keys (s/y/n/q)
     for operator-marked episodes; on_start: callable(session, target, episodes) once everything is built,
-    before the loop runs (a UI's live view: add a tick hook, stop the loop)."""
+    before the loop runs (a UI's live view: add a tick hook, stop the loop). lean: skip what only a recording
+    or a watcher reads -- the passive leader's simulation and service, and the estimator when the policy
+    observes no force (None: on for a lockstep twin without record and on_start; the follower's commands
+    are the same either way, docs/rollout.md "Rollout CPU")."""
 
     rig: str
     policy: Path
@@ -68,6 +71,9 @@ class RolloutOptions:
     threaded: bool | None = None
     marks: object = None
     on_start: object = None
+    lean: bool | None = None
+    force: bool = False  # roll out on another task than the demonstrations' (session/task_check.py)
+    ema: bool = True  # the checkpoint's moving-average weights where it has them (else the trained ones)
 
 
 # -- the NEXT checkpoint the policy was trained with -----------------------------------------------------
@@ -147,6 +153,7 @@ def check_options(opts: RolloutOptions, runner):
     """Everything refusable before a device is opened (UserError, one line); returns (rig, task): the rig
     as the rollout opens it (a twin task adds its scene and cameras) and the task or None. The terminal app
     checks a run against the rig with it too."""
+    from factr2_teleop.session.task_check import check_task
     from factr2_teleop.tasks.collect import task_rig
     from hardware.arms import load_arm
     from hardware.rigs.rig import load_rig
@@ -156,6 +163,7 @@ def check_options(opts: RolloutOptions, runner):
         raise UserError(f"--episodes {opts.episodes} must be at least 1", where="--episodes", fix="e.g. 20")
     rig = load_rig(opts.rig)
     task = get_task(opts.task) if opts.task else None
+    check_task(runner.meta, opts.task, opts.force)  # another task than the demonstrations': forced only
     if task is not None:
         rig = task_rig(rig, task)  # ConfigError for a real rig or an arm that cannot hold the task
     if len(rig.pairs) != 1:
@@ -188,6 +196,7 @@ class WireCheck:
 
     def __init__(self, limits):
         self.q_min, self.q_max = np.asarray(limits.q_min), np.asarray(limits.q_max)
+        self._lo, self._hi = self.q_min - 1e-9, self.q_max + 1e-9
         self.sent = self.violations = 0
         self.hold_times: list[float] = []  # t_sent of each hold entered
         self.last_hold = False
@@ -196,7 +205,7 @@ class WireCheck:
     def __call__(self, t_issued, t_sent, safe) -> None:
         q = np.asarray(safe.q, dtype=float)
         self.sent += 1
-        if not (np.all(np.isfinite(q)) and np.all(q >= self.q_min - 1e-9) and np.all(q <= self.q_max + 1e-9)):
+        if not ((q >= self._lo) & (q <= self._hi)).all():  # NaN fails both comparisons, +-inf one of them
             self.violations += 1
         if safe.hold and not self.last_hold:
             self.hold_times.append(float(t_sent))
@@ -233,14 +242,19 @@ def run_rollout(opts: RolloutOptions) -> dict:
 
     from policies.rollout.runner import PolicyRunner
 
-    runner = PolicyRunner(opts.policy, seed=opts.seed)
+    runner = PolicyRunner(opts.policy, seed=opts.seed, ema=opts.ema)
     rig, task = check_options(opts, runner)
     next_path, note = resolve_next(runner.meta, opts.next)
     if next_path is not None and opts.mode not in (None, "next"):
         raise UserError(f"the policy was trained on NEXT's tau_ext; --mode {opts.mode} would feed it another "
                         "estimate", where="--mode", fix="leave --mode out")
     realtime = opts.realtime or not rig.simulated
-    plan = {"next_path": next_path, "note": note, "mode": "next" if next_path is not None else opts.mode,
+    lean = not realtime and (opts.lean if opts.lean is not None else
+                             opts.record is None and opts.on_start is None)
+    mode = "next" if next_path is not None else opts.mode
+    if lean and not runner.force_names:
+        mode = "none"  # the estimate is an input of the policy and a recorded topic only: nobody reads it
+    plan = {"next_path": next_path, "note": note, "mode": mode, "lean": lean,
             "realtime": realtime, "threaded": opts.threaded if opts.threaded is not None else realtime,
             "schedule": opts.schedule or (ENSEMBLE if runner.policy == "act" else RECEDING),
             "k_exec": opts.k_exec or max(1, runner.cfg.chunk // K_EXEC_SHARE)}
@@ -252,8 +266,8 @@ def run_rollout(opts: RolloutOptions) -> dict:
         torch.set_num_threads(threads)
 
 
-def _rollout(opts: RolloutOptions, runner, rig, task, *, next_path, note, mode, realtime, threaded, schedule,
-             k_exec) -> dict:
+def _rollout(opts: RolloutOptions, runner, rig, task, *, next_path, note, mode, lean, realtime, threaded,
+             schedule, k_exec) -> dict:
     from hardware.connect import open_rig
     from hardware.sim.twin import TwinDrivenClock
 
@@ -272,6 +286,9 @@ def _rollout(opts: RolloutOptions, runner, rig, task, *, next_path, note, mode, 
         ts = RolloutSession(s, TeleopOptions(mode=mode, checkpoint=str(next_path) if next_path else None),
                             clock=clock)
         pair = ts.pairs[0]
+        if lean:  # the passive leader: nothing records or shows it, and the follower's law never reads it
+            pair.serve_leader = False
+            s.twin.set_idle(pair.leader.name)
         lim = pair.follower.safety.limits
         sched = ChunkSchedule(mode=schedule_mode, dt=runner.dt, q_min=lim.q_min, q_max=lim.q_max,
                               m=opts.ensemble_m, k_exec=k_exec)
@@ -339,6 +356,7 @@ def _rollout(opts: RolloutOptions, runner, rig, task, *, next_path, note, mode, 
            "schedule": schedule_mode, "k_exec": k_exec if schedule_mode == RECEDING else None,
            "ensemble_m": opts.ensemble_m if schedule_mode == ENSEMBLE else None, "seed": opts.seed,
            "feedback_mode": pair.mode, "next": str(next_path) if next_path else None, "note": note,
+           "lean": lean,
            "interrupted": interrupted, "wall_s": time.perf_counter() - t_wall,
            "episodes": [{k: v for k, v in asdict(r).items() if k in ("index", "seed", "outcome", "progress",
                                                                     "stages", "duration_s")} for r in res],

@@ -30,6 +30,13 @@ from factr2_teleop.tui.teleop_ctl import TeleopController
 from factr2_teleop.tui.train_ctl import Choices, TrainingRun
 from factr2_teleop.tui.training import TrainingScreen
 
+
+def runs_folder(folder: Path) -> Path:
+    """The folder of runs: a run's own folder (`factr2 train --out RUN`) stands for the folder holding it, so
+    that the runs trained here go beside it, not inside it."""
+    return folder.parent if (folder / "checkpoints" / "last").is_file() else folder
+
+
 TRAINING_STOP_WAIT_S = 120.0  # quitting waits this long for the training step in flight and its checkpoint
 
 
@@ -71,13 +78,19 @@ class Factr2App(App):
         mode: str | None = None,
         light: bool = False,
         train_threads: int = 0,
+        recordings_dir: str | Path | None = None,
+        runs_dir: str | Path | None = None,
     ):
         super().__init__()
         if light:
             self.theme = "textual-light"
         self.runtime = runtime
         self.out_dir = Path(out_dir)
-        self.teleop = TeleopController(runtime, self.out_dir / "recordings", rate_hz=rate_hz, mode=mode)
+        # read by Episodes and Train, written by teleop and rollout recordings / new training runs;
+        # `--recordings` / `--runs` or key d (tui/folders.py) open others
+        self.recordings_dir = Path(recordings_dir) if recordings_dir else self.out_dir / "recordings"
+        self.runs_dir = runs_folder(Path(runs_dir)) if runs_dir else self.out_dir / "runs"
+        self.teleop = TeleopController(runtime, self.recordings_dir, rate_hz=rate_hz, mode=mode)
         self.calibration: CalibrationRun | None = None
         self.calibration_thread: threading.Thread | None = None
         self.cal_minutes, self.cal_epochs = float(cal_minutes), int(cal_epochs)
@@ -89,7 +102,8 @@ class Factr2App(App):
         self.rollout_task: str | None = None  # a twin task, or None: the operator marks episodes
         self.rollout_episodes = 1
         self.rollout_limit_s: float | None = None  # [s] per episode; None: the task's own
-        self.rollout_record = True  # into OUT/recordings, listed by the Episodes screen
+        self.rollout_record = True  # into the recordings folder, listed by the Episodes screen
+        self.rollout_force = False  # roll out on a task the policy's demonstrations did not come from
         self._connect_on_start = connect
         self._closed = False
 
@@ -111,6 +125,15 @@ class Factr2App(App):
     # -- shared helpers ------------------------------------------------------------------------------------
     def say(self, text: str) -> None:
         self.runtime.say(text)
+
+    def set_folder(self, kind: str, folder: Path) -> None:
+        """Open another recordings or runs folder; teleop records into the new recordings folder from its
+        next file on (an open recording stays where it is)."""
+        if kind == "recordings":
+            self.recordings_dir = Path(folder)
+            self.teleop.out_dir = Path(folder)
+        else:
+            self.runs_dir = runs_folder(Path(folder))
 
     def calibration_problem(self) -> str | None:
         """Why a NEXT calibration cannot run now (None: it can)."""
@@ -159,7 +182,8 @@ class Factr2App(App):
             task=self.rollout_task,
             episodes=self.rollout_episodes,
             max_seconds=self.rollout_limit_s,
-            record=self.out_dir / "recordings" if self.rollout_record else None,
+            record=self.recordings_dir if self.rollout_record else None,
+            force=self.rollout_force,
         )
         def after() -> None:
             rt.release("rollout")

@@ -32,7 +32,8 @@ def episode_table(rows, selected: int) -> list[str]:
     """The episode rows around the selection ('>' marks it)."""
     out = [f"  {'#':>2} {'file':<26} {'ep':>2} {'outcome':<10} {'duration':>8} {'contact':>7}  task"]
     if not rows:
-        return out + ["  (no episodes yet: record some on the Teleop screen)"]
+        return out + ["  (no episodes yet: record some on the Teleop screen, or d opens a folder of "
+                      "`factr2 collect`)"]
     lo = max(0, min(selected - ROWS_SHOWN // 2, len(rows) - ROWS_SHOWN))
     for i, r in enumerate(rows[lo : lo + ROWS_SHOWN], start=lo):
         mark = ">" if i == selected else " "
@@ -96,6 +97,7 @@ class EpisodesScreen(BaseScreen):
         Binding("up,k", "move(-1)", "Up"),
         Binding("down,j", "move(1)", "Down"),
         Binding("enter,v", "plot", "Plot"),
+        Binding("d", "folder", "Folder"),
     ]
 
     def compose_body(self) -> ComposeResult:
@@ -117,14 +119,14 @@ class EpisodesScreen(BaseScreen):
 
     @property
     def folder(self) -> Path:
-        return self.app.out_dir / "recordings"
+        return self.app.recordings_dir
 
     def refresh_view(self) -> None:
         self.query_one("#ep-head", Static).update(
-            f"recordings in {self.folder}   keys: up/down select, enter plot, l reload"
+            f"recordings in {self.folder}   keys: up/down select, enter plot, l reload, d folder"
         )
         self.query_one("#ep-table", Static).update("\n".join(episode_table(self.rows, self.selected)))
-        head = f"training runs in {self.app.out_dir / 'runs'} (Train screen, key 5):"
+        head = f"training runs in {self.app.runs_dir} (Train screen, key 5):"
         self.query_one("#ep-runs", Static).update("\n".join([head, *run_lines(self.runs)]))
 
     def action_reload(self) -> None:
@@ -132,7 +134,7 @@ class EpisodesScreen(BaseScreen):
 
         folder = self.folder
 
-        runs = self.app.out_dir / "runs"
+        runs = self.app.runs_dir
 
         def load():
             return (list_episodes(folder) if folder.exists() else []), list_runs(runs)
@@ -144,6 +146,11 @@ class EpisodesScreen(BaseScreen):
             self.refresh_view()
 
         self.background(load, "episodes", done)
+
+    def action_folder(self) -> None:
+        from factr2_teleop.tui.folders import open_folder
+
+        open_folder(self, "recordings", self.action_reload)
 
     def action_move(self, d: int) -> None:
         if self.rows:

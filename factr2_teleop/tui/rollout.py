@@ -38,7 +38,7 @@ def live_lines(st) -> list[str]:
 
 def status_lines(st) -> list[str]:
     age = "-" if not np.isfinite(st.action_age_s) else f"{1e3 * st.action_age_s:.0f} ms"
-    out = [f"rollout {st.status.upper()}: {st.line}"[:79]]
+    out = [f"rollout {st.status.upper()}: {st.line}"]  # not cut: the widget wraps an error's whole line
     if st.status in ("running", "E-STOPPED", "stopped", "done"):
         out.append(f"episode {min(max(st.episode, 1), st.episodes)}/{st.episodes}  stage {st.stage}  "
                    f"action age {age}  t {fmt(st.t, 6, 1)} s  {'follower HOLD' if st.hold else ''}")
@@ -60,6 +60,8 @@ class RolloutScreen(BaseScreen):
         Binding("left_square_bracket", "limit(-1)", "Shorter", show=False),
         Binding("right_square_bracket", "limit(1)", "Longer", show=False),
         Binding("r", "record", "Rec on/off"),
+        Binding("f", "force", "Force", show=False),
+        Binding("d", "folder", "Folder"),
         Binding("g", "go", "Go"),
         Binding("x", "stop", "Stop"),
         Binding("s", "mark('s')", "Stage", show=False),
@@ -93,14 +95,16 @@ class RolloutScreen(BaseScreen):
     def _key(self):
         if not self.runs:
             return None
-        return (str(self.runs[self.selected].path), str(self.app.runtime.rig.path), self.app.rollout_task)
+        return (str(self.runs[self.selected].path), str(self.app.runtime.rig.path), self.app.rollout_task,
+                self.app.rollout_force)
 
     # -- view -----------------------------------------------------------------------------------------------
     def refresh_view(self) -> None:
         app = self.app
-        lines = [f"trained runs in {app.out_dir / 'runs'} (up/down):"]
+        lines = [f"trained runs in {app.runs_dir} (up/down; d: another folder):"]
         if not self.runs:
-            lines.append("  (none yet: train one on the Train screen, key 5)")
+            lines.append("  (none yet: train one on the Train screen, key 5, or d opens the folder of "
+                         "`factr2 train --out`)")
         lo = max(0, min(self.selected - RUNS_SHOWN // 2, len(self.runs) - RUNS_SHOWN))
         for i, r in enumerate(self.runs[lo : lo + RUNS_SHOWN], start=lo):
             state = "final" if r.final else f"stopped at {r.step}"
@@ -112,14 +116,16 @@ class RolloutScreen(BaseScreen):
             problems = self.check.get(key)
             if problems is None:
                 lines.append("  rig check: checking ...")
-            elif not problems:
+            elif not problems or all(p.startswith("WARNING") for p in problems):
                 lines.append(f"  rig check: OK for {app.runtime.rig.name}"
                              + (f" with task {app.rollout_task}" if app.rollout_task else ""))
+                lines += [f"  {p}" for p in problems]
             else:
                 lines += [f"  rig check: {p}" for p in problems]
         limit = "task's" if app.rollout_limit_s is None else f"{app.rollout_limit_s:g} s"
         lines.append(f"task {app.rollout_task or 'none'} (t)  episodes {app.rollout_episodes} (e)  "
-                     f"limit {limit} ([ ])  record {'ON' if app.rollout_record else 'off'} (r)"[:79])
+                     f"limit {limit} ([ ])  record {'ON' if app.rollout_record else 'off'} (r)"
+                     + ("  FORCE (f)" if app.rollout_force else ""))
         if not app.rollout_task:
             lines.append("  no task: you judge each episode -- s stage reached, y success, n failure")
         self.query_one("#ro-head", Static).update("\n".join(lines))
@@ -135,10 +141,10 @@ class RolloutScreen(BaseScreen):
 
     def _check(self, key) -> None:
         self.check[key] = None
-        run, rig, task = key
+        run, rig, task, force = key
 
         def work():
-            return R.policy_summary(run), R.rig_problems(run, rig, task)
+            return R.policy_summary(run), R.rig_problems(run, rig, task, force)
 
         def done(result) -> None:
             self.summary[run], self.check[key] = result
@@ -147,7 +153,7 @@ class RolloutScreen(BaseScreen):
 
     # -- keys -----------------------------------------------------------------------------------------------
     def action_reload(self) -> None:
-        folder = self.app.out_dir / "runs"
+        folder = self.app.runs_dir
 
         def done(runs) -> None:
             self.runs = runs
@@ -199,6 +205,23 @@ class RolloutScreen(BaseScreen):
             self.app.rollout_record = not self.app.rollout_record
             self.refresh_view()
 
+    def action_force(self) -> None:
+        """Roll out on a task the policy's demonstrations did not come from (a warning, not a refusal)."""
+        if self._idle():
+            app = self.app
+            app.rollout_force = not app.rollout_force
+            app.say(f"force {'ON: a task mismatch is only a warning' if app.rollout_force else 'off'}")
+            self.refresh_view()
+
+    def action_folder(self) -> None:
+        from factr2_teleop.tui.folders import open_folder
+
+        def reopened() -> None:
+            self.selected = 0
+            self.action_reload()
+
+        open_folder(self, "runs", reopened)
+
     def action_go(self) -> None:
         app = self.app
         if not self._idle():
@@ -211,7 +234,7 @@ class RolloutScreen(BaseScreen):
         if problems is None:
             app.say("still checking the run against the rig: a moment")
             return
-        blocking = [p for p in problems if "NOT the checkpoint" not in p]
+        blocking = [p for p in problems if "NOT the checkpoint" not in p and not p.startswith("WARNING")]
         if blocking:
             app.say(f"cannot roll out: {blocking[0]}"[:200])
             return

@@ -10,6 +10,7 @@ once from the calling thread (each attempted even if the other fails); the loop 
 from __future__ import annotations
 
 import queue
+import re
 import threading
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -23,25 +24,48 @@ EPISODE_CHOICES = (1, 2, 5, 10, 20)
 MARK_KEYS = ("s", "y", "n")  # operator marks (MarkedRollout): next stage reached, success, failure
 
 
-def rig_problems(run: Path, rig: str, task: str | None) -> list[str]:
+# the command line's options -> this screen's keys, for the session layer's check messages (which name the
+# CLI's flags: "pass --task T" means nothing in the app)
+APP_WORDS = (
+    (re.compile(r"pass --task ([a-z][\w-]*)"), r"press t for task \1"),
+    (re.compile(r"pass --task T\b"), "press t to pick a task"),
+    (re.compile(r"--force\b"), "f (force)"),
+    (re.compile(r"^--task: "), "Rollout: "),
+    (re.compile(r"^--policy: "), "Rollout: "),
+    (re.compile(r"^--episodes: "), "Rollout: "),
+)
+
+
+def app_words(text: str) -> str:
+    """A check's one line with the command line's flags replaced by this screen's keys."""
+    for pattern, repl in APP_WORDS:
+        text = pattern.sub(repl, text)
+    return text
+
+
+def rig_problems(run: Path, rig: str, task: str | None, force: bool = False) -> list[str]:
     """Why the trained run cannot drive this rig (arm model, joint names, cameras, the NEXT checkpoint it
-    was trained with), in words; [] when it can. The session layer's own checks, run before any device
-    opens. Blocking (loads the policy): a worker."""
+    was trained with; a task other than its demonstrations' unless forced), in words with this screen's
+    keys; [] when it can. The session layer's own checks, run before any device opens. Blocking (loads the
+    policy): a worker."""
     from factr2_teleop.session import rollout as R
+    from factr2_teleop.session.task_check import task_mismatch
     from policies.rollout.runner import PolicyRunner
 
     out = []
     try:
         runner = PolicyRunner(run)
-        R.check_options(R.RolloutOptions(rig=rig, policy=Path(run), task=task), runner)
+        R.check_options(R.RolloutOptions(rig=rig, policy=Path(run), task=task, force=force), runner)
     except UserError as e:
-        return [str(e)]
+        return [app_words(str(e))]
+    if force and task_mismatch(runner.meta, task):
+        out.append(f"WARNING {task_mismatch(runner.meta, task)}: rolled out anyway (f: force is on)")
     try:
         _, note = R.resolve_next(runner.meta, None)
         if note:
             out.append(note)
     except UserError as e:
-        out.append(str(e))
+        out.append(app_words(str(e)))
     return out
 
 

@@ -18,12 +18,14 @@ import numpy as np
 
 from hardware.errors import UserError
 
-# which recorded episodes may train (discarded ones never do: policies.recordings leaves them out)
+# which recorded episodes may train (discarded ones never do: policies.recordings leaves them out); the first
+# is the default, `factr2 train`'s: failed and incomplete episodes are skipped unless asked for
 OUTCOME_FILTERS = {
-    "all": ("success", "failure", "unlabelled", "incomplete"),
+    "success+unlabelled": ("success", "unlabelled", "session"),
+    "all": ("success", "failure", "unlabelled", "incomplete", "session"),
     "success": ("success",),
-    "success+unlabelled": ("success", "unlabelled"),
 }
+DEFAULT_FILTER = next(iter(OUTCOME_FILTERS))
 RATIO_CHOICES = ("default", "PC", "C", "PC+C", "uniform")  # "default": the method's own (first: 1:5:1)
 STEP_CHOICES = (0, 20, 100, 500, 2000, 10000)  # optimiser steps; 0: TrainConfig's 20 epochs (the paper's)
 SIZE_CHOICES = ("small", "paper", "tryout")
@@ -57,6 +59,7 @@ class Choices:
     ratio: str = "default"
     size: str = "small"
     steps: int = 0
+    observation: str = "images"  # policies.privileged.OBSERVATIONS: camera frames, or the twin's object state
     # [N*m] (LOW, HIGH); "recording": from the episodes' own contact scores, `factr2 train`'s default;
     # "next": from the free-motion noise of the NEXT checkpoint the recordings name
     thresholds: tuple[float, float] | str = "recording"
@@ -74,18 +77,45 @@ class Choices:
 
         return METHODS[self.method].ratio if self.ratio == "default" else RATIO_PRESETS[self.ratio]
 
-    def describe(self) -> str:
+    def describe(self, epoch_steps: int | None = None) -> str:
         from policies.sampler import format_ratio
 
-        steps = f"{self.steps} steps" if self.steps else "20 epochs"
+        about = f" (~{epoch_steps} steps)" if epoch_steps else ""
+        steps = f"{self.steps} steps" if self.steps else f"20 epochs{about}"
         return (
             f"policy {self.policy} (p)  method {self.method} (m)  ratio {format_ratio(self.ratio_weights())}"
-            f" (r)  size {self.size} (z)  {steps} ([ ])"
+            f" (r)  size {self.size} (z)\nobs {self.observation} (i)  length {steps} ([ ])"
         )
 
+    def step_order(self, epoch_steps: int | None) -> list[int]:
+        """STEP_CHOICES ordered by length: 20 epochs (0) sits where its step count falls, so `[` from it
+        goes to a shorter run (before, it was first whatever its length, and `[` did nothing)."""
+        est = epoch_steps if epoch_steps else STEP_CHOICES[2]  # unknown: between 20 and 500 steps
+        return sorted(STEP_CHOICES, key=lambda s: (s or est, s == 0))
 
-def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Path, threads: int = 0):
-    """policies.run.RunOptions for these choices (the CLI's `factr2 train` builds the same)."""
+    def step(self, d: int, epoch_steps: int | None) -> None:
+        order = self.step_order(epoch_steps)
+        i = order.index(self.steps) if self.steps in order else order.index(0)
+        self.steps = order[max(0, min(len(order) - 1, i + d))]
+
+
+def epoch_steps(rows, chosen: set, choices: Choices) -> int | None:
+    """Optimiser steps of 20 epochs over the chosen episodes, estimated from their durations at the policy
+    rate of 30 Hz (None: nothing chosen)."""
+    from policies.dataset import STATE_RATE_HZ
+    from policies.train import TrainConfig
+
+    secs = sum(r.duration_s for r in rows if episode_key(r) in chosen and np.isfinite(r.duration_s))
+    if secs <= 0:
+        return None
+    batch = TRYOUT_BATCH if choices.size == "tryout" else TrainConfig().batch
+    return max(1, int(round(20 * secs * STATE_RATE_HZ / batch)))
+
+
+def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Path, threads: int = 0,
+                outcomes: str = DEFAULT_FILTER):
+    """policies.run.RunOptions for these choices (the CLI's `factr2 train` builds the same). `outcomes`: the
+    screen's filter, so that a failed or incomplete episode the user chose is not skipped by the run."""
     from policies.run import RunOptions
     from policies.sampler import RATIO_PRESETS
     from policies.train import TrainConfig
@@ -110,6 +140,9 @@ def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Pa
         train=tcfg,
         overrides=dict(TRYOUT_OVERRIDES) if tryout else None,
         episodes=tuple(episodes),
+        observation=choices.observation,
+        include_failed="failure" in OUTCOME_FILTERS[outcomes],
+        keep_incomplete="incomplete" in OUTCOME_FILTERS[outcomes],
     )
 
 
@@ -131,13 +164,16 @@ def resume_options(run: Path, recordings: Path, threads: int = 0):
     src = str(ph.get("source", ""))
     given = ((ph["t_low"], ph["t_high"]) if src == "given" else "recording" if src.startswith("recording")
              else None)
+    from policies.labelling import LabelChoice
+
+    given = LabelChoice(given, ph.get("tare", "off"))  # a run's meta names its tare only when it used one
     return RunOptions(
         inputs=[recordings],
         out=Path(run),
         policy=meta["policy"]["policy"],
         method=meta["method"],
         ratio=tuple(meta["ratio"]),
-        preset="small",
+        preset=meta.get("preset", "small"),  # runs before the state preset were all `small`
         force=meta["force"],
         thresholds=given,
         resume=True,
@@ -145,6 +181,9 @@ def resume_options(run: Path, recordings: Path, threads: int = 0):
         train=TrainConfig(**tr),
         overrides=overrides,
         episodes=tuple(meta["episodes"]),
+        observation=meta.get("observation", "images"),
+        include_failed=bool(meta.get("include_failed", True)),  # runs before the filter used every outcome
+        keep_incomplete=bool(meta.get("keep_incomplete", True)),
     )
 
 
@@ -162,13 +201,15 @@ class RunRow:
 
 
 def list_runs(folder: Path) -> list[RunRow]:
-    """Every run folder with a checkpoint under `folder`, newest first."""
+    """Every run folder with a checkpoint under `folder`, newest first; `folder` itself when it is one run
+    (`factr2 train --out RUN` opened as the runs folder)."""
     from policies import checkpoint as C
 
     rows = []
     if not Path(folder).is_dir():
         return rows
-    for d in sorted((p for p in Path(folder).iterdir() if p.is_dir()), reverse=True):
+    dirs = [Path(folder)] if C.last_checkpoint(folder) is not None else []
+    for d in dirs + sorted((p for p in Path(folder).iterdir() if p.is_dir()), reverse=True):
         last = C.last_checkpoint(d)
         if last is None:
             continue

@@ -18,6 +18,7 @@ from textual.widgets import Input, Static
 from factr2_teleop.tui import train_ctl as T
 from factr2_teleop.tui.base import BaseScreen
 from factr2_teleop.tui.episodes import short_name
+from factr2_teleop.tui.train_inputs import observation_problem, recording_inputs
 from factr2_teleop.tui.widgets import eta, progress_bar, sparkline, text_plot
 
 ROWS_SHOWN = 5
@@ -57,7 +58,7 @@ def phase_lines(lab, th, width: int = 60) -> list[str]:
 
 def progress_lines(st) -> list[str]:
     """Status, steps with ETA, the training loss and the validation loss per phase as sparkline charts."""
-    out = [f"run {st.status.upper()}: {st.line}"[:79]]
+    out = [f"run {st.status.upper()}: {st.line}"]  # not cut: the widget wraps an error's whole line
     if st.total:
         out.append(f"step {st.step}/{st.total} {progress_bar(st.step / st.total, 30)} {eta(st.eta_s)}")
     if st.losses:
@@ -99,11 +100,13 @@ class TrainingScreen(BaseScreen):
         Binding("m", "cycle('method')", "Method"),
         Binding("r", "cycle('ratio')", "Ratio"),
         Binding("z", "cycle('size')", "Size"),
+        Binding("i", "cycle('observation')", "Obs"),
         Binding("left_square_bracket", "steps(-1)", "Shorter", show=False),
         Binding("right_square_bracket", "steps(1)", "Longer", show=False),
         Binding("g", "go", "Train"),
         Binding("x", "stop", "Stop"),
         Binding("u", "resume", "Resume"),
+        Binding("d", "folder", "Folder"),
         Binding("l", "reload", "Reload", show=False),
     ]
 
@@ -111,12 +114,13 @@ class TrainingScreen(BaseScreen):
         self.rows: list = []
         self.chosen: set[str] = set()
         self.selected = 0
-        self.outcomes = "all"
+        self.outcomes = T.DEFAULT_FILTER
         self.preview = None
         self.preview_error = ""
         self._preview_key = None
         self._run_status = ""
         self.runs: list = []
+        self.inputs: dict = {}  # recording file -> (camera frames?, twin object state?)
         with VerticalScroll(id="body"):
             yield Static(markup=False, id="tr-head")
             yield Static(markup=False, id="tr-table")
@@ -133,7 +137,7 @@ class TrainingScreen(BaseScreen):
 
     @property
     def folder(self):
-        return self.app.out_dir / "recordings"
+        return self.app.recordings_dir
 
     @property
     def run(self) -> T.TrainingRun | None:
@@ -144,7 +148,7 @@ class TrainingScreen(BaseScreen):
         n_ok = sum(T.usable(r, self.outcomes) for r in self.rows)
         self.query_one("#tr-head", Static).update(
             f"{len(self.chosen)} of {n_ok} usable episodes chosen (outcomes {self.outcomes}: o; "
-            "enter: in/out)"
+            f"enter: in/out) in {self.folder} (d)"
         )
         self.query_one("#tr-table", Static).update(
             "\n".join(choice_rows(self.rows, self.chosen, self.selected, self.preview))
@@ -152,8 +156,10 @@ class TrainingScreen(BaseScreen):
         c = self.app.train_choices
         th = ("from the recordings" if c.thresholds == "recording" else "from NEXT"
               if c.thresholds in (None, "next") else f"{c.thresholds[0]:g}:{c.thresholds[1]:g} N*m")
+        problem = self.observation_problem()
         self.query_one("#tr-choices", Static).update(
-            "\n".join([c.describe(), f"contact thresholds {th} (h)", T.PAPER_CHOICES])
+            "\n".join([c.describe(T.epoch_steps(self.rows, self.chosen, c)), f"contact thresholds {th} (h)",
+                       *([f"cannot train: {problem}"] if problem else []), T.PAPER_CHOICES])
         )
         run = self.run
         status = run.snapshot().status if run is not None else ""
@@ -209,13 +215,15 @@ class TrainingScreen(BaseScreen):
     def action_reload(self) -> None:
         from hardware.recording.episodes import list_episodes
 
-        folder, runs = self.folder, self.app.out_dir / "runs"
+        folder, runs = self.folder, self.app.runs_dir
 
         def load():
-            return (list_episodes(folder) if folder.exists() else []), T.list_runs(runs)
+            rows = list_episodes(folder) if folder.exists() else []
+            inputs = recording_inputs(r.file for r in rows if not r.error and r.file.suffix == ".mcap")
+            return rows, T.list_runs(runs), inputs
 
         def done(result) -> None:
-            rows, self.runs = result
+            rows, self.runs, self.inputs = result
             known = {T.episode_key(r) for r in self.rows}
             self.rows = rows
             for r in rows:  # new usable episodes start chosen; the user's exclusions stay
@@ -255,8 +263,10 @@ class TrainingScreen(BaseScreen):
     def action_cycle(self, name: str) -> None:
         from policies.config import POLICIES
         from policies.methods import METHODS
+        from policies.privileged import OBSERVATIONS
 
-        options = {"policy": POLICIES, "method": METHODS, "ratio": T.RATIO_CHOICES, "size": T.SIZE_CHOICES}
+        options = {"policy": POLICIES, "method": METHODS, "ratio": T.RATIO_CHOICES, "size": T.SIZE_CHOICES,
+                   "observation": OBSERVATIONS}
         value = self.app.train_choices.cycle(name, options[name])
         if name == "size" and value == "tryout":
             self.app.say("size tryout: a tiny model to try the workflow (not a usable policy)")
@@ -264,9 +274,22 @@ class TrainingScreen(BaseScreen):
 
     def action_steps(self, d: int) -> None:
         c = self.app.train_choices
-        i = T.STEP_CHOICES.index(c.steps) if c.steps in T.STEP_CHOICES else 0
-        c.steps = T.STEP_CHOICES[max(0, min(len(T.STEP_CHOICES) - 1, i + d))]
+        c.step(d, T.epoch_steps(self.rows, self.chosen, c))
         self.refresh_view()
+
+    def observation_problem(self) -> str:
+        """Why the chosen episodes' recordings cannot train with the observation chosen ("" when they can)."""
+        files = [r.file for r in self.rows if T.episode_key(r) in self.chosen]
+        return observation_problem(files, self.inputs, self.app.train_choices.observation)
+
+    def action_folder(self) -> None:
+        from factr2_teleop.tui.folders import open_folder
+
+        def reopened() -> None:
+            self.rows, self.chosen, self.preview, self._preview_key = [], set(), None, None
+            self.action_reload()
+
+        open_folder(self, "recordings", reopened)
 
     def action_thresholds(self) -> None:
         from policies.phases import parse_thresholds
@@ -298,15 +321,19 @@ class TrainingScreen(BaseScreen):
         if not self.chosen:
             self.app.say("no episodes chosen: record some on the Teleop screen (3), include them (enter)")
             return
+        problem = self.observation_problem()
+        if problem:
+            self.app.say(f"cannot train: {problem}")
+            return
         c = self.app.train_choices
-        out = self.app.out_dir / "runs" / f"{c.policy}-{c.method}-{time.strftime('%Y%m%d-%H%M%S')}"
-        opts = T.run_options(c, self.folder, sorted(self.chosen), out, self.app.train_threads)
+        out = self.app.runs_dir / f"{c.policy}-{c.method}-{time.strftime('%Y%m%d-%H%M%S')}"
+        opts = T.run_options(c, self.folder, sorted(self.chosen), out, self.app.train_threads, self.outcomes)
         self._start(opts, f"training {c.policy}/{c.method} on {len(self.chosen)} episode(s) -> {out}")
 
     def action_resume(self) -> None:
         if self._busy():
             return
-        stopped = [r for r in T.list_runs(self.app.out_dir / "runs") if not r.final]
+        stopped = [r for r in T.list_runs(self.app.runs_dir) if not r.final]
         if not stopped:
             self.app.say("no stopped run to resume (a run stopped with x, or by quitting, can be)")
             return

@@ -1,4 +1,5 @@
-"""Decode a recording once into numpy arrays, and keep them in a sidecar cache FILE.factr2cache/.
+"""Decode a recording once into numpy arrays, and keep them in a cache folder (derived_dir: under the user's
+cache folder, keyed by the recording's path).
 
 Layout: manifest.json (key, topics, events, metadata, warnings) + one .npy per topic field and per camera
 (timestamps and frame locations; JPEG bytes stay in the MCAP). The key is the MCAP's size, mtime_ns and a
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import shutil
 import tempfile
 import warnings
@@ -95,9 +97,24 @@ class Decoded:
         return self.metadata.get(S.SESSION_METADATA, {})
 
 
+def cache_home() -> Path:
+    """factr2's folder for caches: $FACTR2_CACHE, default ~/.cache/factr2 (the demo's NEXT cache too)."""
+    return Path(os.environ.get("FACTR2_CACHE") or Path.home() / ".cache" / "factr2")
+
+
+def derived_dir(path: str | Path, kind: str) -> Path:
+    """Where a cache derived from recording `path` lives: $FACTR2_RECORDING_CACHE (default
+    cache_home()/recordings) / kind / <file name>-<hash of its absolute path>. Not beside the recording:
+    the user's data folder holds only what they recorded (a collect folder once filled with FILE.factr2cache
+    and FILE.policy-frames folders). The cache's own key (size, mtime, head/tail hash) still decides whether
+    it matches the file."""
+    p = Path(path).resolve()
+    root = Path(os.environ.get("FACTR2_RECORDING_CACHE") or cache_home() / "recordings")
+    return root / kind / f"{p.name}-{hashlib.sha256(str(p).encode()).hexdigest()[:12]}"
+
+
 def cache_dir(path: str | Path) -> Path:
-    p = Path(path)
-    return p.with_name(p.name + ".factr2cache")
+    return derived_dir(path, "arrays")
 
 
 def cache_key(path: Path) -> dict:
@@ -215,6 +232,7 @@ def save(dec: Decoded, key: dict) -> Path | None:
     final = cache_dir(dec.path)
     tmp = None
     try:
+        final.parent.mkdir(parents=True, exist_ok=True)
         # unique per writer: two readers of one file (threads of one process too) may cache it at once
         tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=final.name + ".tmp-"))
         manifest = {"key": key, "truncated": dec.truncated, "warnings": dec.warnings, "events": dec.events,
@@ -275,7 +293,7 @@ def load(path: Path, key: dict) -> Decoded | None:
 
 
 def load_or_decode(path: str | Path, *, use_cache: bool = True, write_cache: bool = True) -> Decoded:
-    """Arrays of a recording: from FILE.factr2cache/ when it matches the file, else decoded (and cached)."""
+    """Arrays of a recording: from its cache folder when it matches the file, else decoded (and cached)."""
     path = Path(path)
     if not path.is_file():
         raise RecordingError("file not found", where=str(path), fix="check the path")

@@ -41,8 +41,11 @@ class EpisodeRow:
 
 def _files(path: Path) -> list[Path]:
     if path.is_dir():
-        return sorted(p for p in path.iterdir() if p.is_file() and p.suffix in (".mcap", ".npz")
-                      and ".tmp-" not in p.name)
+        from hardware.recording.recover import drop_superseded
+
+        files = sorted(p for p in path.iterdir()
+                       if p.is_file() and p.suffix in (".mcap", ".npz") and ".tmp-" not in p.name)
+        return drop_superseded(files)  # a damaged file beside its recovered copy is listed once, as the copy
     if not path.exists():
         raise UserError("no such file or folder", where=str(path), fix="check the path")
     return [path]
@@ -91,6 +94,11 @@ def format_rows(rows: list[EpisodeRow]) -> str:
     n_ok = sum(r.outcome == "success" for r in good)
     out.append(f"{len(good)} episode(s), {total:.1f} s, {n_ok} success, "
                f"{sum(r.outcome == 'failure' for r in good)} failure, {len(rows) - len(good)} unreadable")
+    if any(np.isfinite(r.contact_share) for r in good):
+        # collect's summary and `episodes phases` count FIRST's contact phase instead: another threshold
+        out.append("contact: share of samples the live estimator flagged in contact (teleop's feedback "
+                   "gate); FIRST's contact phase (`episodes phases`, collect's summary) uses the "
+                   "recordings' own thresholds and differs")
     return "\n".join(out)
 
 

@@ -1,6 +1,6 @@
 """Read recordings: file -> episodes -> numpy arrays per signal.
 
-    rec = Recording("session.mcap")            # decodes once, then reads FILE.factr2cache/
+    rec = Recording("session.mcap")            # decodes once, then reads its array cache
     for ep in rec.episodes:
         js = ep.topic("/follower/joint_state")  # TopicArrays: js.t [s], js.fields["q"] (N, n) [rad]
         sig = ep.signals()                       # {"follower.joint.pos": (t, values), ...} own timestamps
@@ -178,7 +178,7 @@ class Frames:
 
 
 class Recording:
-    """One MCAP recording. use_cache: read/write FILE.factr2cache/ (see cache.py)."""
+    """One MCAP recording. use_cache: read/write its array cache (cache.py)."""
 
     def __init__(self, path: str | Path, *, use_cache: bool = True, write_cache: bool = True):
         self.path = Path(path)

@@ -139,6 +139,23 @@ def rewrite(src: str | Path, dst: str | Path, *, keep: KeepFn | None = None,
     return report
 
 
+RECOVERED = ".recovered.mcap"
+
+
+def recovered_path(src: str | Path) -> Path:
+    """Where `factr2 recover FILE` writes by default: FILE's stem + ".recovered.mcap", beside it."""
+    src = Path(src)
+    return src.with_name(src.stem + RECOVERED)
+
+
+def drop_superseded(files: list[Path]) -> list[Path]:
+    """The files without those a recovered copy in the same list replaces: a damaged X.mcap beside its
+    X.recovered.mcap would list (and train on) every episode twice. Order kept."""
+    have = {Path(f) for f in files}
+    return [f for f in files if not (Path(f).suffix == ".mcap" and not Path(f).name.endswith(RECOVERED)
+                                     and recovered_path(f) in have)]
+
+
 def recover(src: str | Path, dst: str | Path | None = None, *, in_place: bool = False) -> RewriteReport:
     """Make a valid MCAP from a truncated/damaged one. Default output: SRC with ".recovered.mcap";
     in_place=True replaces SRC atomically (only after the new file is complete)."""
@@ -146,5 +163,5 @@ def recover(src: str | Path, dst: str | Path | None = None, *, in_place: bool = 
     if in_place:
         dst = src
     elif dst is None:
-        dst = src.with_name(src.stem + ".recovered.mcap")
+        dst = recovered_path(src)
     return rewrite(src, dst)

@@ -201,7 +201,7 @@ def parse_rig(doc: dict, path: Path) -> Rig:
     names = [d.name for d in leaders + followers]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
-        raise ConfigError(f"device names repeat: {sorted(dup)}", where=f,
+        raise ConfigError(f"device names repeat: {', '.join(sorted(dup))}", where=f,
                           fix="give every device its own name")
     cams = [_camera(c, i, f) for i, c in enumerate(_array(doc.get("cameras", []), f, "cameras"))]
     twin = _twin(doc.get("twin", {}), f)
@@ -317,7 +317,8 @@ def _pairs(raw, leaders, followers, f: str) -> list[tuple[str, str]]:
         a, b = p.get("leader"), p.get("follower")
         if a not in names_l or b not in names_f:
             raise ConfigError(f"pair {a!r} -> {b!r} names an unknown device", where=f"{f}: pairs[{i}]",
-                              fix=f"leaders: {sorted(names_l)}, followers: {sorted(names_f)}")
+                              fix=f"leaders: {', '.join(sorted(names_l))}; "
+                                  f"followers: {', '.join(sorted(names_f))}")
         out.append((a, b))
     return out
 

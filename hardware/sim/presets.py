@@ -120,7 +120,7 @@ def arm_params(arm: str, effects: Effects | None = None, n: int | None = None,
     if names is None:
         raise ConfigError(f"no motor list for arm {arm!r}", where="twin",
                           fix=f"set [followers.twin] motors = [...] in the rig, or use one of "
-                              f"{sorted(ARM_MOTORS)}")
+                              f"{', '.join(sorted(ARM_MOTORS))}")
     if n is not None and len(names) != n:
         raise ConfigError(f"arm {arm!r} has {n} joints but {len(names)} motor types", where="twin",
                           fix="list one motor type per joint")

@@ -134,6 +134,7 @@ class Twin:
         chz = rig.twin.control_hz
         self.leader_every = max(1, int(chz // leader_control_hz)) if leader_control_hz else 1
         self._every: list[int] = []  # per world: twin ticks per world control tick
+        self._idle: set[int] = set()  # indices of worlds not stepped (set_idle)
         self.substeps = max(1, round(rig.twin.physics_hz / rig.twin.control_hz))
         self.dt = self.substeps / rig.twin.physics_hz  # control tick [s]: emulators and firmware laws run
         self.devices: dict[str, TwinDevice] = {}
@@ -240,9 +241,9 @@ class Twin:
         if poll:
             for e in self._can_emus:
                 e.poll()
-        k = self.steps + 1
-        for w, every in zip(self.worlds, self._every):
-            if every == 1 or k % every == 0:
+        k, idle = self.steps + 1, self._idle
+        for i, (w, every) in enumerate(zip(self.worlds, self._every)):
+            if (every == 1 or k % every == 0) and (not idle or i not in idle):
                 w.step()
         self.t += self.dt
         self.steps = k
@@ -267,6 +268,14 @@ class Twin:
                 for fn in self._step_observers:
                     fn(t_rig)
             return n
+
+    def set_idle(self, name: str, idle: bool = True) -> None:
+        """Stop (idle=False: resume) simulating a device's world, for a device nothing drives or reads (a
+        lockstep rollout's passive leader when nothing records it): its physics is CPU spent for no one. Its
+        emulator still answers, from the state the world stopped in; the world's time stands still."""
+        i = self.worlds.index(self.devices[name].world)
+        with self.lock:
+            (self._idle.add if idle else self._idle.discard)(i)
 
     def add_step_observer(self, fn) -> None:
         """fn(t [s, rig clock]) after every advance that stepped, on the stepping thread, the twin's lock held

@@ -50,8 +50,8 @@ def arm_observation(arm: str, state, tau_ext) -> dict:
 
 
 class PolicyRunner:
-    def __init__(self, path: str | Path, seed: int = 0):
-        self.model, self.meta, self.norm = load_policy(path)
+    def __init__(self, path: str | Path, seed: int = 0, ema: bool = True):
+        self.model, self.meta, self.norm = load_policy(path, ema=ema)
         self.path = Path(self.meta["_path"])
         self.cfg = self.model.cfg
         f = self.meta["features"]

@@ -25,7 +25,7 @@ def get_task(name: str | Task | None) -> Task | None:
         return name
     if name not in TASKS:
         raise ConfigError(f"unknown task {name!r}", where="--task / [twin] task",
-                          fix=f"use one of {sorted(TASKS)} (factr2 tasks lists them)")
+                          fix=f"use one of {', '.join(sorted(TASKS))} (factr2 tasks lists them)")
     return TASKS[name]
 
 

@@ -109,7 +109,7 @@ class Task:
     def check_arm(self, arm_name: str, where: str) -> None:
         if arm_name not in self.arms:
             raise ConfigError(f"task {self.name} does not fit the {arm_name} arm's scene", where=where,
-                              fix=f"use a rig whose follower is one of {list(self.arms)} (factr2 tasks)")
+                              fix=f"use a rig whose follower is one of {', '.join(self.arms)} (factr2 tasks)")
 
 
 def _body_id(model, name: str) -> int:

@@ -1,0 +1,113 @@
+"""The `state` preset (MLP flow head), EMA weights, the schedule fitted to short runs, the thread choice."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from policies import checkpoint as C
+from policies.config import default_preset, preset
+from policies.flow_mlp import FlowMLPPolicy
+from policies.run import RunOptions, run_training
+from policies.train import Dist, Ema, TrainConfig, clamp_schedule, pick_threads
+from tests.policy_helpers import write_recording
+
+
+@pytest.fixture(scope="module")
+def state_recordings(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rec_state")
+    write_recording(d / "a.mcap", episodes=3, seconds=3.0, objects=5)
+    return d
+
+
+def _cfg(**kw):
+    return replace(preset("state"), state_dim=7, force_dim=6, objects_dim=5, action_dim=7, chunk=8, **kw)
+
+
+def test_default_preset_follows_the_observation():
+    assert default_preset("state") == "state" and default_preset("images") == "small"
+    cfg = preset("state")
+    assert cfg.head == "mlp" and cfg.observation == "state"
+    assert preset("state", "act").policy == "act"
+    with pytest.raises(ValueError):
+        FlowMLPPolicy(replace(_cfg(), observation="images"))
+
+
+def test_mlp_head_starts_at_zero_velocity_and_overfits_one_batch():
+    torch.manual_seed(0)
+    cfg = _cfg(ff=128, dec_layers=2)
+    m = FlowMLPPolicy(cfg)
+    b = {"state": torch.randn(8, 7), "force": torch.randn(8, 6), "objects": torch.randn(8, 5),
+         "action": torch.randn(8, cfg.chunk, 7), "mask": torch.ones(8, cfg.chunk, dtype=torch.bool)}
+    g = torch.Generator().manual_seed(0)
+    noise = FlowMLPPolicy.draw_noise(cfg, 8, g)
+    v, _ = m.velocity(torch.randn(8, cfg.chunk, 7), noise["alpha"], m.encode(b))
+    assert torch.equal(v, torch.zeros_like(v))  # zero-initialised output: training starts from v = 0
+    opt = torch.optim.Adam(m.parameters(), 1e-3)
+    first = None
+    for _ in range(300):
+        loss = m.loss(b, noise)[0].mean()
+        first = first if first is not None else float(loss.detach())
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    assert float(loss) < first / 10
+    out = m.eval().predict(b, noise)
+    assert out.shape == (8, cfg.chunk, 7) and torch.isfinite(out).all()
+
+
+def test_ema_decay_warms_up_and_averages():
+    lin = torch.nn.Linear(2, 2)
+    ema = Ema(lin, power=0.75, max_decay=0.9999)
+    assert ema.decay(0) == 0.0 and 0.99 < ema.decay(1000) < ema.decay(10000) < 0.9999 + 1e-12
+    with torch.no_grad():
+        lin.weight.fill_(1.0)
+    ema.update(lin, 0)  # decay 0: the average is the model
+    assert torch.allclose(ema.model.weight, torch.ones(2, 2))
+    with torch.no_grad():
+        lin.weight.fill_(3.0)
+    ema.update(lin, 1)  # decay 1 - 2 ** -0.75 = 0.405: moves 59.5 % of the way
+    assert torch.allclose(ema.model.weight, torch.full((2, 2), 1.0 + 2.0 * 2 ** -0.75))
+
+
+def test_schedule_is_clamped_to_a_short_run_and_says_so():
+    cfg, notes = clamp_schedule(TrainConfig(warmup=500, val_every=500, ckpt_every=1000), 400)
+    assert (cfg.warmup, cfg.val_every, cfg.ckpt_every) == (40, 100, 100) and len(notes) == 3
+    assert "400" in notes[0]
+    same, none = clamp_schedule(TrainConfig(), 20000)
+    assert same == TrainConfig() and none == []
+
+
+def test_thread_choice_leaves_busy_cores_alone(monkeypatch):
+    import policies.train as T
+
+    monkeypatch.setattr("calibration.next.train.available_cores", lambda: 2)
+    monkeypatch.setattr(T.os, "getloadavg", lambda: (1.0, 1.0, 1.0))  # one other CPU-bound process
+    assert pick_threads(0, 1)[0] == 1
+    monkeypatch.setattr(T.os, "getloadavg", lambda: (0.1, 0.1, 0.1))
+    assert pick_threads(0, 1)[0] == 2 and pick_threads(0, 2)[0] == 1
+    assert pick_threads(3, 1) == (3, "as asked (--threads)")
+    monkeypatch.setattr("calibration.next.train.available_cores", lambda: 16)
+    monkeypatch.setattr(T.os, "getloadavg", lambda: (20.0, 20.0, 20.0))
+    assert pick_threads(0, 1)[0] == 1
+
+
+def test_state_run_trains_saves_ema_and_rolls_in(state_recordings, tmp_path):
+    torch.set_num_threads(1)
+    run = tmp_path / "run"
+    opts = RunOptions(inputs=[state_recordings], out=run, policy="flow", thresholds=(1.0, 3.0),
+                      progress=False, observation="state", overrides={"chunk": 8, "ff": 64},
+                      train=TrainConfig(steps=20, batch=16, log_every=5, threads=1, keep_checkpoints=0))
+    run_training(opts, Dist())
+    model, meta, _ = C.load_policy(run)
+    assert isinstance(model, FlowMLPPolicy) and meta["weights_used"] == "ema"
+    assert meta["schedule"] == {"warmup": 2, "val_every": 5, "ckpt_every": 5}  # clamped to 20 steps
+    assert meta["train"]["warmup"] == 500  # what was asked stays the run's record (--resume compares it)
+    steps = sorted(json.loads(p.read_text())["step"] for p in (run / "checkpoints").glob("step-*.json"))
+    assert steps == [5, 10, 15, 20]  # keep_checkpoints 0: every checkpoint kept (a learning curve)
+    metrics = meta["metrics"]
+    assert np.isfinite(metrics["val/loss"]) and np.isfinite(metrics["val/loss_raw"])
