@@ -45,6 +45,7 @@ def train_curve(a: dict) -> dict:
                      val_every=every, keep_checkpoints=0)
     opts = RunOptions(inputs=[Path(a["bench_out"]) / a["task"] / "demos"], out=run, policy="flow",
                       method=a["method"], observation="state", progress=False, train=tc,
+                      thresholds="recording",  # as factr2 train (the curves of 2026-11-26 ran with "next")
                       resume=last_checkpoint(run) is not None)
     t, c = time.perf_counter(), time.process_time()
     run_training(opts, Dist())
@@ -92,8 +93,11 @@ def chart(rows: list[dict], path: Path, title: str) -> None:
         ax.errorbar(x, [100 * v for v in m], yerr=[[100 * e for e in err[0]], [100 * e for e in err[1]]],
                     fmt=style, capsize=3, label=label)
         bx.plot(x, [sum(p[1]["progress"]) / max(len(p[1]["progress"]), 1) for p in pts], style, label=label)
+    steps = sorted({r["step"] for r in rows})
     for a_, yl in ((ax, "success [%] (95 % Wilson)"), (bx, "task progress")):
         a_.set_xscale("log")
+        a_.set_xticks(steps, [str(x) for x in steps])
+        a_.minorticks_off()
         a_.set_xlabel("optimiser steps")
         a_.set_ylabel(yl)
         a_.grid(alpha=0.3)
@@ -102,6 +106,14 @@ def chart(rows: list[dict], path: Path, title: str) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def replot(out: Path) -> None:
+    """OUT/first_curve.png again from OUT/curve.json."""
+    res = json.loads((out / "curve.json").read_text())
+    a = res["config"]
+    chart(res["rows"], out / "first_curve.png",
+          f"{a['task']}, {a['method']}, {a['rollouts']} rollouts per point (SIMULATED, PRIVILEGED state)")
 
 
 def main(argv=None) -> int:

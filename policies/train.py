@@ -101,6 +101,15 @@ def lr_at(step: int, cfg: TrainConfig, total: int) -> float:
     return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(1.0, frac)))
 
 
+STATE_EPOCHS, STATE_BATCH = 80.0, 256  # the state preset's defaults: the learning curve (docs/first.md) still
+# rose at 8000 steps x 256 on 47 peg-insert demonstrations (~82 passes); images keep 20 passes at 128
+
+
+def default_length(observation: str) -> tuple[float, int]:
+    """(epochs, batch) of a run that names neither: from the learning curve for a state observation."""
+    return (STATE_EPOCHS, STATE_BATCH) if observation == "state" else (20.0, 128)
+
+
 def clamp_schedule(cfg: TrainConfig, total: int) -> tuple[TrainConfig, list[str]]:
     """The warm-up, validation and checkpoint periods fitted to a run of `total` steps, and one note per
     change: warm-up at most a tenth of the run (a 400-step run would otherwise train entirely in the 500-step

@@ -55,7 +55,7 @@ def test_mlp_head_starts_at_zero_velocity_and_overfits_one_batch():
         opt.zero_grad()
         loss.backward()
         opt.step()
-    assert float(loss) < first / 10
+    assert float(loss.detach()) < first / 10
     out = m.eval().predict(b, noise)
     assert out.shape == (8, cfg.chunk, 7) and torch.isfinite(out).all()
 
@@ -111,3 +111,21 @@ def test_state_run_trains_saves_ema_and_rolls_in(state_recordings, tmp_path):
     assert steps == [5, 10, 15, 20]  # keep_checkpoints 0: every checkpoint kept (a learning curve)
     metrics = meta["metrics"]
     assert np.isfinite(metrics["val/loss"]) and np.isfinite(metrics["val/loss_raw"])
+
+
+def test_default_length_comes_from_the_learning_curve_for_state():
+    from policies.train import default_length
+
+    assert default_length("state") == (80.0, 256)  # docs/first.md: success still rose at 8000 x 256
+    assert default_length("images") == (20.0, 128)  # the paper's 20 epochs
+    import argparse
+
+    from factr2_teleop.commands import train as cmd
+
+    p = argparse.ArgumentParser()
+    cmd.add_arguments(p)
+    o = cmd._options(p.parse_args(["rec", "--out", "run", "--obs", "state"]))
+    assert (o.train.epochs, o.train.batch, o.preset) == (80.0, 256, "")
+    argv = ["rec", "--out", "run", "--obs", "state", "--batch", "64", "--epochs", "3"]
+    o = cmd._options(p.parse_args(argv))
+    assert (o.train.epochs, o.train.batch) == (3.0, 64)

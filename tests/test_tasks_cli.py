@@ -23,12 +23,15 @@ def _one_line(capsys):
 
 def test_unknown_task(tmp_path, capsys):
     assert _collect(tmp_path, "--task", "juggle") == 2
-    assert "unknown task" in _one_line(capsys) and not any(tmp_path.iterdir())
+    line = _one_line(capsys)
+    assert "unknown task" in line and not any(tmp_path.iterdir())
+    assert "use one of peg-insert, press-fit, wipe (" in line and "['" not in line  # names, not a list repr
 
 
 def test_task_on_a_rig_that_cannot_hold_it(tmp_path, capsys):
     assert _collect(tmp_path, "--task", "peg-insert", "--rig", "sim-panda") == 2
-    assert "does not fit" in _one_line(capsys) and not any(tmp_path.iterdir())
+    line = _one_line(capsys)
+    assert "does not fit" in line and "follower is one of piper (" in line and not any(tmp_path.iterdir())
     assert _collect(tmp_path, "--task", "wipe", "--rig", "piper") == 2  # real hardware
     assert "real hardware" in _one_line(capsys) and not any(tmp_path.iterdir())
 

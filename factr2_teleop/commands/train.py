@@ -47,7 +47,8 @@ def add_arguments(p) -> None:
     )
     g = p.add_mutually_exclusive_group()
     g.add_argument("--steps", type=int, default=None, help="optimiser steps")
-    g.add_argument("--epochs", type=float, default=None, help="passes over the training samples (default 20)")
+    g.add_argument("--epochs", type=float, default=None,
+                   help="passes over the training samples (default 80 with --obs state, else 20)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out from its last checkpoint")
     p.add_argument(
         "--include-failed",
@@ -76,7 +77,7 @@ def add_arguments(p) -> None:
         "task objects' poses, PRIVILEGED and SIMULATED (recorded by `factr2 collect`; no frames read)",
     )
     p.add_argument("--rate", type=float, default=None, help="policy rate [Hz] (default: the camera rate)")
-    p.add_argument("--batch", type=int, default=128)
+    p.add_argument("--batch", type=int, default=None, help="default 256 with --obs state, else 128")
     p.add_argument("--lr", type=float, default=3e-4)
     p.add_argument("--weight-decay", type=float, default=0.05)
     p.add_argument("--warmup", type=int, default=500)
@@ -111,7 +112,7 @@ def add_arguments(p) -> None:
 def _options(args):
     from policies.run import RunOptions
     from policies.sampler import parse_ratio
-    from policies.train import TrainConfig
+    from policies.train import TrainConfig, default_length
 
     ratio = None
     if args.ratio is not None:
@@ -129,8 +130,8 @@ def _options(args):
     overrides = _overrides(args.set or [])
     tcfg = TrainConfig(
         steps=args.steps or 0,
-        epochs=args.epochs or 20.0,
-        batch=args.batch,
+        epochs=args.epochs or default_length(args.obs)[0],
+        batch=args.batch or default_length(args.obs)[1],
         lr=args.lr,
         weight_decay=args.weight_decay,
         warmup=args.warmup,

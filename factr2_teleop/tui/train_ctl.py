@@ -27,7 +27,8 @@ OUTCOME_FILTERS = {
 }
 DEFAULT_FILTER = next(iter(OUTCOME_FILTERS))
 RATIO_CHOICES = ("default", "PC", "C", "PC+C", "uniform")  # "default": the method's own (first: 1:5:1)
-STEP_CHOICES = (0, 20, 100, 500, 2000, 10000)  # optimiser steps; 0: TrainConfig's 20 epochs (the paper's)
+STEP_CHOICES = (0, 20, 100, 500, 2000, 10000)  # optimiser steps; 0: the default length (policies.train
+# default_length: 20 epochs, the paper's; 80 on a state observation, from the learning curve)
 SIZE_CHOICES = ("small", "paper", "tryout")
 # "tryout": a few-second model to walk through the workflow (not a usable policy): the small preset shrunk
 TRYOUT_OVERRIDES = dict(
@@ -79,9 +80,11 @@ class Choices:
 
     def describe(self, epoch_steps: int | None = None) -> str:
         from policies.sampler import format_ratio
+        from policies.train import default_length
 
         about = f" (~{epoch_steps} steps)" if epoch_steps else ""
-        steps = f"{self.steps} steps" if self.steps else f"20 epochs{about}"
+        epochs = default_length(self.observation)[0]
+        steps = f"{self.steps} steps" if self.steps else f"{epochs:g} epochs{about}"
         return (
             f"policy {self.policy} (p)  method {self.method} (m)  ratio {format_ratio(self.ratio_weights())}"
             f" (r)  size {self.size} (z)\nobs {self.observation} (i)  length {steps} ([ ])"
@@ -103,13 +106,14 @@ def epoch_steps(rows, chosen: set, choices: Choices) -> int | None:
     """Optimiser steps of 20 epochs over the chosen episodes, estimated from their durations at the policy
     rate of 30 Hz (None: nothing chosen)."""
     from policies.dataset import STATE_RATE_HZ
-    from policies.train import TrainConfig
+    from policies.train import default_length
 
     secs = sum(r.duration_s for r in rows if episode_key(r) in chosen and np.isfinite(r.duration_s))
     if secs <= 0:
         return None
-    batch = TRYOUT_BATCH if choices.size == "tryout" else TrainConfig().batch
-    return max(1, int(round(20 * secs * STATE_RATE_HZ / batch)))
+    epochs, batch = default_length(choices.observation)
+    batch = TRYOUT_BATCH if choices.size == "tryout" else batch
+    return max(1, int(round(epochs * secs * STATE_RATE_HZ / batch)))
 
 
 def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Path, threads: int = 0,
@@ -118,10 +122,11 @@ def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Pa
     screen's filter, so that a failed or incomplete episode the user chose is not skipped by the run."""
     from policies.run import RunOptions
     from policies.sampler import RATIO_PRESETS
-    from policies.train import TrainConfig
+    from policies.train import TrainConfig, default_length
 
     tryout = choices.size == "tryout"
-    tcfg = TrainConfig(steps=choices.steps, threads=threads)
+    epochs, batch = default_length(choices.observation)  # state: the learning curve's length
+    tcfg = TrainConfig(steps=choices.steps, threads=threads, epochs=epochs, batch=batch)
     if tryout:
         tcfg = replace(tcfg, batch=TRYOUT_BATCH, warmup=min(tcfg.warmup, 10), log_every=1, val_every=10,
                        ckpt_every=50)
@@ -134,7 +139,8 @@ def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Pa
         policy=choices.policy,
         method=choices.method,
         ratio=None if choices.ratio == "default" else RATIO_PRESETS[choices.ratio],
-        preset="small" if tryout else choices.size,
+        # "small" on a state observation: the state preset (the image preset's DiT is 12x slower there)
+        preset="small" if tryout else "" if choices.size == "small" else choices.size,
         thresholds=choices.thresholds,
         progress=False,
         train=tcfg,
