@@ -18,12 +18,13 @@ the before / after totals.
 from __future__ import annotations
 
 import argparse
-import functools
-import importlib
 import json
 import sys
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from profile_tick import Split  # noqa: E402  (exclusive thread CPU per owner, shared)
 
 LOOP = "loop rest (timing, clock, glue)"
 # (module, class, method, owner); owner may be a callable(self) -> str. Missing ones are skipped.
@@ -49,33 +50,6 @@ TARGETS = [
 ]
 
 
-class Split:
-    """Exclusive thread CPU per owner of wrapped methods (a nested call is its own owner's)."""
-
-    def __init__(self):
-        self.excl: dict[str, float] = {}
-        self.calls: dict[str, int] = {}
-        self.stack: list[list] = []  # [owner, t0, child time]
-
-    def wrap(self, cls, name: str, owner) -> None:
-        fn = getattr(cls, name)
-
-        @functools.wraps(fn)
-        def wrapper(*a, **k):
-            own = owner(a[0]) if callable(owner) else owner
-            t0 = time.thread_time()
-            self.stack.append([own, t0, 0.0])
-            try:
-                return fn(*a, **k)
-            finally:
-                own, start, child = self.stack.pop()
-                dt = time.thread_time() - start
-                self.excl[own] = self.excl.get(own, 0.0) + dt - child
-                self.calls[own] = self.calls.get(own, 0) + 1
-                if self.stack:
-                    self.stack[-1][2] += dt
-
-        setattr(cls, name, wrapper)
 
 
 def main() -> int:
@@ -92,16 +66,7 @@ def main() -> int:
                     help="RolloutOptions.lean (auto: the default; a checkout without it ignores this)")
     args = ap.parse_args()
     sys.path.insert(0, args.root)
-    split = Split()
-    targets = TARGETS[:2] if args.plain else TARGETS
-    for mod, cls, meth, owner in targets:
-        try:
-            c = getattr(importlib.import_module(mod), cls)
-            getattr(c, meth)
-        except (ImportError, AttributeError):
-            print(f"(not in this checkout: {cls}.{meth})")
-            continue
-        split.wrap(c, meth, owner)
+    split = Split.of(TARGETS[:2] if args.plain else TARGETS)
     from factr2_teleop.session.rollout import RolloutOptions, run_rollout
 
     kw = {"lean": {"on": True, "off": False}[args.lean]} if args.lean != "auto" else {}

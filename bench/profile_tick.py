@@ -39,27 +39,46 @@ TARGETS = [
 
 
 class Split:
+    """Exclusive thread CPU per owner of wrapped methods (a nested call is its own owner's)."""
+
     def __init__(self):
         self.excl: dict[str, float] = {}
+        self.calls: dict[str, int] = {}
         self.stack: list[list] = []  # [owner, t0, child time]
 
-    def wrap(self, cls, name: str, owner: str) -> None:
+    def wrap(self, cls, name: str, owner) -> None:
         fn = getattr(cls, name)
 
         @functools.wraps(fn)
         def wrapper(*a, **k):
+            own = owner(a[0]) if callable(owner) else owner
             t0 = time.thread_time()
-            self.stack.append([owner, t0, 0.0])
+            self.stack.append([own, t0, 0.0])
             try:
                 return fn(*a, **k)
             finally:
                 own, start, child = self.stack.pop()
                 dt = time.thread_time() - start
                 self.excl[own] = self.excl.get(own, 0.0) + dt - child
+                self.calls[own] = self.calls.get(own, 0) + 1
                 if self.stack:
                     self.stack[-1][2] += dt
 
         setattr(cls, name, wrapper)
+
+    @classmethod
+    def of(cls, targets) -> Split:
+        """A Split over (module, class, method, owner) targets; ones a checkout lacks are said and skipped."""
+        split = cls()
+        for mod, name, meth, owner in targets:
+            try:
+                c = getattr(importlib.import_module(mod), name)
+                getattr(c, meth)
+            except (ImportError, AttributeError):
+                print(f"(not in this checkout: {name}.{meth})")
+                continue
+            split.wrap(c, meth, owner)
+        return split
 
 
 def main() -> int:
@@ -72,15 +91,7 @@ def main() -> int:
                     help="feedback estimator (next: the demo's cached NEXT checkpoint, as `factr2 demo`)")
     args = ap.parse_args()
     sys.path.insert(0, args.root)
-    split = Split()
-    for mod, cls, meth, owner in TARGETS:
-        try:
-            c = getattr(importlib.import_module(mod), cls)
-            getattr(c, meth)
-        except (ImportError, AttributeError):
-            print(f"(not in this checkout: {cls}.{meth})")
-            continue
-        split.wrap(c, meth, owner)
+    split = Split.of(TARGETS)
     from factr2_teleop.demo.task import DemoConfig, DemoRun
 
     next_est = next_path = None
