@@ -324,6 +324,10 @@ def train(
     cost = (CostHint(total - start, observation=pcfg.observation, device=d.device.type, batch=cfg.batch)
             if d.main and progress else None)
     eval_model = ema.model if ema is not None else model
+
+    def save(step: int, final: bool = False) -> None:  # rank 0: weights, EMA, optimiser, meta
+        C.save(run / "checkpoints", step, model, opt, dict(meta, metrics=last_val), final=final,
+               ema=ema.model if ema is not None else None, keep=cfg.keep_checkpoints)
     model.train()
     for s in range(start, min(total, stop_at or total)):
         if probe is not None:
@@ -387,8 +391,7 @@ def train(
             if last_val:
                 log.log(done, last_val)
         if d.main and (done % cfg.ckpt_every == 0 or done == total):
-            C.save(run / "checkpoints", done, model, opt, dict(meta, metrics=last_val), final=done == total,
-                   ema=ema.model if ema is not None else None, keep=cfg.keep_checkpoints)
+            save(done, final=done == total)
         if done % cfg.ckpt_every == 0:
             barrier(d)  # the others wait while rank 0 writes, so a killed run has a consistent checkpoint
         if d.main and on_progress is not None:
@@ -400,8 +403,7 @@ def train(
             on_progress(shown)
         if stop is not None and stop.is_set() and done < total:
             if d.main and done % cfg.ckpt_every:
-                C.save(run / "checkpoints", done, model, opt, dict(meta, metrics=last_val),
-                       ema=ema.model if ema is not None else None, keep=cfg.keep_checkpoints)
+                save(done)
             break
     if bar is not None:
         bar.close()

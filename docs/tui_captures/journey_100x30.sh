@@ -9,12 +9,7 @@ rm -rf $OUT; mkdir -p $OUT
 tmux kill-session -t $S 2>/dev/null
 tmux new-session -d -s $S -x 100 -y 30
 tmux send-keys -t $S "cd $OUT && factr2 tui --out $OUT --connect" Enter
-cap() { tmux capture-pane -t $S -p > "$CAP/$1.txt"; echo "captured $1"; }
-waitfor() {  # text, timeout s
-  for i in $(seq 1 $(( $2 * 2 ))); do
-    tmux capture-pane -t $S -p | grep -q -- "$1" && return 0; sleep 0.5; done
-  echo "TIMEOUT waiting for: $1"; tmux capture-pane -t $S -p | tail -5; return 1; }
-key() { tmux send-keys -t $S "$@"; sleep 0.4; }
+. "$CAP/tmux_helpers.sh"  # cap, waitfor, key
 waitfor "connected to sim-piper" 60
 cap 20_journeys_first_screen_100x30
 key 3; key v; key t

@@ -243,7 +243,7 @@ class Twin:
                 e.poll()
         k, idle = self.steps + 1, self._idle
         for i, (w, every) in enumerate(zip(self.worlds, self._every)):
-            if (every == 1 or k % every == 0) and (not idle or i not in idle):
+            if (every == 1 or k % every == 0) and i not in idle:
                 w.step()
         self.t += self.dt
         self.steps = k
