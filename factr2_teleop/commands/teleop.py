@@ -38,7 +38,8 @@ def options(args):
 
 def execute(args) -> dict:
     """Run the session; {"timing": TimingStats, "recording": path or None, "status": RecorderStatus or None,
-    "cameras": {name: CameraStats}} (bench/bench_teleop_record.py measures through this)."""
+    "cameras": {name: CameraStats}, "messages": [(t, who, text)]}
+    (bench/bench_teleop_record.py measures through this)."""
     from factr2_teleop.session.pairs import check_options
     from factr2_teleop.session.teleop import TeleopSession
     from factr2_teleop.teleop.rt import single_thread_blas
@@ -79,6 +80,7 @@ def execute(args) -> dict:
     if loop.error is not None and not isinstance(loop.error, KeyboardInterrupt):
         raise UserError(f"teleop stopped: {loop.error}", where="factr2 teleop", fix="see the messages above")
     out["timing"] = loop.timing.stats()
+    out["messages"] = list(loop.snapshot().messages)  # (t [s], who, text): holds, notes
     return out
 
 

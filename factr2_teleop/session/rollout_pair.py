@@ -19,7 +19,7 @@ from collections import Counter
 
 import numpy as np
 
-from factr2_teleop.teleop.pair import COUPLED, HOLD, ArmPair
+from factr2_teleop.teleop.pair import COUPLED, HOLD, ArmPair, _fresh
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.soft_start import rate_limit
 from hardware.errors import DeviceError
@@ -53,16 +53,20 @@ class RolloutPair(ArmPair):
         return None, None, "no policy attached"
 
     def begin(self, clock=None) -> None:
-        """Wait for data from both arms; the leader passive, the follower held where it is."""
+        """Wait for fresh data from both arms (as the first tick demands: ArmPair.begin); the leader passive,
+        the follower held where it is."""
         clock = clock or self.leader.clock
-        t_end = clock.now() + self.cfg.start_timeout_s
+        t_begin = clock.now()
+        t_end = t_begin + self.cfg.start_timeout_s
         while True:
+            now = clock.now()
             ls, fs = self.leader.read(), self.follower.read()
-            if np.all(np.isfinite(fs.q)) and np.all(np.isfinite(ls.q)):
+            if (_fresh(ls, now, self.cfg.leader_stale_s, t_begin)
+                    and _fresh(fs, now, self.cfg.follower_stale_s, t_begin)):
                 break
             if clock.now() >= t_end:
                 self.make_safe("no data at start")
-                raise DeviceError(f"no joint data within {self.cfg.start_timeout_s:.1f} s",
+                raise DeviceError(f"no fresh joint data within {self.cfg.start_timeout_s:.1f} s",
                                   where=self.cfg.name,
                                   fix="check power, cables and the port/channel in the rig")
             clock.sleep(self.dt_s)

@@ -68,8 +68,9 @@ class PairConfig:
             raise ConfigError(f"bad key: {e}", where=where, fix="see docs/teleop.md") from None
 
 
-def _fresh(st: JointState, now: float, max_age: float) -> bool:
-    return bool(np.isfinite(st.q).all()) and math.isfinite(st.t) and now - st.t <= max_age
+def _fresh(st: JointState, now: float, max_age: float, since: float = -math.inf) -> bool:
+    """Finite, at most max_age [s] old, and taken at or after `since` [s] (a start wants a new sample)."""
+    return bool(np.isfinite(st.q).all()) and math.isfinite(st.t) and now - st.t <= max_age and st.t >= since
 
 
 def _complete(st: JointState) -> bool:
@@ -153,21 +154,28 @@ class ArmPair:
 
     # -- lifecycle ------------------------------------------------------------------------------------
     def begin(self, clock: Clock | None = None) -> None:
-        """Wait for first data from both arms, refuse a large mismatch (UserError), start the soft start.
+        """Wait for fresh data from both arms, refuse a large mismatch (UserError), start the soft start.
 
+        Fresh means a sample taken since begin() was called and within what the first tick will demand
+        (leader_stale_s / follower_stale_s), not merely "some data within start_timeout_s": a sample cached at
+        connect time passed the old test, and the first tick then put the follower on hold ("follower data
+        stale (23-71 ms old)" in 2-3 of 10 twin starts).
         clock: the loop's clock (it may be the one that steps a twin); default the leader driver's."""
         clock = clock or self.leader.clock
-        t_end = clock.now() + self.cfg.start_timeout_s
+        t_begin = clock.now()
+        t_end = t_begin + self.cfg.start_timeout_s
         while True:
             now = clock.now()
             ls, fs = self.leader.read(), self.follower.read()
-            l_ok, f_ok = _fresh(ls, now, self.cfg.start_timeout_s), _fresh(fs, now, self.cfg.start_timeout_s)
+            l_ok = _fresh(ls, now, self.cfg.leader_stale_s, since=t_begin)
+            f_ok = _fresh(fs, now, self.cfg.follower_stale_s, since=t_begin)
             if l_ok and f_ok:
                 break
             if now >= t_end:
                 who = " and ".join(x for x, ok in (("leader", l_ok), ("follower", f_ok)) if not ok)
                 self.make_safe("no data at start")
-                raise DeviceError(f"no joint data from the {who} within {self.cfg.start_timeout_s:.1f} s",
+                raise DeviceError(f"no fresh joint data from the {who} within "
+                                  f"{self.cfg.start_timeout_s:.1f} s",
                                   where=self.cfg.name,
                                   fix="check power, cables and the port/channel in the rig")
             clock.sleep(self.dt_s)

@@ -26,7 +26,6 @@ from multiprocessing.connection import Client, Listener
 import numpy as np
 
 from hardware.cameras.base import CameraError
-from hardware.realtime import register_helper_process, unregister_helper_process
 
 START_TIMEOUT_S = 30.0  # a cold start imports mujoco and opens an OpenGL context
 RENDER_TIMEOUT_S = 5.0
@@ -119,7 +118,12 @@ class RenderProcess:
             self._proc = subprocess.Popen([sys.executable, "-m", "hardware.cameras.render_process"], env=env,
                                           stdin=subprocess.DEVNULL, stdout=self._log, stderr=self._log,
                                           close_fds=True)
-            register_helper_process(self._proc.pid)  # raised with a real-time loop (hardware.realtime)
+            # Not raised to real time with the loop (it was, as a helper): a real-time process that renders
+            # for ~10 ms on the other CPU starves the kernel's normal-priority workers there (the tty work
+            # behind the leader's serial port among them) and the loop waited for its leader. Measured on
+            # the 2-vCPU VM, teleop recording + scene camera, 30 s: p99 period 4.0 / 6.5 / 8.3 ms raised
+            # (quiet / beside a busy process / beside a training) against 2.2 / 2.5 / 2.4 ms at normal
+            # priority, frames 98.0-97.8 % against 97.3-96.5 % (docs/benchmarks.md, issue #37).
             box: dict = {}
             th = threading.Thread(target=lambda: box.setdefault("conn", listener.accept()), daemon=True)
             th.start()
@@ -172,8 +176,6 @@ class RenderProcess:
         except Exception:  # noqa: BLE001 -- closing must reach the shared memory
             if self._proc is not None:
                 self._proc.kill()
-        if self._proc is not None:
-            unregister_helper_process(self._proc.pid)
         self._conn = self._proc = None
         self._views = []
         for m in self._maps:

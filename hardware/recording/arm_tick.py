@@ -15,13 +15,23 @@ def record_arm_tick(rec, prefix: str, t: float, *, leader: JointState | None = N
     """Log what one pair did at t [s, rig clock] into a hardware.recording.Recorder (non-blocking).
     prefix: hardware.features.arm_prefix of the pair. action_q [rad] / action_gripper [m]: the follower
     target after the safety layer (NaN or None: nothing sent this tick; hold: the layer held)."""
+    from hardware.recording import schemas as S
+    from hardware.recording.writer import joint_state_fields
+
+    items = []  # one record for the whole tick (one pack and one hand-over on the loop's thread)
     if leader is not None:
-        rec.log_joint_state(f"{prefix}leader", t, leader)
+        items.append((S.JOINT_STATE, S.joint_state_topic(f"{prefix}leader"), t, *joint_state_fields(leader)))
     if follower is not None:
-        rec.log_joint_state(f"{prefix}follower", t, follower)
+        items.append((S.JOINT_STATE, S.joint_state_topic(f"{prefix}follower"), t,
+                      *joint_state_fields(follower)))
     if tau_ext is not None:
-        rec.log_external_torque(f"{prefix}follower", t, tau_ext, contact)
+        items.append((S.EXTERNAL_TORQUE, S.tau_ext_topic(f"{prefix}follower"), t, (bool(contact),),
+                      (tau_ext,)))
     if leader_tau_cmd is not None:
-        rec.log_torque_command(f"{prefix}leader", t, leader_tau_cmd, gate)
+        items.append((S.TORQUE_COMMAND, S.tau_cmd_topic(f"{prefix}leader"), t,
+                      (float("nan") if gate is None else float(gate),), (leader_tau_cmd,)))
     if action_q is not None and (action_hold or np.all(np.isfinite(action_q))):
-        rec.log_follower_command(f"{prefix}follower", t, action_q, action_gripper, action_hold)
+        items.append((S.FOLLOWER_COMMAND, S.command_topic(f"{prefix}follower"), t,
+                      (float(action_gripper), bool(action_hold)), (action_q,)))
+    if items:
+        rec.log_batch(items)

@@ -1,23 +1,30 @@
-"""Recorder: a threaded, crash-safe MCAP writer for everything a session produces.
+"""Recorder: a crash-safe MCAP recording whose encoding and writing run in a process of their own.
 
-The control loop calls non-blocking log_* methods; each snapshots its arguments into a bounded queue (a
-deque, lock-free under the GIL) and returns True, or False when the queue is full or the recorder stopped
-(counted in status().dropped_*). A writer thread encodes JSON, writes small MCAP chunks and flushes the
-finished chunks every `flush_interval_s` (0.25 s), so a SIGKILL loses at most ~0.25 s plus the queue.
-Camera frames (H x W x 3 uint8 RGB, ownership passes to the recorder) are JPEG-encoded by encoder threads.
-A write error (disk full, device gone) stops the recorder cleanly: what was flushed stays readable
-(`factr2 recover` adds the summary) and status().error holds a one-line message for the UI.
+The control loop calls non-blocking log_* methods; each packs its arguments into a compact binary record
+(hardware/recording/wire_records.py: one numpy concatenate, a few microseconds, no JSON) and puts it into a
+shared-memory ring (hardware/recording/ring.py); it returns True, or False when the ring is full or the
+recorder stopped (counted in status().dropped_*). The writer process (hardware/recording/writer_process.py)
+encodes JSON and JPEG, writes small zstd MCAP chunks and flushes them every `flush_interval_s` (0.25 s).
+Why a process: the encoding no longer holds this process's GIL, so the loop's wake-up never waits for it.
+Camera frames (H x W x 3 uint8 RGB) are copied into a second ring and JPEG-encoded by the writer's threads.
+A write error (disk full, device gone) stops the writer cleanly: what was flushed stays readable
+(`factr2 recover` adds the summary) and status().error holds a one-line message for the UI. If this process
+dies (SIGKILL, a crash), the writer drains the rings and finishes the file; if both die, at most the last
+flush interval is lost.
 """
 
 from __future__ import annotations
 
 import fcntl
 import functools
-import io
+import itertools
+import json
 import os
+import subprocess
+import sys
+import tempfile
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,11 +32,13 @@ import numpy as np
 
 from hardware.errors import UserError
 from hardware.recording import schemas as S
-from hardware.recording.protobuf_wire import encode_compressed_image
+from hardware.recording import wire_records as R
+from hardware.recording import writer_process as W
+from hardware.recording.ring import ByteRing, region_size
 from hardware.recording.session import session_metadata
 
-WRITER_YIELD_EVERY = 32  # messages the writer encodes between two hand-backs of the GIL (a tick waits less)
-_FLOAT_FIELDS = ("q", "q_dot", "tau_m", "current", "q_cmd", "temperature")
+SAMPLES_BUFFER_BYTES = 32 << 20  # ~50 s of a bimanual 500 Hz session if the writer stalls (a slow disk)
+FRAMES_BUFFER_BYTES = 64 << 20  # ~9 s of one 320x240 camera at 30 Hz, ~1.2 s of four 640x480 ones
 
 
 @dataclass
@@ -44,7 +53,7 @@ class RecorderStatus:
     bytes_written: int
     dropped_samples: int
     dropped_frames: int
-    queue_depth: int
+    queue_depth: int  # records handed over and not yet written
     last_flush_age_s: float
 
 
@@ -63,12 +72,26 @@ def _never_raises(fn):
     return wrapper
 
 
-def _vec(x) -> list:
-    return x.tolist() if isinstance(x, np.ndarray) else [float(v) for v in np.ravel(x)]
+def joint_state_fields(state) -> tuple[tuple, tuple]:
+    """(scalars, vectors) of a JointState in JOINT_STATE's field order."""
+    return ((state.gripper_pos, state.gripper_effort),
+            (state.q, state.q_dot, state.tau_m, state.current, state.q_cmd, state.temperature, state.status))
 
 
 def _num(x) -> float:
     return float("nan") if x is None else float(x)
+
+
+def _shared_file(size: int) -> int:
+    """A file descriptor of `size` bytes of shared memory that the writer process inherits: an anonymous
+    memfd on Linux (no /dev/shm size limit, nothing left behind after a crash), else an unlinked temp file."""
+    if hasattr(os, "memfd_create"):
+        fd = os.memfd_create("factr2-recorder")
+    else:
+        fd, name = tempfile.mkstemp(prefix="factr2-recorder-")
+        os.unlink(name)
+    os.ftruncate(fd, size)
+    return fd
 
 
 class Recorder:
@@ -78,152 +101,203 @@ class Recorder:
     metadata: extra session metadata (str -> str), merged over session_metadata()'s defaults; see
       hardware.recording.session.session_metadata for the rig/arm/NEXT/operator fields.
     t0: rig clock time [s] now (Clock.now()); log_time = wall time of the start + (t - t0).
-    jpeg_quality: 1-95. queue_size: max pending samples; frame_queue_size: max pending raw frames (120: ~1 s
-      of 4 cameras at 30 Hz, ~110 MB at 640x480).
-    compression: "zstd" (default), "lz4" or "" (none).
+    jpeg_quality: 1-95. buffer_bytes / frame_buffer_bytes: the shared rings for samples and raw frames
+      (what waits while the writer is behind; beyond them records are dropped and counted).
+    compression: "zstd" (default), "lz4" or "" (none). max_file_bytes: stop writing at this size (the
+      writer's RLIMIT_FSIZE), as a full disk would.
     """
 
     def __init__(self, path: str | Path, *, joint_names: dict[str, list[str]] | None = None,
                  metadata: dict[str, str] | None = None, t0: float | None = None, jpeg_quality: int = 85,
-                 queue_size: int = 200_000, frame_queue_size: int = 120, encoder_threads: int = 2,
-                 flush_interval_s: float = 0.25, chunk_size: int = 256 * 1024, compression: str = "zstd",
-                 fsync_interval_s: float = 5.0, overwrite: bool = False, stream=None):
-        from mcap.writer import CompressionType, Writer
-
+                 buffer_bytes: int = SAMPLES_BUFFER_BYTES, frame_buffer_bytes: int = FRAMES_BUFFER_BYTES,
+                 encoder_threads: int = 2, flush_interval_s: float = 0.25, chunk_size: int = 256 * 1024,
+                 compression: str = "zstd", fsync_interval_s: float = 5.0, overwrite: bool = False,
+                 max_file_bytes: int | None = None):
+        if compression not in ("zstd", "lz4", ""):
+            raise ValueError(f"compression {compression!r}: use zstd, lz4 or an empty string")
         self.path = Path(path)
         self._joint_names = {k: list(v) for k, v in (joint_names or {}).items()}
         t0 = time.monotonic() if t0 is None else float(t0)
         self.clock_offset_s = time.time() - t0
-        self._jpeg_quality = int(jpeg_quality)
-        self._qmax, self._fqmax = int(queue_size), int(frame_queue_size)
-        self._flush_interval = float(flush_interval_s)
-        self._fsync_interval = float(fsync_interval_s)
-        self._q: deque = deque()
-        self._frames: deque = deque()
-        self._frames_cv = threading.Condition()
-        self._stop = False
-        self._accepting = True
-        self.error: str | None = None
         self.warning: str | None = None
-        self._written = self._frames_written = self._dropped = self._dropped_frames = 0
+        self._dropped = self._dropped_frames = 0
         self._episode = -1
-        self._size = 0
-        self._last_t = float("nan")
-        self._channels: dict[str, int] = {}
-        self._schemas: dict[str, int] = {}
-        self._last_flush = time.monotonic()
-        if stream is None:
-            if self.path.exists() and not overwrite:
-                raise UserError("recording file already exists", where=str(self.path),
-                                fix="choose a new name (recordings are never overwritten)")
-            try:
-                self.path.parent.mkdir(parents=True, exist_ok=True)
-                stream = open(self.path, "wb")
-                fcntl.flock(stream.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)  # episodes tools refuse it
-            except OSError as e:
-                raise UserError(f"cannot create recording ({e.strerror or e})", where=str(self.path),
-                                fix="check the folder exists, is writable and has free space") from None
-        self._f = stream
-        comp = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                "": CompressionType.NONE}[compression]
-        self._w = Writer(stream, chunk_size=chunk_size, compression=comp)
+        self._topics: dict[str, int] = {}
+        self._lock = threading.Lock()  # the samples ring: the loop(s) and the UI
+        self._frame_lock = threading.Lock()  # the frame ring: camera threads
+        self._ids = itertools.count()  # topic ids, shared by both rings (next() is atomic under the GIL)
+        self._put_count = 0
+        self._closed = False
+        self._proc = self._mm = self._final = None
+        if self.path.exists() and not overwrite:
+            raise UserError("recording file already exists", where=str(self.path),
+                            fix="choose a new name (recordings are never overwritten)")
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._f = open(self.path, "wb")  # noqa: SIM115 -- the writer process inherits it; closed in close()
+            fcntl.flock(self._f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)  # episodes tools refuse it
+        except OSError as e:
+            raise UserError(f"cannot create recording ({e.strerror or e})", where=str(self.path),
+                            fix="check the folder exists, is writable and has free space") from None
         meta = session_metadata(clock_offset_s=self.clock_offset_s, joint_names=self._joint_names)
         meta.update({k: str(v) for k, v in (metadata or {}).items()})
-        try:
-            self._w.start(profile=S.PROFILE, library=f"factr2-recorder {meta.get('software_version', '')}")
-            self._w.add_metadata(S.SESSION_METADATA, meta)
-            self._w.flush()
-        except OSError as e:
-            raise UserError(f"cannot write recording ({e.strerror or e})", where=str(self.path),
-                            fix="free disk space or choose another folder") from None
-        self._threads = [threading.Thread(target=self._run, name="factr2-recorder", daemon=True)]
-        self._threads += [threading.Thread(target=self._encode_frames, name=f"factr2-jpeg{i}", daemon=True)
-                          for i in range(max(1, int(encoder_threads)))]
-        for th in self._threads:
-            th.start()
+        self._start_writer(dict(
+            path=str(self.path), joint_names=self._joint_names, metadata=meta,
+            clock_offset_s=self.clock_offset_s,
+            compression=compression, chunk_size=int(chunk_size), jpeg_quality=int(jpeg_quality),
+            encoder_threads=int(encoder_threads), flush_interval_s=float(flush_interval_s),
+            fsync_interval_s=float(fsync_interval_s), samples_bytes=int(buffer_bytes),
+            frames_bytes=int(frame_buffer_bytes), max_file_bytes=max_file_bytes, parent_pid=os.getpid()))
+
+    def _start_writer(self, cfg: dict) -> None:
+        import mmap
+
+        total = W.STATUS_BYTES + region_size(cfg["samples_bytes"]) + region_size(cfg["frames_bytes"])
+        self._shm_fd = _shared_file(total)
+        # the writer process faults the pages in (MAP_POPULATE, ~65 ms for 96 MB): here a first touch then
+        # only maps a page (a frame's copy that allocated 56 pages held the GIL for ~0.4 ms)
+        self._mm = mmap.mmap(self._shm_fd, total)
+        self._status = W.SharedStatus(self._mm)
+        self._status.set(W.W_MAGIC, W.MAGIC)
+        self._samples, self._frames = W.attach_rings(self._mm, cfg["samples_bytes"], cfg["frames_bytes"])
+        cfg.update(shm_fd=self._shm_fd, file_fd=self._f.fileno())
+        # A new interpreter (`python -m`), as the twin's render process: multiprocessing's spawn re-runs the
+        # user's __main__, a fork would copy the loop's threads. Its own session: Ctrl-C is the app's.
+        self._proc = subprocess.Popen([sys.executable, "-m", "hardware.recording.writer_process"],
+                                      stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL,
+                                      pass_fds=(self._shm_fd, self._f.fileno()), start_new_session=True)
+        self._proc.stdin.write(json.dumps(cfg).encode())
+        self._proc.stdin.close()
+        # Not waited for: records wait in the rings while it starts (~0.2 s; a twin's unheld leader would
+        # sink meanwhile). A writer that cannot start or write says so through status().error.
+
+    def _abort(self) -> None:
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
+        self._release()
 
     # ---- non-blocking API for the control loop and the UI --------------------------------------------
-    def _put(self, item) -> bool:
-        if not self._accepting or len(self._q) >= self._qmax:
+    def _accepting(self) -> bool:
+        return not self._closed and self._status.get(W.W_STATE) in (W.STARTING, W.RUNNING)
+
+    def _topic(self, name: str, code: int, ring: ByteRing) -> int:
+        """The id of a topic, announced to the writer on first use in the ring its records go through (so
+        that the writer always reads the announcement first). Called under that ring's lock."""
+        tid = self._topics.get(name)
+        if tid is None:
+            tid = self._topics[name] = next(self._ids)
+            if not ring.put(R.pack_topic(tid, code, name)):
+                del self._topics[name]
+                return -1
+            self._put_count += 1
+        return tid
+
+    def _put(self, record: bytes) -> bool:
+        if not self._accepting() or not self._samples.put(record):
             self._dropped += 1
             return False
-        self._q.append(item)
+        self._put_count += 1
         return True
+
+    def _numeric(self, schema: S.Schema, topic: str, t: float, scalars, vectors) -> bool:
+        return self.log_batch([(schema, topic, t, scalars, vectors)])
+
+    @_never_raises
+    def log_batch(self, items) -> bool:
+        """Several numeric messages as one record (an arm pair's tick: hardware/recording/arm_tick.py).
+        items: (schema, topic, t [s], scalars, vectors), in the schema's field order."""
+        with self._lock:
+            packed = []
+            for schema, topic, t, scalars, vectors in items:
+                tid = self._topic(topic, R.SCHEMA_CODE[schema.name], self._samples)
+                if tid < 0:
+                    self._dropped += len(items)
+                    return False
+                packed.append((tid, float(t), scalars, vectors))
+            if self._put(R.pack_numerics(packed)):
+                return True
+            self._dropped += len(items) - 1  # _put counted one
+            return False
 
     @_never_raises
     def log_joint_state(self, topic_or_arm: str, t: float, state) -> bool:
         """A hardware.types.JointState of arm "leader"/"follower" (or a full topic name) at time t [s]."""
         topic = topic_or_arm if topic_or_arm.startswith("/") else S.joint_state_topic(topic_or_arm)
-        p = {"t": float(t), "q": _vec(state.q), "q_dot": _vec(state.q_dot), "tau_m": _vec(state.tau_m),
-             "current": _vec(state.current), "q_cmd": _vec(state.q_cmd),
-             "temperature": _vec(state.temperature),
-             "status": np.asarray(state.status).astype(np.int64).tolist(),
-             "gripper_pos": float(state.gripper_pos), "gripper_effort": float(state.gripper_effort)}
-        return self._put((S.JOINT_STATE, topic, p))
+        return self._numeric(S.JOINT_STATE, topic, t, *joint_state_fields(state))
 
     @_never_raises
     def log_external_torque(self, arm: str, t: float, tau_ext, contact: bool) -> bool:
         """Estimated external torque [N*m] per joint and the contact state of `arm`."""
-        return self._put((S.EXTERNAL_TORQUE, S.tau_ext_topic(arm),
-                          {"t": float(t), "tau_ext": _vec(tau_ext), "contact": bool(contact)}))
+        return self._numeric(S.EXTERNAL_TORQUE, S.tau_ext_topic(arm), t, (bool(contact),), (tau_ext,))
 
     @_never_raises
     def log_torque_command(self, arm: str, t: float, tau, gate: float | None = None) -> bool:
         """Torque commanded to `arm` [N*m] (the leader's force feedback), optional feedback gate [0, 1]."""
-        return self._put((S.TORQUE_COMMAND, S.tau_cmd_topic(arm),
-                          {"t": float(t), "tau": _vec(tau), "gate": _num(gate)}))
+        return self._numeric(S.TORQUE_COMMAND, S.tau_cmd_topic(arm), t, (_num(gate),), (tau,))
 
     @_never_raises
     def log_follower_command(self, arm: str, t: float, q, gripper: float = float("nan"),
                              hold: bool = False) -> bool:
         """The position target [rad] and gripper target [m] a follower was sent after the safety layer (the
         policy's action), and whether the layer turned it into a hold."""
-        return self._put((S.FOLLOWER_COMMAND, S.command_topic(arm),
-                          {"t": float(t), "q": _vec(q), "gripper": _num(gripper), "hold": bool(hold)}))
+        return self._numeric(S.FOLLOWER_COMMAND, S.command_topic(arm), t, (_num(gripper), bool(hold)), (q,))
 
     @_never_raises
     def log_ground_truth(self, arm: str, t: float, tau_ext_true, contact: bool, force=None) -> bool:
         """Twin only: true external torque [N*m], contact flag, net contact force [N] (x, y, z)."""
-        f = _vec(force) if force is not None else [float("nan")] * 3
-        return self._put((S.GROUND_TRUTH, S.ground_truth_topic(arm),
-                          {"t": float(t), "tau_ext_true": _vec(tau_ext_true), "contact": bool(contact),
-                           "force": f}))
+        f = np.full(3, np.nan) if force is None else force
+        return self._numeric(S.GROUND_TRUTH, S.ground_truth_topic(arm), t, (bool(contact),),
+                             (tau_ext_true, f))
 
     @_never_raises
     def log_task_objects(self, t: float, values, names) -> bool:
         """PRIVILEGED (twin only): the task objects' state vector (policies/privileged.py); `names` (one per
         element, fixed for the session) go into the channel's metadata on first use."""
-        self._joint_names.setdefault(S.TOPIC_TASK_OBJECTS.split("/")[1], [str(n) for n in names])
-        return self._put((S.TASK_OBJECTS, S.TOPIC_TASK_OBJECTS, {"t": float(t), "objects": _vec(values)}))
+        arm = S.TOPIC_TASK_OBJECTS.split("/")[1]
+        if arm not in self._joint_names:
+            self._joint_names[arm] = [str(n) for n in names]
+            with self._lock:
+                self._put(R.pack_names({arm: self._joint_names[arm]}))
+        return self._numeric(S.TASK_OBJECTS, S.TOPIC_TASK_OBJECTS, t, (), (values,))
 
     @_never_raises
     def log_loop_timing(self, t: float, period_s: float, busy_s: float, late_s: float, overruns: int) -> bool:
-        return self._put((S.LOOP_TIMING, S.TOPIC_LOOP, {"t": float(t), "period_s": float(period_s),
-                                                        "busy_s": float(busy_s), "late_s": float(late_s),
-                                                        "overruns": int(overruns)}))
+        return self._numeric(S.LOOP_TIMING, S.TOPIC_LOOP, t,
+                             (float(period_s), float(busy_s), float(late_s), int(overruns)), ())
+
+    def _frame(self, camera: str, t: float, encoding: int, data, shape: tuple[int, int, int]) -> bool:
+        with self._frame_lock:  # not the samples' lock: a frame's copy must not delay the loop's records
+            tid = self._topic(camera, R.CAMERA_CODE, self._frames)
+            ok = tid >= 0 and self._accepting() and self._frames.put(
+                R.frame_header(tid, t, encoding, shape), data)
+            self._put_count += ok
+        if not ok:
+            self._dropped_frames += 1
+        return ok
 
     @_never_raises
     def log_image(self, camera: str, t: float, rgb: np.ndarray) -> bool:
-        """An H x W x 3 uint8 RGB frame; JPEG-encoded off this thread. Do not modify `rgb` afterwards."""
-        if not self._accepting or len(self._frames) >= self._fqmax:
-            self._dropped_frames += 1
-            return False
-        with self._frames_cv:
-            self._frames.append((camera, float(t), rgb))
-            self._frames_cv.notify()
-        return True
+        """An H x W x 3 uint8 RGB frame; copied into the frame ring and JPEG-encoded by the writer process."""
+        a = np.ascontiguousarray(rgb, dtype=np.uint8)
+        shape = a.shape + (1,) * (3 - a.ndim) if a.ndim < 3 else a.shape
+        if len(shape) != 3:
+            raise ValueError(f"frame of shape {a.shape}: expected H x W x 3")
+        return self._frame(camera, float(t), R.RAW, memoryview(a).cast("B"), shape)
 
     @_never_raises
     def log_jpeg(self, camera: str, t: float, jpeg: bytes) -> bool:
         """An already-encoded JPEG frame (e.g. from an MJPEG camera)."""
-        return self._put(("image", camera, float(t), bytes(jpeg)))
+        return self._frame(camera, float(t), R.JPEG, bytes(jpeg), (0, 0, 0))
 
     def log_event(self, t: float, kind: str, text: str = "", value: float = float("nan"),
                   episode: int | None = None) -> bool:
         if kind not in S.EVENT_KINDS:
             raise ValueError(f"event kind {kind!r} not in {S.EVENT_KINDS}")
         ep = self._episode if episode is None else int(episode)
-        return self._put(("event", float(t), kind, ep, str(text), float(value)))
+        with self._lock:
+            return self._put(R.pack_event(float(t), kind, ep, str(text), float(value)))
 
     def start_episode(self, t: float, task: str = "") -> int:
         """Start a new episode at t [s]; returns its index (0, 1, ... within this file)."""
@@ -255,132 +329,76 @@ class Recorder:
         return self._episode
 
     def status(self) -> RecorderStatus:
+        st = self._status
+        if self._mm is None:
+            return self._final
         try:
-            self._size = os.fstat(self._f.fileno()).st_size
-        except (OSError, ValueError, io.UnsupportedOperation, AttributeError):
-            pass  # closed: keep the last size seen
-        size = self._size
-        return RecorderStatus(self._accepting and self.error is None, self.error, self.warning, self._written,
-                              self._frames_written, size, self._dropped, self._dropped_frames,
-                              len(self._q) + len(self._frames), time.monotonic() - self._last_flush)
+            size = os.fstat(self._f.fileno()).st_size
+        except (OSError, ValueError):
+            size = 0
+        error = st.text("error")
+        if error is None and st.get(W.W_STATE) in (W.STARTING, W.RUNNING) and self._proc.poll() is not None:
+            # died without a word (killed, out of memory)
+            error = (f"recording stopped: its writer process ended unexpectedly "
+                     f"(exit {self._proc.returncode}); "
+                     f"run `factr2 recover {self.path}`")
+            st.set_text("error", error)
+            st.set(W.W_STATE, W.FAILED)
+        child_warning = st.text("warning")
+        flush_ns = st.get(W.W_FLUSH_NS)
+        return RecorderStatus(
+            self._accepting() and error is None, error, self.warning or child_warning, st.get(W.W_WRITTEN),
+            st.get(W.W_FRAMES), size, self._dropped + st.get(W.W_DROP_SAMPLES) + st.get(W.W_BAD),
+            self._dropped_frames + st.get(W.W_DROP_FRAMES), max(0, self._put_count - st.get(W.W_CONSUMED)),
+            (time.monotonic_ns() - flush_ns) / 1e9 if flush_ns else float("nan"))
 
     def close(self, timeout_s: float = 30.0) -> RecorderStatus:
-        """Drain the queues, write the MCAP summary and close the file. Safe to call twice."""
-        self._accepting = False
-        self._stop = True
-        with self._frames_cv:
-            self._frames_cv.notify_all()
-        for th in self._threads:
-            th.join(timeout_s)
-        return self.status()
+        """Let the writer drain the rings, write the summary and close the file. Safe to call twice."""
+        if self._closed:
+            return self._final
+        self._closed = True
+        st = self._status
+        st.set(W.W_PARENT_DROP_SAMPLES, self._dropped)
+        st.set(W.W_PARENT_DROP_FRAMES, self._dropped_frames)
+        st.set(W.W_CLOSING, 1)
+        try:
+            self._proc.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+            if st.text("error") is None:
+                st.set_text("error", "recording stopped: the writer did not finish within "
+                                     f"{timeout_s:.0f} s; "
+                                     f"run `factr2 recover {self.path}`")
+        if st.get(W.W_STATE) not in (W.FINISHED, W.FAILED) and st.text("error") is None:
+            st.set_text("error", f"recording stopped: the writer process ended ({self._proc.returncode}); "
+                                 f"run `factr2 recover {self.path}`")
+        self._final = self.status()
+        self._final.recording = False
+        self._release()
+        return self._final
+
+    def _release(self) -> None:
+        if self._mm is not None:
+            for ring in (self._samples, self._frames):
+                ring.release()
+            self._status.mv.release()
+            self._samples = self._frames = self._status = None
+            self._mm.close()
+            self._mm = None
+            os.close(self._shm_fd)
+        try:
+            self._f.close()
+        except OSError:
+            pass
+
+    def __del__(self):
+        # never closed (an exception on the way): let the writer finish the file rather than wait for us
+        if not getattr(self, "_closed", True) and getattr(self, "_status", None) is not None:
+            self._status.set(W.W_CLOSING, 1)
 
     def __enter__(self) -> Recorder:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-    # ---- worker threads ------------------------------------------------------------------------------
-    def _encode_frames(self) -> None:
-        from PIL import Image
-
-        while True:
-            with self._frames_cv:
-                while not self._frames and not self._stop:
-                    self._frames_cv.wait(0.1)
-                if not self._frames:
-                    if self._stop:
-                        return
-                    continue
-                camera, t, rgb = self._frames.popleft()
-            try:
-                buf = io.BytesIO()
-                img = Image.fromarray(np.ascontiguousarray(rgb))
-                img.save(buf, format="JPEG", quality=self._jpeg_quality)
-                self._q.append(("image", camera, t, buf.getvalue()))  # may pass the bound: never dropped here
-            except Exception as e:  # a bad frame must not kill the encoder
-                self._dropped_frames += 1
-                self.warning = f"camera {camera}: frame not encodable, skipped ({e})"
-
-    def _channel(self, topic: str, schema_name: str, encoding: str, schema_enc: str, data, meta) -> int:
-        """Channel id of topic, registered on first use (data and meta are callables: built once)."""
-        cid = self._channels.get(topic)
-        if cid is None:
-            sid = self._schemas.get(schema_name)
-            if sid is None:
-                sid = self._schemas[schema_name] = self._w.register_schema(schema_name, schema_enc, data())
-            meta = meta()
-            cid = self._channels[topic] = self._w.register_channel(topic, encoding, sid, meta)
-        return cid
-
-    def _write(self, item) -> None:
-        kind = item[0]
-        if kind == "image":
-            _, camera, t, jpeg = item
-            topic = S.camera_topic(camera)
-            cid = self._channel(topic, S.IMAGE_SCHEMA_NAME, "protobuf", "protobuf",
-                                lambda: S.image_schema()[2], lambda: {"camera": camera})
-            ns = S.log_time_ns(t, self.clock_offset_s)
-            self._w.add_message(cid, ns, encode_compressed_image(ns, jpeg, "jpeg", camera), ns)
-            self._frames_written += 1
-        elif kind == "event":
-            _, t, ev, ep, text, value = item
-            cid = self._channel(S.TOPIC_EVENTS, S.EVENT_SCHEMA_NAME, "json", "jsonschema",
-                                S.event_json_schema, dict)
-            ns = S.log_time_ns(t, self.clock_offset_s)
-            self._w.add_message(cid, ns, S.encode_event(t, ev, ep, text, value), ns)
-        else:
-            schema, topic, payload = item
-            cid = self._channels.get(topic)
-            if cid is None:
-                arm = topic.split("/")[1]
-                cid = self._channel(topic, schema.name, "json", "jsonschema", schema.schema_bytes,
-                                    lambda: {"arm": arm,
-                                             "joint_names": ",".join(self._joint_names.get(arm, []))})
-            ns = S.log_time_ns(payload["t"], self.clock_offset_s)
-            self._w.add_message(cid, ns, S.encode_numeric(schema, payload), ns)
-        self._written += 1
-
-    def _run(self) -> None:
-        last_sync = time.monotonic()
-        try:
-            while True:
-                n = 0
-                while self._q and n < 2000:
-                    self._write(self._q.popleft())
-                    n += 1
-                    if n % WRITER_YIELD_EVERY == 0:
-                        time.sleep(0)  # hand the GIL back so the control loop's wake-up is not delayed
-                now = time.monotonic()
-                if now - self._last_flush >= self._flush_interval:
-                    self._w.flush()  # closes the chunk in progress and flushes the file
-                    self._last_flush = now
-                    if now - last_sync >= self._fsync_interval and hasattr(self._f, "fileno"):
-                        os.fsync(self._f.fileno())
-                        last_sync = now
-                if n == 0:
-                    if self._stop and not self._frames and all(not t.is_alive() for t in self._threads[1:]):
-                        if not self._q:
-                            break
-                    time.sleep(0.003)
-            self._w.add_metadata(S.STATS_METADATA, {
-                "messages": str(self._written), "frames": str(self._frames_written),
-                "dropped_samples": str(self._dropped), "dropped_frames": str(self._dropped_frames)})
-            self._w.finish()
-            self._f.flush()
-            if hasattr(self._f, "fileno"):
-                os.fsync(self._f.fileno())
-        except Exception as e:  # disk full, device removed, ...: stop cleanly, keep what was flushed
-            self._accepting = False
-            why = getattr(e, "strerror", None) or str(e) or type(e).__name__
-            self.error = (f"recording stopped: {why} while writing {self.path}; data up to the last flush "
-                          "was "
-                          f"kept -- free space, then run `factr2 recover {self.path}`")
-            self._q.clear()
-            self._frames.clear()
-        finally:
-            self.status()
-            try:
-                self._f.close()
-            except Exception:
-                pass
