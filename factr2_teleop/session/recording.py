@@ -122,10 +122,12 @@ class SessionRecording:
             self._ticks += 1
             twin = self.session.twin
             if twin is not None and self._ticks % TRUTH_EVERY == 0:  # SIMULATED: the twin's truth
-                with sim_cpu.simulated():  # privileged twin work, not the app's CPU (hardware/sim_cpu.py)
+                # privileged twin work, reading and recording it, is not the app's CPU (hardware/sim_cpu.py):
+                # hardware has no ground truth to record
+                with sim_cpu.simulated():
                     gt = twin.device_ground_truth(pair.follower.name, TRUTH_EVERY / self.rate_hz)
-                n = pair.follower.n_joints
-                self.recorder.log_ground_truth(f"{pre}follower", r.t, gt.tau_ext[:n], gt.contact)
+                    n = pair.follower.n_joints
+                    self.recorder.log_ground_truth(f"{pre}follower", r.t, gt.tau_ext[:n], gt.contact)
             if self._ticks % TIMING_EVERY == 0 and np.isfinite(r.loop_period_s):
                 self.recorder.log_loop_timing(r.t, r.loop_period_s, 0.0, 0.0, r.loop_overruns)
 

@@ -30,7 +30,9 @@ from hardware.cameras.base import CameraError
 START_TIMEOUT_S = 30.0  # a cold start imports mujoco and opens an OpenGL context
 RENDER_TIMEOUT_S = 5.0
 RASTER_THREADS = 1  # Mesa llvmpipe threads in the render process (LP_NUM_THREADS)
-RENDER_NICE = 10  # the render process's niceness: below the control loop (without a real-time loop)
+RENDER_NICE = 0  # normal priority: not real time (see RenderProcess), but a fair share against a busy
+# process, which a frame needs (~10 ms of llvmpipe per 320x240 frame: 30 % of a core at 30 Hz; niced by 10 it
+# got ~10 % beside a busy process and dropped frames)
 
 
 def _serve(conn) -> None:

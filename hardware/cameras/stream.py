@@ -59,6 +59,7 @@ class CameraStream:
         self._threads: list[threading.Thread] = []
         self._queues: dict[str, queue.Queue] = {}
         self._due: dict[str, float] = {}
+        self._t_start: dict[str, float] = {}  # when each camera's capture began [s, rig clock]
         self._t0 = float("nan")
         self._t_last = float("nan")
         self._lock = threading.Lock()
@@ -86,7 +87,14 @@ class CameraStream:
             self._threads.append(th)
         for ev in ready:  # a GL context or device opens in a second or so; capture starts once all are up
             ev.wait(10.0)
+        self._t_start = dict.fromkeys(self.cameras, self._t0)  # a real camera grabs from t0 on
         if self._queues:
+            # a twin camera's frames are due from now, when capture starts, not from the call: the second
+            # its renderer took to open was counted as ~30 frames "dropped" (96.5-97.3 % in a 30 s
+            # teleop recording; issue #37)
+            now = self.clock.now()
+            for name in self._queues:
+                self._due[name] = self._t_start[name] = now
             self._observer = self._on_step
             self.twin.add_step_observer(self._observer)
 
@@ -117,7 +125,8 @@ class CameraStream:
             out = {}
             for name, st in self._stats.items():
                 fps = self.cameras[name].config.fps
-                exp = int(np.floor((t_end - self._t0) * fps + 1e-9)) + 1 if np.isfinite(self._t0) else 0
+                t0 = self._t_start.get(name, self._t0)
+                exp = int(np.floor((t_end - t0) * fps + 1e-9)) + 1 if np.isfinite(t0) and t_end >= t0 else 0
                 out[name] = CameraStats(exp, st.captured, st.dropped, st.failed, st.late, st.error)
             return out
 

@@ -1,9 +1,10 @@
 """The recording's writer process: it takes the records the control process put into the shared rings
 (hardware/recording/ring.py), encodes them (JSON, JPEG, zstd) and writes the MCAP file. Why a process and
 not a thread: a writer thread in the control process holds the GIL while it encodes, and the loop's wake-up
-waits for it (measured on the 2-vCPU VM, teleop with recording: p99 period 2.75 ms quiet, 6.72 ms beside a
-busy process, loop CPU 22 %; docs/recording.md has the before/after table). Here the control thread only
-packs a record into shared memory.
+waits for it; here the control thread only packs a record into shared memory, and the file survives the
+app's death. It runs at normal priority (niced by WRITER_NICE), not as a real-time helper: a real-time
+process on the other CPU starved the kernel's normal-priority workers there and the loop waited for its
+leader (p99 period 5.1-5.8 ms against 2.1-3.5 ms beside a busy process; docs/recording.md, issue #37).
 
 Shared block (STATUS_BYTES at the start of the mapping): little-endian u64 words, see the offsets below;
 the error and warning texts follow. The rings come after it. The parent (hardware/recording/writer.py)

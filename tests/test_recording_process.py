@@ -1,0 +1,71 @@
+"""The recorder's writer process seen from the app: a writer that dies is said and its records counted, the
+loop's calls never block; a real-time teleop recording counts camera frames from when capture starts."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+from recording_helpers import joint_state
+
+from hardware.recording import Recorder, Recording
+
+
+def test_a_dead_writer_is_said_and_counted_never_blocks(tmp_path):
+    rec = Recorder(tmp_path / "w.mcap", t0=0.0, flush_interval_s=0.02)
+    for k in range(200):
+        assert rec.log_joint_state("follower", k * 1e-3, joint_state(k))
+    deadline = time.monotonic() + 10
+    while rec.status().messages_written < 200 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.2)  # ten flush intervals: the chunk holding them reached the file
+    os.kill(rec._proc.pid, signal.SIGKILL)
+    rec._proc.wait()
+    st = rec.status()
+    assert st.error and "writer process ended unexpectedly" in st.error and "factr2 recover" in st.error
+    t = time.perf_counter()
+    later = [rec.log_joint_state("follower", 1.0 + k * 1e-3, joint_state(k)) for k in range(100)]
+    assert not any(later) and time.perf_counter() - t < 0.5  # refused at once, counted
+    st = rec.close()
+    assert st.dropped_samples >= 100 and not st.recording
+    with pytest.warns(UserWarning, match="truncated"):
+        got = Recording(tmp_path / "w.mcap", use_cache=False).topic("/follower/joint_state")
+    assert len(got) >= 150  # what was flushed before the kill stays readable
+
+
+def test_realtime_teleop_counts_frames_from_capture_start(tmp_path):
+    """The renderer takes a second or so to open; frames are due from when capture starts, so a short
+    real-time recording reaches its camera rate (it counted the opening as ~30 dropped frames: 60 % here)."""
+    from factr2_teleop.session.pairs import TeleopOptions
+    from factr2_teleop.session.teleop import TeleopSession
+    from hardware.cameras.mujoco_camera import TwinCamera
+    from hardware.connect import open_rig
+
+    with open_rig("sim-piper", clock="realtime") as s:
+        if not s.cameras or not all(isinstance(c, TwinCamera) for c in s.cameras.values()):
+            pytest.skip("sim-piper has no twin camera")
+        ts = TeleopSession(s, TeleopOptions(mode="dob"))
+        rec = ts.record(tmp_path)
+        ts.loop.start(duration_s=2.5)
+        try:
+            problems = ts.start_cameras()
+        finally:
+            if not ts.cameras:
+                ts.loop.stop(timeout_s=2.0)
+        if problems:
+            ts.loop.stop(timeout_s=2.0)
+            ts.close_recording()
+            pytest.skip(f"no offscreen rendering: {problems}")
+        rec.start_episode("frames")
+        while ts.loop.alive:
+            time.sleep(0.05)
+        ts.loop.stop(timeout_s=2.0)
+        st = ts.close_recording("done")
+        stats = rec.camera_stats["scene"]
+    assert st.error is None and st.dropped_samples == 0
+    assert stats.failed == 0 and stats.expected >= 20 and stats.ratio >= 0.9, stats
+    frames = Recording(rec.path).episodes[0].frames("scene")
+    assert len(frames) >= 0.9 * (stats.expected - 1) and np.all(np.diff(frames.t) > 0)
