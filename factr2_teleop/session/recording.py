@@ -9,6 +9,7 @@ the rig's cameras at their rate, the twin's ground truth (SIMULATED, labelled) a
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
 from pathlib import Path
@@ -23,6 +24,7 @@ from hardware.recording.arm_tick import record_arm_tick
 
 TRUTH_EVERY = 5  # ticks between ground-truth samples (each the mean over those ticks): 100 Hz at 500 Hz
 TIMING_EVERY = 50  # ticks between loop-timing samples (10 Hz at 500 Hz)
+HAND_OVER_EVERY = 50  # ticks kept before a hand-over if no loop calls hand_over() while it sleeps
 
 
 def session_path(out_dir: str | Path, stem: str) -> Path:
@@ -56,6 +58,16 @@ class SessionRecording:
         # [t_start, t_stop] of every episode [s, rig clock]: a frame belongs to an episode by its timestamp,
         # not by when its render finished (a twin camera renders behind the lockstep stepper)
         self._spans: list[list[float]] = []
+        # The loop's thread only collects each tick's record (a list append) and hands the tick's list to
+        # the packing thread as it goes to sleep (hand_over(), TeleopLoop.idle); packing them into the
+        # recorder's ring costs 50-90 us of cold-cache Python a tick on the dev VM, which the loop's thread
+        # paid before (issue #37). Woken from the tick itself, the packer took the GIL mid-tick and the loop
+        # waited for it. A record's arrays are never modified after its tick (every driver and law builds
+        # new ones; tests/test_recording_process.py compares lockstep records with copies taken at the tick).
+        self._batch: list = []
+        self._pending: queue.SimpleQueue = queue.SimpleQueue()
+        self._packer = threading.Thread(target=self._pack_ticks, name="factr2-record-ticks", daemon=True)
+        self._packer.start()
 
     @classmethod
     def open(cls, out: str | Path, session, pairs, rate_hz: float, *, stem: str | None = None,
@@ -115,21 +127,42 @@ class SessionRecording:
         if not self.recording:
             return
         pair, pre = self._pairs[r.pair]
-        with self._lock:
-            record_arm_tick(self.recorder, pre, r.t, leader=r.leader, follower=r.follower, tau_ext=r.tau_ext,
-                            contact=r.contact, leader_tau_cmd=r.leader_tau_cmd, gate=r.gate,
-                            action_q=r.action_q, action_gripper=r.action_gripper, action_hold=r.action_hold)
+        gt = None
+        with self._lock:  # two loops (bimanual, real time) may share one file
             self._ticks += 1
+            ticks = self._ticks
             twin = self.session.twin
-            if twin is not None and self._ticks % TRUTH_EVERY == 0:  # SIMULATED: the twin's truth
-                # privileged twin work, reading and recording it, is not the app's CPU (hardware/sim_cpu.py):
-                # hardware has no ground truth to record
-                with sim_cpu.simulated():
+            if twin is not None and ticks % TRUTH_EVERY == 0:  # SIMULATED: the twin's truth, at the tick
+                with sim_cpu.simulated():  # privileged twin work, not the app's CPU (hardware/sim_cpu.py)
                     gt = twin.device_ground_truth(pair.follower.name, TRUTH_EVERY / self.rate_hz)
-                    n = pair.follower.n_joints
-                    self.recorder.log_ground_truth(f"{pre}follower", r.t, gt.tau_ext[:n], gt.contact)
-            if self._ticks % TIMING_EVERY == 0 and np.isfinite(r.loop_period_s):
-                self.recorder.log_loop_timing(r.t, r.loop_period_s, 0.0, 0.0, r.loop_overruns)
+            timing = ticks % TIMING_EVERY == 0 and np.isfinite(r.loop_period_s)
+            self._batch.append((r, pre, gt, pair.follower.n_joints, timing))
+            if len(self._batch) >= HAND_OVER_EVERY:
+                self._hand_over_locked()
+
+    def hand_over(self) -> None:
+        """The ticks collected so far to the packing thread (the loop calls it as it goes to sleep)."""
+        if self._batch:
+            with self._lock:
+                self._hand_over_locked()
+
+    def _hand_over_locked(self) -> None:
+        if self._batch:
+            self._pending.put(self._batch)
+            self._batch = []
+
+    def _pack_ticks(self) -> None:
+        rec = self.recorder
+        while (batch := self._pending.get()) is not None:
+            for r, pre, gt, n, timing in batch:
+                record_arm_tick(rec, pre, r.t, leader=r.leader, follower=r.follower, tau_ext=r.tau_ext,
+                                contact=r.contact, leader_tau_cmd=r.leader_tau_cmd, gate=r.gate,
+                                action_q=r.action_q, action_gripper=r.action_gripper,
+                                action_hold=r.action_hold)
+                if gt is not None:  # SIMULATED ground truth: hardware has none to record
+                    rec.log_ground_truth(f"{pre}follower", r.t, gt.tau_ext[:n], gt.contact)
+                if timing:
+                    rec.log_loop_timing(r.t, r.loop_period_s, 0.0, 0.0, r.loop_overruns)
 
     # -- end -----------------------------------------------------------------------------------------------
     def close(self, why: str = ""):
@@ -139,4 +172,7 @@ class SessionRecording:
             if why:
                 self.recorder.note(self.session.clock.now(), why)
             self.stop_episode(None)
+        self.hand_over()
+        self._pending.put(None)  # the packer writes what it holds, then ends
+        self._packer.join(30.0)
         return self.recorder.close()

@@ -38,6 +38,7 @@ class TeleopSession:
         self._camera_stats: dict = {}
         self._next_paths = dict(next_paths or {})
         self.loop = TeleopLoop(self.pairs, clock or session.clock, self.rate_hz, recorder=self._on_tick)
+        self.loop.idle.append(self._idle)
 
     # -- what runs ---------------------------------------------------------------------------------------
     @property
@@ -118,6 +119,11 @@ class TeleopSession:
             rec.frame(camera, t, rgb)
 
     # -- per tick ----------------------------------------------------------------------------------------
+    def _idle(self) -> None:
+        rec = self.recording
+        if rec is not None:
+            rec.hand_over()  # this tick's records to the recording's packing thread, as the loop sleeps
+
     def _on_tick(self, r: TickRecord) -> None:
         for h in self.hooks:
             h(r)

@@ -61,7 +61,10 @@ class TeleopLoop:
     """TeleopLoop(pairs, clock, rate_hz=500, recorder=None, max_messages=100).
 
     recorder: callable(record: TickRecord) per pair per tick (an exception in it stops recording with a
-    message, never the arms). run() blocks (until stop(), duration_s or max_ticks); start() runs it in a
+    message, never the arms). idle: callables run on the loop's thread after each tick, just before it
+    sleeps: hand-overs that wake another thread do it here, so that the woken thread takes the GIL while
+    the loop sleeps rather than in the middle of a tick (a recording's tick records). run() blocks (until
+    stop(), duration_s or max_ticks); start() runs it in a
     thread. snapshot() may be called from any thread.
     """
 
@@ -77,6 +80,7 @@ class TeleopLoop:
         self.pairs, self.clock, self.rate_hz = pairs, clock, float(rate_hz)
         self.period_s = 1.0 / self.rate_hz
         self.recorder = recorder
+        self.idle: list[Callable[[], None]] = []
         self.timing = LoopTiming(self.rate_hz)
         self.error: BaseException | None = None
         self.recorder_errors = 0
@@ -150,6 +154,8 @@ class TeleopLoop:
                 now = self.clock.now()
                 if now > next_t + CATCH_UP_S:  # too far behind to make up: restart the schedule from now
                     next_t = now
+                for fn in self.idle:
+                    fn()
                 self.clock.sleep_until(next_t)
         except BaseException as e:
             self.error = e

@@ -125,6 +125,7 @@ class Recorder:
         self._topics: dict[str, int] = {}
         self._lock = threading.Lock()  # the samples ring: the loop(s) and the UI
         self._frame_lock = threading.Lock()  # the frame ring: camera threads
+        self._life = threading.RLock()  # status() (a UI thread) against close() releasing the shared memory
         self._ids = itertools.count()  # topic ids, shared by both rings (next() is atomic under the GIL)
         self._put_count = 0
         self._closed = False
@@ -171,12 +172,6 @@ class Recorder:
         self._proc.stdin.close()
         # Not waited for: records wait in the rings while it starts (~0.2 s; a twin's unheld leader would
         # sink meanwhile). A writer that cannot start or write says so through status().error.
-
-    def _abort(self) -> None:
-        if self._proc is not None and self._proc.poll() is None:
-            self._proc.kill()
-            self._proc.wait()
-        self._release()
 
     # ---- non-blocking API for the control loop and the UI --------------------------------------------
     def _accepting(self) -> bool:
@@ -329,9 +324,13 @@ class Recorder:
         return self._episode
 
     def status(self) -> RecorderStatus:
+        with self._life:
+            if self._mm is None:
+                return self._final
+            return self._read_status()
+
+    def _read_status(self) -> RecorderStatus:
         st = self._status
-        if self._mm is None:
-            return self._final
         try:
             size = os.fstat(self._f.fileno()).st_size
         except (OSError, ValueError):
@@ -373,9 +372,10 @@ class Recorder:
         if st.get(W.W_STATE) not in (W.FINISHED, W.FAILED) and st.text("error") is None:
             st.set_text("error", f"recording stopped: the writer process ended ({self._proc.returncode}); "
                                  f"run `factr2 recover {self.path}`")
-        self._final = self.status()
-        self._final.recording = False
-        self._release()
+        with self._life:
+            self._final = self._read_status()
+            self._final.recording = False
+            self._release()
         return self._final
 
     def _release(self) -> None:
