@@ -45,16 +45,11 @@ def test_realtime_teleop_counts_frames_from_capture_start(tmp_path):
     from hardware.connect import open_rig
 
     with open_rig("sim-piper", clock="realtime") as s:
-        if not s.cameras or not all(isinstance(c, TwinCamera) for c in s.cameras.values()):
-            pytest.skip("sim-piper has no twin camera")
+        assert s.cameras and all(isinstance(c, TwinCamera) for c in s.cameras.values())  # the rig's scene
         ts = TeleopSession(s, TeleopOptions(mode="dob"))
         rec = ts.record(tmp_path)
         ts.loop.start(duration_s=2.5)
-        try:
-            problems = ts.start_cameras()
-        finally:
-            if not ts.cameras:
-                ts.loop.stop(timeout_s=2.0)
+        problems = ts.start_cameras()  # one line per camera that could not start (never raises)
         if problems:
             ts.loop.stop(timeout_s=2.0)
             ts.close_recording()

@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 from hardware.recording import schemas as S
 from hardware.recording import wire_records as R
 from hardware.recording.ring import RING_HEADER, ByteRing, region_size
-from hardware.recording.writer import joint_state_fields
 
 
 def _ring(capacity: int) -> tuple[ByteRing, ByteRing, bytearray]:
@@ -95,7 +94,7 @@ def test_numeric_records_give_the_same_json_as_the_payload_they_came_from():
     schemas.encode_numeric writes for the original values (NaN, ints, bools included)."""
     s = _state()
     z = np.array([0.5, -1e-9, 3e8, np.inf, -np.inf, np.nan])
-    items = [(0, 1.25, *joint_state_fields(s)), (1, 1.25, (True,), (z,)), (2, 1.25, (float("nan"),), (z,)),
+    items = [(0, 1.25, *R.joint_state_fields(s)), (1, 1.25, (True,), (z,)), (2, 1.25, (float("nan"),), (z,)),
              (3, 1.25, (0.02, False), (z,)), (4, 1.25, (True,), (z, np.array([1.0, 2.0, 3.0])))]
     schemas = [S.JOINT_STATE, S.EXTERNAL_TORQUE, S.TORQUE_COMMAND, S.FOLLOWER_COMMAND, S.GROUND_TRUTH]
     kind, msgs = R.unpack(R.pack_numerics(items))

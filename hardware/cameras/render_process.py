@@ -30,9 +30,9 @@ from hardware.cameras.base import CameraError
 START_TIMEOUT_S = 30.0  # a cold start imports mujoco and opens an OpenGL context
 RENDER_TIMEOUT_S = 5.0
 RASTER_THREADS = 1  # Mesa llvmpipe threads in the render process (LP_NUM_THREADS)
-RENDER_NICE = 0  # normal priority: not real time (see RenderProcess), but a fair share against a busy
-# process, which a frame needs (~10 ms of llvmpipe per 320x240 frame: 30 % of a core at 30 Hz; niced by 10 it
-# got ~10 % beside a busy process and dropped frames)
+# The render process runs at normal priority, not niced: a frame needs a fair share against a busy process
+# (~10 ms of llvmpipe per 320x240 frame: 30 % of a core at 30 Hz; niced by 10 it got ~10 % beside a busy
+# process and dropped frames), and not real time (see RenderProcess).
 
 
 def _serve(conn) -> None:
@@ -40,10 +40,6 @@ def _serve(conn) -> None:
     shared file mapping."""
     import mujoco
 
-    try:
-        os.nice(RENDER_NICE)
-    except OSError:  # not allowed here: render at normal priority
-        pass
     blob, cams, paths = conn.recv()
     model = pickle.loads(blob)
     model.light_castshadow[:] = 0  # this copy only draws: no shadow pass (mujoco_camera.TWIN_MSAA_SAMPLES)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from hardware.recording import schemas as S
+from hardware.recording.wire_records import joint_state_fields, num
 from hardware.types import JointState
 
 
@@ -15,9 +17,6 @@ def record_arm_tick(rec, prefix: str, t: float, *, leader: JointState | None = N
     """Log what one pair did at t [s, rig clock] into a hardware.recording.Recorder (non-blocking).
     prefix: hardware.features.arm_prefix of the pair. action_q [rad] / action_gripper [m]: the follower
     target after the safety layer (NaN or None: nothing sent this tick; hold: the layer held)."""
-    from hardware.recording import schemas as S
-    from hardware.recording.writer import joint_state_fields
-
     items = []  # one record for the whole tick (one pack and one hand-over on the loop's thread)
     if leader is not None:
         items.append((S.JOINT_STATE, S.joint_state_topic(f"{prefix}leader"), t, *joint_state_fields(leader)))
@@ -29,7 +28,7 @@ def record_arm_tick(rec, prefix: str, t: float, *, leader: JointState | None = N
                       (tau_ext,)))
     if leader_tau_cmd is not None:
         items.append((S.TORQUE_COMMAND, S.tau_cmd_topic(f"{prefix}leader"), t,
-                      (float("nan") if gate is None else float(gate),), (leader_tau_cmd,)))
+                      (num(gate),), (leader_tau_cmd,)))
     if action_q is not None and (action_hold or np.all(np.isfinite(action_q))):
         items.append((S.FOLLOWER_COMMAND, S.command_topic(f"{prefix}follower"), t,
                       (float(action_gripper), bool(action_hold)), (action_q,)))

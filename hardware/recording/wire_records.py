@@ -52,6 +52,17 @@ def _lens(n: int) -> struct.Struct:
 
 
 # ---- producer side -------------------------------------------------------------------------------------
+def joint_state_fields(state) -> tuple[tuple, tuple]:
+    """(scalars, vectors) of a hardware.types.JointState in JOINT_STATE's field order."""
+    return ((state.gripper_pos, state.gripper_effort),
+            (state.q, state.q_dot, state.tau_m, state.current, state.q_cmd, state.temperature, state.status))
+
+
+def num(x) -> float:
+    """A scalar field's value: None (not given) is NaN, written as null."""
+    return float("nan") if x is None else float(x)
+
+
 def pack_topic(topic_id: int, code: int, name: str) -> bytes:
     return _TOPIC.pack(TOPIC, topic_id, code) + name.encode()
 

@@ -72,16 +72,6 @@ def _never_raises(fn):
     return wrapper
 
 
-def joint_state_fields(state) -> tuple[tuple, tuple]:
-    """(scalars, vectors) of a JointState in JOINT_STATE's field order."""
-    return ((state.gripper_pos, state.gripper_effort),
-            (state.q, state.q_dot, state.tau_m, state.current, state.q_cmd, state.temperature, state.status))
-
-
-def _num(x) -> float:
-    return float("nan") if x is None else float(x)
-
-
 def _shared_file(size: int) -> int:
     """A file descriptor of `size` bytes of shared memory that the writer process inherits: an anonymous
     memfd on Linux (no /dev/shm size limit, nothing left behind after a crash), else an unlinked temp file."""
@@ -159,7 +149,6 @@ class Recorder:
         # only maps a page (a frame's copy that allocated 56 pages held the GIL for ~0.4 ms)
         self._mm = mmap.mmap(self._shm_fd, total)
         self._status = W.SharedStatus(self._mm)
-        self._status.set(W.W_MAGIC, W.MAGIC)
         self._samples, self._frames = W.attach_rings(self._mm, cfg["samples_bytes"], cfg["frames_bytes"])
         cfg.update(shm_fd=self._shm_fd, file_fd=self._f.fileno())
         # A new interpreter (`python -m`), as the twin's render process: multiprocessing's spawn re-runs the
@@ -220,7 +209,7 @@ class Recorder:
     def log_joint_state(self, topic_or_arm: str, t: float, state) -> bool:
         """A hardware.types.JointState of arm "leader"/"follower" (or a full topic name) at time t [s]."""
         topic = topic_or_arm if topic_or_arm.startswith("/") else S.joint_state_topic(topic_or_arm)
-        return self._numeric(S.JOINT_STATE, topic, t, *joint_state_fields(state))
+        return self._numeric(S.JOINT_STATE, topic, t, *R.joint_state_fields(state))
 
     @_never_raises
     def log_external_torque(self, arm: str, t: float, tau_ext, contact: bool) -> bool:
@@ -230,14 +219,14 @@ class Recorder:
     @_never_raises
     def log_torque_command(self, arm: str, t: float, tau, gate: float | None = None) -> bool:
         """Torque commanded to `arm` [N*m] (the leader's force feedback), optional feedback gate [0, 1]."""
-        return self._numeric(S.TORQUE_COMMAND, S.tau_cmd_topic(arm), t, (_num(gate),), (tau,))
+        return self._numeric(S.TORQUE_COMMAND, S.tau_cmd_topic(arm), t, (R.num(gate),), (tau,))
 
     @_never_raises
     def log_follower_command(self, arm: str, t: float, q, gripper: float = float("nan"),
                              hold: bool = False) -> bool:
         """The position target [rad] and gripper target [m] a follower was sent after the safety layer (the
         policy's action), and whether the layer turned it into a hold."""
-        return self._numeric(S.FOLLOWER_COMMAND, S.command_topic(arm), t, (_num(gripper), bool(hold)), (q,))
+        return self._numeric(S.FOLLOWER_COMMAND, S.command_topic(arm), t, (R.num(gripper), bool(hold)), (q,))
 
     @_never_raises
     def log_ground_truth(self, arm: str, t: float, tau_ext_true, contact: bool, force=None) -> bool:
