@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from hardware.errors import UserError
+from hardware.features import IMAGES, policy_names
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
 from hardware.timeseries import hold_previous
@@ -31,18 +32,13 @@ from policies.frame_cache import camera_frames
 from policies.labelling import NextModel, Thresholds, label_episode
 from policies.normalizer import Normalizer
 from policies.privileged import OBSERVATIONS, uses_images, uses_objects
-from policies.recordings import ArmSet, episode_id, follower_state_action
+from policies.recordings import ArmSet, episode_id, follower_state_action, recording_features
 
 FORCE_SOURCES = ("tau_ext", "current", "none")
 CROP_SCALE = (0.8, 1.0)  # RandomResizedCrop: area share kept
 CROP_RATIO = (3 / 4, 4 / 3)  # and aspect ratio range
 STATE_RATE_HZ = 30.0  # Hz: policy rate without cameras (`--obs state` on camera-less recordings): the twin
 # rigs' camera rate, so a state policy acts as often as an image policy would
-
-
-def action_prefix(follower: str) -> str:
-    """ "follower" -> "action", "left_follower" -> "left_action" (hardware.features naming)."""
-    return follower[: -len("follower")] + "action" if follower.endswith("follower") else f"{follower}_action"
 
 
 @dataclass
@@ -58,7 +54,7 @@ class FeatureNames:
             "observation.state": self.state,
             "observation.force": self.force,
             "action": self.action,
-            "observation.images": [f"observation.images.{c}" for c in self.cameras],
+            "observation.images": [f"{IMAGES}{c}" for c in self.cameras],
         }
         if self.objects:
             out[S.TASK_OBJECTS_FEATURE] = self.objects
@@ -300,23 +296,9 @@ def build_dataset(
         )
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     n_f = cat["force"].shape[1]
-    names = FeatureNames(
-        state=[n for a in arms.followers for n in (f"{a}.joint.pos", f"{a}.gripper.pos")],
-        force=(
-            [f"{a}.joint.tau_ext" for a in arms.followers]
-            if force == "tau_ext"
-            else [f"{a}.joint.current" for a in arms.followers]
-            if force == "current"
-            else []
-        ),
-        action=[
-            n
-            for a in arms.followers
-            for n in (f"{action_prefix(a)}.joint.pos", f"{action_prefix(a)}.gripper.pos")
-        ],
-        cameras=list(cams),
-        objects=object_names,
-    )
+    io = policy_names(recording_features(recs[0]), list(arms.followers), force)  # the one schema's names
+    names = FeatureNames(state=io["state"], force=io["force"], action=io["action"], cameras=list(cams),
+                         objects=object_names)
     n_val = int(round(val_fraction * len(ids))) if len(ids) >= 2 else 0
     n_val = min(max(n_val, 1 if val_fraction > 0 and len(ids) >= 2 else 0), len(ids) - 1)
     val = sorted(np.random.default_rng([seed, 0xE915]).permutation(len(ids))[:n_val].tolist())

@@ -10,7 +10,7 @@
 Rows are sampled at `fps` from each episode's start. Default fps: the first camera's nominal rate from the
 rig file, checked against the frame timestamps (a warning when they differ by more than 10 %); without
 cameras (`factr2 collect --no-cameras`) the policies' state-only rate, 30 Hz. Every row has
-observation.state (follower joints [rad] + gripper [m]), observation.tau_ext [N*m] (recorded or NEXT
+observation.state (follower joints [rad] + gripper [m]), observation.force = tau_ext [N*m] (recorded or NEXT
 offline), action (the commanded joint targets + gripper), phase (FIRST: 0 free, 1 pre-contact, 2 contact),
 the images (the latest frame of each camera at the row's time; none in a state-only dataset), on twin task
 recordings observation.state.objects (PRIVILEGED, SIMULATED: the task objects' state, labelled so in
@@ -28,10 +28,11 @@ from pathlib import Path
 import numpy as np
 
 from hardware.errors import UserError
+from hardware.features import OBS_FORCE, action_of
 from hardware.recording import schemas as S
 from hardware.recording.reader import interp_linear
 from hardware.timeseries import hold_previous
-from policies.dataset import STATE_RATE_HZ, action_prefix, camera_rate
+from policies.dataset import STATE_RATE_HZ, camera_rate
 from policies.export_video import VIDEO_PATH, CameraVideo
 from policies.labelling import label_episode
 from policies.phases import PHASE_NAMES
@@ -98,7 +99,7 @@ def _episode_rows(ep, arms, cams, fps, th, next_model, objects: bool):
     rows = {
         "observation.state": np.concatenate(state, 1),
         "action": np.concatenate(action, 1),
-        "observation.tau_ext": np.nan_to_num(interp_linear(lab.t, lab.tau_ext, grid)),
+        OBS_FORCE: np.nan_to_num(interp_linear(lab.t, lab.tau_ext, grid)),
         "phase": lab.at(grid).astype(np.int64),
     }
     if ob is not None:  # the latest vector at or before each row, as a live policy has it
@@ -131,8 +132,8 @@ def _names(arms, objects: list[str]) -> dict:
         "observation.state": [n for a, j in zip(arms.followers, arms.joint_names)
                               for n in [f"{a}.{x}" for x in j] + [f"{a}.gripper"]],
         "action": [n for a, j in zip(arms.followers, arms.joint_names)
-                   for n in [f"{action_prefix(a)}.{x}" for x in j] + [f"{action_prefix(a)}.gripper"]],
-        "observation.tau_ext": [f"{a}.{x}" for a, j in zip(arms.followers, arms.joint_names) for x in j],
+                   for n in [f"{action_of(a)}.{x}" for x in j] + [f"{action_of(a)}.gripper"]],
+        OBS_FORCE: [f"{a}.{x}" for a, j in zip(arms.followers, arms.joint_names) for x in j],
     }
     if objects:
         out[S.TASK_OBJECTS_FEATURE] = list(objects)
