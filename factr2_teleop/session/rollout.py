@@ -291,7 +291,7 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
         arms = target_arms(ts, runner, runner.check_rig(features, rig_follower_arms(rig)), task)
         if plan.lean:  # the passive leaders: nothing records or shows them, the followers' law ignores them
             for pair in ts.pairs:
-                pair.serve_leader = False
+                pair.rest_leader()
                 s.twin.set_idle(pair.leader.name)
         q_min, q_max = schedule_limits(arms, runner.cfg.action_dim)
         sched = ChunkSchedule(mode=plan.schedule, dt=runner.dt, q_min=q_min, q_max=q_max, m=opts.ensemble_m,

@@ -54,6 +54,10 @@ class RolloutPair(ArmPair):
     def target_fn(now: float, fs):  # follow() attaches the rollout's PolicyTarget
         return None, None, "no policy attached"
 
+    def rest_leader(self) -> None:
+        """Stop serving the passive leader after begin() (see the class doc); the twin's leader idles."""
+        self.serve_leader = False
+
     def follow(self, target_fn) -> None:
         """Attach the target: target_fn(now [s], follower JointState) -> (q, gripper, why)."""
         self.target_fn = target_fn

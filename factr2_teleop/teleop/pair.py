@@ -86,13 +86,13 @@ class ArmPair:
     def __init__(self, leader: Leader, follower: Follower, cfg: PairConfig, dt_s: float,
                  gravity_fn: Callable | None = None, jacobian_fn: Callable | None = None,
                  model_map: JointMap | None = None,
-                 estimator: Estimator | None = None):
+                 estimator: Estimator | None = None, mode: str | None = None):
         self.leader, self.follower, self.cfg, self.dt_s = leader, follower, cfg, float(dt_s)
         self.law = LeaderLaw(cfg.law, leader.safety.limits, gravity_fn, jacobian_fn, model_map)
         self.map = JointMap(cfg.mapping, leader.n_joints, follower.n_joints, where=f"{cfg.name}.mapping")
         self.soft = SoftStart(cfg.soft_start, follower.n_joints, dt_s)
         self.estimator = estimator
-        self.mode = "none" if estimator is None else "custom"  # feedback mode name (session.pairs sets it)
+        self.mode = mode or ("none" if estimator is None else "custom")  # feedback mode name (session.pairs)
         self.phase = IDLE
         self.q_target: np.ndarray | None = None
         self.estimate: Estimate | None = None
