@@ -46,3 +46,19 @@ def train_tiny(rec: Path, out: Path, policy: str = "flow", steps: int = 4) -> Pa
                             progress=False, overrides=dict(TINY), train=train, val_fraction=0.0,
                             include_failed=True), Dist())  # the held-still episode is labelled a failure
     return out
+
+
+def tiny_run_on(tmp_path_factory, name: str, record, policy: str = "act", steps: int = 25) -> Path:
+    """A module fixture's tiny policy: record(folder) -> recording, trained `steps` steps (skips without
+    OpenGL: the twin's cameras render)."""
+    import pytest
+
+    try:
+        from hardware.cameras.mujoco_camera import make_renderer  # noqa: F401
+    except Exception:  # pragma: no cover
+        pytest.skip("no OpenGL")
+    import torch
+
+    torch.set_num_threads(1)
+    d = tmp_path_factory.mktemp(name)
+    return train_tiny(record(d), d / "run", policy=policy, steps=steps)

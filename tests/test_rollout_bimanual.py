@@ -12,7 +12,7 @@ from hardware.features import policy_names, rig_features
 from hardware.recording.reader import Recording
 from hardware.rigs.rig import load_rig
 from policies.checkpoint import read_meta
-from tests.rollout_helpers import record_rig_session, train_tiny
+from tests.rollout_helpers import record_rig_session, tiny_run_on
 
 pytest.importorskip("mujoco")
 RIG = "sim-bimanual-piper"
@@ -20,15 +20,7 @@ RIG = "sim-bimanual-piper"
 
 @pytest.fixture(scope="module")
 def bimanual_run(tmp_path_factory):
-    try:
-        from hardware.cameras.mujoco_camera import make_renderer  # noqa: F401
-    except Exception:  # pragma: no cover
-        pytest.skip("no OpenGL")
-    import torch
-
-    torch.set_num_threads(1)
-    d = tmp_path_factory.mktemp("bimanual")
-    return train_tiny(record_rig_session(d, RIG, seconds=1.0), d / "run", policy="act", steps=6)
+    return tiny_run_on(tmp_path_factory, "bimanual", lambda d: record_rig_session(d, RIG, seconds=1.0), steps=6)
 
 
 def test_the_checkpoint_names_what_the_rig_declares(bimanual_run):

@@ -17,23 +17,14 @@ from hardware.recording import schemas as S
 from hardware.recording.reader import Recording
 from policies.rollout.runner import PolicyRunner
 from policies.rollout.schedule import STALL_S, Chunk
-from tests.rollout_helpers import record_task_session, train_tiny
+from tests.rollout_helpers import record_task_session, tiny_run_on
 
 pytest.importorskip("mujoco")
 
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
-    try:
-        from hardware.cameras.mujoco_camera import make_renderer  # noqa: F401
-    except Exception:  # pragma: no cover
-        pytest.skip("no OpenGL")
-    import torch
-
-    torch.set_num_threads(1)
-    d = tmp_path_factory.mktemp("rollout")
-    rec = record_task_session(d, seconds=1.2)
-    return train_tiny(rec, d / "run", policy="act", steps=25)
+    return tiny_run_on(tmp_path_factory, "rollout", lambda d: record_task_session(d, seconds=1.2))
 
 
 def _opts(run, **kw):
