@@ -20,7 +20,8 @@ RIG = "sim-bimanual-piper"
 
 @pytest.fixture(scope="module")
 def bimanual_run(tmp_path_factory):
-    return tiny_run_on(tmp_path_factory, "bimanual", lambda d: record_rig_session(d, RIG, seconds=1.0), steps=6)
+    return tiny_run_on(tmp_path_factory, "bimanual", lambda d: record_rig_session(d, RIG, seconds=1.0),
+                       steps=6)
 
 
 def test_the_checkpoint_names_what_the_rig_declares(bimanual_run):
