@@ -24,7 +24,7 @@ from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch_error, rate_limit
 from hardware.clock import Clock
 from hardware.errors import ConfigError, DeviceError
-from hardware.roles import Follower, Leader
+from hardware.roles import Follower, Leader, make_safe
 from hardware.safety import SafeFollowerCommand
 from hardware.types import STATUS_COMM_LOST, STATUS_STALE, FollowerCommand, JointState
 
@@ -142,13 +142,8 @@ class ArmPair:
         return True
 
     def make_safe(self, reason: str) -> None:
-        """Leader zero torque, follower hold; each attempted even if the other fails."""
-        errors = []
-        for act in (lambda: self.leader.zero_torque(reason), lambda: self.follower.hold(reason)):
-            try:
-                act()
-            except Exception as e:  # noqa: BLE001 -- the other arm must still be made safe
-                errors.append(e)
+        """Leader zero torque, follower hold; each attempted even if the other fails (hardware.roles)."""
+        errors = make_safe([self.leader], [self.follower], reason)
         if errors:
             log.error("%s: could not make an arm safe: %s", self.cfg.name, errors)
 
