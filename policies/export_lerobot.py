@@ -32,7 +32,7 @@ from hardware.features import OBS_FORCE, action_of
 from hardware.recording import schemas as S
 from hardware.recording.reader import interp_linear
 from hardware.timeseries import hold_previous
-from policies.dataset import STATE_RATE_HZ, camera_rate
+from policies.dataset import STATE_RATE_HZ, camera_rate, latest_frame, valid_samples
 from policies.export_video import VIDEO_PATH, CameraVideo
 from policies.labelling import label_episode
 from policies.phases import PHASE_NAMES
@@ -104,11 +104,9 @@ def _episode_rows(ep, arms, cams, fps, th, next_model, objects: bool):
     }
     if ob is not None:  # the latest vector at or before each row, as a live policy has it
         rows[S.TASK_OBJECTS_FEATURE] = hold_previous(ob.t, ob.fields["objects"], grid)
-    frame_idx = {c: np.searchsorted(ep.recording.frames(c).t, grid + 1e-6, side="right") - 1 for c in cams}
-    ok = np.isfinite(rows["observation.state"]).all(1) & np.isfinite(rows["action"]).all(1)
-    if ob is not None:
-        ok &= np.isfinite(rows[S.TASK_OBJECTS_FEATURE]).all(1)
-    ok &= np.all([frame_idx[c] >= 0 for c in cams], axis=0) if cams else True
+    frame_idx = {c: latest_frame(ep.recording.frames(c).t, grid) for c in cams}
+    ok = valid_samples(rows["observation.state"], rows["action"], rows.get(S.TASK_OBJECTS_FEATURE),
+                       np.stack([frame_idx[c] for c in cams], axis=1) if cams else None)
     # LeRobot needs timestamps on the fps grid from 0: keep the longest valid run from the start
     first_bad = int(np.argmin(ok)) if not ok.all() else len(ok)
     keep = slice(0, first_bad)

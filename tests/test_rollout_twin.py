@@ -146,7 +146,9 @@ def test_another_arm_joints_or_cameras_refused_in_one_line(tiny_run, tmp_path, c
 
 def test_the_runner_builds_the_input_training_saw(tiny_run):
     """Live values through PolicyRunner.batch == the training batch of the same tick (names, order,
-    normaliser; frames resized from the full image as the frame cache does, JPEG decoding aside)."""
+    normaliser). The live frames here are the recorded JPEGs decoded (the twin's raw frames are not kept),
+    so the rollout's encode is a second JPEG pass: near, not equal; tests/test_policies_preprocess.py sends
+    the raw frame through both paths and gets the same tensor."""
     from policies.dataset import build_dataset
     from policies.labelling import Thresholds
     from policies.recordings import load_episodes

@@ -9,11 +9,12 @@ meanwhile) or on a thread of its own (real time: the control loop never waits fo
     for chunk in runner.take(): ...                   # schedule.Chunk, stamped with t_obs
     runner.stop()
 
-The input is built by feature name from the names and normaliser the checkpoint stores (the ones training
-used): observation.state = the listed follower features concatenated ([rad], [m]), observation.force =
-tau_ext [N*m] (or current [A]), observation.state.objects = the PRIVILEGED twin object vector
-(policies/privileged.py), observation.images.<cam> = the camera's latest RGB frame resized to the model's
-input like the training frames (policies/frame_cache.py).
+The input is built by feature name from the names the checkpoint stores, through the preprocessing it
+stores (policies/preprocess.py: the training's normaliser and image path, the same batch assembly):
+observation.state = the listed follower features concatenated ([rad], [m]), observation.force = tau_ext
+[N*m] (or current [A]), observation.state.objects = the PRIVILEGED twin object vector
+(policies/privileged.py), observation.images.<cam> = the camera's latest raw RGB frame, JPEG-encoded as the
+recording encoded that camera and decoded as training decoded it (the same RGB gives the same input).
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 
 from hardware.errors import UserError
 from hardware.features import IMAGES, OBS_FORCE, OBS_IMAGES, OBS_STATE, action_of
@@ -35,15 +35,11 @@ from policies.checkpoint import load_policy
 from policies.rollout.schedule import Chunk
 
 
-def resize_frame(rgb: np.ndarray, size: int) -> np.ndarray:
-    """A camera frame (H, W, 3) uint8 as the model's (size, size, 3) input: the whole field of view,
-    bilinear, the way policies.frame_cache resizes the recorded frames."""
-    return np.asarray(Image.fromarray(np.asarray(rgb, np.uint8)).resize((size, size), Image.BILINEAR))
 
 
 class PolicyRunner:
     def __init__(self, path: str | Path, seed: int = 0, ema: bool = True):
-        self.model, self.meta, self.norm = load_policy(path, ema=ema)
+        self.model, self.meta, self.pre = load_policy(path, ema=ema)
         self.path = Path(self.meta["_path"])
         self.cfg = self.model.cfg
         f = self.meta["features"]
@@ -136,17 +132,11 @@ class PolicyRunner:
         def cat(names):
             return np.concatenate([np.atleast_1d(np.asarray(obs[n], dtype=np.float32)) for n in names])[None]
 
-        out = {"state": torch.from_numpy(self.norm.norm("state", cat(self.state_names)))}
-        if self.force_names:
-            out["force"] = torch.from_numpy(self.norm.norm("force", np.nan_to_num(cat(self.force_names))))
-        if self.object_names:
-            vec = np.asarray(obs[TASK_OBJECTS_FEATURE], np.float32)[None]
-            out["objects"] = torch.from_numpy(self.norm.norm("objects", vec))
-        if self.cameras:
-            s = self.cfg.image_size
-            img = np.stack([resize_frame(obs[IMAGES + c], s) for c in self.cameras])[None]
-            out["images"] = torch.from_numpy(img)
-        return out
+        objects = np.asarray(obs[TASK_OBJECTS_FEATURE], np.float32)[None] if self.object_names else None
+        images = (np.stack([self.pre.image.live(c, obs[IMAGES + c]) for c in self.cameras])[None]
+                  if self.cameras else None)
+        return self.pre.inputs(cat(self.state_names), cat(self.force_names) if self.force_names else None,
+                               objects, images)
 
     def infer(self, obs: dict, t_obs: float, seq: int = 0) -> Chunk:
         """Predict one chunk (raw units) for an observation taken at t_obs [s]."""
@@ -155,7 +145,7 @@ class PolicyRunner:
         noise = self.model.draw_noise(self.cfg, 1, self._gen)
         with torch.inference_mode():
             z = self.model.predict(b, noise)[0].float().numpy()
-        actions = np.asarray(self.norm.denorm("action", z), dtype=float)
+        actions = np.asarray(self.pre.actions(z), dtype=float)
         lat = time.perf_counter() - t0
         self.latencies_s.append(lat)
         return Chunk(t_obs=float(t_obs), actions=actions, dt=self.dt, seq=seq, latency_s=lat)
