@@ -35,8 +35,6 @@ from policies.checkpoint import load_policy
 from policies.rollout.schedule import Chunk
 
 
-
-
 class PolicyRunner:
     def __init__(self, path: str | Path, seed: int = 0, ema: bool = True):
         self.model, self.meta, self.pre = load_policy(path, ema=ema)
