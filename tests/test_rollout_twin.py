@@ -12,7 +12,7 @@ import pytest
 
 from factr2_teleop.cli import main
 from factr2_teleop.session.rollout import RolloutOptions, run_rollout
-from factr2_teleop.tasks.collect import episode_seed
+from factr2_teleop.session.task_episodes import episode_seed
 from hardware.recording import schemas as S
 from hardware.recording.reader import Recording
 from policies.rollout.runner import PolicyRunner
@@ -25,7 +25,7 @@ pytest.importorskip("mujoco")
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     try:
-        from hardware.cameras.mujoco_camera import make_renderer  # noqa: F401
+        from hardware.cameras.offscreen_gl import make_renderer  # noqa: F401
     except Exception:  # pragma: no cover
         pytest.skip("no OpenGL")
     import torch

@@ -1,4 +1,5 @@
-"""NEXT for the demo: find a cached checkpoint for the rig's follower, or make one on the twin.
+"""NEXT for a session on a rig: find a cached checkpoint for the follower, or make one on the twin (the demo,
+task collection).
 
 Cache: $FACTR2_CACHE (default ~/.cache/factr2) / next-v<CACHE_VERSION> / <rig> / next.json (+ .safetensors),
 the same files `factr2 calibrate --out DIR` writes as DIR/next.json. Creation records free motion on the twin
