@@ -18,6 +18,8 @@ Augmentation: RandomResizedCrop on the training batches (torch, per-sample boxes
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -86,9 +88,28 @@ class PolicyData:
     norm: Normalizer | None = None
     val_episodes: list[int] = field(default_factory=list)
     objects: np.ndarray | None = None  # (N, O) float32 privileged object vector, None when not observed
+    _crop_pool: Executor | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return int(self.state.shape[0])
+
+    def _crops(self) -> Executor:
+        """The crop threads, started with the first cropped batch; close() ends them."""
+        if self._crop_pool is None:
+            self._crop_pool = crop_pool()
+        return self._crop_pool
+
+    def close(self) -> None:
+        """End the crop threads (the data stays usable: a later cropped batch starts them again)."""
+        if self._crop_pool is not None:
+            self._crop_pool.shutdown()
+            self._crop_pool = None
+
+    def __enter__(self) -> PolicyData:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def split(self) -> tuple[np.ndarray, np.ndarray]:
         """(train sample indices, validation sample indices)."""
@@ -115,7 +136,8 @@ class PolicyData:
                "phase": torch.from_numpy(self.phase[idx].astype(np.int64))}
         if self.names.cameras:
             img = self.images(idx)
-            out["images"] = torch.from_numpy(resized_crop(img, crops.numpy()) if crops is not None else img)
+            out["images"] = torch.from_numpy(resized_crop(img, crops.numpy(), self._crops())
+                                             if crops is not None else img)
         if self.objects is not None:
             out["objects"] = torch.from_numpy(n.norm("objects", self.objects[idx]))
         if self.force.shape[1]:
@@ -137,23 +159,14 @@ def draw_crops(batch: int, gen: torch.Generator) -> torch.Tensor:
     return torch.stack([cx, cy, w, h], dim=1)
 
 
-_POOL = None
+def crop_pool() -> Executor:
+    """Threads for the crops: PIL releases the GIL while it resamples. The caller owns it (shutdown())."""
+    return ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1), thread_name_prefix="crop")
 
 
-def _crop_pool():
-    """Threads for the crops: PIL releases the GIL while it resamples."""
-    global _POOL
-    if _POOL is None:
-        import os
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1), thread_name_prefix="crop")
-    return _POOL
-
-
-def resized_crop(img: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+def resized_crop(img: np.ndarray, boxes: np.ndarray, pool: Executor) -> np.ndarray:
     """Crop each sample's box (the same for all its cameras) and resize it back to the full size, bilinear
-    (PIL, one C call per image, on a few threads: ~10x faster here than grid_sample or fancy indexing on
+    (PIL, one C call per image, on `pool`'s threads: ~10x faster here than grid_sample or fancy indexing on
     the whole batch). img (B, M, H, W, 3) uint8; boxes (B, 4) from draw_crops."""
     from PIL import Image
 
@@ -166,7 +179,7 @@ def resized_crop(img: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         for k in range(m):
             out[i, k] = np.asarray(Image.fromarray(img[i, k]).resize((w, h), Image.BILINEAR, box=box))
 
-    list(_crop_pool().map(one, range(b)))
+    list(pool.map(one, range(b)))
     return out
 
 
