@@ -273,3 +273,35 @@ def test_whole_tree_has_no_import_circle():
     circles = [" -> ".join(cycle_through(graph, g)) for g in find_cycles(graph)]
     assert not circles, ("import circles (strongly connected modules, one circle shown for each):\n"
                          + "\n".join(circles))
+
+
+# -- process-wide switches: FACTR2_* environment variables are read in one place ---------------------------
+SWITCHES_FILE = "hardware/switches.py"
+ENV_HANDSHAKES = {"hardware/cameras/render_process.py"}  # the render process's address, parent to child
+
+
+def _environ_reads(path: Path) -> list[str]:
+    """The FACTR2_* names a file reads from the environment: os.environ.get / os.environ[...] / os.getenv."""
+    def is_environ(n: ast.AST) -> bool:
+        return isinstance(n, ast.Attribute) and n.attr == "environ"
+
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        key = None
+        if isinstance(node, ast.Call) and node.args and isinstance(node.func, ast.Attribute) and (
+                (node.func.attr == "get" and is_environ(node.func.value)) or node.func.attr == "getenv"):
+            key = node.args[0]
+        elif isinstance(node, ast.Subscript) and is_environ(node.value):
+            key = node.slice
+        if isinstance(key, ast.Constant) and isinstance(key.value, str) and key.value.startswith("FACTR2_"):
+            out.append(key.value)
+    return out
+
+
+def test_factr2_switches_are_read_in_one_place():
+    reads = {str(f.relative_to(REPO)): _environ_reads(f)
+             for layer in LAYERS for f in (REPO / layer).rglob("*.py")}
+    assert set(reads[SWITCHES_FILE]) >= {"FACTR2_NO_RT", "FACTR2_NO_PIN", "FACTR2_CACHE"}
+    bad = [f"{f} reads {names}" for f, names in sorted(reads.items())
+           if names and f != SWITCHES_FILE and f not in ENV_HANDSHAKES]
+    assert not bad, f"FACTR2_* switches read outside {SWITCHES_FILE}:\n" + "\n".join(bad)

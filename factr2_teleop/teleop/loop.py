@@ -111,8 +111,8 @@ class TeleopLoop:
         # Python hands the GIL to a waiting thread only every switch interval (5 ms by default): a recorder,
         # camera or twin thread holding it could delay a tick by that much. A quarter period bounds it.
         switch = sys.getswitchinterval()
-        services = ProcessThreads()
-        pin = LoopCpu()
+        services = ProcessThreads(helpers=self.helper_processes)
+        pin = LoopCpu(helpers=self.helper_processes)
         wake = None
         if self.clock.realtime:
             sys.setswitchinterval(min(switch, SWITCH_FRACTION * self.period_s))
@@ -203,6 +203,15 @@ class TeleopLoop:
     @property
     def running(self) -> bool:
         return self._running
+
+    def helper_processes(self) -> dict[int, int]:
+        """The processes working for this loop's pairs now (their estimators': NEXT's worker), pid ->
+        priority: raised and pinned with the loop's threads while it runs real time (hardware.realtime)."""
+        out: dict[int, int] = {}
+        for p in self.pairs:
+            if p.estimator is not None:
+                out.update(p.estimator.helper_processes())
+        return out
 
     @property
     def alive(self) -> bool:
