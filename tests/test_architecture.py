@@ -305,3 +305,23 @@ def test_factr2_switches_are_read_in_one_place():
     bad = [f"{f} reads {names}" for f, names in sorted(reads.items())
            if names and f != SWITCHES_FILE and f not in ENV_HANDSHAKES]
     assert not bad, f"FACTR2_* switches read outside {SWITCHES_FILE}:\n" + "\n".join(bad)
+
+
+# -- thread limits: one function (hardware/threads.py) ------------------------------------------------------
+THREADS_FILE = "hardware/threads.py"
+# the trainers choose their own thread counts (pick_threads, ThreadProbe per batch): a choice, not a limit
+THREAD_CHOOSERS = {"calibration/next/train.py", "calibration/next/threads.py", "policies/train.py"}
+
+
+def test_threads_are_limited_through_one_function():
+    bad = []
+    for layer in LAYERS:
+        for f in sorted((REPO / layer).rglob("*.py")):
+            rel = str(f.relative_to(REPO))
+            if rel in THREAD_CHOOSERS | {THREADS_FILE}:
+                continue
+            for node in ast.walk(ast.parse(f.read_text(), filename=rel)):
+                name = getattr(node, "attr", None) or getattr(node, "id", None)
+                if name in ("set_num_threads", "threadpool_limits"):
+                    bad.append(f"{rel}:{node.lineno} uses {name}")
+    assert not bad, f"threads limited outside {THREADS_FILE} (use limit_threads):\n" + "\n".join(bad)

@@ -82,13 +82,17 @@ def unpack_result(buf: bytes, n: int) -> tuple[Estimate | None, int, float]:
 # -- the child -------------------------------------------------------------------------------------
 def _serve(conn, path: str, arm: str, n: int, loop_period_s: float) -> None:
     """Build NEXT from the checkpoint, answer every sample with the estimate of it, until the pipe closes."""
-    try:
-        import torch
+    from hardware.threads import limit_threads
 
+    with limit_threads(1, torch=True):  # one core for the worker: the loop and its twin have the others
+        _answer(conn, path, arm, n, loop_period_s)
+
+
+def _answer(conn, path: str, arm: str, n: int, loop_period_s: float) -> None:
+    try:
         from calibration.next.checkpoint import load_checkpoint
         from calibration.next.estimator import NextEstimator
 
-        torch.set_num_threads(1)  # one core for the worker: the loop and its twin have the others
         adapter = NextAdapter(NextEstimator(load_checkpoint(path, arm=arm)), loop_period_s)
     except Exception as e:  # noqa: BLE001 -- reported to the parent as one line
         conn.send(("error", f"{type(e).__name__}: {e}"))

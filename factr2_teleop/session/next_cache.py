@@ -82,10 +82,10 @@ def create_checkpoint(rig: str, say: Callable[[str], None], minutes: float = DEM
         run = collect(session, spec, traj, cfg, progress)
     logs = write_logs(out, run, cfg)
     say(f"NEXT: training (at most {train_s:.0f} s)")
-    import torch
+    from hardware.threads import limit_threads
 
-    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
-    train_and_report(logs, out, spec.arm, cfg)
+    with limit_threads(max(1, min(2, os.cpu_count() or 1)), torch=True):
+        train_and_report(logs, out, spec.arm, cfg)
     path = out / "next.json"
     say(f"NEXT: checkpoint cached at {path}")
     return path

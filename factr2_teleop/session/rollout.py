@@ -238,8 +238,7 @@ def timing_summary(periods_s, latencies_s, ages_s, realtime: bool, target_hz: fl
 def run_rollout(opts: RolloutOptions) -> dict:
     """Roll the policy out (blocking); the summary dict (see the module doc and docs/rollout.md). Ctrl-C
     holds the follower, leaves the leader at zero torque and returns what was done (interrupted: True)."""
-    import torch
-
+    from hardware.threads import limit_threads
     from policies.rollout.runner import PolicyRunner
 
     runner = PolicyRunner(opts.policy, seed=opts.seed, ema=opts.ema)
@@ -258,12 +257,9 @@ def run_rollout(opts: RolloutOptions) -> dict:
             "realtime": realtime, "threaded": opts.threaded if opts.threaded is not None else realtime,
             "schedule": opts.schedule or (ENSEMBLE if runner.policy == "act" else RECEDING),
             "k_exec": opts.k_exec or max(1, runner.cfg.chunk // K_EXEC_SHARE)}
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the loop keeps a core of its own; a chunk's work is small (docs/rollout.md)
-    try:
+    # the loop keeps a core of its own; a chunk's work is small (docs/rollout.md)
+    with limit_threads(1, torch=True):
         return _rollout(opts, runner, rig, task, **plan)
-    finally:
-        torch.set_num_threads(threads)
 
 
 def _rollout(opts: RolloutOptions, runner, rig, task, *, next_path, note, mode, lean, realtime, threaded,
