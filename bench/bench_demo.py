@@ -34,8 +34,8 @@ def demo_run(seconds: float, out: Path, rig: str = "sim-piper") -> dict:
 
 
 def wipe_table(seconds: float, out: Path, rig: str = "sim-piper") -> list[dict]:
-    from factr2_teleop.demo import next_cache
     from factr2_teleop.demo.task import DemoConfig, DemoRun
+    from factr2_teleop.session import next_cache
     from factr2_teleop.session.pairs import load_next
 
     rows = []

@@ -36,7 +36,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.first_report import aggregate, write_docs, write_report  # noqa: E402
 
-DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, factr2_teleop/tasks/collect.py)
+DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, session/task_episodes.py)
 EVAL_SEED = 2  # rollout seed: range B, disjoint from A (checked on the episodes' recorded seeds)
 CURVE_SEED = 4  # rollout seed of the learning curve (bench/first_curve.py): never the evaluation's
 # the paper's comparison; the second table: base and the ratio ablation (PC = the first cell)
@@ -159,7 +159,7 @@ def rollout_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
 # -- orchestration ------------------------------------------------------------------------------------------
 def next_checkpoint(cfg: BenchConfig) -> str:
     """The NEXT checkpoint the demonstrations' feedback and labels use (the demo's cache, made if missing)."""
-    from factr2_teleop.demo.next_cache import create_checkpoint, find_checkpoint
+    from factr2_teleop.session.next_cache import create_checkpoint, find_checkpoint
 
     ck = find_checkpoint(RIG, cfg.next_checkpoint or None)
     if ck is None:

@@ -6,8 +6,8 @@ machine (one GPU, 16 CPU cores, a few minutes):
 1. collection WITH both twin cameras, split over several collection seeds in parallel processes (collection is
    sequential per seed): seeds 5, 6, ... (never 1, 2 = the evaluation's, 4 = the learning curve's), each a
    few episodes, all into OUT/TASK/demos so that training reads every one of them. Episode seeds are
-   seed * 100003 + k (factr2_teleop/tasks/collect.py): 500015... for seed 5, disjoint from the evaluation's
-   200006... (checked on the recorded seeds, bench_first.check_disjoint_seeds);
+   seed * 100003 + k (factr2_teleop/session/task_episodes.py): 500015... for seed 5, disjoint from the
+   evaluation's 200006... (checked on the recorded seeds, bench_first.check_disjoint_seeds);
 2. the recordings' frame caches decoded in parallel (one process per recording), so the training runs start
    on cached frames;
 3. training of `base-torque` and `first` (1:5:1), `--obs images`, small preset, on the GPU, the runs side by
@@ -141,11 +141,11 @@ def train_part(out: str, task: str, cell: str, seed: int, steps: int, batch: int
 
 
 def shift_episode_seeds(k0: int):
-    """Episode k of a session now uses the seed of episode k0 + k (tasks.collect.episode_seed, which the
+    """Episode k of a session now uses the seed of episode k0 + k (task_episodes.episode_seed, which the
     rollout's episodes call): a block starting at k0 meets the initial conditions of one sequential run. The
     pool reuses its processes, so the shift is always from the module's own function, never on top of an
     earlier block's (the first GPU run stacked them). Returns the unshifted function."""
-    import factr2_teleop.tasks.collect as tc
+    import factr2_teleop.session.task_episodes as tc
 
     base = tc.__dict__.setdefault("_episode_seed_unshifted", tc.episode_seed)
     tc.episode_seed = lambda seed, k: base(seed, k + k0)

@@ -96,7 +96,7 @@ def main() -> int:
 
     next_est = next_path = None
     if args.mode == "next":
-        from factr2_teleop.demo import next_cache
+        from factr2_teleop.session import next_cache
         from factr2_teleop.session.pairs import load_next
         from hardware.rigs.rig import load_rig
 

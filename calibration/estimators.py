@@ -58,6 +58,11 @@ class Estimator:
     def idle(self) -> None:
         return None
 
+    def helper_processes(self) -> dict[int, int]:
+        """Processes that work for this estimator now, pid -> SCHED_FIFO priority (hardware.realtime): the
+        loop raises them and moves them off its CPU with its own threads while it runs real time."""
+        return {}
+
 
 class PositionPositionEstimator(Estimator):
     """Bilateral position-position coupling expressed as an external torque: when the follower lags the leader

@@ -4,7 +4,7 @@ doing; an emulator thread at normal priority waits behind every other process on
 
 SCHED_FIFO where the OS allows it (Linux with CAP_SYS_NICE or an rtprio limit); otherwise one line saying
 why, for the start-up messages. The kernel's RT throttling (95 % of each second by default) keeps a runaway
-thread from locking the machine up. FACTR2_NO_RT=1 turns it off (A/B timing runs).
+thread from locking the machine up. FACTR2_NO_RT=1 turns it off (A/B timing runs; hardware/switches.py).
 """
 
 from __future__ import annotations
@@ -12,6 +12,9 @@ from __future__ import annotations
 import os
 import struct
 import threading
+from collections.abc import Callable
+
+from hardware.switches import switches
 
 LOOP_PRIORITY = 40  # the control loop (1-99; below the kernel's IRQ threads at 50)
 EMULATOR_PRIORITY = 41  # a twin's device emulators: the loop waits on their answers, so they go first
@@ -23,7 +26,7 @@ def set_fifo(priority: int, native_id: int | None = None) -> str | None:
     else one line saying why not (the thread keeps normal priority)."""
     if not hasattr(os, "sched_setscheduler"):
         return "real-time scheduling: not available on this OS (normal priority)"
-    if os.environ.get("FACTR2_NO_RT"):
+    if switches().no_rt:
         return "real-time scheduling: off (FACTR2_NO_RT is set)"
     tid = threading.get_native_id() if native_id is None else int(native_id)
     try:
@@ -47,24 +50,20 @@ def set_normal(native_id: int | None = None) -> None:
 
 
 SERVICE_PRIORITY = 10  # every other Python thread of the loop's process while the loop runs (see below)
-HELPER_PRIORITY = 5  # processes that stand in for hardware beside the loop (a twin camera's renderer)
 ESTIMATOR_PRIORITY = 8  # an estimator's own process (NEXT's worker): feedback goes stale without it
 # (at normal priority beside a real-time loop on 2 vCPUs its answers came up to 138 ms late). Below
 # SERVICE_PRIORITY: above it, it preempted the loop's own service threads while one held the GIL, and the
 # loop waited (measured: "leader data stale (24 ms old)" holds in `factr2 teleop` on the twin)
 
-_helper_pids: dict[int, int] = {}  # pid -> priority while a real-time loop runs
+HelperProcesses = Callable[[], dict[int, int]]
+"""The processes working for a loop now, pid -> priority (NEXT's worker: its estimator's helper_processes()):
+raised and moved off the loop's CPU with the loop's threads while a real-time loop runs -- below the loop
+(an estimate may wait, a tick may not), above other processes. The loop that owns them hands this in;
+nothing else changes it."""
 
 
-def register_helper_process(pid: int, priority: int = HELPER_PRIORITY) -> None:
-    """A process that works for the loop (a twin camera's render process, NEXT's worker): raised with the
-    loop's threads while a real-time loop runs -- below the loop (a frame or an estimate may wait, a tick
-    may not), above other processes (a real camera does not slow down because a build runs)."""
-    _helper_pids[int(pid)] = int(priority)
-
-
-def unregister_helper_process(pid: int) -> None:
-    _helper_pids.pop(int(pid), None)
+def no_helpers() -> dict[int, int]:
+    return {}
 
 
 class ProcessThreads:
@@ -75,8 +74,9 @@ class ProcessThreads:
     never preempted by normal processes, yet every tick still preempts them (the loop, the twin and its
     emulators are higher). Threads started later (a camera, a recorder) are raised by the next refresh()."""
 
-    def __init__(self, priority: int = SERVICE_PRIORITY):
+    def __init__(self, priority: int = SERVICE_PRIORITY, helpers: HelperProcesses = no_helpers):
         self.priority = int(priority)
+        self.helpers = helpers
         self._raised: set[int] = set()
         self.note: str | None = None
 
@@ -99,7 +99,7 @@ class ProcessThreads:
                 return
             if why is None:
                 self._raised.add(tid)
-        for pid, prio in list(_helper_pids.items()):
+        for pid, prio in self.helpers().items():
             if pid in self._raised:
                 continue
             try:
@@ -130,7 +130,7 @@ class CpuWakeLatency:
     def __init__(self, path: str = CPU_LATENCY_DEVICE):
         self._fd: int | None = None
         self.note: str | None = None
-        if os.environ.get("FACTR2_NO_RT"):
+        if switches().no_rt:
             self.note = "CPU wake-up latency request: off (FACTR2_NO_RT is set)"
             return
         try:
@@ -169,14 +169,15 @@ class LoopCpu:
     (its twin steps on the loop's own thread) unchanged. start() pins, refresh() moves threads and helpers
     started since, restore() gives everything its affinity back. note: one line when it cannot pin."""
 
-    def __init__(self):
+    def __init__(self, helpers: HelperProcesses = no_helpers):
+        self.helpers = helpers
         self.note: str | None = None
         self.cpu: int | None = None
         self._before: dict[int, set[int]] = {}  # thread or process id -> its affinity before
         self._allowed: set[int] = set()
         if not hasattr(os, "sched_setaffinity"):
             self.note = "CPU affinity: not available on this OS (threads float)"
-        elif os.environ.get("FACTR2_NO_RT") or os.environ.get("FACTR2_NO_PIN"):
+        elif switches().no_rt or switches().no_pin:
             self.note = "CPU affinity: off (FACTR2_NO_RT or FACTR2_NO_PIN is set)"
         else:
             self._allowed = set(os.sched_getaffinity(0))
@@ -209,7 +210,7 @@ class LoopCpu:
             tid = th.native_id
             if tid is not None and tid != me and tid not in self._before and th.is_alive():
                 self._move(tid, rest)
-        for pid in list(_helper_pids):
+        for pid in self.helpers():
             if pid not in self._before:
                 self._move(pid, rest)
 

@@ -20,6 +20,7 @@ the inputs with it as a rollout does. A tick is a sample by `valid_samples`, the
 
 from __future__ import annotations
 
+from concurrent.futures import Executor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,7 +34,7 @@ from hardware.timeseries import hold_previous
 from policies.frame_cache import camera_frames
 from policies.labelling import NextModel, Thresholds, label_episode
 from policies.normalizer import Normalizer
-from policies.preprocess import ImagePath, Preprocess
+from policies.preprocess import ImagePath, Preprocess, crop_pool
 from policies.privileged import OBSERVATIONS, uses_images, uses_objects
 from policies.recordings import ArmSet, episode_id, follower_state_action, recording_features
 
@@ -83,9 +84,28 @@ class PolicyData:
     # the policy (build_dataset sets it)
     val_episodes: list[int] = field(default_factory=list)
     objects: np.ndarray | None = None  # (N, O) float32 privileged object vector, None when not observed
+    _crop_pool: Executor | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return int(self.state.shape[0])
+
+    def _crops(self) -> Executor:
+        """The crop threads, started with the first cropped batch; close() ends them."""
+        if self._crop_pool is None:
+            self._crop_pool = crop_pool()
+        return self._crop_pool
+
+    def close(self) -> None:
+        """End the crop threads (the data stays usable: a later cropped batch starts them again)."""
+        if self._crop_pool is not None:
+            self._crop_pool.shutdown()
+            self._crop_pool = None
+
+    def __enter__(self) -> PolicyData:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
     def split(self) -> tuple[np.ndarray, np.ndarray]:
         """(train sample indices, validation sample indices)."""
@@ -110,7 +130,8 @@ class PolicyData:
         n = self.pre.norm
         out = self.pre.inputs(self.state[idx], self.force[idx],
                               self.objects[idx] if self.objects is not None else None,
-                              self.images(idx) if self.names.cameras else None, crops)
+                              self.images(idx) if self.names.cameras else None, crops,
+                              self._crops() if crops is not None else None)
         out.update(action=torch.from_numpy(n.norm("action", self.action[idx])),
                    mask=torch.from_numpy(self.mask[idx]),
                    phase=torch.from_numpy(self.phase[idx].astype(np.int64)))

@@ -14,7 +14,7 @@ the raw estimate, and so does live force feedback (teleop never labels).
 from __future__ import annotations
 
 import hashlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,14 +27,19 @@ from policies import tare as T
 from policies.recordings import ArmSet, episode_id, session_next_checkpoint
 from policies.tare_recording import episode_tare
 
+OFFLINE_RUNS_MAX = 64  # offline NEXT passes a NextModel keeps (episodes); all dropped when full
+
 
 @dataclass
 class NextModel:
-    """A loaded NEXT checkpoint and its id (file name + data hash), for labelling and for the run's record."""
+    """A loaded NEXT checkpoint and its id (file name + data hash), for labelling and for the run's record.
+    offline_runs: the offline NEXT passes made with it (episode_tau_ext), kept while the model is held, so
+    the recording thresholds and the labels pay for one pass per episode; dropped with the model."""
 
     ck: object  # calibration.next.checkpoint.NextCheckpoint
     path: Path
     id: str
+    offline_runs: dict = field(default_factory=dict, repr=False, compare=False)
 
 
 def load_next(path) -> NextModel:
@@ -184,27 +189,25 @@ def _recorded_tau_ext(ep: Episode, arm: str) -> tuple[np.ndarray, np.ndarray] | 
     return ta.t, tau
 
 
-_OFFLINE_MEMO: dict = {}  # (recording, episode, arms, NEXT id) -> episode_tau_ext of an offline NEXT pass
-_OFFLINE_MEMO_MAX = 64
-
-
 def episode_tau_ext(
     ep: Episode, arms: ArmSet, next_model: NextModel | None = None
 ) -> tuple[np.ndarray, np.ndarray, str]:
     """(t [s], tau_ext (N, sum of joints) [N*m], source) of an episode: every follower, on the first one's
-    timeline. Source "recorded" or "NEXT <id> offline". An offline NEXT pass is remembered (read-only
-    arrays): the recording thresholds and the labels both need it, and it is the expensive part."""
+    timeline. Source "recorded" or "NEXT <id> offline". An offline NEXT pass is kept in the model's
+    offline_runs (read-only arrays): the recording thresholds and the labels both need it, and it is the
+    expensive part."""
     if next_model is None:
         return _episode_tau_ext(ep, arms, None)
     st = Path(ep.recording.path).stat()  # a recording rewritten in place (trim, delete) is read again
-    key = (str(ep.recording.path), st.st_mtime_ns, st.st_size, ep.index, tuple(arms.followers), next_model.id)
-    if key not in _OFFLINE_MEMO:
-        if len(_OFFLINE_MEMO) >= _OFFLINE_MEMO_MAX:
-            _OFFLINE_MEMO.clear()
+    key = (str(ep.recording.path), st.st_mtime_ns, st.st_size, ep.index, tuple(arms.followers))
+    runs = next_model.offline_runs
+    if key not in runs:
+        if len(runs) >= OFFLINE_RUNS_MAX:
+            runs.clear()
         t, tau, source = _episode_tau_ext(ep, arms, next_model)
         t.flags.writeable = tau.flags.writeable = False
-        _OFFLINE_MEMO[key] = (t, tau, source)
-    return _OFFLINE_MEMO[key]
+        runs[key] = (t, tau, source)
+    return runs[key]
 
 
 def _episode_tau_ext(ep: Episode, arms: ArmSet, next_model: NextModel | None):

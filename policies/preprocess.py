@@ -30,6 +30,8 @@ and it leaves the training data (and so every training run's losses) as they wer
 from __future__ import annotations
 
 import io
+import os
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -101,24 +103,15 @@ def draw_crops(batch: int, gen: torch.Generator, scale=CROP_SCALE, ratio=CROP_RA
     return torch.stack([cx, cy, w, h], dim=1)
 
 
-_POOL = None
+def crop_pool() -> Executor:
+    """Threads for the crops: PIL releases the GIL while it resamples. The caller owns it (shutdown())."""
+    return ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1), thread_name_prefix="crop")
 
 
-def _crop_pool():
-    """Threads for the crops: PIL releases the GIL while it resamples."""
-    global _POOL
-    if _POOL is None:
-        import os
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1), thread_name_prefix="crop")
-    return _POOL
-
-
-def resized_crop(img: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+def resized_crop(img: np.ndarray, boxes: np.ndarray, pool: Executor) -> np.ndarray:
     """Crop each sample's box (the same for all its cameras) and resize it back to the full size, bilinear
-    (PIL, one C call per image, on a few threads: ~10x faster here than grid_sample or fancy indexing on
-    the whole batch). img (B, M, H, W, 3) uint8; boxes (B, 4) from draw_crops."""
+    (PIL, one C call per image, on `pool`'s threads (crop_pool): ~10x faster here than grid_sample or fancy
+    indexing on the whole batch). img (B, M, H, W, 3) uint8; boxes (B, 4) from draw_crops."""
     from PIL import Image
 
     b, m, h, w, _ = img.shape
@@ -130,7 +123,7 @@ def resized_crop(img: np.ndarray, boxes: np.ndarray) -> np.ndarray:
         for k in range(m):
             out[i, k] = np.asarray(Image.fromarray(img[i, k]).resize((w, h), Image.BILINEAR, box=box))
 
-    list(_crop_pool().map(one, range(b)))
+    list(pool.map(one, range(b)))
     return out
 
 
@@ -195,15 +188,16 @@ class Preprocess:
     image: ImagePath
 
     def inputs(self, state: np.ndarray, force: np.ndarray | None = None, objects: np.ndarray | None = None,
-               images: np.ndarray | None = None, crops: torch.Tensor | None = None) -> dict:
+               images: np.ndarray | None = None, crops: torch.Tensor | None = None,
+               pool: Executor | None = None) -> dict:
         """The model's input batch (training and rollout alike): state (B, S) [rad, m]; force (B, F) [N*m] or
         [A], NaN (no estimate yet) as 0; objects (B, O) PRIVILEGED vector; images (B, M, size, size, 3)
         uint8 from `recorded` / `live` (the model converts them); crops (B, 4) training's RandomResizedCrop
-        boxes (ImagePath.draw_crops) or None."""
+        boxes (ImagePath.draw_crops) or None, cropped on `pool` (crop_pool; its owner shuts it down)."""
         n = self.norm
         out = {"state": torch.from_numpy(n.norm("state", state))}
         if images is not None:
-            img = resized_crop(images, crops.numpy()) if crops is not None else images
+            img = resized_crop(images, crops.numpy(), pool) if crops is not None else images
             out["images"] = torch.from_numpy(img)
         if objects is not None:
             out["objects"] = torch.from_numpy(n.norm("objects", objects))

@@ -242,7 +242,9 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
             f"{' / '.join(f'{x:.0%}' for x in _shares(data))}; method {o.method}, ratio "
             f"{format_ratio(tcfg.ratio)}, force {tcfg.force}; {d.world} process(es) on {d.device}"
         )
-    return train(data, pcfg, tcfg, Path(o.out), meta, d, resume_from, o.progress, stop_at, on_progress, stop)
+    with data:  # the data's crop threads end with the run
+        return train(data, pcfg, tcfg, Path(o.out), meta, d, resume_from, o.progress, stop_at, on_progress,
+                     stop)
 
 
 def _tasks(episodes) -> dict:

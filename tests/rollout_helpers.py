@@ -54,7 +54,7 @@ def tiny_run_on(tmp_path_factory, name: str, record, policy: str = "act", steps:
     import pytest
 
     try:
-        from hardware.cameras.mujoco_camera import make_renderer  # noqa: F401
+        from hardware.cameras.offscreen_gl import make_renderer  # noqa: F401
     except Exception:  # pragma: no cover
         pytest.skip("no OpenGL")
     import torch

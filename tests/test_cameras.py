@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from hardware.cameras import CameraConfig, CameraError
+from hardware.cameras import CameraConfig, CameraError, offscreen_gl
 from hardware.cameras import mujoco_camera as mc
 from hardware.cameras.opencv_camera import OpenCVCamera, OpenCVCameraConfig
 from hardware.clock import LockstepClock
@@ -68,7 +68,7 @@ def test_rendered_frames_record_and_read_back(sim, tmp_path):
 
 def test_no_gl_is_one_clear_line(sim, monkeypatch):
     m, d = sim
-    monkeypatch.setattr(mc, "gl_backends", lambda: ["no_such_gl"])
+    monkeypatch.setattr(offscreen_gl, "gl_backends", lambda: ["no_such_gl"])
     cam = mc.MujocoCamera(mc.MujocoCameraConfig("x", width=64, height=48), m, d)
     with pytest.raises(CameraError) as err:
         cam.connect()

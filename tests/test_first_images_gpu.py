@@ -5,7 +5,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import factr2_teleop.tasks.collect as tc  # noqa: E402
+import factr2_teleop.session.task_episodes as tc  # noqa: E402
 from bench.first_images_gpu import blocks, merge_rollouts, parse_args, shift_episode_seeds  # noqa: E402
 
 

@@ -13,6 +13,7 @@ from calibration.estimators import EstimatorInput, NextAdapter
 from calibration.next.checkpoint import save_checkpoint
 from calibration.next.estimator import NextEstimator
 from calibration.next.worker import NextWorker, pack_result, pack_sample, unpack_result, unpack_sample
+from hardware.realtime import ESTIMATOR_PRIORITY
 from hardware.types import JointState
 from tests.test_next_estimator import _ck, _stream
 
@@ -62,6 +63,8 @@ def test_worker_estimates_equal_the_inline_adapter(tmp_path):
         assert worker.update(_inputs(1)[0]) is None or worker.ready  # returns at once while it starts
         worker.wait_ready()
         assert worker.period_s == inline.period_s
+        # the loop that holds this estimator raises its child with its threads (hardware.realtime)
+        assert worker.helper_processes() == {worker._proc.pid: ESTIMATOR_PRIORITY}
         n_est = 0
         for inp in _inputs():
             want = inline.update(inp)
@@ -82,7 +85,7 @@ def test_worker_estimates_equal_the_inline_adapter(tmp_path):
         assert n_est > 10 and worker.ood_count == inline.ood_count and worker.cpu_s > 0
     finally:
         worker.close()
-    assert worker._proc.poll() is not None
+    assert worker._proc.poll() is not None and worker.helper_processes() == {}
 
 
 def test_a_dead_worker_raises_and_a_failed_start_says_why(tmp_path):

@@ -165,6 +165,10 @@ def test_next_offline_labels_from_the_logged_joint_states(tmp_path, capsys):
     log = eps[0].to_plain("follower")
     expect = log.tau - batch_tau_f(model.ck, log.q, log.qd, log.q_cmd)  # the log is uniform at 100 Hz already
     np.testing.assert_allclose(tau[9:], expect[9 : len(tau)], atol=1e-5)
+    # the pass is kept by the model that made it (no process-wide memo): the same arrays again, a fresh model
+    # starts empty
+    assert episode_tau_ext(eps[0], arms, model)[1] is tau and len(model.offline_runs) == 1
+    assert load_next(ck_path).offline_runs == {}
     th = resolve_thresholds("next", model, eps, arms)
     assert th.t_low == pytest.approx(2.0 * 0.3) and th.t_high == pytest.approx(3.0 * 0.3)
     assert resolve_thresholds(None, model, eps, arms) == th  # the library's former default stays

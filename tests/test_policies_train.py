@@ -97,6 +97,20 @@ def test_checkpoint_round_trip_and_tensorboard(recordings, tmp_path):
     assert (run / "curves.png").stat().st_size > 10_000
 
 
+def test_the_run_ends_the_crop_threads_it_started(recordings, tmp_path, monkeypatch):
+    import threading
+    from concurrent.futures import ThreadPoolExecutor
+
+    from policies import dataset
+
+    started = []
+    monkeypatch.setattr(dataset, "crop_pool", lambda: started.append(ThreadPoolExecutor(
+        2, thread_name_prefix="test-crop")) or started[-1])
+    run_training(_opts(recordings, tmp_path / "run", "act", steps=2), Dist())
+    assert len(started) == 1  # the data started its crop threads once, for the first cropped batch ...
+    assert not [t.name for t in threading.enumerate() if t.name.startswith("test-crop")]  # ... and ended them
+
+
 def test_resume_reproduces_the_uninterrupted_loss_curve(recordings, tmp_path):
     torch.set_num_threads(1)
     whole = tmp_path / "whole"

@@ -116,3 +116,37 @@ def test_loop_cpu_pins_the_loop_alone_and_gives_everything_back(monkeypatch):
     off = LoopCpu()
     off.start()
     assert "off" in off.note and os.sched_getaffinity(0) == allowed
+
+
+@linux
+def test_loop_cpu_and_process_threads_take_the_helpers_they_are_handed(monkeypatch):
+    """A loop's helper processes come from the loop (its estimators), not from a process-wide registry."""
+    import subprocess
+    import sys
+
+    from hardware.realtime import LoopCpu, ProcessThreads
+
+    monkeypatch.delenv("FACTR2_NO_RT", raising=False)
+    monkeypatch.delenv("FACTR2_NO_PIN", raising=False)
+    allowed = set(os.sched_getaffinity(0))
+    child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    def helpers():
+        return {child.pid: 3}
+
+    pin, services = LoopCpu(helpers=helpers), ProcessThreads(priority=4, helpers=helpers)
+    try:
+        pin.start()
+        services.refresh()
+        if len(allowed) > 1:
+            assert os.sched_getaffinity(child.pid) == allowed - {pin.cpu}
+        if services.note is None and set_fifo(LOOP_PRIORITY) is None:  # permitted here
+            set_normal()
+            assert os.sched_getscheduler(child.pid) == os.SCHED_FIFO
+            assert os.sched_getparam(child.pid).sched_priority == 3
+    finally:
+        pin.restore()
+        services.restore()
+        assert os.sched_getaffinity(child.pid) == allowed
+        assert os.sched_getscheduler(child.pid) == os.SCHED_OTHER
+        child.kill()
+        child.wait()

@@ -12,7 +12,7 @@ import pytest
 
 from factr2_teleop.cli import main
 from factr2_teleop.session.rollout import RolloutOptions, run_rollout
-from factr2_teleop.tasks.collect import episode_seed
+from factr2_teleop.session.task_episodes import episode_seed
 from hardware.recording import schemas as S
 from hardware.recording.reader import Recording
 from policies.rollout.runner import PolicyRunner

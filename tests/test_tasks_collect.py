@@ -13,7 +13,7 @@ from hardware.recording.reader import Recording
 def test_one_wipe_demonstration_is_recorded_with_stages_outcome_and_frames(tmp_path):
     pytest.importorskip("mujoco")
     try:
-        from hardware.cameras.mujoco_camera import make_renderer  # noqa: F401
+        from hardware.cameras.offscreen_gl import make_renderer  # noqa: F401
     except Exception:  # pragma: no cover
         pytest.skip("no OpenGL")
     out = collect(CollectConfig(task="wipe", episodes=1, out=str(tmp_path), seed=0, mode="ground_truth"),

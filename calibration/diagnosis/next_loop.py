@@ -53,12 +53,11 @@ def _next_inputs(seg: Segment, inputs: str) -> np.ndarray:
 
 def predict_next(model, normalizer, history: int, inputs: str, seg: Segment) -> np.ndarray:
     """(N, n) NEXT prediction in the data's units; the first history-1 rows are NaN."""
-    import torch
-
     from calibration.next.train import predict_series
+    from hardware.threads import limit_threads
 
-    torch.set_num_threads(1)
-    z = predict_series(model, normalizer.norm_x(_next_inputs(seg, inputs)).astype(np.float32), history)
+    with limit_threads(1, torch=True):
+        z = predict_series(model, normalizer.norm_x(_next_inputs(seg, inputs)).astype(np.float32), history)
     return normalizer.denorm_y(z.astype(np.float64))
 
 

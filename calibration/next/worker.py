@@ -34,7 +34,7 @@ import numpy as np
 
 from calibration.estimate import Estimate
 from calibration.estimators import Estimator, EstimatorInput, NextAdapter, next_period_s, refresh_with
-from hardware.realtime import ESTIMATOR_PRIORITY, register_helper_process, unregister_helper_process
+from hardware.realtime import ESTIMATOR_PRIORITY
 from hardware.types import JointState
 
 READY_TIMEOUT_S = 60.0  # s: the child imports torch and loads the checkpoint (2-5 s on a 2-vCPU VM)
@@ -82,13 +82,17 @@ def unpack_result(buf: bytes, n: int) -> tuple[Estimate | None, int, float]:
 # -- the child -------------------------------------------------------------------------------------
 def _serve(conn, path: str, arm: str, n: int, loop_period_s: float) -> None:
     """Build NEXT from the checkpoint, answer every sample with the estimate of it, until the pipe closes."""
-    try:
-        import torch
+    from hardware.threads import limit_threads
 
+    with limit_threads(1, torch=True):  # one core for the worker: the loop and its twin have the others
+        _answer(conn, path, arm, n, loop_period_s)
+
+
+def _answer(conn, path: str, arm: str, n: int, loop_period_s: float) -> None:
+    try:
         from calibration.next.checkpoint import load_checkpoint
         from calibration.next.estimator import NextEstimator
 
-        torch.set_num_threads(1)  # one core for the worker: the loop and its twin have the others
         adapter = NextAdapter(NextEstimator(load_checkpoint(path, arm=arm)), loop_period_s)
     except Exception as e:  # noqa: BLE001 -- reported to the parent as one line
         conn.send(("error", f"{type(e).__name__}: {e}"))
@@ -160,10 +164,12 @@ class NextWorker(Estimator):
         if kind != "ready":
             raise RuntimeError(f"the NEXT worker could not load {self._path}: {value}")
         self.ready = True
-        # raised with the loop's threads while a real-time loop runs (hardware.realtime.ProcessThreads) --
-        # once ready: its start-up (importing torch) must not run at a real-time priority
-        register_helper_process(self._proc.pid, ESTIMATOR_PRIORITY)
         return True
+
+    def helper_processes(self) -> dict[int, int]:
+        """The child, raised with the loop's threads while a real-time loop runs (hardware.realtime) -- once
+        ready: its start-up (importing torch) must not run at a real-time priority; none once closed."""
+        return {self._proc.pid: ESTIMATOR_PRIORITY} if self.ready and self._finalizer.alive else {}
 
     def wait_ready(self, timeout_s: float = READY_TIMEOUT_S) -> None:
         """Block until the child is ready (tests, benchmarks); raises as _check_ready."""
@@ -228,7 +234,6 @@ class NextWorker(Estimator):
 
 
 def _stop(conn, proc) -> None:
-    unregister_helper_process(proc.pid)
     try:
         conn.close()  # the child's recv ends with EOFError and it returns
     finally:

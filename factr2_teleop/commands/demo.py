@@ -42,7 +42,7 @@ def _say(text: str) -> None:
 
 def resolve_mode(args) -> tuple[str, Path | None, str | None]:
     """(mode, NEXT checkpoint or None, why NEXT is not used or None)."""
-    from factr2_teleop.demo import next_cache
+    from factr2_teleop.session import next_cache
 
     if args.mode not in ("auto", "next"):
         return args.mode, None, None

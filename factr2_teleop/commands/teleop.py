@@ -39,14 +39,20 @@ def options(args):
 def execute(args) -> dict:
     """Run the session; {"timing": TimingStats, "recording": path or None, "status": RecorderStatus or None,
     "cameras": {name: CameraStats}, "messages": [(t, who, text)]}
-    (bench/bench_teleop_record.py measures through this)."""
+    (bench/bench_teleop_record.py measures through this). BLAS on one thread while it runs, for this process
+    and the ones it starts (hardware/threads.py)."""
+    from hardware.threads import limit_threads
+
+    with limit_threads(1, blas=True, env=True):
+        return _execute(args)
+
+
+def _execute(args) -> dict:
     from factr2_teleop.session.pairs import check_options
     from factr2_teleop.session.teleop import TeleopSession
-    from factr2_teleop.teleop.rt import single_thread_blas
     from hardware.connect import open_rig
     from hardware.rigs.rig import load_rig
 
-    single_thread_blas()
     rig = load_rig(args.rig)
     opts = options(args)
     check_options(rig, opts)

@@ -23,10 +23,10 @@ import numpy as np
 from calibration.estimators import DOB_GAIN_PER_S, FEEDBACK_MODES, PP_STIFFNESS_NM_PER_RAD
 from factr2_teleop.demo import metrics as M
 from factr2_teleop.teleop.record import TickRecord
-from factr2_teleop.teleop.rt import single_thread_blas
 from factr2_teleop.teleop.virtual_operator import OperatorScript, Segment, VirtualOperator, make_task_script
 from hardware import sim_cpu
 from hardware.sim.twin import TwinDrivenClock
+from hardware.threads import limit_threads
 
 # Task on the sim-piper table scene, leader joints [rad]: above the table, and a press target beyond the
 # surface (the follower stops near j2 = 1.9 rad: 0.1 rad beyond) so the hand keeps pushing in contact.
@@ -189,18 +189,19 @@ class DemoRun:
 
         if cfg.mode not in FEEDBACK_MODES:
             raise ValueError(f"unknown mode {cfg.mode!r}")
-        single_thread_blas()  # process-wide: multi-threaded BLAS makes NEXT 10x slower on a busy machine
-        self.cfg, self.next_path = cfg, next_path
-        self.session = open_rig(cfg.rig, clock="lockstep" if cfg.clock == "lockstep" else "realtime",
-                                seed=cfg.seed, dynamixel_transport=cfg.dynamixel_transport)
+        # BLAS on one thread until close(): multi-threaded BLAS makes NEXT 10x slower on a busy machine
+        self.threads = limit_threads(1, blas=True, env=True)
+        self.cfg, self.next_path, self.session = cfg, next_path, None
         try:
+            self.session = open_rig(cfg.rig, clock="lockstep" if cfg.clock == "lockstep" else "realtime",
+                                    seed=cfg.seed, dynamixel_transport=cfg.dynamixel_transport)
             self.clock = self.session.clock
             if cfg.clock == "realtime":  # the loop thread steps the twin from here on (set-up not simulated)
                 self.session.twin.stop_realtime()
                 self.clock = TwinDrivenClock(self.session.twin)
             self._build(next_source)
         except BaseException:
-            self.session.close()
+            self.close()
             raise
 
     def _build(self, next_source) -> None:
@@ -281,7 +282,11 @@ class DemoRun:
         gc.collect()
 
     def close(self) -> None:
-        self.session.close()
+        try:
+            if self.session is not None:
+                self.session.close()
+        finally:
+            self.threads.close()
 
     def result(self) -> DemoResult:
         cfg, rows = self.cfg, self._rows

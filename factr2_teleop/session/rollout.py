@@ -10,7 +10,7 @@ Wiring: open_rig (lockstep on a twin by default, deterministic and as fast as th
 timing, the loop thread stepping the twin as in the demo) -> RolloutSession, a TeleopSession whose pairs are
 RolloutPairs (session/rollout_pair.py: same estimator and tables as teleop, follower from the policy's
 schedule, leader at zero torque) -> PolicyRunner (policies/rollout: inline in lockstep, its own thread in
-real time) -> episodes: TwinRollout on a twin task (the bookkeeping of `factr2 collect`, tasks/collect.py:
+real time) -> episodes: TwinRollout on a twin task (the bookkeeping of `factr2 collect`, task_episodes.py:
 objects placed per episode seed, stages, success, time limit) or MarkedRollout (the operator marks stages and
 the outcome with keys). `record` writes one MCAP like demonstrations (outcome, stages, tau_ext, frames, the
 follower command, the privileged object vector on twin tasks).
@@ -46,7 +46,7 @@ MARK_TIME_LIMIT_S = 60.0  # s: an operator-marked episode without --max-seconds 
 @dataclass
 class RolloutOptions:
     """rig: rig name or file; policy: RUN folder or step-*.json; task: a twin task (None: the operator marks
-    episodes); episodes: how many; seed: episode k uses tasks.collect.episode_seed(seed, k) like collection;
+    episodes); episodes: how many; seed: episode k uses task_episodes.episode_seed(seed, k) like collection;
     record: folder for the MCAP; max_seconds: episode time limit [s] (default the task's); next: a NEXT
     checkpoint other than the policy's (said); realtime: wall-clock loop on a twin (timing); progress: print
     a line per episode. mode: estimator when the policy names no NEXT checkpoint (default the rig's);
@@ -158,7 +158,7 @@ def check_options(opts: RolloutOptions, runner):
     as the rollout opens it (a twin task adds its scene and cameras) and the task or None. The terminal app
     checks a run against the rig with it too."""
     from factr2_teleop.session.task_check import check_task
-    from factr2_teleop.tasks.collect import task_rig
+    from factr2_teleop.session.task_episodes import task_rig
     from hardware.rigs.rig import load_rig
     from hardware.sim.tasks import get_task
 
@@ -190,8 +190,7 @@ def check_options(opts: RolloutOptions, runner):
 def run_rollout(opts: RolloutOptions) -> RolloutResult:
     """Roll the policy out (blocking); its RolloutResult (see the module doc and docs/rollout.md). Ctrl-C
     holds every follower, leaves every leader at zero torque and returns what was done (interrupted)."""
-    import torch
-
+    from hardware.threads import limit_threads
     from policies.rollout.runner import PolicyRunner
 
     runner = PolicyRunner(opts.policy, seed=opts.seed, ema=opts.ema)
@@ -210,12 +209,9 @@ def run_rollout(opts: RolloutOptions) -> RolloutResult:
                        threaded=opts.threaded if opts.threaded is not None else realtime,
                        schedule=opts.schedule or (ENSEMBLE if runner.policy == "act" else RECEDING),
                        k_exec=opts.k_exec or max(1, runner.cfg.chunk // K_EXEC_SHARE))
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the loop keeps a core of its own; a chunk's work is small (docs/rollout.md)
-    try:
+    # the loop keeps a core of its own; a chunk's work is small (docs/rollout.md)
+    with limit_threads(1, torch=True):
         return _rollout(opts, runner, rig, task, plan)
-    finally:
-        torch.set_num_threads(threads)
 
 
 @dataclass(frozen=True)

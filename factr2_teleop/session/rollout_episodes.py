@@ -1,5 +1,5 @@
 """The episodes of a policy rollout (factr2_teleop/session/rollout.py): TwinRollout on a twin task (the
-episode bookkeeping of `factr2 collect`, tasks/collect.py TaskEpisodes: objects placed per episode seed,
+episode bookkeeping of `factr2 collect`, task_episodes.py TaskEpisodes: objects placed per episode seed,
 stage detection, success, the time limit) and MarkedRollout (the operator marks stages and the outcome with
 keys: real rigs, or twins without a task). Both are per-tick hooks on the loop's thread; they move the
 PolicyTarget between its phases (home -> settle -> run) and write episodes into the session's recording.
@@ -11,7 +11,7 @@ import json
 from dataclasses import asdict
 
 from factr2_teleop.session.rollout_pair import RUN, PolicyTarget
-from factr2_teleop.tasks.collect import SETTLE_S, EpisodeResult, TaskEpisodes
+from factr2_teleop.session.task_episodes import SETTLE_S, EpisodeResult, TaskEpisodes
 
 DETECT_EVERY = 5  # ticks between stage detections (100 Hz at 500 Hz, the scripted operator's rate)
 

@@ -38,7 +38,7 @@ def output_paths(cfg: CollectConfig, rig_name: str) -> tuple[Path, Path]:
 
 
 def _mode_and_checkpoint(cfg: CollectConfig, rig_name: str) -> tuple[str, str | None]:
-    from factr2_teleop.demo.next_cache import find_checkpoint
+    from factr2_teleop.session.next_cache import find_checkpoint
 
     if cfg.mode not in (None, "next"):
         return cfg.mode, None
@@ -51,8 +51,9 @@ def _mode_and_checkpoint(cfg: CollectConfig, rig_name: str) -> tuple[str, str | 
 
 def collect(cfg: CollectConfig, progress: bool = True) -> dict:
     from factr2_teleop.session.pairs import TeleopOptions
+    from factr2_teleop.session.task_episodes import task_rig
     from factr2_teleop.session.teleop import TeleopSession
-    from factr2_teleop.tasks.collect import EpisodeDriver, task_rig
+    from factr2_teleop.tasks.collect import EpisodeDriver
     from hardware.connect import open_rig
     from hardware.sim.tasks import get_task
 

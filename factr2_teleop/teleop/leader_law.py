@@ -342,12 +342,12 @@ def leader_gravity_path(rig, leader: str) -> Path:
     (default ~/.cache/factr2, beside the demo's NEXT cache) / leader-gravity / <rig> / <leader>.json. A
     twin's true body comes from the rig file's [twin] seed (hardware/arms/true_body.py), so a twin's file
     names it (<leader>-seed<N>.json; -exact when the rig turns description_error off)."""
-    from factr2_teleop.demo.next_cache import cache_dir
+    from hardware.recording.cache import cache_home
 
     name = leader
     if rig.simulated:
         name += f"-seed{rig.twin.seed}" + ("" if getattr(rig.twin, "description_error", True) else "-exact")
-    return cache_dir() / "leader-gravity" / Path(str(rig.name)).stem / f"{name}.json"
+    return cache_home() / "leader-gravity" / Path(str(rig.name)).stem / f"{name}.json"
 
 
 def leader_gravity_file(rig, leader: str) -> Path | None:

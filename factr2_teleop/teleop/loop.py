@@ -20,7 +20,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, STOPPED, ArmPair
 from factr2_teleop.teleop.record import TickRecord
@@ -28,6 +27,7 @@ from factr2_teleop.teleop.timing import LoopTiming, TimingStats
 from hardware import sim_cpu
 from hardware.clock import Clock
 from hardware.realtime import LOOP_PRIORITY, CpuWakeLatency, LoopCpu, ProcessThreads, set_fifo, set_normal
+from hardware.threads import limit_threads
 
 log = logging.getLogger("factr2.teleop")
 
@@ -107,12 +107,12 @@ class TeleopLoop:
         # One BLAS thread while the loop runs (process-wide for OpenBLAS): the NEXT estimator's products are
         # small (50x256 @ 256x512), and a thread pool's hand-offs and spinning threads cost more than they
         # give next to the loop and the twin -- 0.66 vs 2.4 ms per estimate on the 2-core dev VM under load.
-        blas = threadpool_limits(limits=1, user_api="blas")
+        blas = limit_threads(1, blas=True)
         # Python hands the GIL to a waiting thread only every switch interval (5 ms by default): a recorder,
         # camera or twin thread holding it could delay a tick by that much. A quarter period bounds it.
         switch = sys.getswitchinterval()
-        services = ProcessThreads()
-        pin = LoopCpu()
+        services = ProcessThreads(helpers=self.helper_processes)
+        pin = LoopCpu(helpers=self.helper_processes)
         wake = None
         if self.clock.realtime:
             sys.setswitchinterval(min(switch, SWITCH_FRACTION * self.period_s))
@@ -162,7 +162,7 @@ class TeleopLoop:
             self._message(self.clock.now(), "loop", f"stopped by {type(e).__name__}: {e}")
             raise
         finally:
-            blas.restore_original_limits()
+            blas.close()
             sys.setswitchinterval(switch)
             if self.clock.realtime:
                 set_normal()
@@ -203,6 +203,15 @@ class TeleopLoop:
     @property
     def running(self) -> bool:
         return self._running
+
+    def helper_processes(self) -> dict[int, int]:
+        """The processes working for this loop's pairs now (their estimators': NEXT's worker), pid ->
+        priority: raised and pinned with the loop's threads while it runs real time (hardware.realtime)."""
+        out: dict[int, int] = {}
+        for p in self.pairs:
+            if p.estimator is not None:
+                out.update(p.estimator.helper_processes())
+        return out
 
     @property
     def alive(self) -> bool:

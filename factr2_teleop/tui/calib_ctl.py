@@ -206,11 +206,9 @@ class CalibrationRun:
         self._set(progress=1.0, eta_s=0.0, line=f"replay done: {m * dt:.1f} s recorded")
 
     def train(self) -> dict:
-        import torch
-
         from calibration.pipeline import train_and_report
+        from hardware.threads import limit_threads
 
-        torch.set_num_threads(1)
         self._set(step="train", progress=0.0, eta_s=float("nan"), line="training NEXT")
 
         def cb(p) -> bool:
@@ -226,7 +224,8 @@ class CalibrationRun:
             )
             return self.abort_reason is not None
 
-        report = train_and_report(self.logs, self.out, self.spec.arm, self.cfg, callback=cb)
+        with limit_threads(1, torch=True):  # this process's other work (the app) beside the training's own
+            report = train_and_report(self.logs, self.out, self.spec.arm, self.cfg, callback=cb)
         self._check_abort()
         self._set(report=report, checkpoint=str(self.out / "next"), progress=1.0, line="training done")
         return report

@@ -1,21 +1,18 @@
 """Offscreen MuJoCo camera for twins, headless on CPU.
 
-OpenGL backend: MUJOCO_GL if set, else EGL, then OSMesa (Mesa's software renderers work without a GPU or
-display). The backend is chosen per renderer, so it works even when mujoco was imported before. With no
-usable GL the camera fails with one CameraError line naming the Debian packages to install.
+OpenGL: offscreen_gl.make_renderer (MUJOCO_GL if set, else EGL, then OSMesa; one CameraError line without).
 Thread rule: read() renders from the attached MjData; call it from the thread that steps the simulation
 (between steps), never concurrently with mj_step.
 """
 
 from __future__ import annotations
 
-import importlib
-import os
 from dataclasses import dataclass
 
 import numpy as np
 
 from hardware.cameras.base import Camera, CameraConfig, CameraError
+from hardware.cameras.offscreen_gl import make_renderer
 from hardware.clock import Clock
 
 # Twin cameras render on the CPU (Mesa llvmpipe) where there is no GPU: with the MJCF's 4096 px shadow map
@@ -23,7 +20,6 @@ from hardware.clock import Clock
 # and no MSAA 4 ms. Twin cameras draw without either (the render process turns shadows off in its model
 # copy), so task collection with two cameras stays faster than real time beside another busy process.
 TWIN_MSAA_SAMPLES = 0
-GL_PACKAGES = "sudo apt-get install -y libegl1 libgl1 libgles2 (EGL, Mesa) or libosmesa6 (OSMesa)"
 
 
 @dataclass
@@ -31,42 +27,6 @@ class MujocoCameraConfig(CameraConfig):
     """camera: name of an MJCF <camera> ("" or -1: the free default camera)."""
 
     camera: str = ""
-
-
-def gl_backends() -> list[str]:
-    explicit = os.environ.get("MUJOCO_GL", "").strip().lower()
-    return [explicit] if explicit in ("egl", "osmesa", "glfw") else ["egl", "osmesa"]
-
-
-def _gl_context_module():
-    try:
-        return importlib.import_module("mujoco.rendering.classic.gl_context")
-    except ImportError:
-        return importlib.import_module("mujoco.gl_context")
-
-
-def make_renderer(model, width: int, height: int):
-    """-> (mujoco.Renderer, backend name). Tries gl_backends() in order; CameraError when none works."""
-    try:
-        import mujoco
-
-        glc = _gl_context_module()
-    except Exception as e:  # e.g. MUJOCO_GL=osmesa without libOSMesa breaks `import mujoco` itself
-        raise CameraError(f"MuJoCo cannot load its OpenGL backend ({type(e).__name__}: {e})",
-                          where=f"MUJOCO_GL={os.environ.get('MUJOCO_GL', '')}", fix=GL_PACKAGES) from None
-    errors = []
-    for backend in gl_backends():
-        saved = getattr(glc, "GLContext", None)
-        try:
-            glc.GLContext = importlib.import_module(f"mujoco.{backend}").GLContext
-            renderer = mujoco.Renderer(model, height=height, width=width)
-            return renderer, backend
-        except Exception as e:  # ImportError, OSError, mujoco.FatalError, RuntimeError from GL loaders
-            errors.append(f"{backend}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
-        finally:
-            glc.GLContext = saved
-    raise CameraError(f"no OpenGL for offscreen rendering ({'; '.join(errors)})", where="MuJoCo camera",
-                      fix=f"{GL_PACKAGES}, then set MUJOCO_GL=egl or MUJOCO_GL=osmesa")
 
 
 class MujocoCamera(Camera):

@@ -43,7 +43,7 @@ def _serve(conn) -> None:
     blob, cams, paths = conn.recv()
     model = pickle.loads(blob)
     model.light_castshadow[:] = 0  # this copy only draws: no shadow pass (mujoco_camera.TWIN_MSAA_SAMPLES)
-    from hardware.cameras.mujoco_camera import make_renderer
+    from hardware.cameras.offscreen_gl import make_renderer
 
     try:
         data = mujoco.MjData(model)

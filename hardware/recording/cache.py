@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 import tempfile
 import warnings
@@ -33,6 +32,7 @@ from hardware.recording.mcap_scan import (
     iter_records,
     open_buffer,
 )
+from hardware.switches import switches
 
 CACHE_VERSION = 1
 _KEY_BLOCK = 64 * 1024
@@ -99,7 +99,7 @@ class Decoded:
 
 def cache_home() -> Path:
     """factr2's folder for caches: $FACTR2_CACHE, default ~/.cache/factr2 (the demo's NEXT cache too)."""
-    return Path(os.environ.get("FACTR2_CACHE") or Path.home() / ".cache" / "factr2")
+    return switches().cache
 
 
 def derived_dir(path: str | Path, kind: str) -> Path:
@@ -109,8 +109,7 @@ def derived_dir(path: str | Path, kind: str) -> Path:
     and FILE.policy-frames folders). The cache's own key (size, mtime, head/tail hash) still decides whether
     it matches the file."""
     p = Path(path).resolve()
-    root = Path(os.environ.get("FACTR2_RECORDING_CACHE") or cache_home() / "recordings")
-    return root / kind / f"{p.name}-{hashlib.sha256(str(p).encode()).hexdigest()[:12]}"
+    return switches().recording_cache / kind / f"{p.name}-{hashlib.sha256(str(p).encode()).hexdigest()[:12]}"
 
 
 def cache_dir(path: str | Path) -> Path:

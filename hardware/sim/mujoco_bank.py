@@ -11,7 +11,8 @@ backlash, noisy velocity, quantised noisy current, tau_m = K * current). Ground 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from contextlib import AbstractContextManager
+from typing import Protocol
 
 import mujoco
 import numpy as np
@@ -20,9 +21,6 @@ from hardware.sim import actuators as act
 from hardware.sim.effects_hook import HookFn, call_hook
 from hardware.sim.motors import MODE_CURRENT, MODE_DISABLED, MODE_MIT, MODE_POSITION, MotorReading
 from hardware.sim.targets import TargetPath
-
-if TYPE_CHECKING:
-    from hardware.sim.world import MujocoWorld
 
 BRAKE_KP = 2000.0  # N*m/rad: holding brake of a disabled joint (arms with brakes only)
 BRAKE_KD = 50.0  # N*m*s/rad
@@ -39,10 +37,21 @@ def _as_slice(idx: np.ndarray):
     return idx
 
 
-class MujocoBank:
-    """Motors on `joints` (names of 1-dof hinge/slide joints) of a MujocoWorld. Implements MotorBank."""
+class BankWorld(Protocol):
+    """What a bank reads of the world that steps it (world.py's MujocoWorld). A contract here, so that the
+    world imports its banks and the banks do not import the world (no circle)."""
 
-    def __init__(self, world: MujocoWorld, joints: list[str], params: act.ActuatorParams, *,
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    lock: AbstractContextManager  # held by the world while it steps; a bank takes it to read or command
+    dt: float  # the control tick (the firmware laws' period) [s]
+    steps: int  # control ticks stepped so far (the sensor noise's clock)
+
+
+class MujocoBank:
+    """Motors on `joints` (names of 1-dof hinge/slide joints) of a world (BankWorld). Implements MotorBank."""
+
+    def __init__(self, world: BankWorld, joints: list[str], params: act.ActuatorParams, *,
                  name: str = "bank", seed: int = 0, hook: HookFn | None = None):
         m = world.model
         self.world, self.name, self.n = world, name, len(joints)

@@ -1,4 +1,5 @@
-"""NEXT for the demo: find a cached checkpoint for the rig's follower, or make one on the twin.
+"""NEXT for a session on a rig: find a cached checkpoint for the follower, or make one on the twin (the demo,
+task collection).
 
 Cache: $FACTR2_CACHE (default ~/.cache/factr2) / next-v<CACHE_VERSION> / <rig> / next.json (+ .safetensors),
 the same files `factr2 calibrate --out DIR` writes as DIR/next.json. Creation records free motion on the twin
@@ -81,10 +82,10 @@ def create_checkpoint(rig: str, say: Callable[[str], None], minutes: float = DEM
         run = collect(session, spec, traj, cfg, progress)
     logs = write_logs(out, run, cfg)
     say(f"NEXT: training (at most {train_s:.0f} s)")
-    import torch
+    from hardware.threads import limit_threads
 
-    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
-    train_and_report(logs, out, spec.arm, cfg)
+    with limit_threads(max(1, min(2, os.cpu_count() or 1)), torch=True):
+        train_and_report(logs, out, spec.arm, cfg)
     path = out / "next.json"
     say(f"NEXT: checkpoint cached at {path}")
     return path
