@@ -11,7 +11,7 @@ TINY = dict(hidden=32, heads=2, enc_layers=1, dec_layers=1, ff=64, backbone="con
 
 def record_task_session(out: Path, seconds: float = 1.2) -> Path:
     """One episode of `seconds` on task_rig(sim-piper, peg-insert), lockstep, feedback dob, with cameras."""
-    from factr2_teleop.tasks.collect import task_rig
+    from factr2_teleop.session.task_episodes import task_rig
 
     return record_rig_session(out, task_rig("sim-piper", "peg-insert"), seconds, task="peg-insert")
 
