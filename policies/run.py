@@ -27,7 +27,7 @@ from policies.recordings import (
     skipped_line,
     training_episodes,
 )
-from policies.run_config import RESUME_KEYS, RunOptions  # noqa: F401 (RunOptions: the run's one config)
+from policies.run_config import RESUME_KEYS, RunOptions
 from policies.sampler import format_ratio
 from policies.train import Dist, barrier, train
 

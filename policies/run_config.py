@@ -37,7 +37,10 @@ def default_length(observation: str) -> tuple[float, int]:
 
 
 class RatioFlag(Flag):
-    """--ratio F:PC:C or a preset name -> (w_F, w_PC, w_C); written back as F:PC:C."""
+    """--ratio F:PC:C or a preset name -> (w_F, w_PC, w_C); written back as F:PC:C. presets: the names offered
+    (the terminal app cycles through them after "default", the method's own)."""
+
+    presets = ("PC", "C", "PC+C", "uniform")
 
     def value(self, ns, dest: str):
         text = getattr(ns, dest)
@@ -168,7 +171,7 @@ class RunOptions:
     method: str = option("first", resume="method", flag=Flag(
         "--method", "first (default), base, base-torque, factr, tavla", choices=tuple(METHODS)))
     ratio: tuple | None = option(None, resume="ratio", flag=RatioFlag(  # None: the method's default
-        "--ratio", "re-sampling weights w_F:w_PC:w_C or a preset (C, PC, PC+C, uniform); "
+        "--ratio", f"re-sampling weights w_F:w_PC:w_C or a preset ({', '.join(RatioFlag.presets)}); "
         "default 1:5:1 for first, uniform otherwise", metavar="F:PC:C"))
     preset: str = option("", resume="policy", flag=Flag(  # "": policies.config.default_preset(observation)
         "--preset", "state (low-dimensional inputs, the default with --obs state), small (images on a CPU, "
@@ -300,6 +303,8 @@ def to_argv(o: RunOptions) -> list[str]:
 
 
 def form_choices() -> dict[str, tuple]:
-    """The choices of the fields the terminal app's Train screen cycles through (its form), by field name."""
-    return {f.name: tuple(f.metadata["flag"].choices) for f in fields(RunOptions)
-            if f.name in ("policy", "method", "observation")}
+    """The choices of the fields the terminal app's Train screen cycles through (its form), by field name:
+    the flags' choices; the ratio's "default" (the method's own, None) then its presets."""
+    flag = {f.name: f.metadata.get("flag") for f in fields(RunOptions)}
+    out = {name: tuple(flag[name].choices) for name in ("policy", "method", "observation")}
+    return out | {"ratio": ("default", *flag["ratio"].presets)}

@@ -30,7 +30,7 @@ from policies.dataset import PolicyData, draw_crops
 from policies.methods import BLUR_SIGMA0_PX_224, Method, blur_sigma
 from policies.phases import PHASE_SHORT
 from policies.policy import make_policy
-from policies.run_config import TrainConfig, default_length  # noqa: F401 (their home; imported from here too)
+from policies.run_config import TrainConfig
 from policies.sampler import FirstSampler
 
 
