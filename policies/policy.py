@@ -17,8 +17,8 @@ import torch.nn as nn
 
 from policies.config import PolicyConfig
 
-# the modules that define policies; importing one registers its classes
-POLICY_MODULES = ("policies.act", "policies.flow", "policies.flow_mlp")
+# the modules that define policies; importing one registers its classes (the first's is the default policy)
+POLICY_MODULES = ("policies.flow", "policies.flow_mlp", "policies.act")
 ANY_HEAD = "*"  # a policy with one head registers under this
 
 _REGISTRY: dict[tuple[str, str], type[Policy]] = {}
@@ -42,6 +42,11 @@ def registered() -> dict[tuple[str, str], type[Policy]]:
     for module in POLICY_MODULES:
         import_module(module)
     return dict(_REGISTRY)
+
+
+def policy_names() -> tuple[str, ...]:
+    """The registered policies' names (`--policy`'s choices), in POLICY_MODULES order."""
+    return tuple(dict.fromkeys(name for name, _ in registered()))
 
 
 def make_policy(cfg: PolicyConfig) -> Policy:

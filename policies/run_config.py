@@ -18,12 +18,13 @@ from pathlib import Path
 
 from hardware.errors import UserError
 from policies import flags as F
-from policies.config import POLICIES, PRESETS, PolicyConfig, default_preset, preset, settable
+from policies.config import PRESETS, PolicyConfig, default_preset, preset, settable
 from policies.dataset import FORCE_SOURCES
 from policies.flags import Flag, Switch, option
 from policies.label_flags import NEXT_HELP, add_threshold_arguments, thresholds_arg
 from policies.labelling import TARE_DEFAULT, LabelChoice
 from policies.methods import METHODS
+from policies.policy import policy_names
 from policies.privileged import OBSERVATIONS
 from policies.sampler import parse_ratio
 
@@ -167,7 +168,7 @@ class RunOptions:
     out: Path = option(flag=Flag("--out", "run folder (checkpoints, logs)", type=Path, metavar="RUN",
                                  required=True))
     policy: str = option("flow", resume="policy", flag=Flag(
-        "--policy", "the policy (policies.policy registers them)", choices=POLICIES))
+        "--policy", "the policy (policies.policy registers them)", choices=policy_names()))
     method: str = option("first", resume="method", flag=Flag(
         "--method", "first (default), base, base-torque, factr, tavla", choices=tuple(METHODS)))
     ratio: tuple | None = option(None, resume="ratio", flag=RatioFlag(  # None: the method's default

@@ -17,7 +17,7 @@ from policies import checkpoint as C
 from policies import flags as F
 from policies import policy as P
 from policies import run_config as R
-from policies.config import POLICIES, PolicyConfig, settable
+from policies.config import PolicyConfig, settable
 from policies.labelling import LabelChoice
 from policies.run import run_training
 from policies.train import Dist
@@ -98,7 +98,7 @@ def test_the_form_is_the_options_choices():
     from policies.privileged import OBSERVATIONS
 
     form = T.form()
-    assert form["policy"] == POLICIES and form["method"] == tuple(METHODS)
+    assert form["policy"] == P.policy_names() == ("flow", "act") and form["method"] == tuple(METHODS)
     assert form["observation"] == OBSERVATIONS and form["ratio"][0] == "default"
     assert set(form) - {"size"} <= {f.name for f in fields(R.RunOptions)}  # the size: the app's own
 
@@ -148,7 +148,7 @@ def test_older_meta_still_reads_and_resumes_check(state_run):
 
 def test_factory_builds_every_registered_policy_and_a_new_one(monkeypatch):
     table = P.registered()
-    assert {name for name, _ in table} == set(POLICIES)
+    assert {name for name, _ in table} == set(P.policy_names())
     cfg = dict(hidden=32, heads=2, enc_layers=1, dec_layers=1, ff=64, chunk=4, observation="state",
                objects_dim=3)
     for (name, head), cls in table.items():
