@@ -28,15 +28,18 @@ class Flag:
     (floats too: str(float) reads back to the same float). optional: the flag's default is None, meaning
     "not given" (the field's default, or one the owner derives); at_least / above: bounds checked on parsing;
     group: flags of one group are mutually exclusive (to_argv writes the first with a value); relaunch: False
-    for a flag of the launcher only (not passed to the processes it starts)."""
+    for a flag of the launcher only (not passed to the processes it starts); required: it must be given."""
 
     def __init__(self, name: str, help: str = "", *, type=str, choices=None, metavar=None, unit: str = "",
                  optional: bool = False, at_least=None, above=None, group: str = "", relaunch: bool = True,
                  required: bool = False):
         self.name, self.help, self.type, self.choices, self.metavar = name, help, type, choices, metavar
-        self.required = required
         self.unit, self.optional, self.at_least, self.above = unit, optional, at_least, above
-        self.group, self.relaunch = group, relaunch
+        self.group, self.relaunch, self.required = group, relaunch, required
+
+    def names(self) -> list[str]:
+        """The command-line words this flag adds (a flag may add more than one: --thresholds, --no-tare)."""
+        return [self.name]
 
     @property
     def positional(self) -> bool:
@@ -186,5 +189,5 @@ def flag_names(cls) -> list[str]:
     for _, f in _walk(cls):
         flag = f.metadata.get("flag")
         if flag is not None:
-            out += flag.names() if hasattr(flag, "names") else [flag.name]
+            out += flag.names()
     return out
