@@ -26,10 +26,10 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from policies.checkpoint import make_model  # noqa: E402
 from policies.config import preset  # noqa: E402
 from policies.dataset import build_dataset  # noqa: E402
 from policies.labelling import Thresholds  # noqa: E402
+from policies.policy import make_policy  # noqa: E402
 from policies.recordings import load_episodes  # noqa: E402
 
 
@@ -79,7 +79,7 @@ def bench_train(device: torch.device, steps: int = 3, presets=("small", "paper")
             cfg = preset(name, policy)
             cfg.n_cameras, cfg.state_dim, cfg.force_dim, cfg.action_dim = 2, 7, 6, 7
             torch.manual_seed(0)
-            model = make_model(cfg).to(device)
+            model = make_policy(cfg).to(device)
             opt = torch.optim.AdamW(model.parameters(), lr=3e-4, weight_decay=0.05, betas=(0.9, 0.95))
             b = {k: v.to(device) for k, v in _fake_batch(cfg, batch).items()}
             noise = {
@@ -154,7 +154,7 @@ def bench_latency(n: int = 30) -> list[dict]:
         cfg = preset("small", policy)
         cfg.n_cameras, cfg.state_dim, cfg.force_dim, cfg.action_dim = 2, 7, 6, 7
         torch.manual_seed(0)
-        model = make_model(cfg).eval()
+        model = make_policy(cfg).eval()
         b = _fake_batch(cfg, 1)
         noise = type(model).draw_noise(cfg, 1, torch.Generator().manual_seed(0))
         with torch.inference_mode():

@@ -20,8 +20,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from policies.checkpoint import make_model  # noqa: E402
 from policies.config import preset  # noqa: E402
+from policies.policy import make_policy  # noqa: E402
 
 DIMS = dict(observation="state", state_dim=7, force_dim=6, objects_dim=21, action_dim=7)
 CANDIDATES = [
@@ -35,7 +35,7 @@ CANDIDATES = [
 
 def measure(cfg, batch: int, steps: int) -> dict:
     torch.manual_seed(0)
-    model = make_model(cfg)
+    model = make_policy(cfg)
     opt = torch.optim.AdamW(model.parameters(), lr=3e-4)
     g = torch.Generator().manual_seed(0)
     b = {"state": torch.randn(batch, 7), "force": torch.randn(batch, 6), "objects": torch.randn(batch, 21),

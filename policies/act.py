@@ -15,6 +15,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from policies.config import PolicyConfig
+from policies.policy import Policy, register
 from policies.tokens import ObservationTokens, masked_mean, sinusoidal
 
 
@@ -25,10 +26,10 @@ def _encoder(cfg: PolicyConfig, layers: int) -> nn.TransformerEncoder:
     return nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
 
 
-class ACTPolicy(nn.Module):
+@register("act")
+class ACTPolicy(Policy):
     def __init__(self, cfg: PolicyConfig):
-        super().__init__()
-        self.cfg = cfg
+        super().__init__(cfg)
         h = cfg.hidden
         self.obs = ObservationTokens(cfg)
         # CVAE posterior q(z | state, actions)
@@ -75,9 +76,6 @@ class ACTPolicy(nn.Module):
         out = self.decoder(q.expand(len(x), -1, -1), memory)
         return self.head(out), (self.aux_head(out) if self.aux_head is not None else None)
 
-    def forward(self, batch: dict, noise: dict):
-        return self.loss(batch, noise)  # DDP wraps forward: the training step is the loss
-
     def loss(self, batch: dict, noise: dict) -> tuple[torch.Tensor, dict]:
         """Per-sample loss (B,) and its parts (each (B,))."""
         mu, logvar = self._posterior(batch["state"], batch["action"], batch["mask"])
@@ -93,10 +91,6 @@ class ACTPolicy(nn.Module):
             )
             total = total + self.cfg.aux_weight * parts["aux_force"]
         return total, parts
-
-    def action_error(self, batch: dict, noise: dict) -> torch.Tensor:
-        """Per-sample L1 of the inferred chunk (z = 0) vs the demonstration, normalised units (B,)."""
-        return masked_mean((self.predict(batch, noise) - batch["action"]).abs(), batch["mask"])
 
     @torch.no_grad()
     def predict(self, batch: dict, noise: dict | None = None) -> torch.Tensor:

@@ -15,20 +15,11 @@ from safetensors.torch import load_file, save_file
 
 from hardware.errors import ConfigError, UserError
 from policies.config import PolicyConfig
+from policies.policy import make_policy
 from policies.preprocess import Preprocess
 
 FORMAT = "factr2-policy/1"
 KEEP = 2  # older periodic checkpoints beyond this many are removed (the final one always stays)
-
-
-def make_model(cfg: PolicyConfig):
-    from policies.act import ACTPolicy
-    from policies.flow import FlowPolicy
-    from policies.flow_mlp import FlowMLPPolicy
-
-    if cfg.policy == "flow":
-        return (FlowMLPPolicy if cfg.head == "mlp" else FlowPolicy)(cfg)
-    return ACTPolicy(cfg)
 
 
 def _optim_tensors(opt: torch.optim.Optimizer) -> dict[str, torch.Tensor]:
@@ -121,7 +112,7 @@ def load_policy(path, ema: bool = True) -> tuple[torch.nn.Module, dict, Preproce
     meta = read_meta(Path(path))
     cfg = PolicyConfig.from_dict(meta["policy"])
     cfg.backbone_weights = ""  # the checkpoint's weights include the backbone
-    model = make_model(cfg)
+    model = make_policy(cfg)
     key = "weights_ema" if ema and meta.get("weights_ema") else "weights"
     meta["weights_used"] = "ema" if key == "weights_ema" else "trained"
     weights = Path(meta["_path"]).with_name(meta[key])

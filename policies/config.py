@@ -10,15 +10,18 @@ tokens) are the cross-attention memory of its decoder blocks directly (enc_layer
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
-POLICIES = ("flow", "act")
 PRESETS = ("state", "small", "paper")
+
+
+# a field the run fills itself (from the data, --policy, --obs or --method): not settable with `--set`
+FILLED = {"filled": True}
 
 
 @dataclass
 class PolicyConfig:
-    policy: str = "flow"  # "flow" (DiT, velocity objective) or "act" (CVAE transformer)
+    policy: str = field(default="flow", metadata=FILLED)  # "flow" (DiT, velocity objective) or "act" (CVAE)
     head: str = "dit"  # flow: "dit" (transformer over the chunk) or "mlp" (policies.flow_mlp, state only)
     # transformer
     hidden: int = 768
@@ -29,14 +32,16 @@ class PolicyConfig:
     dropout: float = 0.1
     chunk: int = 30  # actions predicted per observation
     # inputs / outputs (filled from the data)
-    observation: str = "images"  # "images", "state" (PRIVILEGED twin object vector, no frames) or both
-    objects_dim: int = 0  # length of the privileged object vector (policies/privileged.py); 0: none
-    n_cameras: int = 1
+    # "images", "state" (PRIVILEGED twin object vector, no frames) or both
+    observation: str = field(default="images", metadata=FILLED)
+    # length of the privileged object vector (policies/privileged.py); 0: none
+    objects_dim: int = field(default=0, metadata=FILLED)
+    n_cameras: int = field(default=1, metadata=FILLED)
     image_size: int = 224  # square input [px], frames are cached at this size
-    state_dim: int = 7  # follower joints + gripper
-    force_dim: int = 6  # tau_ext (or current) per joint; 0: no force token (base)
-    action_dim: int = 7
-    aux_force: bool = False  # TA-VLA: also predict the future force chunk
+    state_dim: int = field(default=7, metadata=FILLED)  # follower joints + gripper
+    force_dim: int = field(default=6, metadata=FILLED)  # tau_ext (or current) per joint; 0: no force token
+    action_dim: int = field(default=7, metadata=FILLED)
+    aux_force: bool = field(default=False, metadata=FILLED)  # TA-VLA (--method tavla): the force chunk too
     # vision
     backbone: str = "resnet18-gn"  # or "torchvision:NAME" / "timm:NAME" (weights from a local file only)
     backbone_weights: str = ""  # local file (.safetensors / .pt state dict), "" = from scratch
@@ -58,6 +63,13 @@ class PolicyConfig:
         return cls(**{k: v for k, v in d.items() if k in known})
 
 
+def settable() -> dict[str, type]:
+    """The fields `--set FIELD=VALUE` (and a resumed run's overrides) may set, with their types: all but those
+    the run fills itself (FILLED)."""
+    base = PolicyConfig()
+    return {f.name: type(getattr(base, f.name)) for f in fields(PolicyConfig) if not f.metadata.get("filled")}
+
+
 def preset(name: str, policy: str = "flow") -> PolicyConfig:
     """The `paper` sizes; `small`: sized for a laptop CPU, a flow chunk (encode once + 10 Euler steps) in
     <= 30 ms on one core with 2 cameras (docs/benchmarks.md): hidden 256, FF 512 (2x, not 4x), 4 heads, ACT
@@ -70,8 +82,10 @@ def preset(name: str, policy: str = "flow") -> PolicyConfig:
     3800 at batch 256, against 180 for `small`'s DiT on the same input (docs/first.md, "State preset")."""
     if name not in PRESETS:
         raise ValueError(f"preset {name!r}: one of {', '.join(PRESETS)}")
-    if policy not in POLICIES:
-        raise ValueError(f"policy {policy!r}: one of {', '.join(POLICIES)}")
+    from policies.policy import policy_names  # the registered policies (imports them)
+
+    if policy not in policy_names():
+        raise ValueError(f"policy {policy!r}: one of {', '.join(policy_names())}")
     cfg = PolicyConfig(policy=policy)
     if name == "small":
         layers = 2 if policy == "flow" else 3  # flow: DiT blocks, run 10x per chunk; ACT: decoder layers

@@ -15,6 +15,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from policies.config import PolicyConfig
+from policies.policy import Policy, register
 from policies.tokens import ObservationTokens, masked_mean, sinusoidal, timestep_embedding
 
 
@@ -97,10 +98,10 @@ def flow_matching_loss(model, batch: dict, noise: dict) -> tuple[torch.Tensor, d
     return total, parts
 
 
-class FlowPolicy(nn.Module):
+@register("flow", head="dit")
+class FlowPolicy(Policy):
     def __init__(self, cfg: PolicyConfig):
-        super().__init__()
-        self.cfg = cfg
+        super().__init__(cfg)
         h = cfg.hidden
         self.obs = ObservationTokens(cfg)
         self.obs_norm = nn.LayerNorm(h)
@@ -153,9 +154,6 @@ class FlowPolicy(nn.Module):
         h = _modulate(self.norm_out(h), shift, scale1p)
         return self.out(h), h
 
-    def forward(self, batch: dict, noise: dict):
-        return self.loss(batch, noise)  # DDP wraps forward: the training step is the loss
-
     def loss(self, batch: dict, noise: dict) -> tuple[torch.Tensor, dict]:
         return flow_matching_loss(self, batch, noise)
 
@@ -177,6 +175,3 @@ class FlowPolicy(nn.Module):
             step = [[t[k : k + 1] for t in terms] for terms in cond]  # (1, 1, hidden): broadcast over B
             x = torch.add(x, self.velocity(x, None, memory, step)[0], alpha=1.0 / n)
         return x
-
-    def action_error(self, batch: dict, noise: dict) -> torch.Tensor:
-        return masked_mean((self.predict(batch, noise) - batch["action"]).abs(), batch["mask"])

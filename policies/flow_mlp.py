@@ -18,8 +18,9 @@ import torch.nn as nn
 
 from policies.config import PolicyConfig
 from policies.flow import FlowPolicy, flow_matching_loss
+from policies.policy import Policy, register
 from policies.privileged import uses_images
-from policies.tokens import ObservationTokens, masked_mean, timestep_embedding
+from policies.tokens import ObservationTokens, timestep_embedding
 
 
 class FiLMBlock(nn.Module):
@@ -39,12 +40,12 @@ class FiLMBlock(nn.Module):
         return h + self.mlp(torch.addcmul(shift, self.norm(h), 1 + scale))
 
 
-class FlowMLPPolicy(nn.Module):
+@register("flow", head="mlp")
+class FlowMLPPolicy(Policy):
     def __init__(self, cfg: PolicyConfig):
-        super().__init__()
+        super().__init__(cfg)
         if uses_images(cfg.observation):
             raise ValueError("the MLP flow head takes low-dimensional inputs only: observation 'state'")
-        self.cfg = cfg
         h, w = cfg.hidden, cfg.ff
         self.obs = ObservationTokens(cfg)
         n_tokens = 1 + (cfg.force_dim > 0) + (cfg.objects_dim > 0)
@@ -75,9 +76,6 @@ class FlowMLPPolicy(nn.Module):
         h = self.norm_out(h)
         return self.out(h).view_as(x), h
 
-    def forward(self, batch: dict, noise: dict):
-        return self.loss(batch, noise)
-
     def loss(self, batch: dict, noise: dict) -> tuple[torch.Tensor, dict]:
         return flow_matching_loss(self, batch, noise)
 
@@ -96,6 +94,3 @@ class FlowMLPPolicy(nn.Module):
             a = torch.full((x.shape[0],), k / n, dtype=x.dtype, device=x.device)
             x = x + self.velocity(x, a, memory)[0] / n
         return x
-
-    def action_error(self, batch: dict, noise: dict) -> torch.Tensor:
-        return masked_mean((self.predict(batch, noise) - batch["action"]).abs(), batch["mask"])

@@ -6,7 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -15,7 +15,7 @@ from hardware.errors import UserError
 from hardware.recording.cache import cache_key
 from hardware.recording.session import software_version
 from policies import checkpoint as C
-from policies.config import default_preset, preset
+from policies.config import PolicyConfig
 from policies.dataset import build_dataset
 from policies.labelling import load_next, resolve_thresholds
 from policies.methods import METHODS
@@ -27,39 +27,9 @@ from policies.recordings import (
     skipped_line,
     training_episodes,
 )
+from policies.run_config import RESUME_KEYS, RunOptions
 from policies.sampler import format_ratio
-from policies.train import Dist, TrainConfig, barrier, train
-
-# what must match for --resume to continue the same run
-RESUME_KEYS = ("policy", "method", "ratio", "force", "data_hash", "phases", "rate_hz", "observation")
-RESUME_TRAIN_KEYS = ("steps", "epochs", "batch", "lr", "weight_decay", "betas", "warmup", "grad_clip", "seed")
-
-
-@dataclass
-class RunOptions:
-    inputs: list
-    out: Path
-    policy: str = "flow"
-    method: str = "first"
-    ratio: tuple | None = None  # None: the method's default
-    preset: str = ""  # "": policies.config.default_preset(observation)
-    force: str = "tau_ext"
-    next: Path | None = None
-    thresholds: tuple | None = None
-    rate_hz: float | None = None
-    resume: bool = False
-    backbone: str = ""  # "": the preset's (small: resnet18-gn-l3, paper: resnet18-gn)
-    backbone_weights: str = ""
-    dropout: float | None = None
-    image_size: int | None = None
-    val_fraction: float = 0.1
-    progress: bool = True
-    train: TrainConfig | None = None
-    overrides: dict | None = None  # PolicyConfig fields over the preset (tests, experiments)
-    observation: str = "images"  # policies.privileged.OBSERVATIONS: "state" = the twin objects (PRIVILEGED)
-    episodes: tuple | None = None  # episode ids ("FILE.mcap#N") to train on; None: every usable one
-    include_failed: bool = False  # train on failed demonstrations too (default: successful + unlabelled)
-    keep_incomplete: bool = False  # train on episodes cut off by a killed recorder too
+from policies.train import Dist, barrier, train
 
 
 def data_hash(episodes) -> str:
@@ -71,15 +41,19 @@ def data_hash(episodes) -> str:
     return h.hexdigest()[:16]
 
 
+def _entry(meta: dict, key: str):
+    """meta's entry `key` ("train.lr": nested); the model config with the defaults of fields added since."""
+    if key == "policy":
+        return PolicyConfig.from_dict(meta.get("policy", {})).to_dict()
+    for part in key.split("."):
+        meta = meta.get(part) if isinstance(meta, dict) else None
+    return meta
+
+
 def _compare(old: dict, new: dict) -> list[str]:
-    diff = [
-        k
-        for k in RESUME_KEYS
-        if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)
-    ]
-    ot, nt = old.get("train", {}), new.get("train", {})
-    diff += [f"train.{k}" for k in RESUME_TRAIN_KEYS if json.dumps(ot.get(k)) != json.dumps(nt.get(k))]
-    return diff
+    """The RESUME_KEYS entries (policies.run_config: from the options' fields) in which two metas differ."""
+    return [k for k in RESUME_KEYS
+            if json.dumps(_entry(old, k), sort_keys=True) != json.dumps(_entry(new, k), sort_keys=True)]
 
 
 def _check_out(o: RunOptions):
@@ -129,12 +103,9 @@ def precheck(o: RunOptions) -> None:
 
 
 def prepare(o: RunOptions, d: Dist):
-    """Everything before training: returns (data, policy config, train config, meta, resume checkpoint)."""
-    tcfg = replace(o.train or TrainConfig(), method=o.method, force=o.force)
-    method = METHODS[o.method]
-    tcfg.ratio = tuple(o.ratio) if o.ratio is not None else method.ratio
-    if not method.force:
-        tcfg.force = "none"
+    """Everything before training: (data, policy config, resolved options, meta, resume checkpoint)."""
+    o = o.resolved()  # the method's ratio and force, the preset, the model fields the preset fills
+    tcfg = o.train
     out = Path(o.out)
     last = _check_out(o)
     if tcfg.batch % d.world:
@@ -145,20 +116,11 @@ def prepare(o: RunOptions, d: Dist):
     episodes, arms, skipped = _load(o)
     next_model = load_next(o.next) if o.next is not None else None
     th = resolve_thresholds(o.thresholds, next_model, episodes, arms)
-    name = o.preset or default_preset(o.observation)
-    if name == "state" and o.observation != "state":
-        raise UserError(f"preset state takes no images, the observation is {o.observation}",
-                        where="--preset state", fix="train with --obs state, or --preset small|paper")
-    pcfg = preset(name, o.policy)
-    if o.dropout is not None:
-        pcfg.dropout = o.dropout
-    if o.image_size:
-        pcfg.image_size = int(o.image_size)
-    pcfg.backbone, pcfg.backbone_weights = o.backbone or pcfg.backbone, o.backbone_weights
-    pcfg = replace(pcfg, **(o.overrides or {}))
+    pcfg = o.policy_config()
+
     def build():
         return build_dataset(episodes, arms, th=th, chunk=pcfg.chunk, image_size=pcfg.image_size,
-                             force=tcfg.force, rate_hz=o.rate_hz, next_model=next_model,
+                             force=o.force, rate_hz=o.rate_hz, next_model=next_model,
                              val_fraction=o.val_fraction, seed=tcfg.seed, observation=o.observation)
 
     # rank 0 decodes the frame caches first, the others then read them; an input error on rank 0 still
@@ -179,21 +141,15 @@ def prepare(o: RunOptions, d: Dist):
     train_idx, _ = data.split()
     if len(train_idx) < 1:
         raise UserError("no training samples", where=str(o.inputs[0]), fix="record more episodes")
-    pcfg.n_cameras = len(data.names.cameras)
-    pcfg.state_dim, pcfg.action_dim = data.state.shape[1], data.action.shape[2]
-    pcfg.force_dim = data.force.shape[1]
-    pcfg.observation = o.observation
-    pcfg.objects_dim = data.objects.shape[1] if data.objects is not None else 0
-    pcfg.aux_force = method.aux_force
+    # the model's input and output sizes: the data's
+    pcfg = replace(pcfg, n_cameras=len(data.names.cameras), state_dim=data.state.shape[1],
+                   action_dim=data.action.shape[2], force_dim=data.force.shape[1],
+                   objects_dim=data.objects.shape[1] if data.objects is not None else 0)
+    o = replace(o, rate_hz=data.rate_hz)
     named_next = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
     meta = {
-        "policy": pcfg.to_dict(),
-        "preset": name,
-        "method": o.method,
-        "ratio": list(tcfg.ratio),
-        "force": tcfg.force,
+        **o.to_meta(pcfg),  # the configuration (policies.run_config)
         "features": data.names.to_dict(),
-        "observation": o.observation,
         "preprocess": data.pre.to_dict(),  # normaliser + image path: the rollout rebuilds exactly this
         "phases": th.to_dict(),
         "next_checkpoint": next_model.id if next_model is not None else named_next,
@@ -204,16 +160,12 @@ def prepare(o: RunOptions, d: Dist):
         # left out by default (failed demonstrations, episodes cut off), and the flags that kept the others
         "skipped_episodes": skipped,
         "tasks": _tasks(episodes),  # what rollout checks its --task against (session/task_check.py)
-        "include_failed": o.include_failed,
-        "keep_incomplete": o.keep_incomplete,
-        "rate_hz": data.rate_hz,
         "samples": {"train": int(len(train_idx)), "val": int(len(data) - len(train_idx))},
         "rig": describe_rig(episodes[0]),
         "arms": arms.to_dict(),
         "software_version": software_version(),
         "torch": torch.__version__,
         "world_size": d.world,
-        "train": tcfg.to_dict(),
     }
     if o.resume:
         old = C.read_meta(last)
@@ -224,12 +176,12 @@ def prepare(o: RunOptions, d: Dist):
                 where=str(out),
                 fix="resume with the same options and recordings, or use another --out",
             )
-    return data, pcfg, tcfg, meta, (last if o.resume else None)
+    return data, pcfg, o, meta, (last if o.resume else None)
 
 
 def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress=None, stop=None) -> dict:
     """on_progress / stop: policies.train.train's (an app's progress view and stop button)."""
-    data, pcfg, tcfg, meta, resume_from = prepare(o, d)
+    data, pcfg, o, meta, resume_from = prepare(o, d)
     if d.main:
         Path(o.out).mkdir(parents=True, exist_ok=True)
         if meta["skipped_episodes"]:
@@ -240,11 +192,11 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
             "samples "
             f"at {data.rate_hz:.3g} Hz, {_inputs(data)}; phases F/PC/C "
             f"{' / '.join(f'{x:.0%}' for x in _shares(data))}; method {o.method}, ratio "
-            f"{format_ratio(tcfg.ratio)}, force {tcfg.force}; {d.world} process(es) on {d.device}"
+            f"{format_ratio(o.ratio)}, force {o.force}; {d.world} process(es) on {d.device}"
         )
     with data:  # the data's crop threads end with the run
-        return train(data, pcfg, tcfg, Path(o.out), meta, d, resume_from, o.progress, stop_at, on_progress,
-                     stop)
+        return train(data, pcfg, o.train, METHODS[o.method], o.ratio, Path(o.out), meta, d, resume_from,
+                     o.progress, stop_at, on_progress, stop)
 
 
 def _tasks(episodes) -> dict:

@@ -42,7 +42,8 @@ def mlp(din: int, dout: int) -> nn.Sequential:
 class ObservationTokens(nn.Module):
     """(images (B, M, H, W, 3) uint8 or None, state (B, S), force (B, F) or None, objects (B, O) or None)
     -> tokens (B, T, hidden): [state, force?, objects?, image cells...].
-    blur_sigma [px]: FACTR's training-time Gaussian blur (policies.methods), set per step by the loop."""
+    A batch's "blur_sigma" [px], in training only: FACTR's Gaussian blur of the frames (policies.methods), a
+    step's input like its crops (the loop puts it in the batch; nothing is set on the model from outside)."""
 
     def __init__(self, cfg: PolicyConfig):
         super().__init__()
@@ -55,16 +56,15 @@ class ObservationTokens(nn.Module):
         self.state = mlp(cfg.state_dim, cfg.hidden)
         self.force = mlp(cfg.force_dim, cfg.hidden) if cfg.force_dim > 0 else None
         self.objects = mlp(cfg.objects_dim, cfg.hidden) if uses_objects(cfg.observation) else None
-        self.blur_sigma = 0.0
         self.register_buffer("mean", torch.tensor(IMAGENET_MEAN).view(1, 3, 1, 1), persistent=False)
         self.register_buffer("std", torch.tensor(IMAGENET_STD).view(1, 3, 1, 1), persistent=False)
 
-    def image_tokens(self, images: torch.Tensor) -> torch.Tensor:
+    def image_tokens(self, images: torch.Tensor, blur_sigma: float = 0.0) -> torch.Tensor:
         b, m = images.shape[:2]
         # NCHW contiguous: the CPU convolutions run ~2x faster on it than on the channels-last view
         x = images.flatten(0, 1).permute(0, 3, 1, 2).contiguous().float() / 255.0
-        if self.training and self.blur_sigma > 0:
-            x = gaussian_blur(x, self.blur_sigma)
+        if self.training and blur_sigma > 0:
+            x = gaussian_blur(x, blur_sigma)
         x = (x - self.mean) / self.std
         f = self.proj(self.backbone(x))  # (B*M, hidden, h, w)
         f = f.flatten(2).transpose(1, 2)  # (B*M, h*w, hidden)
@@ -73,10 +73,12 @@ class ObservationTokens(nn.Module):
         return f.flatten(1, 2)
 
     def tokens(self, batch: dict) -> torch.Tensor:
-        """The tokens of a policy batch (keys images, state, force, objects: those the config uses)."""
-        return self(batch.get("images"), batch["state"], batch.get("force"), batch.get("objects"))
+        """The tokens of a policy batch (keys images, state, force, objects: those the config uses; and
+        blur_sigma [px] in training, FACTR's)."""
+        return self(batch.get("images"), batch["state"], batch.get("force"), batch.get("objects"),
+                    batch.get("blur_sigma", 0.0))
 
-    def forward(self, images, state, force=None, objects=None) -> torch.Tensor:
+    def forward(self, images, state, force=None, objects=None, blur_sigma: float = 0.0) -> torch.Tensor:
         toks = [self.state(state)[:, None]]
         if self.force is not None:
             toks.append(self.force(force)[:, None])
@@ -85,7 +87,7 @@ class ObservationTokens(nn.Module):
                 raise ValueError("this policy observes the privileged object state: batch['objects'] missing")
             toks.append(self.objects(objects)[:, None])
         if self.backbone is not None:
-            toks.append(self.image_tokens(images))
+            toks.append(self.image_tokens(images, blur_sigma))
         return torch.cat(toks, dim=1)
 
 

@@ -17,7 +17,7 @@ import os
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -27,37 +27,11 @@ from policies import checkpoint as C
 from policies.config import PolicyConfig
 from policies.curves import RunLog
 from policies.dataset import PolicyData
-from policies.methods import BLUR_SIGMA0_PX_224, METHODS, blur_sigma
+from policies.methods import BLUR_SIGMA0_PX_224, Method, blur_sigma
 from policies.phases import PHASE_SHORT
-from policies.sampler import DEFAULT_RATIO, FirstSampler
-
-
-@dataclass
-class TrainConfig:
-    steps: int = 0  # optimiser steps; 0: from epochs
-    epochs: float = 20.0  # passes over the training samples (draws per epoch = samples), when steps is 0
-    batch: int = 128  # global batch (all ranks together)
-    lr: float = 3e-4
-    weight_decay: float = 0.05
-    betas: tuple[float, float] = (0.9, 0.95)
-    warmup: int = 500
-    grad_clip: float = 1.0
-    val_every: int = 500
-    ckpt_every: int = 1000
-    log_every: int = 10
-    val_max: int = 1024  # validation samples per evaluation (evenly spaced over the validation episodes)
-    seed: int = 0
-    method: str = "first"
-    ratio: tuple[float, float, float] = DEFAULT_RATIO
-    force: str = "tau_ext"
-    threads: int = 0  # torch threads per process (0: chosen from the free cores, policies.train.pick_threads)
-    ema: bool = True  # keep an exponential moving average of the weights (ema_decay): rollouts use it
-    ema_power: float = 0.75  # EMA decay at step s: min(ema_max, 1 - (1 + s) ** -ema_power) (Diffusion Policy)
-    ema_max: float = 0.9999
-    keep_checkpoints: int = 2  # periodic checkpoints kept (the final one always stays); 0: every one
-
-    def to_dict(self) -> dict:
-        return asdict(self)
+from policies.policy import make_policy
+from policies.run_config import TrainConfig
+from policies.sampler import FirstSampler
 
 
 @dataclass
@@ -99,15 +73,6 @@ def lr_at(step: int, cfg: TrainConfig, total: int) -> float:
         return cfg.lr * (step + 1) / cfg.warmup
     frac = (step - cfg.warmup) / max(1, total - cfg.warmup)
     return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(1.0, frac)))
-
-
-STATE_EPOCHS, STATE_BATCH = 80.0, 256  # the state preset's defaults: the learning curve (docs/first.md) still
-# rose at 8000 steps x 256 on 47 peg-insert demonstrations (~82 passes); images keep 20 passes at 128
-
-
-def default_length(observation: str) -> tuple[float, int]:
-    """(epochs, batch) of a run that names neither: from the learning curve for a state observation."""
-    return (STATE_EPOCHS, STATE_BATCH) if observation == "state" else (20.0, 128)
 
 
 def clamp_schedule(cfg: TrainConfig, total: int) -> tuple[TrainConfig, list[str]]:
@@ -249,6 +214,8 @@ def train(
     data: PolicyData,
     pcfg: PolicyConfig,
     cfg: TrainConfig,
+    method: Method,
+    ratio: tuple[float, float, float],
     run: Path,
     meta: dict,
     d: Dist,
@@ -258,17 +225,17 @@ def train(
     on_progress: Callable[[dict], None] | None = None,
     stop: threading.Event | None = None,
 ) -> dict:
-    """Train; checkpoints and logs in `run` (rank 0 writes). Returns the final metrics. stop_at: leave the
-    loop after that many steps (an interruption, as a kill after a checkpoint would be).
+    """Train; checkpoints and logs in `run` (rank 0 writes). Returns the final metrics. method: its FACTR blur
+    (policies.methods), ratio: the sampler's w_F : w_PC : w_C. stop_at: leave the loop after that many steps
+    (an interruption, as a kill after a checkpoint would be).
 
     For an app driving one process (the terminal UI): on_progress(row) after every step on rank 0, row =
     {"step", "total", "start"} plus the logged losses / validation metrics of that step; stop: when set, the
     loop ends after the current step and writes a checkpoint there (kept for --resume)."""
     n_threads, why_threads = pick_threads(cfg.threads, d.world)
     torch.set_num_threads(n_threads)
-    method = METHODS[cfg.method]
     train_idx, val_idx = data.split()
-    sampler = FirstSampler(data.phase[train_idx], cfg.ratio, cfg.seed, rank=d.rank, world=d.world)
+    sampler = FirstSampler(data.phase[train_idx], ratio, cfg.seed, rank=d.rank, world=d.world)
     total = total_steps(cfg, sampler)
     asked = cfg
     cfg, notes = clamp_schedule(cfg, total)
@@ -276,7 +243,7 @@ def train(
         print(f"torch threads: {why_threads}" + "".join(f"; {n}" for n in notes), flush=True)
     spe = sampler.steps_per_epoch(cfg.batch)
     torch.manual_seed(cfg.seed)  # identical initial weights on every rank
-    model = C.make_model(pcfg).to(d.device)
+    model = make_policy(pcfg).to(d.device)
     decay = [p for n, p in model.named_parameters() if p.ndim >= 2]
     no_decay = [p for n, p in model.named_parameters() if p.ndim < 2]
     opt = torch.optim.AdamW(
@@ -314,7 +281,7 @@ def train(
         from tqdm import tqdm
 
         bar = tqdm(
-            total=total, initial=start, unit="step", dynamic_ncols=True, desc=f"{pcfg.policy}/{cfg.method}"
+            total=total, initial=start, unit="step", dynamic_ncols=True, desc=f"{pcfg.policy}/{method.name}"
         )
     sigma0 = BLUR_SIGMA0_PX_224 * pcfg.image_size / 224.0
     t_last, n_last, last_val = time.perf_counter(), 0, {}
@@ -341,8 +308,8 @@ def train(
         crops = data.pre.image.draw_crops(cfg.batch, gen)[torch.from_numpy(pos)]
         batch = _to(data.batch(train_idx[idx], crops), d.device)
         noise = _to(noise, d.device)
-        if method.blur:
-            model.obs.blur_sigma = blur_sigma(s, total, sigma0)
+        if method.blur:  # a step's input, as its crops: the model reads it from the batch
+            batch["blur_sigma"] = blur_sigma(s, total, sigma0)
         torch.manual_seed(_seed(cfg.seed, s, d.rank))  # dropout
         lr = lr_at(s, cfg, total)
         for g in opt.param_groups:

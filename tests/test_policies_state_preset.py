@@ -114,18 +114,18 @@ def test_state_run_trains_saves_ema_and_rolls_in(state_recordings, tmp_path):
 
 
 def test_default_length_comes_from_the_learning_curve_for_state():
-    from policies.train import default_length
+    from policies.run_config import default_length
 
     assert default_length("state") == (80.0, 256)  # docs/first.md: success still rose at 8000 x 256
     assert default_length("images") == (20.0, 128)  # the paper's 20 epochs
     import argparse
 
-    from factr2_teleop.commands import train as cmd
+    from policies import run_config as R
 
     p = argparse.ArgumentParser()
-    cmd.add_arguments(p)
-    o = cmd._options(p.parse_args(["rec", "--out", "run", "--obs", "state"]))
+    R.add_arguments(p)
+    o = R.from_args(p.parse_args(["rec", "--out", "run", "--obs", "state"]))
     assert (o.train.epochs, o.train.batch, o.preset) == (80.0, 256, "")
     argv = ["rec", "--out", "run", "--obs", "state", "--batch", "64", "--epochs", "3"]
-    o = cmd._options(p.parse_args(argv))
+    o = R.from_args(p.parse_args(argv))
     assert (o.train.epochs, o.train.batch) == (3.0, 64)

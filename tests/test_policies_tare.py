@@ -195,7 +195,7 @@ def test_labels_and_recording_thresholds_use_the_tared_scores(tmp_path):
 
 def test_no_tare_flag_reaches_the_thresholds_and_the_phases_command(tmp_path, capsys):
     from factr2_teleop.cli import main
-    from factr2_teleop.commands.label_args import add_label_arguments, thresholds_arg
+    from policies.label_flags import add_label_arguments, thresholds_arg
     from policies.labelling import LabelChoice
 
     p = argparse.ArgumentParser()

@@ -40,7 +40,7 @@ def test_choices_give_the_paper_defaults_and_run_options(tmp_path):
     c = T.Choices()
     assert (c.policy, c.method, c.ratio_weights(), c.size, c.steps) == ("flow", "first", (1.0, 5.0, 1.0),
                                                                          "small", 0)
-    c.cycle("ratio", T.RATIO_CHOICES)
+    c.cycle("ratio", T.form()["ratio"])
     c.size = "tryout"
     o = T.run_options(c, tmp_path, ["a.mcap#0"], tmp_path / "run")
     assert o.ratio == (1.0, 5.0, 1.0) and o.preset == "small" and o.overrides["hidden"] == 64

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from factr2_teleop.commands.label_args import add_label_arguments, thresholds_arg
 from hardware.recording import episodes as E
+from policies.label_flags import add_label_arguments, thresholds_arg
 
 HELP = "list, show, trim, delete, merge or phase-label recorded episodes"
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from factr2_teleop.commands.label_args import add_label_arguments, thresholds_arg
 from hardware.errors import UserError
 from hardware.recording import schemas as S
+from policies.label_flags import add_label_arguments, thresholds_arg
 
 HELP = "export recorded episodes (with FIRST phases) as a LeRobotDataset v3.0 folder"
 

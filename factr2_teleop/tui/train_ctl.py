@@ -26,7 +26,6 @@ OUTCOME_FILTERS = {
     "success": ("success",),
 }
 DEFAULT_FILTER = next(iter(OUTCOME_FILTERS))
-RATIO_CHOICES = ("default", "PC", "C", "PC+C", "uniform")  # "default": the method's own (first: 1:5:1)
 STEP_CHOICES = (0, 20, 100, 500, 2000, 10000)  # optimiser steps; 0: the default length (policies.train
 # default_length: 20 epochs, the paper's; 80 on a state observation, from the learning curve)
 SIZE_CHOICES = ("small", "paper", "tryout")
@@ -37,6 +36,14 @@ TRYOUT_OVERRIDES = dict(
 TRYOUT_BATCH = 16
 PAPER_CHOICES = "paper: flow or ACT, first 1:5:1, preset paper (hidden 768), 20 epochs, batch 128"
 HISTORY = 400  # logged points kept for the charts
+
+
+def form() -> dict[str, tuple]:
+    """What each of the screen's choices cycles through: the options' own (policies.run_config.form_choices:
+    policy, method, ratio, observation) and the model size."""
+    from policies.run_config import form_choices
+
+    return {**form_choices(), "size": SIZE_CHOICES}
 
 
 def usable(row, outcome_filter: str) -> bool:
@@ -79,8 +86,8 @@ class Choices:
         return METHODS[self.method].ratio if self.ratio == "default" else RATIO_PRESETS[self.ratio]
 
     def describe(self, epoch_steps: int | None = None) -> str:
+        from policies.run_config import default_length
         from policies.sampler import format_ratio
-        from policies.train import default_length
 
         about = f" (~{epoch_steps} steps)" if epoch_steps else ""
         epochs = default_length(self.observation)[0]
@@ -106,7 +113,7 @@ def epoch_steps(rows, chosen: set, choices: Choices) -> int | None:
     """Optimiser steps of 20 epochs over the chosen episodes, estimated from their durations at the policy
     rate of 30 Hz (None: nothing chosen)."""
     from policies.dataset import STATE_RATE_HZ
-    from policies.train import default_length
+    from policies.run_config import default_length
 
     secs = sum(r.duration_s for r in rows if episode_key(r) in chosen and np.isfinite(r.duration_s))
     if secs <= 0:
@@ -118,11 +125,10 @@ def epoch_steps(rows, chosen: set, choices: Choices) -> int | None:
 
 def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Path, threads: int = 0,
                 outcomes: str = DEFAULT_FILTER):
-    """policies.run.RunOptions for these choices (the CLI's `factr2 train` builds the same). `outcomes`: the
-    screen's filter, so that a failed or incomplete episode the user chose is not skipped by the run."""
-    from policies.run import RunOptions
+    """policies.run_config.RunOptions for these choices (the CLI's `factr2 train` builds the same).
+    `outcomes`: the screen's filter, so that a failed or incomplete episode the user chose is not skipped."""
+    from policies.run_config import RunOptions, TrainConfig, default_length
     from policies.sampler import RATIO_PRESETS
-    from policies.train import TrainConfig, default_length
 
     tryout = choices.size == "tryout"
     epochs, batch = default_length(choices.observation)  # state: the learning curve's length
@@ -153,44 +159,14 @@ def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Pa
 
 
 def resume_options(run: Path, recordings: Path, threads: int = 0):
-    """RunOptions that continue the run in `run` (its checkpoint names policy, method, ratio, thresholds,
-    train settings and episodes; the recordings are looked up in `recordings`)."""
+    """RunOptions that continue the run in `run`, read back from its checkpoint (policies.run_config
+    RunOptions.from_meta: policy, method, ratio, thresholds, model, train settings and episodes); the
+    recordings are looked up in `recordings`."""
     from policies import checkpoint as C
-    from policies.config import PolicyConfig
-    from policies.run import RunOptions
-    from policies.train import TrainConfig
+    from policies.run_config import RunOptions
 
-    meta = C.read_meta(run)
-    fixed = ("policy", "n_cameras", "state_dim", "force_dim", "action_dim", "aux_force")
-    overrides = {k: v for k, v in meta["policy"].items() if k not in fixed and k in PolicyConfig().__dict__}
-    tr = dict(meta["train"], threads=threads)
-    tr["betas"] = tuple(tr["betas"])
-    tr["ratio"] = tuple(tr["ratio"])
-    ph = meta.get("phases", {})
-    src = str(ph.get("source", ""))
-    given = ((ph["t_low"], ph["t_high"]) if src == "given" else "recording" if src.startswith("recording")
-             else None)
-    from policies.labelling import LabelChoice
-
-    given = LabelChoice(given, ph.get("tare", "off"))  # a run's meta names its tare only when it used one
-    return RunOptions(
-        inputs=[recordings],
-        out=Path(run),
-        policy=meta["policy"]["policy"],
-        method=meta["method"],
-        ratio=tuple(meta["ratio"]),
-        preset=meta.get("preset", "small"),  # runs before the state preset were all `small`
-        force=meta["force"],
-        thresholds=given,
-        resume=True,
-        progress=False,
-        train=TrainConfig(**tr),
-        overrides=overrides,
-        episodes=tuple(meta["episodes"]),
-        observation=meta.get("observation", "images"),
-        include_failed=bool(meta.get("include_failed", True)),  # runs before the filter used every outcome
-        keep_incomplete=bool(meta.get("keep_incomplete", True)),
-    )
+    o = RunOptions.from_meta(C.read_meta(run), [recordings], Path(run), resume=True, progress=False)
+    return replace(o, train=replace(o.train, threads=threads))
 
 
 @dataclass

@@ -261,13 +261,7 @@ class TrainingScreen(BaseScreen):
         self._apply_filter()
 
     def action_cycle(self, name: str) -> None:
-        from policies.config import POLICIES
-        from policies.methods import METHODS
-        from policies.privileged import OBSERVATIONS
-
-        options = {"policy": POLICIES, "method": METHODS, "ratio": T.RATIO_CHOICES, "size": T.SIZE_CHOICES,
-                   "observation": OBSERVATIONS}
-        value = self.app.train_choices.cycle(name, options[name])
+        value = self.app.train_choices.cycle(name, T.form()[name])
         if name == "size" and value == "tryout":
             self.app.say("size tryout: a tiny model to try the workflow (not a usable policy)")
         self.refresh_view()

@@ -1,5 +1,6 @@
-"""The phase-labelling options shared by `factr2 train`, `factr2 export lerobot` and `factr2 episodes phases`
-(policies.labelling does the work): --next CKPT, --thresholds recording|next|LOW:HIGH and --no-tare."""
+"""The phase-labelling options shared by `factr2 train` (policies.run_config), `factr2 export lerobot` and
+`factr2 episodes phases` (policies.labelling does the work): --next CKPT, --thresholds recording|next|LOW:HIGH
+and --no-tare."""
 
 from __future__ import annotations
 
@@ -7,10 +8,16 @@ from pathlib import Path
 
 from hardware.errors import UserError
 
+NEXT_HELP = "NEXT checkpoint: estimate tau_ext offline from the logged joint states"
+
 
 def add_label_arguments(p) -> None:
-    p.add_argument("--next", type=Path, default=None, metavar="CKPT",
-                   help="NEXT checkpoint: estimate tau_ext offline from the logged joint states")
+    p.add_argument("--next", type=Path, default=None, metavar="CKPT", help=NEXT_HELP)
+    add_threshold_arguments(p)
+
+
+def add_threshold_arguments(p) -> None:
+    """--thresholds and --no-tare (read back by thresholds_arg)."""
     p.add_argument("--thresholds", default=None, metavar="recording|next|LOW:HIGH",
                    help="contact hysteresis on ||tau_ext||_1 [N*m]: LOW:HIGH, or derived: `recording` "
                         "(default: Otsu's split of the recordings' own scores) or `next` (the NEXT "
