@@ -84,10 +84,12 @@ class FirstSampler:
         self.seed, self.rank, self.world = int(seed), int(rank), int(world)
         self.samples_per_epoch = int(samples_per_epoch or len(self.p))
 
-    def global_indices(self, epoch: int) -> np.ndarray:
-        """Every rank's draws for `epoch` together (samples_per_epoch,), the same on every rank."""
+    def global_indices(self, epoch: int, at_least: int = 0) -> np.ndarray:
+        """Every rank's draws for `epoch` together (samples_per_epoch,), the same on every rank; at_least:
+        draw that many when an epoch is shorter (a global batch larger than the data: draws are with
+        replacement, so the batch just repeats samples)."""
         rng = np.random.default_rng([self.seed, int(epoch), 0x51F57])
-        return rng.choice(len(self.p), size=self.samples_per_epoch, replace=True, p=self.p)
+        return rng.choice(len(self.p), size=max(self.samples_per_epoch, at_least), replace=True, p=self.p)
 
     def epoch_indices(self, epoch: int) -> np.ndarray:
         return self.global_indices(epoch)[self.rank :: self.world]
@@ -99,7 +101,7 @@ class FirstSampler:
             raise ValueError(f"global batch {global_batch} is not a multiple of the world size {self.world}")
         lo = step_in_epoch * global_batch
         pos = np.arange(lo + self.rank, lo + global_batch, self.world)
-        return self.global_indices(epoch)[pos], pos - lo
+        return self.global_indices(epoch, lo + global_batch)[pos], pos - lo
 
     def steps_per_epoch(self, global_batch: int) -> int:
         """Whole global batches per epoch (the tail that does not fill one is dropped)."""

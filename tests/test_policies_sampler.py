@@ -62,3 +62,14 @@ def test_bad_ratios_are_refused(bad):
 def test_ratio_zeroing_every_present_phase_is_refused():
     with pytest.raises(ValueError, match="zero weight"):
         S.FirstSampler(np.zeros(10, np.int8), (0.0, 1.0, 1.0))
+
+
+def test_a_batch_larger_than_the_data_repeats_samples():
+    # 60 samples, global batch 256 (the state preset's default): one full batch of draws with replacement
+    s = S.FirstSampler(np.zeros(60, np.int64), seed=1)
+    assert s.steps_per_epoch(256) == 1
+    idx, pos = s.batch(0, 0, 256)
+    assert len(idx) == 256 and (idx < 60).all() and (pos == np.arange(256)).all()
+    assert (s.batch(0, 0, 256)[0] == idx).all()  # deterministic
+    short = S.FirstSampler(np.zeros(600, np.int64), seed=1)
+    assert (short.batch(0, 0, 256)[0] == short.global_indices(0)[:256]).all()  # normal epochs unchanged
