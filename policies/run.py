@@ -11,19 +11,20 @@ from pathlib import Path
 
 import torch
 
+from calibration.next.ident import format_ids
 from hardware.errors import UserError
 from hardware.recording.cache import cache_key
 from hardware.recording.session import software_version
 from policies import checkpoint as C
 from policies.config import default_preset, preset
 from policies.dataset import build_dataset
-from policies.labelling import load_next, resolve_thresholds
+from policies.labelling import load_next, phases_identity, resolve_thresholds
 from policies.methods import METHODS
 from policies.recordings import (
     describe_rig,
     episode_id,
     load_episodes,
-    session_next_checkpoint,
+    session_next_checkpoints,
     skipped_line,
     training_episodes,
 )
@@ -72,11 +73,13 @@ def data_hash(episodes) -> str:
 
 
 def _compare(old: dict, new: dict) -> list[str]:
-    diff = [
-        k
-        for k in RESUME_KEYS
-        if json.dumps(old.get(k), sort_keys=True) != json.dumps(new.get(k), sort_keys=True)
-    ]
+    def same(k: str) -> bool:
+        a, b = old.get(k), new.get(k)
+        if k == "phases":  # the thresholds and their kind of source; the source's message is for people
+            a, b = (phases_identity(x) if isinstance(x, dict) else x for x in (a, b))
+        return json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+
+    diff = [k for k in RESUME_KEYS if not same(k)]
     ot, nt = old.get("train", {}), new.get("train", {})
     diff += [f"train.{k}" for k in RESUME_TRAIN_KEYS if json.dumps(ot.get(k)) != json.dumps(nt.get(k))]
     return diff
@@ -185,7 +188,7 @@ def prepare(o: RunOptions, d: Dist):
     pcfg.observation = o.observation
     pcfg.objects_dim = data.objects.shape[1] if data.objects is not None else 0
     pcfg.aux_force = method.aux_force
-    named_next = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
+    named_next = next((ids for ids in map(session_next_checkpoints, episodes) if ids), ())
     meta = {
         "policy": pcfg.to_dict(),
         "preset": name,
@@ -196,7 +199,7 @@ def prepare(o: RunOptions, d: Dist):
         "observation": o.observation,
         "normalizer": data.norm.to_dict(),
         "phases": th.to_dict(),
-        "next_checkpoint": next_model.id if next_model is not None else named_next,
+        "next_checkpoint": str(next_model.id) if next_model is not None else format_ids(named_next),
         "tau_ext_source": "offline" if next_model is not None else "recorded",
         "data_hash": data_hash(episodes),
         "episodes": data.episode_ids,

@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from factr2_teleop.tui.stops import STOPPED
 from hardware.errors import UserError
+from hardware.reasons import Reason
 
 # which recorded episodes may train (discarded ones never do: policies.recordings leaves them out); the first
 # is the default, `factr2 train`'s: failed and incomplete episodes are skipped unless asked for
@@ -167,10 +169,11 @@ def resume_options(run: Path, recordings: Path, threads: int = 0):
     tr["betas"] = tuple(tr["betas"])
     tr["ratio"] = tuple(tr["ratio"])
     ph = meta.get("phases", {})
-    src = str(ph.get("source", ""))
-    given = ((ph["t_low"], ph["t_high"]) if src == "given" else "recording" if src.startswith("recording")
-             else None)
-    from policies.labelling import LabelChoice
+    from policies.labelling import LabelChoice, ThresholdSource, source_kind
+
+    kind = source_kind(ph)
+    given = ((ph["t_low"], ph["t_high"]) if kind is ThresholdSource.GIVEN
+             else "recording" if kind is ThresholdSource.RECORDING else None)
 
     given = LabelChoice(given, ph.get("tare", "off"))  # a run's meta names its tare only when it used one
     return RunOptions(
@@ -310,7 +313,7 @@ class TrainingRun:
         self.thread = threading.Thread(target=self.run, name="factr2-tui-training", daemon=True)
         self.thread.start()
 
-    def stop(self, why: str = "stopped") -> None:
+    def stop(self, why: Reason = STOPPED) -> None:
         if self.running and not self.stop_event.is_set():
             self.stop_event.set()
             with self._lock:
