@@ -147,7 +147,7 @@ def rollout_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
     if cfg.max_seconds is not None and "max_seconds" in {f.name for f in fields(RolloutOptions)}:
         kw["max_seconds"] = cfg.max_seconds
     t, c = time.perf_counter(), time.process_time()
-    res = run_rollout(RolloutOptions(**kw))
+    res = run_rollout(RolloutOptions(**kw)).to_dict()
     out = {"task": task, "cell": cell, "seed": seed, "success_rate": res["success_rate"],
            "mean_progress": res["mean_progress"], "stage_rates": res.get("stage_rates"),
            "episodes": res.get("episodes"), "timing": res.get("timing"),

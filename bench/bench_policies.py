@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from policies.checkpoint import make_model  # noqa: E402
 from policies.config import preset  # noqa: E402
-from policies.dataset import build_dataset, draw_crops  # noqa: E402
+from policies.dataset import build_dataset  # noqa: E402
 from policies.labelling import Thresholds  # noqa: E402
 from policies.recordings import load_episodes  # noqa: E402
 
@@ -45,10 +45,10 @@ def bench_loader(folder: Path, n_batches: int = 40, batch: int = 128) -> dict:
     idx = np.flatnonzero(np.ones(len(data), bool))
     gen = torch.Generator().manual_seed(0)
     rng = np.random.default_rng(0)
-    data.batch(rng.choice(idx, batch), draw_crops(batch, gen))  # warm the page cache
+    data.batch(rng.choice(idx, batch), data.pre.image.draw_crops(batch, gen))  # warm the page cache
     t = time.perf_counter()
     for _ in range(n_batches):
-        data.batch(rng.choice(idx, batch), draw_crops(batch, gen))
+        data.batch(rng.choice(idx, batch), data.pre.image.draw_crops(batch, gen))
     dt = time.perf_counter() - t
     return {
         "samples_per_s": n_batches * batch / dt,

@@ -63,7 +63,7 @@ def rollout_checkpoint(a: dict, step: int, ema: bool) -> dict:
         return json.loads(done.read_text())
     c = time.process_time()
     res = run_rollout(RolloutOptions(rig=RIG, policy=ck, task=a["task"], episodes=a["rollouts"],
-                                     seed=CURVE_SEED, record=None, progress=False, ema=ema))
+                                     seed=CURVE_SEED, record=None, progress=False, ema=ema)).to_dict()
     eps = res.get("episodes") or []
     out = {"step": step, "ema": ema, "success": [int(e.get("outcome") == "success") for e in eps],
            "progress": [float(e.get("progress", 0.0)) for e in eps], "stage_rates": res.get("stage_rates"),

@@ -160,7 +160,7 @@ def rollout_part(run: str, task: str, k0: int, n: int, max_seconds: float | None
     base = shift_episode_seeds(k0)
     t, c = time.perf_counter(), time.process_time()
     res = run_rollout(RolloutOptions(rig=RIG, policy=Path(run), task=task, episodes=n, seed=EVAL_SEED,
-                                     record=None, progress=False, max_seconds=max_seconds))
+                                     record=None, progress=False, max_seconds=max_seconds)).to_dict()
     for e in res["episodes"]:
         e["index"] = int(e["index"]) + k0
         want = base(EVAL_SEED, e["index"])

@@ -33,7 +33,7 @@ TARGETS = [
     ("factr2_teleop.teleop.loop", "TeleopLoop", "_tick_all", "app: loop shell, hooks"),
     ("factr2_teleop.session.rollout_pair", "RolloutPair", "tick", "app: rollout pair (bookkeeping)"),
     ("factr2_teleop.teleop.pair", "ArmPair", "_tick_estimator", "NEXT estimator"),
-    ("factr2_teleop.session.rollout_pair", "PolicyTarget", "__call__", "app: chunk schedule, homing"),
+    ("factr2_teleop.session.rollout_pair", "PolicyTarget", "_target", "app: chunk schedule, homing"),
     ("factr2_teleop.session.rollout_pair", "PolicyTarget", "observation", "policy: observation (+ objects)"),
     ("policies.rollout.runner", "PolicyRunner", "infer", "policy: inference"),
     ("factr2_teleop.session.rollout_episodes", "TwinRollout", "on_tick", "task: episodes, stage detection"),
@@ -73,7 +73,7 @@ def main() -> int:
     c0 = time.process_time()
     res = run_rollout(RolloutOptions(rig="sim-piper", policy=Path(args.policy), task=args.task,
                                      episodes=args.episodes, seed=args.seed, max_seconds=args.max_seconds,
-                                     record=None, progress=False, **kw))
+                                     record=None, progress=False, **kw)).to_dict()
     cpu_total = time.process_time() - c0
     ticks = split.calls.get("app: loop shell, hooks", 0)
     rows = sorted(split.excl.items(), key=lambda kv: -kv[1])

@@ -179,6 +179,19 @@ class Follower(Device):
         self._to_wire(self.safety.follower_hold(now, self._last_state.q, reason), now)
 
 
+def make_safe(leaders, followers, reason: Reason | str) -> list[str]:
+    """The safe state of every arm given: each leader at zero torque, each follower on hold (its safe
+    state), every one attempted even when another fails. Returns one line per arm that failed ("" none)."""
+    problems = []
+    for act, devices in (("zero_torque", leaders), ("hold", followers)):
+        for d in devices:
+            try:
+                getattr(d, act)(reason)
+            except Exception as e:  # noqa: BLE001 -- the other arms must still be made safe
+                problems.append(f"{d.name}: {e}")
+    return problems
+
+
 class WatchdogThread(threading.Thread):
     """Checks devices' watchdogs every period_s [s] of wall time (real-time rigs only)."""
 

@@ -1,5 +1,5 @@
 """Policy checkpoints: RUN/checkpoints/step-NNNNNNN.safetensors (weights, no pickle) + .json (policy config,
-train config, method, features, normaliser, phase thresholds, NEXT checkpoint id, data hash, rig and arm,
+train config, method, features, preprocess, phase thresholds, NEXT checkpoint id, data hash, rig and arm,
 software version, metrics) + .optim.safetensors (AdamW moments: what `--resume` needs to continue exactly).
 RUN/checkpoints/last names the newest complete one (written last, so a crash never points at half a file).
 """
@@ -15,7 +15,7 @@ from safetensors.torch import load_file, save_file
 
 from hardware.errors import ConfigError, UserError
 from policies.config import PolicyConfig
-from policies.normalizer import Normalizer
+from policies.preprocess import Preprocess
 
 FORMAT = "factr2-policy/1"
 KEEP = 2  # older periodic checkpoints beyond this many are removed (the final one always stays)
@@ -115,8 +115,8 @@ def read_meta(path: Path) -> dict:
     return meta
 
 
-def load_policy(path, ema: bool = True) -> tuple[torch.nn.Module, dict, Normalizer]:
-    """(model in eval mode, checkpoint JSON, normaliser) from a RUN folder or a step-*.json. ema: the moving
+def load_policy(path, ema: bool = True) -> tuple[torch.nn.Module, dict, Preprocess]:
+    """(model in eval mode, checkpoint JSON, Preprocess) from a RUN folder or a step-*.json. ema: the moving
     average of the weights where the checkpoint has one (meta["weights_used"] says which were loaded)."""
     meta = read_meta(Path(path))
     cfg = PolicyConfig.from_dict(meta["policy"])
@@ -133,7 +133,7 @@ def load_policy(path, ema: bool = True) -> tuple[torch.nn.Module, dict, Normaliz
             where=str(weights),
             fix="the checkpoint is damaged: use an earlier step-*.json",
         ) from None
-    return model.eval(), meta, Normalizer.from_dict(meta["normalizer"])
+    return model.eval(), meta, Preprocess.from_meta(meta)
 
 
 def load_optimizer(opt: torch.optim.Optimizer, json_path: Path) -> None:

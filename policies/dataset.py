@@ -13,7 +13,9 @@ camera rate) with
     phase                      FIRST phase of the tick (policies.phases)
 
 Validation: whole episodes, a deterministic choice per seed. Normalisation: mean/std of the training samples.
-Augmentation: RandomResizedCrop on the training batches (torch, per-sample boxes from the step's generator).
+Normalisation, frame decoding and the RandomResizedCrop augmentation (per-sample boxes from the step's
+generator) are policies.preprocess's, the pipeline a rollout rebuilds from the checkpoint; `batch` assembles
+the inputs with it as a rollout does. A tick is a sample by `valid_samples`, the export's rule too.
 """
 
 from __future__ import annotations
@@ -24,25 +26,20 @@ import numpy as np
 import torch
 
 from hardware.errors import UserError
+from hardware.features import IMAGES, policy_names
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
 from hardware.timeseries import hold_previous
 from policies.frame_cache import camera_frames
 from policies.labelling import NextModel, Thresholds, label_episode
 from policies.normalizer import Normalizer
+from policies.preprocess import ImagePath, Preprocess
 from policies.privileged import OBSERVATIONS, uses_images, uses_objects
-from policies.recordings import ArmSet, episode_id, follower_state_action
+from policies.recordings import ArmSet, episode_id, follower_state_action, recording_features
 
 FORCE_SOURCES = ("tau_ext", "current", "none")
-CROP_SCALE = (0.8, 1.0)  # RandomResizedCrop: area share kept
-CROP_RATIO = (3 / 4, 4 / 3)  # and aspect ratio range
 STATE_RATE_HZ = 30.0  # Hz: policy rate without cameras (`--obs state` on camera-less recordings): the twin
 # rigs' camera rate, so a state policy acts as often as an image policy would
-
-
-def action_prefix(follower: str) -> str:
-    """ "follower" -> "action", "left_follower" -> "left_action" (hardware.features naming)."""
-    return follower[: -len("follower")] + "action" if follower.endswith("follower") else f"{follower}_action"
 
 
 @dataclass
@@ -58,7 +55,7 @@ class FeatureNames:
             "observation.state": self.state,
             "observation.force": self.force,
             "action": self.action,
-            "observation.images": [f"observation.images.{c}" for c in self.cameras],
+            "observation.images": [f"{IMAGES}{c}" for c in self.cameras],
         }
         if self.objects:
             out[S.TASK_OBJECTS_FEATURE] = self.objects
@@ -67,7 +64,7 @@ class FeatureNames:
 
 @dataclass
 class PolicyData:
-    """All samples of a run, concatenated over episodes. Arrays are raw units; normalise with `norm`."""
+    """All samples of a run, concatenated over episodes. Arrays are raw units; `batch` normalises them."""
 
     names: FeatureNames
     state: np.ndarray  # (N, S) float32
@@ -82,8 +79,8 @@ class PolicyData:
     frame_idx: np.ndarray  # (N, M) int64 frame per camera
     episode_ids: list[str]
     rate_hz: float
-    image_size: int
-    norm: Normalizer | None = None
+    pre: Preprocess | None = None  # normaliser (fitted on the training samples) and image path: saved with
+    # the policy (build_dataset sets it)
     val_episodes: list[int] = field(default_factory=list)
     objects: np.ndarray | None = None  # (N, O) float32 privileged object vector, None when not observed
 
@@ -97,7 +94,8 @@ class PolicyData:
 
     def images(self, idx: np.ndarray) -> np.ndarray:
         """(B, M, S, S, 3) uint8 frames of samples `idx`."""
-        out = np.empty((len(idx), len(self.names.cameras), self.image_size, self.image_size, 3), np.uint8)
+        size = self.pre.image.size
+        out = np.empty((len(idx), len(self.names.cameras), size, size, 3), np.uint8)
         recs = self.frame_rec[idx]
         for r in np.unique(recs):
             rows = np.flatnonzero(recs == r)
@@ -106,68 +104,37 @@ class PolicyData:
         return out
 
     def batch(self, idx: np.ndarray, crops: torch.Tensor | None = None) -> dict:
-        """Torch batch of samples `idx`: images uint8 (B, M, S, S, 3) (the model converts them), the rest
-        normalised float32; crops (B, 4) = RandomResizedCrop boxes (draw_crops) or None."""
-        n = self.norm
-        out = {"state": torch.from_numpy(n.norm("state", self.state[idx])),
-               "action": torch.from_numpy(n.norm("action", self.action[idx])),
-               "mask": torch.from_numpy(self.mask[idx]),
-               "phase": torch.from_numpy(self.phase[idx].astype(np.int64))}
-        if self.names.cameras:
-            img = self.images(idx)
-            out["images"] = torch.from_numpy(resized_crop(img, crops.numpy()) if crops is not None else img)
-        if self.objects is not None:
-            out["objects"] = torch.from_numpy(n.norm("objects", self.objects[idx]))
+        """Torch batch of samples `idx`: the model's inputs as a rollout builds them (Preprocess.inputs:
+        images uint8 (B, M, S, S, 3), the rest normalised float32) plus the normalised targets; crops (B, 4)
+        = RandomResizedCrop boxes (ImagePath.draw_crops) or None."""
+        n = self.pre.norm
+        out = self.pre.inputs(self.state[idx], self.force[idx],
+                              self.objects[idx] if self.objects is not None else None,
+                              self.images(idx) if self.names.cameras else None, crops)
+        out.update(action=torch.from_numpy(n.norm("action", self.action[idx])),
+                   mask=torch.from_numpy(self.mask[idx]),
+                   phase=torch.from_numpy(self.phase[idx].astype(np.int64)))
         if self.force.shape[1]:
-            out["force"] = torch.from_numpy(n.norm("force", self.force[idx]))
             out["force_chunk"] = torch.from_numpy(n.norm("force", self.force_chunk[idx]))
         return out
 
 
-def draw_crops(batch: int, gen: torch.Generator) -> torch.Tensor:
-    """RandomResizedCrop boxes (B, 4): centre x, centre y, width, height as fractions of the image."""
-    u = torch.rand(batch, 4, generator=gen, dtype=torch.float64)
-    area = CROP_SCALE[0] + u[:, 0] * (CROP_SCALE[1] - CROP_SCALE[0])
-    log_r = np.log(CROP_RATIO[0]) + u[:, 1] * (np.log(CROP_RATIO[1]) - np.log(CROP_RATIO[0]))
-    r = torch.exp(log_r)
-    w = torch.sqrt(area * r).clamp(max=1.0)
-    h = torch.sqrt(area / r).clamp(max=1.0)
-    cx = w / 2 + u[:, 2] * (1 - w)
-    cy = h / 2 + u[:, 3] * (1 - h)
-    return torch.stack([cx, cy, w, h], dim=1)
+def latest_frame(frame_t: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Index of each tick's latest frame at or before it (1 us tolerance: frame times come from ns log
+    times), -1 before the first frame."""
+    return np.searchsorted(frame_t, grid + 1e-6, side="right") - 1
 
 
-_POOL = None
-
-
-def _crop_pool():
-    """Threads for the crops: PIL releases the GIL while it resamples."""
-    global _POOL
-    if _POOL is None:
-        import os
-        from concurrent.futures import ThreadPoolExecutor
-
-        _POOL = ThreadPoolExecutor(max_workers=min(4, os.cpu_count() or 1), thread_name_prefix="crop")
-    return _POOL
-
-
-def resized_crop(img: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """Crop each sample's box (the same for all its cameras) and resize it back to the full size, bilinear
-    (PIL, one C call per image, on a few threads: ~10x faster here than grid_sample or fancy indexing on
-    the whole batch). img (B, M, H, W, 3) uint8; boxes (B, 4) from draw_crops."""
-    from PIL import Image
-
-    b, m, h, w, _ = img.shape
-    out = np.empty_like(img)
-
-    def one(i: int) -> None:
-        cx, cy, bw, bh = (float(v) for v in boxes[i])
-        box = ((cx - bw / 2) * w, (cy - bh / 2) * h, (cx + bw / 2) * w, (cy + bh / 2) * h)
-        for k in range(m):
-            out[i, k] = np.asarray(Image.fromarray(img[i, k]).resize((w, h), Image.BILINEAR, box=box))
-
-    list(_crop_pool().map(one, range(b)))
-    return out
+def valid_samples(state: np.ndarray, action: np.ndarray, objects: np.ndarray | None = None,
+                  frame_idx: np.ndarray | None = None) -> np.ndarray:
+    """The one rule for a usable tick (training samples and exported rows): finite state and action,
+    finite PRIVILEGED objects when observed, and a frame of every camera (frame_idx (N, M) >= 0)."""
+    ok = np.isfinite(state).all(1) & np.isfinite(action).all(1)
+    if objects is not None:
+        ok &= np.isfinite(objects).all(1)
+    if frame_idx is not None:
+        ok &= (frame_idx >= 0).all(1)
+    return ok
 
 
 def camera_rate(episodes: list[Episode], cameras: list[str]) -> float:
@@ -217,17 +184,16 @@ def _episode_samples(
     state, action = np.concatenate(state, axis=1), np.concatenate(action, axis=1)
     fvals = np.concatenate(force_parts, axis=1) if force_parts else np.zeros((len(grid), 0))
     fvals = np.nan_to_num(fvals)  # NEXT's first window (offline) has no estimate yet: 0 N*m
-    ok = np.isfinite(state).all(1) & np.isfinite(action).all(1)
+    ovals = None
     if objects:  # the latest vector at or before each tick, as a live policy has it (NaN before the first)
         ob = ep.topic(S.TOPIC_TASK_OBJECTS)
         ovals = hold_previous(ob.t, ob.fields["objects"], grid)  # all NaN when the episode has none
-        ok &= np.isfinite(ovals).all(1)
     fidx = (
-        np.stack([np.searchsorted(rec_frames_t[c], grid + 1e-6, side="right") - 1 for c in cams], axis=1)
+        np.stack([latest_frame(rec_frames_t[c], grid) for c in cams], axis=1)
         if cams
         else np.zeros((len(grid), 0), np.int64)
     )
-    ok &= (fidx >= 0).all(1)
+    ok = valid_samples(state, action, ovals, fidx)
     if ok.sum() < 1:
         return None
     keep = np.flatnonzero(ok)
@@ -279,7 +245,8 @@ def build_dataset(
         )
     object_names = _object_names(recs) if uses_objects(observation) else []
     rate = rate_hz or (camera_rate(episodes, cams or common) if (cams or common) else STATE_RATE_HZ)
-    frames = [{c: camera_frames(r, c, image_size, progress) for c in cams} for r in recs]
+    image = ImagePath.from_recordings(recs, cams, image_size)  # the frames' encoding: rollout repeats it
+    frames = [{c: camera_frames(r, c, image.size, progress) for c in cams} for r in recs]
     frames_t = [{c: r.frames(c).t for c in cams} for r in recs]
     parts, ids = [], []
     for ep in episodes:
@@ -300,23 +267,9 @@ def build_dataset(
         )
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     n_f = cat["force"].shape[1]
-    names = FeatureNames(
-        state=[n for a in arms.followers for n in (f"{a}.joint.pos", f"{a}.gripper.pos")],
-        force=(
-            [f"{a}.joint.tau_ext" for a in arms.followers]
-            if force == "tau_ext"
-            else [f"{a}.joint.current" for a in arms.followers]
-            if force == "current"
-            else []
-        ),
-        action=[
-            n
-            for a in arms.followers
-            for n in (f"{action_prefix(a)}.joint.pos", f"{action_prefix(a)}.gripper.pos")
-        ],
-        cameras=list(cams),
-        objects=object_names,
-    )
+    io = policy_names(recording_features(recs[0]), list(arms.followers), force)  # the one schema's names
+    names = FeatureNames(state=io["state"], force=io["force"], action=io["action"], cameras=list(cams),
+                         objects=object_names)
     n_val = int(round(val_fraction * len(ids))) if len(ids) >= 2 else 0
     n_val = min(max(n_val, 1 if val_fraction > 0 and len(ids) >= 2 else 0), len(ids) - 1)
     val = sorted(np.random.default_rng([seed, 0xE915]).permutation(len(ids))[:n_val].tolist())
@@ -334,7 +287,6 @@ def build_dataset(
         cat["frame_idx"],
         ids,
         float(rate),
-        int(image_size),
         val_episodes=val,
         objects=cat["objects"].astype(np.float32) if object_names else None,
     )
@@ -343,7 +295,7 @@ def build_dataset(
               "force": data.force[train_idx]}
     if data.objects is not None:
         groups["objects"] = data.objects[train_idx]
-    data.norm = Normalizer.fit(groups)
+    data.pre = Preprocess(Normalizer.fit(groups), image)
     return data
 
 

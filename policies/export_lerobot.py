@@ -10,7 +10,7 @@
 Rows are sampled at `fps` from each episode's start. Default fps: the first camera's nominal rate from the
 rig file, checked against the frame timestamps (a warning when they differ by more than 10 %); without
 cameras (`factr2 collect --no-cameras`) the policies' state-only rate, 30 Hz. Every row has
-observation.state (follower joints [rad] + gripper [m]), observation.tau_ext [N*m] (recorded or NEXT
+observation.state (follower joints [rad] + gripper [m]), observation.force = tau_ext [N*m] (recorded or NEXT
 offline), action (the commanded joint targets + gripper), phase (FIRST: 0 free, 1 pre-contact, 2 contact),
 the images (the latest frame of each camera at the row's time; none in a state-only dataset), on twin task
 recordings observation.state.objects (PRIVILEGED, SIMULATED: the task objects' state, labelled so in
@@ -28,10 +28,11 @@ from pathlib import Path
 import numpy as np
 
 from hardware.errors import UserError
+from hardware.features import OBS_FORCE, action_of
 from hardware.recording import schemas as S
 from hardware.recording.reader import interp_linear
 from hardware.timeseries import hold_previous
-from policies.dataset import STATE_RATE_HZ, action_prefix, camera_rate
+from policies.dataset import STATE_RATE_HZ, camera_rate, latest_frame, valid_samples
 from policies.export_video import VIDEO_PATH, CameraVideo
 from policies.labelling import label_episode
 from policies.phases import PHASE_NAMES
@@ -98,16 +99,14 @@ def _episode_rows(ep, arms, cams, fps, th, next_model, objects: bool):
     rows = {
         "observation.state": np.concatenate(state, 1),
         "action": np.concatenate(action, 1),
-        "observation.tau_ext": np.nan_to_num(interp_linear(lab.t, lab.tau_ext, grid)),
+        OBS_FORCE: np.nan_to_num(interp_linear(lab.t, lab.tau_ext, grid)),
         "phase": lab.at(grid).astype(np.int64),
     }
     if ob is not None:  # the latest vector at or before each row, as a live policy has it
         rows[S.TASK_OBJECTS_FEATURE] = hold_previous(ob.t, ob.fields["objects"], grid)
-    frame_idx = {c: np.searchsorted(ep.recording.frames(c).t, grid + 1e-6, side="right") - 1 for c in cams}
-    ok = np.isfinite(rows["observation.state"]).all(1) & np.isfinite(rows["action"]).all(1)
-    if ob is not None:
-        ok &= np.isfinite(rows[S.TASK_OBJECTS_FEATURE]).all(1)
-    ok &= np.all([frame_idx[c] >= 0 for c in cams], axis=0) if cams else True
+    frame_idx = {c: latest_frame(ep.recording.frames(c).t, grid) for c in cams}
+    ok = valid_samples(rows["observation.state"], rows["action"], rows.get(S.TASK_OBJECTS_FEATURE),
+                       np.stack([frame_idx[c] for c in cams], axis=1) if cams else None)
     # LeRobot needs timestamps on the fps grid from 0: keep the longest valid run from the start
     first_bad = int(np.argmin(ok)) if not ok.all() else len(ok)
     keep = slice(0, first_bad)
@@ -131,8 +130,8 @@ def _names(arms, objects: list[str]) -> dict:
         "observation.state": [n for a, j in zip(arms.followers, arms.joint_names)
                               for n in [f"{a}.{x}" for x in j] + [f"{a}.gripper"]],
         "action": [n for a, j in zip(arms.followers, arms.joint_names)
-                   for n in [f"{action_prefix(a)}.{x}" for x in j] + [f"{action_prefix(a)}.gripper"]],
-        "observation.tau_ext": [f"{a}.{x}" for a, j in zip(arms.followers, arms.joint_names) for x in j],
+                   for n in [f"{action_of(a)}.{x}" for x in j] + [f"{action_of(a)}.gripper"]],
+        OBS_FORCE: [f"{a}.{x}" for a, j in zip(arms.followers, arms.joint_names) for x in j],
     }
     if objects:
         out[S.TASK_OBJECTS_FEATURE] = list(objects)

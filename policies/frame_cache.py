@@ -3,33 +3,27 @@ folder, not beside the recording: derived_dir(RECORDING, "policy-frames")/<camer
 3) and its key (the MCAP's size, mtime and head/tail hash, as the array cache uses). Training reads it
 memory-mapped: never a JPEG decode per sample.
 
-Frames are resized to size x size whole (the aspect ratio is not kept: the full field of view stays in the
-image; RandomResizedCrop then works on that). Written to a temporary name and renamed: never half a cache.
+Frames are decoded by policies.preprocess.decode_resized, the one decode a rollout's live frames go through
+too (size x size whole: the aspect ratio is not kept, the full field of view stays in the image;
+RandomResizedCrop then works on that). Written to a temporary name and renamed: never half a cache.
 """
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import tempfile
 from pathlib import Path
 
 import numpy as np
-from PIL import Image
 
 from hardware.recording.cache import cache_key, derived_dir
 from hardware.recording.reader import Recording
+from policies.preprocess import decode_resized
 
 
 def cache_folder(path: Path) -> Path:
     return derived_dir(path, "policy-frames")  # the user's cache folder, not their data folder
-
-
-def decode_resized(jpeg: bytes, size: int) -> np.ndarray:
-    im = Image.open(io.BytesIO(jpeg))
-    im.draft("RGB", (size, size))  # JPEG DCT scaling: decode at the smallest scale still >= size
-    return np.asarray(im.convert("RGB").resize((size, size), Image.BILINEAR))
 
 
 def camera_frames(rec: Recording, camera: str, size: int, progress=None) -> np.ndarray:

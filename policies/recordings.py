@@ -10,7 +10,6 @@ the paper trains on successful demonstrations, and an episode cut off by a kille
 from __future__ import annotations
 
 import json
-import re
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,11 +18,10 @@ import numpy as np
 
 from calibration.next.ident import NextId, parse_ids
 from hardware.errors import UserError
+from hardware.features import POLICY_STATE, Feature, action_of, follower_arms, recorded_features
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, Recording, interp_linear
 from hardware.recording.recover import drop_superseded
-
-_FOLLOWER_JS = re.compile(r"^/((?:\w+_)?follower)/joint_state$")
 
 
 @dataclass(frozen=True)
@@ -83,8 +81,14 @@ def _rig_arm_models(rec: Recording, followers: list[str]) -> list[str]:
     return [models.get(f, models.get("follower", "") if len(followers) == 1 else "") for f in followers]
 
 
+def recording_features(rec: Recording) -> dict[str, Feature]:
+    """The features a recording holds, by flat name (hardware.features: the schema its rig declared)."""
+    return recorded_features(rec.session, rec.topics)
+
+
 def arm_set(rec: Recording) -> ArmSet:
-    followers = sorted(m.group(1) for t in rec.topics if (m := _FOLLOWER_JS.match(t)))
+    topics = set(rec.topics)
+    followers = [a for a in follower_arms(recording_features(rec)) if S.joint_state_topic(a) in topics]
     joints = []
     for f in followers:
         names = rec.joint_names(f)
@@ -211,19 +215,29 @@ def describe_rig(ep: Episode) -> dict:
     }
 
 
-def follower_state_action(ep: Episode, arm: str, grid, purpose: str) -> tuple:
+def feature_on_grid(ep: Episode, feature: Feature, grid) -> np.ndarray:
+    """A recorded feature on the time grid [s], (T, size), by linear interpolation; NaN outside its samples.
+    A scalar (a gripper) that does not report reads 0 (its NaN samples are zeroed first)."""
+    ta = ep.topic(feature.topic)
+    vals = ta.fields[feature.field]
+    if not feature.shape:
+        return interp_linear(ta.t, np.nan_to_num(vals), grid)[:, None]
+    return interp_linear(ta.t, vals, grid)
+
+
+def follower_state_action(ep: Episode, arm: str, grid, purpose: str,
+                          features: dict[str, Feature] | None = None) -> tuple:
     """One follower's state (q + gripper) and action (commanded q + gripper after the safety layer) on the
-    time grid [s]: ((T, J + 1), (T, J + 1)); NaN where a signal is missing. UserError when the episode has no
-    follower command (recorded before the command topic existed): purpose says what it was needed for."""
-    js = ep.topic(S.joint_state_topic(arm))
-    state = np.concatenate([interp_linear(js.t, js.fields["q"], grid),
-                            interp_linear(js.t, np.nan_to_num(js.fields["gripper_pos"]), grid)[:, None]], 1)
-    topic = S.command_topic(arm)
+    time grid [s], read by feature name: ((T, J + 1), (T, J + 1)); NaN where a signal is missing. UserError
+    when the episode has no follower command (recorded before the command topic existed): purpose says what
+    it was needed for."""
+    feats = features if features is not None else recording_features(ep.recording)
+    state = np.concatenate([feature_on_grid(ep, feats[f"{arm}.{k}"], grid) for k in POLICY_STATE], 1)
+    acts = [feats[f"{action_of(arm)}.{k}"] for k in POLICY_STATE]
+    topic = acts[0].topic
     if topic not in ep.recording.topics or len(ep.topic(topic)) < 2:
         raise UserError(f"episode {episode_id(ep)} has no follower command ({topic}): no action to {purpose}",
                         where=str(ep.recording.path),
                         fix="record with `factr2 teleop --record` (factr2 >= the follower-command topic)")
-    cmd = ep.topic(topic)
-    action = np.concatenate([interp_linear(cmd.t, cmd.fields["q"], grid),
-                             interp_linear(cmd.t, np.nan_to_num(cmd.fields["gripper"]), grid)[:, None]], 1)
+    action = np.concatenate([feature_on_grid(ep, f, grid) for f in acts], 1)
     return state, action

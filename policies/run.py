@@ -197,7 +197,7 @@ def prepare(o: RunOptions, d: Dist):
         "force": tcfg.force,
         "features": data.names.to_dict(),
         "observation": o.observation,
-        "normalizer": data.norm.to_dict(),
+        "preprocess": data.pre.to_dict(),  # normaliser + image path: the rollout rebuilds exactly this
         "phases": th.to_dict(),
         "next_checkpoint": str(next_model.id) if next_model is not None else format_ids(named_next),
         "tau_ext_source": "offline" if next_model is not None else "recorded",

@@ -26,7 +26,7 @@ import torch
 from policies import checkpoint as C
 from policies.config import PolicyConfig
 from policies.curves import RunLog
-from policies.dataset import PolicyData, draw_crops
+from policies.dataset import PolicyData
 from policies.methods import BLUR_SIGMA0_PX_224, METHODS, blur_sigma
 from policies.phases import PHASE_SHORT
 from policies.sampler import DEFAULT_RATIO, FirstSampler
@@ -338,7 +338,7 @@ def train(
         noise = {
             key: v[torch.from_numpy(pos)] for key, v in type(model).draw_noise(pcfg, cfg.batch, gen).items()
         }
-        crops = draw_crops(cfg.batch, gen)[torch.from_numpy(pos)]
+        crops = data.pre.image.draw_crops(cfg.batch, gen)[torch.from_numpy(pos)]
         batch = _to(data.batch(train_idx[idx], crops), d.device)
         noise = _to(noise, d.device)
         if method.blur:

@@ -11,17 +11,23 @@ TINY = dict(hidden=32, heads=2, enc_layers=1, dec_layers=1, ff=64, backbone="con
 
 def record_task_session(out: Path, seconds: float = 1.2) -> Path:
     """One episode of `seconds` on task_rig(sim-piper, peg-insert), lockstep, feedback dob, with cameras."""
+    from factr2_teleop.tasks.collect import task_rig
+
+    return record_rig_session(out, task_rig("sim-piper", "peg-insert"), seconds, task="peg-insert")
+
+
+def record_rig_session(out: Path, rig, seconds: float = 1.2, task: str = "") -> Path:
+    """One episode of `seconds` of teleop on a twin rig (name or Rig), lockstep, feedback dob, with its
+    cameras; the arms held still (nobody moves the leaders). Labelled a failure."""
     from factr2_teleop.session.pairs import TeleopOptions
     from factr2_teleop.session.teleop import TeleopSession
-    from factr2_teleop.tasks.collect import task_rig
     from hardware.connect import open_rig
 
-    rig = task_rig("sim-piper", "peg-insert")
     path = Path(out) / "held.mcap"
     with open_rig(rig, clock="lockstep", seed=0) as s:
         ts = TeleopSession(s, TeleopOptions(mode="dob"))
-        rec = ts.record(out, path=path, task="peg-insert")
-        rec.start_episode("peg-insert")
+        rec = ts.record(out, path=path, task=task)
+        rec.start_episode(task)
         try:
             ts.loop.run(duration_s=seconds)
         finally:
@@ -40,3 +46,19 @@ def train_tiny(rec: Path, out: Path, policy: str = "flow", steps: int = 4) -> Pa
                             progress=False, overrides=dict(TINY), train=train, val_fraction=0.0,
                             include_failed=True), Dist())  # the held-still episode is labelled a failure
     return out
+
+
+def tiny_run_on(tmp_path_factory, name: str, record, policy: str = "act", steps: int = 25) -> Path:
+    """A module fixture's tiny policy: record(folder) -> recording, trained `steps` steps (skips without
+    OpenGL: the twin's cameras render)."""
+    import pytest
+
+    try:
+        from hardware.cameras.mujoco_camera import make_renderer  # noqa: F401
+    except Exception:  # pragma: no cover
+        pytest.skip("no OpenGL")
+    import torch
+
+    torch.set_num_threads(1)
+    d = tmp_path_factory.mktemp(name)
+    return train_tiny(record(d), d / "run", policy=policy, steps=steps)

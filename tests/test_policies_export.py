@@ -27,7 +27,7 @@ def test_layout_info_and_stats(exported):
     assert info["total_frames"] == 80
     feats = info["features"]
     assert feats["observation.state"]["shape"] == [7] and feats["action"]["shape"] == [7]
-    assert feats["observation.tau_ext"]["shape"] == [6] and feats["phase"]["dtype"] == "int64"
+    assert feats["observation.force"]["shape"] == [6] and feats["phase"]["dtype"] == "int64"
     assert feats["observation.images.wrist"]["dtype"] == "video"
     assert feats["observation.images.wrist"]["shape"] == [32, 40, 3]
     stats = json.loads((ds / "meta" / "stats.json").read_text())

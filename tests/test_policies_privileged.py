@@ -78,16 +78,16 @@ def test_collected_episode_trains_a_state_policy_without_frames(tmp_path):
                       val_fraction=0.0, progress=False, overrides=tiny,
                       train=TrainConfig(steps=3, batch=8, warmup=1, val_every=3, ckpt_every=3, threads=1))
     run_training(opts, Dist())
-    model, meta, norm = load_policy(run)
+    model, meta, pre = load_policy(run)
     assert meta["observation"] == "state" and meta["policy"]["objects_dim"] == 8
     assert meta["features"]["observation.images"] == [] and len(meta["features"][S.TASK_OBJECTS_FEATURE]) == 8
     assert model.obs.backbone is None  # no image encoder at all
-    assert "objects" in norm.mean and norm.mean["objects"].shape == (8,)
+    assert "objects" in pre.norm.mean and pre.norm.mean["objects"].shape == (8,)
     # the live input the rollout builds: same vector, normalised with the checkpoint's statistics
     task, m, d, params = _live("wipe")
     import torch
 
-    objects = torch.from_numpy(norm.norm("objects", task_state_vector(task, m, d, params)[None]))
+    objects = torch.from_numpy(pre.norm.norm("objects", task_state_vector(task, m, d, params)[None]))
     batch = {"state": torch.zeros(1, 7), "force": torch.zeros(1, 6), "objects": objects}
     noise = type(model).draw_noise(model.cfg, 1, torch.Generator().manual_seed(0))
     chunk = model.predict(batch, noise)

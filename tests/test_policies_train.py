@@ -71,11 +71,11 @@ def test_checkpoint_round_trip_and_tensorboard(recordings, tmp_path):
     torch.set_num_threads(1)
     run = tmp_path / "run"
     run_training(_opts(recordings, run, "flow", steps=6, train={"val_every": 3}), Dist())
-    model, meta, norm = C.load_policy(run)
+    model, meta, pre = C.load_policy(run)
     assert meta["step"] == 6 and meta["final"] and meta["method"] == "first" and meta["ratio"] == [1, 5, 1]
     assert meta["features"]["action"] == ["action.joint.pos", "action.gripper.pos"]
     assert meta["phases"]["t_high"] == 3.0 and len(meta["data_hash"]) == 16
-    assert set(norm.mean) == {"state", "action", "force"}
+    assert set(pre.norm.mean) == {"state", "action", "force"}
     from safetensors.torch import load_file
 
     assert meta["weights_used"] == "ema"  # the moving average is what rollouts get by default

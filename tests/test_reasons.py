@@ -90,8 +90,9 @@ class ScriptedRunner:
 def _rollout_scenario() -> dict:
     from factr2_teleop.session.pairs import TeleopOptions
     from factr2_teleop.session.rollout import RolloutSession
-    from factr2_teleop.session.rollout_pair import PolicyTarget
+    from factr2_teleop.session.rollout_pair import PolicyTarget, TargetArm
     from hardware.connect import open_rig
+    from hardware.features import rig_features
     from hardware.rigs.rig import load_rig
     from policies.rollout.schedule import RECEDING, ChunkSchedule
 
@@ -101,8 +102,10 @@ def _rollout_scenario() -> dict:
         lim = pair.follower.safety.limits
         runner = ScriptedRunner(pair)
         sched = ChunkSchedule(mode=RECEDING, dt=runner.dt, q_min=lim.q_min, q_max=lim.q_max, k_exec=2)
-        target = PolicyTarget(pair, runner, sched, frames=lambda now: {})
-        pair.target_fn = target
+        n = pair.follower.n_joints
+        arm = TargetArm(pair, "follower", slice(0, n), n)  # joints, then the gripper column
+        target = PolicyTarget([arm], runner, sched, rig_features(s.rig), frames=lambda now: {})
+        pair.follow(target.for_pair(0))
         sent, states = [], []
 
         def hook(r):

@@ -52,7 +52,8 @@ def _rollout(run, lean: bool) -> tuple[dict, list, dict]:
         seen["steps_before"] = {n: w.steps for n, w in seen["worlds"].items()}
 
     out = run_rollout(RolloutOptions(rig="sim-piper", policy=run, task="wipe", episodes=2, seed=7,
-                                     max_seconds=0.6, mode="dob", progress=False, on_start=attach, lean=lean))
+                                     max_seconds=0.6, mode="dob", progress=False, on_start=attach,
+                                     lean=lean)).to_dict()
     seen["steps"] = {n: w.steps - seen["steps_before"][n] for n, w in seen.pop("worlds").items()}
     return out, sent, seen
 
@@ -88,6 +89,6 @@ def test_lean_is_the_default_only_when_nothing_records_or_watches(state_runs, tm
     run = state_runs["base"]
     quick = dict(rig="sim-piper", policy=run, task="wipe", episodes=1, seed=7, max_seconds=0.1, mode="dob",
                  progress=False)
-    assert run_rollout(RolloutOptions(**quick))["lean"]
-    assert not run_rollout(RolloutOptions(**quick, record=tmp_path))["lean"]
-    assert not run_rollout(RolloutOptions(**quick, on_start=lambda *a: None))["lean"]
+    assert run_rollout(RolloutOptions(**quick)).lean
+    assert not run_rollout(RolloutOptions(**quick, record=tmp_path)).lean
+    assert not run_rollout(RolloutOptions(**quick, on_start=lambda *a: None)).lean

@@ -17,23 +17,14 @@ from hardware.recording import schemas as S
 from hardware.recording.reader import Recording
 from policies.rollout.runner import PolicyRunner
 from policies.rollout.schedule import STALL_S, Chunk
-from tests.rollout_helpers import record_task_session, train_tiny
+from tests.rollout_helpers import record_task_session, tiny_run_on
 
 pytest.importorskip("mujoco")
 
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
-    try:
-        from hardware.cameras.mujoco_camera import make_renderer  # noqa: F401
-    except Exception:  # pragma: no cover
-        pytest.skip("no OpenGL")
-    import torch
-
-    torch.set_num_threads(1)
-    d = tmp_path_factory.mktemp("rollout")
-    rec = record_task_session(d, seconds=1.2)
-    return train_tiny(rec, d / "run", policy="act", steps=25)
+    return tiny_run_on(tmp_path_factory, "rollout", lambda d: record_task_session(d, seconds=1.2))
 
 
 def _opts(run, **kw):
@@ -43,7 +34,7 @@ def _opts(run, **kw):
 
 
 def test_tiny_policy_rolls_out_through_the_real_drivers_and_records(tiny_run, tmp_path):
-    out = run_rollout(_opts(tiny_run, episodes=2, record=tmp_path))
+    out = run_rollout(_opts(tiny_run, episodes=2, record=tmp_path)).to_dict()
     t = out["timing"]
     assert [e["seed"] for e in out["episodes"]] == [episode_seed(5, 0), episode_seed(5, 1)]
     assert all(e["outcome"] in ("success", "failure") for e in out["episodes"])
@@ -84,7 +75,7 @@ def test_nan_and_far_targets_never_reach_the_motors_outside_the_limits(tiny_run,
         return a
 
     _corrupt(monkeypatch, bad)
-    t = run_rollout(_opts(tiny_run, schedule="receding", k_exec=2))["timing"]
+    t = run_rollout(_opts(tiny_run, schedule="receding", k_exec=2)).timing
     assert t["refused_nonfinite"] >= 2 and t["refused_outside_limits"] >= 2
     assert t["commands_sent"] > 100 and t["command_violations"] == 0  # checked at the wire
     assert t["holds"].get("policy output not finite", 0) >= 1
@@ -109,7 +100,8 @@ def test_a_stalled_policy_holds_within_250_ms(tiny_run, monkeypatch):
 
     monkeypatch.setattr(PolicyRunner, "infer", infer)
     # a chunk each policy step: the stall (0.2 s after the next was due) comes before the 8-step chunk ends
-    out = run_rollout(_opts(tiny_run, schedule="receding", k_exec=1, threaded=True, max_seconds=1.0))
+    out = run_rollout(_opts(tiny_run, schedule="receding", k_exec=1, threaded=True,
+                            max_seconds=1.0)).to_dict()
     t = out["timing"]
     assert t["holds"].get("policy stalled", 0) >= 1
     t_last = max(tt for s, tt in delivered if s <= 3)
@@ -125,7 +117,7 @@ def test_ctrl_c_leaves_the_follower_held_and_the_leader_at_zero_torque(tiny_run,
         return a
 
     _corrupt(monkeypatch, interrupt)
-    out = run_rollout(_opts(tiny_run, max_seconds=2.0))
+    out = run_rollout(_opts(tiny_run, max_seconds=2.0)).to_dict()
     assert out["interrupted"] and out["episodes"] == []
     assert out["timing"]["end_follower_held"] and out["timing"]["end_leader_tau_max_nm"] == 0.0
 
@@ -154,7 +146,9 @@ def test_another_arm_joints_or_cameras_refused_in_one_line(tiny_run, tmp_path, c
 
 def test_the_runner_builds_the_input_training_saw(tiny_run):
     """Live values through PolicyRunner.batch == the training batch of the same tick (names, order,
-    normaliser; frames resized from the full image as the frame cache does, JPEG decoding aside)."""
+    normaliser). The live frames here are the recorded JPEGs decoded (the twin's raw frames are not kept),
+    so the rollout's encode is a second JPEG pass: near, not equal; tests/test_policies_preprocess.py sends
+    the raw frame through both paths and gets the same tensor."""
     from policies.dataset import build_dataset
     from policies.labelling import Thresholds
     from policies.recordings import load_episodes

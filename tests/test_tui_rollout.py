@@ -91,7 +91,7 @@ def test_record_train_rollout_then_estop(tmp_path):
             await pilot.press("space")
             assert await wait_for(pilot, lambda: app.rollout.snapshot().status == "E-STOPPED", 60)
             assert app.rollout.snapshot().held_at_estop is True
-            timing = app.rollout.result["timing"]
+            timing = app.rollout.result.timing
             assert timing["end_follower_held"] is True  # a hold was the last command the twin got
             assert await wait_for(pilot, lambda: "E-STOPPED" in screen_text(app))
             assert app.runtime.activity is None

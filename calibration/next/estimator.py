@@ -77,12 +77,15 @@ def carried_tolerance(ck: NextCheckpoint) -> np.ndarray | None:
 class NextEstimator:
     def __init__(self, ck: NextCheckpoint, ema_alpha: float | None = None, ood_margin: float = 0.1,
                  defer: bool = False, parts: int = 4, carried: bool | None = None, audits: int = 3,
-                 audit_tol: np.ndarray | float | None = None):
+                 audit_tol: np.ndarray | float | None = None, source: tuple[str, str] | None = None):
         """ema_alpha: optional smoothing of tau_ext, y <- y + alpha (x - y), alpha in (0, 1]. defer: leave
         the exact runs this tick's estimate does not need to work() (each call steps 1/parts of them).
         carried: None = when the checkpoint measured fading memory (carried_allowed), True/False to force;
         audits: exact window runs checking the carried one (one completes every H/audits ticks);
-        audit_tol: per-joint tolerance of that check [checkpoint units] (default carried_tolerance)."""
+        audit_tol: per-joint tolerance of that check [checkpoint units] (default carried_tolerance);
+        source: (checkpoint path, arm) it was loaded from -- what a worker process loads the same estimator
+        from (calibration/next/worker.py), None when built from a checkpoint in memory."""
+        self.source = source
         if ema_alpha is not None and not 0.0 < ema_alpha <= 1.0:
             raise ValueError("ema_alpha must be in (0, 1]")
         self.ck = ck

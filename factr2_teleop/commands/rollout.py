@@ -12,6 +12,10 @@ import json
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from factr2_teleop.session.rollout_report import RolloutResult
 
 HELP = "roll a trained policy out on a rig (twin or real): episodes, success, stages, timing"
 
@@ -45,19 +49,19 @@ def add_arguments(parser) -> None:
     parser.add_argument("--json", type=Path, default=None, help="write the summary JSON here")
 
 
-def summary_lines(out: dict) -> list[str]:
-    t = out["timing"]
-    sim = " (SIMULATED)" if out["simulated"] else ""
-    lines = [f"rollout of {out['policy']} on {out['rig']}{sim}, task {out['task'] or '(operator-marked)'}, "
-             f"seed {out['seed']}, schedule {out['schedule']}, feedback {out['feedback_mode']}"]
-    if out.get("note"):
-        lines.append(f"note: {out['note']}")
-    n = len(out["episodes"])
-    ok = sum(e["outcome"] == "success" for e in out["episodes"])
-    lines += [f"{'episodes':>26s}  {n}" + ("  (interrupted)" if out["interrupted"] else ""),
-              f"{'success rate':>26s}  {ok} / {n} = {100 * out['success_rate']:.1f} %",
-              f"{'mean task progress':>26s}  {out['mean_progress']:.2f}"]
-    for s, r in out["stage_rates"].items():
+def summary_lines(out: RolloutResult) -> list[str]:
+    t = out.timing
+    sim = " (SIMULATED)" if out.simulated else ""
+    lines = [f"rollout of {out.policy} on {out.rig}{sim}, task {out.task or '(operator-marked)'}, "
+             f"seed {out.seed}, schedule {out.schedule}, feedback {out.feedback_mode}"]
+    if out.note:
+        lines.append(f"note: {out.note}")
+    n = len(out.episodes)
+    ok = sum(e["outcome"] == "success" for e in out.episodes)
+    lines += [f"{'episodes':>26s}  {n}" + ("  (interrupted)" if out.interrupted else ""),
+              f"{'success rate':>26s}  {ok} / {n} = {100 * out.success_rate:.1f} %",
+              f"{'mean task progress':>26s}  {out.mean_progress:.2f}"]
+    for s, r in out.stage_rates.items():
         lines.append(f"{'stage ' + s:>26s}  {100 * r:.0f} % reached")
     lines += [f"{'loop':>26s}  {t['loop_rate_hz']:.1f} Hz (target {t['loop_target_hz']:.0f}), period "
               f"p99 {t['period_p99_ms']:.2f} ms, max {t['period_max_ms']:.2f} ms, {t['overruns']} overruns / "
@@ -69,9 +73,9 @@ def summary_lines(out: dict) -> list[str]:
               f"{'commands':>26s}  {t['commands_sent']} sent, {t['command_violations']} outside the "
               f"limits at the wire; chunks refused: {t['refused_nonfinite']} non-finite, "
               f"{t['refused_outside_limits']} outside the limits; holds {_holds(t['holds'])}",
-              f"{'wall time':>26s}  {out['wall_s']:.0f} s"]
-    if out.get("recording"):
-        lines.append(f"{'recording':>26s}  {out['recording']}")
+              f"{'wall time':>26s}  {out.wall_s:.0f} s"]
+    if out.recording:
+        lines.append(f"{'recording':>26s}  {out.recording}")
     return lines
 
 
@@ -133,5 +137,5 @@ def run(args) -> int:
     for line in summary_lines(out):
         print(line)
     if args.json is not None:
-        args.json.write_text(json.dumps(out, indent=1, default=float))
-    return 130 if out["interrupted"] else 0
+        args.json.write_text(json.dumps(out.to_dict(), indent=1, default=float))
+    return 130 if out.interrupted else 0

@@ -103,9 +103,7 @@ def load_next(path: str | Path, arm: str):
     if not p.is_file():
         raise UserError(f"NEXT checkpoint {p} not found", where="NEXT checkpoint",
                         fix="run `factr2 calibrate` (or the Calibration screen) first, or pick another mode")
-    est = NextEstimator(load_checkpoint(p, arm=arm), defer=True)
-    est.source = (str(p), arm)  # what a worker process loads the same estimator from (pair_estimator)
-    return est
+    return NextEstimator(load_checkpoint(p, arm=arm), defer=True, source=(str(p), arm))
 
 
 def pair_estimator(mode: str, session, fspec, follower, opts: TeleopOptions, rate_hz: float, next_est=None):
@@ -122,7 +120,7 @@ def pair_estimator(mode: str, session, fspec, follower, opts: TeleopOptions, rat
                             fix="pass --checkpoint DIR/next.json (from `factr2 calibrate`) or set "
                                 "next_checkpoint in the rig")
         next_est = load_next(ck, fspec.arm)
-    if mode == "next" and opts.next_worker and session.clock.realtime and hasattr(next_est, "source"):
+    if mode == "next" and opts.next_worker and session.clock.realtime and getattr(next_est, "source", None):
         from calibration.next.worker import NextWorker
 
         return NextWorker.of(next_est, follower.n_joints, 1.0 / rate_hz)
@@ -165,7 +163,6 @@ def build_pairs(session, opts: TeleopOptions, next_estimators: dict | None = Non
         cfg = pair_config(tables[name], mode, opts, where=f"{rig.path}: [teleop] {name}")
         est = pair_estimator(mode, session, fspec, follower, opts, rate, (next_estimators or {}).get(fname))
         grav, jac = arm_model_fns(lspec.arm, leader_gravity_file(rig, lname))  # identified g(q), if any
-        pair = pair_class(leader, follower, cfg, 1.0 / rate, gravity_fn=grav, jacobian_fn=jac, estimator=est)
-        pair.mode = mode
-        pairs.append(pair)
+        pairs.append(pair_class(leader, follower, cfg, 1.0 / rate, gravity_fn=grav, jacobian_fn=jac,
+                                estimator=est, mode=mode))
     return pairs

@@ -19,7 +19,7 @@ import numpy as np
 from factr2_teleop.teleop.record import TickRecord
 from hardware import sim_cpu
 from hardware.errors import UserError
-from hardware.features import arm_prefix
+from hardware.features import arm_prefix, features_json, rig_features
 from hardware.recording.arm_tick import record_arm_tick
 
 TRUTH_EVERY = 5  # ticks between ground-truth samples (each the mean over those ticks): 100 Hz at 500 Hz
@@ -89,6 +89,7 @@ class SessionRecording:
                 arms.append(arm.mjcf_path)
         meta = describe_session(rig_path=rig.path, arm_files=arms, next_checkpoint=next_checkpoint, task=task,
                                 twin=session.twin is not None)
+        meta["features"] = features_json(rig_features(rig))  # the one schema: what the file holds, by name
         meta.update({k: str(v) for k, v in (extra_meta or {}).items()})
         if session.cameras and start_cameras is not None:
             meta["cameras"] = ",".join(session.cameras)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import Counter
 from dataclasses import asdict, dataclass
 from enum import Enum
 from pathlib import Path
@@ -29,14 +30,17 @@ import numpy as np
 from calibration.next.ident import json_path, parse_ids
 from factr2_teleop.session.pairs import TeleopOptions
 from factr2_teleop.session.rollout_episodes import MarkedRollout, TwinRollout, episode_line
-from factr2_teleop.session.rollout_pair import FRAME_MAX_AGE_S, RUN, PolicyTarget, RolloutPair
+from factr2_teleop.session.rollout_pair import FRAME_MAX_AGE_S, RUN, PolicyTarget, RolloutPair, TargetArm
+from factr2_teleop.session.rollout_report import RolloutResult, WireCheck, timing_summary, wire_summary
 from factr2_teleop.session.teleop import TeleopSession
 from hardware.errors import UserError
+from hardware.features import rig_arm_names, rig_features
 from hardware.reasons import Reason, messages, render
 from policies.rollout.schedule import ACT_ENSEMBLE_M, ENSEMBLE, RECEDING, ChunkSchedule
 
 FRAME_WAIT_S = 5.0  # s (wall): lockstep waits this long at most for a camera's frame of now
 K_EXEC_SHARE = 3  # flow: by default a third of each chunk is executed (10 of 30 steps, 1/3 s at 30 Hz)
+EPISODE_KEYS = ("index", "seed", "outcome", "progress", "stages", "duration_s")  # of each EpisodeResult
 MARK_TIME_LIMIT_S = 60.0  # s: an operator-marked episode without --max-seconds ends unlabelled after this
 
 
@@ -153,7 +157,6 @@ def check_options(opts: RolloutOptions, runner):
     checks a run against the rig with it too."""
     from factr2_teleop.session.task_check import check_task
     from factr2_teleop.tasks.collect import task_rig
-    from hardware.arms import load_arm
     from hardware.rigs.rig import load_rig
     from hardware.sim.tasks import get_task
 
@@ -164,11 +167,7 @@ def check_options(opts: RolloutOptions, runner):
     check_task(runner.meta, opts.task, opts.force)  # another task than the demonstrations': forced only
     if task is not None:
         rig = task_rig(rig, task)  # ConfigError for a real rig or an arm that cannot hold the task
-    if len(rig.pairs) != 1:
-        raise UserError(f"rig {rig.name} has {len(rig.pairs)} arm pairs; rollout drives one",
-                        where=str(rig.path), fix="use a single-arm rig")
-    fspec = rig.device(rig.pairs[0][1])
-    runner.check_arm(fspec.arm, list(load_arm(fspec.arm).joint_names))
+    runner.check_rig(rig_features(rig), rig_follower_arms(rig))
     have = {c.name for c in rig.cameras}
     missing = [c for c in runner.cameras if c not in have]
     if missing:
@@ -186,56 +185,9 @@ def check_options(opts: RolloutOptions, runner):
     return rig, task
 
 
-class WireCheck:
-    """Command observers at the wire (after the safety layer): follower commands sent, those with a joint
-    target outside the limits or not finite (an independent check of the layer: should stay 0), the times
-    the follower went on hold [s], and the last command of each arm (Ctrl-C must end on a follower hold and
-    a zero leader torque)."""
-
-    def __init__(self, limits):
-        self.q_min, self.q_max = np.asarray(limits.q_min), np.asarray(limits.q_max)
-        self._lo, self._hi = self.q_min - 1e-9, self.q_max + 1e-9
-        self.sent = self.violations = 0
-        self.hold_times: list[float] = []  # t_sent of each hold entered
-        self.last_hold = False
-        self.leader_tau = None
-
-    def __call__(self, t_issued, t_sent, safe) -> None:
-        q = np.asarray(safe.q, dtype=float)
-        self.sent += 1
-        if not ((q >= self._lo) & (q <= self._hi)).all():  # NaN fails both comparisons, +-inf one of them
-            self.violations += 1
-        if safe.hold and not self.last_hold:
-            self.hold_times.append(float(t_sent))
-        self.last_hold = bool(safe.hold)
-
-    def leader(self, t_issued, t_sent, safe) -> None:
-        self.leader_tau = np.asarray(safe.tau, dtype=float)
-
-
-def _pct(x, p: float) -> float:
-    return float(np.percentile(x, p)) if len(x) else float("nan")
-
-
-def timing_summary(periods_s, latencies_s, ages_s, realtime: bool, target_hz: float) -> dict:
-    """Loop rate [Hz] and period p99 / max [ms] over the policy's run ticks, chunk latency and action age
-    mean / p99 [ms]. In lockstep, periods and ages are simulated time (latency is wall time)."""
-    p = np.asarray([x for x in periods_s if np.isfinite(x)])
-    lat, age = np.asarray(latencies_s) * 1e3, np.asarray(ages_s) * 1e3
-    return {"clock": "real time" if realtime else "lockstep (simulated time; latency is wall time)",
-            "loop_target_hz": target_hz, "loop_rate_hz": float(1.0 / p.mean()) if len(p) else float("nan"),
-            "period_p99_ms": _pct(p * 1e3, 99),
-            "period_max_ms": float(p.max() * 1e3) if len(p) else float("nan"),
-            "overruns": int(np.sum(p > 1.5 / target_hz)), "ticks": int(len(p)),
-            "chunks": int(len(lat)), "chunk_latency_mean_ms": float(lat.mean()) if len(lat) else float("nan"),
-            "chunk_latency_p99_ms": _pct(lat, 99),
-            "action_age_mean_ms": float(age.mean()) if len(age) else float("nan"),
-            "action_age_p99_ms": _pct(age, 99)}
-
-
-def run_rollout(opts: RolloutOptions) -> dict:
-    """Roll the policy out (blocking); the summary dict (see the module doc and docs/rollout.md). Ctrl-C
-    holds the follower, leaves the leader at zero torque and returns what was done (interrupted: True)."""
+def run_rollout(opts: RolloutOptions) -> RolloutResult:
+    """Roll the policy out (blocking); its RolloutResult (see the module doc and docs/rollout.md). Ctrl-C
+    holds every follower, leaves every leader at zero torque and returns what was done (interrupted)."""
     import torch
 
     from policies.rollout.runner import PolicyRunner
@@ -252,81 +204,124 @@ def run_rollout(opts: RolloutOptions) -> dict:
     mode = "next" if next_path is not None else opts.mode
     if lean and not runner.force_names:
         mode = "none"  # the estimate is an input of the policy and a recorded topic only: nobody reads it
-    plan = {"next_path": next_path, "note": note, "mode": mode, "lean": lean,
-            "realtime": realtime, "threaded": opts.threaded if opts.threaded is not None else realtime,
-            "schedule": opts.schedule or (ENSEMBLE if runner.policy == "act" else RECEDING),
-            "k_exec": opts.k_exec or max(1, runner.cfg.chunk // K_EXEC_SHARE)}
+    plan = RolloutPlan(next_path=next_path, note=note, mode=mode, lean=lean, realtime=realtime,
+                       threaded=opts.threaded if opts.threaded is not None else realtime,
+                       schedule=opts.schedule or (ENSEMBLE if runner.policy == "act" else RECEDING),
+                       k_exec=opts.k_exec or max(1, runner.cfg.chunk // K_EXEC_SHARE))
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # the loop keeps a core of its own; a chunk's work is small (docs/rollout.md)
     try:
-        return _rollout(opts, runner, rig, task, **plan)
+        return _rollout(opts, runner, rig, task, plan)
     finally:
         torch.set_num_threads(threads)
 
 
-def _rollout(opts: RolloutOptions, runner, rig, task, *, next_path, note, mode, lean, realtime, threaded,
-             schedule, k_exec) -> dict:
+@dataclass(frozen=True)
+class RolloutPlan:
+    """What run_rollout decided before any device opens: the NEXT checkpoint (and the note said about it),
+    the estimator mode, lean, real time, inference threaded, the chunk schedule and its k_exec."""
+
+    next_path: Path | None
+    note: Reason | None  # a NextNote reason
+    mode: str | None
+    lean: bool
+    realtime: bool
+    threaded: bool
+    schedule: str
+    k_exec: int
+
+
+def target_arms(ts, runner, layout: dict, task) -> list[TargetArm]:
+    """One TargetArm per pair of the session, in pair order: its recorded arm name (hardware.features),
+    its columns of the action (the runner's layout), its gripper range, and on a twin task the open
+    gripper it homes to."""
+    arms = []
+    for pair, (_p, arm) in zip(ts.pairs, rig_arm_names(ts.session.rig)):
+        q, grip = layout[arm]
+        mc = pair.map.cfg
+        arms.append(TargetArm(pair, arm, q, grip, (mc.gripper_min, mc.gripper_max),
+                              pair.map.gripper_forward(0.0) if task is not None else None))
+    return arms
+
+
+def schedule_limits(arms: list[TargetArm], width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Joint limits [rad] over the whole action vector: each arm's on its joint columns, none (+-inf) on the
+    gripper columns (clamped, never judged): a chunk beyond them is refused (ChunkSchedule)."""
+    lo, hi = np.full(width, -np.inf), np.full(width, np.inf)
+    for a in arms:
+        lim = a.pair.follower.safety.limits
+        lo[a.q], hi[a.q] = lim.q_min, lim.q_max
+    return lo, hi
+
+
+def _episodes(opts: RolloutOptions, ts, task, target: PolicyTarget, stages: tuple):
+    def said(res):
+        if opts.progress:
+            print(episode_line(res, stages), flush=True)
+
+    if task is not None:
+        eps = TwinRollout(ts, task, opts.episodes, opts.seed, target, opts.max_seconds or task.episode_s,
+                          on_episode=said)
+        target.objects = lambda: _objects(eps)
+        return eps
+    return MarkedRollout(ts, target, opts.episodes, stages, opts.max_seconds or MARK_TIME_LIMIT_S, opts.marks,
+                         on_episode=said)
+
+
+def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> RolloutResult:
     from hardware.connect import open_rig
     from hardware.sim.twin import TwinDrivenClock
 
-    schedule_mode = schedule
     t_wall = time.perf_counter()
     interrupted, rec_path = False, None
     # a twin's Dynamixel leader in process (the sdk's packet layer unchanged, no pty and no emulator thread
     # to hand the GIL to), as the demo does: in real time a pty thread costs the loop its p99 period
     transport = "inprocess" if rig.simulated else None
-    with open_rig(rig, clock="realtime" if realtime else "lockstep", seed=opts.seed,
+    with open_rig(rig, clock="realtime" if plan.realtime else "lockstep", seed=opts.seed,
                   dynamixel_transport=transport) as s:
         clock = s.clock
-        if realtime and s.twin is not None:  # the loop's thread steps the twin (as the demo does)
+        if plan.realtime and s.twin is not None:  # the loop's thread steps the twin (as the demo does)
             s.twin.stop_realtime()
             clock = TwinDrivenClock(s.twin)
-        ts = RolloutSession(s, TeleopOptions(mode=mode, checkpoint=str(next_path) if next_path else None),
-                            clock=clock)
-        pair = ts.pairs[0]
-        if lean:  # the passive leader: nothing records or shows it, and the follower's law never reads it
-            pair.serve_leader = False
-            s.twin.set_idle(pair.leader.name)
-        lim = pair.follower.safety.limits
-        sched = ChunkSchedule(mode=schedule_mode, dt=runner.dt, q_min=lim.q_min, q_max=lim.q_max,
-                              m=opts.ensemble_m, k_exec=k_exec)
-        mc = pair.map.cfg
-        grip_open = pair.map.gripper_forward(0.0) if task is not None else None
+        ts = RolloutSession(s, TeleopOptions(mode=plan.mode, checkpoint=str(plan.next_path)
+                                             if plan.next_path else None), clock=clock)
+        features = rig_features(rig)
+        arms = target_arms(ts, runner, runner.check_rig(features, rig_follower_arms(rig)), task)
+        if plan.lean:  # the passive leaders: nothing records or shows them, the followers' law ignores them
+            for pair in ts.pairs:
+                pair.rest_leader()
+                s.twin.set_idle(pair.leader.name)
+        q_min, q_max = schedule_limits(arms, runner.cfg.action_dim)
+        sched = ChunkSchedule(mode=plan.schedule, dt=runner.dt, q_min=q_min, q_max=q_max, m=opts.ensemble_m,
+                              k_exec=plan.k_exec)
         fps = min((c.fps for c in rig.cameras if c.name in runner.cameras), default=30.0)
-        max_age = FRAME_MAX_AGE_S if realtime else 1.0 / fps + 1e-6  # lockstep: the frame due last
+        max_age = FRAME_MAX_AGE_S if plan.realtime else 1.0 / fps + 1e-6  # lockstep: the frame due last
 
         def frames(now):
-            return ts.frames_at(now, runner.cameras, max_age, wait=not realtime)
+            return ts.frames_at(now, runner.cameras, max_age, wait=not plan.realtime)
 
-        target = PolicyTarget(pair, runner, sched, frames=frames,
-                              gripper_range=(mc.gripper_min, mc.gripper_max), gripper_open=grip_open)
-        pair.target_fn = target
+        target = PolicyTarget(arms, runner, sched, features, frames=frames)
+        for i, pair in enumerate(ts.pairs):
+            pair.follow(target.for_pair(i))
         stages = tuple(task.stages) if task is not None else ()
-
-        def said(res):
-            if opts.progress:
-                print(episode_line(res, stages), flush=True)
-
-        if task is not None:
-            eps = TwinRollout(ts, task, opts.episodes, opts.seed, target,
-                              opts.max_seconds or task.episode_s, on_episode=said)
-            target.objects = lambda: _objects(eps)
-        else:
-            eps = MarkedRollout(ts, target, opts.episodes, stages, opts.max_seconds or MARK_TIME_LIMIT_S,
-                                opts.marks, on_episode=said)
+        eps = _episodes(opts, ts, task, target, stages)
+        first = ts.pairs[0].cfg.name  # per-tick hooks see every pair's record: the episode owner ticks once
         periods: list[float] = []
-        ts.hooks.append(eps.on_tick)
-        ts.hooks.append(lambda r: periods.append(r.loop_period_s) if target.state == RUN else None)
-        wire = WireCheck(lim)
-        pair.follower.add_command_observer(wire)
-        pair.leader.add_command_observer(wire.leader)
+        ts.hooks.append(lambda r: eps.on_tick(r) if r.pair == first else None)
+        ts.hooks.append(lambda r: periods.append(r.loop_period_s)
+                        if r.pair == first and target.state == RUN else None)
+        wires = []
+        for pair in ts.pairs:
+            wires.append(WireCheck(pair.follower.safety.limits))
+            pair.follower.add_command_observer(wires[-1])
+            pair.leader.add_command_observer(wires[-1].leader)
         if opts.record is not None:
             tname = task.name if task else ""
             rec = ts.record(opts.record, stem=f"rollout-{tname or rig.name}", task=tname,
                             extra_meta={"simulated": str(s.twin is not None).lower(), "operator": "policy",
                                         "policy": str(runner.path), "rollout_seed": opts.seed})
             rec_path = str(rec.path)
-        runner.start(threaded)
+        runner.start(plan.threaded)
         try:
             # frames only when the policy looks (else the recording starts the cameras with its first episode)
             problems = ts.start_cameras() if runner.cameras else []
@@ -334,9 +329,9 @@ def _rollout(opts: RolloutOptions, runner, rig, task, *, next_path, note, mode, 
                 raise UserError(f"camera problem: {problems[0]}", where=str(rig.path),
                                 fix="check the rig's cameras")
             if opts.progress:
-                head = f"{runner.describe()}\n{ts.describe()[0]}, schedule {schedule_mode}, "
-                print(head + ("real time" if realtime else "lockstep") + (f"\nnote: {note}" if note else ""),
-                      flush=True)
+                head = f"{runner.describe()}\n" + "\n".join(ts.describe()) + f", schedule {plan.schedule}, "
+                print(head + ("real time" if plan.realtime else "lockstep")
+                      + (f"\nnote: {plan.note}" if plan.note else ""), flush=True)
             if opts.on_start is not None:
                 opts.on_start(ts, target, eps)
             if isinstance(clock, TwinDrivenClock):
@@ -347,32 +342,44 @@ def _rollout(opts: RolloutOptions, runner, rig, task, *, next_path, note, mode, 
         finally:
             runner.stop()
             ts.close_recording("rollout interrupted" if interrupted else "")
-        holds = dict(pair.holds)
+        holds = sum((p.holds for p in ts.pairs), Counter())
+        clipped = sum(int(p.follower.safety.clipped) for p in ts.pairs)
+        feedback = ts.pairs[0].mode
     res = eps.results
-    out = {"simulated": rig.simulated, "rig": rig.name, "task": task.name if task else None,
-           "policy": str(runner.path), "policy_kind": runner.policy, "method": runner.meta.get("method"),
-           "schedule": schedule_mode, "k_exec": k_exec if schedule_mode == RECEDING else None,
-           "ensemble_m": opts.ensemble_m if schedule_mode == ENSEMBLE else None, "seed": opts.seed,
-           "feedback_mode": pair.mode, "next": str(next_path) if next_path else None, "note": render(note),
-           "lean": lean,
-           "interrupted": interrupted, "wall_s": time.perf_counter() - t_wall,
-           "episodes": [{k: v for k, v in asdict(r).items() if k in ("index", "seed", "outcome", "progress",
-                                                                    "stages", "duration_s")} for r in res],
-           "success_rate": float(np.mean([r.outcome == "success" for r in res])) if res else 0.0,
-           "mean_progress": float(np.mean([r.progress for r in res])) if res else 0.0,
-           "stage_rates": {s: float(np.mean([r.stages.get(s) is not None for r in res])) if res else 0.0
-                           for s in stages},
-           "recording": rec_path}
-    out["timing"] = timing_summary(periods, runner.latencies_s, target.ages_s, realtime, ts.rate_hz)
-    out["timing"].update({"commands_sent": wire.sent, "command_violations": wire.violations,
-                          "refused_nonfinite": sched.nonfinite,
-                          "refused_outside_limits": sched.outside_limits,
-                          "holds": holds, "targets_clamped": target.clamped,
-                          "safety_clipped": int(pair.follower.safety.clipped),
-                          "end_follower_held": wire.last_hold,
-                          "end_leader_tau_max_nm": float(np.max(np.abs(wire.leader_tau)))
-                          if wire.leader_tau is not None else None})
-    out["timing"]["hold_times_s"] = wire.hold_times[:100]  # when the follower went on hold (loop clock)
+    out = RolloutResult(
+        simulated=rig.simulated, rig=rig.name, task=task.name if task else None, policy=str(runner.path),
+        policy_kind=runner.policy, method=runner.meta.get("method"), schedule=plan.schedule,
+        k_exec=plan.k_exec if plan.schedule == RECEDING else None,
+        ensemble_m=opts.ensemble_m if plan.schedule == ENSEMBLE else None, seed=opts.seed,
+        feedback_mode=feedback, next=str(plan.next_path) if plan.next_path else None, note=render(plan.note),
+        lean=plan.lean, interrupted=interrupted, wall_s=time.perf_counter() - t_wall,
+        episodes=[{k: v for k, v in asdict(r).items() if k in EPISODE_KEYS} for r in res],
+        success_rate=float(np.mean([r.outcome == "success" for r in res])) if res else 0.0,
+        mean_progress=float(np.mean([r.progress for r in res])) if res else 0.0,
+        stage_rates={s: float(np.mean([r.stages.get(s) is not None for r in res])) if res else 0.0
+                     for s in stages},
+        recording=rec_path, arms=[a.arm for a in arms])
+    wire = wire_summary(wires)
+    out.timing = timing_summary(periods, runner.latencies_s, target.ages_s, plan.realtime, ts.rate_hz)
+    out.timing.update({"commands_sent": wire["commands_sent"],
+                       "command_violations": wire["command_violations"],
+                       "refused_nonfinite": sched.nonfinite, "refused_outside_limits": sched.outside_limits,
+                       "holds": dict(holds), "targets_clamped": target.clamped, "safety_clipped": clipped,
+                       "end_follower_held": wire["end_follower_held"],
+                       "end_leader_tau_max_nm": wire["end_leader_tau_max_nm"],
+                       "hold_times_s": wire["hold_times_s"]})  # when a follower went on hold (loop clock)
+    return out
+
+
+def rig_follower_arms(rig) -> dict[str, tuple[str, list[str]]]:
+    """The rig's follower arms by recorded name: (arm model, joint names): what a policy is checked
+    against."""
+    from hardware.arms import load_arm
+
+    out = {}
+    for (_lead, fol), (_p, arm) in zip(rig.pairs, rig_arm_names(rig)):
+        spec = rig.device(fol)
+        out[arm] = (spec.arm, list(load_arm(spec.arm).joint_names))
     return out
 
 

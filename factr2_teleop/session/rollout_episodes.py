@@ -67,6 +67,11 @@ class MarkedRollout:
         self._state, self._t_state, self._ep = "wait", float("nan"), -1
         self._reached: dict = {}
 
+    @property
+    def reached(self) -> dict[str, float]:
+        """The stages marked reached in the running episode: name -> time since its start [s]."""
+        return dict(self._reached)
+
     def _key(self) -> str | None:
         q = self.marks
         return None if q is None or q.empty() else str(q.get_nowait())

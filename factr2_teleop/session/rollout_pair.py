@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -23,9 +24,10 @@ from factr2_teleop.teleop.pair import COUPLED, HOLD, ArmPair, PairHold, _fresh
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.soft_start import rate_limit
 from hardware.errors import DeviceError
+from hardware.features import IMAGES, follower_values
 from hardware.reasons import Reason
+from hardware.recording.schemas import TASK_OBJECTS_FEATURE
 from hardware.types import FollowerCommand
-from policies.rollout.runner import arm_observation
 from policies.rollout.schedule import ChunkSchedule, PolicyHold
 
 HOME, SETTLE, RUN, IDLE = "home", "settle", "run", "idle"
@@ -50,8 +52,16 @@ class RolloutPair(ArmPair):
     serve_leader = True
 
     @staticmethod
-    def target_fn(now: float, fs):  # replaced by the rollout's PolicyTarget
+    def target_fn(now: float, fs):  # follow() attaches the rollout's PolicyTarget
         return None, None, Reason.of(PolicyHold.NO_POLICY)
+
+    def rest_leader(self) -> None:
+        """Stop serving the passive leader after begin() (see the class doc); the twin's leader idles."""
+        self.serve_leader = False
+
+    def follow(self, target_fn) -> None:
+        """Attach the target: target_fn(now [s], follower JointState) -> (q, gripper, why)."""
+        self.target_fn = target_fn
 
     def begin(self, clock=None) -> None:
         """Wait for fresh data from both arms (as the first tick demands: ArmPair.begin); the leader passive,
@@ -120,40 +130,64 @@ class RolloutPair(ArmPair):
         return self.last
 
 
+@dataclass
+class TargetArm:
+    """One follower the policy moves: its pair, recorded arm name ("follower", "left_follower"), where its
+    joint targets sit in the action vector (q [rad]: columns q; gripper [m]: column grip, None without one),
+    the range its gripper target is clamped to [m], and the gripper opening it homes to [m] (None: as is)."""
+
+    pair: RolloutPair
+    arm: str
+    q: slice
+    grip: int | None
+    gripper_range: tuple[float, float] = (-np.inf, np.inf)
+    gripper_open: float | None = None
+
+
 class PolicyTarget:
-    """The follower target of a rollout, tick by tick (the pair's target_fn; runs on the loop's thread).
+    """The follower targets of a rollout, tick by tick, for every arm the policy moves (one per rig pair).
 
-    runner: policies.rollout.PolicyRunner (started); schedule: ChunkSchedule; frames: callable(now) ->
-    {camera: RGB frame of now} or None while they are not there; objects: callable -> the PRIVILEGED
-    object vector (twin tasks) or None; gripper_range: (min, max) [m] the policy's gripper target is
-    clamped to."""
+    Each pair asks for its own target with `for_pair(i)` (its follow()); the first to ask at a tick's time
+    computes the tick's action for all arms (one observation of every follower, one schedule target) and the
+    others take their columns of it. runner: policies.rollout.PolicyRunner (started); schedule: ChunkSchedule
+    over the whole action vector; features: the rig's (hardware.features.rig_features): the observation is
+    read by the names the checkpoint stores; frames: callable(now) -> {camera: RGB frame of now} or None
+    while they are not there; objects: callable -> the PRIVILEGED object vector (twin tasks) or None."""
 
-    def __init__(self, pair: RolloutPair, runner, schedule: ChunkSchedule, frames, objects=None,
-                 gripper_range=(-np.inf, np.inf), gripper_open: float | None = None):
-        self.pair, self.runner, self.schedule = pair, runner, schedule
-        self.frames, self.objects = frames, objects
-        self.gripper_range, self.gripper_open = gripper_range, gripper_open
-        self.n = pair.follower.n_joints
-        self.arm = "follower"
+    def __init__(self, arms: list[TargetArm], runner, schedule: ChunkSchedule, features: dict, frames,
+                 objects=None):
+        self.arms, self.runner, self.schedule = list(arms), runner, schedule
+        self.features, self.frames, self.objects = features, frames, objects
         self.state = IDLE
         self.started = False
         self._t_next = -np.inf
-        self._home_done = False
+        self._tick: tuple = (np.nan, None, None)  # (now [s], action (A,) or None, why)
+        self._home_done = [False] * len(self.arms)
         self.ages_s: list[float] = []  # age of the executed action per run tick [s]
-        lim = pair.follower.safety.limits
-        self._q_min, self._q_max = np.asarray(lim.q_min), np.asarray(lim.q_max)
+        self._q_cols = np.concatenate([np.arange(a.q.start, a.q.stop) for a in self.arms])
+        lims = [a.pair.follower.safety.limits for a in self.arms]
+        self._q_min = np.concatenate([np.asarray(lim.q_min) for lim in lims])
+        self._q_max = np.concatenate([np.asarray(lim.q_max) for lim in lims])
         self.clamped = 0  # run ticks whose target lay outside the joint limits (the safety layer clamped it)
 
+    def for_pair(self, i: int):
+        """The target function of pair i: (now [s], its follower JointState) -> (q [rad] or None, gripper
+        [m] or None, why None)."""
+        return lambda now, fs: self._target(i, now, fs)
+
     # -- phases (the owner calls these) -----------------------------------------------------------------
-    def home(self, fs) -> None:
+    def home(self, fs=None) -> None:
+        """Every arm to its start pose (a jerk-limited move from where it is); fs: the first pair's sample."""
         self.started = True
-        self.pair.soft.reset(np.asarray(fs.q, dtype=float))
-        self._home_done = False
+        for i, a in enumerate(self.arms):
+            q = fs.q if (i == 0 and fs is not None) else a.pair.follower.read().q
+            a.pair.soft.reset(np.asarray(q, dtype=float))
+        self._home_done = [False] * len(self.arms)
         self.state = HOME
 
     @property
     def at_home(self) -> bool:
-        return self._home_done
+        return all(self._home_done)
 
     def settle(self) -> None:
         self.state = SETTLE
@@ -162,24 +196,38 @@ class PolicyTarget:
         self.runner.take()  # chunks of an earlier episode are dropped
         self.schedule.clear()
         self._t_next = now
+        self._tick = (np.nan, None, None)
         self.state = RUN
 
     def idle(self) -> None:
         self.state = IDLE
 
     # -- per tick ------------------------------------------------------------------------------------------
-    def __call__(self, now: float, fs):
+    def _target(self, i: int, now: float, fs):
+        arm = self.arms[i]
         if self.state == HOME:
-            q, done = self.pair.soft.step(self.pair.q_home)
-            self._home_done = self._home_done or bool(done)
-            return q, self.gripper_open, None
+            q, done = arm.pair.soft.step(arm.pair.q_home)
+            self._home_done[i] = self._home_done[i] or bool(done)
+            return q, arm.gripper_open, None
         if self.state == SETTLE:
-            return self.pair.q_home, self.gripper_open, None
+            return arm.pair.q_home, arm.gripper_open, None
         if self.state != RUN:
             waiting = PolicyHold.BETWEEN_EPISODES if self.started else PolicyHold.NOT_STARTED
             return None, None, Reason.of(waiting)
+        if self._tick[0] != now:
+            self._tick = (now, *self._action(now, i, fs))
+        _, a, why = self._tick
+        if a is None:
+            return None, None, why
+        lo, hi = arm.gripper_range
+        grip = float(min(max(a[arm.grip], lo), hi)) if arm.grip is not None else None
+        return a[arm.q], grip, None
+
+    def _action(self, now: float, i: int, fs):
+        """The tick's whole action vector (or None and why: a PolicyHold reason), the first time a pair asks
+        at `now`."""
         if now >= self._t_next:
-            obs = self.observation(fs, now)
+            obs = self.observation(now, {i: fs})
             if obs is not None:
                 self.runner.submit(obs, now)  # inline (lockstep): the chunk is ready below
                 self._t_next = now + self.schedule.period_s
@@ -187,28 +235,29 @@ class PolicyTarget:
             self.schedule.add(c)  # a refused chunk holds via target() below, with the reason
         a, why, age = self.schedule.target(now)
         if a is None:
-            return None, None, why
+            return None, why
         self.ages_s.append(age)
-        q = a[: self.n]
-        # ndarray methods and min/max, not np.any / np.clip: the same values at a third of the CPU per tick
+        q = a[self._q_cols]
+        # ndarray methods, not np.any: the same values at a third of the CPU per tick
         self.clamped += int(bool((q < self._q_min).any() or (q > self._q_max).any()))
-        lo, hi = self.gripper_range
-        grip = float(min(max(a[self.n], lo), hi)) if len(a) > self.n else None
-        return q, grip, None
+        return a, None
 
-    def observation(self, fs, now: float) -> dict | None:
-        """The flat observation now (None while a camera the policy needs has no frame of the last
-        FRAME_MAX_AGE_S)."""
-        est = self.pair.estimate
-        tau = est.tau_ext if est is not None else np.full(self.n, np.nan)
-        obs = arm_observation(self.arm, fs, tau)
+    def observation(self, now: float, samples: dict | None = None) -> dict | None:
+        """The flat observation now, by feature name (None while a camera the policy needs has no frame of
+        the last FRAME_MAX_AGE_S). samples: the followers' JointStates this tick by pair index (the others
+        are read: their newest sample)."""
+        obs: dict = {}
+        for i, arm in enumerate(self.arms):
+            fs = (samples or {}).get(i)
+            fs = fs if fs is not None else arm.pair.follower.read()
+            est = arm.pair.estimate
+            tau = est.tau_ext if est is not None else np.full(arm.pair.follower.n_joints, np.nan)
+            obs.update(follower_values(self.features, arm.arm, fs, tau))
         if self.runner.cameras:
             frames = self.frames(now)
             if frames is None:
                 return None
-            obs.update({f"observation.images.{c}": rgb for c, rgb in frames.items()})
+            obs.update({f"{IMAGES}{c}": rgb for c, rgb in frames.items()})
         if self.runner.uses_objects:
-            from hardware.recording.schemas import TASK_OBJECTS_FEATURE
-
             obs[TASK_OBJECTS_FEATURE] = self.objects()
         return obs

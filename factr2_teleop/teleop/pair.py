@@ -26,7 +26,7 @@ from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch
 from hardware.clock import Clock
 from hardware.errors import ConfigError, DeviceError
 from hardware.reasons import Reason, messages
-from hardware.roles import Follower, Leader
+from hardware.roles import Follower, Leader, make_safe
 from hardware.safety import SafeFollowerCommand
 from hardware.types import STATUS_COMM_LOST, STATUS_STALE, FollowerCommand, JointState
 
@@ -109,13 +109,13 @@ class ArmPair:
     def __init__(self, leader: Leader, follower: Follower, cfg: PairConfig, dt_s: float,
                  gravity_fn: Callable | None = None, jacobian_fn: Callable | None = None,
                  model_map: JointMap | None = None,
-                 estimator: Estimator | None = None):
+                 estimator: Estimator | None = None, mode: str | None = None):
         self.leader, self.follower, self.cfg, self.dt_s = leader, follower, cfg, float(dt_s)
         self.law = LeaderLaw(cfg.law, leader.safety.limits, gravity_fn, jacobian_fn, model_map)
         self.map = JointMap(cfg.mapping, leader.n_joints, follower.n_joints, where=f"{cfg.name}.mapping")
         self.soft = SoftStart(cfg.soft_start, follower.n_joints, dt_s)
         self.estimator = estimator
-        self.mode = "none" if estimator is None else "custom"  # feedback mode name (session.pairs sets it)
+        self.mode = mode or ("none" if estimator is None else "custom")  # feedback mode name (session.pairs)
         self.phase = IDLE
         self.q_target: np.ndarray | None = None
         self.estimate: Estimate | None = None
@@ -165,13 +165,8 @@ class ArmPair:
         return True
 
     def make_safe(self, reason: Reason | str) -> None:
-        """Leader zero torque, follower hold; each attempted even if the other fails."""
-        errors = []
-        for act in (lambda: self.leader.zero_torque(reason), lambda: self.follower.hold(reason)):
-            try:
-                act()
-            except Exception as e:  # noqa: BLE001 -- the other arm must still be made safe
-                errors.append(e)
+        """Leader zero torque, follower hold; each attempted even if the other fails (hardware.roles)."""
+        errors = make_safe([self.leader], [self.follower], reason)
         if errors:
             log.error("%s: could not make an arm safe: %s", self.cfg.name, errors)
 

@@ -132,7 +132,7 @@ class RolloutRun:
         self.say = say or (lambda text: None)
         self._before, self._after = before, after
         self.state = RolloutState(episodes=int(opts.episodes))
-        self.result: dict | None = None
+        self.result = None  # the RolloutResult once it has run
         self._lock = threading.Lock()
         self._ts = self._target = self._eps = None
         self._stop_why: Reason | None = None  # an OperatorStop reason once asked to stop
@@ -173,12 +173,12 @@ class RolloutRun:
             return
         r = self.result
         with self._lock:
-            self.state.recording = r.get("recording")
+            self.state.recording = r.recording
         if self._stop_why is not None:
             self._end("E-STOPPED" if self._stop_why.kind is OperatorStop.ESTOP else "stopped",
                       f"{self._stop_why}: follower held, leader torque off")
         else:
-            self._end("done", f"{len(r['episodes'])} episode(s), success rate {r['success_rate']:.0%}")
+            self._end("done", f"{len(r.episodes)} episode(s), success rate {r.success_rate:.0%}")
 
     def _end(self, status: str, line: str) -> None:
         with self._lock:
@@ -204,8 +204,8 @@ class RolloutRun:
         reached = {}
         if tracker is not None:
             reached = {s: bool(d) for s, d in zip(self.state.stages, np.asarray(tracker.done).reshape(-1))}
-        elif hasattr(eps, "_reached"):
-            reached = {s: s in eps._reached for s in self.state.stages}
+        elif hasattr(eps, "reached"):
+            reached = {s: s in eps.reached for s in self.state.stages}
         results = [(x.index, x.outcome, x.progress, x.duration_s) for x in eps.results]
         with self._lock:
             s = self.state

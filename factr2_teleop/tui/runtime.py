@@ -24,6 +24,7 @@ import numpy as np
 from hardware import sim_cpu
 from hardware.errors import UserError
 from hardware.rigs.rig import Rig, list_rigs, load_rig
+from hardware.roles import make_safe
 from hardware.types import (
     STATUS_COLLISION,
     STATUS_COMM_LOST,
@@ -275,20 +276,7 @@ class RigRuntime:
     def make_safe(self, reason: str) -> list[str]:
         """Every leader zero torque, every follower hold; each attempted even if another fails."""
         s = self.session
-        problems = []
-        if s is None:
-            return problems
-        for d in s.leaders.values():
-            try:
-                d.zero_torque(reason)
-            except Exception as e:  # noqa: BLE001 -- the other arms must still be made safe
-                problems.append(f"{d.name}: {e}")
-        for d in s.followers.values():
-            try:
-                d.hold(reason)
-            except Exception as e:  # noqa: BLE001
-                problems.append(f"{d.name}: {e}")
-        return problems
+        return [] if s is None else make_safe(s.leaders.values(), s.followers.values(), reason)
 
     def estop(self, stop_activity: Callable[[], None] | None = None) -> str:
         """EMERGENCY STOP: end the running activity, leaders torque off, followers hold. Returns the line

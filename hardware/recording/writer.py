@@ -38,6 +38,7 @@ from hardware.recording.ring import ByteRing, region_size
 from hardware.recording.session import session_metadata
 
 SAMPLES_BUFFER_BYTES = 32 << 20  # ~50 s of a bimanual 500 Hz session if the writer stalls (a slow disk)
+JPEG_QUALITY = 85  # camera frames' JPEG quality (PIL, 4:2:0); policies read the settings back from the frames
 FRAMES_BUFFER_BYTES = 64 << 20  # ~9 s of one 320x240 camera at 30 Hz, ~1.2 s of four 640x480 ones
 
 
@@ -91,14 +92,15 @@ class Recorder:
     metadata: extra session metadata (str -> str), merged over session_metadata()'s defaults; see
       hardware.recording.session.session_metadata for the rig/arm/NEXT/operator fields.
     t0: rig clock time [s] now (Clock.now()); log_time = wall time of the start + (t - t0).
-    jpeg_quality: 1-95. buffer_bytes / frame_buffer_bytes: the shared rings for samples and raw frames
-      (what waits while the writer is behind; beyond them records are dropped and counted).
+    jpeg_quality: 1-95 (JPEG_QUALITY). buffer_bytes / frame_buffer_bytes: the shared rings for samples and
+      raw frames (what waits while the writer is behind; beyond them records are dropped and counted).
     compression: "zstd" (default), "lz4" or "" (none). max_file_bytes: stop writing at this size (the
       writer's RLIMIT_FSIZE), as a full disk would.
     """
 
     def __init__(self, path: str | Path, *, joint_names: dict[str, list[str]] | None = None,
-                 metadata: dict[str, str] | None = None, t0: float | None = None, jpeg_quality: int = 85,
+                 metadata: dict[str, str] | None = None, t0: float | None = None,
+                 jpeg_quality: int = JPEG_QUALITY,
                  buffer_bytes: int = SAMPLES_BUFFER_BYTES, frame_buffer_bytes: int = FRAMES_BUFFER_BYTES,
                  encoder_threads: int = 2, flush_interval_s: float = 0.25, chunk_size: int = 256 * 1024,
                  compression: str = "zstd", fsync_interval_s: float = 5.0, overwrite: bool = False,

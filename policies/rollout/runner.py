@@ -3,17 +3,18 @@ gives, predict a chunk, un-normalise it; inference inline (lockstep twins: simul
 meanwhile) or on a thread of its own (real time: the control loop never waits for the network).
 
     runner = PolicyRunner("RUN")                      # or RUN/checkpoints/step-*.json
-    runner.check_arm("piper", joint_names)            # UserError (one line) for another arm / joint set
+    layout = runner.check_rig(features, arms)       # UserError (one line): other arms, joints, features
     runner.start(threaded=True)
     runner.submit(obs, t_obs)                         # obs: flat feature name -> value (see `observation`)
     for chunk in runner.take(): ...                   # schedule.Chunk, stamped with t_obs
     runner.stop()
 
-The input is built by feature name from the names and normaliser the checkpoint stores (the ones training
-used): observation.state = the listed follower features concatenated ([rad], [m]), observation.force =
-tau_ext [N*m] (or current [A]), observation.state.objects = the PRIVILEGED twin object vector
-(policies/privileged.py), observation.images.<cam> = the camera's latest RGB frame resized to the model's
-input like the training frames (policies/frame_cache.py).
+The input is built by feature name from the names the checkpoint stores, through the preprocessing it
+stores (policies/preprocess.py: the training's normaliser and image path, the same batch assembly):
+observation.state = the listed follower features concatenated ([rad], [m]), observation.force = tau_ext
+[N*m] (or current [A]), observation.state.objects = the PRIVILEGED twin object vector
+(policies/privileged.py), observation.images.<cam> = the camera's latest raw RGB frame, JPEG-encoded as the
+recording encoded that camera and decoded as training decoded it (the same RGB gives the same input).
 """
 
 from __future__ import annotations
@@ -25,41 +26,26 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 
 from hardware.errors import UserError
-from hardware.recording.schemas import TASK_OBJECTS_FEATURE
+from hardware.features import IMAGES, OBS_FORCE, OBS_IMAGES, OBS_STATE, action_of
+from hardware.features import size as feature_size
+from hardware.recording.schemas import ACTION, TASK_OBJECTS_FEATURE
 from policies.checkpoint import load_policy
 from policies.rollout.schedule import Chunk
-
-IMAGES = "observation.images."
-
-
-def resize_frame(rgb: np.ndarray, size: int) -> np.ndarray:
-    """A camera frame (H, W, 3) uint8 as the model's (size, size, 3) input: the whole field of view,
-    bilinear, the way policies.frame_cache resizes the recorded frames."""
-    return np.asarray(Image.fromarray(np.asarray(rgb, np.uint8)).resize((size, size), Image.BILINEAR))
-
-
-def arm_observation(arm: str, state, tau_ext) -> dict:
-    """One follower's flat observation ({arm}.joint.pos [rad], {arm}.gripper.pos [m], {arm}.joint.current
-    [A], ..., {arm}.joint.tau_ext [N*m]) from its JointState and the estimator's tau_ext."""
-    out = {f"{arm}.{k}": v for k, v in state.features().items()}
-    out[f"{arm}.joint.tau_ext"] = np.asarray(tau_ext, dtype=float)
-    return out
 
 
 class PolicyRunner:
     def __init__(self, path: str | Path, seed: int = 0, ema: bool = True):
-        self.model, self.meta, self.norm = load_policy(path, ema=ema)
+        self.model, self.meta, self.pre = load_policy(path, ema=ema)
         self.path = Path(self.meta["_path"])
         self.cfg = self.model.cfg
         f = self.meta["features"]
-        self.state_names: list[str] = list(f["observation.state"])
-        self.force_names: list[str] = list(f.get("observation.force") or [])
+        self.state_names: list[str] = list(f[OBS_STATE])
+        self.force_names: list[str] = list(f.get(OBS_FORCE) or [])
         self.object_names: list[str] = list(f.get(TASK_OBJECTS_FEATURE) or [])
-        self.cameras = [n[len(IMAGES):] for n in f.get("observation.images") or []]
-        self.action_names: list[str] = list(f["action"])
+        self.cameras = [n[len(IMAGES):] for n in f.get(OBS_IMAGES) or []]
+        self.action_names: list[str] = list(f[ACTION])
         self.rate_hz = float(self.meta["rate_hz"])
         self.dt = 1.0 / self.rate_hz
         self._gen = torch.Generator().manual_seed(int(seed))
@@ -90,25 +76,53 @@ class PolicyRunner:
         return (f"{self.cfg.policy} policy, method {self.meta.get('method')}, step {self.meta.get('step')}, "
                 f"{self.rate_hz:.3g} Hz, chunk {self.cfg.chunk}; observes {obs}")
 
-    def check_arm(self, arm_model: str, joint_names: list[str], where: str = "--policy") -> None:
-        """UserError unless the checkpoint was trained on one follower of this arm model and joint set."""
-        arms = self.meta.get("arms") or {}
-        followers = list(arms.get("followers") or [])
-        if len(followers) != 1:
-            raise UserError(f"policy trained on {len(followers)} follower arms; rollout drives one",
-                            where=str(self.path), fix="train on single-arm recordings")
-        model = (arms.get("arm_models") or [""])[0]
-        joints = list((arms.get("joint_names") or [[]])[0])
-        if model and model != arm_model:
-            raise UserError(f"policy trained for arm {model!r}, the rig's follower is {arm_model!r}",
-                            where=str(self.path), fix="roll it out on a rig with that arm")
-        if joints != list(joint_names):
-            raise UserError(f"policy trained on joints {joints}, the rig's follower has {list(joint_names)}",
-                            where=str(self.path), fix="roll it out on a rig with that joint set")
-        if self.cfg.action_dim != len(joint_names) + 1:
-            raise UserError(f"policy acts on {self.cfg.action_dim} values, the follower has "
-                            f"{len(joint_names)} joints + gripper", where=str(self.path),
+    @property
+    def followers(self) -> list[str]:
+        """The follower arms the policy was trained on, by recorded name ("follower", "left_follower")."""
+        return list((self.meta.get("arms") or {}).get("followers") or [])
+
+    def check_rig(self, features: dict, arms: dict[str, tuple[str, list[str]]]) -> dict[str, tuple]:
+        """UserError (one line) unless a rig with these features (hardware.features.rig_features) and follower
+        arms ({recorded arm name: (arm model, joint names)}) is what the policy was trained on: the same
+        follower arms, models and joint sets, and every feature the checkpoint reads or writes. Returns
+        where each arm's targets sit in the action vector: {arm: (q slice, gripper column or None)}."""
+        trained = self.meta.get("arms") or {}
+        followers = self.followers
+        if sorted(followers) != sorted(arms):
+            raise UserError(f"policy trained on follower arm(s) {', '.join(followers) or 'none'}; the rig "
+                            f"has {', '.join(arms)}", where=str(self.path),
+                            fix="roll it out on a rig with the same arm pairs as the demonstrations")
+        models = list(trained.get("arm_models") or [""] * len(followers))
+        joint_sets = list(trained.get("joint_names") or [[]] * len(followers))
+        for arm, model, joints in zip(followers, models, joint_sets):
+            arm_model, joint_names = arms[arm]
+            if model and model != arm_model:
+                raise UserError(f"policy trained for arm {model!r}, the rig's {arm} is {arm_model!r}",
+                                where=str(self.path), fix="roll it out on a rig with that arm")
+            if list(joints) != list(joint_names):
+                raise UserError(f"policy trained on joints {list(joints)}, the rig's {arm} has "
+                                f"{list(joint_names)}", where=str(self.path),
+                                fix="roll it out on a rig with that joint set")
+        names = self.state_names + self.force_names + self.action_names
+        missing = [n for n in names if n not in features]
+        if missing:
+            raise UserError(f"the rig has no feature {missing[0]} the policy uses", where=str(self.path),
+                            fix="roll it out on the rig (arm pairs) it was trained on")
+        width = sum(feature_size(features[n]) for n in self.action_names)
+        if self.cfg.action_dim != width:
+            raise UserError(f"policy acts on {self.cfg.action_dim} values, the rig's arms take {width} "
+                            "(joints + gripper)", where=str(self.path),
                             fix="roll it out on the arm it was trained for")
+        cols, at = {}, 0
+        for n in self.action_names:
+            cols[n] = (at, at + feature_size(features[n]))
+            at += feature_size(features[n])
+        out = {}
+        for arm in followers:
+            q0, q1 = cols[f"{action_of(arm)}.joint.pos"]
+            grip = cols.get(f"{action_of(arm)}.gripper.pos")
+            out[arm] = (slice(q0, q1), grip[0] if grip else None)
+        return out
 
     # -- one chunk ---------------------------------------------------------------------------------------
     def batch(self, obs: dict) -> dict:
@@ -116,17 +130,11 @@ class PolicyRunner:
         def cat(names):
             return np.concatenate([np.atleast_1d(np.asarray(obs[n], dtype=np.float32)) for n in names])[None]
 
-        out = {"state": torch.from_numpy(self.norm.norm("state", cat(self.state_names)))}
-        if self.force_names:
-            out["force"] = torch.from_numpy(self.norm.norm("force", np.nan_to_num(cat(self.force_names))))
-        if self.object_names:
-            vec = np.asarray(obs[TASK_OBJECTS_FEATURE], np.float32)[None]
-            out["objects"] = torch.from_numpy(self.norm.norm("objects", vec))
-        if self.cameras:
-            s = self.cfg.image_size
-            img = np.stack([resize_frame(obs[IMAGES + c], s) for c in self.cameras])[None]
-            out["images"] = torch.from_numpy(img)
-        return out
+        objects = np.asarray(obs[TASK_OBJECTS_FEATURE], np.float32)[None] if self.object_names else None
+        images = (np.stack([self.pre.image.live(c, obs[IMAGES + c]) for c in self.cameras])[None]
+                  if self.cameras else None)
+        return self.pre.inputs(cat(self.state_names), cat(self.force_names) if self.force_names else None,
+                               objects, images)
 
     def infer(self, obs: dict, t_obs: float, seq: int = 0) -> Chunk:
         """Predict one chunk (raw units) for an observation taken at t_obs [s]."""
@@ -135,7 +143,7 @@ class PolicyRunner:
         noise = self.model.draw_noise(self.cfg, 1, self._gen)
         with torch.inference_mode():
             z = self.model.predict(b, noise)[0].float().numpy()
-        actions = np.asarray(self.norm.denorm("action", z), dtype=float)
+        actions = np.asarray(self.pre.actions(z), dtype=float)
         lat = time.perf_counter() - t0
         self.latencies_s.append(lat)
         return Chunk(t_obs=float(t_obs), actions=actions, dt=self.dt, seq=seq, latency_s=lat)
