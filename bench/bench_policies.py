@@ -41,7 +41,7 @@ def _synthetic(folder: Path, seconds: float = 20.0) -> Path:
 
 def bench_loader(folder: Path, n_batches: int = 40, batch: int = 128) -> dict:
     eps, arms = load_episodes([folder])
-    data = build_dataset(eps, arms, th=Thresholds(1.0, 3.0, "bench"), image_size=96)
+    data = build_dataset(eps, arms, th=Thresholds.given(1.0, 3.0), image_size=96)
     idx = np.flatnonzero(np.ones(len(data), bool))
     gen = torch.Generator().manual_seed(0)
     rng = np.random.default_rng(0)

@@ -39,6 +39,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hardware.reasons import Reason  # noqa: E402
 from hardware.recording import schemas as S  # noqa: E402
 from hardware.recording.reader import interp_linear  # noqa: E402
 from policies import labelling as L  # noqa: E402
@@ -88,7 +89,9 @@ def _with_payload(episodes, arms, tare: str, kg: float) -> tuple[object, list]:
         load, _, _ = TR.episode_tare(ep, arms, t, tau, tare)
         per.append((t, P.contact_score(T.tared(tau, load)), held))
     lo, hi = P.recording_thresholds(np.concatenate([s for _, s, _ in per]))
-    th = L.Thresholds(lo, hi, "recording (semi-synthetic payload)", tare)
+    n = sum(int(np.isfinite(s).sum()) for _, s, _ in per)  # the recordings' own split, semi-synthetic payload
+    th = L.Thresholds(lo, hi, Reason.of(L.ThresholdSource.RECORDING, tared=tare != "off", episodes=len(per),
+                                          samples=n), tare)
     return th, [(t, P.label_phases(t, P.hysteresis(s, lo, hi)), h, s) for t, s, h in per]
 
 

@@ -24,6 +24,7 @@ import numpy as np
 
 from calibration.next.train import TrainConfig
 from hardware.errors import UserError
+from hardware.reasons import Reason, render
 from hardware.timeseries import heldout_spans, spans_mask
 
 HELDOUT_FRAC = 0.15  # share of the replay held out for evaluation
@@ -70,7 +71,7 @@ def collect(session, spec, traj, cfg: CalibrationConfig, progress: Callable | No
     """Replay traj on the follower and record it (calibration.next.collect; also to `recorder`, an MCAP
     Recorder, when given). An unexpected contact keeps the data before it when at least cfg.min_minutes
     remain (run.stopped says so), else raises ContactStop."""
-    from calibration.next.collect import ContactStop, collect_free_motion
+    from calibration.next.collect import CollectStop, ContactStop, collect_free_motion
 
     try:
         return collect_free_motion(session, spec.name, traj, progress=progress, recorder=recorder)
@@ -81,7 +82,7 @@ def collect(session, spec, traj, cfg: CalibrationConfig, progress: Callable | No
             raise
         for k in ("t", "q", "qd", "q_cmd", "tau_m", "current", "temperature", "tau_ext_true", "contact"):
             setattr(run, k, getattr(run, k)[:keep])
-        run.stopped = f"contact: {e.what}; kept the {keep / cfg.rate_hz / 60.0:.1f} min before it"
+        run.stopped = Reason.of(CollectStop.CONTACT, what=e.what, kept_min=keep / cfg.rate_hz / 60.0)
         return run
 
 
@@ -178,7 +179,7 @@ def calibrate_rig(session, spec, out: str | Path, cfg: CalibrationConfig, progre
     try:
         rec.start_episode(clock.now(), "NEXT calibration: free-motion replay")
         run = collect(session, spec, traj, cfg, progress, recorder=rec)
-        rec.stop_episode(clock.now(), None, run.stopped or "")
+        rec.stop_episode(clock.now(), None, render(run.stopped))
         if run.stopped:
             say(f"warning: {run.stopped}")
         contact_eval = None
@@ -197,7 +198,7 @@ def calibrate_rig(session, spec, out: str | Path, cfg: CalibrationConfig, progre
     logs = write_logs(out, run, cfg, contact_eval)
     report = train_and_report(logs, out, spec.arm, cfg, callback, say)
     report.update(rig=rig.name, follower=spec.name, simulated=rig.simulated,
-                  collision_checked=traj.collision_checked, stopped=run.stopped or None,
+                  collision_checked=traj.collision_checked, stopped=render(run.stopped) or None,
                   heldout={"policy": "blocks", "frac": cfg.heldout_frac, "block_s": HELDOUT_BLOCK_S})
     (Path(out) / "report.json").write_text(json.dumps(report, indent=1))
     return report

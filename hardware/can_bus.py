@@ -17,11 +17,13 @@ import queue
 import random
 import time
 from collections.abc import Callable
+from enum import Enum
 
 import can
 from can.interfaces.virtual import VirtualBus, channels_lock
 
 from hardware.errors import DeviceError, DeviceNotFound
+from hardware.reasons import Reason, messages
 
 CAN_BITRATE_DEFAULT = 1_000_000  # bit/s: Piper and YAM (Damiao) both run classic CAN at 1 Mbit/s
 SYSFS_NET = "/sys/class/net"
@@ -210,20 +212,30 @@ def _data_frame(ts: float, arb_id: int, data: bytes, channel, is_rx: bool) -> ca
     return can.Message(ts, arb_id, False, False, False, channel, len(data), data, False, is_rx)
 
 
-def _socketcan_problem(channel: str) -> str | None:
+class CanLinkProblem(Enum):
+    """Why a socketcan channel cannot work (hardware.reasons)."""
+
+    MISSING = "missing"
+    DOWN = "down"
+
+
+messages({CanLinkProblem.MISSING: "no such CAN interface", CanLinkProblem.DOWN: "CAN interface is down"})
+
+
+def _socketcan_problem(channel: str) -> Reason | None:
     """Why a socketcan channel cannot work, from sysfs (None when it looks fine or sysfs is absent)."""
     if not os.path.isdir(SYSFS_NET):
         return None
     path = os.path.join(SYSFS_NET, channel)
     if not os.path.exists(path):
-        return "no such CAN interface"
+        return Reason.of(CanLinkProblem.MISSING)
     try:
         with open(os.path.join(path, "flags")) as f:
             flags = int(f.read().strip(), 16)
     except (OSError, ValueError):
         return None
     if not flags & _IFF_UP:
-        return "CAN interface is down"
+        return Reason.of(CanLinkProblem.DOWN)
     return None
 
 
@@ -241,9 +253,9 @@ def open_bus(channel: str, interface: str = "socketcan", bitrate: int = CAN_BITR
         problem = _socketcan_problem(channel)
         if problem is not None:
             fix = link_up_fix(channel, bitrate)
-            if problem.startswith("no such"):
+            if problem.kind is CanLinkProblem.MISSING:
                 fix = f"plug in the USB-CAN adapter, check `ip link show` for its name, then `{fix}`"
-            raise DeviceNotFound(problem, where=where, fix=fix)
+            raise DeviceNotFound(str(problem), where=where, fix=fix)
     try:
         if interface == "socketcan":  # socketcan takes its bitrate from `ip link`, not from python-can
             return can.Bus(interface=interface, channel=channel, **kwargs)

@@ -13,7 +13,9 @@ import os
 import struct
 import threading
 from collections.abc import Callable
+from enum import Enum
 
+from hardware.reasons import Reason, messages
 from hardware.switches import switches
 
 LOOP_PRIORITY = 40  # the control loop (1-99; below the kernel's IRQ threads at 50)
@@ -21,21 +23,39 @@ EMULATOR_PRIORITY = 41  # a twin's device emulators: the loop waits on their ans
 TWIN_PRIORITY = 39  # a real-time twin's physics thread: ahead of other processes, behind the loop
 
 
-def set_fifo(priority: int, native_id: int | None = None) -> str | None:
+class RtRefusal(Enum):
+    """Why SCHED_FIFO was not set (hardware.reasons). REFUSED is for this one thread (it may have ended, or
+    the kernel's RT budget is spent): another thread may still get it; the others hold for every thread."""
+
+    UNAVAILABLE = "unavailable"  # not this OS
+    OFF = "off"  # FACTR2_NO_RT
+    NOT_PERMITTED = "not permitted"  # no CAP_SYS_NICE / rtprio limit
+    REFUSED = "refused"  # this thread (detail: error)
+
+
+messages({
+    RtRefusal.UNAVAILABLE: "real-time scheduling: not available on this OS (normal priority)",
+    RtRefusal.OFF: "real-time scheduling: off (FACTR2_NO_RT is set)",
+    RtRefusal.NOT_PERMITTED: ("real-time scheduling: not permitted, normal priority (allow it with "
+                              "CAP_SYS_NICE or an rtprio limit in /etc/security/limits.conf)"),
+    RtRefusal.REFUSED: "real-time scheduling: refused ({error}), normal priority",
+})
+
+
+def set_fifo(priority: int, native_id: int | None = None) -> Reason | None:
     """SCHED_FIFO at `priority` for thread `native_id` (default: the calling thread). None when it was set,
-    else one line saying why not (the thread keeps normal priority)."""
+    else why not (an RtRefusal reason; str() is the line to show; the thread keeps normal priority)."""
     if not hasattr(os, "sched_setscheduler"):
-        return "real-time scheduling: not available on this OS (normal priority)"
+        return Reason.of(RtRefusal.UNAVAILABLE)
     if switches().no_rt:
-        return "real-time scheduling: off (FACTR2_NO_RT is set)"
+        return Reason.of(RtRefusal.OFF)
     tid = threading.get_native_id() if native_id is None else int(native_id)
     try:
         os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(int(priority)))
     except PermissionError:
-        return ("real-time scheduling: not permitted, normal priority (allow it with CAP_SYS_NICE or an "
-                "rtprio limit in /etc/security/limits.conf)")
+        return Reason.of(RtRefusal.NOT_PERMITTED)
     except OSError as e:
-        return f"real-time scheduling: refused ({e.strerror or e}), normal priority"
+        return Reason.of(RtRefusal.REFUSED, error=e.strerror or e)
     return None
 
 
@@ -78,7 +98,7 @@ class ProcessThreads:
         self.priority = int(priority)
         self.helpers = helpers
         self._raised: set[int] = set()
-        self.note: str | None = None
+        self.note: Reason | None = None
 
     def refresh(self) -> None:
         if self.note is not None or not hasattr(os, "sched_getscheduler"):
@@ -94,7 +114,7 @@ class ProcessThreads:
             except OSError:
                 continue  # ended meanwhile
             why = set_fifo(self.priority, tid)
-            if why is not None and "refused" not in why:
+            if why is not None and why.kind is not RtRefusal.REFUSED:
                 self.note = why  # not permitted / off: stop trying
                 return
             if why is None:

@@ -17,7 +17,8 @@ import threading
 import numpy as np
 
 from hardware.clock import Clock
-from hardware.safety import DEFAULT_WATCHDOG_S, SafeFollowerCommand, SafeLeaderTorque, SafetyLayer
+from hardware.reasons import Reason
+from hardware.safety import DEFAULT_WATCHDOG_S, DeviceHold, SafeFollowerCommand, SafeLeaderTorque, SafetyLayer
 from hardware.types import FollowerCommand, JointLimits, JointState
 
 
@@ -68,7 +69,7 @@ class Device(abc.ABC):
     def is_connected(self) -> bool: ...
 
     @abc.abstractmethod
-    def _go_safe(self, reason: str) -> None:
+    def _go_safe(self, reason: Reason | str) -> None:
         """Command the device's safe state (through the safety layer)."""
 
     # -- shared logic ------------------------------------------------------------------------------
@@ -85,12 +86,12 @@ class Device(abc.ABC):
     def last_state(self) -> JointState:
         return self._last_state
 
-    def check_watchdog(self) -> str | None:
+    def check_watchdog(self) -> Reason | None:
         """Go safe if commands or feedback are stale; returns the reason (None when fine)."""
         reason = self.safety.watchdog.stale(self.clock.now())
         if reason is not None and not self.in_safe_state:
             with self._lock:
-                self._go_safe(f"watchdog: {reason}")
+                self._go_safe(Reason.of(DeviceHold.WATCHDOG, stale=reason))
                 self.in_safe_state = True
         return reason
 
@@ -98,7 +99,7 @@ class Device(abc.ABC):
         with self._lock:
             if self.is_connected:
                 try:
-                    self._go_safe("disconnect")
+                    self._go_safe(Reason.of(DeviceHold.DISCONNECT))
                 finally:
                     self.in_safe_state = True
                     self._disconnect_bus()
@@ -134,13 +135,13 @@ class Leader(Device):
             self.in_safe_state = False
             return safe.tau
 
-    def zero_torque(self, reason: str = "requested") -> None:
+    def zero_torque(self, reason: Reason | str = "requested") -> None:
         now = self.clock.now()
         with self._lock:
             self._to_wire(self.safety.leader_zero(now, reason), now)
             self.in_safe_state = True
 
-    def _go_safe(self, reason: str) -> None:
+    def _go_safe(self, reason: Reason | str) -> None:
         now = self.clock.now()
         self._to_wire(self.safety.leader_zero(now, reason), now)
 
@@ -168,17 +169,17 @@ class Follower(Device):
             self.in_safe_state = False
             return safe
 
-    def hold(self, reason: str = "requested") -> None:
+    def hold(self, reason: Reason | str = "requested") -> None:
         with self._lock:
             self._go_safe(reason)
             self.in_safe_state = True
 
-    def _go_safe(self, reason: str) -> None:
+    def _go_safe(self, reason: Reason | str) -> None:
         now = self.clock.now()
         self._to_wire(self.safety.follower_hold(now, self._last_state.q, reason), now)
 
 
-def make_safe(leaders, followers, reason: str) -> list[str]:
+def make_safe(leaders, followers, reason: Reason | str) -> list[str]:
     """The safe state of every arm given: each leader at zero torque, each follower on hold (its safe
     state), every one attempted even when another fails. Returns one line per arm that failed ("" none)."""
     problems = []

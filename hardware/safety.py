@@ -11,15 +11,34 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
+from hardware.reasons import Reason, messages
 from hardware.types import FollowerCommand, JointLimits
 
 DEFAULT_WATCHDOG_S = 0.05  # s: commands or feedback older than this put the device in its safe state
 MAX_RATE_DT_S = DEFAULT_WATCHDOG_S  # s: a pause longer than this does not buy a larger target step
 HOLD_KD = 1.0  # N*m*s/rad: damping gain of the safe state for impedance (MIT) followers
 _TOKEN = object()  # only this module can build Safe* values
+
+
+class DeviceHold(Enum):
+    """Why the shared device code put a device in its safe state (hardware.reasons)."""
+
+    NO_COMMAND = "no command"  # the watchdog: the last command is older than its timeout
+    NO_FEEDBACK = "no feedback"  # the watchdog: the last feedback is older than its timeout
+    WATCHDOG = "watchdog"  # the device went safe on one of the two above (detail: stale)
+    DISCONNECT = "disconnect"
+
+
+messages({
+    DeviceHold.NO_COMMAND: "no command for {ms:.0f} ms",
+    DeviceHold.NO_FEEDBACK: "no feedback for {ms:.0f} ms",
+    DeviceHold.WATCHDOG: "watchdog: {stale}",
+    DeviceHold.DISCONNECT: "disconnect",
+})
 
 
 def limit_position_target(q_target: np.ndarray, q_prev: np.ndarray, dt_s: float,
@@ -121,12 +140,13 @@ class Watchdog:
     def feed_feedback(self, t: float) -> None:
         self.last_feedback_t = t
 
-    def stale(self, now: float) -> str | None:
-        """Why the device must go safe now, or None. Nothing fed yet is not stale (not started)."""
+    def stale(self, now: float) -> Reason | None:
+        """Why the device must go safe now (DeviceHold.NO_COMMAND / NO_FEEDBACK, with its age in ms), or
+        None. Nothing fed yet is not stale (not started)."""
         if math.isfinite(self.last_command_t) and now - self.last_command_t > self.timeout_s:
-            return f"no command for {1e3 * (now - self.last_command_t):.0f} ms"
+            return Reason.of(DeviceHold.NO_COMMAND, ms=1e3 * (now - self.last_command_t))
         if math.isfinite(self.last_feedback_t) and now - self.last_feedback_t > self.timeout_s:
-            return f"no feedback for {1e3 * (now - self.last_feedback_t):.0f} ms"
+            return Reason.of(DeviceHold.NO_FEEDBACK, ms=1e3 * (now - self.last_feedback_t))
         return None
 
 
@@ -147,7 +167,7 @@ class SafetyLayer:
         self.clipped = 0  # joints changed by a limit, cumulative
         self.rejected = 0  # non-finite values replaced, cumulative
         self.holds = 0  # times the safe state was entered
-        self.last_fault: str | None = None
+        self.last_fault: Reason | str | None = None  # the last safe state's reason (or a caller's note)
 
     def _dt(self, now: float) -> float:
         dt = now - self._t_prev if math.isfinite(self._t_prev) else 0.0
@@ -182,7 +202,7 @@ class SafetyLayer:
         self.watchdog.feed_command(now)
         return SafeFollowerCommand(q=q, tau_ff=tau, kp=kp, kd=kd, gripper=grip, hold=False, _token=_TOKEN)
 
-    def follower_hold(self, now: float, q_meas: np.ndarray, reason: str) -> SafeFollowerCommand:
+    def follower_hold(self, now: float, q_meas: np.ndarray, reason: Reason | str) -> SafeFollowerCommand:
         """The safe state: hold the measured position (clipped into the limits), no feed-forward,
         damping only for impedance followers (kp=0, kd=hold_kd) -- the driver picks which it sends."""
         q = safe_start_target(q_meas if self._q_prev is None else
@@ -206,7 +226,7 @@ class SafetyLayer:
         self.watchdog.feed_command(now)
         return SafeLeaderTorque(tau=out, _token=_TOKEN)
 
-    def leader_zero(self, now: float, reason: str) -> SafeLeaderTorque:
+    def leader_zero(self, now: float, reason: Reason | str) -> SafeLeaderTorque:
         """The leader's safe state: zero torque."""
         self._tau_prev, self._t_prev = np.zeros(self.limits.n), now
         self.holds += 1

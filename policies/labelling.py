@@ -13,18 +13,20 @@ the raw estimate, and so does live force feedback (teleop never labels).
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass, field
+from enum import Enum
 from pathlib import Path
 
 import numpy as np
 
+from calibration.next.ident import NextId, json_path
 from hardware.errors import UserError
+from hardware.reasons import Reason, messages
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
 from policies import phases as P
 from policies import tare as T
-from policies.recordings import ArmSet, episode_id, session_next_checkpoint
+from policies.recordings import ArmSet, episode_id, session_next_checkpoints
 from policies.tare_recording import episode_tare
 
 OFFLINE_RUNS_MAX = 64  # offline NEXT passes a NextModel keeps (episodes); all dropped when full
@@ -32,13 +34,13 @@ OFFLINE_RUNS_MAX = 64  # offline NEXT passes a NextModel keeps (episodes); all d
 
 @dataclass
 class NextModel:
-    """A loaded NEXT checkpoint and its id (file name + data hash), for labelling and for the run's record.
+    """A loaded NEXT checkpoint and its id (calibration.next.ident), for labelling and the run's record.
     offline_runs: the offline NEXT passes made with it (episode_tau_ext), kept while the model is held, so
     the recording thresholds and the labels pay for one pass per episode; dropped with the model."""
 
     ck: object  # calibration.next.checkpoint.NextCheckpoint
     path: Path
-    id: str
+    id: NextId
     offline_runs: dict = field(default_factory=dict, repr=False, compare=False)
 
 
@@ -46,28 +48,69 @@ def load_next(path) -> NextModel:
     from calibration.next.checkpoint import load_checkpoint
 
     ck = load_checkpoint(path)
-    p = Path(path)
-    h = (
-        hashlib.sha256(p.with_suffix(".json").read_bytes()).hexdigest()[:12]
-        if p.with_suffix(".json").exists()
-        else "?"
-    )
-    return NextModel(ck, p, f"{p.with_suffix('').name}@{h}")
+    return NextModel(ck, Path(path), NextId.of(path))
+
+
+class ThresholdSource(Enum):
+    """Where contact thresholds came from (hardware.reasons); the value is what a run's meta["phases"] stores
+    as source_kind."""
+
+    GIVEN = "given"  # the operator's LOW:HIGH
+    RECORDING = "recording"  # the episodes' own scores (detail: tared, episodes, samples)
+    NEXT = "next"  # the NEXT checkpoint's free-motion noise (detail: next_id, val_l1_sum [N*m])
+
+
+def _recording_source(tared: bool, episodes: int, samples: int) -> str:
+    eps = f"{episodes} episode{'s' if episodes != 1 else ''}"
+    return f"recording: Otsu split of log ||tau_ext||_1{', tared' if tared else ''}, {eps}, {samples} samples"
+
+
+messages({
+    ThresholdSource.GIVEN: "given",
+    ThresholdSource.RECORDING: _recording_source,
+    ThresholdSource.NEXT: "NEXT {next_id.short} (val_l1 sum {val_l1_sum:.4g})",
+})
 
 
 @dataclass
 class Thresholds:
     t_low: float
     t_high: float
-    source: str  # "given", "recording: ..." (the episodes' own scores) or "NEXT <id> ..." (its noise)
+    source: Reason  # a ThresholdSource reason
     tare: str = "off"  # held-load tare of the scores they apply to: policies.tare.TARE_METHODS
 
+    @classmethod
+    def given(cls, t_low: float, t_high: float, tare: str = "off") -> Thresholds:
+        """Thresholds [N*m] set by hand."""
+        return cls(float(t_low), float(t_high), Reason.of(ThresholdSource.GIVEN), tare)
+
     def to_dict(self) -> dict:
-        """A training run's meta["phases"]; "tare" only when the scores were tared (a run from before the
-        tare, or with --no-tare, reads the same and so resumes)."""
-        d = {"t_low": self.t_low, "t_high": self.t_high, "source": self.source,
-             "pre_contact_s": P.PRE_CONTACT_S}
+        """A training run's meta["phases"]: "source" the message (for people), "source_kind" its kind;
+        "tare" only when the scores were tared (a run from before the tare, or with --no-tare, reads the same
+        and so resumes)."""
+        d = {"t_low": self.t_low, "t_high": self.t_high, "source": str(self.source),
+             "source_kind": self.source.key, "pre_contact_s": P.PRE_CONTACT_S}
         return d | ({"tare": self.tare} if self.tare != "off" else {})
+
+
+def source_kind(phases: dict) -> ThresholdSource | None:
+    """The kind of source a run's meta["phases"] names. Runs written before source_kind was stored: read from
+    the start of their message, which was fixed then ("given", "recording: ...", "NEXT ..."); the one place
+    a message is read back, for those files only."""
+    if phases.get("source_kind"):
+        return ThresholdSource(phases["source_kind"])
+    text = str(phases.get("source", ""))
+    legacy = {"given": ThresholdSource.GIVEN, "recording": ThresholdSource.RECORDING,
+              "NEXT": ThresholdSource.NEXT}
+    return legacy.get(text.split(":")[0].split(" ")[0])
+
+
+def phases_identity(phases: dict) -> dict:
+    """What of a run's meta["phases"] must match to resume it: the thresholds, pre-contact time, tare and
+    the kind of source (not the source's message, which is for people)."""
+    kind = source_kind(phases)
+    return {k: v for k, v in phases.items() if k not in ("source", "source_kind")} | {
+        "source_kind": kind.value if kind is not None else None}
 
 
 THRESHOLD_SOURCES = ("recording", "next")  # --thresholds words; or LOW:HIGH [N*m]
@@ -102,7 +145,7 @@ def resolve_thresholds(
     elif given is None or given == "next":
         th = _checkpoint_thresholds(next_model, episodes, arms)
     else:
-        th = Thresholds(float(given[0]), float(given[1]), "given")
+        th = Thresholds.given(given[0], given[1])
     th.tare = tare
     return th
 
@@ -119,19 +162,16 @@ def _recording_thresholds(episodes, arms, next_model, tare: str) -> Thresholds:
             fix="pass --thresholds LOW:HIGH [N*m] (or --thresholds next: from the NEXT checkpoint)",
         ) from None
     n = int(np.sum(np.isfinite(score)))
-    eps = f"{len(episodes)} episode{'s' if len(episodes) != 1 else ''}"
-    tared = ", tared" if tare != "off" else ""
-    src = f"recording: Otsu split of log ||tau_ext||_1{tared}, {eps}, {n} samples"
+    src = Reason.of(ThresholdSource.RECORDING, tared=tare != "off", episodes=len(episodes), samples=n)
     return Thresholds(lo, hi, src)
 
 
 def _checkpoint_thresholds(next_model, episodes, arms) -> Thresholds:
     model = next_model
     if model is None:
-        named = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
-        named = named.split("#")[0]  # sessions name "PATH#HASH"
-        if named and Path(named).with_suffix(".json").exists():
-            model = load_next(named)
+        named = next((ids for ids in map(session_next_checkpoints, episodes) if ids), ())
+        if named and json_path(named[0].path).exists():
+            model = load_next(named[0].path)
     if model is None:
         raise UserError(
             "no NEXT checkpoint to derive the contact thresholds from (the recordings name none)",
@@ -147,7 +187,8 @@ def _checkpoint_thresholds(next_model, episodes, arms) -> Thresholds:
         )
     lo, hi = P.default_thresholds(val_l1)
     n = len(arms.followers)
-    return Thresholds(n * lo, n * hi, f"NEXT {model.id} (val_l1 sum {float(np.sum(val_l1)):.4g})")
+    src = Reason.of(ThresholdSource.NEXT, next_id=model.id, val_l1_sum=float(np.sum(val_l1)))
+    return Thresholds(n * lo, n * hi, src)
 
 
 def _offline_tau_ext(ep: Episode, arm: str, model: NextModel) -> tuple[np.ndarray, np.ndarray]:
@@ -223,7 +264,7 @@ def _episode_tau_ext(ep: Episode, arms: ArmSet, next_model: NextModel | None):
         parts.append(got)
     t = parts[0][0]
     tau = np.concatenate([parts[0][1]] + [interp_linear(ti, yi, t) for ti, yi in parts[1:]], axis=1)
-    return t, tau, ("recorded" if next_model is None else f"NEXT {next_model.id} offline")
+    return t, tau, ("recorded" if next_model is None else f"NEXT {next_model.id.short} offline")
 
 
 def episode_scores(ep: Episode, arms: ArmSet, tare: str, next_model: NextModel | None = None

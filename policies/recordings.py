@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.next.ident import NextId, parse_ids
 from hardware.errors import UserError
 from hardware.features import POLICY_STATE, Feature, action_of, follower_arms, recorded_features
 from hardware.recording import schemas as S
@@ -199,9 +200,9 @@ def episode_id(ep: Episode) -> str:
     return f"{ep.recording.path.name}#{ep.index}"
 
 
-def session_next_checkpoint(ep: Episode) -> str:
-    """The NEXT checkpoint the recording's session names ("" when none)."""
-    return str(ep.recording.session.get("next_checkpoint", "") or "")
+def session_next_checkpoints(ep: Episode) -> tuple[NextId, ...]:
+    """The NEXT checkpoints the recording's session names (calibration.next.ident; () when none)."""
+    return parse_ids(ep.recording.session.get("next_checkpoint"))
 
 
 def describe_rig(ep: Episode) -> dict:

@@ -11,19 +11,20 @@ from pathlib import Path
 
 import torch
 
+from calibration.next.ident import format_ids
 from hardware.errors import UserError
 from hardware.recording.cache import cache_key
 from hardware.recording.session import software_version
 from policies import checkpoint as C
 from policies.config import PolicyConfig
 from policies.dataset import build_dataset
-from policies.labelling import load_next, resolve_thresholds
+from policies.labelling import load_next, phases_identity, resolve_thresholds
 from policies.methods import METHODS
 from policies.recordings import (
     describe_rig,
     episode_id,
     load_episodes,
-    session_next_checkpoint,
+    session_next_checkpoints,
     skipped_line,
     training_episodes,
 )
@@ -45,6 +46,9 @@ def _entry(meta: dict, key: str):
     """meta's entry `key` ("train.lr": nested); the model config with the defaults of fields added since."""
     if key == "policy":
         return PolicyConfig.from_dict(meta.get("policy", {})).to_dict()
+    if key == "phases":  # the thresholds and their kind of source; the source's message is for people
+        ph = meta.get("phases")
+        return phases_identity(ph) if isinstance(ph, dict) else ph
     for part in key.split("."):
         meta = meta.get(part) if isinstance(meta, dict) else None
     return meta
@@ -146,13 +150,13 @@ def prepare(o: RunOptions, d: Dist):
                    action_dim=data.action.shape[2], force_dim=data.force.shape[1],
                    objects_dim=data.objects.shape[1] if data.objects is not None else 0)
     o = replace(o, rate_hz=data.rate_hz)
-    named_next = next((session_next_checkpoint(e) for e in episodes if session_next_checkpoint(e)), "")
+    named_next = next((ids for ids in map(session_next_checkpoints, episodes) if ids), ())
     meta = {
         **o.to_meta(pcfg),  # the configuration (policies.run_config)
         "features": data.names.to_dict(),
         "preprocess": data.pre.to_dict(),  # normaliser + image path: the rollout rebuilds exactly this
         "phases": th.to_dict(),
-        "next_checkpoint": next_model.id if next_model is not None else named_next,
+        "next_checkpoint": str(next_model.id) if next_model is not None else format_ids(named_next),
         "tau_ext_source": "offline" if next_model is not None else "recorded",
         "data_hash": data_hash(episodes),
         "episodes": data.episode_ids,

@@ -22,7 +22,7 @@ from policies.config import PRESETS, PolicyConfig, default_preset, preset, setta
 from policies.dataset import FORCE_SOURCES
 from policies.flags import Flag, Switch, option
 from policies.label_flags import NEXT_HELP, add_threshold_arguments, thresholds_arg
-from policies.labelling import TARE_DEFAULT, LabelChoice
+from policies.labelling import TARE_DEFAULT, LabelChoice, ThresholdSource, source_kind
 from policies.methods import METHODS
 from policies.policy import policy_names
 from policies.privileged import OBSERVATIONS
@@ -262,9 +262,9 @@ class RunOptions:
         kinds = settable()
         ov = {k: v for k, v in pol.items() if k in kinds and k not in own and v != getattr(base, k)}
         ph = meta.get("phases", {})
-        src = str(ph.get("source", ""))
-        given = ((ph["t_low"], ph["t_high"]) if src == "given" else "recording" if src.startswith("recording")
-                 else None)
+        kind = source_kind(ph)  # typed (policies.labelling.ThresholdSource), never the message parsed
+        given = ((ph["t_low"], ph["t_high"]) if kind is ThresholdSource.GIVEN
+                 else "recording" if kind is ThresholdSource.RECORDING else None)
         opts = cls(inputs=list(inputs), out=Path(out), policy=pol["policy"], method=meta["method"],
                    ratio=tuple(meta["ratio"]), preset=name, force=meta["force"],
                    thresholds=LabelChoice(given, ph.get("tare", "off")), rate_hz=meta.get("rate_hz"),

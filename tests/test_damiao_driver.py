@@ -14,6 +14,8 @@ from hardware.damiao.config import DamiaoFollowerConfig
 from hardware.damiao.emulator import DamiaoEmulator
 from hardware.damiao.follower import DamiaoFollower
 from hardware.errors import DeviceError, DeviceNotFound
+from hardware.reasons import kind_of
+from hardware.safety import DeviceHold
 from hardware.sim.motors import MODE_DISABLED, IdealMotorBank
 from hardware.types import (
     STATUS_ENABLED,
@@ -146,7 +148,7 @@ def test_watchdog_damps_when_commands_stop(rig):
     rig.run(FollowerCommand(q=Q0[:6] + 0.05), 0.2)
     assert rig.bank.kp[0] > 0
     st = rig.run(None, 0.2)
-    assert rig.f.in_safe_state and "watchdog" in rig.f.safety.last_fault
+    assert rig.f.in_safe_state and kind_of(rig.f.safety.last_fault) is DeviceHold.WATCHDOG
     np.testing.assert_allclose(rig.bank.kp, 0.0)
     assert np.all(st.status & STATUS_HOLD) and not np.any(st.status & STATUS_STALE)  # damping keeps feedback
 
@@ -281,5 +283,5 @@ def test_silent_motor_is_stale_and_trips_watchdog(rig):
         st = rig.f.read()
     assert not rig.f.in_safe_state and not np.any(st.status & STATUS_STALE)
     st = rig.run(FollowerCommand(q=Q0[:6]), 0.04)
-    assert rig.f.in_safe_state and "no feedback" in rig.f.safety.last_fault
+    assert rig.f.in_safe_state and rig.f.safety.last_fault.get("stale").kind is DeviceHold.NO_FEEDBACK
     assert (st.status & STATUS_STALE).astype(bool).tolist() == [False, True, False, False, False, False]

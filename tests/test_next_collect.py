@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibration.next.collect import ContactStop, Push, collect_free_motion, residual_exceeds
+from calibration.next.collect import CollectStop, ContactStop, Push, collect_free_motion, residual_exceeds
 from calibration.trajectories import PHASES, Trajectory, ruckig_move
 
 
@@ -40,7 +40,7 @@ def test_collect_on_twin_records_free_motion():
     assert np.all(np.diff(a["t"]) > 0) and seen[-1][0] == pytest.approx(seen[-1][1])
     assert np.abs(a["q"][-1] - traj.q[-1]).max() < 0.05  # the follower tracked the replayed motion
     assert "tau_ext_true" in a and not a["contact"].any()  # simulated ground truth: free motion
-    assert run.stopped == ""
+    assert run.stopped is None
 
 
 def test_contact_guard_stops_and_holds():
@@ -54,7 +54,8 @@ def test_contact_guard_stops_and_holds():
         with pytest.raises(ContactStop) as err:
             collect_free_motion(session, "follower", traj, contact_frac=1e-6, contact_ticks=2)
         assert session.followers["follower"].in_safe_state
-    assert err.value.run is not None and err.value.run.stopped == "contact"  # the partial run is kept
+    assert err.value.run is not None  # the partial run is kept
+    assert err.value.run.stopped.kind is CollectStop.CONTACT
 
 
 def test_scripted_push_is_labelled_contact_with_ground_truth():

@@ -19,6 +19,8 @@ from hardware.piper import protocol as P
 from hardware.piper.config import PiperFollowerConfig
 from hardware.piper.emulator import PiperEmulator
 from hardware.piper.follower import PiperFollower, default_limits
+from hardware.reasons import kind_of
+from hardware.safety import DeviceHold
 from hardware.sim.motors import MODE_MIT, MODE_POSITION, IdealMotorBank
 from hardware.types import (
     STATUS_ENABLED,
@@ -159,7 +161,7 @@ def test_watchdog_holds_when_commands_stop(rig):
     assert not rig.f.in_safe_state
     st = rig.run(None, 0.2)  # no commands: the watchdog (50 ms) puts the arm on hold
     assert rig.f.in_safe_state
-    assert "watchdog" in (rig.f.safety.last_fault or "")
+    assert kind_of(rig.f.safety.last_fault) is DeviceHold.WATCHDOG
     assert np.all(st.status & STATUS_HOLD)
     np.testing.assert_allclose(rig.bank.q_d[:6], st.q, atol=5e-3)
 
@@ -171,7 +173,7 @@ def test_silent_arm_marks_stale_and_goes_safe(rig):
         rig.f.command(FollowerCommand(q=Q0))
         rig.clock.sleep(DT)
         rig.f.read()
-    assert rig.f.in_safe_state and "no feedback" in rig.f.safety.last_fault
+    assert rig.f.in_safe_state and rig.f.safety.last_fault.get("stale").kind is DeviceHold.NO_FEEDBACK
     rig.emu.silent = False
     st = rig.run(None, 0.02)
     assert not np.any(st.status & STATUS_STALE)

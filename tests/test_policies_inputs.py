@@ -153,7 +153,8 @@ def _next_checkpoint(tmp_path, n_j=6):
 
 def test_next_offline_labels_from_the_logged_joint_states(tmp_path, capsys):
     from calibration.next.estimator import batch_tau_f
-    from policies.labelling import episode_tau_ext, load_next, resolve_thresholds
+    from calibration.next.ident import NextId
+    from policies.labelling import ThresholdSource, episode_tau_ext, load_next, resolve_thresholds
     from policies.recordings import load_episodes
 
     write_recording(tmp_path / "a.mcap", episodes=1, seconds=2.0, cameras=(), tau_ext=False)
@@ -172,7 +173,9 @@ def test_next_offline_labels_from_the_logged_joint_states(tmp_path, capsys):
     th = resolve_thresholds("next", model, eps, arms)
     assert th.t_low == pytest.approx(2.0 * 0.3) and th.t_high == pytest.approx(3.0 * 0.3)
     assert resolve_thresholds(None, model, eps, arms) == th  # the library's former default stays
-    assert resolve_thresholds("recording", model, eps, arms).source.startswith("recording: Otsu")
+    rec = resolve_thresholds("recording", model, eps, arms)
+    assert rec.source.kind is ThresholdSource.RECORDING and str(rec.source).startswith("recording: Otsu")
+    assert th.source.kind is ThresholdSource.NEXT and th.source.get("next_id") == NextId.of(ck_path)
     rc = main(["episodes", "phases", str(tmp_path), "--next", str(ck_path), "--thresholds", "next",
                "--out", str(tmp_path / "ph")])
     out = capsys.readouterr().out
@@ -193,7 +196,7 @@ def test_thresholds_next_from_the_checkpoint_the_session_names(tmp_path):
     )
     eps, arms = load_episodes([tmp_path])
     th = resolve_thresholds("next", None, eps, arms)
-    assert (th.t_low, th.t_high) == (pytest.approx(0.6), pytest.approx(0.9)) and "next@" in th.source
+    assert (th.t_low, th.t_high) == (pytest.approx(0.6), pytest.approx(0.9)) and "next@" in str(th.source)
 
 
 def test_normaliser_clips_tiny_spreads_and_centres_constants():

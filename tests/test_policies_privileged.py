@@ -51,7 +51,7 @@ def test_state_observation_needs_the_recorded_object_vector(tmp_path):
     write_recording(tmp_path / "teleop.mcap", episodes=1, seconds=1.0)  # a teleop session: no task objects
     eps, arms = load_episodes([tmp_path])
     with pytest.raises(UserError, match="privileged object state"):
-        build_dataset(eps, arms, th=Thresholds(0.5, 1.0, "test"), observation="state")
+        build_dataset(eps, arms, th=Thresholds.given(0.5, 1.0), observation="state")
 
 
 def test_collected_episode_trains_a_state_policy_without_frames(tmp_path):

@@ -6,7 +6,7 @@ import numpy as np
 
 from hardware.clock import LockstepClock
 from hardware.roles import Follower, Leader
-from hardware.safety import SafeFollowerCommand, SafeLeaderTorque
+from hardware.safety import DeviceHold, SafeFollowerCommand, SafeLeaderTorque
 from hardware.sim.motors import IdealMotorBank
 from hardware.types import FollowerCommand, JointLimits, JointState
 
@@ -82,7 +82,8 @@ def test_follower_commands_are_limited_and_watchdog_holds():
         clock.sleep(0.06)  # loop stalls: no command for 60 ms
         f.read()
         assert f.sent[-1].hold and len(f.sent) == n_before + 1 and f.in_safe_state
-        assert "watchdog" in f.safety.last_fault
+        assert f.safety.last_fault.kind is DeviceHold.WATCHDOG
+        assert f.safety.last_fault.get("stale").kind is DeviceHold.NO_COMMAND
     assert f.sent[-1].hold  # disconnect leaves it holding
 
 

@@ -8,7 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from factr2_teleop.session.rollout import next_matches, resolve_next
+from calibration.next.ident import NextId
+from factr2_teleop.session.rollout import NextNote, resolve_next
 from hardware.errors import UserError
 from policies.rollout.schedule import (
     ENSEMBLE,
@@ -16,6 +17,7 @@ from policies.rollout.schedule import (
     STALL_S,
     Chunk,
     ChunkSchedule,
+    PolicyHold,
     chunk_problem,
     ensemble_weights,
     ensembled_target,
@@ -74,20 +76,22 @@ def test_receding_horizon_runs_the_newest_chunk_and_requests_every_k_steps():
 
 def test_schedule_age_refusals_and_stall():
     s = ChunkSchedule(mode=RECEDING, dt=DT, q_min=LIM[0], q_max=LIM[1], k_exec=2)
-    assert s.target(0.0)[0] is None and "first chunk" in s.target(0.0)[1]
+    assert s.target(0.0)[0] is None and s.target(0.0)[1].kind is PolicyHold.FIRST_CHUNK
     assert s.add(ramp(0.0, slope=0.5)) is None
     a, why, age = s.target(0.13)
     assert why is None and age == pytest.approx(0.13) and a[0] == pytest.approx(0.065)
     # late by less than STALL_S after the next chunk was due (0.2 s): still running
     assert s.target(0.2 + STALL_S - 0.01)[0] is not None
     a, why, _ = s.target(0.2 + STALL_S + 0.01)
-    assert a is None and why.startswith("policy stalled")
+    assert a is None and why.kind is PolicyHold.STALLED
     bad = ramp(0.3)
     nan = Chunk(t_obs=0.3, actions=np.where(np.arange(3) == 1, np.nan, bad.actions), dt=DT)
-    assert s.add(nan) == "policy output not finite" and s.nonfinite == 1
+    assert s.add(nan).kind is PolicyHold.NOT_FINITE and s.nonfinite == 1
     assert s.target(0.31)[0] is None and s.chunks == []
     far = Chunk(t_obs=0.4, actions=bad.actions + np.array([5.0, 0.0, 0.0]), dt=DT)
-    assert "outside the joint limits (joint 1" in s.add(far) and s.outside_limits == 1
+    why = s.add(far)
+    assert why.kind is PolicyHold.OUTSIDE_LIMITS and why.get("joint") == 1 and s.outside_limits == 1
+    assert "outside the joint limits (joint 1" in str(why)  # the message rendered from it
     assert s.target(0.41)[0] is None
     assert s.add(ramp(0.5, slope=0.1)) is None  # a good chunk ends the hold
     assert s.target(0.55)[0] is not None
@@ -98,7 +102,7 @@ def test_chunk_problem_judges_joints_not_the_gripper():
     a[:, 2] = 7.0  # gripper column: clamped by the caller, never a refusal
     assert chunk_problem(a, *LIM) is None
     a[1, 1] = -1.5
-    assert "joint 2" in chunk_problem(a, *LIM)
+    assert chunk_problem(a, *LIM).get("joint") == 2
     assert chunk_problem(a, *LIM, tol=0.6) is None
 
 
@@ -106,13 +110,16 @@ def test_the_next_checkpoint_a_policy_names(tmp_path):
     ck = tmp_path / "next.json"
     ck.write_text(json.dumps({"data_hash": "abcdef0123456789"}))
     sha = hashlib.sha256(ck.read_bytes()).hexdigest()[:12]
-    assert next_matches(f"{ck}#abcdef012345", ck) and not next_matches(f"{ck}#000000000000", ck)
-    assert next_matches(f"next@{sha}", ck) and not next_matches("next@000000000000", ck)
-    assert resolve_next({"next_checkpoint": f"{ck}#abcdef012345"}, None) == (ck, "")
-    assert resolve_next({"next_checkpoint": ""}, None) == (None, "")
+    assert NextId.parse(f"{ck}#abcdef012345").matches(ck)
+    assert not NextId.parse(f"{ck}#000000000000").matches(ck)
+    assert NextId.parse(f"next@{sha}").matches(ck) and not NextId.parse("next@000000000000").matches(ck)
+    assert resolve_next({"next_checkpoint": f"{ck}#abcdef012345"}, None) == (ck, None)
+    assert resolve_next({"next_checkpoint": f"{ck}@{sha}"}, None) == (ck, None)  # the one form today
+    assert resolve_next({"next_checkpoint": ""}, None) == (None, None)
     with pytest.raises(UserError, match="not here"):
         resolve_next({"next_checkpoint": f"{tmp_path}/gone.json#abcdef012345"}, None)
     other = tmp_path / "other.json"
     other.write_text(json.dumps({"data_hash": "ffff"}))
     path, note = resolve_next({"next_checkpoint": f"{ck}#abcdef012345"}, other)
-    assert path == other and "NOT the checkpoint the policy was trained with" in note
+    assert path == other and note.kind is NextNote.NOT_TRAINED_WITH
+    assert "NOT the checkpoint the policy was trained with" in str(note)

@@ -155,7 +155,7 @@ def test_the_runner_builds_the_input_training_saw(tiny_run):
 
     runner = PolicyRunner(tiny_run)
     episodes, arms = load_episodes([tiny_run.parent / "held.mcap"])
-    data = build_dataset(episodes, arms, th=Thresholds(1.0, 3.0, "given"), chunk=runner.cfg.chunk,
+    data = build_dataset(episodes, arms, th=Thresholds.given(1.0, 3.0), chunk=runner.cfg.chunk,
                          image_size=runner.cfg.image_size, val_fraction=0.0)
     rec = episodes[0].recording
     for i in (0, len(data) // 2, len(data) - 1):

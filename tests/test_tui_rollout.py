@@ -41,7 +41,8 @@ def test_a_run_that_does_not_fit_the_rig_is_explained(tmp_path):
                             overrides=dict(TRYOUT_OVERRIDES),
                             train=TrainConfig(steps=2, batch=4, warmup=1, threads=1)), Dist())
     problems = R.rig_problems(tmp_path / "run", "sim-piper", None)
-    assert len(problems) == 1 and "needs camera(s) top, wrist; rig sim-piper has scene" in problems[0]
+    assert len(problems) == 1 and problems[0].blocking
+    assert "needs camera(s) top, wrist; rig sim-piper has scene" in problems[0].text
     assert R.policy_summary(tmp_path / "run").startswith("flow/first step 2, arm ? (6 joints), NEXT none")
 
 

@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hardware.reasons import render
+
 MECHANICAL = ("friction", "stribeck", "backlash", "ripple", "thermal", "kt_temperature")
 CLEAN_EFFECTS = {k: False for k in MECHANICAL}  # sensor effects (noise, quantisation, saturation) stay on
 TWIN_DEFAULTS: dict[str, bool] = {}  # the rig's own switches (all on)
@@ -203,7 +205,7 @@ def record(seconds: float, seed: int, hook, effects: dict[str, bool], twin_seed:
                 raise
             run = e.run
     out = run.arrays()
-    out["stopped"] = np.array(run.stopped)
+    out["stopped"] = np.array(render(run.stopped))
     out["simulated"] = np.array(True)
     return out
 

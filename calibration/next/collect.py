@@ -28,13 +28,29 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from enum import Enum
 
 import numpy as np
 
 from calibration.baselines import momentum_observer_step
 from calibration.trajectories import Trajectory, ruckig_move
 from hardware.errors import DeviceError
+from hardware.reasons import Reason, messages
 from hardware.types import FollowerCommand
+
+
+class CollectStop(Enum):
+    """Why a free-motion collection stopped early (hardware.reasons)."""
+
+    CONTACT = "contact"  # the contact guard tripped (detail, once the data before it is kept: what, kept_min)
+    OPERATOR = "operator"  # the progress callback asked to stop
+
+
+def _contact_message(what: str = "", kept_min: float | None = None) -> str:
+    return "contact" if kept_min is None else f"contact: {what}; kept the {kept_min:.1f} min before it"
+
+
+messages({CollectStop.CONTACT: _contact_message, CollectStop.OPERATOR: "operator"})
 
 
 class ContactStop(DeviceError):
@@ -68,7 +84,7 @@ class CollectedRun:
     joint_names: list[str] = field(default_factory=list)
     arm: str = ""  # the arm description's name and SHA-256: a log says which arm it comes from
     arm_sha256: str = ""
-    stopped: str = ""
+    stopped: Reason | None = None  # a CollectStop reason when the collection stopped early
     wall_s: float = 0.0
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -160,7 +176,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
         over = over + 1 if np.all(np.isfinite(r)) and residual_exceeds(r, limits.tau_max, contact_frac) else 0
         if over >= contact_ticks and not pushes:
             follower.hold("unexpected contact during calibration")
-            run.stopped = "contact"
+            run.stopped = Reason.of(CollectStop.CONTACT)
             run.wall_s = time.monotonic() - t_start
             err = ContactStop(f"unexpected contact at t={k * dt:.1f} s (residual {np.abs(r).max():.1f} N*m)",
                               where=follower_name, fix="clear the workspace (or lower the speed) and rerun")
@@ -184,7 +200,7 @@ def collect_free_motion(session, follower_name: str, traj: Trajectory, *, move_s
                     recorder.log_ground_truth(follower_name, st.t, run.tau_ext_true[-1], run.contact[-1])
         if progress is not None and progress((k + 1) * dt, len(plan) * dt):
             follower.hold("operator stop")
-            run.stopped = "operator"
+            run.stopped = Reason.of(CollectStop.OPERATOR)
             break
     run.wall_s = time.monotonic() - t_start
     return run

@@ -18,16 +18,16 @@ follower command, the privileged object vector on twin tasks).
 
 from __future__ import annotations
 
-import hashlib
-import json
 import threading
 import time
 from collections import Counter
 from dataclasses import asdict, dataclass
+from enum import Enum
 from pathlib import Path
 
 import numpy as np
 
+from calibration.next.ident import json_path, parse_ids
 from factr2_teleop.session.pairs import TeleopOptions
 from factr2_teleop.session.rollout_episodes import MarkedRollout, TwinRollout, episode_line
 from factr2_teleop.session.rollout_pair import FRAME_MAX_AGE_S, RUN, PolicyTarget, RolloutPair, TargetArm
@@ -35,6 +35,7 @@ from factr2_teleop.session.rollout_report import RolloutResult, WireCheck, timin
 from factr2_teleop.session.teleop import TeleopSession
 from hardware.errors import UserError
 from hardware.features import rig_arm_names, rig_features
+from hardware.reasons import Reason, messages, render
 from policies.rollout.schedule import ACT_ENSEMBLE_M, ENSEMBLE, RECEDING, ChunkSchedule
 
 FRAME_WAIT_S = 5.0  # s (wall): lockstep waits this long at most for a camera's frame of now
@@ -81,40 +82,37 @@ class RolloutOptions:
 
 
 # -- the NEXT checkpoint the policy was trained with -----------------------------------------------------
-def next_matches(ident: str, path: Path) -> bool:
-    """Whether checkpoint `path` is the one an id names: "PATH#<data hash 12>" (tau_ext recorded live) or
-    "STEM@<sha256 of the JSON, 12>" (tau_ext estimated offline by `factr2 train --next`)."""
-    p = Path(path).with_suffix(".json")
-    if not p.is_file():
-        return False
-    if "#" in ident:
-        want = ident.rsplit("#", 1)[1]
-        return bool(want) and str(json.loads(p.read_text()).get("data_hash", ""))[:12] == want
-    if "@" in ident:
-        return hashlib.sha256(p.read_bytes()).hexdigest()[:12] == ident.rsplit("@", 1)[1]
-    return False
+class NextNote(Enum):
+    """What resolve_next has to say (hardware.reasons)."""
+
+    # --next names another checkpoint than the one the policy was trained with (detail: path, ident)
+    NOT_TRAINED_WITH = "not the trained NEXT"
 
 
-def resolve_next(meta: dict, explicit: Path | None) -> tuple[Path | None, str]:
-    """(NEXT checkpoint to run or None, a note to show). UserError when the policy's is not here and no
-    --next was given."""
-    ident = str(meta.get("next_checkpoint") or "")
-    if "," in ident:
+messages({NextNote.NOT_TRAINED_WITH: ("NEXT {path} is NOT the checkpoint the policy was trained with "
+                                      "({ident}): used as --next asks")})
+
+
+def resolve_next(meta: dict, explicit: Path | None) -> tuple[Path | None, Reason | None]:
+    """(NEXT checkpoint to run or None, a note to show or None). The policy's NEXT is meta["next_checkpoint"]
+    (calibration.next.ident). UserError when the policy's is not here and no --next was given."""
+    ids = parse_ids(meta.get("next_checkpoint"))
+    if len(ids) > 1:
         raise UserError("policy trained on several arms' NEXT checkpoints; rollout drives one arm",
                         where=str(meta.get("_path")), fix="train on single-arm recordings")
+    ident = ids[0] if ids else None
     if explicit is not None:
-        p = Path(explicit).with_suffix(".json")
+        p = json_path(explicit)
         if not p.is_file():
             raise UserError("NEXT checkpoint not found", where=str(explicit), fix="pass --next DIR/next.json")
-        if ident and not next_matches(ident, p):
-            return p, (f"NEXT {p} is NOT the checkpoint the policy was trained with ({ident}): used as "
-                       "--next asks")
-        return p, ""
-    if not ident:
-        return None, ""
-    path = Path(ident.rsplit("#", 1)[0]) if "#" in ident else None
-    if path is not None and next_matches(ident, path):
-        return path.with_suffix(".json"), ""
+        if ident is not None and not ident.matches(p):
+            return p, Reason.of(NextNote.NOT_TRAINED_WITH, path=p, ident=ident)
+        return p, None
+    if ident is None:
+        return None, None
+    here = ident.located()
+    if here is not None:
+        return here, None
     raise UserError(f"the policy was trained with NEXT {ident}, which is not here (or has changed)",
                     where="--policy",
                     fix="pass --next CKPT to run another NEXT checkpoint (the summary says so)")
@@ -220,7 +218,7 @@ class RolloutPlan:
     the estimator mode, lean, real time, inference threaded, the chunk schedule and its k_exec."""
 
     next_path: Path | None
-    note: str
+    note: Reason | None  # a NextNote reason
     mode: str | None
     lean: bool
     realtime: bool
@@ -349,7 +347,7 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
         policy_kind=runner.policy, method=runner.meta.get("method"), schedule=plan.schedule,
         k_exec=plan.k_exec if plan.schedule == RECEDING else None,
         ensemble_m=opts.ensemble_m if plan.schedule == ENSEMBLE else None, seed=opts.seed,
-        feedback_mode=feedback, next=str(plan.next_path) if plan.next_path else None, note=plan.note,
+        feedback_mode=feedback, next=str(plan.next_path) if plan.next_path else None, note=render(plan.note),
         lean=plan.lean, interrupted=interrupted, wall_s=time.perf_counter() - t_wall,
         episodes=[{k: v for k, v in asdict(r).items() if k in EPISODE_KEYS} for r in res],
         success_rate=float(np.mean([r.outcome == "success" for r in res])) if res else 0.0,

@@ -20,17 +20,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factr2_teleop.teleop.pair import COUPLED, HOLD, ArmPair, _fresh
+from factr2_teleop.teleop.pair import COUPLED, HOLD, ArmPair, PairHold, _fresh
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.soft_start import rate_limit
 from hardware.errors import DeviceError
 from hardware.features import IMAGES, follower_values
+from hardware.reasons import Reason
 from hardware.recording.schemas import TASK_OBJECTS_FEATURE
 from hardware.types import FollowerCommand
-from policies.rollout.schedule import ChunkSchedule
+from policies.rollout.schedule import ChunkSchedule, PolicyHold
 
 HOME, SETTLE, RUN, IDLE = "home", "settle", "run", "idle"
-NOT_FAULTS = ("waiting",)  # hold reasons that are no fault (not counted as holds)
 # s: in real time an observation waits for frames at most this old (a camera that stopped, or a twin camera's
 # render process still warming up: the policy must not see the arm as it was)
 FRAME_MAX_AGE_S = 0.1
@@ -43,7 +43,8 @@ LEADER_SERVICE_PERIOD_S = 0.02
 
 class RolloutPair(ArmPair):
     """ArmPair whose follower follows target_fn(now [s], follower JointState) -> (q (n,) [rad] or None,
-    gripper [m] or None, why None); the leader gets zero torque. holds: hold entries by reason.
+    gripper [m] or None, why None: a PolicyHold reason); the leader gets zero torque. holds: hold entries
+    by the reason's key (PolicyHold values; waiting kinds are not counted).
     serve_leader=False: after begin() the passive leader is neither read nor re-sent its zero torque (a
     lockstep twin's leader that nothing records or shows; its safe exit still goes through its safety
     layer); the follower's law never reads the leader, so this changes no follower command."""
@@ -52,7 +53,7 @@ class RolloutPair(ArmPair):
 
     @staticmethod
     def target_fn(now: float, fs):  # follow() attaches the rollout's PolicyTarget
-        return None, None, "no policy attached"
+        return None, None, Reason.of(PolicyHold.NO_POLICY)
 
     def rest_leader(self) -> None:
         """Stop serving the passive leader after begin() (see the class doc); the twin's leader idles."""
@@ -75,7 +76,7 @@ class RolloutPair(ArmPair):
                     and _fresh(fs, now, self.cfg.follower_stale_s, t_begin)):
                 break
             if clock.now() >= t_end:
-                self.make_safe("no data at start")
+                self.make_safe(Reason.of(PairHold.NO_DATA_AT_START))
                 raise DeviceError(f"no fresh joint data within {self.cfg.start_timeout_s:.1f} s",
                                   where=self.cfg.name,
                                   fix="check power, cables and the port/channel in the rig")
@@ -85,8 +86,8 @@ class RolloutPair(ArmPair):
         self.leader.zero_torque("policy rollout: the leader is passive")
         self.follower.hold("policy rollout: waiting")
         self.phase = HOLD
-        self.holds: Counter = Counter()  # holds by reason (entries and changes of reason)
-        self._hold_why: str | None = None
+        self.holds: Counter = Counter()  # holds by reason key (entries and changes of reason kind)
+        self._hold_why: PolicyHold | None = None
         self._t_leader = -np.inf
         self._zero_tau = np.zeros(self.leader.n_joints)  # one per pair: every tick's record shares it
         self._zero_tau.flags.writeable = False
@@ -105,15 +106,15 @@ class RolloutPair(ArmPair):
         if follower_ok:
             q, grip, why = self.target_fn(now, fs)
         else:
-            q, grip, why = None, None, "follower data stale"
+            q, grip, why = None, None, Reason.of(PolicyHold.FOLLOWER_STALE)
         if q is None:
             if self.phase != HOLD:
                 self.follower.hold(why)
                 self.phase = HOLD
-            kind = why.split(" (")[0].split(":")[0]
+            kind = why.kind
             if kind != self._hold_why:  # a hold entered, or its kind of reason changed: said once, counted
-                if not why.startswith(NOT_FAULTS):
-                    self.holds[kind] += 1
+                if kind.fault:
+                    self.holds[why.key] += 1
                 self._say(f"follower on hold: {why}")
             self._hold_why = kind
             self.q_target = None
@@ -211,7 +212,8 @@ class PolicyTarget:
         if self.state == SETTLE:
             return arm.pair.q_home, arm.gripper_open, None
         if self.state != RUN:
-            return None, None, "waiting: between episodes" if self.started else "waiting to start"
+            waiting = PolicyHold.BETWEEN_EPISODES if self.started else PolicyHold.NOT_STARTED
+            return None, None, Reason.of(waiting)
         if self._tick[0] != now:
             self._tick = (now, *self._action(now, i, fs))
         _, a, why = self._tick
@@ -222,7 +224,8 @@ class PolicyTarget:
         return a[arm.q], grip, None
 
     def _action(self, now: float, i: int, fs):
-        """The tick's whole action vector (or None and why), the first time a pair asks at `now`."""
+        """The tick's whole action vector (or None and why: a PolicyHold reason), the first time a pair asks
+        at `now`."""
         if now >= self._t_next:
             obs = self.observation(now, {i: fs})
             if obs is not None:

@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from calibration.next.ident import NextId, format_ids
 from factr2_teleop.session.pairs import TeleopOptions, build_pairs, follower_checkpoint, loop_rate_hz
 from factr2_teleop.session.recording import SessionRecording
 from factr2_teleop.teleop.loop import TeleopLoop
@@ -47,17 +48,16 @@ class TeleopSession:
         return {p.cfg.name: p.mode for p in self.pairs}
 
     def next_checkpoint_id(self) -> str:
-        """The NEXT checkpoints the pairs run (comma-separated paths with their data hash; "" for none)."""
+        """The NEXT checkpoints the pairs run, in the one string form of calibration.next.ident (several:
+        comma-separated; "" for none)."""
         ids = []
         for p in self.pairs:
             if p.mode != "next":
                 continue
             spec = self.session.rig.device(p.follower.name)
             path = self._next_paths.get(p.follower.name) or follower_checkpoint(spec, self.opts) or "?"
-            ck = getattr(getattr(p.estimator, "next", None), "ck", None)
-            h = getattr(ck, "data_hash", "")
-            ids.append(f"{path}" + (f"#{h[:12]}" if h else ""))
-        return ",".join(ids)
+            ids.append(NextId.of(path))
+        return format_ids(ids)
 
     def describe(self) -> list[str]:
         twin = self.session.twin

@@ -21,12 +21,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, STOPPED, ArmPair
+from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, STOPPED, ArmPair, PairHold
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.timing import LoopTiming, TimingStats
 from hardware import sim_cpu
 from hardware.clock import Clock
 from hardware.realtime import LOOP_PRIORITY, CpuWakeLatency, LoopCpu, ProcessThreads, set_fifo, set_normal
+from hardware.reasons import Reason
 from hardware.threads import limit_threads
 
 log = logging.getLogger("factr2.teleop")
@@ -117,8 +118,8 @@ class TeleopLoop:
         if self.clock.realtime:
             sys.setswitchinterval(min(switch, SWITCH_FRACTION * self.period_s))
             why = set_fifo(LOOP_PRIORITY)
-            if why:
-                self._message(self.clock.now(), "loop", why)
+            if why is not None:
+                self._message(self.clock.now(), "loop", str(why))
             else:
                 services.refresh()
             pin.start()  # the loop's thread alone on one CPU, the rest of the process on the others
@@ -172,7 +173,8 @@ class TeleopLoop:
                     wake.close()
             self._running = False
             fault = isinstance(self.error, Exception)
-            self._make_safe("teleop fault" if fault else "teleop stopped", FAULT if fault else STOPPED)
+            self._make_safe(Reason.of(PairHold.LOOP_FAULT if fault else PairHold.LOOP_STOPPED),
+                            FAULT if fault else STOPPED)
             self._publish(self.clock.now())
 
     def start(self, duration_s: float | None = None) -> threading.Thread:
@@ -198,7 +200,7 @@ class TeleopLoop:
         if t is not None and t is not threading.current_thread():
             t.join(timeout_s)
             if t.is_alive():  # stuck in a driver call: command the safe states from here too
-                self._make_safe("teleop stop (loop thread not answering)", STOPPED)
+                self._make_safe(Reason.of(PairHold.LOOP_NOT_ANSWERING), STOPPED)
 
     @property
     def running(self) -> bool:
@@ -252,7 +254,7 @@ class TeleopLoop:
         with self._lock:
             self._messages.append((t, who, text))
 
-    def _make_safe(self, reason: str, phase: str) -> None:
+    def _make_safe(self, reason: Reason, phase: str) -> None:
         for p in self.pairs:
             p.make_safe(reason)
             p.phase = phase

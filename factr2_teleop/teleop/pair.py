@@ -12,6 +12,7 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 
@@ -24,6 +25,7 @@ from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch_error, rate_limit
 from hardware.clock import Clock
 from hardware.errors import ConfigError, DeviceError
+from hardware.reasons import Reason, messages
 from hardware.roles import Follower, Leader, make_safe
 from hardware.safety import SafeFollowerCommand
 from hardware.types import STATUS_COMM_LOST, STATUS_STALE, FollowerCommand, JointState
@@ -33,6 +35,27 @@ log = logging.getLogger("factr2.teleop")
 SOFT_START, COUPLED, HOLD, FAULT, STOPPED, IDLE = "soft_start", "coupled", "hold", "fault", "stopped", "idle"
 _STALE_BITS = np.uint32(STATUS_STALE | STATUS_COMM_LOST)
 DEFAULT_STALE_S = 0.02  # s: a leader/follower sample older than this puts the follower on hold (< 50 ms)
+
+
+class PairHold(Enum):
+    """Why a pair made its arms safe (hardware.reasons)."""
+
+    DATA_STALE = "data stale"  # detail: who ("leader" / "follower"), age_ms
+    NO_DATA_AT_START = "no data at start"
+    START_MISMATCH = "start refused: leader/follower mismatch"
+    LOOP_FAULT = "teleop fault"
+    LOOP_STOPPED = "teleop stopped"
+    LOOP_NOT_ANSWERING = "teleop stop (loop thread not answering)"
+
+
+messages({
+    PairHold.DATA_STALE: "{who} data stale ({age_ms:.0f} ms old)",
+    PairHold.NO_DATA_AT_START: "no data at start",
+    PairHold.START_MISMATCH: "start refused: leader/follower mismatch",
+    PairHold.LOOP_FAULT: "teleop fault",
+    PairHold.LOOP_STOPPED: "teleop stopped",
+    PairHold.LOOP_NOT_ANSWERING: "teleop stop (loop thread not answering)",
+})
 
 
 @dataclass
@@ -113,7 +136,7 @@ class ArmPair:
             self.messages.append(text)
             log.log(level, "%s: %s", self.cfg.name, text)
 
-    def _enter_hold(self, reason: str, leader_ok: bool) -> None:
+    def _enter_hold(self, reason: Reason, leader_ok: bool) -> None:
         self.follower.hold(reason)
         self.phase = HOLD
         if not leader_ok:
@@ -141,7 +164,7 @@ class ArmPair:
         self.phase = SOFT_START
         return True
 
-    def make_safe(self, reason: str) -> None:
+    def make_safe(self, reason: Reason | str) -> None:
         """Leader zero torque, follower hold; each attempted even if the other fails (hardware.roles)."""
         errors = make_safe([self.leader], [self.follower], reason)
         if errors:
@@ -168,7 +191,7 @@ class ArmPair:
                 break
             if now >= t_end:
                 who = " and ".join(x for x, ok in (("leader", l_ok), ("follower", f_ok)) if not ok)
-                self.make_safe("no data at start")
+                self.make_safe(Reason.of(PairHold.NO_DATA_AT_START))
                 raise DeviceError(f"no fresh joint data from the {who} within "
                                   f"{self.cfg.start_timeout_s:.1f} s",
                                   where=self.cfg.name,
@@ -178,7 +201,7 @@ class ArmPair:
         self.law.reset(ls.q)  # null-space posture = the leader's start pose unless the rig sets one
         err = mismatch_error(fs.q, self.map.forward(ls.q), self.soft.max_mismatch, where=self.cfg.name)
         if err is not None:
-            self.make_safe("start refused: leader/follower mismatch")
+            self.make_safe(Reason.of(PairHold.START_MISMATCH))
             self.phase = STOPPED
             raise err
         self._start_soft(ls, fs)
@@ -193,7 +216,7 @@ class ArmPair:
             if self.phase != HOLD:
                 who = "leader" if not leader_ok else "follower"
                 age = (now - self._t_ok[who]) * 1e3 if np.isfinite(self._t_ok[who]) else float("inf")
-                self._enter_hold(f"{who} data stale ({age:.0f} ms old)", leader_ok)
+                self._enter_hold(Reason.of(PairHold.DATA_STALE, who=who, age_ms=age), leader_ok)
         elif self.phase == HOLD:
             self._start_soft(ls, fs, resume=True)
         out = None

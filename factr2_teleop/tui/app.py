@@ -25,6 +25,7 @@ from factr2_teleop.tui.rig import RigScreen
 from factr2_teleop.tui.rollout import RolloutScreen
 from factr2_teleop.tui.rollout_ctl import RolloutRun
 from factr2_teleop.tui.runtime import RigRuntime
+from factr2_teleop.tui.stops import OperatorStop, operator_stop
 from factr2_teleop.tui.teleop import TeleopScreen
 from factr2_teleop.tui.teleop_ctl import TeleopController
 from factr2_teleop.tui.train_ctl import Choices, TrainingRun
@@ -153,9 +154,9 @@ class Factr2App(App):
         """End teleop and calibration (each leaves the arms safe) and training (a checkpoint is kept).
         Never raises."""
         if self.training is not None and self.training.running:
-            self.training.stop("app closing")
+            self.training.stop(operator_stop(OperatorStop.APP_CLOSING))
         if self.rollout is not None and self.rollout.running:
-            self.rollout.stop("app closing")
+            self.rollout.stop(operator_stop(OperatorStop.APP_CLOSING))
             self.rollout.join(10.0)
         if self.teleop.running:
             try:
@@ -163,7 +164,7 @@ class Factr2App(App):
             except Exception as e:  # noqa: BLE001
                 self.say(f"teleop stop: {e}")
         if self.calibration is not None:
-            self.calibration.abort("stopped")
+            self.calibration.abort(operator_stop(OperatorStop.STOPPED))
         if self.calibration_thread is not None:
             self.calibration_thread.join(10.0)
         if self.training is not None:
@@ -207,10 +208,10 @@ class Factr2App(App):
     def action_estop(self) -> None:
         def stop_activity() -> None:
             if self.teleop.loop is not None:
-                self.teleop.stop_reason = "emergency stop"
+                self.teleop.stop_reason = operator_stop(OperatorStop.ESTOP)
                 self.teleop.loop.stop(timeout_s=0.0)  # non-blocking: the loop ends safe on its next tick
             if self.calibration is not None:
-                self.calibration.abort("emergency stop")
+                self.calibration.abort(operator_stop(OperatorStop.ESTOP))
 
         if self.rollout is not None and self.rollout.running:  # the rollout holds the rig, not the runtime
             self.runtime.estopped = True

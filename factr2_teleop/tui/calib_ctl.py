@@ -25,7 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from factr2_teleop.tui.runtime import RigRuntime
+from factr2_teleop.tui.stops import OperatorStop, operator_stop
 from hardware.errors import UserError
+from hardware.reasons import Reason
 
 REST_QD = 1e-6  # rad/s: a trajectory sample with every |qd| below this is a rest point (piece boundary)
 HISTORY = 50  # NEXT window [samples]
@@ -101,7 +103,7 @@ class CalibrationRun:
         self.samples_per_epoch = int(samples_per_epoch)
         self.state = CalibState(out_dir=str(self.out))
         self.traj = None
-        self.abort_reason: str | None = None
+        self.abort_reason: Reason | None = None  # an OperatorStop reason once asked to abort
         self._lock = threading.Lock()
         self.spec = runtime.rig.followers[0]
         self.logs: dict[str, Path] = {}
@@ -118,8 +120,8 @@ class CalibrationRun:
         return CalibrationConfig(minutes=self.minutes, contact_eval_s=0.0, train=train, plots=False)
 
     # -- control --------------------------------------------------------------------------------------------
-    def abort(self, reason: str = "aborted by the user") -> None:
-        self.abort_reason = self.abort_reason or reason
+    def abort(self, reason: Reason | None = None) -> None:
+        self.abort_reason = self.abort_reason or reason or operator_stop(OperatorStop.ABORTED)
 
     def _set(self, **kw) -> None:
         with self._lock:
@@ -155,7 +157,7 @@ class CalibrationRun:
         """Move to the start pose and replay the trajectory with calibration.next.collect.collect_free_motion
         (its momentum-observer guard stops on unexpected contact); logs saved as plain logs (train /
         held-out)."""
-        from calibration.next.collect import ContactStop
+        from calibration.next.collect import CollectStop, ContactStop
         from calibration.pipeline import collect, write_logs
         from hardware.arms.dynamics import ArmDynamics
 
@@ -197,9 +199,9 @@ class CalibrationRun:
             run = collect(s, self.spec, traj, self.cfg, progress)
         except ContactStop as e:
             raise _Aborted(f"unexpected contact -- follower on hold ({e.what})") from None
-        if run.stopped and not run.stopped.startswith("contact"):
+        if run.stopped is not None and run.stopped.kind is not CollectStop.CONTACT:
             raise _Aborted(self.abort_reason or f"stopped ({run.stopped})")
-        if run.stopped:
+        if run.stopped is not None:
             self.rt.say(f"calibration: {run.stopped}")
         self.logs = write_logs(self.out, run, self.cfg)
         m = len(run.t)

@@ -16,6 +16,7 @@ from textual.widgets import Static
 
 from factr2_teleop.tui.base import BaseScreen
 from factr2_teleop.tui.calib_ctl import CalibrationRun
+from factr2_teleop.tui.stops import OperatorStop, operator_stop
 from factr2_teleop.tui.widgets import eta, progress_bar, sparkline
 
 CHECKLIST = (
@@ -202,5 +203,5 @@ class CalibrationScreen(BaseScreen):
 
     def action_abort(self) -> None:
         if self.run is not None:
-            self.run.abort("aborted by the user (x)")
+            self.run.abort(operator_stop(OperatorStop.ABORTED))
             self.app.say("calibration abort requested: follower holds")

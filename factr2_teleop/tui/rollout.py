@@ -13,6 +13,7 @@ from textual.widgets import Static
 
 from factr2_teleop.tui import rollout_ctl as R
 from factr2_teleop.tui.base import BaseScreen
+from factr2_teleop.tui.stops import OperatorStop, operator_stop
 from factr2_teleop.tui.teleop import Q_RANGE, TAU_RANGE
 from factr2_teleop.tui.train_ctl import list_runs
 from factr2_teleop.tui.widgets import bar, fmt
@@ -116,7 +117,7 @@ class RolloutScreen(BaseScreen):
             problems = self.check.get(key)
             if problems is None:
                 lines.append("  rig check: checking ...")
-            elif not problems or all(p.startswith("WARNING") for p in problems):
+            elif not any(p.blocking for p in problems):
                 lines.append(f"  rig check: OK for {app.runtime.rig.name}"
                              + (f" with task {app.rollout_task}" if app.rollout_task else ""))
                 lines += [f"  {p}" for p in problems]
@@ -234,7 +235,7 @@ class RolloutScreen(BaseScreen):
         if problems is None:
             app.say("still checking the run against the rig: a moment")
             return
-        blocking = [p for p in problems if "NOT the checkpoint" not in p and not p.startswith("WARNING")]
+        blocking = [p for p in problems if p.blocking]
         if blocking:
             app.say(f"cannot roll out: {blocking[0]}"[:200])
             return
@@ -248,7 +249,7 @@ class RolloutScreen(BaseScreen):
         if self.run is None or not self.run.running:
             self.app.say("no rollout is running")
             return
-        self.run.stop("stopped by the user (x)")
+        self.run.stop(operator_stop(OperatorStop.USER))
         self.app.say("rollout stop requested: the follower holds")
 
     def action_mark(self, key: str) -> None:

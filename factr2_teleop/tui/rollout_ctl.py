@@ -17,7 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.next.ident import parse_ids
+from factr2_teleop.tui.stops import STOPPED, OperatorStop
 from hardware.errors import UserError
+from hardware.reasons import Reason
 
 TIME_LIMIT_CHOICES = (None, 2.0, 5.0, 10.0, 30.0, 60.0)  # [s] per episode; None: the task's own
 EPISODE_CHOICES = (1, 2, 5, 10, 20)
@@ -43,11 +46,23 @@ def app_words(text: str) -> str:
     return text
 
 
-def rig_problems(run: Path, rig: str, task: str | None, force: bool = False) -> list[str]:
-    """Why the trained run cannot drive this rig (arm model, joint names, cameras, the NEXT checkpoint it
-    was trained with; a task other than its demonstrations' unless forced), in words with this screen's
-    keys; [] when it can. The session layer's own checks, run before any device opens. Blocking (loads the
-    policy): a worker."""
+@dataclass(frozen=True)
+class RigProblem:
+    """One finding of the rig check: text (in this screen's words); blocking: the rollout may not start
+    (else a warning shown beside "OK")."""
+
+    text: str
+    blocking: bool = True
+
+    def __str__(self) -> str:
+        return self.text
+
+
+def rig_problems(run: Path, rig: str, task: str | None, force: bool = False) -> list[RigProblem]:
+    """What stands between the trained run and this rig (arm model, joint names, cameras, the NEXT checkpoint
+    it was trained with; a task other than its demonstrations' unless forced), in words with this screen's
+    keys; [] when nothing does. The session layer's own checks, run before any device opens. Blocking (loads
+    the policy): a worker."""
     from factr2_teleop.session import rollout as R
     from factr2_teleop.session.task_check import task_mismatch
     from policies.rollout.runner import PolicyRunner
@@ -57,15 +72,16 @@ def rig_problems(run: Path, rig: str, task: str | None, force: bool = False) -> 
         runner = PolicyRunner(run)
         R.check_options(R.RolloutOptions(rig=rig, policy=Path(run), task=task, force=force), runner)
     except UserError as e:
-        return [app_words(str(e))]
+        return [RigProblem(app_words(str(e)))]
     if force and task_mismatch(runner.meta, task):
-        out.append(f"WARNING {task_mismatch(runner.meta, task)}: rolled out anyway (f: force is on)")
+        why = task_mismatch(runner.meta, task)
+        out.append(RigProblem(f"WARNING {why}: rolled out anyway (f: force is on)", blocking=False))
     try:
         _, note = R.resolve_next(runner.meta, None)
-        if note:
-            out.append(note)
+        if note is not None:
+            out.append(RigProblem(str(note), blocking=False))
     except UserError as e:
-        out.append(app_words(str(e)))
+        out.append(RigProblem(app_words(str(e))))
     return out
 
 
@@ -77,9 +93,10 @@ def policy_summary(run: Path) -> str:
     arms = m.get("arms", {})
     joints = arms.get("joint_names", [[]])[0]
     model = (arms.get("arm_models") or ["?"])[0] or "?"
-    nxt = m.get("next_checkpoint") or "none (recorded tau_ext)"
+    ids = parse_ids(m.get("next_checkpoint"))
+    nxt = ", ".join(i.short for i in ids) if ids else "none (recorded tau_ext)"
     return (f"{m['policy']['policy']}/{m['method']} step {m['step']}, arm {model} ({len(joints)} joints), "
-            f"NEXT {Path(str(nxt).split('#')[0]).name if '#' in str(nxt) else nxt}")
+            f"NEXT {nxt}")
 
 
 @dataclass
@@ -118,7 +135,7 @@ class RolloutRun:
         self.result = None  # the RolloutResult once it has run
         self._lock = threading.Lock()
         self._ts = self._target = self._eps = None
-        self._stop_why = ""
+        self._stop_why: Reason | None = None  # an OperatorStop reason once asked to stop
         self.thread: threading.Thread | None = None
 
     @property
@@ -157,8 +174,8 @@ class RolloutRun:
         r = self.result
         with self._lock:
             self.state.recording = r.recording
-        if self._stop_why:
-            self._end("E-STOPPED" if self._stop_why == "emergency stop" else "stopped",
+        if self._stop_why is not None:
+            self._end("E-STOPPED" if self._stop_why.kind is OperatorStop.ESTOP else "stopped",
                       f"{self._stop_why}: follower held, leader torque off")
         else:
             self._end("done", f"{len(r.episodes)} episode(s), success rate {r.success_rate:.0%}")
@@ -181,7 +198,7 @@ class RolloutRun:
         target, eps = self._target, self._eps
         if target is None:
             return
-        if self._stop_why:  # asked while it was starting (the loop's run() forgets an earlier stop)
+        if self._stop_why is not None:  # asked while starting (the loop's run() forgets an earlier stop)
             self._ts.loop.stop(timeout_s=0.0)
         tracker = getattr(eps, "tracker", None)
         reached = {}
@@ -213,15 +230,16 @@ class RolloutRun:
                             fix="marks are for rollouts without a task (or on a real rig)")
         self.opts.marks.put(key)
 
-    def stop(self, why: str = "stopped") -> None:
-        """End the rollout: the loop stops after its tick and leaves the arms safe."""
+    def stop(self, why: Reason = STOPPED) -> None:
+        """End the rollout (why: an OperatorStop reason): the loop stops after its tick and leaves the arms
+        safe."""
         self._stop_why = self._stop_why or why
         if self._ts is not None and self._ts.loop is not None:
             self._ts.loop.stop(timeout_s=0.0)
 
     def estop(self) -> list[str]:
         """EMERGENCY STOP from any thread: stop the loop, follower hold, leader zero torque, now."""
-        self._stop_why = "emergency stop"
+        self._stop_why = Reason.of(OperatorStop.ESTOP)
         problems = []
         ts = self._ts
         if ts is None:
@@ -230,7 +248,7 @@ class RolloutRun:
         for pair in ts.pairs:
             for dev, act in ((pair.follower, "hold"), (pair.leader, "zero_torque")):
                 try:
-                    getattr(dev, act)("emergency stop")
+                    getattr(dev, act)(self._stop_why)
                 except Exception as e:  # noqa: BLE001 -- the other arm must still be made safe
                     problems.append(f"{dev.name}: {e}")
         with self._lock:

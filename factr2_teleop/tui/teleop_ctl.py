@@ -18,6 +18,7 @@ from factr2_teleop.teleop.feedback import FeedbackConfig
 from factr2_teleop.teleop.loop import TeleopLoop, TeleopSnapshot
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.tui.runtime import RigRuntime
+from factr2_teleop.tui.stops import OperatorStop, operator_stop
 from hardware.errors import UserError
 
 GAIN_STEP = 0.01  # K_f step per key press [leader N*m per follower N*m]
@@ -72,7 +73,7 @@ class TeleopController:
         self._episodes_done = 0
         self._last_outcome = "-"
         self._lock = threading.RLock()
-        self.stop_reason = "teleop stopped"
+        self.stop_reason = operator_stop(OperatorStop.TELEOP_STOPPED)  # the recording's closing note
         self._ticks = 0
         self.last_error: str | None = None
         self.last_file: str | None = None
@@ -133,7 +134,7 @@ class TeleopController:
             self.rt.release("teleop")
             raise
         self.last_error = None
-        self.stop_reason = "teleop stopped"
+        self.stop_reason = operator_stop(OperatorStop.TELEOP_STOPPED)  # the recording's closing note
         self.next_flags.clear()
         self._ticks = 0
         self._thread = threading.Thread(target=self._run, name="factr2-tui-teleop", daemon=True)
@@ -158,7 +159,7 @@ class TeleopController:
                 q = s.leaders[name].last_state.q if s is not None else None
                 if q is not None and np.all(np.isfinite(q)) and q.shape == h.q_ref.shape:
                     h.q_ref = np.asarray(q, dtype=float).copy()
-            self._close_recording(self.stop_reason)
+            self._close_recording(str(self.stop_reason))
             if self.ts is not None:
                 self.ts.stop_cameras()
             self.rt.release("teleop")

@@ -16,7 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from factr2_teleop.tui.stops import STOPPED
 from hardware.errors import UserError
+from hardware.reasons import Reason
 
 # which recorded episodes may train (discarded ones never do: policies.recordings leaves them out); the first
 # is the default, `factr2 train`'s: failed and incomplete episodes are skipped unless asked for
@@ -286,7 +288,7 @@ class TrainingRun:
         self.thread = threading.Thread(target=self.run, name="factr2-tui-training", daemon=True)
         self.thread.start()
 
-    def stop(self, why: str = "stopped") -> None:
+    def stop(self, why: Reason = STOPPED) -> None:
         if self.running and not self.stop_event.is_set():
             self.stop_event.set()
             with self._lock:

@@ -18,6 +18,7 @@ from textual.widgets import Input, Static
 from factr2_teleop.tui import train_ctl as T
 from factr2_teleop.tui.base import BaseScreen
 from factr2_teleop.tui.episodes import short_name
+from factr2_teleop.tui.stops import OperatorStop, operator_stop
 from factr2_teleop.tui.train_inputs import observation_problem, recording_inputs
 from factr2_teleop.tui.widgets import eta, progress_bar, sparkline, text_plot
 
@@ -349,5 +350,5 @@ class TrainingScreen(BaseScreen):
         if self.run is None or not self.run.running:
             self.app.say("no training run is going on")
             return
-        self.run.stop("stopped by the user (x)")
+        self.run.stop(operator_stop(OperatorStop.USER))
         self.background(self.run.join, "training stop", lambda _: self.action_reload())

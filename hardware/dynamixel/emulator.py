@@ -138,7 +138,7 @@ class DynamixelEmulator:
         self._thread.start()
 
     # -- public --------------------------------------------------------------------------------------
-    def set_realtime(self, priority: int) -> str | None:
+    def set_realtime(self, priority: int):
         """SCHED_FIFO for the serving thread (a real-time twin: servos answer in bounded time). None when set
         (or nothing to set: in-process transport), else why not (hardware.realtime.set_fifo)."""
         from hardware.realtime import set_fifo

@@ -146,7 +146,7 @@ class Twin:
         self._t_offset = 0.0
         self.lock = threading.RLock()
         self._rt_thread: threading.Thread | None = None
-        self.realtime_note: str | None = None  # why the real-time twin runs at normal priority, if it does
+        self.realtime_note = None  # why the real-time twin runs at normal priority, if it does
         self._rt_stop = threading.Event()
         self.overruns = 0
         self._step_observers: list = []  # add_step_observer
@@ -324,7 +324,7 @@ class Twin:
         why = set_fifo(TWIN_PRIORITY, self._rt_thread.native_id)
         for e in self._dxl_emus:
             why = e.set_realtime(EMULATOR_PRIORITY) or why
-        self.realtime_note = why  # None, or one line saying why the twin runs at normal priority
+        self.realtime_note = why  # None, or why the twin runs at normal priority (an RtRefusal reason)
 
     def _realtime_loop(self) -> None:
         while not self._rt_stop.is_set():

@@ -20,8 +20,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
+
+from hardware.reasons import Reason, messages
 
 ACT_ENSEMBLE_M = 0.01  # the original ACT's temporal-ensembling weight constant (per chunk)
 STALL_S = 0.2  # s: a chunk this late (after it was due) holds the follower
@@ -30,6 +33,40 @@ STALL_S = 0.2  # s: a chunk this late (after it was due) holds the follower
 # regression error of a few hundredths there is normal (0.05 rad refused a trained policy near joint 5)
 LIMIT_TOL_RAD = 0.15
 ENSEMBLE, RECEDING = "ensemble", "receding"
+
+
+class PolicyHold(Enum):
+    """Why a rollout's follower holds (hardware.reasons). The value is the key the pair's `holds` counter
+    (and the rollout summary) counts it under."""
+
+    NOT_FINITE = "policy output not finite"  # a chunk refused
+    OUTSIDE_LIMITS = "policy target outside the joint limits"  # a chunk refused (detail: joint, q, limit)
+    FIRST_CHUNK = "waiting for the policy's first chunk"
+    STALLED = "policy stalled"  # detail: ms
+    USED_UP = "policy chunks used up"
+    FOLLOWER_STALE = "follower data stale"
+    BETWEEN_EPISODES = "waiting"
+    NOT_STARTED = "waiting to start"
+    NO_POLICY = "no policy attached"
+
+    @property
+    def fault(self) -> bool:
+        """Whether a hold of this kind is a fault (counted); waiting is not."""
+        return self not in (PolicyHold.FIRST_CHUNK, PolicyHold.BETWEEN_EPISODES, PolicyHold.NOT_STARTED)
+
+
+messages({
+    PolicyHold.NOT_FINITE: "policy output not finite",
+    PolicyHold.OUTSIDE_LIMITS: ("policy target outside the joint limits (joint {joint}: {q:.3f} rad, "
+                                "limit {limit:.3f})"),
+    PolicyHold.FIRST_CHUNK: "waiting for the policy's first chunk",
+    PolicyHold.STALLED: "policy stalled: no new chunk {ms:.0f} ms after one was due",
+    PolicyHold.USED_UP: "policy chunks used up",
+    PolicyHold.FOLLOWER_STALE: "follower data stale",
+    PolicyHold.BETWEEN_EPISODES: "waiting: between episodes",
+    PolicyHold.NOT_STARTED: "waiting to start",
+    PolicyHold.NO_POLICY: "no policy attached",
+})
 
 
 @dataclass(frozen=True)
@@ -107,20 +144,20 @@ def overdue_s(t: float, t_obs_newest: float, period_s: float) -> float:
 
 
 def chunk_problem(actions: np.ndarray, q_min: np.ndarray, q_max: np.ndarray,
-                  tol: float = 0.0) -> str | None:
-    """Why a chunk must not run, or None: non-finite values, or a joint target outside [q_min - tol,
-    q_max + tol] [rad] (joints: the first len(q_min) columns; the gripper column is clamped, not judged)."""
+                  tol: float = 0.0) -> Reason | None:
+    """Why a chunk must not run, or None: non-finite values (PolicyHold.NOT_FINITE), or a joint target
+    outside [q_min - tol, q_max + tol] [rad] (OUTSIDE_LIMITS, the first such joint 1-based, its target and
+    the limit [rad]; joints: the first len(q_min) columns; the gripper column is clamped, not judged)."""
     a = np.asarray(actions, dtype=float)
     if not np.all(np.isfinite(a)):
-        return "policy output not finite"
+        return Reason.of(PolicyHold.NOT_FINITE)
     n = len(q_min)
     q = a[:, :n]
     lo, hi = q < np.asarray(q_min) - tol, q > np.asarray(q_max) + tol
     if lo.any() or hi.any():
         step, j = np.argwhere(lo | hi)[0]
         bound = q_min[j] if lo[step, j] else q_max[j]
-        return (f"policy target outside the joint limits (joint {j + 1}: {q[step, j]:.3f} rad, "
-                f"limit {bound:.3f})")
+        return Reason.of(PolicyHold.OUTSIDE_LIMITS, joint=int(j) + 1, q=float(q[step, j]), limit=float(bound))
     return None
 
 
@@ -145,17 +182,17 @@ class ChunkSchedule:
     accepted: int = 0
     nonfinite: int = 0
     outside_limits: int = 0
-    problem: str | None = None  # the newest chunk's problem: holds until a good chunk arrives
+    problem: Reason | None = None  # the newest chunk's problem: holds until a good chunk arrives
 
     @property
     def period_s(self) -> float:
         return request_period_s(self.mode, self.dt, self.k_exec)
 
-    def add(self, chunk: Chunk) -> str | None:
+    def add(self, chunk: Chunk) -> Reason | None:
         """Take a chunk; returns why it was refused (and the schedule holds), or None."""
         why = chunk_problem(chunk.actions, self.q_min, self.q_max, self.tol)
         if why is not None:
-            if why.startswith("policy output not finite"):
+            if why.kind is PolicyHold.NOT_FINITE:
                 self.nonfinite += 1
             else:
                 self.outside_limits += 1
@@ -169,22 +206,21 @@ class ChunkSchedule:
         del self.chunks[:-keep]  # older chunks no longer cover any time ahead
         return None
 
-    def target(self, t: float) -> tuple[np.ndarray | None, str | None, float]:
-        """(target (A,) or None, why None, age of the executed action [s])."""
+    def target(self, t: float) -> tuple[np.ndarray | None, Reason | None, float]:
+        """(target (A,) or None, why None (a PolicyHold reason), age of the executed action [s])."""
         if self.problem is not None:
             return None, self.problem, float("nan")
         if not self.chunks:
-            return None, "waiting for the policy's first chunk", float("nan")
+            return None, Reason.of(PolicyHold.FIRST_CHUNK), float("nan")
         late = overdue_s(t, self.chunks[-1].t_obs, self.period_s)
         if late > self.stall_s:
-            why = f"policy stalled: no new chunk {1e3 * self.stall_s:.0f} ms after one was due"
-            return None, why, float("nan")
+            return None, Reason.of(PolicyHold.STALLED, ms=1e3 * self.stall_s), float("nan")
         if self.mode == ENSEMBLE:
             a, k = ensembled_target(self.chunks, t, self.m)
         else:
             a, k = receding_target(self.chunks, t)
         if a is None:
-            return None, "policy chunks used up", float("nan")
+            return None, Reason.of(PolicyHold.USED_UP), float("nan")
         return a, None, t - self.chunks[k].t_obs
 
     def clear(self) -> None:
