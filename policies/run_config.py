@@ -279,6 +279,9 @@ def _preset(name: str, policy: str, observation: str) -> PolicyConfig:
     if name == "state" and observation != "state":
         raise UserError(f"preset state takes no images, the observation is {observation}",
                         where="--preset state", fix="train with --obs state, or --preset small|paper")
+    if policy not in policy_names():
+        raise UserError(f"unknown policy {policy!r}", where="--policy",
+                        fix=f"one of {', '.join(policy_names())}")
     return preset(name, policy)
 
 
