@@ -85,10 +85,10 @@ def _serve(conn, path: str, arm: str, n: int, loop_period_s: float) -> None:
     from hardware.threads import limit_threads
 
     with limit_threads(1, torch=True):  # one core for the worker: the loop and its twin have the others
-        _answer(conn, path, arm, n, loop_period_s)
+        _load_and_answer(conn, path, arm, n, loop_period_s)
 
 
-def _answer(conn, path: str, arm: str, n: int, loop_period_s: float) -> None:
+def _load_and_answer(conn, path: str, arm: str, n: int, loop_period_s: float) -> None:
     try:
         from calibration.next.checkpoint import load_checkpoint
         from calibration.next.estimator import NextEstimator
