@@ -258,7 +258,6 @@ def _episodes(opts: RolloutOptions, ts, task, target: PolicyTarget, stages: tupl
     if task is not None:
         eps = TwinRollout(ts, task, opts.episodes, opts.seed, target, opts.max_seconds or task.episode_s,
                           on_episode=said)
-        target.objects = lambda: _objects(eps)
         return eps
     return MarkedRollout(ts, target, opts.episodes, stages, opts.max_seconds or MARK_TIME_LIMIT_S, opts.marks,
                          on_episode=said)
@@ -377,9 +376,3 @@ def rig_follower_arms(rig) -> dict[str, tuple[str, list[str]]]:
         spec = rig.device(fol)
         out[arm] = (spec.arm, list(load_arm(spec.arm).joint_names))
     return out
-
-
-def _objects(eps: TwinRollout) -> np.ndarray:
-    from policies.privileged import task_state_vector
-
-    return task_state_vector(eps.task, eps.model, eps.data, eps.params)

@@ -25,6 +25,12 @@ class TwinRollout(TaskEpisodes):
         super().__init__(ts, task, episodes, seed, on_episode)
         self.target, self.time_limit_s = target, float(time_limit_s)
 
+    def objects(self):
+        """The PRIVILEGED object vector of the task as the twin has it now (policies/privileged.py)."""
+        from policies.privileged import task_state_vector
+
+        return task_state_vector(self.task, self.model, self.data, self.params)
+
     def _begin_episode(self, r) -> None:
         self.target.home(r.follower)
         self._state = "home"
@@ -40,7 +46,7 @@ class TwinRollout(TaskEpisodes):
             self._state, self._t_state = "settle", r.t
         elif st == "settle" and r.t - self._t_state >= SETTLE_S:
             self.rec_start()
-            self.target.run(r.t)
+            self.target.run(r.t, objects=self.objects)
             self._state = RUN
         elif st == RUN and self._k % DETECT_EVERY == 0:
             obs = self.observe()

@@ -152,12 +152,13 @@ class PolicyTarget:
     others take their columns of it. runner: policies.rollout.PolicyRunner (started); schedule: ChunkSchedule
     over the whole action vector; features: the rig's (hardware.features.rig_features): the observation is
     read by the names the checkpoint stores; frames: callable(now) -> {camera: RGB frame of now} or None
-    while they are not there; objects: callable -> the PRIVILEGED object vector (twin tasks) or None."""
+    while they are not there. The episode owner moves it between phases; on a twin task it hands run() the
+    callable that gives the PRIVILEGED object vector."""
 
-    def __init__(self, arms: list[TargetArm], runner, schedule: ChunkSchedule, features: dict, frames,
-                 objects=None):
+    def __init__(self, arms: list[TargetArm], runner, schedule: ChunkSchedule, features: dict, frames):
         self.arms, self.runner, self.schedule = list(arms), runner, schedule
-        self.features, self.frames, self.objects = features, frames, objects
+        self.features, self.frames = features, frames
+        self.objects = None  # callable -> the PRIVILEGED object vector, from run() (twin tasks)
         self.state = IDLE
         self.started = False
         self._t_next = -np.inf
@@ -192,7 +193,9 @@ class PolicyTarget:
     def settle(self) -> None:
         self.state = SETTLE
 
-    def run(self, now: float) -> None:
+    def run(self, now: float, objects=None) -> None:
+        """The policy drives from `now`; objects: callable -> the PRIVILEGED object vector (a twin task)."""
+        self.objects = objects
         self.runner.take()  # chunks of an earlier episode are dropped
         self.schedule.clear()
         self._t_next = now
