@@ -137,12 +137,15 @@ def arm_xml(spec: ArmSpec) -> str:
     out += ["  </actuator>", "  <custom>",
             f'    <text name="factr2.role" data="{spec.role}"/>',
             f'    <text name="factr2.arm_joints" data="{" ".join(lk.name for lk in arm)}"/>',
-            f'    <text name="factr2.gripper_joints" data="{" ".join(fg.name for fg in spec.fingers)}"/>',
+            *([f'    <text name="factr2.gripper_joints" data="{" ".join(fg.name for fg in spec.fingers)}"/>']
+              if spec.fingers else []),  # MuJoCo refuses an empty text: no gripper, no field
             '    <text name="factr2.ee_site" data="ee"/>',
             f'    <numeric name="factr2.v_max" data="{_v(lk.v_max for lk in arm)}"/>',
             f'    <numeric name="factr2.tau_rate_max" data="{_v(rate)}"/>',
-            f'    <numeric name="factr2.q_home" data="{_v(spec.q_home)}"/>',
-            "  </custom>", "</mujoco>", ""]
+            f'    <numeric name="factr2.q_home" data="{_v(spec.q_home)}"/>']
+    if spec.motors:
+        out.append(f'    <text name="factr2.motors" data="{" ".join(spec.motors)}"/>')
+    out += ["  </custom>", "</mujoco>", ""]
     return "\n".join(out)
 
 
@@ -152,8 +155,15 @@ _SCENE = {"piper": dict(block=(0.38, 0.16), box=(0.34, -0.12)),
           "panda": dict(block=(0.55, 0.20), box=(0.50, -0.15))}
 
 
+def _reach_layout(spec: ArmSpec) -> dict:
+    """Objects for an arm without a hand-placed layout: at half its reach (sum of link offsets) [m]."""
+    reach = sum(math.sqrt(sum(v * v for v in lk.pos)) for lk in spec.links) + math.sqrt(
+        sum(v * v for v in spec.ee_pos))
+    return dict(block=(0.5 * reach, 0.2 * reach), box=(0.45 * reach, -0.15 * reach))
+
+
 def scene_xml(spec: ArmSpec) -> str:
-    lay = _SCENE[spec.name]
+    lay = _SCENE.get(spec.name) or _reach_layout(spec)
     bx, by = lay["block"]
     ox, oy = lay["box"]
     n_arm = len([lk for lk in spec.links if not lk.fixed])

@@ -82,6 +82,7 @@ class ArmSpec:
     notes: str = ""
     ee_quat: tuple = (1.0, 0.0, 0.0, 0.0)
     extra_bodies: tuple = field(default_factory=tuple)
+    motors: tuple = ()  # twin motor presets per joint (hardware.sim.presets), written as factr2.motors
 
 
 def _scaled(inertia: tuple, k: float) -> tuple:

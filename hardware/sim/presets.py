@@ -80,6 +80,12 @@ _MOTORS: dict[str, dict] = {
                         winding_ohm=0.3, thermal_res=2.0, thermal_tau=600.0, current_noise=0.02,
                         velocity_noise=0.002, current_lsb=0.0, pos_kp=100.0, pos_kd=5.0, pos_ki=20.0,
                         pos_i_max=2.0, pos_vel_max=2.5, brake=True),
+    # An imported arm's joints (factr2 arm import): no vendor drive data, so torque is reported in N*m (kt 1)
+    # with mid-range effects of the drives above; armature, Coulomb and viscous come from its description.
+    "generic": dict(kt=1.0, stribeck=0.1, stribeck_vel=0.05, smooth_vel=0.005, backlash=0.002,
+                    ripple_amp=0.02, ripple_cycles=50, winding_ohm=1.0, thermal_res=3.0, thermal_tau=500.0,
+                    current_noise=0.01, velocity_noise=0.003, current_lsb=0.0, pos_kp=50.0, pos_kd=3.0,
+                    pos_ki=0.0, pos_i_max=1.0, pos_vel_max=3.0),
 }
 
 ARM_MOTORS: dict[str, list[str]] = {
@@ -115,8 +121,9 @@ def motor_params(motors: list[str], where: str = "twin") -> ActuatorParams:
 
 def arm_params(arm: str, effects: Effects | None = None, n: int | None = None,
                motors: list[str] | None = None) -> ActuatorParams:
-    """Parameters for an arm's joints (the motor list defaults to ARM_MOTORS[arm])."""
-    names = motors or ARM_MOTORS.get(arm)
+    """Parameters for an arm's joints (the motor list defaults to ARM_MOTORS[arm], else the description's
+    factr2.motors: an imported arm's)."""
+    names = motors or ARM_MOTORS.get(arm) or _description_motors(arm)
     if names is None:
         raise ConfigError(f"no motor list for arm {arm!r}", where="twin",
                           fix=f"set [followers.twin] motors = [...] in the rig, or use one of "
@@ -126,3 +133,12 @@ def arm_params(arm: str, effects: Effects | None = None, n: int | None = None,
                           fix="list one motor type per joint")
     p = motor_params(names, where=f"twin motors of {arm}")
     return replace(p, effects=effects or Effects())
+
+
+def _description_motors(arm: str) -> list[str] | None:
+    from hardware.arms import load_arm
+
+    try:
+        return list(load_arm(arm).motors) or None
+    except ConfigError:
+        return None
