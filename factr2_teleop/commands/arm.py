@@ -25,23 +25,25 @@ def add_arguments(parser) -> None:
     imp.add_argument("--armature", default=None, metavar="KG_M2",
                      help="reflected rotor inertia [kg*m^2]: one value or one per joint, comma-separated "
                           "(a URDF has none; default 0)")
+    imp.add_argument("--q-home", default=None, metavar="RAD",
+                     help="home pose [rad], one value per joint, comma-separated (default: 0 clipped into "
+                          "each joint's range; the twin starts there)")
     imp.add_argument("--force", action="store_true", help="replace an arm of that name already imported")
     sub.add_parser("list", help="the built-in arms and those imported into the user's arm folder")
 
 
-def _armature(text: str | None):
+def _numbers(text: str, flag: str, n: int, example: str) -> list[float]:
+    """A comma-separated list of one or n finite numbers (UserError naming the flag otherwise)."""
     from hardware.errors import UserError
 
-    if text is None:
-        return 0.0
     try:
         vals = [float(v) for v in text.split(",")]
     except ValueError:
-        raise UserError(f"--armature {text!r} is not a number list", where="--armature",
-                        fix="e.g. --armature 0.01 or --armature 0.1,0.1,0.1,0.02,0.02,0.02") from None
-    if any(not v >= 0 for v in vals):
-        raise UserError("--armature must be >= 0", where="--armature", fix="give kg*m^2 >= 0")
-    return vals[0] if len(vals) == 1 else vals
+        vals = []
+    if len(vals) not in (1, n) or not all(abs(v) < float("inf") for v in vals):
+        raise UserError(f"{flag} {text!r}: expected one number or {n}, comma-separated", where=flag,
+                        fix=f"e.g. {flag} {example}")
+    return vals * n if len(vals) == 1 else vals
 
 
 def run(args) -> int:
@@ -59,6 +61,8 @@ def run(args) -> int:
 
 
 def _import(args) -> int:
+    from dataclasses import replace
+
     import numpy as np
 
     from hardware.arms import load_arm
@@ -93,11 +97,18 @@ def _import(args) -> int:
     if errors:
         raise UrdfError(f"{len(errors)} problem(s), first: {errors[0]}", where=str(path),
                         fix="correct the URDF's inertials and limits (each problem listed above)")
-    armature = _armature(args.armature)
-    if not np.isscalar(armature) and len(armature) != len(arm.joints):
-        raise UrdfError(f"--armature has {len(armature)} values for {len(arm.joints)} joints",
-                        where="--armature", fix="one value, or one per joint")
-    paths = write_arm(to_spec(arm, args.name, armature), folder)
+    n = len(arm.joints)
+    armature = 0.0 if args.armature is None else _numbers(args.armature, "--armature", n, "0.01")
+    if np.any(np.asarray(armature) < 0):
+        raise UrdfError("--armature below 0", where="--armature", fix="give kg*m^2 >= 0")
+    spec = to_spec(arm, args.name, armature)
+    if args.q_home is not None:
+        home = _numbers(args.q_home, "--q-home", n, "0,-1.57,1.57,-1.57,-1.57,0")
+        if any(not lk.range[0] <= h <= lk.range[1] for h, lk in zip(home, spec.links)):
+            raise UrdfError("--q-home outside the joint limits", where="--q-home",
+                            fix="give a pose inside every joint's range [rad]")
+        spec = replace(spec, q_home=tuple(home))
+    paths = write_arm(spec, folder)
     try:
         desc = load_arm(args.name)
         worst = agreement(path, desc)

@@ -81,9 +81,13 @@ def _tuple6(b) -> tuple:
 
 
 def _capsule(end: np.ndarray) -> tuple:
-    if float(np.linalg.norm(end)) < 0.02:
-        return (Geom("sphere", (COLLISION_RADIUS_M,), pos=(0.0, 0.0, 0.0)),)
-    return (Geom("capsule", (COLLISION_RADIUS_M,), fromto=(0.0, 0.0, 0.0) + tuple(float(v) for v in end)),)
+    """A capsule from the joint to the next one, its start pulled in by 1.2 radii so that the first link
+    does not sit inside the table the base stands on."""
+    length = float(np.linalg.norm(end))
+    if length < 3 * COLLISION_RADIUS_M:  # a short link (a wrist, the flange): a sphere where it ends
+        return (Geom("sphere", (COLLISION_RADIUS_M,), pos=tuple(float(v) for v in end)),) if length > 0 else ()
+    start = end * (1.2 * COLLISION_RADIUS_M / length)
+    return (Geom("capsule", (COLLISION_RADIUS_M,), fromto=tuple(float(v) for v in (*start, *end))),)
 
 
 def to_spec(arm: UrdfArm, name: str, armature=DEFAULT_ARMATURE) -> ArmSpec:

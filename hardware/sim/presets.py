@@ -82,10 +82,12 @@ _MOTORS: dict[str, dict] = {
                         pos_i_max=2.0, pos_vel_max=2.5, brake=True),
     # An imported arm's joints (factr2 arm import): no vendor drive data, so torque is reported in N*m (kt 1)
     # with mid-range effects of the drives above; armature, Coulomb and viscous come from its description.
+    # The position loop is given for a GENERIC_REF_TAU_NM joint; arm_params scales it by each joint's tau_max
+    # (a 150 N*m UR5 shoulder needs 15x the stiffness to hold itself up).
     "generic": dict(kt=1.0, stribeck=0.1, stribeck_vel=0.05, smooth_vel=0.005, backlash=0.002,
                     ripple_amp=0.02, ripple_cycles=50, winding_ohm=1.0, thermal_res=3.0, thermal_tau=500.0,
-                    current_noise=0.01, velocity_noise=0.003, current_lsb=0.0, pos_kp=50.0, pos_kd=3.0,
-                    pos_ki=0.0, pos_i_max=1.0, pos_vel_max=3.0),
+                    current_noise=0.01, velocity_noise=0.003, current_lsb=0.0, pos_kp=100.0, pos_kd=4.0,
+                    pos_ki=200.0, pos_i_max=10.0, pos_vel_max=3.0),
 }
 
 ARM_MOTORS: dict[str, list[str]] = {
@@ -95,6 +97,10 @@ ARM_MOTORS: dict[str, list[str]] = {
     "gello_piper": ["XC330-M288"] * 3 + ["XL330-M288"] * 3,  # as hardware/arms/specs.py builds them
     "gello_yam": ["XC330-M288"] * 3 + ["XL330-M288"] * 3,
 }
+
+
+GENERIC_REF_TAU_NM = 10.0  # the joint size the "generic" preset's position loop is written for [N*m]
+_POS_GAINS = ("pos_kp", "pos_kd", "pos_ki", "pos_i_max")
 
 
 def motor_names() -> list[str]:
@@ -132,6 +138,11 @@ def arm_params(arm: str, effects: Effects | None = None, n: int | None = None,
         raise ConfigError(f"arm {arm!r} has {n} joints but {len(names)} motor types", where="twin",
                           fix="list one motor type per joint")
     p = motor_params(names, where=f"twin motors of {arm}")
+    if "generic" in names:
+        from hardware.arms import load_arm
+
+        k = np.where(np.array(names) == "generic", load_arm(arm).limits.tau_max / GENERIC_REF_TAU_NM, 1.0)
+        p = replace(p, **{g: getattr(p, g) * k for g in _POS_GAINS})
     return replace(p, effects=effects or Effects())
 
 
