@@ -85,7 +85,8 @@ def _capsule(end: np.ndarray) -> tuple:
     does not sit inside the table the base stands on."""
     length = float(np.linalg.norm(end))
     if length < 3 * COLLISION_RADIUS_M:  # a short link (a wrist, the flange): a sphere where it ends
-        return (Geom("sphere", (COLLISION_RADIUS_M,), pos=tuple(float(v) for v in end)),) if length > 0 else ()
+        tip = tuple(float(v) for v in end)
+        return () if length == 0 else (Geom("sphere", (COLLISION_RADIUS_M,), pos=tip),)
     start = end * (1.2 * COLLISION_RADIUS_M / length)
     return (Geom("capsule", (COLLISION_RADIUS_M,), fromto=tuple(float(v) for v in (*start, *end))),)
 
