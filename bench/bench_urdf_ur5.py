@@ -9,7 +9,8 @@ motion (truth 0), as bench/bench_next_ur5.py.
     python bench/bench_urdf_ur5.py [--folds heldout,loro] [--priors identified-current,data-only]
                                    [--max-seconds 60] [--threads 1] [--out bench/out/urdf_ur5.json]
 
-The arm is imported into a temporary $FACTR2_ARMS. The logs are read from ../shared/data/ur5_kufieta2014.
+The arm is imported into a temporary $FACTR2_ARMS. The logs: $FACTR2_SHARED/data/ur5_kufieta2014 (default
+../shared beside the checkout).
 """
 
 from __future__ import annotations
@@ -27,7 +28,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
-from bench_next_ur5 import EVAL_RUNS, TRAIN_RUNS, UR5  # noqa: E402
+from bench_next_ur5 import EVAL_RUNS, TRAIN_RUNS  # noqa: E402
+
+# the shared data folder: $FACTR2_SHARED (as tests/conftest.py), else ../shared beside the checkout
+UR5 = Path(os.environ.get("FACTR2_SHARED", ROOT.parent / "shared")) / "data" / "ur5_kufieta2014"
 
 METHODS = ("ridge", "prior", "next", "raw")
 

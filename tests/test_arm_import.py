@@ -99,3 +99,17 @@ def test_ur5_urdf_imports_with_its_stated_mass_flagged(arms_dir, capsys):
     # UR's DH: at q = 0 the arm is stretched out along -x; the tool at x = -(a2 + a3), y = -(d4 + d6)
     ee = ArmDynamics(arm).fk(np.zeros(6))[:3, 3]
     np.testing.assert_allclose(ee, [-0.81725, -0.19145, -0.005491], atol=1e-6)
+
+
+def test_twin_of_an_imported_arm_runs_teleop_with_its_generated_leader(arms_dir, tmp_path, capsys):
+    """SIMULATED: a rig naming only imported arms (the follower and its generated GELLO leader)."""
+    assert main(["arm", "import", _urdf(tmp_path), "--name", "two", "--q-home", "0.3,0.5"]) == 0
+    rig = tmp_path / "sim-two.toml"
+    rig.write_text('[rig]\nname = "sim-two"\ndescription = "imported"\nsimulated = true\n'
+                   '[[leaders]]\nname = "leader"\ndriver = "dynamixel"\narm = "gello_two"\nport = "twin"\n'
+                   'baud = 4000000\nids = [1, 2]\nsigns = [1, 1]\noffsets_rad = [3.14159265, 3.14159265]\n'
+                   'model = "XL330-M288"\n[[followers]]\nname = "follower"\ndriver = "sim"\narm = "two"\n'
+                   '[twin]\nseed = 0\nscene = "table"\n')
+    capsys.readouterr()
+    assert main(["teleop", "--rig", str(rig), "--seconds", "1", "--rate", "250"]) == 0
+    assert "Hz (target 250)" in capsys.readouterr().out
