@@ -63,7 +63,10 @@ def _geom(g: Geom, name: str) -> str:
 
 
 def _link_open(lk: Link, ind: str) -> list[str]:
-    lines = [f'{ind}<body name="{lk.name.replace("joint", "link")}" {_frame(lk.pos, lk.rpy, lk.quat)}>',
+    body = lk.name.replace("joint", "link")
+    if body == lk.name and not lk.fixed:  # a joint "base" (UR): pinocchio needs body != joint name
+        body = f"{lk.name}_link"
+    lines = [f'{ind}<body name="{body}" {_frame(lk.pos, lk.rpy, lk.quat)}>',
              f"{ind}  {_inertial(lk.mass, lk.com, lk.inertia)}"]
     if not lk.fixed:
         lines.append(
