@@ -20,18 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration.diagnosis.basis import gravity_like
-from calibration.next.prior_base import (
-    ACCEL_CUTOFF_HZ,
-    EST_BETA,
-    EST_DERIV_HZ,
-    EST_MIN_HZ,
-    FILTER_ORDER,
-    FRICTION_VEL,
-    SHARP_VEL,
-    Lowpass,
-    TorquePrior,
-    midpoints,
-)
+from calibration.next import prior_base as pb
+from calibration.next.prior_base import FRICTION_VEL, SHARP_VEL, Lowpass, TorquePrior, midpoints
 
 KIND = "data-only"
 RIDGE_GRID = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)  # relative to each column's energy
@@ -84,11 +74,11 @@ class DataPrior(TorquePrior):
     basis: list[str] | None = None  # per joint "full" or "small" (fit_data_prior's choice; for reports)
     kind: str = KIND
     arm: str = ""  # no description
-    cutoff_hz: float = ACCEL_CUTOFF_HZ
-    order: int = FILTER_ORDER
-    est_min_hz: float = EST_MIN_HZ
-    est_beta: float = EST_BETA
-    est_deriv_hz: float = EST_DERIV_HZ
+    cutoff_hz: float = pb.ACCEL_CUTOFF_HZ
+    order: int = pb.FILTER_ORDER
+    est_min_hz: float = pb.EST_MIN_HZ
+    est_beta: float = pb.EST_BETA
+    est_deriv_hz: float = pb.EST_DERIV_HZ
     uses_temperature: bool = False
 
     def design(self, q, qd, qdd) -> np.ndarray:

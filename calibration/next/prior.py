@@ -32,7 +32,8 @@ residual; so the filter acts on the residual r = tau_m - prior itself (docs/next
 
 NEXT with a prior gives tau_ext = F(tau_m - prior) - f_theta, written here as a prediction of tau_m:
 prior_torque = tau_m - F(tau_m - prior), so callers keep tau_ext = tau_m - tau_f. The prior needs N*m (a
-torque signal); logs in A without a torque constant get "none".
+torque signal); logs in A get it through calibration.next.scaled_prior (a current-per-torque scale per
+joint). The filter constants and the TorquePrior interface live in calibration.next.prior_base.
 """
 
 from __future__ import annotations
