@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hardware.arms.specs import TAU_RATE_RISE_S, ArmSpec, Finger, Geom, Link, gello_from
+from hardware.arms.specs import SERVOS, TAU_RATE_RISE_S, ArmSpec, Finger, Geom, Link, gello_from
 from hardware.arms.urdf import CONTINUOUS_RANGE_RAD, UrdfArm, UrdfError, matrix_quat
 
 DEFAULT_ARMATURE = 0.0  # kg*m^2: a URDF carries no rotor inertia (the identified prior fits it)
@@ -27,6 +27,8 @@ AGREE_TOL = 1e-6  # relative: pinocchio vs MuJoCo vs the written description
 COLLISION_RADIUS_M = 0.03  # the twin's simple capsules along each link (no meshes read)
 GENERIC_MOTOR = "generic"  # hardware.sim.presets: the twin's default actuator effects, reported in N*m
 LEADER_SERVOS = ("XC330-M288", "XL330-M288")  # GELLO leader: the bigger servo on the first half of the joints
+LEADER_BIG_SERVO = "XM430-W350"  # where those cannot hold the leader up
+LEADER_HOLD_FRAC = 0.5  # a servo holds at most this fraction of its torque limit against gravity
 # A URDF whose root has no <inertial> (a "world" or "base_footprint" link): the fixed base body gets this
 # placeholder (MuJoCo refuses a zero inertia; a body welded to the world changes no joint torque).
 BASE_PLACEHOLDER = (1.0, (1e-3, 1e-3, 1e-3, 0.0, 0.0, 0.0))  # kg, kg*m^2
@@ -117,14 +119,38 @@ def to_spec(arm: UrdfArm, name: str, armature=DEFAULT_ARMATURE) -> ArmSpec:
                    motors=(GENERIC_MOTOR,) * n)
 
 
+def _gravity_bound(lead: ArmSpec) -> np.ndarray:
+    """Per joint, an upper bound of the leader's static gravity torque [N*m]: every distal link's mass at
+    the sum of the link offsets out to it (the arm stretched horizontally)."""
+    links = lead.links
+    out = np.zeros(len(links))
+    for k in range(len(links)):
+        reach = 0.0
+        for i in range(k, len(links)):
+            if i > k:
+                reach += float(np.linalg.norm(links[i].pos))
+            out[k] += links[i].mass * (reach + float(np.linalg.norm(links[i].com)))
+    return 9.81 * out
+
+
 def leader_spec(follower: ArmSpec) -> ArmSpec:
-    """A GELLO-style leader of an imported follower, generated as for the built-in arms (specs.gello_from)."""
+    """A GELLO-style leader of an imported follower, generated as for the built-in arms (specs.gello_from):
+    XC330 on the first half of the joints, XL330 on the rest, and an XM430 wherever that servo could not
+    hold LEADER_HOLD_FRAC of its stall torque against the leader's own weight (a UR5-size leader)."""
     n = len(follower.links)
-    servos = tuple(LEADER_SERVOS[0] if k < (n + 1) // 2 else LEADER_SERVOS[1] for k in range(n))
+    servos = [LEADER_SERVOS[0] if k < (n + 1) // 2 else LEADER_SERVOS[1] for k in range(n)]
     trigger = Finger("trigger", kind="hinge", pos=(0.0, 0.03, 0.0), axis=(1, 0, 0), range=(0.0, 0.8),
                      mass=0.010, com=(0.0, 0.0, 0.03), inertia=(3.2e-6, 3.1e-6, 3e-7, 0.0, 0.0, 0.0))
-    lead = gello_from(follower, f"gello_{follower.name}", servos, trigger)
-    return ArmSpec(**{**lead.__dict__, "motors": servos})
+    for _ in range(3):  # a bigger servo is heavier: re-check with it
+        lead = gello_from(follower, f"gello_{follower.name}", tuple(servos), trigger)
+        load = _gravity_bound(lead)
+        bigger = [k for k in range(n) if load[k] > LEADER_HOLD_FRAC * SERVOS[servos[k]]["tau_max"]
+                  and servos[k] != LEADER_BIG_SERVO]
+        if not bigger:
+            break
+        for k in bigger:
+            servos[k] = LEADER_BIG_SERVO
+    return ArmSpec(**{**lead.__dict__, "motors": tuple(servos)})
 
 
 def write_arm(spec: ArmSpec, folder: Path) -> list[Path]:

@@ -83,12 +83,12 @@ _MOTORS: dict[str, dict] = {
     # An imported arm's joints (factr2 arm import): no vendor drive data, so torque is reported in N*m (kt 1)
     # with mid-range effects of the drives above; armature, Coulomb and viscous come from its description.
     # The position loop is given for a GENERIC_REF_TAU_NM joint; arm_params scales it by each joint's tau_max
-    # (a 150 N*m UR5 shoulder needs 15x the stiffness to hold itself up). kd / kp = 0.02 s: the loop lags
-    # its target by 0.02 s x the speed, 6 cm at a UR5's reach at pi rad/s, inside the trajectory check's
-    # lag allowance (calibration/trajectories.py LAG_CLEARANCE_M); at 0.04 s the UR5 twin hit its table.
+    # (a 150 N*m UR5 shoulder needs 15x the stiffness to hold itself up). kd / kp = 0.04 s (the loop lags its
+    # target by that times the speed); kp 200 / kd 8 damps the UR5 shoulder at about 0.6 (kd 4 let it wind
+    # up and fall during a pushed replay; kp 100 sagged).
     "generic": dict(kt=1.0, stribeck=0.1, stribeck_vel=0.05, smooth_vel=0.005, backlash=0.002,
                     ripple_amp=0.02, ripple_cycles=50, winding_ohm=1.0, thermal_res=3.0, thermal_tau=500.0,
-                    current_noise=0.01, velocity_noise=0.003, current_lsb=0.0, pos_kp=200.0, pos_kd=4.0,
+                    current_noise=0.01, velocity_noise=0.003, current_lsb=0.0, pos_kp=200.0, pos_kd=8.0,
                     pos_ki=400.0, pos_i_max=10.0, pos_vel_max=3.0),
 }
 
