@@ -86,8 +86,10 @@ _MOTORS: dict[str, dict] = {
     # (a 150 N*m UR5 shoulder needs 15x the stiffness to hold itself up). kd / kp = 0.04 s (the loop lags its
     # target by that times the speed); kp 200 / kd 8 damps the UR5 shoulder at about 0.6 (kd 4 let it wind
     # up and fall during a pushed replay; kp 100 sagged).
+    # winding_ohm 0: its "current" is torque (kt 1), so no copper loss can be computed from it (1 ohm heated a
+    # UR5 shoulder holding 55 N*m by 3 kW: K(T) collapsed and the twin arm fell after ~20 s).
     "generic": dict(kt=1.0, stribeck=0.1, stribeck_vel=0.05, smooth_vel=0.005, backlash=0.002,
-                    ripple_amp=0.02, ripple_cycles=50, winding_ohm=1.0, thermal_res=3.0, thermal_tau=500.0,
+                    ripple_amp=0.02, ripple_cycles=50, winding_ohm=0.0, thermal_res=3.0, thermal_tau=500.0,
                     current_noise=0.01, velocity_noise=0.003, current_lsb=0.0, pos_kp=200.0, pos_kd=8.0,
                     pos_ki=400.0, pos_i_max=10.0, pos_vel_max=3.0),
 }
