@@ -127,20 +127,29 @@ def train_and_report(logs: dict[str, Path], out: str | Path, arm: str, cfg: Cali
 
 def record_pushed_replay(session, spec, seconds: float, rate_hz: float, seed: int = 1, recorder=None):
     """SIMULATED: replay a fresh coverage trajectory (seed >= 1: not the training data's) while the twin
-    pushes links 3-6 (10-40 N, 0.5-1.5 s, one every ~3 s); the log carries the twin's ground truth (the mean
-    over each sample period). The calibration's contact evaluation is seed 1; other seeds give independent
-    runs (bench/tune_next_filter.py)."""
+    pushes the links of joints 3-6 (10-40 N, 0.5-1.5 s, one every ~3 s); the log carries the twin's ground
+    truth (the mean over each sample period). The calibration's contact evaluation is seed 1; other seeds give
+    independent runs (bench/tune_next_filter.py)."""
+    import mujoco
+
     from calibration.next.collect import Push, collect_free_motion
     from calibration.trajectories import arm_coverage_trajectory
+    from hardware.arms import load_arm
 
     traj = arm_coverage_trajectory(spec.arm, seconds / 60.0, rate_hz, scene=session.rig.twin.scene, seed=seed)
+    arm = load_arm(spec.arm)
+    m = arm.mujoco_model()  # the body each arm joint moves: link3..link6 on the built-in arms
+    bodies = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY,
+                                int(m.jnt_bodyid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, jn)]))
+              for jn in arm.joint_names]
     rng = np.random.default_rng(seed)
     pushes, t = [], 2.0
     while t < traj.duration_s - 2.0:
         d = rng.uniform(0.5, 1.5)
         direction = rng.normal(size=3)
         direction /= np.linalg.norm(direction)
-        pushes.append(Push(t, f"link{rng.integers(3, 7)}", tuple(rng.uniform(10, 40) * direction), d))
+        pushes.append(Push(t, bodies[min(int(rng.integers(3, 7)), len(bodies)) - 1],
+                           tuple(rng.uniform(10, 40) * direction), d))
         t += d + rng.uniform(1.0, 3.0)
     return collect_free_motion(session, spec.name, traj, pushes=pushes, recorder=recorder)
 

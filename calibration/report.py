@@ -22,12 +22,12 @@ from pathlib import Path
 import numpy as np
 
 from calibration import baselines
+from calibration.next import priors
 from calibration.next.checkpoint import NextCheckpoint, save_checkpoint
 from calibration.next.data import Segment, build_windows, logged_arm, resample_log, split_blocks
-from calibration.next.data_prior import fit_data_prior
 from calibration.next.estimator import batch_tau_f
 from calibration.next.logs import read_logs
-from calibration.next.prior import PRIOR_KINDS, fit_prior, prior_torque
+from calibration.next.prior import prior_torque
 from calibration.next.train import TrainConfig, available_cores, train
 from hardware.errors import ConfigError
 
@@ -133,21 +133,13 @@ def _load_segments(paths, rate_hz: float, joint_names=None, say=None
 
 def _fit_prior(kind: str, arm: str | None, units: str, segments: list[Segment]):
     """The physics prior NEXT trains on top of (None: the paper's plain NEXT). "auto" = the best grey box
-    available: identified when the arm description and a torque signal in N*m are known, else data-only
-    (calibration.next.data_prior: no description needed, any units)."""
-    if kind == "auto":
-        kind = "identified" if arm is not None and units == "N*m" else "data-only"
-    if kind not in PRIOR_KINDS:
-        raise ConfigError(f"unknown prior {kind!r}", where="--prior", fix=f"use one of {PRIOR_KINDS} or auto")
-    if kind == "none":
-        return None
-    if kind == "data-only":
-        return fit_data_prior([(s.t, s.q, s.qd, s.tau) for s in segments])
-    if arm is None or units != "N*m":
-        raise ConfigError(f"the {kind} prior needs the arm description and torque in N*m (have arm={arm}, "
-                          f"units={units})", where="--prior",
-                          fix="pass --arm and logs with tau_m or a torque constant, or use --prior data-only")
-    return fit_prior(kind, arm, [(s.t, s.q, s.qd, s.tau, s.temperature) for s in segments])
+    available: identified when the arm description is known (with a current-per-torque scale per joint for
+    logs in A), else data-only (no description needed, any units). calibration.next.priors lists the kinds."""
+    try:
+        return priors.fit(kind, arm, units, [(s.t, s.q, s.qd, s.tau, s.temperature) for s in segments])
+    except ValueError as exc:  # a kind that cannot be fitted here, or a least squares that failed
+        raise ConfigError(str(exc), where="--prior",
+                          fix="pass --arm (a built-in or imported arm) or use --prior data-only") from None
 
 
 def network_adds(methods: dict) -> dict:

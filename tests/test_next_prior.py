@@ -128,13 +128,13 @@ def test_adaptive_estimate_filter_follows_contact_edges_without_more_noise():
     from 1 s to 2 s (10 N*m on J1-J2 down to 0.5 on J6): in the 50 ms after each edge its error is under a
     tenth of the fixed 20 Hz low-pass's for the 5-10 N*m steps and under 0.4 of it for the small ones; while
     nothing happens its noise is within 10 % of it."""
-    from calibration.next.prior import (
+    from calibration.next.prior_base import (
         ACCEL_CUTOFF_HZ,
         EST_BETA,
         EST_DERIV_HZ,
         EST_MIN_HZ,
         FILTER_ORDER,
-        _Lowpass,
+        Lowpass,
     )
 
     t = np.arange(300) / RATE
@@ -144,15 +144,15 @@ def test_adaptive_estimate_filter_follows_contact_edges_without_more_noise():
     def err(f):
         return np.abs(np.array([f(x, 1 / RATE) for x in r]) - truth)
 
-    fixed = err(_Lowpass(ACCEL_CUTOFF_HZ, FILTER_ORDER))
-    adaptive = err(_Lowpass(EST_MIN_HZ, FILTER_ORDER, EST_BETA, EST_DERIV_HZ))
+    fixed = err(Lowpass(ACCEL_CUTOFF_HZ, FILTER_ORDER))
+    adaptive = err(Lowpass(EST_MIN_HZ, FILTER_ORDER, EST_BETA, EST_DERIV_HZ))
     edges = ((t >= 1) & (t < 1.05)) | ((t >= 2) & (t < 2.05))
     quiet = ((t > 0.3) & (t < 0.95)) | (t > 2.3)
     ratio = adaptive[edges].mean(0) / fixed[edges].mean(0)
     assert np.all(ratio[:3] < 0.1) and np.all(ratio < 0.4), ratio  # the cut-off rises with the step's size
     assert np.all(adaptive[quiet].mean(0) < 1.1 * fixed[quiet].mean(0))
     # beta 0 is the fixed low-pass
-    np.testing.assert_allclose(err(_Lowpass(ACCEL_CUTOFF_HZ, FILTER_ORDER, 0.0, EST_DERIV_HZ)), fixed)
+    np.testing.assert_allclose(err(Lowpass(ACCEL_CUTOFF_HZ, FILTER_ORDER, 0.0, EST_DERIV_HZ)), fixed)
 
 
 def test_stream_equals_batch_and_restarts():

@@ -16,7 +16,8 @@ from safetensors.torch import load_file, save_file
 
 from calibration.next.data import Normalizer
 from calibration.next.model import ModelConfig, NextModel
-from calibration.next.prior import Prior, prior_from_dict
+from calibration.next.prior_base import TorquePrior
+from calibration.next.priors import prior_from_dict
 from hardware.errors import ConfigError, UserError
 
 FORMAT = "factr2-next/1"
@@ -36,7 +37,7 @@ class NextCheckpoint:
     data_hash: str = ""
     train_config: dict | None = None
     metrics: dict | None = None
-    prior: Prior | None = None  # or data_prior.DataPrior; tau_f = prior + network; None: the network alone
+    prior: TorquePrior | None = None  # any kind (calibration.next.priors); tau_f = prior + network
 
     @property
     def history(self) -> int:

@@ -8,8 +8,8 @@ docs/diagnosis.md finds first on the real UR5. Fitted by ridge on the training s
 per joint from RIDGE_GRID by leave-one-fold-out over contiguous folds of it (neighbouring samples are
 nearly identical, so only contiguous folds measure extrapolation, which is what a collinear basis gets
 wrong). Linear in its columns, so the same filtering as the identified prior applies
-(calibration.next.prior: midpoint backward-difference acceleration, fit through the fixed low-pass on both
-sides, estimate through the adaptive one): prior_torque = tau - F(tau - columns @ c), in the log's units
+(calibration.next.prior_base: midpoint backward-difference acceleration, fit through the fixed low-pass on
+both sides, estimate through the adaptive one): prior_torque = tau - F(tau - columns @ c), in the log's units
 (N*m or A: nothing here needs N*m).
 """
 
@@ -20,16 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration.diagnosis.basis import gravity_like
-from calibration.next.prior import (
-    ACCEL_CUTOFF_HZ,
-    EST_BETA,
-    EST_DERIV_HZ,
-    EST_MIN_HZ,
-    FILTER_ORDER,
-    FRICTION_VEL,
-    SHARP_VEL,
-    _Lowpass,
-)
+from calibration.next import prior_base as pb
+from calibration.next.prior_base import FRICTION_VEL, SHARP_VEL, Lowpass, TorquePrior, midpoints
 
 KIND = "data-only"
 RIDGE_GRID = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)  # relative to each column's energy
@@ -72,7 +64,7 @@ def columns(q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
 
 
 @dataclass
-class DataPrior:
+class DataPrior(TorquePrior):
     """coef (n, P) per joint; ridge (n,) the chosen relative ridge; filter constants as prior.Prior."""
 
     coef: np.ndarray
@@ -82,11 +74,11 @@ class DataPrior:
     basis: list[str] | None = None  # per joint "full" or "small" (fit_data_prior's choice; for reports)
     kind: str = KIND
     arm: str = ""  # no description
-    cutoff_hz: float = ACCEL_CUTOFF_HZ
-    order: int = FILTER_ORDER
-    est_min_hz: float = EST_MIN_HZ
-    est_beta: float = EST_BETA
-    est_deriv_hz: float = EST_DERIV_HZ
+    cutoff_hz: float = pb.ACCEL_CUTOFF_HZ
+    order: int = pb.FILTER_ORDER
+    est_min_hz: float = pb.EST_MIN_HZ
+    est_beta: float = pb.EST_BETA
+    est_deriv_hz: float = pb.EST_DERIV_HZ
     uses_temperature: bool = False
 
     def design(self, q, qd, qdd) -> np.ndarray:
@@ -97,6 +89,13 @@ class DataPrior:
             q = np.clip(q, self.q_range[0], self.q_range[1])
             qd = np.clip(qd, self.qd_range[0], self.qd_range[1])
         return columns(q, qd, qdd)
+
+    def stream(self, rate_hz: float | None = None) -> DataPriorStream:
+        return DataPriorStream(self, rate_hz)
+
+    def torque(self, t, q, qd, tau, temperature=None) -> np.ndarray:
+        """TorquePrior.torque, the columns computed for the whole run at once (data_prior_torque)."""
+        return data_prior_torque(self, t, q, qd, tau)
 
     def to_dict(self) -> dict:
         return {"kind": KIND, "version": 1, "coef": self.coef.tolist(), "ridge": self.ridge.tolist(),
@@ -124,26 +123,12 @@ class DataPrior:
                    est_deriv_hz=float(d["est_deriv_hz"]))
 
 
-def midpoints(t, q, qd, tau):
-    """Every sample taken half a sample back, at its backward difference's time (prior.PriorStream's
-    convention; the first sample as is, zero acceleration) -> (q, qd, qdd, tau) at the midpoints."""
-    t, q, qd, tau = (np.asarray(a, float) for a in (t, q, qd, tau))
-    qm, qdm, taum = q.copy(), qd.copy(), tau.copy()
-    qdd = np.zeros_like(qd)
-    if len(t) > 1:
-        dt = np.diff(t)[:, None]
-        for mid, a in ((qm, q), (qdm, qd), (taum, tau)):
-            mid[1:] = 0.5 * (a[1:] + a[:-1])
-        qdd[1:] = np.diff(qd, axis=0) / np.where(dt > 0, dt, np.inf)
-    return qm, qdm, qdd, taum
-
-
 def _filtered(p: DataPrior, run, chunk: int = 4096):
     """Yield (LP(columns) (k, n, P), LP(tau_mid) (k, n)) in chunks over one run through the fit's fixed
     low-pass (linear: LP(columns) @ c = LP(columns @ c))."""
     t, q, qd, tau = (np.asarray(a, float) for a in run)
     qm, qdm, qdd, taum = midpoints(t, q, qd, tau)
-    lp = _Lowpass(p.cutoff_hz, p.order)
+    lp = Lowpass(p.cutoff_hz, p.order)
     dts = np.diff(t, prepend=t[0])
     for lo in range(0, len(t), chunk):
         hi = min(lo + chunk, len(t))
@@ -255,7 +240,7 @@ class DataPriorStream:
 
     def reset(self) -> None:
         self._prev = None
-        self._lp = _Lowpass(self.p.est_min_hz, self.p.order, self.p.est_beta, self.p.est_deriv_hz)
+        self._lp = Lowpass(self.p.est_min_hz, self.p.order, self.p.est_beta, self.p.est_deriv_hz)
 
     def update(self, q, qd, tau, temperature=None, dt: float | None = None) -> np.ndarray:
         dt = self.dt if dt is None else dt
@@ -276,6 +261,6 @@ def data_prior_torque(p: DataPrior, t, q, qd, tau) -> np.ndarray:
     t, tau = np.asarray(t, float), np.asarray(tau, float)
     qm, qdm, qdd, taum = midpoints(t, q, qd, tau)
     r = taum - np.einsum("tjp,jp->tj", p.design(qm, qdm, qdd), p.coef)
-    lp = _Lowpass(p.est_min_hz, p.order, p.est_beta, p.est_deriv_hz)
+    lp = Lowpass(p.est_min_hz, p.order, p.est_beta, p.est_deriv_hz)
     dts = np.diff(t, prepend=t[0])
     return tau - np.array([lp(r[k], dts[k]) for k in range(len(t))])

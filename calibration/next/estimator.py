@@ -49,7 +49,8 @@ from calibration.estimate import (  # noqa: F401  (re-exported: the flags of NEX
 from calibration.next.checkpoint import NextCheckpoint, weights_numpy
 from calibration.next.data import make_inputs
 from calibration.next.lstm_runs import CarriedRun, ExactWindows, LstmWeights
-from calibration.next.prior import make_stream, prior_torque
+from calibration.next.prior import prior_torque
+from calibration.next.priors import make_stream
 from calibration.next.train import predict_series
 
 CARRIED_TOL = 0.01  # the carried state may move the network output by <= 1 % of its validation L1, per joint

@@ -32,7 +32,8 @@ residual; so the filter acts on the residual r = tau_m - prior itself (docs/next
 
 NEXT with a prior gives tau_ext = F(tau_m - prior) - f_theta, written here as a prediction of tau_m:
 prior_torque = tau_m - F(tau_m - prior), so callers keep tau_ext = tau_m - tau_f. The prior needs N*m (a
-torque signal); logs in A without a torque constant get "none".
+torque signal); logs in A get it through calibration.next.scaled_prior (a current-per-torque scale per
+joint). The filter constants and the TorquePrior interface live in calibration.next.prior_base.
 """
 
 from __future__ import annotations
@@ -43,18 +44,19 @@ from functools import lru_cache
 import numpy as np
 import pinocchio as pin
 
-PRIOR_KINDS = ("none", "description", "identified", "data-only")  # data-only: calibration.next.data_prior
+from calibration.next.prior_base import (  # noqa: F401  (re-exported: the filter constants' old home)
+    ACCEL_CUTOFF_HZ,
+    EST_BETA,
+    EST_DERIV_HZ,
+    EST_MIN_HZ,
+    FILTER_ORDER,
+    FRICTION_VEL,
+    SHARP_VEL,
+    Lowpass,
+    TorquePrior,
+)
+
 ARM_KINDS = ("description", "identified")  # the kinds this module fits (they need the arm description)
-ACCEL_CUTOFF_HZ = 20.0  # the fit's low-pass on the residual [Hz]
-FILTER_ORDER = 2  # first-order sections in cascade, fit and estimate (2: half the noise of 1, a bit more lag)
-# The estimate's adaptive low-pass, chosen by bench/tune_next_filter.py on pushed twin runs that are not the
-# calibration's evaluation (contact error within 1 % of the best with free-motion error no worse than the
-# fixed 20 Hz low-pass; of those the lowest free-motion error):
-EST_MIN_HZ = 8.0  # cut-off while the residual is steady [Hz]
-EST_BETA = 4.0  # cut-off rise per unit rate of change of the residual [Hz per N*m/s]
-EST_DERIV_HZ = 5.0  # low-pass on that rate of change [Hz]
-FRICTION_VEL = 0.02  # tanh width of the smooth Coulomb term [rad/s] (above typical velocity noise)
-SHARP_VEL = 0.005  # tanh width of the sharp Coulomb and the Stribeck terms [rad/s]
 STRIBECK_VEL = 0.05  # decay speed of the Stribeck break-away torque [rad/s] (typical 0.01-0.1)
 PARAM_RIDGE = 1e-3  # ridge on the inertial/armature/temperature terms, relative to each column's energy
 FRICTION_RIDGE = 1e-9  # friction and ripple coefficients: nearly free
@@ -68,7 +70,7 @@ JOINT_TERMS = ("d_armature", "coulomb", "viscous", "coulomb_sharp", "stribeck", 
 
 
 @dataclass
-class Prior:
+class Prior(TorquePrior):
     """Coefficients: d_theta (10 per body, the inertial correction), then per joint d_armature [kg*m^2],
     coulomb, coulomb_sharp, stribeck [N*m], viscous [N*m*s/rad], kt_temp [1/K] (relative torque-constant
     drift times the description torque), ripple_sin/ripple_cos [N*m] at ripple_period [rad] (0: none);
@@ -129,6 +131,9 @@ class Prior:
     def coefficients(self) -> np.ndarray:
         return np.concatenate([self.d_theta] + [self.joint[k] for k in JOINT_TERMS])
 
+    def stream(self, rate_hz: float | None = None) -> PriorStream:
+        return PriorStream(self, rate_hz)
+
 
 @lru_cache(maxsize=4)
 def pinocchio_model(arm: str) -> pin.Model:
@@ -176,34 +181,6 @@ def _columns(regressor: np.ndarray, terms: np.ndarray) -> np.ndarray:
     return cols
 
 
-class _Lowpass:
-    """`order` first-order sections, state started at the first input (no start transient). Cut-off
-    [Hz] = cutoff_hz + beta |dx/dt| per element, dx/dt low-passed at deriv_hz (beta 0: fixed)."""
-
-    def __init__(self, cutoff_hz: float, order: int, beta: float = 0.0, deriv_hz: float = EST_DERIV_HZ):
-        self.fc, self.order, self.beta, self.tc_d = cutoff_hz, order, beta, 1.0 / (2 * np.pi * deriv_hz)
-        self.state = self.prev = self.rate = None
-
-    def __call__(self, x: np.ndarray, dt: float) -> np.ndarray:
-        x = np.asarray(x, float)
-        if self.state is None:
-            self.state = [x.copy() for _ in range(self.order)]
-            self.prev, self.rate = x.copy(), np.zeros_like(x)
-            return x.copy()
-        if not dt > 0.0:  # a repeated time stamp: nothing elapsed
-            return self.state[-1].copy()
-        fc = self.fc
-        if self.beta > 0.0:
-            self.rate += dt / (dt + self.tc_d) * ((x - self.prev) / dt - self.rate)
-            self.prev = x.copy()
-            fc = self.fc + self.beta * np.abs(self.rate)
-        a = dt / (dt + 1.0 / (2 * np.pi * fc))
-        for s in self.state:
-            s += a * (x - s)
-            x = s
-        return x.copy()
-
-
 class PriorStream:
     """The prior one sample at a time: update(q, qd, tau_m[, temperature]) -> this sample's tau_f part
     [N*m] = tau_m - F(tau_m - prior) (module docstring). Over a run it equals prior_torque to
@@ -222,7 +199,7 @@ class PriorStream:
 
     def reset(self) -> None:
         self._prev = None
-        self._lp = _Lowpass(self.p.est_min_hz, self.p.order, self.p.est_beta, self.p.est_deriv_hz)
+        self._lp = Lowpass(self.p.est_min_hz, self.p.order, self.p.est_beta, self.p.est_deriv_hz)
 
     def _midpoint_parts(self, q, qd, tau, temperature, dt: float):
         """(rnea, regressor, terms, tau_m) of this sample taken half a sample back, at the backward
@@ -249,36 +226,10 @@ class PriorStream:
         return np.asarray(tau, float) - self._lp(tau_m - pred, dt)
 
 
-def prior_from_dict(d: dict, n_joints: int | None = None):
-    """A checkpoint's prior of any kind (Prior or data_prior.DataPrior); ValueError when unreadable."""
-    if d.get("kind") == "data-only":
-        from calibration.next.data_prior import DataPrior
-
-        return DataPrior.from_dict(d, n_joints)
-    return Prior.from_dict(d, n_joints)
-
-
-def make_stream(p, rate_hz: float | None = None):
-    """The one-sample-at-a-time form of a prior of any kind (PriorStream or data_prior.DataPriorStream)."""
-    if p.kind == "data-only":
-        from calibration.next.data_prior import DataPriorStream
-
-        return DataPriorStream(p, rate_hz)
-    return PriorStream(p, rate_hz)
-
-
-def prior_torque(p: Prior, t: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray,
+def prior_torque(p: TorquePrior, t: np.ndarray, q: np.ndarray, qd: np.ndarray, tau: np.ndarray,
                  temperature: np.ndarray | None = None) -> np.ndarray:
-    """The prior's part of tau_f [N*m] for every sample of one run (N, n), filters started at its first
-    sample: tau_m - F(tau_m - prior). A data-only prior (calibration.next.data_prior) in the log's units."""
-    if p.kind == "data-only":
-        from calibration.next.data_prior import data_prior_torque
-
-        return data_prior_torque(p, t, q, qd, tau)
-    s = PriorStream(p)
-    dts = np.diff(np.asarray(t, float), prepend=t[0])  # the first sample starts the filters: its step unused
-    return np.array([s.update(q[k], qd[k], tau[k], None if temperature is None else temperature[k], dts[k])
-                     for k in range(len(t))])
+    """The prior's part of tau_f for every sample of one run (N, n) [the log's units]: p.torque(...)."""
+    return p.torque(t, q, qd, tau, temperature)
 
 
 def _filtered_rows(p: Prior, run, chunk: int = 2048):
@@ -288,7 +239,7 @@ def _filtered_rows(p: Prior, run, chunk: int = 2048):
     t, q, qd, tau, temp = run
     n = len(p.ripple_period)
     s = PriorStream(p)
-    lp = _Lowpass(p.cutoff_hz, p.order)
+    lp = Lowpass(p.cutoff_hz, p.order)
     dts = np.diff(t, prepend=t[0])
     for lo in range(0, len(t), chunk):
         k_n = min(chunk, len(t) - lo)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.next.priors import PRIOR_KINDS
 from calibration.next.train import TRAIN_BUDGET_S, TrainConfig
 from calibration.pipeline import CONTACT_EVAL_S, HELDOUT_FRAC, MIN_MINUTES, OBSERVER_GAIN
 from hardware.errors import UserError
@@ -49,14 +50,14 @@ def add_arguments(p) -> None:
     p.add_argument("--inputs", choices=("q", "q,qd", "q,qd,dq"), default="q,qd,dq", help="inputs (ablation)")
     p.add_argument("--hidden", type=int, default=TrainConfig.hidden,
                    help=f"LSTM width (default {TrainConfig.hidden}; the paper's is 128)")
-    p.add_argument("--prior", choices=("auto", "none", "description", "identified", "data-only"),
-                   default="auto",
+    p.add_argument("--prior", choices=("auto", *PRIOR_KINDS), default="auto",
                    help="physics prior under the network: identified = the arm description corrected "
                         "by least squares on this data (+ friction, thermal drift of the torque constant, "
-                        "ripple); description = as described; data-only = a grey box fitted by ridge "
+                        "ripple); identified-current = the same for logs in A, with a current-per-torque "
+                        "scale per joint; description = as described; data-only = a grey box fitted by ridge "
                         "without any description (gravity-, inertia-, Coriolis-like functions + friction); "
                         "none = the paper's plain NEXT; auto (default) = identified when the arm is known "
-                        "and torque is in N*m, else data-only")
+                        "(identified-current for logs in A), else data-only")
     p.add_argument("--max-epochs", type=int, default=400)
     p.add_argument("--max-seconds", type=float, default=TRAIN_BUDGET_S,
                    help=f"training budget [s] (default {TRAIN_BUDGET_S:g}; it usually stops earlier, when "

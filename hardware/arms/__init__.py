@@ -56,6 +56,7 @@ class ArmDescription:
     q_home: np.ndarray
     gripper_range: tuple[float, float] = (0.0, 0.0)
     gripper_stroke_gain: float = 1.0
+    motors: tuple[str, ...] = ()  # the twin's motor presets per joint (factr2.motors; imported arms)
     _cache: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -109,8 +110,16 @@ def list_arms() -> list[str]:
     return sorted(p.stem for p in ARMS_DIR.glob("*.xml"))
 
 
+def user_arms() -> list[str]:
+    """Names of the arms imported into the user's arm folder (`factr2 arm import`; docs/arms.md)."""
+    from hardware.arms.urdf_import import user_arms_dir
+
+    return sorted(p.stem for p in user_arms_dir().glob("*.xml"))
+
+
 def load_arm(name_or_path: str | Path) -> ArmDescription:
-    """Load an arm by name ("piper", "yam", "panda", "gello_piper", "gello_yam") or MJCF path.
+    """Load an arm by name (built-in: "piper", "yam", "panda", "gello_piper", "gello_yam"; then the arms
+    imported into the user's arm folder, $FACTR2_ARMS) or MJCF path.
 
     Raises ConfigError (one line: which file/field, how to fix) for an unknown name or a malformed file.
     """
@@ -135,6 +144,12 @@ def _resolve(name_or_path: str | Path) -> Path:
     s = str(name_or_path)
     if s in list_arms():
         return ARMS_DIR / f"{s}.xml"
+    if "/" not in s and not s.endswith(".xml"):
+        from hardware.arms.urdf_import import user_arms_dir
+
+        user = user_arms_dir() / f"{s}.xml"
+        if user.is_file():
+            return user.resolve()
     p = Path(s).expanduser()
     if p.suffix.lower() == ".xml" or p.exists() or "/" in s:
         if not p.is_file():
@@ -142,7 +157,8 @@ def _resolve(name_or_path: str | Path) -> Path:
                               fix=f"give an existing MJCF path or one of: {', '.join(list_arms())}")
         return p.resolve()
     raise ConfigError(f"unknown arm '{s}'", where="arm",
-                      fix=f"use one of: {', '.join(list_arms())}, or a path to an MJCF file")
+                      fix=f"use one of: {', '.join(list_arms() + user_arms())}, a path to an MJCF file, or "
+                          "import its URDF (factr2 arm import FILE.urdf --name NAME)")
 
 
 def _compile_mujoco(path: Path):
@@ -185,7 +201,8 @@ def _parse(path: Path, sha: str) -> ArmDescription:
 
     m = _compile_mujoco(path)
     joints = tuple(_custom_text(m, "factr2.arm_joints", path).split())
-    gripper = tuple(_custom_text(m, "factr2.gripper_joints", path).split())
+    gripper = (tuple(_custom_text(m, "factr2.gripper_joints", path).split())
+               if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXT, "factr2.gripper_joints") >= 0 else ())
     role = _custom_text(m, "factr2.role", path).strip() or "follower"
     ee = _custom_text(m, "factr2.ee_site", path).strip()
     if not joints:
@@ -235,9 +252,16 @@ def _parse(path: Path, sha: str) -> ArmDescription:
         g_range = (float(m.jnt_range[gids[0]][0]), float(m.jnt_range[gids[0]][1]))
         slides = [g for g in gids if m.jnt_type[g] == mujoco.mjtJoint.mjJNT_SLIDE]
         gain = 2.0 if len(slides) == 2 else 1.0
+    motors = ()
+    if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_TEXT, "factr2.motors") >= 0:
+        motors = tuple(_custom_text(m, "factr2.motors", path).split())
+        if len(motors) != n:
+            raise ConfigError(f"factr2.motors lists {len(motors)} motor types for {n} joints",
+                              where=str(path),
+                              fix="list one motor preset per arm joint (hardware/sim/presets.py)")
     desc = ArmDescription(name=path.stem, mjcf_path=path, joint_names=joints, gripper_joints=gripper,
                           limits=limits, sha256=sha, role=role, ee_site=ee, armature=armature, q_home=q_home,
-                          gripper_range=g_range, gripper_stroke_gain=gain)
+                          gripper_range=g_range, gripper_stroke_gain=gain, motors=motors)
     desc._cache["mj"] = m
     return desc
 
@@ -264,4 +288,4 @@ def _build_pinocchio(desc: ArmDescription):
     return model
 
 
-__all__ = ["ArmDescription", "list_arms", "load_arm", "ARMS_DIR", "SCENES_DIR"]
+__all__ = ["ArmDescription", "list_arms", "load_arm", "user_arms", "ARMS_DIR", "SCENES_DIR"]

@@ -63,7 +63,10 @@ def _geom(g: Geom, name: str) -> str:
 
 
 def _link_open(lk: Link, ind: str) -> list[str]:
-    lines = [f'{ind}<body name="{lk.name.replace("joint", "link")}" {_frame(lk.pos, lk.rpy, lk.quat)}>',
+    body = lk.name.replace("joint", "link")
+    if body == lk.name and not lk.fixed:  # a joint "base" (UR): pinocchio needs body != joint name
+        body = f"{lk.name}_link"
+    lines = [f'{ind}<body name="{body}" {_frame(lk.pos, lk.rpy, lk.quat)}>',
              f"{ind}  {_inertial(lk.mass, lk.com, lk.inertia)}"]
     if not lk.fixed:
         lines.append(
@@ -103,8 +106,10 @@ def arm_xml(spec: ArmSpec) -> str:
            "  <worldbody>",
            f'    <body name="{spec.name}_base" pos="0 0 0">',
            f"      {_inertial(spec.base_mass, spec.base_com, spec.base_inertia)}"]
+    # an imported arm may call its first joint "base" (UR): its geoms are then base_col*, so the base's differ
+    base_geom = f"{spec.name}_base_col" if any(lk.name == "base" for lk in spec.links) else "base_col"
     for k, g in enumerate(spec.base_geoms):
-        out.append(f"      {_geom(g, f'base_col{k}')}")
+        out.append(f"      {_geom(g, f'{base_geom}{k}')}")
     ind, closes = "      ", 0
     for lk in spec.links:
         out += _link_open(lk, ind)
@@ -137,12 +142,15 @@ def arm_xml(spec: ArmSpec) -> str:
     out += ["  </actuator>", "  <custom>",
             f'    <text name="factr2.role" data="{spec.role}"/>',
             f'    <text name="factr2.arm_joints" data="{" ".join(lk.name for lk in arm)}"/>',
-            f'    <text name="factr2.gripper_joints" data="{" ".join(fg.name for fg in spec.fingers)}"/>',
+            *([f'    <text name="factr2.gripper_joints" data="{" ".join(fg.name for fg in spec.fingers)}"/>']
+              if spec.fingers else []),  # MuJoCo refuses an empty text: no gripper, no field
             '    <text name="factr2.ee_site" data="ee"/>',
             f'    <numeric name="factr2.v_max" data="{_v(lk.v_max for lk in arm)}"/>',
             f'    <numeric name="factr2.tau_rate_max" data="{_v(rate)}"/>',
-            f'    <numeric name="factr2.q_home" data="{_v(spec.q_home)}"/>',
-            "  </custom>", "</mujoco>", ""]
+            f'    <numeric name="factr2.q_home" data="{_v(spec.q_home)}"/>']
+    if spec.motors:
+        out.append(f'    <text name="factr2.motors" data="{" ".join(spec.motors)}"/>')
+    out += ["  </custom>", "</mujoco>", ""]
     return "\n".join(out)
 
 
@@ -152,14 +160,29 @@ _SCENE = {"piper": dict(block=(0.38, 0.16), box=(0.34, -0.12)),
           "panda": dict(block=(0.55, 0.20), box=(0.50, -0.15))}
 
 
+# An arm without a hand-placed layout (an imported one) stands on a riser this high [m]: the trajectory
+# collision check exempts pairs already near each other at home, and a low shoulder (UR5: 0.089 m above
+# its base) would exempt the upper arm against the table for good. The riser is drawn, not collided (it
+# would be exempted the same way).
+RISER_M = 0.2
+
+
+def _reach_layout(spec: ArmSpec) -> dict:
+    """Objects for an arm without a hand-placed layout: at half its reach (sum of link offsets) [m]."""
+    reach = sum(math.sqrt(sum(v * v for v in lk.pos)) for lk in spec.links) + math.sqrt(
+        sum(v * v for v in spec.ee_pos))
+    return dict(block=(0.5 * reach, 0.2 * reach), box=(0.45 * reach, -0.15 * reach), riser=RISER_M)
+
+
 def scene_xml(spec: ArmSpec) -> str:
-    lay = _SCENE[spec.name]
+    lay = _SCENE.get(spec.name) or _reach_layout(spec)
     bx, by = lay["block"]
     ox, oy = lay["box"]
+    z0 = -lay.get("riser", 0.0)  # the table top's height under the arm base [m]
     n_arm = len([lk for lk in spec.links if not lk.fixed])
     q_home = list(spec.q_home) + [0.0] * (len(spec.fingers))
     box_h = 0.03
-    qpos = _v(q_home + [ox, oy, box_h, 1, 0, 0, 0])
+    qpos = _v(q_home + [ox, oy, z0 + box_h, 1, 0, 0, 0])
     ctrl = _v([0.0] * n_arm + ([0.0] if spec.fingers else []))
     return "\n".join([
         f'<mujoco model="{spec.name}_table">', f"  {HEADER}",
@@ -174,13 +197,15 @@ def scene_xml(spec: ArmSpec) -> str:
         "  <worldbody>",
         '    <light name="top" pos="0.3 0 1.5" dir="0 0 -1" directional="true"/>',
         '    <camera name="front" pos="1.4 0 0.6" xyaxes="0 1 0 -0.35 0 0.94"/>',
-        '    <geom name="floor" type="plane" size="2 2 0.05" pos="0 0 -0.75" material="grid" contype="1" '
-        'conaffinity="3" solref="0.004 1"/>',
-        '    <geom name="table" type="box" pos="0.3 0 -0.025" size="0.5 0.6 0.025" rgba="0.55 0.4 0.3 1" '
-        'contype="1" conaffinity="3" friction="0.8 0.005 0.0001" solref="0.004 1"/>',
-        f'    <geom name="fixed_block" type="box" pos="{_f(bx)} {_f(by)} 0.05" size="0.04 0.04 0.05" '
-        'rgba="0.3 0.3 0.35 1" contype="1" conaffinity="3" solref="0.004 1"/>',
-        f'    <body name="box" pos="{_f(ox)} {_f(oy)} {_f(box_h)}">',
+        f'    <geom name="floor" type="plane" size="2 2 0.05" pos="0 0 {_f(z0 - 0.75)}" material="grid" '
+        'contype="1" conaffinity="3" solref="0.004 1"/>',
+        f'    <geom name="table" type="box" pos="0.3 0 {_f(z0 - 0.025)}" size="0.5 0.6 0.025" '
+        'rgba="0.55 0.4 0.3 1" contype="1" conaffinity="3" friction="0.8 0.005 0.0001" solref="0.004 1"/>',
+        *([f'    <geom name="riser" type="cylinder" pos="0 0 {_f(z0 / 2)}" size="0.08 {_f(-z0 / 2)}" '
+           'rgba="0.4 0.4 0.45 1" contype="0" conaffinity="0"/>'] if z0 < 0 else []),  # seen, not collided
+        f'    <geom name="fixed_block" type="box" pos="{_f(bx)} {_f(by)} {_f(z0 + 0.05)}" '
+        'size="0.04 0.04 0.05" rgba="0.3 0.3 0.35 1" contype="1" conaffinity="3" solref="0.004 1"/>',
+        f'    <body name="box" pos="{_f(ox)} {_f(oy)} {_f(z0 + box_h)}">',
         '      <freejoint name="box"/>',
         f'      <geom name="box" type="box" size="0.03 0.03 {_f(box_h)}" mass="0.2" rgba="0.9 0.5 0.1 1" '
         'contype="1" conaffinity="3" friction="0.8 0.005 0.0001" solref="0.004 1"/>',

@@ -82,6 +82,7 @@ class ArmSpec:
     notes: str = ""
     ee_quat: tuple = (1.0, 0.0, 0.0, 0.0)
     extra_bodies: tuple = field(default_factory=tuple)
+    motors: tuple = ()  # twin motor presets per joint (hardware.sim.presets), written as factr2.motors
 
 
 def _scaled(inertia: tuple, k: float) -> tuple:
@@ -277,6 +278,8 @@ PANDA = ArmSpec(
 SERVOS = {
     "XC330-M288": dict(mass=0.023, tau_max=0.9, v_max=8.0, armature=1.5e-4),
     "XL330-M288": dict(mass=0.018, tau_max=0.5, v_max=10.0, armature=1.0e-4),
+    # XM430-W350 (82 g, stall 4.1 N*m at 12 V, 46 rpm no-load): for the leader of a big arm (UR5 reach)
+    "XM430-W350": dict(mass=0.082, tau_max=3.5, v_max=4.8, armature=3.0e-4),
 }
 _PRINT_BASE_KG, _PRINT_KG_PER_M, _HANDLE_KG, _SERVO_CUBE_M = 0.006, 0.06, 0.020, 0.024
 

@@ -80,6 +80,18 @@ _MOTORS: dict[str, dict] = {
                         winding_ohm=0.3, thermal_res=2.0, thermal_tau=600.0, current_noise=0.02,
                         velocity_noise=0.002, current_lsb=0.0, pos_kp=100.0, pos_kd=5.0, pos_ki=20.0,
                         pos_i_max=2.0, pos_vel_max=2.5, brake=True),
+    # An imported arm's joints (factr2 arm import): no vendor drive data, so torque is reported in N*m (kt 1)
+    # with mid-range effects of the drives above; armature, Coulomb and viscous come from its description.
+    # The position loop is given for a GENERIC_REF_TAU_NM joint; arm_params scales it by each joint's tau_max
+    # (a 150 N*m UR5 shoulder needs 15x the stiffness to hold itself up). kd / kp = 0.04 s (the loop lags its
+    # target by that times the speed); kp 200 / kd 8 damps the UR5 shoulder at about 0.6 (kd 4 let it wind
+    # up and fall during a pushed replay; kp 100 sagged).
+    # winding_ohm 0: its "current" is torque (kt 1), so no copper loss can be computed from it (1 ohm heated a
+    # UR5 shoulder holding 55 N*m by 3 kW: K(T) collapsed and the twin arm fell after ~20 s).
+    "generic": dict(kt=1.0, stribeck=0.1, stribeck_vel=0.05, smooth_vel=0.005, backlash=0.002,
+                    ripple_amp=0.02, ripple_cycles=50, winding_ohm=0.0, thermal_res=3.0, thermal_tau=500.0,
+                    current_noise=0.01, velocity_noise=0.003, current_lsb=0.0, pos_kp=200.0, pos_kd=8.0,
+                    pos_ki=400.0, pos_i_max=10.0, pos_vel_max=3.0),
 }
 
 ARM_MOTORS: dict[str, list[str]] = {
@@ -89,6 +101,10 @@ ARM_MOTORS: dict[str, list[str]] = {
     "gello_piper": ["XC330-M288"] * 3 + ["XL330-M288"] * 3,  # as hardware/arms/specs.py builds them
     "gello_yam": ["XC330-M288"] * 3 + ["XL330-M288"] * 3,
 }
+
+
+GENERIC_REF_TAU_NM = 10.0  # the joint size the "generic" preset's position loop is written for [N*m]
+_POS_GAINS = ("pos_kp", "pos_kd", "pos_ki", "pos_i_max")
 
 
 def motor_names() -> list[str]:
@@ -115,8 +131,9 @@ def motor_params(motors: list[str], where: str = "twin") -> ActuatorParams:
 
 def arm_params(arm: str, effects: Effects | None = None, n: int | None = None,
                motors: list[str] | None = None) -> ActuatorParams:
-    """Parameters for an arm's joints (the motor list defaults to ARM_MOTORS[arm])."""
-    names = motors or ARM_MOTORS.get(arm)
+    """Parameters for an arm's joints (the motor list defaults to ARM_MOTORS[arm], else the description's
+    factr2.motors: an imported arm's)."""
+    names = motors or ARM_MOTORS.get(arm) or _description_motors(arm)
     if names is None:
         raise ConfigError(f"no motor list for arm {arm!r}", where="twin",
                           fix=f"set [followers.twin] motors = [...] in the rig, or use one of "
@@ -125,4 +142,18 @@ def arm_params(arm: str, effects: Effects | None = None, n: int | None = None,
         raise ConfigError(f"arm {arm!r} has {n} joints but {len(names)} motor types", where="twin",
                           fix="list one motor type per joint")
     p = motor_params(names, where=f"twin motors of {arm}")
+    if "generic" in names:
+        from hardware.arms import load_arm
+
+        k = np.where(np.array(names) == "generic", load_arm(arm).limits.tau_max / GENERIC_REF_TAU_NM, 1.0)
+        p = replace(p, **{g: getattr(p, g) * k for g in _POS_GAINS})
     return replace(p, effects=effects or Effects())
+
+
+def _description_motors(arm: str) -> list[str] | None:
+    from hardware.arms import load_arm
+
+    try:
+        return list(load_arm(arm).motors) or None
+    except ConfigError:
+        return None

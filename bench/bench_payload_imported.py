@@ -1,0 +1,175 @@
+"""Diagnosis in physical units on the twin of an IMPORTED arm (issue 34 item 5). SIMULATED.
+
+    python bench/bench_payload_imported.py [--mass 2.0] [--com 0,0,0.1] [--train-s 60] [--heldout-s 30]
+
+1. `factr2 arm import hardware/arms/ur5.urdf --name ur5` into a temporary $FACTR2_ARMS (not a built-in arm).
+2. Its twin (MuJoCo from the same URDF, the default actuator effects of an imported arm: hardware/sim/presets
+   "generic"; mechanical effects off as in calibration/diagnosis/twin_data.py, sensor effects on) replays
+   coverage trajectories in lockstep: a calibration run without payload, then train / held-out runs with an
+   undeclared payload (MASS kg at COM m in the last link's frame) that goes in only through the twin's
+   undeclared-effect hook (its gravity torque inside the drive).
+3. Diagnosis with the imported description (calibration.diagnosis, PinocchioBasis of the imported arm, the
+   no-payload run's own effects declared first): the first effect found, its mass [kg] and position [m].
+4. The same logs in motor current, i = s * tau with s [A per N*m] per joint (UR5-like 0.12 / 0.08 / 0.5):
+   (a) known torque constant: i / s_known back to N*m; (b) no torque constant: s identified on the
+   no-payload calibration run by the current-scaled prior (calibration/next/scaled_prior.py), which the CAD
+   masses anchor (the "one known mass" of docs/arms.md), then i / s_fitted. Each diagnosed as in 3.
+
+Writes bench/out/payload_imported.json and prints the table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+S_CURRENT = np.array([0.12, 0.08, 0.12, 0.5, 0.5, 0.5])  # A per N*m: the "drive" of the current logs
+CLEAN = {k: False for k in ("friction", "stribeck", "backlash", "ripple", "thermal", "kt_temperature")}
+
+
+def _rig(folder: Path):
+    """The imported arm's twin, follower only, mechanical effects off (sensor effects on)."""
+    from hardware.rigs import load_rig
+
+    path = folder / "sim-ur5-imported.toml"
+    path.write_text('[rig]\nname = "sim-ur5-imported"\ndescription = "imported UR5 twin"\nsimulated = true\n'
+                    '[[followers]]\nname = "follower"\ndriver = "sim"\narm = "ur5"\n'
+                    '[twin]\nseed = 0\nscene = "table"\n[twin.effects]\n'
+                    + "".join(f"{k} = false\n" for k in CLEAN))
+    return load_rig(path)
+
+
+def _payload_hook(mass: float, com):
+    import pinocchio as pin
+
+    from hardware.arms import load_arm
+    from hardware.sim.example_effects import with_payload
+
+    m = load_arm("ur5").pinocchio_model()
+    ml = with_payload(m, mass, com, 1e-4)
+    d, dl = m.createData(), ml.createData()
+
+    def hook(t, q, qd):
+        q = np.asarray(q, float)
+        return pin.computeGeneralizedGravity(ml, dl, q) - pin.computeGeneralizedGravity(m, d, q)
+    return hook
+
+
+def record(folder: Path, seconds: float, seed: int, hook) -> dict:
+    from calibration.next.collect import ContactStop, collect_free_motion
+    from calibration.trajectories import arm_coverage_trajectory
+    from hardware.connect import open_rig
+
+    traj = arm_coverage_trajectory("ur5", minutes=seconds / 60.0, rate_hz=100.0, seed=seed)
+    with open_rig(_rig(folder), clock="lockstep", effect=hook, seed=seed) as s:
+        try:
+            run = collect_free_motion(s, "follower", traj, move_speed=0.5)
+        except ContactStop as e:
+            run = e.run
+    return run.arrays()
+
+
+def _save(folder: Path, name: str, arrays: dict, tau_scale=None) -> Path:
+    from hardware.recording.plain_log import save_plain_log
+
+    a = dict(arrays)
+    if tau_scale is not None:  # a log in current: tau_m replaced by i = s * tau, no N*m signal in the file
+        a["current"] = a.pop("tau_m") * tau_scale
+    path = folder / f"{name}.npz"
+    save_plain_log(path, **a)
+    return path
+
+
+def diagnose(train: Path, held: Path, declared=None):
+    from calibration.diagnosis.basis import PinocchioBasis
+    from calibration.diagnosis.data import load_segments, split_heldout
+    from calibration.diagnosis.loop import diagnose as run
+    from hardware.arms import load_arm
+
+    tr, he = split_heldout([load_segments(train)], list(load_segments(held)))
+    return run(PinocchioBasis(load_arm("ur5").pinocchio_model(), ridge=1.0), tr, he, declared=declared)
+
+
+def first_payload(dg) -> dict:
+    added = [s.added for s in dg.steps[1:] if s.added]
+    first = added[0] if added else None
+    pay = next((e for e in dg.model.effects if e.family == "payload"), None)
+    return {"first": None if first is None else first.get("effect"),
+            "added": [a.get("effect") for a in added],
+            "payload": None if pay is None else pay.params()}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--mass", type=float, default=2.0)
+    ap.add_argument("--com", default="0,0,0.1")
+    ap.add_argument("--train-s", type=float, default=60.0)
+    ap.add_argument("--heldout-s", type=float, default=30.0)
+    ap.add_argument("--out", default=str(ROOT / "bench/out/payload_imported.json"))
+    args = ap.parse_args()
+    com = [float(v) for v in args.com.split(",")]
+    tmp = Path(tempfile.mkdtemp(prefix="payload_imported_"))
+    os.environ["FACTR2_ARMS"] = str(tmp / "arms")
+    subprocess.run([sys.executable, "-m", "factr2_teleop.cli", "arm", "import",
+                    str(ROOT / "hardware/arms/ur5.urdf"), "--name", "ur5", "--q-home",
+                    "0,-1.57,1.57,-1.57,-1.57,0", "--armature", "0.1,0.1,0.1,0.02,0.02,0.02"], check=True,
+                   stdout=subprocess.DEVNULL, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    from calibration.diagnosis.twin_data import first_pass
+
+    t0 = time.perf_counter()
+    calib = record(tmp, args.train_s, 0, None)
+    plain_held = record(tmp, args.heldout_s, 100, None)
+    hook = _payload_hook(args.mass, com)
+    train, held = record(tmp, args.train_s, 0, hook), record(tmp, args.heldout_s, 100, hook)
+    print(f"twin runs recorded in {time.perf_counter() - t0:.0f} s", flush=True)
+    truth = {"mass_kg": args.mass, "com_m": com}
+    out = {"truth": truth, "cases": {}}
+    declared = first_pass(diagnose(_save(tmp, "calib", calib), _save(tmp, "calib_held", plain_held)))
+    print("declared first (the twin's own effects):", [(e.family, e.joint) for e in declared])
+    from calibration.next.scaled_prior import fit_scaled_prior
+
+    c = calib
+    fitted = fit_scaled_prior("ur5", [(c["t"], c["q"], c["qd"], c["tau_m"] * S_CURRENT)]).scale
+    print("current-per-torque scale fitted on the no-payload run [A per N*m]:", np.round(fitted, 4).tolist())
+    for case, scale_in, scale_back in (("N*m", None, None),
+                                       ("A, known torque constant", S_CURRENT, S_CURRENT),
+                                       ("A, scale identified (CAD masses)", S_CURRENT, fitted)):
+        tr, he = train, held
+        if scale_in is not None:  # through current and back with the scale the case knows
+            tr = {**train, "tau_m": train["tau_m"] * scale_in / scale_back}
+            he = {**held, "tau_m": held["tau_m"] * scale_in / scale_back}
+        dg = diagnose(_save(tmp, "train", tr), _save(tmp, "held", he), declared)
+        r = first_payload(dg)
+        p = r["payload"] or {}
+        if p:
+            found = np.array([p["com_x_m"], p["com_y_m"], p["com_z_m"]])
+            r["mass_err"] = p["mass_kg"] / args.mass - 1
+            r["position_err_m"] = float(np.linalg.norm(found - np.array(com)))
+            r["position_err_rel"] = r["position_err_m"] / float(np.linalg.norm(com))
+        out["cases"][case] = r
+        xyz = ", ".join(f"{p.get(k, np.nan):.3f}" for k in ("com_x_m", "com_y_m", "com_z_m"))
+        print(f"{case:36s} first {r['first']}; payload {p.get('mass_kg', np.nan):.3f} kg at ({xyz}) m; "
+              f"mass err {r.get('mass_err', np.nan):+.1%}, "
+              f"position err {r.get('position_err_m', np.nan):.3f} m",
+              flush=True)
+    out["scale_fitted"] = fitted.tolist()
+    out["scale_true"] = S_CURRENT.tolist()
+    out["wall_s"] = round(time.perf_counter() - t0, 1)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(out, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
