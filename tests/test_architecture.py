@@ -166,13 +166,6 @@ def test_app_parts_import_downwards_only():
 
 
 # -- the whole tree's module graph: no circles --------------------------------------------------------------
-# Module pairs whose imports of each other are exempt from the circle check, both directions.
-# The NEXT prior and the data-only prior import each other: removed when the prior interface lands.
-CYCLE_ALLOWED_PAIRS: set[frozenset[str]] = {
-    frozenset({"calibration.next.prior", "calibration.next.data_prior"}),
-}
-
-
 def _module_name(path: Path) -> str:
     rel = path.relative_to(REPO).with_suffix("")
     return ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
@@ -222,12 +215,7 @@ def module_import_graph() -> dict[str, set[str]]:
     of a name defined in a/__init__.py is."""
     files = [f for layer in LAYERS for f in sorted((REPO / layer).rglob("*.py"))]
     modules = {_module_name(f) for f in files}
-    graph = {_module_name(f): _module_imports(f, modules) for f in files}
-    for pair in CYCLE_ALLOWED_PAIRS:
-        a, b = sorted(pair)
-        graph[a].discard(b)
-        graph[b].discard(a)
-    return graph
+    return {_module_name(f): _module_imports(f, modules) for f in files}
 
 
 def cycle_through(graph: dict[str, set[str]], group: list[str]) -> list[str]:

@@ -112,9 +112,9 @@ def list_arms() -> list[str]:
 
 def user_arms() -> list[str]:
     """Names of the arms imported into the user's arm folder (`factr2 arm import`; docs/arms.md)."""
-    from hardware.arms.urdf_import import user_arms_dir
+    from hardware.switches import switches
 
-    return sorted(p.stem for p in user_arms_dir().glob("*.xml"))
+    return sorted(p.stem for p in switches().arms.glob("*.xml"))
 
 
 def load_arm(name_or_path: str | Path) -> ArmDescription:
@@ -145,9 +145,9 @@ def _resolve(name_or_path: str | Path) -> Path:
     if s in list_arms():
         return ARMS_DIR / f"{s}.xml"
     if "/" not in s and not s.endswith(".xml"):
-        from hardware.arms.urdf_import import user_arms_dir
+        from hardware.switches import switches
 
-        user = user_arms_dir() / f"{s}.xml"
+        user = switches().arms / f"{s}.xml"
         if user.is_file():
             return user.resolve()
     p = Path(s).expanduser()

@@ -12,7 +12,6 @@ hardware.arms.load_arm finds a name there after the built-in ones.
 from __future__ import annotations
 
 import math
-import os
 import re
 from pathlib import Path
 
@@ -20,6 +19,7 @@ import numpy as np
 
 from hardware.arms.specs import SERVOS, TAU_RATE_RISE_S, ArmSpec, Finger, Geom, Link, gello_from
 from hardware.arms.urdf import CONTINUOUS_RANGE_RAD, UrdfArm, UrdfError, matrix_quat
+from hardware.switches import switches
 
 DEFAULT_ARMATURE = 0.0  # kg*m^2: a URDF carries no rotor inertia (the identified prior fits it)
 TOTAL_MASS_TOL = 0.10  # CAD total vs the stated mass: a warning beyond this fraction
@@ -36,10 +36,8 @@ NAME_RE = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 
 
 def user_arms_dir() -> Path:
-    """The user's arm folder: $FACTR2_ARMS, else $XDG_CONFIG_HOME/factr2/arms (default ~/.config)."""
-    if os.environ.get("FACTR2_ARMS"):
-        return Path(os.environ["FACTR2_ARMS"]).expanduser()
-    return Path(os.environ.get("XDG_CONFIG_HOME") or Path.home() / ".config").expanduser() / "factr2" / "arms"
+    """The user's arm folder: $FACTR2_ARMS, else $XDG_CONFIG_HOME/factr2/arms (hardware.switches)."""
+    return switches().arms
 
 
 def check(arm: UrdfArm, total_mass_kg: float | None = None) -> list[tuple[str, str]]:
