@@ -15,13 +15,15 @@ from factr2_teleop.demo.task import DemoConfig, DemoRun
 from factr2_teleop.teleop.pair import COUPLED, SOFT_START
 
 RATE_HZ = 250.0  # Hz: the lockstep loop rate of fault runs (a few seconds of twin time each)
+REACT_WINDOW_S = 0.1  # s: a hold up to this long after a fault ends is the reaction to it (not a later one)
 
 
 @dataclass
 class FaultOutcome:
     """log: the twin's own record of what it injected (t_s on the twin's clock, as the injector logged it);
     t_offset_s: rig clock - twin clock [s]; safe_ms: per fault start, ms to the first follower hold
-    command after it (None: the follower was never put on hold); recovered: per fault, the pair tracked
+    command after it, before the fault ended + REACT_WINDOW_S (None: no hold in that window; the stop's
+    hold at the end of the run does not count); recovered: per fault, the pair tracked
     the leader again (coupled or soft start) after the fault ended; violations: commands outside the limits;
     safe_at_end: leader at zero torque and follower holding after the run; jumps_rejected: leader + follower
     samples held as implausible; messages: (t, who, text)."""
@@ -76,10 +78,11 @@ def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-
     out.jumps_rejected = run.leader.safety.jumps_rejected + run.follower.safety.jumps_rejected
     starts = [e for e in out.log if e["event"] == "start"]
     ends = {e["kind"] + repr(e.get("joint")): e["t_s"] for e in out.log if e["event"] == "end"}
+    t_last = phases[-1][0] if phases else -np.inf  # the loop's last tick: the stop's hold comes after it
     for e in starts:
         t0 = e["t_s"] + out.t_offset_s
-        after = tf[hold & (tf >= t0)]
-        out.safe_ms.append(float((after[0] - t0) * 1e3) if len(after) else None)
         t_end = ends.get(e["kind"] + repr(e.get("joint")), e["t_s"]) + out.t_offset_s
+        after = tf[hold & (tf >= t0) & (tf <= min(t_end + REACT_WINDOW_S, t_last))]
+        out.safe_ms.append(float((after[0] - t0) * 1e3) if len(after) else None)
         out.recovered.append(any(t > t_end and p in (COUPLED, SOFT_START) for t, p in phases))
     return out
