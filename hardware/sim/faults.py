@@ -7,8 +7,9 @@
 
 T and DURATION are seconds of twin (sim) time from the twin's start. Each kind acts on the first follower's
 CAN emulator or the first leader's Dynamixel emulator, through the fault knobs those emulators already have
-(drop_prob, silent, fault_flags / err, set_hardware_error, corrupt_prob, spike_rad). A kind the rig's
-device cannot play is a ConfigError when the twin is built, not a fault silently skipped.
+(drop_prob, silent, fault_flags / err, set_hardware_error, corrupt_prob, spike_rad); camera kinds act on
+the cameras of the first follower's world (world.camera_fault, read by hardware/cameras/mujoco_camera.py).
+A kind the rig's device cannot play is a ConfigError when the twin is built, not a fault silently skipped.
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ KINDS: dict[str, tuple[str, float]] = {
     "dxl_corrupt": ("a storm of corrupted Dynamixel status packets (DXL_CORRUPT_PROB each)", 0.3),
     "spike_leader": ("one leader encoder sample jumps by SPIKE_RAD on one joint", 0.0),
     "spike_follower": ("one follower encoder sample jumps by SPIKE_RAD on one joint", 0.0),
+    "camera_freeze": ("the first follower world's cameras keep showing one frame", 1.0),
+    "camera_gone": ("the first follower world's cameras deliver nothing (unplugged), then come back", 1.0),
 }
 CAN_LOSS_PROB = 0.5  # each frame lost with this probability during a can_loss burst
 DXL_CORRUPT_PROB = 0.5  # each status packet corrupted with this probability during a dxl_corrupt storm
@@ -107,6 +110,7 @@ class FaultInjector:
         self.specs = sorted(specs, key=lambda s: s.t_s)
         self.log: list[dict] = []
         self._follower = next((d for d in twin.devices.values() if d.wire == "can"), None)
+        self._worlds = [twin.devices[twin.rig.followers[0].name].world] if twin.rig.followers else []
         self._leader = next((d for d in twin.devices.values() if d.wire == "serial"), None)
         for s in self.specs:
             self._target(s)  # a kind this rig cannot play: ConfigError now
@@ -115,6 +119,11 @@ class FaultInjector:
         self._saved: dict[int, object] = {}
 
     def _target(self, s: FaultSpec):
+        if s.kind.startswith("camera_"):
+            if not self._worlds:
+                raise ConfigError(f"fault {s.text()}: this twin has no world", where="fault schedule",
+                                  fix="drop it")
+            return None, None
         dev = self._leader if s.kind.startswith(("dxl_", "spike_leader")) else self._follower
         emu = None if dev is None else dev.emulator
         ok = emu is not None and (s.kind.startswith(("can_", "dxl_", "spike_leader"))
@@ -163,6 +172,9 @@ class FaultInjector:
                 detail = f"servo id {sid}"
         elif k == "dxl_corrupt":
             emu.corrupt_prob = DXL_CORRUPT_PROB if start else 0.0
+        elif k.startswith("camera_"):
+            for w in self._worlds:
+                w.camera_fault = k.removeprefix("camera_") if start else None
         elif k.startswith("spike_") and start:
             spike = np.zeros(6 if k == "spike_follower" else dev.bank.n)
             spike[j] = SPIKE_RAD
