@@ -102,6 +102,17 @@ def random_schedule(seed: int, kinds: list[str], n: int, t_min_s: float, t_max_s
     return out
 
 
+def _can_play(kind: str, emu) -> bool:
+    """Whether this emulator has the knob the kind turns."""
+    if emu is None:
+        return False
+    if kind.startswith("motor_"):
+        return hasattr(emu, "fault_flags") or hasattr(emu, "err")
+    if kind.startswith("spike_"):
+        return hasattr(emu, "spike_rad")
+    return True
+
+
 class FaultInjector:
     """Applies a schedule to a twin's emulators as sim time passes (Twin calls on_time after each advance).
     log: one dict per start/end: {"kind", "event": "start" | "end", "t_s" (sim time), "joint", "detail"}."""
@@ -126,12 +137,10 @@ class FaultInjector:
             return None, None
         dev = self._leader if s.kind.startswith(("dxl_", "spike_leader")) else self._follower
         emu = None if dev is None else dev.emulator
-        ok = emu is not None and (s.kind.startswith(("can_", "dxl_", "spike_leader"))
-                                  or hasattr(emu, "fault_flags")
-                                  or (s.kind.startswith("motor_") and hasattr(emu, "err")))
-        if not ok:
-            raise ConfigError(f"fault {s.text()} cannot be played on this rig (no matching twin device)",
-                              where="[twin] faults / --twin-fault", fix="use a sim-piper-like rig or drop it")
+        if not _can_play(s.kind, emu):
+            raise ConfigError(f"fault {s.text()} cannot be played on this rig (its twin device has no such "
+                              "fault)", where="[twin] faults / --twin-fault",
+                              fix="drop it, or use a rig whose device plays it (sim-piper plays every kind)")
         if not 0 <= s.joint < dev.n_arm:
             raise ConfigError(f"fault {s.text()}: joint {s.joint} out of range", where="fault schedule",
                               fix=f"use 0..{dev.n_arm - 1}")
