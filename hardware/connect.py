@@ -191,13 +191,14 @@ def _twin_camera(config, world, clock):
 
 def open_rig(rig: str | os.PathLike | Rig = "sim-piper", clock: str = "lockstep", effect=None,
              seed: int | None = None, connect: bool = True,
-             dynamixel_transport: str | None = None) -> RigSession:
+             dynamixel_transport: str | None = None, faults=None) -> RigSession:
     """Build a rig's session. Simulated rigs get a Twin: clock="lockstep" (deterministic; the loop's
     clock.sleep advances physics) or "realtime" (a thread steps physics to wall time). Real rigs need
     clock="realtime". connect: connect every driver (leaders first). Cameras are built, not connected
     (session.cameras[name].connect(); twin cameras need OpenGL). dynamixel_transport: how a twin serves its
     Dynamixel leaders -- None picks "inprocess" for lockstep (same sdk bytes, no pty thread: deterministic
     and fast) and "pty" for realtime; "pty" in lockstep exercises the pseudo-terminal path.
+    faults: hardware.sim.faults.FaultSpec the twin plays (None: the rig's [twin] faults; a real rig: error).
     ConfigError on bad input."""
     r = _as_rig(rig)
     if clock not in ("lockstep", "realtime"):
@@ -205,13 +206,15 @@ def open_rig(rig: str | os.PathLike | Rig = "sim-piper", clock: str = "lockstep"
     twin = None
     if r.simulated:
         transport = dynamixel_transport or ("inprocess" if clock == "lockstep" else "pty")
-        twin = Twin(r, effect=effect, seed=seed, dynamixel_transport=transport)
+        twin = Twin(r, effect=effect, seed=seed, dynamixel_transport=transport, faults=faults)
         r = r.with_endpoints(twin.endpoints)
     elif clock == "lockstep":
         raise ConfigError(f"rig {r.name} is real hardware: it cannot run in lockstep", where=str(r.path),
                           fix="use clock='realtime'")
     elif effect is not None:
         raise ConfigError("a twin effect needs a simulated rig", where="--twin-effect", fix="use a sim-* rig")
+    elif faults:
+        raise ConfigError("twin faults need a simulated rig", where="--twin-fault", fix="use a sim-* rig")
     clk: Clock = LockstepClock() if clock == "lockstep" else Clock()
     session = RigSession(rig=r, clock=clk, twin=twin)
     try:

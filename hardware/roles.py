@@ -12,14 +12,23 @@ real-time rigs also run WatchdogThread so a frozen loop still leaves the device 
 from __future__ import annotations
 
 import abc
+import dataclasses
+import math
 import threading
 
 import numpy as np
 
 from hardware.clock import Clock
 from hardware.reasons import Reason
-from hardware.safety import DEFAULT_WATCHDOG_S, DeviceHold, SafeFollowerCommand, SafeLeaderTorque, SafetyLayer
-from hardware.types import FollowerCommand, JointLimits, JointState
+from hardware.safety import (
+    DEFAULT_WATCHDOG_S,
+    DeviceHold,
+    SafeFollowerCommand,
+    SafeLeaderTorque,
+    SafetyLayer,
+    implausible_jump,
+)
+from hardware.types import STATUS_IMPLAUSIBLE, STATUS_STALE, FollowerCommand, JointLimits, JointState
 
 
 class Device(abc.ABC):
@@ -35,6 +44,8 @@ class Device(abc.ABC):
         self._lock = threading.RLock()  # one bus transaction at a time (loop vs watchdog thread)
         self.in_safe_state = False
         self._observers: list = []
+        self._q_ok: np.ndarray | None = None  # per joint: the last accepted position [rad] and its time [s]
+        self._t_q_ok = np.full(limits.n, -math.inf)
 
     def add_command_observer(self, fn) -> None:
         """fn(t_issued, t_sent, safe) for every safe command before it goes on the wire, on the sending
@@ -77,10 +88,30 @@ class Device(abc.ABC):
         with self._lock:
             st = self._read()
             if st is not None:
+                st = self._plausible(st)
                 self._last_state = st
                 self.safety.watchdog.feed_feedback(st.t)
             self.check_watchdog()
             return self._last_state
+
+    def _plausible(self, st: JointState) -> JointState:
+        """A joint whose sample jumped further than it can move since its last accepted sample (an encoder
+        glitch) keeps that accepted value, flagged STATUS_IMPLAUSIBLE | STATUS_STALE (the pair then neither
+        follows it nor counts the sample as fresh) and counted in safety.jumps_rejected."""
+        q = np.asarray(st.q, dtype=float)
+        if self._q_ok is None or q.shape != self._q_ok.shape or not math.isfinite(st.t):
+            self._q_ok, self._t_q_ok = q.copy(), np.full(q.shape, st.t)
+            return st
+        bad = implausible_jump(q, self._q_ok, st.t - self._t_q_ok)
+        if not bad.any():
+            self._q_ok, self._t_q_ok[:] = q.copy(), st.t
+            return st
+        good = ~bad
+        self._q_ok[good], self._t_q_ok[good] = q[good], st.t
+        self.safety.jumps_rejected += int(bad.sum())
+        status = np.asarray(st.status, dtype=np.uint32).copy()
+        status[bad] |= np.uint32(STATUS_IMPLAUSIBLE | STATUS_STALE)
+        return dataclasses.replace(st, q=np.where(bad, self._q_ok, q), status=status)
 
     @property
     def last_state(self) -> JointState:

@@ -21,6 +21,11 @@ from hardware.types import FollowerCommand, JointLimits
 DEFAULT_WATCHDOG_S = 0.05  # s: commands or feedback older than this put the device in its safe state
 MAX_RATE_DT_S = DEFAULT_WATCHDOG_S  # s: a pause longer than this does not buy a larger target step
 HOLD_KD = 1.0  # N*m*s/rad: damping gain of the safe state for impedance (MIT) followers
+# an encoder sample further than PLAUSIBLE_JUMP_RAD + PLAUSIBLE_SPEED_RAD_S * dt from the last accepted one
+# is a glitch, not motion: no arm here moves a joint faster than 20 rad/s (Piper 3 rad/s, XL330 leader
+# servos ~10 rad/s unloaded); 0.2 rad covers noise and quantisation with a wide margin
+PLAUSIBLE_SPEED_RAD_S = 20.0
+PLAUSIBLE_JUMP_RAD = 0.2
 _TOKEN = object()  # only this module can build Safe* values
 
 
@@ -57,6 +62,14 @@ def limit_position_target(q_target: np.ndarray, q_prev: np.ndarray, dt_s: float,
     hi = np.minimum(q_prev + step, lim.q_max)
     out = np.minimum(np.maximum(q, lo), hi)
     return out, int(np.count_nonzero(out != raw))
+
+
+def implausible_jump(q: np.ndarray, q_prev: np.ndarray, dt_s) -> np.ndarray:
+    """Per joint: True where q [rad] lies further from q_prev (the last accepted sample) than the joint can
+    move in dt_s [s, scalar or per joint]. Non-finite values are never implausible (other checks see them)."""
+    step = PLAUSIBLE_JUMP_RAD + PLAUSIBLE_SPEED_RAD_S * np.maximum(dt_s, 0.0)
+    with np.errstate(invalid="ignore"):
+        return np.abs(np.asarray(q, dtype=float) - q_prev) > step
 
 
 def _rate_dt(dt_s: float) -> float:
@@ -167,6 +180,7 @@ class SafetyLayer:
         self.clipped = 0  # joints changed by a limit, cumulative
         self.rejected = 0  # non-finite values replaced, cumulative
         self.holds = 0  # times the safe state was entered
+        self.jumps_rejected = 0  # joint samples held: implausible jumps (Device.read), cumulative
         self.last_fault: Reason | str | None = None  # the last safe state's reason (or a caller's note)
 
     def _dt(self, now: float) -> float:

@@ -21,6 +21,9 @@ STATUS_STALL = 1 << 7
 STATUS_LIMIT = 1 << 8
 STATUS_STALE = 1 << 9  # no fresh feedback for this joint within the watchdog timeout
 STATUS_HOLD = 1 << 10  # the safety layer put the device on hold
+STATUS_IMPLAUSIBLE = 1 << 11  # this sample jumped further than the joint can move: the previous value is held
+# a motor reporting one of these is not driven on (the pair holds until the report clears)
+STATUS_MOTOR_ERROR = STATUS_OVERTEMP | STATUS_OVERCURRENT | STATUS_DRIVER_ERROR
 
 
 def _nan(n: int) -> np.ndarray:

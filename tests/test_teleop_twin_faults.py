@@ -106,7 +106,9 @@ def test_soft_start_refuses_a_large_mismatch_and_leaves_arms_safe():
         full = np.zeros(len(dev.bank.joint_names))
         full[:6] = q_far
         dev.world.set_qpos(dev.bank, full)
-        run.clock.sleep(0.01)
+        # 100 ms, not 10: a 1.5 rad move within 10 ms is an encoder glitch the driver shell rejects
+        # (hardware.safety.implausible_jump), not a leader that was left elsewhere
+        run.clock.sleep(0.1)
         with pytest.raises(UserError, match="differ too much to start.*j2"):
             run.run()
         _, tau_l = run.wire_l.arrays()

@@ -27,6 +27,22 @@ def add_arguments(p) -> None:
     p.add_argument("--checkpoint", metavar="NEXT.json", help="NEXT checkpoint (mode next; all followers)")
     p.add_argument("--rate", type=float, help="loop rate [Hz] (default: rig [teleop] rate_hz, else 500)")
     p.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C)")
+    add_twin_fault_argument(p)
+
+
+def add_twin_fault_argument(p) -> None:
+    """--twin-fault KIND@T[:DURATION] (repeatable): faults the twin plays (hardware/sim/faults.py)."""
+    p.add_argument("--twin-fault", action="append", metavar="KIND@T[:DURATION]",
+                   help="a fault the twin plays at T s for DURATION s (repeatable; simulated rigs; kinds: "
+                        "docs/safety.md)")
+
+
+def twin_faults(args):
+    """The FaultSpecs of --twin-fault (None: none given, the rig's [twin] faults apply)."""
+    from hardware.sim.faults import parse_fault
+
+    given = getattr(args, "twin_fault", None)
+    return [parse_fault(x) for x in given] if given else None
 
 
 def options(args):
@@ -56,7 +72,7 @@ def _execute(args) -> dict:
     rig = load_rig(args.rig)
     opts = options(args)
     check_options(rig, opts)
-    session = open_rig(rig, clock="realtime")
+    session = open_rig(rig, clock="realtime", faults=twin_faults(args))
     ts, out = None, {"recording": None, "status": None, "cameras": {}}
     try:
         ts = TeleopSession(session, opts)
@@ -87,6 +103,8 @@ def _execute(args) -> dict:
         raise UserError(f"teleop stopped: {loop.error}", where="factr2 teleop", fix="see the messages above")
     out["timing"] = loop.timing.stats()
     out["messages"] = list(loop.snapshot().messages)  # (t [s], who, text): holds, notes
+    twin = session.twin
+    out["faults"] = list(twin.faults.log) if twin is not None and twin.faults is not None else []
     return out
 
 

@@ -69,6 +69,7 @@ class DemoConfig:
     # ground truth (0.3 ms per read) every this many ticks for the metrics; 0: 2 in real time, 1 in lockstep
     truth_every: int = 0
     next_worker: bool = True  # NEXT in its own process on a real-time clock (TeleopOptions.next_worker)
+    faults: tuple = ()  # hardware.sim.faults.FaultSpec the twin plays (empty: the rig's [twin] faults)
 
     def options(self):
         """The session layer's TeleopOptions of this configuration."""
@@ -194,7 +195,8 @@ class DemoRun:
         self.cfg, self.next_path, self.session = cfg, next_path, None
         try:
             self.session = open_rig(cfg.rig, clock="lockstep" if cfg.clock == "lockstep" else "realtime",
-                                    seed=cfg.seed, dynamixel_transport=cfg.dynamixel_transport)
+                                    seed=cfg.seed, dynamixel_transport=cfg.dynamixel_transport,
+                                    faults=list(cfg.faults) or None)
             self.clock = self.session.clock
             if cfg.clock == "realtime":  # the loop thread steps the twin from here on (set-up not simulated)
                 self.session.twin.stop_realtime()

@@ -28,12 +28,24 @@ from hardware.errors import ConfigError, DeviceError
 from hardware.reasons import Reason, messages
 from hardware.roles import Follower, Leader, make_safe
 from hardware.safety import SafeFollowerCommand
-from hardware.types import STATUS_COMM_LOST, STATUS_STALE, FollowerCommand, JointState
+from hardware.types import (
+    STATUS_COMM_LOST,
+    STATUS_DRIVER_ERROR,
+    STATUS_MOTOR_ERROR,
+    STATUS_OVERCURRENT,
+    STATUS_OVERTEMP,
+    STATUS_STALE,
+    FollowerCommand,
+    JointState,
+)
 
 log = logging.getLogger("factr2.teleop")
 
 SOFT_START, COUPLED, HOLD, FAULT, STOPPED, IDLE = "soft_start", "coupled", "hold", "fault", "stopped", "idle"
 _STALE_BITS = np.uint32(STATUS_STALE | STATUS_COMM_LOST)
+_ERROR_BITS = np.uint32(STATUS_MOTOR_ERROR)
+_ERROR_NAMES = ((STATUS_OVERCURRENT, "over-current"), (STATUS_OVERTEMP, "over-temperature"),
+                (STATUS_DRIVER_ERROR, "driver/encoder error"))
 DEFAULT_STALE_S = 0.02  # s: a leader/follower sample older than this puts the follower on hold (< 50 ms)
 
 
@@ -41,6 +53,7 @@ class PairHold(Enum):
     """Why a pair made its arms safe (hardware.reasons)."""
 
     DATA_STALE = "data stale"  # detail: who ("leader" / "follower"), age_ms
+    MOTOR_ERROR = "motor error"  # detail: who, what ("j2 over-current")
     NO_DATA_AT_START = "no data at start"
     START_MISMATCH = "start refused: leader/follower mismatch"
     LOOP_FAULT = "teleop fault"
@@ -50,6 +63,7 @@ class PairHold(Enum):
 
 messages({
     PairHold.DATA_STALE: "{who} data stale ({age_ms:.0f} ms old)",
+    PairHold.MOTOR_ERROR: "{who} motor error: {what}",
     PairHold.NO_DATA_AT_START: "no data at start",
     PairHold.START_MISMATCH: "start refused: leader/follower mismatch",
     PairHold.LOOP_FAULT: "teleop fault",
@@ -96,6 +110,18 @@ def _fresh(st: JointState, now: float, max_age: float, since: float = -math.inf)
     return bool(np.isfinite(st.q).all()) and math.isfinite(st.t) and now - st.t <= max_age and st.t >= since
 
 
+def motor_errors(st: JointState) -> str:
+    """The motor errors a sample reports ("j2 over-current, j3 over-temperature"), "" when none."""
+    status = getattr(st, "status", None)
+    if status is None:
+        return ""
+    status = np.asarray(status, dtype=np.uint32)
+    if not bool((status & _ERROR_BITS).any()):
+        return ""
+    return ", ".join(f"j{j + 1} {name}" for j, s in enumerate(status.tolist()) for bit, name in _ERROR_NAMES
+                     if s & bit)
+
+
 def _complete(st: JointState) -> bool:
     """A sample in which every joint is new: drivers re-stamp a partial/failed read with the read time and
     flag the joints that kept old values (STATUS_STALE / STATUS_COMM_LOST), so age alone cannot tell."""
@@ -128,6 +154,8 @@ class ArmPair:
         self.sent: SafeFollowerCommand | None = None  # what reached the follower this tick
         self._t_ok = {"leader": -np.inf, "follower": -np.inf}  # time of the last complete sample [s]
         self._leader_ok = False
+        self._refused = False  # a resume is refused (mismatch): said once, not every tick
+        self._jumps = {"leader": 0, "follower": 0}  # implausible jumps already said (safety.jumps_rejected)
 
     # -- helpers -------------------------------------------------------------------------------------
     def _say(self, text: str, level: int = logging.WARNING) -> None:
@@ -150,8 +178,11 @@ class ArmPair:
         goal = self.map.forward(ls.q)
         err = mismatch_error(fs.q, goal, self.soft.max_mismatch, where=self.cfg.name)
         if err is not None:
-            self._say(str(err))
+            if not self._refused:  # the numbers change every tick: say it once per refusal
+                self._say(str(err))
+            self._refused = True
             return False
+        self._refused = False
         self.law.feedback.reset()
         direct = self.cfg.soft_start.resume_direct_rad
         if resume and direct > 0 and bool(np.all(np.abs(goal - fs.q) <= direct)):
@@ -209,14 +240,22 @@ class ArmPair:
     def tick(self, now: float) -> TickRecord:
         """One control period. Returns the record of this tick (also kept as self.last)."""
         dt, ls, fs, leader_ok, follower_ok = self._read_both(now)
+        errors = self._check_samples(ls, fs)
+        if errors:
+            leader_ok = leader_ok and "leader" not in errors
+            follower_ok = follower_ok and "follower" not in errors
         q_leader_f = self.map.forward(ls.q)
         if follower_ok:
             self._tick_estimator(now, fs, q_leader_f)
         if not (leader_ok and follower_ok):
             if self.phase != HOLD:
                 who = "leader" if not leader_ok else "follower"
-                age = (now - self._t_ok[who]) * 1e3 if np.isfinite(self._t_ok[who]) else float("inf")
-                self._enter_hold(Reason.of(PairHold.DATA_STALE, who=who, age_ms=age), leader_ok)
+                if who in errors:
+                    reason = Reason.of(PairHold.MOTOR_ERROR, who=who, what=errors[who])
+                else:
+                    age = (now - self._t_ok[who]) * 1e3 if np.isfinite(self._t_ok[who]) else float("inf")
+                    reason = Reason.of(PairHold.DATA_STALE, who=who, age_ms=age)
+                self._enter_hold(reason, leader_ok)
         elif self.phase == HOLD:
             self._start_soft(ls, fs, resume=True)
         out = None
@@ -258,6 +297,21 @@ class ArmPair:
             ls = self.leader.last_state
         fs = self.follower.read()
         return dt, ls, fs, self._leader_ok, self._ok("follower", fs, now, self.cfg.follower_stale_s)
+
+    def _check_samples(self, ls: JointState, fs: JointState) -> dict[str, str]:
+        """Say each implausible jump a device held (Device.read); return who reports a motor error and what
+        ({} when none: the usual tick, two array checks)."""
+        for who, dev in (("leader", self.leader), ("follower", self.follower)):
+            n = dev.safety.jumps_rejected
+            if n != self._jumps[who]:
+                self._jumps[who] = n
+                self._say(f"{who} encoder jump rejected (implausible in one sample): previous value held")
+        out = {}
+        for who, st in (("leader", ls), ("follower", fs)):
+            what = motor_errors(st)
+            if what:
+                out[who] = what
+        return out
 
     def _ok(self, who: str, st: JointState, now: float, max_age: float) -> bool:
         """Fresh: finite, and a complete sample within max_age (a lost read now and then is tolerated,

@@ -7,7 +7,7 @@ Thread rule: read() renders from the attached MjData; call it from the thread th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -81,6 +81,7 @@ class WorldSnapshot:
     qvel: np.ndarray
     mocap_pos: np.ndarray
     mocap_quat: np.ndarray
+    gone: bool = False  # SIMULATED: the camera is unplugged; rendering it fails
 
 
 class TwinCamera(MujocoCamera):
@@ -92,6 +93,7 @@ class TwinCamera(MujocoCamera):
         super().__init__(config, world.model, world.data, clock)
         self.world = world
         self._proc = None
+        self._frozen: WorldSnapshot | None = None  # the state a frozen camera keeps showing
         q = world.model.vis.quality  # visual only: physics does not read it
         q.offsamples = min(int(q.offsamples), TWIN_MSAA_SAMPLES)
 
@@ -123,11 +125,20 @@ class TwinCamera(MujocoCamera):
         return self.render(self.snapshot(self.clock.now()))
 
     def snapshot(self, t: float) -> WorldSnapshot:
-        d = self.world.data
+        """The state the frame at t shows. The twin's camera faults (world.camera_fault): "freeze" keeps
+        the state the freeze began with, "gone" marks the snapshot so that render() fails."""
+        d, fault = self.world.data, self.world.camera_fault
+        if fault == "freeze" and self._frozen is not None:
+            return replace(self._frozen, t=float(t))
         with self.world.lock:
-            return WorldSnapshot(float(t), d.qpos.copy(), d.qvel.copy(), d.mocap_pos.copy(),
-                                 d.mocap_quat.copy())
+            snap = WorldSnapshot(float(t), d.qpos.copy(), d.qvel.copy(), d.mocap_pos.copy(),
+                                 d.mocap_quat.copy(), gone=fault == "gone")
+        self._frozen = snap if fault == "freeze" else None
+        return snap
 
     def render(self, snap: WorldSnapshot) -> np.ndarray:
         """An H x W x 3 uint8 frame of a snapshot (call from one thread at a time)."""
+        if snap.gone:
+            raise CameraError("no frame: the camera is gone (SIMULATED unplug)", where=f"camera {self.name}",
+                              fix="check the camera's cable; it is used again when it answers")
         return self._proc.render(0, snap)

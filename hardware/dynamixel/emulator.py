@@ -21,7 +21,9 @@ with hardware.dynamixel.inprocess.InProcessPortHandler, whose writes call serve(
 (lockstep twins: deterministic, no syscalls or thread hand-offs per packet).
 
 Faults: drop_prob ignores each instruction packet with that probability (no reply, no effect);
-set_silent(True) (or silent_ids) makes servos ignore everything, as if unpowered.
+set_silent(True) (or silent_ids) makes servos ignore everything, as if unpowered; corrupt_prob flips one
+byte of each status packet with that probability (a noisy line: the host sees CRC errors); spike_rad (per
+bank motor, rad) is added to the present position of the next read only (an encoder glitch), then cleared.
 """
 
 from __future__ import annotations
@@ -98,6 +100,9 @@ class DynamixelEmulator:
         self.drop_prob = float(drop_prob)
         self.silent_ids: set[int] = set(silent_ids or ())
         self.silent = False
+        self.corrupt_prob = 0.0
+        self._corrupt_rng = np.random.default_rng(None if seed is None else seed + 1)  # apart: no-fault draws
+        self.spike_rad: np.ndarray | None = None
         self.emulate_return_delay = emulate_return_delay
         self._bank_lock = bank_lock or threading.Lock()
         self._rng = np.random.default_rng(seed)
@@ -262,6 +267,9 @@ class DynamixelEmulator:
             self.parser.discard_partial()
 
     def _send(self, servo: ServoTable, pkt: bytes) -> None:
+        if self.corrupt_prob and self._corrupt_rng.random() < self.corrupt_prob:
+            k = int(self._corrupt_rng.integers(len(pkt)))
+            pkt = pkt[:k] + bytes([pkt[k] ^ 0x5A]) + pkt[k + 1:]
         if self.emulate_return_delay:
             delay = servo.get(p.ADDR_RETURN_DELAY_TIME) * p.RETURN_DELAY_UNIT_S
             if delay > 0:
@@ -298,6 +306,9 @@ class DynamixelEmulator:
         with self._bank_lock:
             r = self.bank.read()
         q, qd, cur, temp = r.q.tolist(), r.q_dot.tolist(), r.current.tolist(), r.temperature.tolist()
+        if self.spike_rad is not None:  # one glitched sample, then the encoder reads true again
+            q = (np.asarray(q) + self.spike_rad).tolist()
+            self.spike_rad = None
         tick = int(self._tick_clock() * 1e3) % 32768
         rad_tick, rad_s_unit = p.RAD_PER_TICK, p.RAD_S_PER_VELOCITY_UNIT
         for s in servos:

@@ -15,7 +15,8 @@ end pose when fk is given; 40 Hz for low-speed). Behaviour modelled on the vendo
 - 0x472 parameter queries and 0x4AF firmware queries are answered.
 Fault injection: drop_prob (each frame in either direction is lost with this probability), silent (send
 nothing), fault_flags (per-joint hardware.types STATUS_* flags reported in the low-speed status byte),
-arm_status (0x2A1 byte 1, e.g. protocol.ARM_STATUS_ESTOP).
+arm_status (0x2A1 byte 1, e.g. protocol.ARM_STATUS_ESTOP), spike_rad (6 values [rad] added to the joint
+angles of the next feedback only: an encoder glitch; then cleared).
 """
 
 from __future__ import annotations
@@ -72,6 +73,7 @@ class PiperEmulator(CanEmulatorIO):
         self.ctrl_mode, self.move_mode, self.mit_mode, self.speed_pct = P.CTRL_STANDBY, P.MOVE_J, 0, 100
         self.arm_status = 0
         self.fault_flags = np.zeros(6, dtype=np.int64)
+        self.spike_rad: np.ndarray | None = None
         self._q_target = np.full(7, np.nan)  # J1..J6 [rad], gripper stroke [m]
         self._mit = np.zeros((6, 5))
         self._all6 = np.arange(6)
@@ -208,6 +210,9 @@ class PiperEmulator(CanEmulatorIO):
         q = r.q.tolist()  # Python floats: the codec's round() is ~20x slower on numpy scalars
         if fast:
             self._next_fast = _next_tick(self._next_fast, t, 1.0 / FAST_HZ)
+            if self.spike_rad is not None:  # one glitched feedback, then the encoders read true again
+                q[:6] = (np.asarray(q[:6]) + self.spike_rad).tolist()
+                self.spike_rad = None
             lim = self.joint_limits_rad.tolist()  # Python float compares, as numpy's (NaN: not over)
             limit_bits = sum(1 << j for j in range(6) if q[j] < lim[j][0] or q[j] > lim[j][1])
             status = P.encode_status(self.ctrl_mode, self.arm_status, self.move_mode, limit_bits, 0)

@@ -10,6 +10,7 @@ A rig is a TOML file (built-in ones live next to this module; see docs/twin.md f
                      (channel, ...), next_checkpoint, [followers.limits], [followers.twin]
     [[cameras]]      name, source, width, height, fps
     [twin]           seed, effect ("MODULE:FUNCTION"), [twin.effects] (bool per actuator effect),
+                     faults (["KIND@T[:DURATION]", ...]: hardware/sim/faults.py),
                      description_error (bool, default true: the twin's arms are not their descriptions)
 
 load_rig(name_or_path) validates everything up front; every problem is a ConfigError naming the file, the
@@ -32,6 +33,7 @@ import numpy as np
 from hardware.errors import ConfigError
 from hardware.registry import device_kind
 from hardware.sim.actuators import EFFECT_NAMES, ActuatorParams
+from hardware.sim.faults import parse_fault
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -47,7 +49,8 @@ DEVICE_TWIN_KEYS = {"motors", "start_q", "params"}
 TOP_KEYS = {"rig", "leaders", "followers", "cameras", "twin", "pairs", "teleop"}
 RIG_KEYS = {"name", "description", "simulated"}
 CAMERA_KEYS = {"name": str, "source": str, "width": int, "height": int, "fps": float}
-TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene", "task", "description_error"}
+TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene", "task", "description_error",
+             "faults"}
 
 
 @dataclass
@@ -116,6 +119,7 @@ class TwinSpec:
     # true: each twin arm simulates a true body that differs from its published description as a real unit
     # does (hardware/arms/true_body.py, per seed); false: the twin simulates the description exactly
     description_error: bool = True
+    faults: tuple = ()  # hardware.sim.faults.FaultSpec to play, from ["KIND@T[:DURATION]", ...]
 
 
 @dataclass
@@ -303,7 +307,9 @@ def _twin(t, f: str) -> TwinSpec:
                     scene=_typed(t.get("scene", "table"), str, f, "twin.scene"),
                     task=_typed(t["task"], str, f, "twin.task") if "task" in t else None,
                     description_error=_typed(t.get("description_error", True), bool, f,
-                                             "twin.description_error"))
+                                             "twin.description_error"),
+                    faults=tuple(parse_fault(x, where=f"{f}: twin.faults[{i}]") for i, x in
+                                 enumerate(_check_type(t.get("faults", []), "list[str]", f, "twin.faults"))))
 
 
 def _pairs(raw, leaders, followers, f: str) -> list[tuple[str, str]]:

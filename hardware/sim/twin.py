@@ -4,6 +4,7 @@
     twin.attach(lockstep_clock)   # lockstep: clock.sleep(dt) advances the physics (deterministic per seed)
     twin.start_realtime()         # or: a thread steps the physics to wall time
     twin.serial_ports / twin.can_channels                  # device name -> pty path / virtual CAN channel
+    Twin(rig, faults=[FaultSpec, ...])                     # faults on the wires (hardware/sim/faults.py)
 
 Each follower is its own MuJoCo world (its arm's scene, e.g. with a table) with one MujocoBank on the arm
 joints (+ gripper); it speaks its driver's protocol through PiperEmulator / DamiaoEmulator on a python-can
@@ -46,6 +47,7 @@ from hardware.realtime import EMULATOR_PRIORITY, TWIN_PRIORITY, set_fifo
 from hardware.registry import EmulatorContext, device_kind
 from hardware.sim.actuators import ActuatorParams, Effects
 from hardware.sim.effects_hook import load_hook
+from hardware.sim.faults import FaultInjector
 from hardware.sim.mujoco_bank import MujocoBank
 from hardware.sim.presets import arm_params, motor_params
 from hardware.sim.tasks.base import scene_model
@@ -109,7 +111,7 @@ class Twin:
     """Simulated rig. Device names are the rig's; see module doc for the stepping order."""
 
     def __init__(self, rig: Rig, *, effect=None, seed: int | None = None, dynamixel_transport: str = "pty",
-                 leader_control_hz: float | None = LEADER_CONTROL_HZ, task=None):
+                 leader_control_hz: float | None = LEADER_CONTROL_HZ, task=None, faults=None):
         from hardware.arms import load_arm
         from hardware.sim.tasks import get_task
 
@@ -151,6 +153,7 @@ class Twin:
         self.overruns = 0
         self._step_observers: list = []  # add_step_observer
         self.steps = 0
+        self.faults: FaultInjector | None = None
         try:
             for k, dev in enumerate(rig.followers):
                 self._add(dev, load_arm(dev.arm), follower=True, seed=self.seed + 101 * k,
@@ -158,6 +161,9 @@ class Twin:
             for k, dev in enumerate(rig.leaders):
                 self._add(dev, load_arm(dev.arm), follower=False, seed=self.seed + 7919 + 101 * k,
                           body_seed=rig.twin.seed + 7919 + 101 * k)
+            # faults to play (hardware/sim/faults.py): the argument, else the rig's [twin] faults
+            specs = list(faults) if faults is not None else list(getattr(rig.twin, "faults", ()))
+            self.faults = FaultInjector(self, specs) if specs else None
         except BaseException:
             self.close()
             raise
@@ -263,6 +269,8 @@ class Twin:
             while self.t + 0.5 * self.dt < target:
                 self.step(poll=every or n == 0)
                 n += 1
+            if n and self.faults is not None:
+                self.faults.on_time(self.t)
             if n and self._step_observers:
                 t_rig = self.t + self._t_offset
                 for fn in self._step_observers:

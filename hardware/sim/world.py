@@ -74,6 +74,9 @@ class MujocoWorld:
         self._push_body, self._push_force, self._push_until = -1, np.zeros(6), -1.0
         self._geom_bank: np.ndarray | None = None
         self.steps = 0
+        # SIMULATED camera fault on this world's cameras (hardware/sim/faults.py): None, "freeze" (they show
+        # the state the freeze began with) or "gone" (their renders fail, as an unplugged camera's reads do)
+        self.camera_fault: str | None = None
         mujoco.mj_forward(model, self.data)
         # per physics step: (t, contact, limit, push [N*m, model dofs], hand per bank, banks touching); kept
         # from the first averaged read on (keep_truth), so a world nobody asks costs nothing extra per step

@@ -1,0 +1,88 @@
+"""A lockstep twin teleop run with scheduled faults, and what happened (SIMULATED; tests/test_faults_*.py and
+bench/faults.py measure through this).
+
+    out = run_with_faults([parse_fault("can_busoff@1.0:0.3")], seconds=2.5)
+    out.safe_ms    # per injected fault: ms from its start to the first follower hold on the wire (None: none)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factr2_teleop.demo.task import DemoConfig, DemoRun
+from factr2_teleop.teleop.pair import COUPLED, SOFT_START
+
+RATE_HZ = 250.0  # Hz: the lockstep loop rate of fault runs (a few seconds of twin time each)
+REACT_WINDOW_S = 0.1  # s: a hold up to this long after a fault ends is the reaction to it (not a later one)
+
+
+@dataclass
+class FaultOutcome:
+    """log: the twin's own record of what it injected (t_s on the twin's clock, as the injector logged it);
+    t_offset_s: rig clock - twin clock [s]; safe_ms: per fault start, ms to the first follower hold
+    command after it, before the fault ended + REACT_WINDOW_S (None: no hold in that window; the stop's
+    hold at the end of the run does not count); recovered: per fault, the pair tracked
+    the leader again (coupled or soft start) after the fault ended; violations: commands outside the limits;
+    safe_at_end: leader at zero torque and follower holding after the run; jumps_rejected: leader + follower
+    samples held as implausible; messages: (t, who, text)."""
+
+    log: list
+    t_offset_s: float
+    safe_ms: list = field(default_factory=list)
+    recovered: list = field(default_factory=list)
+    violations: int = 0
+    safe_at_end: bool = False
+    jumps_rejected: int = 0
+    messages: list = field(default_factory=list)
+    ticks: int = 0
+    error: str | None = None
+    follower_q_sent: np.ndarray | None = None  # (n, joints) follower position commands on the wire [rad]
+    follower_t_sent: np.ndarray | None = None  # (n,) when each was issued [s, rig clock]
+    follower_q_read: np.ndarray | None = None  # (ticks, joints) the follower positions the pair used [rad]
+
+
+def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-piper") -> FaultOutcome:
+    """Run the demo task's teleop (ground-truth feedback) in lockstep while the twin plays `specs`."""
+    run = DemoRun(DemoConfig(rig=rig, seconds=seconds, mode="ground_truth", clock="lockstep", rate_hz=RATE_HZ,
+                             seed=seed, faults=tuple(specs)))
+    phases: list[tuple[float, str]] = []
+    q_read: list[np.ndarray] = []
+
+    def on_tick(rec) -> None:
+        phases.append((rec.t, rec.phase))
+        q_read.append(np.array(rec.follower.q, dtype=float))
+
+    run.teleop.hooks.append(on_tick)
+    try:
+        twin = run.session.twin
+        try:
+            run.run()
+        except Exception as e:  # noqa: BLE001 -- an outcome to count, not a test's traceback
+            err = f"{type(e).__name__}: {e}"
+        else:
+            err = None
+        res = run.result()
+        out = FaultOutcome(log=list(twin.faults.log) if twin.faults else [],
+                           t_offset_s=twin.rig_time() - twin.t,
+                           violations=int(res.max_command_violation), ticks=res.ticks, error=err,
+                           messages=list(run.loop.snapshot().messages))
+    finally:
+        run.close()
+    tf, qf = run.wire_f.arrays()
+    hold = np.array(run.wire_f.hold, dtype=bool)
+    _, tau_l = run.wire_l.arrays()
+    out.follower_q_sent, out.follower_t_sent, out.follower_q_read = qf, tf, np.array(q_read)
+    out.safe_at_end = bool(len(hold) and hold[-1] and len(tau_l) and np.all(tau_l[-1] == 0.0))
+    out.jumps_rejected = run.leader.safety.jumps_rejected + run.follower.safety.jumps_rejected
+    starts = [e for e in out.log if e["event"] == "start"]
+    ends = {e["kind"] + repr(e.get("joint")): e["t_s"] for e in out.log if e["event"] == "end"}
+    t_last = phases[-1][0] if phases else -np.inf  # the loop's last tick: the stop's hold comes after it
+    for e in starts:
+        t0 = e["t_s"] + out.t_offset_s
+        t_end = ends.get(e["kind"] + repr(e.get("joint")), e["t_s"]) + out.t_offset_s
+        after = tf[hold & (tf >= t0) & (tf <= min(t_end + REACT_WINDOW_S, t_last))]
+        out.safe_ms.append(float((after[0] - t0) * 1e3) if len(after) else None)
+        out.recovered.append(any(t > t_end and p in (COUPLED, SOFT_START) for t, p in phases))
+    return out

@@ -1,0 +1,58 @@
+"""SIMULATED camera faults on a twin camera (needs OpenGL, as every twin camera test): a frozen camera
+repeats one frame, a gone one fails its renders and renders again once it is back."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hardware.cameras.base import CameraError
+from hardware.connect import open_rig
+from hardware.sim.faults import parse_fault
+
+
+@pytest.fixture()
+def rig():
+    s = open_rig("sim-piper", clock="lockstep", faults=[parse_fault("camera_freeze@0.1:0.1"),
+                                                        parse_fault("camera_gone@0.3:0.1")])
+    cam = s.cameras["scene"]
+    try:
+        cam.connect()
+    except CameraError as e:
+        s.close()
+        pytest.skip(f"no OpenGL here: {e}")
+    yield s, cam
+    s.close()
+
+
+def _frame(s, cam):
+    return cam.render(cam.snapshot(s.clock.now()))
+
+
+def test_freeze_repeats_one_frame_and_gone_fails_until_back(rig):
+    s, cam = rig
+    arm = s.followers["follower"]
+    arm.hold()
+    push = np.array([0.0, 0.0, -60.0])
+
+    def moving(t_s):  # a push keeps the arm moving: consecutive free frames differ
+        s.twin.push("link3", push, t_s)
+        s.clock.sleep(t_s)
+
+    f0 = _frame(s, cam)
+    moving(0.05)
+    assert not np.array_equal(f0, _frame(s, cam))  # the push shows: frames of a moving arm differ
+    moving(0.07)  # inside the freeze
+    f1 = _frame(s, cam)
+    moving(0.05)
+    f2 = _frame(s, cam)
+    assert np.array_equal(f1, f2)
+    moving(0.15)  # 0.32 s: gone
+    with pytest.raises(CameraError, match="gone"):
+        _frame(s, cam)
+    moving(0.15)  # 0.47 s: back
+    f3 = _frame(s, cam)
+    assert f3.shape == f1.shape and not np.array_equal(f3, f1)
+    events = [(e["kind"], e["event"]) for e in s.twin.faults.log]
+    assert events == [("camera_freeze", "start"), ("camera_freeze", "end"),
+                      ("camera_gone", "start"), ("camera_gone", "end")]

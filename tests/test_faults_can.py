@@ -1,0 +1,42 @@
+"""SIMULATED CAN faults on the sim-piper twin's follower (lockstep, seeded): the follower holds within one
+watchdog period, says why, and re-couples without a restart once the bus / motor is back."""
+
+from __future__ import annotations
+
+import pytest
+
+from tests.fault_helpers import WATCHDOG_MS, run_fault, said
+
+
+def test_bus_off_holds_within_a_watchdog_period_and_recovers():
+    out = run_fault("can_busoff@0.8:0.3")
+    assert out.safe_ms[0] is not None and out.safe_ms[0] <= WATCHDOG_MS
+    assert said(out, "follower on hold: follower data stale") and said(out, "re-coupled after hold")
+    assert out.recovered == [True]
+
+
+def test_frame_loss_burst_stays_within_limits_and_recovers():
+    out = run_fault("can_loss@0.8:0.3")
+    assert out.recovered == [True]
+
+
+@pytest.mark.parametrize("kind,what", [("motor_overcurrent", "j2 over-current"),
+                                       ("motor_overtemp", "j2 over-temperature"),
+                                       ("motor_encoder", "j2 driver/encoder error")])
+def test_motor_error_holds_the_follower_and_says_which(kind, what):
+    out = run_fault(f"{kind}@0.8:0.4")
+    assert out.safe_ms[0] is not None and out.safe_ms[0] <= WATCHDOG_MS  # low-speed frames come at 40 Hz
+    assert said(out, f"follower motor error: {what}")
+
+
+def test_damiao_motor_error_holds_and_a_kind_the_rig_cannot_play_is_refused():
+    from factr2_teleop.demo.fault_run import run_with_faults
+    from hardware.errors import ConfigError
+    from hardware.sim.faults import parse_fault
+
+    out = run_with_faults([parse_fault("motor_overtemp@0.8:0.4")], seconds=2.0, rig="sim-yam")
+    assert out.error is None and out.violations == 0 and out.safe_at_end
+    assert out.safe_ms[0] is not None and out.safe_ms[0] <= WATCHDOG_MS and out.recovered == [True]
+    assert said(out, "follower motor error: j2 over-temperature")
+    with pytest.raises(ConfigError, match="cannot be played on this rig"):
+        run_with_faults([parse_fault("spike_follower@0.8")], seconds=1.0, rig="sim-yam")
