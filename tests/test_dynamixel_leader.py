@@ -116,8 +116,10 @@ def test_command_torque_reaches_bank_as_current(connected):
 
 def test_multi_turn_integration(connected):
     bank, emu, leader = connected
-    for _ in range(12):  # joint 0 travels 3.6 rad in steps well under half a turn
-        bank.q[0] += 0.3
+    # joint 0 travels 3.6 rad in steps well under half a turn, each small enough to be a plausible move
+    # between two reads (hardware.safety.implausible_jump: a larger step within microseconds is a glitch)
+    for _ in range(24):
+        bank.q[0] += 0.15
         leader.read()
     assert abs(leader.read().q[0] - bank.q[0]) < 2e-3
 
