@@ -181,7 +181,7 @@ class PolicyTarget:
         """Every arm to its start pose (a jerk-limited move from where it is); fs: the first pair's sample."""
         self.started = True
         for i, a in enumerate(self.arms):
-            q = fs.q if (i == 0 and fs is not None) else a.pair.follower.read().q
+            q = fs.q if (i == 0 and fs is not None) else a.pair.follower.last_state.q
             a.pair.soft.reset(np.asarray(q, dtype=float))
         self._home_done = [False] * len(self.arms)
         self.state = HOME
@@ -247,12 +247,12 @@ class PolicyTarget:
 
     def observation(self, now: float, samples: dict | None = None) -> dict | None:
         """The flat observation now, by feature name (None while a camera the policy needs has no frame of
-        the last FRAME_MAX_AGE_S). samples: the followers' JointStates this tick by pair index (the others
-        are read: their newest sample)."""
+        the last FRAME_MAX_AGE_S). samples: the followers' JointStates this tick by pair index (the others:
+        their newest sample, as their own tick read it: the bus is not read twice)."""
         obs: dict = {}
         for i, arm in enumerate(self.arms):
             fs = (samples or {}).get(i)
-            fs = fs if fs is not None else arm.pair.follower.read()
+            fs = fs if fs is not None else arm.pair.follower.last_state  # its tick reads the bus
             est = arm.pair.estimate
             tau = est.tau_ext if est is not None else np.full(arm.pair.follower.n_joints, np.nan)
             obs.update(follower_values(self.features, arm.arm, fs, tau))
