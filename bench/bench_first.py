@@ -60,6 +60,7 @@ class BenchConfig:
     preset: str = ""  # "": the observation's default (state: the MLP flow head; images: small)
     table: str = "all"  # headline: base-torque and first on every task; second: base, C, PC+C on one task
     include_failed: bool = False  # train on failed demonstrations too (the paper trains on successes)
+    actions: str = "absolute"  # the frame joint targets are learned in (factr2 train --actions)
     ablation_task: str = ""  # "" = the first task
     thresholds: tuple | str = "recording"  # FIRST labels: from each task's demonstrations (as `factr2 train`)
     max_seconds: float | None = None  # rollout episode limit [s]; None = the task's own
@@ -122,7 +123,8 @@ def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
                      threads=max(1, (os.cpu_count() or 1) // cfg.jobs))
     opts = RunOptions(inputs=[demos], out=run, policy=cfg.policy, method=method,
                       ratio=ratio, preset=cfg.preset, thresholds=cfg.thresholds, observation=cfg.obs,
-                      progress=False, train=tc, resume=last is not None, include_failed=cfg.include_failed)
+                      progress=False, train=tc, resume=last is not None, include_failed=cfg.include_failed,
+                      actions=cfg.actions)
     t, c = time.perf_counter(), time.process_time()
     run_training(opts, Dist(device=torch.device("cuda" if torch.cuda.is_available() else "cpu")))
     meta = read_meta(run)
@@ -314,6 +316,8 @@ def parse_args(argv=None) -> tuple[BenchConfig, bool]:
                     help="headline: base-torque and first on every task; second: base and the ablation C, "
                     "PC+C on --ablation-task (PC = first); all: both (each fits a session on 2 cores)")
     ap.add_argument("--include-failed", action="store_true", help="train on failed demonstrations too")
+    ap.add_argument("--actions", choices=("absolute", "relative"), default="absolute",
+                    help="the frame the policy learns its joint targets in (factr2 train --actions)")
     ap.add_argument("--ablation-task", default="", help="task with the C / PC+C ablation (default: first)")
     ap.add_argument("--thresholds", default="recording", metavar="recording|next|LOW:HIGH",
                     help="FIRST label thresholds [N*m] (default: from the demonstrations, as factr2 train)")
@@ -326,7 +330,7 @@ def parse_args(argv=None) -> tuple[BenchConfig, bool]:
     a = ap.parse_args(argv)
     cfg = BenchConfig(out=a.out, obs=a.obs, policy=a.policy, ablation_task=a.ablation_task,
                       max_seconds=a.max_seconds, jobs=max(1, a.jobs), next_checkpoint=a.next, preset=a.preset,
-                      table=a.table, include_failed=a.include_failed)
+                      table=a.table, include_failed=a.include_failed, actions=a.actions)
     if a.quick:
         cfg.quick = True
         for k, v in QUICK.items():

@@ -46,7 +46,7 @@ def train_curve(a: dict) -> dict:
     opts = RunOptions(inputs=[Path(a["bench_out"]) / a["task"] / "demos"], out=run, policy="flow",
                       method=a["method"], observation="state", progress=False, train=tc,
                       thresholds="recording",  # as factr2 train (the curves of 2026-11-26 ran with "next")
-                      resume=last_checkpoint(run) is not None)
+                      actions=a.get("actions", "absolute"), resume=last_checkpoint(run) is not None)
     t, c = time.perf_counter(), time.process_time()
     run_training(opts, Dist())
     out = {"wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "run": str(run)}
@@ -130,6 +130,8 @@ def main(argv=None) -> int:
                     "(default: all of --at)")
     ap.add_argument("--rollouts", type=int, default=20)
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--actions", choices=("absolute", "relative"), default="absolute",
+                    help="the frame the policy learns its joint targets in (factr2 train --actions)")
     a = vars(ap.parse_args(argv))
     a["at"] = sorted(int(x) for x in a["at"].split(","))
     raw_at = a["at"] if a["raw_at"] is None else sorted(int(x) for x in a["raw_at"].split(",") if x)

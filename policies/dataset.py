@@ -28,13 +28,14 @@ import torch
 
 from hardware.errors import UserError
 from hardware.features import IMAGES, policy_names
+from hardware.features import size as feature_size
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
 from hardware.timeseries import hold_previous
 from policies.frame_cache import camera_frames
 from policies.labelling import NextModel, Thresholds, label_episode
 from policies.normalizer import Normalizer
-from policies.preprocess import ImagePath, Preprocess, crop_pool
+from policies.preprocess import ImagePath, Preprocess, crop_pool, relative_columns, to_frame
 from policies.privileged import OBSERVATIONS, uses_images, uses_objects
 from policies.recordings import ArmSet, episode_id, follower_state_action, recording_features
 
@@ -132,7 +133,7 @@ class PolicyData:
                               self.objects[idx] if self.objects is not None else None,
                               self.images(idx) if self.names.cameras else None, crops,
                               self._crops() if crops is not None else None)
-        out.update(action=torch.from_numpy(n.norm("action", self.action[idx])),
+        out.update(action=torch.from_numpy(self.pre.targets(self.action[idx], self.state[idx])),
                    mask=torch.from_numpy(self.mask[idx]),
                    phase=torch.from_numpy(self.phase[idx].astype(np.int64)))
         if self.force.shape[1]:
@@ -247,9 +248,10 @@ def build_dataset(
     cameras: list[str] | None = None,
     progress=None,
     observation: str = "images",
+    action_frame: str = "absolute",
 ) -> PolicyData:
     """observation: "images" (camera frames), "state" (the PRIVILEGED task-object vector, no frames read)
-    or "images+state" (policies/privileged.py)."""
+    or "images+state" (policies/privileged.py); action_frame: "absolute" or "relative" (Preprocess)."""
     if force not in FORCE_SOURCES:
         raise ValueError(f"force {force!r}: one of {FORCE_SOURCES}")
     if observation not in OBSERVATIONS:
@@ -288,7 +290,8 @@ def build_dataset(
         )
     cat = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
     n_f = cat["force"].shape[1]
-    io = policy_names(recording_features(recs[0]), list(arms.followers), force)  # the one schema's names
+    features = recording_features(recs[0])
+    io = policy_names(features, list(arms.followers), force)  # the one schema's names
     names = FeatureNames(state=io["state"], force=io["force"], action=io["action"], cameras=list(cams),
                          objects=object_names)
     n_val = int(round(val_fraction * len(ids))) if len(ids) >= 2 else 0
@@ -312,11 +315,17 @@ def build_dataset(
         objects=cat["objects"].astype(np.float32) if object_names else None,
     )
     train_idx, _ = data.split()
-    groups = {"state": data.state[train_idx], "action": data.action[train_idx][:, 0],
-              "force": data.force[train_idx]}
+    relative = relative_columns(io["action"], {n: feature_size(features[n]) for n in io["action"]})
+    if action_frame == "absolute":  # per value, over the chunks' first steps
+        action = data.action[train_idx][:, 0]
+    else:  # per chunk step and value (Preprocess)
+        action = to_frame(data.action[train_idx], data.state[train_idx], np.asarray(relative))
+        action = action.reshape(len(action), -1)
+    groups = {"state": data.state[train_idx], "action": action, "force": data.force[train_idx]}
     if data.objects is not None:
         groups["objects"] = data.objects[train_idx]
-    data.pre = Preprocess(Normalizer.fit(groups), image)
+    data.pre = Preprocess(Normalizer.fit(groups), image, action_frame,
+                          relative if action_frame != "absolute" else [])
     return data
 
 

@@ -6,8 +6,9 @@ Order (fixed per task, recorded with the data as the /task/objects channel's `na
 observe() does not already hold, in their dict order; each entry flattened row-major, booleans as 0 / 1.
 For the built-in tasks (positions [m], rotation-matrix entries [1], yaws [rad], contacts 0/1, force [N]):
 
-    peg-insert (21)  peg_pos 3, peg_rot 9, hole_pos 3, hole_yaw 1, finger_touch 2, peg_start 3
-    press-fit  (21)  block_pos 3, block_rot 9, base_pos 3, base_yaw 1, finger_touch 2, block_start 3
+    peg-insert (25)  peg_pos 3, peg_rot 9, hole_pos 3, hole_yaw 1, finger_touch 2, peg_to_hole 4, peg_start 3
+    press-fit  (25)  block_pos 3, block_rot 9, base_pos 3, base_yaw 1, finger_touch 2, block_to_base 4,
+                     block_start 3
     wipe        (8)  tip_pos 3, force_n 1, area_pos 3, area_yaw 1
 
 Why the params too: wipe's observe() reads only the fingertip and the pressing force, so without the mark's

@@ -46,6 +46,8 @@ def _entry(meta: dict, key: str):
     """meta's entry `key` ("train.lr": nested); the model config with the defaults of fields added since."""
     if key == "policy":
         return PolicyConfig.from_dict(meta.get("policy", {})).to_dict()
+    if key == "actions":  # runs from before the choice learned absolute targets
+        return meta.get("actions", "absolute")
     if key == "phases":  # the thresholds and their kind of source; the source's message is for people
         ph = meta.get("phases")
         return phases_identity(ph) if isinstance(ph, dict) else ph
@@ -125,7 +127,8 @@ def prepare(o: RunOptions, d: Dist):
     def build():
         return build_dataset(episodes, arms, th=th, chunk=pcfg.chunk, image_size=pcfg.image_size,
                              force=o.force, rate_hz=o.rate_hz, next_model=next_model,
-                             val_fraction=o.val_fraction, seed=tcfg.seed, observation=o.observation)
+                             val_fraction=o.val_fraction, seed=tcfg.seed, observation=o.observation,
+                             action_frame=o.actions)
 
     # rank 0 decodes the frame caches first, the others then read them; an input error on rank 0 still
     # reaches the barrier, and the others then meet the same error themselves (nobody waits forever)

@@ -25,6 +25,7 @@ from policies.label_flags import NEXT_HELP, add_threshold_arguments, thresholds_
 from policies.labelling import TARE_DEFAULT, LabelChoice, ThresholdSource, source_kind
 from policies.methods import METHODS
 from policies.policy import policy_names
+from policies.preprocess import ACTION_FRAMES
 from policies.privileged import OBSERVATIONS
 from policies.sampler import parse_ratio
 
@@ -205,6 +206,10 @@ class RunOptions:
         "--obs", "what the policy sees besides joints and force: camera frames (default), or `state`: the "
         "twin task objects' poses, PRIVILEGED and SIMULATED (recorded by `factr2 collect`; no frames read)",
         choices=OBSERVATIONS))
+    actions: str = option("absolute", resume="actions", flag=Flag(
+        "--actions", "the frame the policy learns its joint targets in: absolute (default) or relative to the "
+        "joints at each observation (grippers absolute; policies.preprocess.Preprocess)",
+        choices=ACTION_FRAMES))
     episodes: tuple | None = option(None, resume="data_hash")  # ids ("FILE.mcap#N"); None: every usable one
     include_failed: bool = option(False, resume="data_hash", flag=Switch(
         "--include-failed",
@@ -246,7 +251,7 @@ class RunOptions:
         return {"policy": (pcfg or self.policy_config()).to_dict(), "preset": r.preset, "method": r.method,
                 "ratio": list(r.ratio), "force": r.force, "observation": r.observation,
                 "include_failed": r.include_failed, "keep_incomplete": r.keep_incomplete,
-                "rate_hz": r.rate_hz, "train": r.train.to_dict()}
+                "rate_hz": r.rate_hz, "train": r.train.to_dict(), "actions": r.actions}
 
     @classmethod
     def from_meta(cls, meta: dict, inputs: list, out: Path, **kw) -> RunOptions:
@@ -269,6 +274,7 @@ class RunOptions:
                    ratio=tuple(meta["ratio"]), preset=name, force=meta["force"],
                    thresholds=LabelChoice(given, ph.get("tare", "off")), rate_hz=meta.get("rate_hz"),
                    train=TrainConfig.from_dict(meta["train"]), overrides=ov or None, observation=observation,
+                   actions=meta.get("actions", "absolute"),
                    episodes=tuple(meta["episodes"]) if "episodes" in meta else None,
                    include_failed=bool(meta.get("include_failed", True)),
                    keep_incomplete=bool(meta.get("keep_incomplete", True)), **own)

@@ -28,12 +28,15 @@ def test_vector_order_is_observe_then_the_episode_params():
     vec = task_state_vector(task, model, data, params)
     obs = task.observe(model, data, params)
     same, names = objects_vector(obs, params)
-    assert vec.dtype == np.float32 and vec.shape == (21,) and np.array_equal(vec, same)
+    assert vec.dtype == np.float32 and vec.shape == (25,) and np.array_equal(vec, same)
     keys = list(dict.fromkeys(n.rsplit(".", 1)[0] for n in names))
-    assert keys == ["peg_pos", "peg_rot", "hole_pos", "hole_yaw", "finger_touch", "peg_start"]
+    assert keys == ["peg_pos", "peg_rot", "hole_pos", "hole_yaw", "finger_touch", "peg_to_hole", "peg_start"]
     assert np.allclose(vec[0:3], obs["peg_pos"]) and np.allclose(vec[3:12], obs["peg_rot"].ravel())
     assert np.allclose(vec[12:15], params["hole_pos"]) and np.isclose(vec[15], params["hole_yaw"])
     assert set(vec[16:18]) <= {0.0, 1.0}  # finger contacts as 0 / 1
+    from hardware.sim.tasks.peg_insert import peg_metrics
+    m = peg_metrics(obs["peg_pos"], obs["peg_rot"], params["hole_pos"], params["hole_yaw"])
+    assert np.allclose(vec[18:20], m["lateral_m"]) and np.isclose(vec[21], m["yaw_err_rad"], atol=1e-6)
     # wipe: observe() has no mark pose; the params supply it (else a policy could not know where to wipe)
     task, model, data, params = _live("wipe")
     vec, names = objects_vector(task.observe(model, data, params), params)

@@ -129,3 +129,34 @@ def test_default_length_comes_from_the_learning_curve_for_state():
     argv = ["rec", "--out", "run", "--obs", "state", "--batch", "64", "--epochs", "3"]
     o = R.from_args(p.parse_args(argv))
     assert (o.train.epochs, o.train.batch) == (3.0, 64)
+
+
+def test_relative_actions_train_and_come_back_in_joint_units(state_recordings, tmp_path):
+    """--actions relative: the checkpoint keeps the frame; a rollout's chunk is the model's output plus the
+    observed joints (grippers absolute), so the same output at another observed pose moves with it."""
+    from hardware.recording.schemas import TASK_OBJECTS_FEATURE
+    from policies.rollout.runner import PolicyRunner
+    from policies.run_config import RESUME_KEYS
+
+    torch.set_num_threads(1)
+    run = tmp_path / "rel"
+    opts = RunOptions(inputs=[state_recordings], out=run, policy="flow", thresholds=(1.0, 3.0),
+                      progress=False, observation="state", overrides={"chunk": 8, "ff": 64}, actions="relative",
+                      train=TrainConfig(steps=10, batch=16, log_every=5, threads=1))
+    run_training(opts, Dist())
+    runner = PolicyRunner(run)
+    assert runner.meta["actions"] == "relative" and "actions" in RESUME_KEYS
+    assert runner.pre.action_frame == "relative" and runner.pre.relative == [True] * 6 + [False]
+    joints, grip = runner.state_names
+    obs = {joints: np.zeros(6, np.float32), grip: np.float32(0.02), TASK_OBJECTS_FEATURE: np.zeros(5, np.float32)}
+    obs.update({n: np.zeros(6, np.float32) for n in runner.force_names})
+    shifted = {**obs, joints: np.full(6, 0.1, np.float32)}
+    a = runner.infer(obs, 0.0).actions
+    assert a.shape == (8, 7) and np.isfinite(a).all()
+    z = torch.randn(1, 8, 7)  # one fixed model output, whatever the observation
+    runner.model.predict = lambda batch, noise: z
+    a, b = runner.infer(obs, 0.0).actions, runner.infer(shifted, 0.0).actions
+    assert np.allclose(b[:, :6] - a[:, :6], 0.1, atol=1e-6) and np.allclose(b[:, 6], a[:, 6])
+    n = runner.pre.norm
+    want = n.denorm("action", z[0].numpy().reshape(-1)).reshape(8, 7)
+    assert np.allclose(a, want, atol=1e-5)  # at zero joints the chunk is the denormalised output itself

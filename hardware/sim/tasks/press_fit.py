@@ -116,9 +116,13 @@ class PressFit(B.Task):
 
     def observe(self, model, data, params) -> dict:
         p, R = B.body_pose(model, data, "block")
+        m = block_metrics(p, R, params["base_pos"], params["base_yaw"])
+        # the block relative to the studs, as the stages judge it (lateral x, y in the base frame [m], skirt
+        # edge above the plate [m], yaw error [rad]): see peg_insert.observe
+        rel = np.array([*m["lateral_m"], m["edge_above_plate_m"], m["yaw_err_rad"]])
         return {"block_pos": p, "block_rot": R, "base_pos": params["base_pos"],
                 "base_yaw": params["base_yaw"],
-                "finger_touch": B.touching(model, data, "block", FINGERS)}
+                "finger_touch": B.touching(model, data, "block", FINGERS), "block_to_base": rel}
 
     def detect(self, obs, params, memory) -> np.ndarray:
         return detect_press(obs)
