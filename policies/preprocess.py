@@ -190,14 +190,15 @@ def relative_columns(action_names: list[str], sizes: dict[str, int]) -> list[boo
 
 
 def to_frame(action: np.ndarray, state: np.ndarray, relative: np.ndarray) -> np.ndarray:
-    """Action chunks (N, H, A) [rad, m] -> the learned frame: the `relative` columns (A,) bool minus the state
-    at the observation (N, S; the state's first A columns are the action's, hardware.features.policy_names)."""
+    """Action chunks (N, H, A) [rad, m] -> the learned frame: the `relative` columns (A,) bool minus the
+    state at the observation (N, S; its first A columns are the action's: hardware.features.policy_names)."""
     offset = np.where(relative, state[:, : action.shape[2]], 0.0)
     return (action - offset[:, None, :]).astype(np.float32)
 
 
 def from_frame(action: np.ndarray, state: np.ndarray, relative: np.ndarray) -> np.ndarray:
-    """to_frame's inverse: (..., H, A) chunks in the learned frame + the observed state (..., S) -> [rad, m]."""
+    """to_frame's inverse: (..., H, A) chunks in the learned frame + the observed state (..., S) ->
+    [rad, m]."""
     offset = np.where(relative, np.asarray(state)[..., : action.shape[-1]], 0.0)
     return action + offset[..., None, :]
 

@@ -106,9 +106,10 @@ class PegInsert(B.Task):
     def observe(self, model, data, params) -> dict:
         p, R = B.body_pose(model, data, "peg")
         m = peg_metrics(p, R, params["hole_pos"], params["hole_yaw"])
-        # the peg relative to the hole, as the stages judge it (lateral x, y in the hole frame [m], bottom above
-        # the fixture top [m], yaw error [rad]): a millimetre here is a thousandth of the world positions'
-        # spread, so a policy is given it, as low-dimensional BC gives object-relative poses (robomimic)
+        # the peg relative to the hole, as the stages judge it (lateral x, y in the hole frame [m], bottom
+        # above the fixture top [m], yaw error [rad]): the millimetre that decides alignment is a small
+        # difference of two world positions spread over centimetres, so a policy is given it directly, as
+        # low-dimensional behaviour cloning is given object-relative poses (robomimic)
         rel = np.array([*m["lateral_m"], m["bottom_z_m"] - DEPTH_M, m["yaw_err_rad"]])
         return {"peg_pos": p, "peg_rot": R, "hole_pos": params["hole_pos"], "hole_yaw": params["hole_yaw"],
                 "finger_touch": B.touching(model, data, "peg", FINGERS), "peg_to_hole": rel}
