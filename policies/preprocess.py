@@ -245,7 +245,8 @@ class Preprocess:
         return out
 
     def actions(self, z, state=None):
-        """Normalised model output (H, A) -> actions in their units ([rad], [m]); state (S,): the observation's
+        """Normalised model output (H, A) -> actions in their units ([rad], [m]); state (S,): the
+        observation's
         joints and grippers, needed in the relative frame."""
         if self.action_frame == "absolute":
             return self.norm.denorm("action", z)

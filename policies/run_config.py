@@ -207,7 +207,8 @@ class RunOptions:
         "twin task objects' poses, PRIVILEGED and SIMULATED (recorded by `factr2 collect`; no frames read)",
         choices=OBSERVATIONS))
     actions: str = option("absolute", resume="actions", flag=Flag(
-        "--actions", "the frame the policy learns its joint targets in: absolute (default) or relative to the "
+        "--actions", "the frame the policy learns its joint targets in: absolute (default) or relative to "
+        "the "
         "joints at each observation (grippers absolute; policies.preprocess.Preprocess)",
         choices=ACTION_FRAMES))
     episodes: tuple | None = option(None, resume="data_hash")  # ids ("FILE.mcap#N"); None: every usable one

@@ -141,14 +141,16 @@ def test_relative_actions_train_and_come_back_in_joint_units(state_recordings, t
     torch.set_num_threads(1)
     run = tmp_path / "rel"
     opts = RunOptions(inputs=[state_recordings], out=run, policy="flow", thresholds=(1.0, 3.0),
-                      progress=False, observation="state", overrides={"chunk": 8, "ff": 64}, actions="relative",
+                      progress=False, observation="state", overrides={"chunk": 8, "ff": 64},
+                      actions="relative",
                       train=TrainConfig(steps=10, batch=16, log_every=5, threads=1))
     run_training(opts, Dist())
     runner = PolicyRunner(run)
     assert runner.meta["actions"] == "relative" and "actions" in RESUME_KEYS
     assert runner.pre.action_frame == "relative" and runner.pre.relative == [True] * 6 + [False]
     joints, grip = runner.state_names
-    obs = {joints: np.zeros(6, np.float32), grip: np.float32(0.02), TASK_OBJECTS_FEATURE: np.zeros(5, np.float32)}
+    obs = {joints: np.zeros(6, np.float32), grip: np.float32(0.02),
+           TASK_OBJECTS_FEATURE: np.zeros(5, np.float32)}
     obs.update({n: np.zeros(6, np.float32) for n in runner.force_names})
     shifted = {**obs, joints: np.full(6, 0.1, np.float32)}
     a = runner.infer(obs, 0.0).actions

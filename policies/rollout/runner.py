@@ -143,7 +143,7 @@ class PolicyRunner:
         noise = self.model.draw_noise(self.cfg, 1, self._gen)
         with torch.inference_mode():
             z = self.model.predict(b, noise)[0].float().numpy()
-        state = np.concatenate([np.atleast_1d(np.asarray(obs[n], dtype=np.float32)) for n in self.state_names])
+        state = np.concatenate([np.atleast_1d(np.asarray(obs[n], np.float32)) for n in self.state_names])
         actions = np.asarray(self.pre.actions(z, state), dtype=float)
         lat = time.perf_counter() - t0
         self.latencies_s.append(lat)
