@@ -246,8 +246,7 @@ class Preprocess:
 
     def actions(self, z, state=None):
         """Normalised model output (H, A) -> actions in their units ([rad], [m]); state (S,): the
-        observation's
-        joints and grippers, needed in the relative frame."""
+        observation's joints and grippers, needed in the relative frame."""
         if self.action_frame == "absolute":
             return self.norm.denorm("action", z)
         z = np.asarray(z)
