@@ -95,3 +95,34 @@ def test_recorded_ticks_equal_copies_taken_at_the_tick(tmp_path):
     np.testing.assert_allclose(tau.fields["tau_ext"], np.array([r.tau_ext for r in seen]), **same)
     sent = [r for r in seen if np.all(np.isfinite(r.action_q)) or r.action_hold]
     np.testing.assert_allclose(cmd.fields["q"], np.array([r.action_q for r in sent]), **same)
+
+
+@pytest.mark.parametrize("lossless", [False, True])
+def test_a_stalled_writer_drops_and_counts_or_lossless_waits(tmp_path, lossless):
+    """A writer that cannot keep up (stopped here for 0.4 s, as a starved process on a busy machine): a
+    real-time recorder drops what does not fit in its ring and counts it; a lossless one (simulated time)
+    waits and loses nothing. (A lockstep collection lost 26 s of one demonstration set, silently, before.)"""
+    rec = Recorder(tmp_path / "s.mcap", t0=0.0, buffer_bytes=64 << 10, lossless=lossless)
+    n = 4000
+    deadline = time.monotonic() + 10
+    while rec.status().messages_written < 1 and time.monotonic() < deadline:  # the writer has started
+        rec.log_joint_state("follower", 0.0, joint_state(0))
+        time.sleep(0.01)
+    first = rec.status().messages_written
+    os.kill(rec._proc.pid, signal.SIGSTOP)
+    try:
+        import threading
+
+        threading.Timer(0.4, os.kill, (rec._proc.pid, signal.SIGCONT)).start()
+        ok = [rec.log_joint_state("follower", 1.0 + k * 1e-3, joint_state(k)) for k in range(n)]
+    finally:
+        time.sleep(0.5)
+        os.kill(rec._proc.pid, signal.SIGCONT)
+    st = rec.close()
+    got = Recording(tmp_path / "s.mcap", use_cache=False).topic("/follower/joint_state")
+    later = int(np.sum(got.t >= 1.0 - 1e-9))
+    if lossless:
+        assert all(ok) and st.dropped_samples == 0 and later == n
+    else:
+        assert not all(ok) and st.dropped_samples == n - sum(ok) > 0 and later == sum(ok)
+    assert first >= 1

@@ -93,7 +93,9 @@ class SessionRecording:
         meta.update({k: str(v) for k, v in (extra_meta or {}).items()})
         if session.cameras and start_cameras is not None:
             meta["cameras"] = ",".join(session.cameras)
-        rec = Recorder(p, joint_names=names, metadata=meta, t0=session.clock.now())
+        # simulated time waits for a starved writer rather than dropping (Recorder's lossless)
+        rec = Recorder(p, joint_names=names, metadata=meta, t0=session.clock.now(),
+                       lossless=not session.clock.realtime)
         return cls(rec, session, pairs, rate_hz, start_cameras=start_cameras)
 
     @property

@@ -114,8 +114,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
            "x_realtime": sim_s / wall if wall > 0 else float("nan"),
            "cpu_s": time.process_time() - c_cpu, "loop_overruns": timing.overruns,
            "frames_written": getattr(status, "frames_written", 0),
-           "samples_dropped": getattr(status, "dropped", 0),
-           "frames_dropped": getattr(status, "dropped_frames", 0), "cameras": cams,
+           "samples_dropped": status.dropped_samples if status else 0,
+           "frames_dropped": status.dropped_frames if status else 0, "cameras": cams,
            "recording": str(mcap), "results": res}
     summary_path.write_text(json.dumps(out, indent=1, default=float))
     return out

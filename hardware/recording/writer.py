@@ -39,6 +39,8 @@ from hardware.recording.session import session_metadata
 
 SAMPLES_BUFFER_BYTES = 32 << 20  # ~50 s of a bimanual 500 Hz session if the writer stalls (a slow disk)
 JPEG_QUALITY = 85  # camera frames' JPEG quality (PIL, 4:2:0); policies read the settings back from the frames
+LOSSLESS_WAIT_S = 10.0  # s: a lossless recorder's longest wait for room in a ring (then: dropped, counted)
+LOSSLESS_POLL_S = 0.0005  # s: how often it looks
 FRAMES_BUFFER_BYTES = 64 << 20  # ~9 s of one 320x240 camera at 30 Hz, ~1.2 s of four 640x480 ones
 
 
@@ -96,6 +98,9 @@ class Recorder:
       raw frames (what waits while the writer is behind; beyond them records are dropped and counted).
     compression: "zstd" (default), "lz4" or "" (none). max_file_bytes: stop writing at this size (the
       writer's RLIMIT_FSIZE), as a full disk would.
+    lossless: a full ring makes the producer wait for the writer (up to LOSSLESS_WAIT_S, then the record is
+      dropped and counted) instead of dropping at once: for simulated time (a lockstep twin), where nothing
+      is late by waiting, and a writer starved by a busy machine would otherwise lose whole seconds.
     """
 
     def __init__(self, path: str | Path, *, joint_names: dict[str, list[str]] | None = None,
@@ -104,7 +109,7 @@ class Recorder:
                  buffer_bytes: int = SAMPLES_BUFFER_BYTES, frame_buffer_bytes: int = FRAMES_BUFFER_BYTES,
                  encoder_threads: int = 2, flush_interval_s: float = 0.25, chunk_size: int = 256 * 1024,
                  compression: str = "zstd", fsync_interval_s: float = 5.0, overwrite: bool = False,
-                 max_file_bytes: int | None = None):
+                 max_file_bytes: int | None = None, lossless: bool = False):
         if compression not in ("zstd", "lz4", ""):
             raise ValueError(f"compression {compression!r}: use zstd, lz4 or an empty string")
         self.path = Path(path)
@@ -113,6 +118,7 @@ class Recorder:
         self.clock_offset_s = time.time() - t0
         self.warning: str | None = None
         self._dropped = self._dropped_frames = 0
+        self.lossless = bool(lossless)
         self._episode = -1
         self._topics: dict[str, int] = {}
         self._lock = threading.Lock()  # the samples ring: the loop(s) and the UI
@@ -174,14 +180,27 @@ class Recorder:
         tid = self._topics.get(name)
         if tid is None:
             tid = self._topics[name] = next(self._ids)
-            if not ring.put(R.pack_topic(tid, code, name)):
+            if not self._ring_put(ring, R.pack_topic(tid, code, name)):
                 del self._topics[name]
                 return -1
             self._put_count += 1
         return tid
 
+    def _ring_put(self, ring: ByteRing, *parts) -> bool:
+        """ring.put(*parts); lossless: while the ring is full and the writer alive, wait for it to drain."""
+        if ring.put(*parts):
+            return True
+        if not self.lossless or sum(len(p) for p in parts) > ring.capacity // 2:
+            return False
+        deadline = time.monotonic() + LOSSLESS_WAIT_S
+        while time.monotonic() < deadline and self._accepting() and self._proc.poll() is None:
+            time.sleep(LOSSLESS_POLL_S)
+            if ring.put(*parts):
+                return True
+        return False
+
     def _put(self, record: bytes) -> bool:
-        if not self._accepting() or not self._samples.put(record):
+        if not self._accepting() or not self._ring_put(self._samples, record):
             self._dropped += 1
             return False
         self._put_count += 1
@@ -256,8 +275,8 @@ class Recorder:
     def _frame(self, camera: str, t: float, encoding: int, data, shape: tuple[int, int, int]) -> bool:
         with self._frame_lock:  # not the samples' lock: a frame's copy must not delay the loop's records
             tid = self._topic(camera, R.CAMERA_CODE, self._frames)
-            ok = tid >= 0 and self._accepting() and self._frames.put(
-                R.frame_header(tid, t, encoding, shape), data)
+            ok = tid >= 0 and self._accepting() and self._ring_put(
+                self._frames, R.frame_header(tid, t, encoding, shape), data)
             self._put_count += ok
         if not ok:
             self._dropped_frames += 1
