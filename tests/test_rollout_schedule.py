@@ -123,3 +123,28 @@ def test_the_next_checkpoint_a_policy_names(tmp_path):
     path, note = resolve_next({"next_checkpoint": f"{ck}#abcdef012345"}, other)
     assert path == other and note.kind is NextNote.NOT_TRAINED_WITH
     assert "NOT the checkpoint the policy was trained with" in str(note)
+
+
+def test_only_the_steps_that_can_run_are_judged_against_the_limits():
+    """Receding: the k_exec steps before the next chunk plus those a late one (up to stall_s) would use; a
+    target beyond a limit after them is never executed and does not refuse the chunk. Ensembling uses every
+    step. A non-finite value anywhere still refuses it (the model is broken)."""
+    q_min, q_max = np.array([-1.0]), np.array([1.0])
+    s = ChunkSchedule(RECEDING, DT, q_min, q_max, k_exec=3, stall_s=2 * DT, tol=0.0)
+    n = s.executable_steps(30)
+    assert n == 3 + 2 + 1
+    a = np.zeros((30, 1))
+    a[n:] = 5.0  # far beyond the limit, but only where it can never run
+    assert s.add(Chunk(t_obs=0.0, actions=a, dt=DT)) is None
+    a[n - 1] = 5.0
+    assert s.add(Chunk(t_obs=0.1, actions=a, dt=DT)).kind is PolicyHold.OUTSIDE_LIMITS
+    a[:] = 0.0
+    a[-1] = np.nan
+    assert s.add(Chunk(t_obs=0.2, actions=a, dt=DT)).kind is PolicyHold.NOT_FINITE
+    e = ChunkSchedule(ENSEMBLE, DT, q_min, q_max, tol=0.0)
+    assert e.executable_steps(30) == 30
+    # the late chunk's furthest step that target() can still reach is inside the judged part
+    b = np.zeros((30, 1))
+    assert s.add(Chunk(t_obs=1.0, actions=b, dt=DT)) is None
+    t_last = 1.0 + s.period_s + s.stall_s - 1e-9
+    assert s.target(t_last)[0] is not None and (t_last - 1.0) / DT <= n - 1

@@ -144,15 +144,16 @@ def overdue_s(t: float, t_obs_newest: float, period_s: float) -> float:
 
 
 def chunk_problem(actions: np.ndarray, q_min: np.ndarray, q_max: np.ndarray,
-                  tol: float = 0.0) -> Reason | None:
-    """Why a chunk must not run, or None: non-finite values (PolicyHold.NOT_FINITE), or a joint target
-    outside [q_min - tol, q_max + tol] [rad] (OUTSIDE_LIMITS, the first such joint 1-based, its target and
-    the limit [rad]; joints: the first len(q_min) columns; the gripper column is clamped, not judged)."""
+                  tol: float = 0.0, steps: int | None = None) -> Reason | None:
+    """Why a chunk must not run, or None: non-finite values anywhere (PolicyHold.NOT_FINITE: the model is
+    broken), or a joint target of its first `steps` (None: all) outside [q_min - tol, q_max + tol] [rad]
+    (OUTSIDE_LIMITS, the first such joint 1-based, its target and the limit [rad]; joints: the first
+    len(q_min) columns; the gripper column is clamped, not judged)."""
     a = np.asarray(actions, dtype=float)
     if not np.all(np.isfinite(a)):
         return Reason.of(PolicyHold.NOT_FINITE)
     n = len(q_min)
-    q = a[:, :n]
+    q = a[:steps, :n]
     lo, hi = q < np.asarray(q_min) - tol, q > np.asarray(q_max) + tol
     if lo.any() or hi.any():
         step, j = np.argwhere(lo | hi)[0]
@@ -188,9 +189,19 @@ class ChunkSchedule:
     def period_s(self) -> float:
         return request_period_s(self.mode, self.dt, self.k_exec)
 
+    def executable_steps(self, horizon: int) -> int:
+        """How many of a chunk's first steps can ever run: all of them when ensembling; receding, the
+        k_exec steps before the next chunk plus those a late one (up to stall_s) would use. The rest is
+        never executed, so it is not judged: a chunk's far end (1 s ahead at 30 Hz) is its least accurate
+        part, and a policy working at a joint limit overshoots there first."""
+        if self.mode == ENSEMBLE:
+            return horizon
+        return min(horizon, self.k_exec + int(np.ceil(self.stall_s / self.dt)) + 1)
+
     def add(self, chunk: Chunk) -> Reason | None:
         """Take a chunk; returns why it was refused (and the schedule holds), or None."""
-        why = chunk_problem(chunk.actions, self.q_min, self.q_max, self.tol)
+        why = chunk_problem(chunk.actions, self.q_min, self.q_max, self.tol,
+                            self.executable_steps(len(chunk.actions)))
         if why is not None:
             if why.kind is PolicyHold.NOT_FINITE:
                 self.nonfinite += 1
