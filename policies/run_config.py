@@ -26,7 +26,7 @@ from policies.labelling import TARE_DEFAULT, LabelChoice, ThresholdSource, sourc
 from policies.methods import METHODS
 from policies.policy import policy_names
 from policies.privileged import OBSERVATIONS
-from policies.sampler import parse_ratio
+from policies.sampler import DEFAULT_SOURCE_WEIGHTS, parse_ratio, parse_source_weights
 
 STATE_EPOCHS, STATE_BATCH = 80.0, 256  # the state preset's defaults: the learning curve (docs/first.md) still
 # rose at 8000 steps x 256 on 47 peg-insert demonstrations (~82 passes); images keep 20 passes at 128
@@ -54,6 +54,26 @@ class RatioFlag(Flag):
 
     def argv(self, value, default) -> list[str]:
         return [] if value is None else [self.name, ":".join(str(float(w)) for w in value)]
+
+
+class SourceWeightsFlag(Flag):
+    """--source-weights demo=1,policy=1,pre=0.25,operator=2 (any subset) -> the four weights (rollout
+    recordings with interventions: policies/sampler.py); written back in full."""
+
+    def value(self, ns, dest: str):
+        text = getattr(ns, dest)
+        if text is None:
+            return None
+        try:
+            return parse_source_weights(text)
+        except ValueError as e:
+            raise UserError(f"--source-weights: {e}", fix="e.g. --source-weights pre=0,operator=3") from None
+
+    def argv(self, value, default) -> list[str]:
+        from hardware.recording.interventions import SOURCE_NAMES
+
+        return [] if value is None else [self.name, ",".join(f"{n}={float(w)}" for n, w in
+                                                             zip(SOURCE_NAMES, value))]
 
 
 class ThresholdsFlag(Flag):
@@ -174,6 +194,10 @@ class RunOptions:
     ratio: tuple | None = option(None, resume="ratio", flag=RatioFlag(  # None: the method's default
         "--ratio", f"re-sampling weights w_F:w_PC:w_C or a preset ({', '.join(RatioFlag.presets)}); "
         "default 1:5:1 for first, uniform otherwise", metavar="F:PC:C"))
+    source_weights: tuple | None = option(None, resume="ratio", flag=SourceWeightsFlag(
+        "--source-weights", "rollout recordings with interventions (factr2 rollout --takeover --record): "
+        "sampling weight per source, multiplied with the phase ratio (default demo=1,policy=1,pre=0.25,"
+        "operator=2; pre: the seconds of policy control before each takeover)", metavar="NAME=W,..."))
     preset: str = option("", resume="policy", flag=Flag(  # "": policies.config.default_preset(observation)
         "--preset", "state (low-dimensional inputs, the default with --obs state), small (images on a CPU, "
         "the default otherwise) or paper (the paper's sizes)", choices=PRESETS))
@@ -229,6 +253,7 @@ class RunOptions:
                                     int(self.image_size) if self.image_size else base.image_size)}
         ov = {k: v for k, v in ov.items() if v != getattr(base, k)}
         return replace(self, ratio=tuple(self.ratio) if self.ratio is not None else m.ratio,
+                       source_weights=tuple(self.source_weights or DEFAULT_SOURCE_WEIGHTS),
                        force=self.force if m.force else "none", preset=name, overrides=ov or None, **own)
 
     def policy_config(self) -> PolicyConfig:
@@ -244,7 +269,8 @@ class RunOptions:
         """The checkpoint meta's configuration entries (pcfg: the model's, sizes filled from the data)."""
         r = self.resolved()
         return {"policy": (pcfg or self.policy_config()).to_dict(), "preset": r.preset, "method": r.method,
-                "ratio": list(r.ratio), "force": r.force, "observation": r.observation,
+                "ratio": list(r.ratio), "source_weights": list(r.source_weights), "force": r.force,
+                "observation": r.observation,
                 "include_failed": r.include_failed, "keep_incomplete": r.keep_incomplete,
                 "rate_hz": r.rate_hz, "train": r.train.to_dict()}
 
@@ -267,6 +293,7 @@ class RunOptions:
                  else "recording" if kind is ThresholdSource.RECORDING else None)
         opts = cls(inputs=list(inputs), out=Path(out), policy=pol["policy"], method=meta["method"],
                    ratio=tuple(meta["ratio"]), preset=name, force=meta["force"],
+                   source_weights=tuple(meta.get("source_weights", DEFAULT_SOURCE_WEIGHTS)),
                    thresholds=LabelChoice(given, ph.get("tare", "off")), rate_hz=meta.get("rate_hz"),
                    train=TrainConfig.from_dict(meta["train"]), overrides=ov or None, observation=observation,
                    episodes=tuple(meta["episodes"]) if "episodes" in meta else None,
