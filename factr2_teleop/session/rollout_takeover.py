@@ -70,7 +70,7 @@ class Takeover:
         self.count = 0
         self.marks: list[dict] = []  # per intervention: t_grab, t_takeover, t_tracking, t_handback, by
         self.hand_nm = [0.0] * n_pairs  # each pair's hand torque at its last tick [N*m]
-        self._speed = [0.0] * n_pairs
+        self._q: list = [np.zeros(0)] * n_pairs  # each pair's leader joints at its last tick [rad]
         self._t_grab = math.nan  # s: the hand torque reached grab_nm (the latency's start)
         self.t_switch = -math.inf  # s: the follower's source last changed
         self._armed = False
@@ -85,10 +85,10 @@ class Takeover:
         self.keys.put(TOGGLE_KEY)
 
     # -- per tick (the loop's thread) ---------------------------------------------------------------------
-    def sense(self, i: int, now: float, hand_nm: float, speed_rad_s: float) -> None:
-        """Pair i's hand torque [N*m] and leader speed [rad/s] this tick; pair 0 decides for all (from the
+    def sense(self, i: int, now: float, hand_nm: float, q_leader: np.ndarray) -> None:
+        """Pair i's hand torque [N*m] and leader joints [rad] this tick; pair 0 decides for all (from the
         others' values of their last tick)."""
-        self.hand_nm[i], self._speed[i] = hand_nm, speed_rad_s
+        self.hand_nm[i], self._q[i] = hand_nm, q_leader
         if i == 0:
             self._decide(now)
 
@@ -116,7 +116,8 @@ class Takeover:
             event = TAKEOVER if self.state.driver == POLICY else HANDBACK
             by = "key"
         else:
-            self.state, event = detect_step(self.state, now, hand, max(self._speed), self.cfg)
+            q = self._q[0] if len(self._q) == 1 else np.concatenate(self._q)
+            self.state, event = detect_step(self.state, now, hand, q, self.cfg)
             by = "hand"
         if event == TAKEOVER:
             self._take(now, by)
@@ -250,8 +251,7 @@ class TakeoverPair(RolloutPair):
         qd_goal = self.map.backward_velocity(fs.q_dot)
         ok = leader_ok and follower_ok
         self.hand_nm = hand_torque_nm(ls.q, goal, qd_goal, self._kp, self._lag) if ok else 0.0
-        qd = np.nan_to_num(np.asarray(ls.q_dot, dtype=float))
-        tk.sense(self.index, now, self.hand_nm, float(np.abs(qd).max()) if qd.size else 0.0)
+        tk.sense(self.index, now, self.hand_nm, ls.q)
         if follower_ok:
             self._tick_estimator(now, fs, self.q_target if self.q_target is not None else fs.q)
         self.sent = None
@@ -270,8 +270,11 @@ class TakeoverPair(RolloutPair):
         """The leader's torque: teleop's law (feedback gated and capped as in teleop) + the spring."""
         extra = None
         if following:
-            extra = {"follow": follow_torque(ls.q, ls.q_dot, goal, qd_goal, self._kp, self._kd, self._drag,
-                                             self._cap)}
+            tau = follow_torque(ls.q, ls.q_dot, goal, qd_goal, self._kp, self._kd, self._drag, self._cap)
+            law = self.law
+            if law.cfg.gravity.enabled:  # the rest of g(q) the law leaves to a hand (gain < 1): no sag
+                tau = tau + (1.0 - law.g_gain) * law.gravity(np.asarray(ls.q, dtype=float))
+            extra = {"follow": np.clip(tau, -self._cap, self._cap)}
             if self.phase == COUPLED:
                 self.tracking_err_rad.append(float(np.max(np.abs(goal - ls.q))))
         out = self.law.step(self._leader_inputs(now, ls, fs), feedback_on=self.phase == COUPLED, extra=extra)

@@ -15,7 +15,9 @@ the hand's torque, minus the leader's small uncompensated gravity.
 
 Takeover (detect_step): the hand torque at or above grab_nm for grab_min_s (hysteresis: the timer keeps
 running while it stays above release_nm, and restarts below it); hand-back: the hand torque at most release_nm
-and the leader slower than rest_speed_rad_s for rest_s. A key does either at once (the shell's business).
+and the leader within rest_tol_rad of where it came to rest, for rest_s (a position window, not a speed: the
+leader's reported velocity chatters with its friction dither while it stands still). A key does either at
+once (the shell's business).
 
 The switch of the follower's target between policy and leader (handover_target) never steps: at the switch
 the gap between the last command and the new source is carried as an offset that fades to zero over blend_s,
@@ -35,6 +37,7 @@ from hardware.params import PerJoint, clamp
 
 POLICY, OPERATOR = "policy", "operator"  # who drives the follower
 TAKEOVER, HANDBACK = "takeover", "handback"  # detect_step's events (and the recording's marks)
+_T_EPS_S = 1e-9  # s: tick times are sums of floats; a duration of exactly N ticks counts as reached
 
 
 @dataclass
@@ -48,11 +51,11 @@ class TakeoverConfig:
     follow_lag_nm_s_rad [N*m*s/rad]: spring torque per follower speed that is the leader's lag, not a hand.
     grab_nm / release_nm [N*m]: hand-torque
     thresholds of the hysteresis; grab_min_s [s]: how long above grab before the hand drives; rest_s [s] and
-    rest_speed_rad_s [rad/s]: the hand at rest this long hands back to the policy; blend_s [s]: how long the
-    gap between the two sources fades at a switch; pre_window_s [s]: the seconds of policy control before a
-    takeover the recording marks as the pre-intervention window (Sirius)."""
+    rest_tol_rad [rad]: the hand at rest (the leader within this of one pose) this long hands back;
+    blend_s [s]: how long the gap between the two sources fades at a switch; pre_window_s [s]: the seconds
+    of policy control before a takeover the recording marks as the pre-intervention window (Sirius)."""
 
-    follow_kp_nm_rad: PerJoint = 2.0
+    follow_kp_nm_rad: PerJoint = 4.0
     follow_kd_nm_s_rad: PerJoint = 0.1
     follow_tau_max_nm: PerJoint = 1.5
     follow_drag_nm_s_rad: PerJoint = 0.2
@@ -61,7 +64,7 @@ class TakeoverConfig:
     release_nm: float = 0.15
     grab_min_s: float = 0.1
     rest_s: float = 1.0
-    rest_speed_rad_s: float = 0.1
+    rest_tol_rad: float = 0.03
     blend_s: float = 0.2
     pre_window_s: float = 2.0
 
@@ -71,7 +74,7 @@ class TakeoverConfig:
         if not 0.0 <= self.release_nm <= self.grab_nm:
             raise ConfigError(f"needs 0 <= release_nm <= grab_nm, got {self.release_nm}, {self.grab_nm}",
                               where=where, fix="set release_nm below grab_nm")
-        for name in ("grab_min_s", "rest_s", "rest_speed_rad_s", "blend_s", "pre_window_s"):
+        for name in ("grab_min_s", "rest_s", "rest_tol_rad", "blend_s", "pre_window_s"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"{name} must be >= 0", where=f"{where}.{name}", fix="fix the value")
 
@@ -108,34 +111,38 @@ def hand_torque_nm(q: np.ndarray, q_goal: np.ndarray, qd_goal: np.ndarray, kp: n
 @dataclass(frozen=True)
 class DetectorState:
     """driver: POLICY or OPERATOR; t_above [s]: since when the hand torque has stayed above release_nm after
-    reaching grab_nm (NaN: not); t_rest [s]: since when the hand has been at rest (NaN: not)."""
+    reaching grab_nm (NaN: not); t_rest [s]: since when the hand has been at rest (NaN: not), at the leader
+    pose q_rest [rad]."""
 
     driver: str = POLICY
     t_above: float = math.nan
     t_rest: float = math.nan
+    q_rest: np.ndarray | None = None
 
 
-def detect_step(st: DetectorState, t: float, hand_nm: float, speed_rad_s: float, cfg: TakeoverConfig
+def detect_step(st: DetectorState, t: float, hand_nm: float, q_leader: np.ndarray, cfg: TakeoverConfig
                 ) -> tuple[DetectorState, str | None]:
-    """One tick of the hand detector at time t [s]: (new state, TAKEOVER / HANDBACK / None)."""
+    """One tick of the hand detector at time t [s] (hand_nm [N*m]; q_leader: every leader's joints [rad]):
+    (new state, TAKEOVER / HANDBACK / None)."""
     if st.driver == POLICY:
         above = st.t_above
         if hand_nm >= cfg.grab_nm and not math.isfinite(above):
             above = t
         elif hand_nm < cfg.release_nm:
             above = math.nan
-        if math.isfinite(above) and t - above >= cfg.grab_min_s:
+        if math.isfinite(above) and t - above >= cfg.grab_min_s - _T_EPS_S:
             return DetectorState(OPERATOR, math.nan, math.nan), TAKEOVER
         return DetectorState(POLICY, above, math.nan), None
-    rest = st.t_rest
-    still = hand_nm <= cfg.release_nm and abs(speed_rad_s) <= cfg.rest_speed_rad_s
-    if still and not math.isfinite(rest):
-        rest = t
-    elif not still:
-        rest = math.nan
-    if math.isfinite(rest) and t - rest >= cfg.rest_s:
+    q = np.asarray(q_leader, dtype=float)
+    rest, anchor = st.t_rest, st.q_rest
+    near = anchor is not None and bool(np.all(np.abs(q - anchor) <= cfg.rest_tol_rad))
+    if hand_nm > cfg.release_nm or not np.isfinite(q).all():
+        rest, anchor = math.nan, None
+    elif not near:  # comes to rest here (or moved on): the window starts again at this pose
+        rest, anchor = t, q.copy()
+    if math.isfinite(rest) and t - rest >= cfg.rest_s - _T_EPS_S:
         return DetectorState(POLICY, math.nan, math.nan), HANDBACK
-    return DetectorState(OPERATOR, math.nan, rest), None
+    return DetectorState(OPERATOR, math.nan, rest, anchor), None
 
 
 def switched(driver: str) -> DetectorState:
