@@ -49,7 +49,7 @@ def add_arguments(parser) -> None:
                         "did not come from (refused without it)")
     parser.add_argument("--takeover", action=argparse.BooleanOptionalAction, default=None,
                         help="the leader follows the follower and the operator takes over by hand (torque "
-                        "on the leader) or with the t key; the hand at rest or t hands back (default: on in "
+                        "on the leader) or with the o key; the hand at rest or o hands back (default: on in "
                         "real time and on real rigs, off for a lockstep twin). With --task on a twin, the "
                         "scripted operator steps in when the policy stalls (SIMULATED)")
     parser.add_argument("--json", type=Path, default=None, help="write the summary JSON here")

@@ -51,7 +51,7 @@ from hardware.recording.schemas import DRIVER_OPERATOR, DRIVER_POLICY
 from hardware.types import FollowerCommand
 from policies.rollout.schedule import PolicyHold
 
-TOGGLE_KEY = "t"  # the key (or pedal) that takes over / hands back, in the CLI and the terminal app
+TOGGLE_KEY = "o"  # the key (or pedal) that takes over / hands back, in the CLI and the terminal app
 TRACKING_TOL_RAD = 0.01  # rad: the follower "tracks the leader" once its target is this close to the leader's
 
 
