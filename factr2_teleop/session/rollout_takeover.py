@@ -67,6 +67,8 @@ class Takeover:
         self.driver = POLICY  # the follower's source this tick
         self.pending = False  # handed back; the leaders drive until the policy's fresh chunk is there
         self.held = False  # a fault during a handover held both arms
+        # held (a pedal held down; the twin operator while its script runs): no hand-back at rest, key only
+        self.clutch = False
         self.count = 0
         self.marks: list[dict] = []  # per intervention: t_grab, t_takeover, t_tracking, t_handback, by
         self.hand_nm = [0.0] * n_pairs  # each pair's hand torque at its last tick [N*m]
@@ -115,6 +117,8 @@ class Takeover:
         if self._drain():
             event = TAKEOVER if self.state.driver == POLICY else HANDBACK
             by = "key"
+        elif self.driver == OPERATOR and self.clutch:
+            self.state, event, by = switched(OPERATOR), None, ""
         else:
             q = self._q[0] if len(self._q) == 1 else np.concatenate(self._q)
             self.state, event = detect_step(self.state, now, hand, q, self.cfg)
@@ -372,6 +376,10 @@ def attach_takeover(ts, target: PolicyTarget, keys: queue.SimpleQueue | None = N
 def takeover_summary(tk: Takeover, pairs, episodes) -> dict:
     """The rollout's interventions (Takeover.summary), per episode (takeovers, success without one), and
     the leaders' tracking error while the policy drove [rad, leader joints: max over joints per tick]."""
+    for m in tk.marks:  # the loop stopped with the last episode while the operator drove: it ended there
+        if not math.isfinite(m["t_handback"]):
+            m["t_handback"] = next((e.t_end for e in episodes if e.t_start <= m["t_takeover"] <= e.t_end),
+                                   m["t_takeover"])
     out = tk.summary()
     per = [sum(1 for m in tk.marks if e.t_start <= m["t_takeover"] <= e.t_end) for e in episodes]
     out["per_episode"] = per

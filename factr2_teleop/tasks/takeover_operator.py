@@ -6,7 +6,9 @@ it grabs the leader: its hand (the twin leader's hand torque, as in collection) 
 the task script wants the arm, the hand torque on the following spring crosses the takeover threshold, and the
 follower follows the leader (session/rollout_takeover.py). It finishes the task through force-feedback teleop
 with the same script a demonstration uses (from the arm's state: it first opens and lifts a gripper that holds
-nothing), then lets go; the hand at rest hands back to the policy. One intervention per episode at most;
+nothing), then lets go; the hand at rest hands back to the policy. While its script runs it holds the clutch
+(Takeover.clutch, as a person would hold a pedal down): the script's pauses (lining up, waiting) do not hand
+back. One intervention per episode at most;
 the episode's time limit restarts at the grab (the operator needs its time).
 
     RolloutOptions(..., takeover=True, operator=TwinTakeoverOperator)   # `factr2 rollout --task T --takeover`
@@ -126,6 +128,7 @@ class TwinTakeoverOperator:
 
     def _drive(self, r) -> None:
         op = self.op
+        self.tk.clutch = self.tk.driver == OPERATOR  # a person holding on pauses without handing back
         if self.tk.driver != OPERATOR and r.t - self._t_grab >= PEDAL_AFTER_S and not self.tk.pending:
             self.tk.press()  # the hand holds the leader but its push is small: the pedal confirms
             self._t_grab = np.inf
@@ -145,6 +148,7 @@ class TwinTakeoverOperator:
 
     def _let_go(self) -> None:
         self.bank.set_hand_torque(self._zero)
+        self.tk.clutch = False  # the hand at rest now hands back
         self.state = LET_GO if self.target.state == RUN else WATCH
 
     def _percept(self, r) -> Percept:
