@@ -15,32 +15,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
-
-
-def smooth_chunks() -> None:
-    """PolicyRunner.infer -> chunks of a slow sine about the first observation's pose (joints 1-2)."""
-    from policies.rollout.runner import PolicyRunner
-    from policies.rollout.schedule import Chunk
-
-    home = {}
-    real = PolicyRunner.infer
-
-    def infer(self, obs, t_obs, seq=0):
-        c = real(self, obs, t_obs, seq)  # the real inference runs (its latency counts)
-        q = np.asarray(obs["follower.joint.pos"], float)
-        g = float(np.asarray(obs["follower.gripper.pos"], float).reshape(-1)[0])
-        home.setdefault("q", q.copy())
-        t = t_obs + np.arange(self.cfg.chunk) * self.dt
-        a = np.tile(np.r_[home["q"], g], (self.cfg.chunk, 1))
-        a[:, 0] += 0.3 * np.sin(1.5 * t)
-        a[:, 1] += 0.15 * np.sin(1.1 * t)
-        return Chunk(t_obs=t_obs, actions=a, dt=self.dt, seq=seq, latency_s=c.latency_s)
-
-    PolicyRunner.infer = infer
 
 
 def main() -> int:
@@ -57,7 +36,10 @@ def main() -> int:
     ap.add_argument("--baseline", action="store_true", help="the same rollout without takeover (no hand)")
     a = ap.parse_args()
     if a.smooth:
-        smooth_chunks()
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+        from tests.rollout_helpers import install_smooth_policy
+
+        install_smooth_policy(call_real=True)
     box: dict = {}
 
     def on_start(ts, target, eps):

@@ -37,37 +37,44 @@ def default_length(observation: str) -> tuple[float, int]:
     return (STATE_EPOCHS, STATE_BATCH) if observation == "state" else (20.0, 128)
 
 
-class RatioFlag(Flag):
-    """--ratio F:PC:C or a preset name -> (w_F, w_PC, w_C); written back as F:PC:C. presets: the names offered
-    (the terminal app cycles through them after "default", the method's own)."""
+class ParsedFlag(Flag):
+    """A flag whose text parse() turns into a value (None when not given); a ValueError becomes one line
+    with `example` as the fix."""
 
-    presets = ("PC", "C", "PC+C", "uniform")
+    example = ""
+
+    @staticmethod
+    def parse(text: str):
+        raise NotImplementedError
 
     def value(self, ns, dest: str):
         text = getattr(ns, dest)
         if text is None:
             return None
         try:
-            return parse_ratio(text)
+            return self.parse(text)
         except ValueError as e:
-            raise UserError(f"--ratio: {e}", fix="e.g. --ratio 1:5:1") from None
+            raise UserError(f"{self.name}: {e}", fix=f"e.g. {self.name} {self.example}") from None
+
+
+class RatioFlag(ParsedFlag):
+    """--ratio F:PC:C or a preset name -> (w_F, w_PC, w_C); written back as F:PC:C. presets: the names offered
+    (the terminal app cycles through them after "default", the method's own)."""
+
+    presets = ("PC", "C", "PC+C", "uniform")
+    example = "1:5:1"
+    parse = staticmethod(parse_ratio)
 
     def argv(self, value, default) -> list[str]:
         return [] if value is None else [self.name, ":".join(str(float(w)) for w in value)]
 
 
-class SourceWeightsFlag(Flag):
+class SourceWeightsFlag(ParsedFlag):
     """--source-weights demo=1,policy=1,pre=0.25,operator=2 (any subset) -> the four weights (rollout
     recordings with interventions: policies/sampler.py); written back in full."""
 
-    def value(self, ns, dest: str):
-        text = getattr(ns, dest)
-        if text is None:
-            return None
-        try:
-            return parse_source_weights(text)
-        except ValueError as e:
-            raise UserError(f"--source-weights: {e}", fix="e.g. --source-weights pre=0,operator=3") from None
+    example = "pre=0,operator=3"
+    parse = staticmethod(parse_source_weights)
 
     def argv(self, value, default) -> list[str]:
         from hardware.recording.interventions import SOURCE_NAMES

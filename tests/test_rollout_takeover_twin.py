@@ -13,8 +13,7 @@ import pytest
 from factr2_teleop.session.rollout import RolloutOptions, run_rollout
 from factr2_teleop.teleop.soft_start import SoftStartConfig
 from factr2_teleop.teleop.takeover import OPERATOR, POLICY, TakeoverConfig, leader_goal
-from policies.rollout.runner import PolicyRunner
-from policies.rollout.schedule import Chunk
+from tests.rollout_helpers import install_smooth_policy
 
 pytest.importorskip("mujoco")
 TINY = {"hidden": 32, "heads": 2, "dec_layers": 1, "enc_layers": 1, "ff": 64, "chunk": 8, "dropout": 0.0}
@@ -44,24 +43,9 @@ def state_run(tmp_path_factory):
 
 @pytest.fixture()
 def smooth_policy(monkeypatch):
-    """Chunks of a smooth reference about the pose of the first observation; the observation times of
-    every chunk asked for."""
-    asked = []
-    home = {}
-
-    def infer(self, obs, t_obs, seq=0):
-        q = np.asarray(obs["follower.joint.pos"], float)
-        g = float(np.asarray(obs["follower.gripper.pos"], float).reshape(-1)[0])
-        home.setdefault("q", q.copy())
-        t = t_obs + np.arange(self.cfg.chunk) * self.dt
-        a = np.tile(np.r_[home["q"], g], (self.cfg.chunk, 1))
-        a[:, 0] += 0.3 * np.sin(1.5 * t)
-        a[:, 1] += 0.15 * np.sin(1.1 * t)
-        asked.append(t_obs)
-        return Chunk(t_obs=t_obs, actions=a, dt=self.dt, seq=seq)
-
-    monkeypatch.setattr(PolicyRunner, "infer", infer)
-    return asked
+    """Chunks of a smooth reference (rollout_helpers.install_smooth_policy); the observation times of every
+    chunk asked for."""
+    return install_smooth_policy(monkeypatch.setattr)
 
 
 def _watch(log, hand=None, key_at=None):
