@@ -102,6 +102,8 @@ def test_hand_torque_discounts_the_lag_behind_a_moving_follower():
     moving = np.array([2.0, 0.0])
     assert hand_torque_nm(np.zeros(2), np.array([0.2, 0.0]), moving, kp, lag) == pytest.approx(0.1)
     assert hand_torque_nm(np.full(2, np.nan), np.zeros(2), np.zeros(2), kp, lag) == 0.0
+    # faster than grab_max_speed_rad_s: not sensed at all (the key takes over then)
+    assert hand_torque_nm(np.zeros(2), np.array([0.9, 0.0]), np.array([1.6, 0.0]), kp, lag, 1.5) == 0.0
 
 
 @settings(max_examples=300, deadline=None)

@@ -254,7 +254,8 @@ class TakeoverPair(RolloutPair):
         goal = leader_goal(self.map.backward(fs.q), ls.q)
         qd_goal = self.map.backward_velocity(fs.q_dot)
         ok = leader_ok and follower_ok
-        self.hand_nm = hand_torque_nm(ls.q, goal, qd_goal, self._kp, self._lag) if ok else 0.0
+        self.hand_nm = hand_torque_nm(ls.q, goal, qd_goal, self._kp, self._lag,
+                                      self.cfg.takeover.grab_max_speed_rad_s) if ok else 0.0
         tk.sense(self.index, now, self.hand_nm, ls.q)
         if follower_ok:
             self._tick_estimator(now, fs, self.q_target if self.q_target is not None else fs.q)

@@ -42,16 +42,17 @@ _T_EPS_S = 1e-9  # s: tick times are sums of floats; a duration of exactly N tic
 
 @dataclass
 class TakeoverConfig:
-    """The rig file's [teleop.takeover] table (every pair's, or a pair's own under [teleop.<pair>.takeover]).
+    """The rig file's [teleop.takeover] table (every pair's; a pair's own under [teleop.pairs.<pair>.takeover]).
 
     follow_kp_nm_rad [N*m/rad] / follow_kd_nm_s_rad [N*m*s/rad]: the leader's following spring and damper
     (low: a hand overpowers it); follow_tau_max_nm [N*m]: its per-joint cap (a few N*m at most; the leader's
     JointLimits.tau_max and its safety layer bound it further); follow_drag_nm_s_rad [N*m*s/rad]: the
     velocity feed-forward of the leader's own drag (the twin's GELLO leader lags ~0.4 rad at 3 rad/s without);
     follow_lag_nm_s_rad [N*m*s/rad]: spring torque per follower speed that is the leader's lag, not a hand.
-    grab_nm / release_nm [N*m]: hand-torque
-    thresholds of the hysteresis; grab_min_s [s]: how long above grab before the hand drives; rest_s [s] and
-    rest_tol_rad [rad]: the hand at rest (the leader within this of one pose) this long hands back;
+    grab_nm / release_nm [N*m]: hand-torque thresholds of the hysteresis; grab_min_s [s]: how long above
+    grab before the hand drives; grab_max_speed_rad_s [rad/s]: the hand is not sensed while the follower moves
+    faster (the leader's lag is no hand: the key takes over); rest_s [s] and rest_tol_rad [rad]: the hand at
+    rest (the leader within this of one pose) this long hands back;
     blend_s [s]: how long the gap between the two sources fades at a switch; pre_window_s [s]: the seconds
     of policy control before a takeover the recording marks as the pre-intervention window (Sirius)."""
 
@@ -63,6 +64,7 @@ class TakeoverConfig:
     grab_nm: float = 0.3
     release_nm: float = 0.15
     grab_min_s: float = 0.1
+    grab_max_speed_rad_s: float = 1.5
     rest_s: float = 1.0
     rest_tol_rad: float = 0.03
     blend_s: float = 0.2
@@ -74,7 +76,8 @@ class TakeoverConfig:
         if not 0.0 <= self.release_nm <= self.grab_nm:
             raise ConfigError(f"needs 0 <= release_nm <= grab_nm, got {self.release_nm}, {self.grab_nm}",
                               where=where, fix="set release_nm below grab_nm")
-        for name in ("grab_min_s", "rest_s", "rest_tol_rad", "blend_s", "pre_window_s"):
+        for name in ("grab_min_s", "grab_max_speed_rad_s", "rest_s", "rest_tol_rad", "blend_s",
+                     "pre_window_s"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"{name} must be >= 0", where=f"{where}.{name}", fix="fix the value")
 
@@ -98,11 +101,16 @@ def follow_torque(q: np.ndarray, qd: np.ndarray, q_goal: np.ndarray, qd_goal: np
 
 
 def hand_torque_nm(q: np.ndarray, q_goal: np.ndarray, qd_goal: np.ndarray, kp: np.ndarray,
-                   lag: np.ndarray) -> float:
+                   lag: np.ndarray, max_speed_rad_s: float = np.inf) -> float:
     """The torque the following spring holds against beyond the leader's lag [N*m]: max over joints of
-    |kp (q_goal - q)| - lag |qd_goal| (uncapped, at least 0; 0 when no joint is finite)."""
+    |kp (q_goal - q)| - lag |qd_goal| (uncapped, at least 0; 0 when no joint is finite, and 0 while the
+    follower moves faster than max_speed_rad_s on some joint: a leader that cannot keep up is no hand, and
+    the key takes over then)."""
+    qd = np.abs(np.nan_to_num(np.asarray(qd_goal, dtype=float)))
+    if qd.size and float(qd.max()) > max_speed_rad_s:
+        return 0.0
     t = np.abs(kp * (np.asarray(q_goal, dtype=float) - np.asarray(q, dtype=float)))
-    t = np.maximum(t - lag * np.abs(np.nan_to_num(np.asarray(qd_goal, dtype=float))), 0.0)
+    t = np.maximum(t - lag * qd, 0.0)
     t = t[np.isfinite(t)]
     return float(t.max()) if t.size else 0.0
 
