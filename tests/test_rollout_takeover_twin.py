@@ -172,3 +172,25 @@ def test_a_fault_during_a_handover_holds_both_arms(state_run, smooth_policy, tmp
     assert all(hold for _t, hold, _tau in held)
     assert all(np.all(tau == 0.0) for _t, _hold, tau in held)
     assert out["timing"]["command_violations"] == 0
+
+
+def test_the_twin_operator_steps_into_a_stalled_policy(state_run, smooth_policy, monkeypatch):
+    """--task T --takeover on a twin: the scripted operator sees no progress (its patience shortened to 1 s
+    here), grabs the leader -- a takeover by hand torque --, drives the wipe script through force-feedback
+    teleop, and no follower command steps."""
+    from factr2_teleop.tasks import takeover_operator as TO
+
+    monkeypatch.setattr(TO, "STALL_S", 1.0)
+    log = {}
+    out = run_rollout(RolloutOptions(rig="sim-piper", policy=state_run, task="wipe", episodes=1, seed=7,
+                                     max_seconds=4.0, mode="dob", progress=False, takeover=True,
+                                     operator=TO.TwinTakeoverOperator, on_start=_watch(log))).to_dict()
+    tk = log["tk"]
+    assert tk.count == 1 and tk.marks[0]["by"] == "hand", tk.marks
+    t0 = next(t for t, st, *_ in log["ticks"] if st == "run")
+    assert 1.0 <= tk.marks[0]["t_grab"] - t0 <= 1.5  # it watched for STALL_S, then grabbed
+    drove = [d for t, st, d, *_ in log["ticks"] if st == "run" and t > tk.marks[0]["t_takeover"]]
+    assert drove and all(d == OPERATOR for d in drove)  # the operator drove to the (extended) time limit
+    assert out["episodes"][0]["duration_s"] > 4.0  # the limit restarted at the grab
+    assert _steps_ok(log["ticks"]) <= TICK_STEP_RAD * (1 + 1e-9)
+    assert out["timing"]["command_violations"] == 0

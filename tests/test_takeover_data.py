@@ -117,3 +117,14 @@ def test_per_tick_sources_come_back_from_the_driver_marks():
     # a demonstration: every tick is the demonstration's
     demo = _Ep(_Rec({"operator": "ada"}, [], ([], [])), [])
     assert np.all(source_on_grid(demo, grid) == SOURCE_DEMO)
+
+
+def test_the_rollout_screen_says_who_drives_and_the_hand_against_its_threshold():
+    from factr2_teleop.tui.rollout import status_lines
+    from factr2_teleop.tui.rollout_ctl import RolloutState
+
+    st = RolloutState(status="running", episodes=1, episode=1, driver="operator", takeovers=2, hand_nm=0.4,
+                      grab_nm=0.3)
+    line = next(x for x in status_lines(st) if x.startswith("drives:"))
+    assert "OPERATOR" in line and "takeovers 2" in line and "hand 0.40 / 0.30 N*m" in line and "o:" in line
+    assert not any(x.startswith("drives:") for x in status_lines(RolloutState(status="running")))

@@ -42,7 +42,7 @@ _T_EPS_S = 1e-9  # s: tick times are sums of floats; a duration of exactly N tic
 
 @dataclass
 class TakeoverConfig:
-    """The rig file's [teleop.takeover] table (every pair's; a pair's own under [teleop.pairs.<pair>.takeover]).
+    """The rig file's [teleop.takeover] table (every pair's; one pair's: [teleop.pairs.<pair>.takeover]).
 
     follow_kp_nm_rad [N*m/rad] / follow_kd_nm_s_rad [N*m*s/rad]: the leader's following spring and damper
     (low: a hand overpowers it); follow_tau_max_nm [N*m]: its per-joint cap (a few N*m at most; the leader's
