@@ -11,6 +11,8 @@ camera rate) with
                                (/follower/command) from this tick on; past the episode end the last one is
                                repeated and masked out
     phase                      FIRST phase of the tick (policies.phases)
+    source                     who made the tick: a demonstration, or in a rollout recording the policy, the
+                               pre-intervention window or the operator (hardware/recording/interventions.py)
 
 Validation: whole episodes, a deterministic choice per seed. Normalisation: mean/std of the training samples.
 Normalisation, frame decoding and the RandomResizedCrop augmentation (per-sample boxes from the step's
@@ -30,6 +32,7 @@ from hardware.errors import UserError
 from hardware.features import IMAGES, policy_names
 from hardware.features import size as feature_size
 from hardware.recording import schemas as S
+from hardware.recording.interventions import SOURCE_DEMO, source_on_grid
 from hardware.recording.reader import Episode, interp_linear
 from hardware.timeseries import hold_previous
 from policies.frame_cache import camera_frames
@@ -85,6 +88,8 @@ class PolicyData:
     # the policy (build_dataset sets it)
     val_episodes: list[int] = field(default_factory=list)
     objects: np.ndarray | None = None  # (N, O) float32 privileged object vector, None when not observed
+    source: np.ndarray | None = None  # (N,) int8 sample source (hardware/recording/interventions.py
+    # SOURCE_NAMES), None when every sample is a demonstration's
     _crop_pool: Executor | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
@@ -228,6 +233,7 @@ def _episode_samples(
         "mask": m,
         "force_chunk": fc,
         "phase": labels.at(grid[keep]),
+        "source": source_on_grid(ep, grid[keep]),
         "frame_idx": fidx[keep],
         **({"objects": ovals[keep]} if objects else {}),
     }
@@ -313,6 +319,7 @@ def build_dataset(
         float(rate),
         val_episodes=val,
         objects=cat["objects"].astype(np.float32) if object_names else None,
+        source=cat["source"] if bool((cat["source"] != SOURCE_DEMO).any()) else None,
     )
     train_idx, _ = data.split()
     relative = relative_columns(io["action"], {n: feature_size(features[n]) for n in io["action"]})

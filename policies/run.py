@@ -200,10 +200,11 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
             f"at {data.rate_hz:.3g} Hz, {_inputs(data)}; phases F/PC/C "
             f"{' / '.join(f'{x:.0%}' for x in _shares(data))}; method {o.method}, ratio "
             f"{format_ratio(o.ratio)}, force {o.force}; {d.world} process(es) on {d.device}"
+            + _sources(data, o.source_weights)
         )
     with data:  # the data's crop threads end with the run
         return train(data, pcfg, o.train, METHODS[o.method], o.ratio, Path(o.out), meta, d, resume_from,
-                     o.progress, stop_at, on_progress, stop)
+                     o.progress, stop_at, on_progress, stop, source_weights=o.source_weights)
 
 
 def _tasks(episodes) -> dict:
@@ -222,6 +223,19 @@ def _inputs(data) -> str:
     if data.objects is not None:
         parts.append(f"PRIVILEGED object state ({data.objects.shape[1]} values, SIMULATED)")
     return ", ".join(parts)
+
+
+def _sources(data, weights) -> str:
+    """"; samples by source demo/policy/pre/operator N/N/N/N, weights ..." for rollout data ("" else)."""
+    if data.source is None:
+        return ""
+    import numpy as np
+
+    from hardware.recording.interventions import SOURCE_NAMES
+
+    n = np.bincount(data.source[data.split()[0]].astype(np.int64), minlength=4)[:4]
+    return (f"; samples by source {'/'.join(SOURCE_NAMES)} {'/'.join(str(int(k)) for k in n)}, weights "
+            f"{'/'.join(f'{w:g}' for w in weights)}")
 
 
 def _shares(data):

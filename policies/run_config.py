@@ -27,7 +27,7 @@ from policies.methods import METHODS
 from policies.policy import policy_names
 from policies.preprocess import ACTION_FRAMES
 from policies.privileged import OBSERVATIONS
-from policies.sampler import parse_ratio
+from policies.sampler import DEFAULT_SOURCE_WEIGHTS, parse_ratio, parse_source_weights
 
 STATE_EPOCHS, STATE_BATCH = 80.0, 256  # the state preset's defaults: the learning curve (docs/first.md) still
 # rose at 8000 steps x 256 on 47 peg-insert demonstrations (~82 passes); images keep 20 passes at 128
@@ -38,23 +38,50 @@ def default_length(observation: str) -> tuple[float, int]:
     return (STATE_EPOCHS, STATE_BATCH) if observation == "state" else (20.0, 128)
 
 
-class RatioFlag(Flag):
-    """--ratio F:PC:C or a preset name -> (w_F, w_PC, w_C); written back as F:PC:C. presets: the names offered
-    (the terminal app cycles through them after "default", the method's own)."""
+class ParsedFlag(Flag):
+    """A flag whose text parse() turns into a value (None when not given); a ValueError becomes one line
+    with `example` as the fix."""
 
-    presets = ("PC", "C", "PC+C", "uniform")
+    example = ""
+
+    @staticmethod
+    def parse(text: str):
+        raise NotImplementedError
 
     def value(self, ns, dest: str):
         text = getattr(ns, dest)
         if text is None:
             return None
         try:
-            return parse_ratio(text)
+            return self.parse(text)
         except ValueError as e:
-            raise UserError(f"--ratio: {e}", fix="e.g. --ratio 1:5:1") from None
+            raise UserError(f"{self.name}: {e}", fix=f"e.g. {self.name} {self.example}") from None
+
+
+class RatioFlag(ParsedFlag):
+    """--ratio F:PC:C or a preset name -> (w_F, w_PC, w_C); written back as F:PC:C. presets: the names offered
+    (the terminal app cycles through them after "default", the method's own)."""
+
+    presets = ("PC", "C", "PC+C", "uniform")
+    example = "1:5:1"
+    parse = staticmethod(parse_ratio)
 
     def argv(self, value, default) -> list[str]:
         return [] if value is None else [self.name, ":".join(str(float(w)) for w in value)]
+
+
+class SourceWeightsFlag(ParsedFlag):
+    """--source-weights demo=1,policy=1,pre=0.25,operator=2 (any subset) -> the four weights (rollout
+    recordings with interventions: policies/sampler.py); written back in full."""
+
+    example = "pre=0,operator=3"
+    parse = staticmethod(parse_source_weights)
+
+    def argv(self, value, default) -> list[str]:
+        from hardware.recording.interventions import SOURCE_NAMES
+
+        return [] if value is None else [self.name, ",".join(f"{n}={float(w)}" for n, w in
+                                                             zip(SOURCE_NAMES, value))]
 
 
 class ThresholdsFlag(Flag):
@@ -175,6 +202,10 @@ class RunOptions:
     ratio: tuple | None = option(None, resume="ratio", flag=RatioFlag(  # None: the method's default
         "--ratio", f"re-sampling weights w_F:w_PC:w_C or a preset ({', '.join(RatioFlag.presets)}); "
         "default 1:5:1 for first, uniform otherwise", metavar="F:PC:C"))
+    source_weights: tuple | None = option(None, resume="ratio", flag=SourceWeightsFlag(
+        "--source-weights", "rollout recordings with interventions (factr2 rollout --takeover --record): "
+        "sampling weight per source, multiplied with the phase ratio (default demo=1,policy=1,pre=0.25,"
+        "operator=2; pre: the seconds of policy control before each takeover)", metavar="NAME=W,..."))
     preset: str = option("", resume="policy", flag=Flag(  # "": policies.config.default_preset(observation)
         "--preset", "state (low-dimensional inputs, the default with --obs state), small (images on a CPU, "
         "the default otherwise) or paper (the paper's sizes)", choices=PRESETS))
@@ -235,6 +266,7 @@ class RunOptions:
                                     int(self.image_size) if self.image_size else base.image_size)}
         ov = {k: v for k, v in ov.items() if v != getattr(base, k)}
         return replace(self, ratio=tuple(self.ratio) if self.ratio is not None else m.ratio,
+                       source_weights=tuple(self.source_weights or DEFAULT_SOURCE_WEIGHTS),
                        force=self.force if m.force else "none", preset=name, overrides=ov or None, **own)
 
     def policy_config(self) -> PolicyConfig:
@@ -250,7 +282,8 @@ class RunOptions:
         """The checkpoint meta's configuration entries (pcfg: the model's, sizes filled from the data)."""
         r = self.resolved()
         return {"policy": (pcfg or self.policy_config()).to_dict(), "preset": r.preset, "method": r.method,
-                "ratio": list(r.ratio), "force": r.force, "observation": r.observation,
+                "ratio": list(r.ratio), "source_weights": list(r.source_weights), "force": r.force,
+                "observation": r.observation,
                 "include_failed": r.include_failed, "keep_incomplete": r.keep_incomplete,
                 "rate_hz": r.rate_hz, "train": r.train.to_dict(), "actions": r.actions}
 
@@ -273,6 +306,7 @@ class RunOptions:
                  else "recording" if kind is ThresholdSource.RECORDING else None)
         opts = cls(inputs=list(inputs), out=Path(out), policy=pol["policy"], method=meta["method"],
                    ratio=tuple(meta["ratio"]), preset=name, force=meta["force"],
+                   source_weights=tuple(meta.get("source_weights", DEFAULT_SOURCE_WEIGHTS)),
                    thresholds=LabelChoice(given, ph.get("tare", "off")), rate_hz=meta.get("rate_hz"),
                    train=TrainConfig.from_dict(meta["train"]), overrides=ov or None, observation=observation,
                    actions=meta.get("actions", "absolute"),

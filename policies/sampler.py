@@ -1,5 +1,8 @@
 """FIRST re-sampling (paper Sec. 5): each training sample is drawn with probability proportional to its
-phase's weight, w_F : w_PC : w_C (default 1:5:1), with replacement.
+phase's weight, w_F : w_PC : w_C (default 1:5:1), with replacement. Rollout recordings with an operator's
+interventions (issue #33, hardware/recording/interventions.py) add a weight per sample source, multiplied in:
+p_i ~ w_phase(i) * w_source(i), sources demo / policy / pre (the pre-intervention window) / operator
+(intervention up-weighted, pre-intervention down-weighted or dropped, as in Sirius).
 
 Determinism: an epoch's draws are a function of (seed, epoch) alone, so `--resume` continues from the same
 position. Distributed: every rank computes the same global sequence and takes positions rank, rank + world,
@@ -22,6 +25,28 @@ RATIO_PRESETS = {
     "first": (1.0, 5.0, 1.0),
 }
 DEFAULT_RATIO = RATIO_PRESETS["first"]
+# demo : policy : pre : operator (hardware.recording.interventions.SOURCE_NAMES order): Sirius keeps the
+# policy's own samples, up-weights the intervention and down-weights the seconds before it
+DEFAULT_SOURCE_WEIGHTS = (1.0, 1.0, 0.25, 2.0)
+
+
+def parse_source_weights(text: str) -> tuple[float, float, float, float]:
+    """'demo=1,policy=1,pre=0,operator=3' (any subset; the rest keep DEFAULT_SOURCE_WEIGHTS) -> the four
+    weights; ValueError otherwise."""
+    from hardware.recording.interventions import SOURCE_NAMES
+
+    w = dict(zip(SOURCE_NAMES, DEFAULT_SOURCE_WEIGHTS))
+    for part in filter(None, (p.strip() for p in str(text).split(","))):
+        name, _, val = part.partition("=")
+        try:
+            x = float(val)
+        except ValueError:
+            x = float("nan")
+        if name.strip() not in w or not (np.isfinite(x) and x >= 0):
+            raise ValueError(f"source weight {part!r} is not NAME=WEIGHT with NAME one of "
+                             f"{', '.join(SOURCE_NAMES)} and WEIGHT >= 0")
+        w[name.strip()] = x
+    return tuple(w[n] for n in SOURCE_NAMES)  # type: ignore[return-value]
 
 
 def parse_ratio(text: str) -> tuple[float, float, float]:
@@ -46,15 +71,25 @@ def format_ratio(w) -> str:
     return ":".join(f"{x:g}" for x in w)
 
 
-def sample_probabilities(phases: np.ndarray, ratio) -> np.ndarray:
-    """p_i = w_{phase_i} / sum_j w_{phase_j} over the samples (N,). A ratio that zeroes every phase present
-    is a ValueError (nothing could be drawn)."""
+def sample_probabilities(phases: np.ndarray, ratio, sources: np.ndarray | None = None,
+                         source_weights=None) -> np.ndarray:
+    """p_i = w_{phase_i} / sum_j w_{phase_j} over the samples (N,); with sources (N,) (codes of
+    interventions.SOURCE_NAMES) and source_weights, p_i ~ w_{phase_i} * w_{source_i}. A ratio that zeroes
+    every sample is a ValueError (nothing could be drawn)."""
     w = np.asarray(ratio, dtype=float)[np.asarray(phases, dtype=np.int64)]
+    if sources is not None and source_weights is not None:
+        w = w * np.asarray(source_weights, dtype=float)[np.asarray(sources, dtype=np.int64)]
     total = w.sum()
     if not total > 0:
         present = sorted({PHASE_SHORT[int(p)] for p in np.unique(phases)})
         raise ValueError(f"ratio {format_ratio(ratio)} gives zero weight to every phase present ({present})")
     return w / total
+
+
+def expected_source_shares(phases: np.ndarray, ratio, sources: np.ndarray, source_weights) -> np.ndarray:
+    """Expected fraction of draws per source (4,): sum of p_i over each source's samples."""
+    p = sample_probabilities(phases, ratio, sources, source_weights)
+    return np.bincount(np.asarray(sources, dtype=np.int64), weights=p, minlength=4)[:4]
 
 
 def expected_shares(phases: np.ndarray, ratio) -> np.ndarray:
@@ -76,10 +111,12 @@ class FirstSampler:
         samples_per_epoch: int | None = None,
         rank: int = 0,
         world: int = 1,
+        sources: np.ndarray | None = None,
+        source_weights=None,
     ):
         if not 0 <= rank < world:
             raise ValueError(f"rank {rank} outside world {world}")
-        self.p = sample_probabilities(phases, ratio)
+        self.p = sample_probabilities(phases, ratio, sources, source_weights)
         self.ratio = tuple(float(x) for x in ratio)
         self.seed, self.rank, self.world = int(seed), int(rank), int(world)
         self.samples_per_epoch = int(samples_per_epoch or len(self.p))

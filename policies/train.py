@@ -224,10 +224,12 @@ def train(
     stop_at: int | None = None,
     on_progress: Callable[[dict], None] | None = None,
     stop: threading.Event | None = None,
+    source_weights=None,
 ) -> dict:
     """Train; checkpoints and logs in `run` (rank 0 writes). Returns the final metrics. method: its FACTR blur
-    (policies.methods), ratio: the sampler's w_F : w_PC : w_C. stop_at: leave the loop after that many steps
-    (an interruption, as a kill after a checkpoint would be).
+    (policies.methods), ratio: the sampler's w_F : w_PC : w_C, source_weights: its weight per sample source
+    (policies/sampler.py; used where the data holds rollout samples). stop_at: leave the loop after that
+    many steps (an interruption, as a kill after a checkpoint would be).
 
     For an app driving one process (the terminal UI): on_progress(row) after every step on rank 0, row =
     {"step", "total", "start"} plus the logged losses / validation metrics of that step; stop: when set, the
@@ -235,7 +237,9 @@ def train(
     n_threads, why_threads = pick_threads(cfg.threads, d.world)
     torch.set_num_threads(n_threads)
     train_idx, val_idx = data.split()
-    sampler = FirstSampler(data.phase[train_idx], ratio, cfg.seed, rank=d.rank, world=d.world)
+    src = data.source[train_idx] if data.source is not None and source_weights is not None else None
+    sampler = FirstSampler(data.phase[train_idx], ratio, cfg.seed, rank=d.rank, world=d.world, sources=src,
+                           source_weights=source_weights if src is not None else None)
     total = total_steps(cfg, sampler)
     asked = cfg
     cfg, notes = clamp_schedule(cfg, total)

@@ -62,3 +62,32 @@ def tiny_run_on(tmp_path_factory, name: str, record, policy: str = "act", steps:
     torch.set_num_threads(1)
     d = tmp_path_factory.mktemp(name)
     return train_tiny(record(d), d / "run", policy=policy, steps=steps)
+
+
+def install_smooth_policy(setattr_fn=setattr, call_real: bool = False) -> list:
+    """Replace PolicyRunner.infer's chunks by a smooth reference about the first observation's pose: joints
+    1-2 on slow sines (<= 0.45 rad/s), as a trained policy moves (the takeover tests and bench time the
+    machinery, not a policy). setattr_fn: monkeypatch.setattr in a test; call_real: run the real inference
+    first (its latency counts). Returns the list the observation time of every chunk asked for goes into."""
+    import numpy as np
+
+    from policies.rollout.runner import PolicyRunner
+    from policies.rollout.schedule import Chunk
+
+    asked, home = [], {}
+    real = PolicyRunner.infer
+
+    def infer(self, obs, t_obs, seq=0):
+        lat = real(self, obs, t_obs, seq).latency_s if call_real else 0.0
+        q = np.asarray(obs["follower.joint.pos"], float)
+        g = float(np.asarray(obs["follower.gripper.pos"], float).reshape(-1)[0])
+        home.setdefault("q", q.copy())
+        t = t_obs + np.arange(self.cfg.chunk) * self.dt
+        a = np.tile(np.r_[home["q"], g], (self.cfg.chunk, 1))
+        a[:, 0] += 0.3 * np.sin(1.5 * t)
+        a[:, 1] += 0.15 * np.sin(1.1 * t)
+        asked.append(t_obs)
+        return Chunk(t_obs=t_obs, actions=a, dt=self.dt, seq=seq, latency_s=lat)
+
+    setattr_fn(PolicyRunner, "infer", infer)
+    return asked

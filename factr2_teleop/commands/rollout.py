@@ -8,6 +8,7 @@ follower and stops.
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 import threading
@@ -46,10 +47,17 @@ def add_arguments(parser) -> None:
                         help="receding horizon: steps executed per chunk (default a third of the chunk)")
     parser.add_argument("--force", action="store_true", help="roll out on a task the policy's demonstrations "
                         "did not come from (refused without it)")
+    parser.add_argument("--takeover", action=argparse.BooleanOptionalAction, default=None,
+                        help="the leader follows the follower and the operator takes over by hand (torque "
+                        "on the leader) or with the o key; the hand at rest or o hands back (default: on in "
+                        "real time and on real rigs, off for a lockstep twin). With --task on a twin, the "
+                        "scripted operator steps in when the policy stalls (SIMULATED)")
     parser.add_argument("--json", type=Path, default=None, help="write the summary JSON here")
 
 
 def summary_lines(out: RolloutResult) -> list[str]:
+    import numpy as np
+
     t = out.timing
     sim = " (SIMULATED)" if out.simulated else ""
     lines = [f"rollout of {out.policy} on {out.rig}{sim}, task {out.task or '(operator-marked)'}, "
@@ -74,6 +82,16 @@ def summary_lines(out: RolloutResult) -> list[str]:
               f"limits at the wire; chunks refused: {t['refused_nonfinite']} non-finite, "
               f"{t['refused_outside_limits']} outside the limits; holds {_holds(t['holds'])}",
               f"{'wall time':>26s}  {out.wall_s:.0f} s"]
+    tk = out.takeover
+    if tk:
+        lat = tk["tracking_latency_ms"]
+        err = tk.get("leader_tracking_err_rad")
+        lines.append(f"{'takeovers':>26s}  {tk['takeovers']} ({', '.join(tk['by']) or 'none'}), operator "
+                     f"{tk['operator_s']:.1f} s; successes without one {tk['autonomous_successes']} / {n}"
+                     + (f"; latency to tracking mean {np.mean(lat):.0f} ms" if lat else ""))
+        if err:
+            lines.append(f"{'leader tracking error':>26s}  p50 {err['p50']:.4f} rad, p99 {err['p99']:.4f} "
+                         f"rad, max {err['max']:.4f} rad")
     if out.recording:
         lines.append(f"{'recording':>26s}  {out.recording}")
     return lines
@@ -88,13 +106,15 @@ def _holds(holds) -> str:
     return ", ".join(f"{n} ({why})" for why, n in sorted(holds.items(), key=lambda kv: -kv[1]))
 
 
-def _key_reader(marks) -> threading.Thread | None:
+def _key_reader(marks, takeover_keys=None) -> threading.Thread | None:
     """Single keys from the terminal into `marks` (cbreak mode, restored at exit); None without a TTY."""
     if not sys.stdin.isatty():
         return None
     import atexit
     import termios
     import tty
+
+    from factr2_teleop.session.rollout_takeover import TOGGLE_KEY
 
     fd = sys.stdin.fileno()
     old = termios.tcgetattr(fd)
@@ -108,6 +128,8 @@ def _key_reader(marks) -> threading.Thread | None:
                 return
             if ch.lower() in "synq":
                 marks.put(ch.lower())
+            elif takeover_keys is not None and ch.lower() == TOGGLE_KEY:
+                takeover_keys.put(TOGGLE_KEY)
 
     th = threading.Thread(target=read, name="factr2-keys", daemon=True)
     th.start()
@@ -118,12 +140,14 @@ def run(args) -> int:
     import queue
 
     from factr2_teleop.session.rollout import RolloutOptions, run_rollout
+    from factr2_teleop.session.rollout_takeover import TOGGLE_KEY
 
     marks = queue.SimpleQueue()
     opts = RolloutOptions(rig=args.rig, policy=args.policy, task=args.task, episodes=args.episodes,
                           seed=args.seed, record=args.record, max_seconds=args.max_seconds, next=args.next,
                           realtime=args.realtime, mode=args.mode, schedule=args.schedule,
-                          ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks, force=args.force)
+                          ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks, force=args.force,
+                          takeover=args.takeover)
     if args.force and args.task:
         from factr2_teleop.session.task_check import task_mismatch
         from policies.checkpoint import read_meta
@@ -131,8 +155,16 @@ def run(args) -> int:
         why = task_mismatch(read_meta(args.policy), args.task)
         if why:
             print(f"warning: {why}: rolled out anyway (--force)", file=sys.stderr)
-    if args.task is None and _key_reader(marks) is not None:
-        print("keys: s = next stage reached, y = success, n = failure, q = stop; Ctrl-C holds and stops")
+    if args.takeover and args.task:
+        from factr2_teleop.tasks.takeover_operator import TwinTakeoverOperator
+
+        opts.operator = TwinTakeoverOperator
+    keys = opts.takeover_keys if args.takeover is not False else None
+    if (args.task is None or args.takeover) and _key_reader(marks, keys) is not None:
+        marks_words = ("s = next stage reached, y = success, n = failure, q = stop; " if args.task is None
+                       else "")
+        take_words = f"{TOGGLE_KEY} = take over / hand back; " if keys is not None else ""
+        print(f"keys: {marks_words}{take_words}Ctrl-C holds and stops")
     out = run_rollout(opts)
     for line in summary_lines(out):
         print(line)

@@ -18,10 +18,11 @@ follower command, the privileged object vector on twin tasks).
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from enum import Enum
 from pathlib import Path
 
@@ -32,6 +33,7 @@ from factr2_teleop.session.pairs import TeleopOptions
 from factr2_teleop.session.rollout_episodes import MarkedRollout, TwinRollout, episode_line
 from factr2_teleop.session.rollout_pair import FRAME_MAX_AGE_S, RUN, PolicyTarget, RolloutPair, TargetArm
 from factr2_teleop.session.rollout_report import RolloutResult, WireCheck, timing_summary, wire_summary
+from factr2_teleop.session.rollout_takeover import TakeoverPair, attach_takeover, takeover_summary
 from factr2_teleop.session.teleop import TeleopSession
 from hardware.errors import UserError
 from hardware.features import rig_arm_names, rig_features
@@ -57,7 +59,11 @@ class RolloutOptions:
     before the loop runs (a UI's live view: add a tick hook, stop the loop). lean: skip what only a recording
     or a watcher reads -- the passive leader's simulation and service, and the estimator when the policy
     observes no force (None: on for a lockstep twin without record and on_start; the follower's commands
-    are the same either way, docs/rollout.md "Rollout CPU")."""
+    are the same either way, docs/rollout.md "Rollout CPU"). takeover: the leader follows and the operator
+    can take over (session/rollout_takeover.py; None: on in real time and in the app, off for a lockstep
+    twin, where no hand acts unless `operator` is given); operator: callable(ts, target, episodes,
+    takeover) -> a per-tick hook, the twin's scripted operator (tasks/takeover_operator.py); takeover_keys:
+    the queue the takeover key (or pedal) is put into."""
 
     rig: str
     policy: Path
@@ -79,6 +85,9 @@ class RolloutOptions:
     lean: bool | None = None
     force: bool = False  # roll out on another task than the demonstrations' (session/task_check.py)
     ema: bool = True  # the checkpoint's moving-average weights where it has them (else the trained ones)
+    takeover: bool | None = None
+    operator: object = None
+    takeover_keys: object = field(default_factory=queue.SimpleQueue)  # TOGGLE_KEY presses (any thread)
 
 
 # -- the NEXT checkpoint the policy was trained with -----------------------------------------------------
@@ -122,10 +131,10 @@ class RolloutSession(TeleopSession):
     """A TeleopSession of RolloutPairs that also keeps every camera's latest frame (t [s], RGB) for the
     policy."""
 
-    def __init__(self, session, opts: TeleopOptions, *, clock=None):
+    def __init__(self, session, opts: TeleopOptions, *, clock=None, pair_class=RolloutPair):
         self._latest: dict = {}
         self._cond = threading.Condition()
-        super().__init__(session, opts, clock=clock, pair_class=RolloutPair)
+        super().__init__(session, opts, clock=clock, pair_class=pair_class)
 
     def _frame(self, camera: str, t: float, rgb) -> None:
         with self._cond:
@@ -198,7 +207,9 @@ def run_rollout(opts: RolloutOptions) -> RolloutResult:
         raise UserError(f"the policy was trained on NEXT's tau_ext; --mode {opts.mode} would feed it another "
                         "estimate", where="--mode", fix="leave --mode out")
     realtime = opts.realtime or not rig.simulated
-    lean = not realtime and (opts.lean if opts.lean is not None else
+    takeover = opts.takeover if opts.takeover is not None else (
+        realtime or opts.operator is not None)
+    lean = not realtime and not takeover and (opts.lean if opts.lean is not None else
                              opts.record is None and opts.on_start is None)
     mode = "next" if next_path is not None else opts.mode
     if lean and not runner.force_names:
@@ -206,7 +217,7 @@ def run_rollout(opts: RolloutOptions) -> RolloutResult:
     plan = RolloutPlan(next_path=next_path, note=note, mode=mode, lean=lean, realtime=realtime,
                        threaded=opts.threaded if opts.threaded is not None else realtime,
                        schedule=opts.schedule or (ENSEMBLE if runner.policy == "act" else RECEDING),
-                       k_exec=opts.k_exec or max(1, runner.cfg.chunk // K_EXEC_SHARE))
+                       k_exec=opts.k_exec or max(1, runner.cfg.chunk // K_EXEC_SHARE), takeover=takeover)
     # the loop keeps a core of its own; a chunk's work is small (docs/rollout.md)
     with limit_threads(1, torch=True):
         return _rollout(opts, runner, rig, task, plan)
@@ -225,6 +236,7 @@ class RolloutPlan:
     threaded: bool
     schedule: str
     k_exec: int
+    takeover: bool = False  # the leader follows and the operator may take over
 
 
 def target_arms(ts, runner, layout: dict, task) -> list[TargetArm]:
@@ -279,7 +291,8 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
             s.twin.stop_realtime()
             clock = TwinDrivenClock(s.twin)
         ts = RolloutSession(s, TeleopOptions(mode=plan.mode, checkpoint=str(plan.next_path)
-                                             if plan.next_path else None), clock=clock)
+                                             if plan.next_path else None), clock=clock,
+                            pair_class=TakeoverPair if plan.takeover else RolloutPair)
         features = rig_features(rig)
         arms = target_arms(ts, runner, runner.check_rig(features, rig_follower_arms(rig)), task)
         if plan.lean:  # the passive leaders: nothing records or shows them, the followers' law ignores them
@@ -300,6 +313,9 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
             pair.follow(target.for_pair(i))
         stages = tuple(task.stages) if task is not None else ()
         eps = _episodes(opts, ts, task, target, stages)
+        tk = attach_takeover(ts, target, opts.takeover_keys) if plan.takeover else None
+        if tk is not None and opts.operator is not None:
+            ts.hooks.append(opts.operator(ts, target, eps, tk))
         first = ts.pairs[0].cfg.name  # per-tick hooks see every pair's record: the episode owner ticks once
         periods: list[float] = []
         ts.hooks.append(lambda r: eps.on_tick(r) if r.pair == first else None)
@@ -316,6 +332,8 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
                             extra_meta={"simulated": str(s.twin is not None).lower(), "operator": "policy",
                                         "policy": str(runner.path), "rollout_seed": opts.seed})
             rec_path = str(rec.path)
+            if tk is not None:
+                tk.recording = rec
         runner.start(plan.threaded)
         try:
             # frames only when the policy looks (else the recording starts the cameras with its first episode)
@@ -353,7 +371,8 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
         mean_progress=float(np.mean([r.progress for r in res])) if res else 0.0,
         stage_rates={s: float(np.mean([r.stages.get(s) is not None for r in res])) if res else 0.0
                      for s in stages},
-        recording=rec_path, arms=[a.arm for a in arms])
+        recording=rec_path, arms=[a.arm for a in arms],
+        takeover=takeover_summary(tk, ts.pairs, res) if tk is not None else {})
     wire = wire_summary(wires)
     out.timing = timing_summary(periods, runner.latencies_s, target.ages_s, plan.realtime, ts.rate_hz)
     out.timing.update({"commands_sent": wire["commands_sent"],

@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 from dataclasses import asdict
 
+import numpy as np
+
 from factr2_teleop.session.rollout_pair import RUN, PolicyTarget
 from factr2_teleop.session.task_episodes import SETTLE_S, EpisodeResult, TaskEpisodes
 
@@ -24,6 +26,7 @@ class TwinRollout(TaskEpisodes):
                  on_episode=None):
         super().__init__(ts, task, episodes, seed, on_episode)
         self.target, self.time_limit_s = target, float(time_limit_s)
+        self.t_extended = -np.inf  # s: an operator's takeover restarts the time limit here (its own time)
 
     def objects(self):
         """The PRIVILEGED object vector of the task as the twin has it now (policies/privileged.py)."""
@@ -53,7 +56,7 @@ class TwinRollout(TaskEpisodes):
             self._log_objects(r.t, obs)
             self._detect_obs(r.t, obs)
             done = bool(self.tracker.done.all()) and self.task.final_ok(obs, self.params, self.tracker.memory)
-            timeout = r.t - self._t_state >= self.time_limit_s
+            timeout = r.t - max(self._t_state, self.t_extended) >= self.time_limit_s
             if done or timeout:
                 self.target.idle()
                 self._end_episode(r, {"gave_up": timeout and not done})

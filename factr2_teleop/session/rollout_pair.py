@@ -170,6 +170,7 @@ class PolicyTarget:
         self._q_min = np.concatenate([np.asarray(lim.q_min) for lim in lims])
         self._q_max = np.concatenate([np.asarray(lim.q_max) for lim in lims])
         self.clamped = 0  # run ticks whose target lay outside the joint limits (the safety layer clamped it)
+        self.takeover = None  # session/rollout_takeover.Takeover when the operator may take over
 
     def for_pair(self, i: int):
         """The target function of pair i: (now [s], its follower JointState) -> (q [rad] or None, gripper
@@ -204,6 +205,15 @@ class PolicyTarget:
 
     def idle(self) -> None:
         self.state = IDLE
+
+    def replan(self, now: float) -> None:
+        """The operator handed back at `now` [s]: every chunk asked for before is dropped (the schedule
+        refuses them, one still in inference included) and a fresh observation is asked for at once: the
+        policy re-plans from the arm's state, no stale chunk is executed."""
+        self.runner.take()
+        self.schedule.restart(now)
+        self._t_next = now
+        self._tick = (np.nan, None, None)
 
     # -- per tick ------------------------------------------------------------------------------------------
     def _target(self, i: int, now: float, fs):

@@ -99,6 +99,7 @@ class RolloutResult:
     recording: str | None
     arms: list[str] = field(default_factory=list)  # the follower arms the policy drove
     timing: dict = field(default_factory=dict)
+    takeover: dict = field(default_factory=dict)  # session/rollout_takeover.py takeover_summary ({}: off)
 
     def to_dict(self) -> dict:
         return asdict(self)

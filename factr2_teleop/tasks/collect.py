@@ -26,7 +26,7 @@ import numpy as np
 
 from factr2_teleop.session.task_episodes import SETTLE_S, TaskEpisodes
 from factr2_teleop.tasks import script_for
-from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept
+from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept, percept
 from hardware import sim_cpu
 from hardware.sim.tasks import Task
 
@@ -95,14 +95,7 @@ class EpisodeDriver(TaskEpisodes):
         self.twin.bank(self.lname).set_hand_torque(tau)
 
     def _percept(self, r) -> Percept:
-        d = self.data
-        T = np.eye(4)
-        T[:3, :3], T[:3, 3] = d.site_xmat[self.ee_site].reshape(3, 3), d.site_xpos[self.ee_site]
-        fb = r.tau_feedback
-        felt = float(np.sum(np.abs(fb))) if fb is not None and np.all(np.isfinite(fb)) else 0.0
-        return Percept(t=r.t, q_leader=r.leader.q, qd_leader=r.leader.q_dot, trigger=r.leader.gripper_pos,
-                       q_follower=r.follower.q, felt_nm=felt, T_ee=T,
-                       obs=self.task.observe(self.model, self.data, self.params))
+        return percept(r, self.data, self.ee_site, self.task.observe(self.model, self.data, self.params))
 
     def _begin_episode(self, r) -> None:
         rng = self._reset_episode()

@@ -92,6 +92,17 @@ class Percept:
     obs: dict = field(default_factory=dict)
 
 
+def percept(r, data, ee_site: int, obs: dict) -> Percept:
+    """What the operator has at a tick (r: the pair's TickRecord): the gripper pose seen (the twin's `ee`
+    site), the feedback felt on the leader, the task's objects as seen (obs)."""
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = data.site_xmat[ee_site].reshape(3, 3), data.site_xpos[ee_site]
+    fb = r.tau_feedback
+    felt = float(np.sum(np.abs(fb))) if fb is not None and np.all(np.isfinite(fb)) else 0.0
+    return Percept(t=r.t, q_leader=r.leader.q, qd_leader=r.leader.q_dot, trigger=r.leader.gripper_pos,
+                   q_follower=r.follower.q, felt_nm=felt, T_ee=T, obs=obs)
+
+
 class Operator:
     """Holds the reference (q_des, grip) and turns it into hand torques; scripts drive it via moves.
 

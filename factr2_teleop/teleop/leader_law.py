@@ -245,8 +245,10 @@ class LeaderLaw:
         dqm_dq[np.arange(self.model_map.n_b), self.model_map.index] = self.model_map.k
         return J @ dqm_dq
 
-    def step(self, inp: LeaderInputs, feedback_on: bool = True) -> LeaderOutput:
-        """One tick. feedback_on=False (soft start, holds) keeps the feedback gate closed."""
+    def step(self, inp: LeaderInputs, feedback_on: bool = True,
+             extra: dict[str, np.ndarray] | None = None) -> LeaderOutput:
+        """One tick. feedback_on=False (soft start, holds) keeps the feedback gate closed. extra: further
+        named terms [N*m] summed under the same cap (a rollout's following spring, teleop/takeover.py)."""
         n, cfg = self.n, self.cfg
         q = np.asarray(inp.q, dtype=float)
         qd = np.asarray(inp.q_dot, dtype=float)
@@ -272,6 +274,8 @@ class LeaderLaw:
         fb = self.feedback.step(inp.t, inp.tau_ext_leader if feedback_on else None, inp.contact_score_nm,
                                 inp.est_t, inp.est_fresh, inp.gripper_effort)
         terms["feedback"] = fb.tau_fb
+        if extra:
+            terms.update(extra)
         total = np.zeros(n)
         for v in terms.values():
             total += v

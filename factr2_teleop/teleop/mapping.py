@@ -71,6 +71,12 @@ class JointMap:
         q_a[self.index] = (np.asarray(q_b, dtype=float) - self.offset) / self.k
         return q_a
 
+    def backward_velocity(self, qd_b: np.ndarray) -> np.ndarray:
+        """Velocities b -> a [rad/s]; a joints no b joint depends on get 0."""
+        qd_a = np.zeros(self.n_a)
+        qd_a[self.index] = np.asarray(qd_b, dtype=float) / self.k
+        return qd_a
+
     def torque_back(self, tau_b: np.ndarray) -> np.ndarray:
         """Torques b -> a [N*m] by virtual work; unmapped a joints get 0."""
         tau_a = np.zeros(self.n_a)

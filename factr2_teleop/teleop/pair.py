@@ -23,6 +23,7 @@ from factr2_teleop.teleop.leader_law import LeaderInputs, LeaderLaw, LeaderLawCo
 from factr2_teleop.teleop.mapping import JointMap, JointMapConfig
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch_error, rate_limit
+from factr2_teleop.teleop.takeover import TakeoverConfig
 from hardware.clock import Clock
 from hardware.errors import ConfigError, DeviceError
 from hardware.reasons import Reason, messages
@@ -76,7 +77,8 @@ messages({
 class PairConfig:
     """name: prefix in records ("left"/"right" for bimanual). leader_stale_s / follower_stale_s: data older
     than this holds the follower [s]. estimator_period_s: run the estimator at most this often [s] (0: every
-    tick; the paper ran NEXT at 100 Hz). start_timeout_s: wait this long for first data from both arms [s]."""
+    tick; the paper ran NEXT at 100 Hz). start_timeout_s: wait this long for first data from both arms [s].
+    takeover: the leader's following and the hand's takeover during a policy rollout (teleop/takeover.py)."""
 
     name: str = "arm"
     law: LeaderLawConfig = field(default_factory=LeaderLawConfig)
@@ -86,7 +88,7 @@ class PairConfig:
     follower_stale_s: float = DEFAULT_STALE_S
     estimator_period_s: float = 0.0
     start_timeout_s: float = 0.5
-
+    takeover: TakeoverConfig = field(default_factory=TakeoverConfig)
 
     @classmethod
     def from_dict(cls, d: dict, where: str = "pairs") -> PairConfig:
@@ -100,6 +102,9 @@ class PairConfig:
                 kw["mapping"] = JointMapConfig(**d.pop("mapping"))
             if "soft_start" in d:
                 kw["soft_start"] = SoftStartConfig(**d.pop("soft_start"))
+            if "takeover" in d:
+                kw["takeover"] = TakeoverConfig(**d.pop("takeover"))
+                kw["takeover"].validate(where=f"{where}.takeover")
             return cls(**kw, **d)
         except TypeError as e:
             raise ConfigError(f"bad key: {e}", where=where, fix="see docs/teleop.md") from None

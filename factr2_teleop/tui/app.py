@@ -185,6 +185,7 @@ class Factr2App(App):
             max_seconds=self.rollout_limit_s,
             record=self.recordings_dir if self.rollout_record else None,
             force=self.rollout_force,
+            takeover=True,  # the leader follows, the hand or the key takes over (session/rollout_takeover.py)
         )
         def after() -> None:
             rt.release("rollout")

@@ -1,7 +1,9 @@
 """Rollout screen: pick a trained run (checked against the rig: arm, joints, cameras, NEXT checkpoint; every
 mismatch said in words), on a twin a task and a number of episodes, recording on or off; start / stop; live
 commanded vs actual follower joints, tau_ext bars, the policy's stage and the executed action's age; the
-per-episode outcome (judged by the twin task, or marked with s / y / n). SPACE is the emergency stop."""
+per-episode outcome (judged by the twin task, or marked with s / y / n); who drives (policy or operator), the
+takeover count and the hand's torque on the leader against its threshold, o takes over / hands back (the
+hand on the leader does too). SPACE is the emergency stop."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from textual.binding import Binding
 from textual.containers import VerticalScroll
 from textual.widgets import Static
 
+from factr2_teleop.session.rollout_takeover import TOGGLE_KEY
 from factr2_teleop.tui import rollout_ctl as R
 from factr2_teleop.tui.base import BaseScreen
 from factr2_teleop.tui.stops import OperatorStop, operator_stop
@@ -43,6 +46,10 @@ def status_lines(st) -> list[str]:
     if st.status in ("running", "E-STOPPED", "stopped", "done"):
         out.append(f"episode {min(max(st.episode, 1), st.episodes)}/{st.episodes}  stage {st.stage}  "
                    f"action age {age}  t {fmt(st.t, 6, 1)} s  {'follower HOLD' if st.hold else ''}")
+    if st.driver:
+        hand = "-" if not np.isfinite(st.hand_nm) else f"{st.hand_nm:.2f}"
+        out.append(f"drives: {st.driver.upper()}  takeovers {st.takeovers}  hand {hand} / {st.grab_nm:.2f} "
+                   f"N*m {bar(st.hand_nm, 0.0, 2 * st.grab_nm, 11)}  ({TOGGLE_KEY}: take over / hand back)")
     if st.stages:
         out.append("task stages: " + " ".join(f"{s}{'+' if st.reached.get(s) else '-'}" for s in st.stages))
     for idx, outcome, prog, secs in st.results[-3:]:
@@ -68,6 +75,7 @@ class RolloutScreen(BaseScreen):
         Binding("s", "mark('s')", "Stage", show=False),
         Binding("y", "mark('y')", "Success", show=False),
         Binding("n", "mark('n')", "Failure", show=False),
+        Binding(TOGGLE_KEY, "takeover", "Take over"),
         Binding("l", "reload", "Reload", show=False),
     ]
 
@@ -258,5 +266,14 @@ class RolloutScreen(BaseScreen):
             return
         try:
             self.run.mark(key)
+        except Exception as e:  # noqa: BLE001
+            self.app.say(str(e))
+
+    def action_takeover(self) -> None:
+        if self.run is None or not self.run.running:
+            self.app.say("no rollout is running")
+            return
+        try:
+            self.run.toggle_takeover()
         except Exception as e:  # noqa: BLE001
             self.app.say(str(e))

@@ -120,6 +120,10 @@ class RolloutState:
     results: list = field(default_factory=list)  # per finished episode: (index, outcome, progress, seconds)
     recording: str | None = None
     held_at_estop: bool | None = None  # the follower reported its safe state right after the e-stop
+    driver: str = ""  # who drives the follower (policy / operator; "" without takeover)
+    takeovers: int = 0
+    hand_nm: float = float("nan")  # the hand's torque on the leader [N*m]
+    grab_nm: float = float("nan")  # the takeover threshold [N*m]
 
 
 class RolloutRun:
@@ -217,6 +221,11 @@ class RolloutRun:
             s.action_age_s = target.ages_s[-1] if target.ages_s and target.state == "run" else float("nan")
             s.reached, s.results = reached, results
             s.episode = len(results) + (1 if target.state != "idle" else 0)
+            tk = target.takeover
+            if tk is not None:
+                s.driver = tk.driver + (" (handing back)" if tk.pending else "") + (
+                    " HELD (fault in a handover)" if tk.held else "")
+                s.takeovers, s.hand_nm, s.grab_nm = tk.count, tk.hand_max_nm, tk.cfg.grab_nm
 
     def snapshot(self) -> RolloutState:
         with self._lock:
@@ -229,6 +238,14 @@ class RolloutRun:
             raise UserError("the twin task judges its episodes itself", where="Rollout",
                             fix="marks are for rollouts without a task (or on a real rig)")
         self.opts.marks.put(key)
+
+    def toggle_takeover(self) -> None:
+        """Take over (the leader drives) or hand back to the policy: the key's (or pedal's) press."""
+        target = self._target
+        if target is None or target.takeover is None:
+            raise UserError("this rollout runs without takeover", where="Rollout",
+                            fix="start a rollout on a rig with a leader")
+        target.takeover.press()
 
     def stop(self, why: Reason = STOPPED) -> None:
         """End the rollout (why: an OperatorStop reason): the loop stops after its tick and leaves the arms

@@ -103,7 +103,10 @@ def format_rows(rows: list[EpisodeRow]) -> str:
 
 
 def show(path: str | Path) -> str:
-    """A recording's metadata, topics (counts and rates), cameras, episodes and events, as text."""
+    """A recording's metadata, topics (counts and rates), cameras, episodes and events (an operator's
+    interventions in a rollout included), as text."""
+    from hardware.recording.interventions import describe as describe_interventions
+
     if Path(path).suffix == ".npz":
         from hardware.recording.plain_log import load_plain_log
 
@@ -142,6 +145,7 @@ def show(path: str | Path) -> str:
             lines.append(f"        progress {v:.2f} at {t:.3f} s {label}")
         for note in ep.notes:
             lines.append(f"        note: {note}")
+        lines += [f"        {line}" for line in describe_interventions(ep)]
     lines += [f"warning: {w.message}" for w in caught]
     return "\n".join(lines)
 

@@ -29,6 +29,11 @@ TOPIC_LOOP = "/loop/timing"
 # read back as this feature name, a policy input in place of camera frames (`factr2 train --obs state`)
 TOPIC_TASK_OBJECTS = "/task/objects"
 TASK_OBJECTS_FEATURE = "observation.state.objects"
+# a policy rollout with operator takeover (issue #33): who drives the follower, written when it changes (and
+# at each episode's start), so a tick's driver is the latest value at or before it (previous-value hold)
+TOPIC_ROLLOUT_DRIVER = "/rollout/driver"
+DRIVER_POLICY, DRIVER_OPERATOR = 0, 1  # the `driver` field's codes
+DRIVER_NAMES = ("policy", "operator")
 
 
 def joint_state_topic(arm: str) -> str:
@@ -61,7 +66,10 @@ def camera_name(topic: str) -> str:
 
 # Event kinds on /events. An episode runs from "start" to "stop"; "success"/"failure"/"discard" label it
 # (they may come after the stop); "progress" is a task-progress mark (value in [0, 1]); "note" is free text.
-EVENT_KINDS = ("start", "stop", "success", "failure", "discard", "progress", "note")
+# "takeover" / "handback" mark an operator's intervention in a rollout (text: JSON {"by": "hand" | "key" |
+# "fault" | "episode end", "pre_window_s": the pre-intervention window [s]}, value: the hand torque [N*m])
+EVENT_KINDS = ("start", "stop", "success", "failure", "discard", "progress", "note", "takeover", "handback")
+TAKEOVER_KINDS = ("takeover", "handback")
 OUTCOME_KINDS = ("success", "failure", "discard")
 
 
@@ -147,9 +155,14 @@ TASK_OBJECTS = Schema(
         "object poses [m] (positions), rotation-matrix entries [1], yaws [rad], finger contacts (0/1), "
         "contact force [N]"),),
 )
+ROLLOUT_DRIVER = Schema("factr2.RolloutDriver", "who drives the follower in a rollout, from this tick on "
+                        "(written on a change only)", (
+    _f("driver", "", "int", False, "driver", "0 = the policy, 1 = the operator through the leader"),
+    _f("hand_nm", "N*m", "float", False, "hand_torque", "the hand's torque on the leader at the change"),
+))
 NUMERIC_SCHEMAS: dict[str, Schema] = {s.name: s for s in (JOINT_STATE, EXTERNAL_TORQUE, TORQUE_COMMAND,
                                                            FOLLOWER_COMMAND, GROUND_TRUTH, LOOP_TIMING,
-                                                           TASK_OBJECTS)}
+                                                           TASK_OBJECTS, ROLLOUT_DRIVER)}
 EVENT_SCHEMA_NAME = "factr2.Event"
 ACTION = "action"  # the arm prefix of the follower's command: the policy's action (hardware/features.py)
 

@@ -268,6 +268,12 @@ class Recorder:
         return self._numeric(S.TASK_OBJECTS, S.TOPIC_TASK_OBJECTS, t, (), (values,))
 
     @_never_raises
+    def log_driver(self, t: float, driver: int, hand_nm: float = float("nan")) -> bool:
+        """Who drives the follower from t [s] on (schemas.DRIVER_POLICY / DRIVER_OPERATOR), on a change only;
+        hand_nm: the hand's torque on the leader then [N*m]."""
+        return self._numeric(S.ROLLOUT_DRIVER, S.TOPIC_ROLLOUT_DRIVER, t, (int(driver), R.num(hand_nm)), ())
+
+    @_never_raises
     def log_loop_timing(self, t: float, period_s: float, busy_s: float, late_s: float, overruns: int) -> bool:
         return self._numeric(S.LOOP_TIMING, S.TOPIC_LOOP, t,
                              (float(period_s), float(busy_s), float(late_s), int(overruns)), ())

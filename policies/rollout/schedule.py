@@ -184,6 +184,8 @@ class ChunkSchedule:
     nonfinite: int = 0
     outside_limits: int = 0
     problem: Reason | None = None  # the newest chunk's problem: holds until a good chunk arrives
+    t_obs_min: float = -math.inf  # s: a chunk observed before this is dropped (restart: a hand-back)
+    stale_dropped: int = 0  # chunks dropped for that
 
     @property
     def period_s(self) -> float:
@@ -199,7 +201,11 @@ class ChunkSchedule:
         return min(horizon, self.k_exec + int(np.ceil(self.stall_s / self.dt)) + 1)
 
     def add(self, chunk: Chunk) -> Reason | None:
-        """Take a chunk; returns why it was refused (and the schedule holds), or None."""
+        """Take a chunk; returns why it was refused (and the schedule holds), or None. A chunk observed before
+        the last restart() is dropped without a word (it was asked for before the operator handed back)."""
+        if chunk.t_obs < self.t_obs_min:
+            self.stale_dropped += 1
+            return None
         why = chunk_problem(chunk.actions, self.q_min, self.q_max, self.tol,
                             self.executable_steps(len(chunk.actions)))
         if why is not None:
@@ -238,3 +244,9 @@ class ChunkSchedule:
         """Forget every chunk (a new episode)."""
         self.chunks.clear()
         self.problem = None
+
+    def restart(self, t_obs_min: float) -> None:
+        """Forget every chunk and refuse any observed before t_obs_min [s] (an operator handed back at that
+        time: the policy re-plans from the arm's state then, and nothing older is ever executed)."""
+        self.clear()
+        self.t_obs_min = float(t_obs_min)

@@ -1,0 +1,394 @@
+"""Operator takeover during a policy rollout (issue #33): the shell around teleop/takeover.py's pure math.
+
+TakeoverPair is a RolloutPair whose leader is no longer passive: every tick it gets teleop's own leader law
+(gravity, friction, barrier, the force feedback with teleop's gating and caps: LeaderLaw.step) plus, while the
+policy drives, the weak following spring toward the follower (capped by the rig file's follow_tau_max_nm and
+the leader's tau_max, then the leader's safety layer). The follower's target comes from the policy or, after a
+takeover, from the leader through the pair's joint map, as in teleop; a switch fades the gap between the two
+and is rate-limited (handover_target), so no command steps.
+
+Takeover is rollout-wide (one policy moves every arm): the hand on any leader, or the key, hands every
+follower to its leader; hand-back (the key, or every hand at rest for rest_s) asks the policy for a fresh
+chunk at once (PolicyTarget.replan: nothing observed before is executed); the leaders keep driving until it
+is there. A fault (stale data, a motor error) during a handover holds both arms of every pair (make_safe)
+until the episode ends; a fault otherwise holds as a rollout does.
+
+Recording: /rollout/driver on a change (per-tick driver = previous-value hold, exact), "takeover" /
+"handback" events with who did it and the pre-intervention window (docs/recording.md).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import queue
+
+import numpy as np
+
+from factr2_teleop.session.rollout_pair import RUN, PolicyTarget, RolloutPair
+from factr2_teleop.teleop.pair import COUPLED, HOLD, PairHold
+from factr2_teleop.teleop.record import TickRecord
+from factr2_teleop.teleop.takeover import (
+    HANDBACK,
+    OPERATOR,
+    POLICY,
+    TAKEOVER,
+    DetectorState,
+    TakeoverConfig,
+    blend_gripper,
+    blend_weight,
+    detect_step,
+    follow_torque,
+    hand_torque_nm,
+    handover_target,
+    leader_goal,
+    switched,
+)
+from hardware.params import per_joint
+from hardware.reasons import Reason
+from hardware.recording.schemas import DRIVER_OPERATOR, DRIVER_POLICY
+from hardware.types import FollowerCommand
+from policies.rollout.schedule import PolicyHold
+
+TOGGLE_KEY = "o"  # the key (or pedal) that takes over / hands back, in the CLI and the terminal app
+TRACKING_TOL_RAD = 0.01  # rad: the follower "tracks the leader" once its target is this close to the leader's
+
+
+class Takeover:
+    """Who drives every follower of a rollout, and the marks of each intervention. The loop's thread calls
+    sense() from each pair's tick; keys come through `keys` (a queue: TOGGLE_KEY) from any thread.
+    target: the rollout's PolicyTarget; recording: the session's SessionRecording or None."""
+
+    def __init__(self, cfg: TakeoverConfig, target: PolicyTarget, n_pairs: int, recording=None):
+        self.cfg, self.target, self.recording = cfg, target, recording
+        self.keys: queue.SimpleQueue = queue.SimpleQueue()
+        self.state = DetectorState()
+        self.driver = POLICY  # the follower's source this tick
+        self.pending = False  # handed back; the leaders drive until the policy's fresh chunk is there
+        self.held = False  # a fault during a handover held both arms
+        # held (a pedal held down; the twin operator while its script runs): no hand-back at rest, key only
+        self.clutch = False
+        self.count = 0
+        self.marks: list[dict] = []  # per intervention: t_grab, t_takeover, t_tracking, t_handback, by
+        self.hand_nm = [0.0] * n_pairs  # each pair's hand torque at its last tick [N*m]
+        self._q: list = [np.zeros(0)] * n_pairs  # each pair's leader joints at its last tick [rad]
+        self._t_grab = math.nan  # s: the hand torque reached grab_nm (the latency's start)
+        self.t_switch = -math.inf  # s: the follower's source last changed
+        self._armed = False
+
+    # -- what the UI shows --------------------------------------------------------------------------------
+    @property
+    def hand_max_nm(self) -> float:
+        return max(self.hand_nm)
+
+    def press(self) -> None:
+        """The key (or pedal): take over, or hand back (thread-safe)."""
+        self.keys.put(TOGGLE_KEY)
+
+    # -- per tick (the loop's thread) ---------------------------------------------------------------------
+    def sense(self, i: int, now: float, hand_nm: float, q_leader: np.ndarray) -> None:
+        """Pair i's hand torque [N*m] and leader joints [rad] this tick; pair 0 decides for all (from the
+        others' values of their last tick)."""
+        self.hand_nm[i], self._q[i] = hand_nm, q_leader
+        if i == 0:
+            self._decide(now)
+
+    def _decide(self, now: float) -> None:
+        armed = self.target.state == RUN
+        if armed and not self._armed:  # an episode's policy starts: its first driver mark
+            self._log_driver(now, DRIVER_POLICY)
+        if not armed:
+            if self.driver == OPERATOR:
+                self._end(now, "episode end")
+            self.held = False
+            self._drain()
+            self._armed = False
+            return
+        self._armed = True
+        if self.held:
+            self._drain()
+            return
+        hand = self.hand_max_nm
+        if self.driver == POLICY and hand >= self.cfg.grab_nm and not math.isfinite(self._t_grab):
+            self._t_grab = now
+        elif hand < self.cfg.release_nm and self.driver == POLICY:
+            self._t_grab = math.nan
+        if self._drain():
+            event = TAKEOVER if self.state.driver == POLICY else HANDBACK
+            by = "key"
+        elif self.driver == OPERATOR and self.clutch:
+            self.state, event, by = switched(OPERATOR), None, ""
+        else:
+            q = self._q[0] if len(self._q) == 1 else np.concatenate(self._q)
+            self.state, event = detect_step(self.state, now, hand, q, self.cfg)
+            by = "hand"
+        if event == TAKEOVER:
+            self._take(now, by)
+        elif event == HANDBACK:
+            self._hand_back(now, by)
+
+    def _drain(self) -> bool:
+        """Whether the key was pressed (an odd number of presses since the last tick)."""
+        n = 0
+        while not self.keys.empty():
+            self.keys.get_nowait()
+            n += 1
+        return n % 2 == 1
+
+    def _take(self, now: float, by: str) -> None:
+        self.state = switched(OPERATOR)
+        self.count += 1
+        t_grab = self._t_grab if math.isfinite(self._t_grab) and by == "hand" else now
+        self.marks.append({"t_grab": t_grab, "t_takeover": now, "t_tracking": math.nan,
+                           "t_handback": math.nan, "by": by})
+        self._t_grab = math.nan
+        self.pending = False
+        self._event(now, TAKEOVER, by)
+        if self.driver != OPERATOR:
+            self._set_driver(now, OPERATOR)
+
+    def _hand_back(self, now: float, by: str) -> None:
+        self.state = switched(POLICY)
+        self.marks[-1]["t_handback"] = now
+        self._event(now, HANDBACK, by)
+        self.target.replan(now)
+        self.pending = True
+
+    def _end(self, now: float, by: str) -> None:
+        """The episode ended (or a fault) while the operator drove: the intervention ends there."""
+        if self.marks and not math.isfinite(self.marks[-1]["t_handback"]):
+            self.marks[-1]["t_handback"] = now
+            self._event(now, HANDBACK, by)
+        self.state, self.pending = switched(POLICY), False
+        self._set_driver(now, POLICY)
+
+    def policy_resumes(self, now: float) -> None:
+        """The policy's fresh chunk is there after a hand-back: it drives from this tick."""
+        self.pending = False
+        self._set_driver(now, POLICY)
+
+    def tracking(self, now: float) -> None:
+        """The follower's target reached the leader's pose after the last takeover (latency's end)."""
+        if self.marks and not math.isfinite(self.marks[-1]["t_tracking"]):
+            self.marks[-1]["t_tracking"] = now
+
+    def fault(self, now: float, why: Reason) -> None:
+        """A fault during a handover: both arms of every pair held until the episode ends."""
+        if self.held:
+            return
+        self.held = True
+        logging.getLogger("factr2.teleop").warning("takeover: %s during a handover: every arm held", why)
+        if self.driver == OPERATOR or self.pending:
+            self._end(now, "fault")
+
+    def in_handover(self, now: float) -> bool:
+        """Within a switch's blend, or waiting for the policy after a hand-back."""
+        return self.pending or now - self.t_switch < self.cfg.blend_s
+
+    # -- the recording --------------------------------------------------------------------------------
+    def _set_driver(self, now: float, driver: str) -> None:
+        if driver != self.driver:
+            self.driver = driver
+            self.t_switch = now
+            self._log_driver(now, DRIVER_OPERATOR if driver == OPERATOR else DRIVER_POLICY)
+
+    def _log_driver(self, now: float, code: int) -> None:
+        rec = self.recording
+        if rec is not None and rec.recording:
+            rec.recorder.log_driver(now, code, self.hand_max_nm)
+
+    def _event(self, now: float, kind: str, by: str) -> None:
+        rec = self.recording
+        if rec is not None and rec.recording:
+            rec.recorder.log_event(now, kind, json.dumps({"by": by, "pre_window_s": self.cfg.pre_window_s}),
+                                   self.hand_max_nm)
+
+    def summary(self) -> dict:
+        """Interventions: count, who, and per takeover the latency from the hand torque over its threshold
+        to the switch and to the follower tracking the leader [ms]."""
+        lat = [1e3 * (m["t_tracking"] - m["t_grab"]) for m in self.marks if math.isfinite(m["t_tracking"])]
+        det = [1e3 * (m["t_takeover"] - m["t_grab"]) for m in self.marks]
+        return {"takeovers": self.count, "by": [m["by"] for m in self.marks],
+                "operator_s": float(sum(m["t_handback"] - m["t_takeover"] for m in self.marks
+                                        if math.isfinite(m["t_handback"]))),
+                "detect_latency_ms": det, "tracking_latency_ms": lat}
+
+
+class TakeoverPair(RolloutPair):
+    """A RolloutPair whose leader follows while the policy drives and drives after a takeover (module doc).
+    Without attach() it is a RolloutPair."""
+
+    takeover: Takeover | None = None
+    index = 0
+
+    def attach(self, takeover: Takeover, index: int) -> None:
+        self.takeover, self.index = takeover, int(index)
+
+    def begin(self, clock=None) -> None:
+        super().begin(clock)
+        tc, n = self.cfg.takeover, self.leader.n_joints
+        where = f"{self.cfg.name}.takeover"
+        self._kp = per_joint(tc.follow_kp_nm_rad, n, f"{where}.follow_kp_nm_rad", nonneg=True)
+        self._kd = per_joint(tc.follow_kd_nm_s_rad, n, f"{where}.follow_kd_nm_s_rad", nonneg=True)
+        self._drag = per_joint(tc.follow_drag_nm_s_rad, n, f"{where}.follow_drag_nm_s_rad", nonneg=True)
+        self._lag = per_joint(tc.follow_lag_nm_s_rad, n, f"{where}.follow_lag_nm_s_rad", nonneg=True)
+        cap = per_joint(tc.follow_tau_max_nm, n, f"{where}.follow_tau_max_nm", nonneg=True)
+        self._cap = np.minimum(cap, self.leader.safety.limits.tau_max)  # the leader's limits bound it
+        self.law.reset(self.leader.last_state.q)
+        self._src, self._t_sw = POLICY, -math.inf
+        self._offset = np.zeros(self.follower.n_joints)
+        self._g_off, self._g_cmd = 0.0, None
+        self.hand_nm = 0.0
+        self.tracking_err_rad: list[float] = []  # leader vs follower (leader joints) while the policy drives
+        self._safe = False
+
+    def tick(self, now: float) -> TickRecord:
+        tk = self.takeover
+        if tk is None:
+            return super().tick(now)
+        dt, ls, fs, leader_ok, follower_ok = self._read_both(now)
+        errors = self._check_samples(ls, fs)
+        leader_ok = leader_ok and "leader" not in errors
+        follower_ok = follower_ok and "follower" not in errors
+        goal = leader_goal(self.map.backward(fs.q), ls.q)
+        qd_goal = self.map.backward_velocity(fs.q_dot)
+        ok = leader_ok and follower_ok
+        self.hand_nm = hand_torque_nm(ls.q, goal, qd_goal, self._kp, self._lag,
+                                      self.cfg.takeover.grab_max_speed_rad_s) if ok else 0.0
+        tk.sense(self.index, now, self.hand_nm, ls.q)
+        if follower_ok:
+            self._tick_estimator(now, fs, self.q_target if self.q_target is not None else fs.q)
+        self.sent = None
+        if not ok or tk.held:
+            if not ok and tk.in_handover(now):
+                tk.fault(now, Reason.of(PairHold.DATA_STALE, who="leader" if not leader_ok else "follower",
+                                        age_ms=float("nan")))
+            return self._unsafe(now, ls, fs, leader_ok, tk.held)
+        self._safe = False
+        out, tau_sent = self._lead(now, ls, fs, goal, qd_goal, tk.driver == POLICY)
+        self._follow(now, dt, ls, fs, tk)
+        self.last = self._record(now, ls, fs, tau_sent, out)
+        return self.last
+
+    def _lead(self, now: float, ls, fs, goal, qd_goal, following: bool):
+        """The leader's torque: teleop's law (feedback gated and capped as in teleop) + the spring."""
+        extra = None
+        if following:
+            tau = follow_torque(ls.q, ls.q_dot, goal, qd_goal, self._kp, self._kd, self._drag, self._cap)
+            law = self.law
+            if law.cfg.gravity.enabled:  # the rest of g(q) the law leaves to a hand (gain < 1): no sag
+                tau = tau + (1.0 - law.g_gain) * law.gravity(np.asarray(ls.q, dtype=float))
+            extra = {"follow": np.clip(tau, -self._cap, self._cap)}
+            if self.phase == COUPLED:
+                self.tracking_err_rad.append(float(np.max(np.abs(goal - ls.q))))
+        out = self.law.step(self._leader_inputs(now, ls, fs), feedback_on=self.phase == COUPLED, extra=extra)
+        if out.message:
+            self._say(out.message)
+        return out, self.leader.command_torque(out.tau)
+
+    def _follow(self, now: float, dt: float, ls, fs, tk: Takeover) -> None:
+        """The follower's target from this tick's source, across a switch without a step."""
+        if tk.driver == OPERATOR:
+            q, grip, why = self.map.forward(ls.q), self.map.gripper_forward(ls.gripper_pos), None
+            if tk.pending:
+                qp, gp, _ = self.target_fn(now, fs)
+                if qp is not None:
+                    tk.policy_resumes(now)
+                    q, grip = qp, gp
+        else:
+            q, grip, why = self.target_fn(now, fs)
+        src = tk.driver
+        if q is None:
+            self._policy_hold(why)
+            return
+        prev = self.q_target if self.q_target is not None else np.asarray(fs.q, dtype=float)
+        if src != self._src:  # this pair's source changes: the gap fades over blend_s
+            self._src, self._t_sw = src, now
+            self._offset = prev - np.asarray(q, dtype=float)
+            self._g_off = (self._g_cmd - grip) if (self._g_cmd is not None and grip is not None) else 0.0
+        w = blend_weight(now - self._t_sw, self.cfg.takeover.blend_s)
+        self.q_target = handover_target(q, self._offset, w, prev, self.soft.rate, dt)
+        grip = blend_gripper(grip, self._g_off, w)
+        self._g_cmd = grip if grip is not None else self._g_cmd
+        self.sent = self.follower.command(FollowerCommand(q=self.q_target, gripper=grip))
+        if src == OPERATOR and bool(np.all(np.abs(self.q_target - q) <= TRACKING_TOL_RAD)):
+            tk.tracking(now)
+        self._hold_why = None
+        if self.phase != COUPLED:
+            self.phase = COUPLED
+            self._say(f"follower follows the {'leader' if src == OPERATOR else 'policy'}", logging.INFO)
+
+    def _policy_hold(self, why: Reason) -> None:
+        """The policy has no target (RolloutPair's hold, said once per kind, faults counted)."""
+        if self.phase != HOLD:
+            self.follower.hold(why)
+            self.phase = HOLD
+        kind = why.kind
+        if kind != self._hold_why:
+            if isinstance(kind, PolicyHold) and kind.fault:
+                self.holds[why.key] += 1
+            self._say(f"follower on hold: {why}")
+        self._hold_why = kind
+        self.q_target = None
+
+    def _unsafe(self, now: float, ls, fs, leader_ok: bool, held: bool) -> TickRecord:
+        """Stale data or a motor error: the follower holds; the leader gets zero torque (held: after a fault
+        in a handover, or its own data stale), else teleop's law without the spring (no feedback)."""
+        if held:
+            if not self._safe:
+                self.make_safe(Reason.of(PairHold.LOOP_FAULT))
+                self._safe = True
+                self._say("fault during a handover: both arms held until the episode ends")
+            self.phase, self.q_target = HOLD, None
+            tau = self.leader.command_torque(np.zeros(self.leader.n_joints)) if leader_ok else None
+            self.last = self._record(now, ls, fs, tau if tau is not None else np.zeros(self.leader.n_joints),
+                                     None)
+            return self.last
+        self._policy_hold(Reason.of(PolicyHold.FOLLOWER_STALE))
+        out = None
+        if leader_ok:
+            out = self.law.step(self._leader_inputs(now, ls, fs), feedback_on=False)
+            tau = self.leader.command_torque(out.tau)
+        else:
+            if not self._safe:  # once: a leader that stopped answering may refuse writes too
+                self._safe = True
+                try:
+                    self.leader.zero_torque(Reason.of(PairHold.DATA_STALE, who="leader", age_ms=float("nan")))
+                except Exception as e:  # noqa: BLE001 -- the follower is held already
+                    self._say(f"leader zero torque failed ({type(e).__name__}: {e})")
+            tau = np.zeros(self.leader.n_joints)
+        self.last = self._record(now, ls, fs, tau, out)
+        return self.last
+
+
+def attach_takeover(ts, target: PolicyTarget, keys: queue.SimpleQueue | None = None) -> Takeover:
+    """One Takeover for the session's TakeoverPairs (the first pair's rig-file config), kept on the target
+    (target.takeover: what a UI shows and presses); keys: the queue its key presses come through."""
+    tk = Takeover(ts.pairs[0].cfg.takeover, target, len(ts.pairs), ts.recording)
+    if keys is not None:
+        tk.keys = keys
+    for i, pair in enumerate(ts.pairs):
+        pair.attach(tk, i)
+    target.takeover = tk
+    return tk
+
+
+def takeover_summary(tk: Takeover, pairs, episodes) -> dict:
+    """The rollout's interventions (Takeover.summary), per episode (takeovers, success without one), and
+    the leaders' tracking error while the policy drove [rad, leader joints: max over joints per tick]."""
+    for m in tk.marks:  # the loop stopped with the last episode while the operator drove: it ended there
+        if not math.isfinite(m["t_handback"]):
+            m["t_handback"] = next((e.t_end for e in episodes if e.t_start <= m["t_takeover"] <= e.t_end),
+                                   m["t_takeover"])
+    out = tk.summary()
+    per = [sum(1 for m in tk.marks if e.t_start <= m["t_takeover"] <= e.t_end) for e in episodes]
+    out["per_episode"] = per
+    out["autonomous_successes"] = sum(1 for e, n in zip(episodes, per) if e.outcome == "success" and n == 0)
+    err = np.concatenate([np.asarray(p.tracking_err_rad, float) for p in pairs
+                          if getattr(p, "tracking_err_rad", None)] or [np.zeros(0)])
+    if err.size:
+        out["leader_tracking_err_rad"] = {"p50": float(np.percentile(err, 50)),
+                                          "p99": float(np.percentile(err, 99)), "max": float(err.max()),
+                                          "ticks": int(err.size)}
+    return out

@@ -1,0 +1,182 @@
+"""Operator takeover during a policy rollout (issue #33): pure functions on arrays, and the rig-file config.
+
+While the policy drives, the leader FOLLOWS the follower: a weak spring-damper toward the follower's measured
+pose mapped onto the leader's joints, on top of teleop's own leader law (gravity, friction, barrier, force
+feedback), so the hand feels the policy's motion and its contacts and can overpower the spring at any time:
+
+    tau_follow = cap( kp (q_goal - q) + kd (qd_goal - qd) + drag qd_goal, +-follow_tau_max_nm )
+                                                                          [N*m, leader joints]
+(drag qd_goal: a feed-forward of the back-driven servo gearbox's drag, so the spring is not what moves it)
+
+What the spring holds against is the hand: hand_torque_nm = max_j (|kp_j (q_goal - q)_j| - lag_j |qd_goal_j|)
+[N*m], the spring's torque before its cap less what the leader's lag behind a moving follower explains (it
+cannot accelerate as fast as the follower: a small servo's torque, a back-driven gearbox); at rest it is
+the hand's torque, minus the leader's small uncompensated gravity.
+
+Takeover (detect_step): the hand torque at or above grab_nm for grab_min_s (hysteresis: the timer keeps
+running while it stays above release_nm, and restarts below it); hand-back: the hand torque at most release_nm
+and the leader within rest_tol_rad of where it came to rest, for rest_s (a position window, not a speed: the
+leader's reported velocity chatters with its friction dither while it stands still). A key does either at
+once (the shell's business).
+
+The switch of the follower's target between policy and leader (handover_target) never steps: at the switch
+the gap between the last command and the new source is carried as an offset that fades to zero over blend_s,
+and the result is rate-limited like every coupled teleop tick (soft_start.rate_limit: at most
+rate_limit_rad_s * dt per tick), so the commanded target moves by at most what one tick of teleop would.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from factr2_teleop.teleop.soft_start import rate_limit
+from hardware.params import PerJoint, clamp
+
+POLICY, OPERATOR = "policy", "operator"  # who drives the follower
+TAKEOVER, HANDBACK = "takeover", "handback"  # detect_step's events (and the recording's marks)
+_T_EPS_S = 1e-9  # s: tick times are sums of floats; a duration of exactly N ticks counts as reached
+
+
+@dataclass
+class TakeoverConfig:
+    """The rig file's [teleop.takeover] table (every pair's; one pair's: [teleop.pairs.<pair>.takeover]).
+
+    follow_kp_nm_rad [N*m/rad] / follow_kd_nm_s_rad [N*m*s/rad]: the leader's following spring and damper
+    (low: a hand overpowers it); follow_tau_max_nm [N*m]: its per-joint cap (a few N*m at most; the leader's
+    JointLimits.tau_max and its safety layer bound it further); follow_drag_nm_s_rad [N*m*s/rad]: the
+    velocity feed-forward of the leader's own drag (the twin's GELLO leader lags ~0.4 rad at 3 rad/s without);
+    follow_lag_nm_s_rad [N*m*s/rad]: spring torque per follower speed that is the leader's lag, not a hand.
+    grab_nm / release_nm [N*m]: hand-torque thresholds of the hysteresis; grab_min_s [s]: how long above
+    grab before the hand drives; grab_max_speed_rad_s [rad/s]: the hand is not sensed while the follower moves
+    faster (the leader's lag is no hand: the key takes over); rest_s [s] and rest_tol_rad [rad]: the hand at
+    rest (the leader within this of one pose) this long hands back;
+    blend_s [s]: how long the gap between the two sources fades at a switch; pre_window_s [s]: the seconds
+    of policy control before a takeover the recording marks as the pre-intervention window (Sirius)."""
+
+    follow_kp_nm_rad: PerJoint = 4.0
+    follow_kd_nm_s_rad: PerJoint = 0.1
+    follow_tau_max_nm: PerJoint = 1.5
+    follow_drag_nm_s_rad: PerJoint = 0.2
+    follow_lag_nm_s_rad: PerJoint = 0.15
+    grab_nm: float = 0.3
+    release_nm: float = 0.15
+    grab_min_s: float = 0.1
+    grab_max_speed_rad_s: float = 1.5
+    rest_s: float = 1.0
+    rest_tol_rad: float = 0.03
+    blend_s: float = 0.2
+    pre_window_s: float = 2.0
+
+    def validate(self, where: str = "takeover") -> None:
+        from hardware.errors import ConfigError
+
+        if not 0.0 <= self.release_nm <= self.grab_nm:
+            raise ConfigError(f"needs 0 <= release_nm <= grab_nm, got {self.release_nm}, {self.grab_nm}",
+                              where=where, fix="set release_nm below grab_nm")
+        for name in ("grab_min_s", "grab_max_speed_rad_s", "rest_s", "rest_tol_rad", "blend_s",
+                     "pre_window_s"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"{name} must be >= 0", where=f"{where}.{name}", fix="fix the value")
+
+
+# -- the leader follows the follower --------------------------------------------------------------------
+def leader_goal(q_follower_on_leader: np.ndarray, q_leader: np.ndarray) -> np.ndarray:
+    """The follower's pose on the leader's joints [rad] (JointMap.backward); a leader joint no follower joint
+    depends on (NaN there) is its own goal: no spring on it."""
+    g = np.asarray(q_follower_on_leader, dtype=float)
+    return np.where(np.isfinite(g), g, np.asarray(q_leader, dtype=float))
+
+
+def follow_torque(q: np.ndarray, qd: np.ndarray, q_goal: np.ndarray, qd_goal: np.ndarray, kp: np.ndarray,
+                  kd: np.ndarray, drag: np.ndarray, cap_nm: np.ndarray) -> np.ndarray:
+    """kp (q_goal - q) + kd (qd_goal - qd) + drag qd_goal, clipped per joint to +-cap_nm [N*m]; non-finite
+    terms give 0."""
+    qd_goal = np.nan_to_num(np.asarray(qd_goal, dtype=float))
+    qd_err = qd_goal - np.nan_to_num(np.asarray(qd, dtype=float))
+    tau = kp * (np.asarray(q_goal, dtype=float) - np.asarray(q, dtype=float)) + kd * qd_err + drag * qd_goal
+    return clamp(np.where(np.isfinite(tau), tau, 0.0), -cap_nm, cap_nm)
+
+
+def hand_torque_nm(q: np.ndarray, q_goal: np.ndarray, qd_goal: np.ndarray, kp: np.ndarray,
+                   lag: np.ndarray, max_speed_rad_s: float = np.inf) -> float:
+    """The torque the following spring holds against beyond the leader's lag [N*m]: max over joints of
+    |kp (q_goal - q)| - lag |qd_goal| (uncapped, at least 0; 0 when no joint is finite, and 0 while the
+    follower moves faster than max_speed_rad_s on some joint: a leader that cannot keep up is no hand, and
+    the key takes over then)."""
+    qd = np.abs(np.nan_to_num(np.asarray(qd_goal, dtype=float)))
+    if qd.size and float(qd.max()) > max_speed_rad_s:
+        return 0.0
+    t = np.abs(kp * (np.asarray(q_goal, dtype=float) - np.asarray(q, dtype=float)))
+    t = np.maximum(t - lag * qd, 0.0)
+    t = t[np.isfinite(t)]
+    return float(t.max()) if t.size else 0.0
+
+
+# -- who drives --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DetectorState:
+    """driver: POLICY or OPERATOR; t_above [s]: since when the hand torque has stayed above release_nm after
+    reaching grab_nm (NaN: not); t_rest [s]: since when the hand has been at rest (NaN: not), at the leader
+    pose q_rest [rad]."""
+
+    driver: str = POLICY
+    t_above: float = math.nan
+    t_rest: float = math.nan
+    q_rest: np.ndarray | None = None
+
+
+def detect_step(st: DetectorState, t: float, hand_nm: float, q_leader: np.ndarray, cfg: TakeoverConfig
+                ) -> tuple[DetectorState, str | None]:
+    """One tick of the hand detector at time t [s] (hand_nm [N*m]; q_leader: every leader's joints [rad]):
+    (new state, TAKEOVER / HANDBACK / None)."""
+    if st.driver == POLICY:
+        above = st.t_above
+        if hand_nm >= cfg.grab_nm and not math.isfinite(above):
+            above = t
+        elif hand_nm < cfg.release_nm:
+            above = math.nan
+        if math.isfinite(above) and t - above >= cfg.grab_min_s - _T_EPS_S:
+            return DetectorState(OPERATOR, math.nan, math.nan), TAKEOVER
+        return DetectorState(POLICY, above, math.nan), None
+    q = np.asarray(q_leader, dtype=float)
+    rest, anchor = st.t_rest, st.q_rest
+    near = anchor is not None and bool(np.all(np.abs(q - anchor) <= cfg.rest_tol_rad))
+    if hand_nm > cfg.release_nm or not np.isfinite(q).all():
+        rest, anchor = math.nan, None
+    elif not near:  # comes to rest here (or moved on): the window starts again at this pose
+        rest, anchor = t, q.copy()
+    if math.isfinite(rest) and t - rest >= cfg.rest_s - _T_EPS_S:
+        return DetectorState(POLICY, math.nan, math.nan), HANDBACK
+    return DetectorState(OPERATOR, math.nan, rest, anchor), None
+
+
+def switched(driver: str) -> DetectorState:
+    """The detector's state right after a key switched to `driver` (its timers restart)."""
+    return DetectorState(driver, math.nan, math.nan)
+
+
+# -- the follower's target across a switch -------------------------------------------------------------
+def blend_weight(t_since_s: float, blend_s: float) -> float:
+    """How much of the new source the target is, t_since_s [s] after a switch: 0 -> 1 linearly over
+    blend_s (1 at once when blend_s is 0)."""
+    if blend_s <= 0 or t_since_s >= blend_s:
+        return 1.0
+    return max(0.0, float(t_since_s) / blend_s)
+
+
+def handover_target(q_source: np.ndarray, offset: np.ndarray, w: float, q_prev: np.ndarray,
+                    v_max_rad_s: np.ndarray, dt_s: float) -> np.ndarray:
+    """The follower's target [rad]: the new source plus the switch's remaining gap (1 - w) * offset
+    (offset = last command - source at the switch), rate-limited from q_prev (at most v_max * dt a tick)."""
+    q = np.asarray(q_source, dtype=float) + (1.0 - w) * np.asarray(offset, dtype=float)
+    return rate_limit(q, np.asarray(q_prev, dtype=float), v_max_rad_s, dt_s)
+
+
+def blend_gripper(g_source: float | None, g_offset: float, w: float) -> float | None:
+    """The gripper target [m] across a switch: the source plus (1 - w) of the gap at the switch."""
+    if g_source is None:
+        return None
+    return float(g_source + (1.0 - w) * g_offset)
