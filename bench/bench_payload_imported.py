@@ -5,10 +5,10 @@
 
 1. `factr2 arm import hardware/arms/ur5.urdf --name ur5` into a temporary $FACTR2_ARMS (not a built-in arm).
 2. Its twin (MuJoCo from the same URDF, the default actuator effects of an imported arm: hardware/sim/presets
-   "generic"; mechanical effects off as in calibration/diagnosis/twin_data.py, sensor effects on) replays
-   coverage trajectories in lockstep: a calibration run without payload, then train / held-out runs with an
-   undeclared payload (MASS kg at COM m in the last link's frame) that goes in only through the twin's
-   undeclared-effect hook (its gravity torque inside the drive).
+   "generic"; mechanical effects off as in calibration/diagnosis/twin_data.py unless --mechanical, sensor
+   effects on) replays coverage trajectories in lockstep: a calibration run without payload, then train /
+   held-out runs with an undeclared payload (MASS kg at COM m in the last link's frame) that goes in only
+   through the twin's undeclared-effect hook (its gravity torque inside the drive).
 3. Diagnosis with the imported description (calibration.diagnosis, PinocchioBasis of the imported arm): a
    reference pass on the no-payload runs identifies the arm itself (weak prior REFERENCE_RIDGE), then the
    payload runs are diagnosed with its effects declared and its base parameters as the prior
@@ -42,16 +42,17 @@ S_CURRENT = np.array([0.12, 0.08, 0.12, 0.5, 0.5, 0.5])  # A per N*m: the "drive
 CLEAN = {k: False for k in ("friction", "stribeck", "backlash", "ripple", "thermal", "kt_temperature")}
 
 
-def _rig(folder: Path, body_seed: int):
-    """The imported arm's twin, follower only, mechanical effects off (sensor effects on); its true body
-    (hardware/arms/true_body.py: +-15 % mass, +-1 cm centre of mass per link) drawn from body_seed."""
+def _rig(folder: Path, body_seed: int, mechanical: bool = False):
+    """The imported arm's twin, follower only, mechanical effects off unless `mechanical` (sensor effects
+    on); its true body (hardware/arms/true_body.py: +-15 % mass, +-1 cm centre of mass per link) drawn from
+    body_seed."""
     from hardware.rigs import load_rig
 
     path = folder / "sim-ur5-imported.toml"
     path.write_text('[rig]\nname = "sim-ur5-imported"\ndescription = "imported UR5 twin"\nsimulated = true\n'
                     '[[followers]]\nname = "follower"\ndriver = "sim"\narm = "ur5"\n'
                     f'[twin]\nseed = {body_seed}\nscene = "table"\n[twin.effects]\n'
-                    + "".join(f"{k} = false\n" for k in CLEAN))
+                    + ("" if mechanical else "".join(f"{k} = false\n" for k in CLEAN)))
     return load_rig(path)
 
 
@@ -71,13 +72,14 @@ def _payload_hook(mass: float, com):
     return hook
 
 
-def record(folder: Path, seconds: float, seed: int, hook, body_seed: int = 0) -> dict:
+def record(folder: Path, seconds: float, seed: int, hook, body_seed: int = 0,
+           mechanical: bool = False) -> dict:
     from calibration.next.collect import ContactStop, collect_free_motion
     from calibration.trajectories import arm_coverage_trajectory
     from hardware.connect import open_rig
 
     traj = arm_coverage_trajectory("ur5", minutes=seconds / 60.0, rate_hz=100.0, seed=seed)
-    with open_rig(_rig(folder, body_seed), clock="lockstep", effect=hook, seed=seed) as s:
+    with open_rig(_rig(folder, body_seed, mechanical), clock="lockstep", effect=hook, seed=seed) as s:
         try:
             run = collect_free_motion(s, "follower", traj, move_speed=0.5)
         except ContactStop as e:
@@ -130,6 +132,9 @@ def main() -> int:
     ap.add_argument("--train-s", type=float, default=60.0)
     ap.add_argument("--heldout-s", type=float, default=30.0)
     ap.add_argument("--seed", type=int, default=0, help="trajectory and twin seed of the first run")
+    ap.add_argument("--mechanical", action="store_true",
+                    help="the twin's mechanical effects on too (friction, Stribeck, backlash, ripple, "
+                         "thermal)")
     ap.add_argument("--out", default=str(ROOT / "bench/out/payload_imported.json"))
     args = ap.parse_args()
     com = [float(v) for v in args.com.split(",")]
@@ -141,14 +146,19 @@ def main() -> int:
                    stdout=subprocess.DEVNULL, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     t0 = time.perf_counter()
     s = args.seed
-    calib = record(tmp, args.train_s, s, None, s)
-    plain_held = record(tmp, args.heldout_s, s + 100, None, s)
+    mech = args.mechanical
+    calib = record(tmp, args.train_s, s, None, s, mech)
+    plain_held = record(tmp, args.heldout_s, s + 100, None, s, mech)
     hook = _payload_hook(args.mass, com)
-    train, held = record(tmp, args.train_s, s + 1, hook, s), record(tmp, args.heldout_s, s + 101, hook, s)
+    train = record(tmp, args.train_s, s + 1, hook, s, mech)
+    held = record(tmp, args.heldout_s, s + 101, hook, s, mech)
+    # the coverage recipe always sweeps every joint alone first (79 s on the UR5), so a run is never shorter
+    lengths = [float(r["t"][-1] - r["t"][0]) for r in (calib, plain_held, train, held)]
     print(f"twin runs recorded in {time.perf_counter() - t0:.0f} s (one unit: true body seed {s}; trajectory "
-          f"and noise seeds {s}, {s + 100} without payload, {s + 1}, {s + 101} with it)", flush=True)
+          f"and noise seeds {s}, {s + 100} without payload, {s + 1}, {s + 101} with it; "
+          f"{', '.join(f'{x:.0f}' for x in lengths)} s long)", flush=True)
     truth = {"mass_kg": args.mass, "com_m": com}
-    out = {"truth": truth, "seed": s, "cases": {}}
+    out = {"truth": truth, "seed": s, "mechanical_effects": mech, "run_lengths_s": lengths, "cases": {}}
     from calibration.next.scaled_prior import fit_scaled_prior
 
     c = calib
