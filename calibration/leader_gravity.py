@@ -7,10 +7,14 @@ docs/twin.md). Here the leader holds each pose under a PD on its own joints (cur
 once from below and once from above so that static friction cancels in the mean, and the torque that holds
 it is gravity. Gravity is linear in each link's mass and first moment (m, m c_x, m c_y, m c_z):
 g(q) = Y_g(q) p, so p is a least-squares fit, pulled toward the description's values (a Gaussian prior,
-PRIOR_MASS_FRAC / PRIOR_COM_M) for the combinations the poses do not pin down.
+PRIOR_MASS_FRAC / PRIOR_COM_M) for the combinations the poses do not pin down. Gravity sees only some
+combinations of the parameters (none of a base link turning about a vertical axis, nor a link's mass at its
+own joint): the fit is mapped back so that what gravity never sees stays as described
+(described_where_unidentified).
 
 Pure math (arrays in, arrays out): hold_poses, hold_torque, gravity_regressor, fit_gravity_params,
-rest_residual, model_with_params. The thin shell measure_holds drives a connected Leader (hardware.roles).
+gravity_null_space, described_where_unidentified, rest_residual, model_with_params. The thin shell
+measure_holds drives a connected Leader (hardware.roles).
 The result is a JSON file the leader law loads (factr2_teleop.teleop.leader_law.arm_model_fns): see
 docs/teleop.md "Leader gravity identification" for where it lives.
 """
@@ -38,6 +42,10 @@ LOAD_FRAC = 0.6
 # a hold is kept when the leader came to rest near its pose without touching its torque limit
 HOLD_TOL_RAD = 0.15
 SATURATED_FRAC = 0.97
+# ... and its two approaches (from below, from above) came to rest this close together: near a balanced pose
+# (gravity turning over) the PD settles on either side and their mean torque is not gravity (the twin's
+# UR5-size GELLO: 0.14 rad and 1.5 N*m apart on J2 at one pose, 0.03 rad where the hold is good)
+APPROACH_AGREE_RAD = 0.1
 
 
 @dataclass(frozen=True)
@@ -128,12 +136,49 @@ def fit_gravity_params(Y: np.ndarray, tau: np.ndarray, p0: np.ndarray, sigma_nm:
     return p.reshape(p0.shape)
 
 
-def good_holds(q_rest: np.ndarray, tau: np.ndarray, poses: np.ndarray, tau_max: np.ndarray) -> np.ndarray:
-    """(K,) bool: the hold came to rest within HOLD_TOL_RAD of its pose on every joint and no joint's
-    torque reached SATURATED_FRAC of its limit (a saturated hold is not gravity)."""
+def gravity_null_space(model, q_min: np.ndarray, q_max: np.ndarray, n_poses: int = 64, seed: int = 0,
+                       rtol: float = 1e-9) -> np.ndarray:
+    """(4 L, k) orthonormal directions of the (m, m c) parameters that gravity never sees (SVD of the
+    regressor stacked over n_poses random poses within the limits [rad]): e.g. every parameter of a link
+    turning about a vertical axis, a link's mass at its own joint, a distal mass on a parallel axis that a
+    proximal first moment stands in for. Holds cannot identify these; only the identifiable (base)
+    combinations -- the rest of the space -- are."""
+    lo = np.where(np.isfinite(q_min), q_min, -np.pi)
+    hi = np.where(np.isfinite(q_max), q_max, np.pi)
+    Q = np.random.default_rng(seed).uniform(lo, hi, size=(n_poses, len(lo)))
+    a = gravity_regressor(model, Q)
+    a = a.reshape(-1, a.shape[-1])
+    _, sv, vt = np.linalg.svd(a, full_matrices=True)
+    rank = int(np.sum(sv > rtol * sv[0])) if sv.size else 0
+    return vt[rank:].T
+
+
+def described_where_unidentified(params: np.ndarray, p0: np.ndarray, null: np.ndarray,
+                                 mass_frac: float = 1e-3 * PRIOR_MASS_FRAC,
+                                 com_m: float = PRIOR_COM_M) -> np.ndarray:
+    """The fit mapped back to link parameters: among all (L, 4) parameter sets with the same gravity at every
+    pose (params + null z, null from gravity_null_space) the one closest to the description p0 with the
+    masses held stiffly (prior widths mass_frac m0 and com_m m0): a mass the holds cannot see stays the
+    described one -- positive -- and the identifiable change sits in the first moments that carry it. The
+    gravity g(q) is the fit's (to rounding), so the residuals of a fit do not change."""
+    p, p0 = np.asarray(params, float), np.asarray(p0, float)
+    if null.shape[1] == 0:
+        return p.copy()
+    m0 = np.maximum(p0[:, 0], 1e-3)
+    w = 1.0 / np.column_stack([mass_frac * m0] + [com_m * m0] * 3).reshape(-1)
+    z = np.linalg.lstsq(w[:, None] * null, -w * (p - p0).reshape(-1), rcond=None)[0]
+    return p + (null @ z).reshape(p.shape)
+
+
+def good_holds(q_rest: np.ndarray, tau: np.ndarray, poses: np.ndarray, tau_max: np.ndarray,
+               spread: np.ndarray | None = None) -> np.ndarray:
+    """(K,) bool: the hold came to rest within HOLD_TOL_RAD of its pose on every joint, no joint's
+    torque reached SATURATED_FRAC of its limit (a saturated hold is not gravity), and (spread given: (K, n)
+    |q rest from below - q rest from above| [rad]) its two approaches agree within APPROACH_AGREE_RAD."""
     near = np.all(np.abs(np.asarray(q_rest) - np.asarray(poses)) <= HOLD_TOL_RAD, axis=1)
     free = np.all(np.abs(np.asarray(tau)) < SATURATED_FRAC * np.asarray(tau_max, float), axis=1)
-    return near & free
+    agree = True if spread is None else np.all(np.asarray(spread) <= APPROACH_AGREE_RAD, axis=1)
+    return near & free & agree
 
 
 def rest_residual(tau_hold: np.ndarray, g_model: np.ndarray) -> dict:
@@ -210,15 +255,16 @@ def load(path: Path, arm) -> np.ndarray:
 
 # -- the shell on a connected leader ---------------------------------------------------------------------
 def measure_holds(leader, clock, poses: np.ndarray, g_desc, m_diag, rate_hz: float = 250.0,
-                  gains: HoldGains = HoldGains(), progress=None) -> tuple[np.ndarray, np.ndarray]:
+                  gains: HoldGains = HoldGains(), progress=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Hold each pose on `leader` (hardware.roles.Leader, current mode), going there from the first pose
     (home) and approaching it from below then from above. Returns (q at rest (K, n) [rad], holding torque
-    (K, n) [N*m]), each the mean of the two approaches' last measure_s. g_desc(q): the description's gravity
+    (K, n) [N*m], each the mean of the two approaches' last measure_s, and |difference of the two rests|
+    (K, n) [rad]). g_desc(q): the description's gravity
     (feed-forward); m_diag(q): its mass-matrix diagonal (the gains). The leader is left at zero torque.
     progress(k, K) after each pose."""
     dt = 1.0 / rate_hz
     q_prev = np.asarray(leader.read().q, float)
-    q_out, tau_out = [], []
+    q_out, tau_out, spread = [], [], []
     try:
         for k, pose in enumerate(np.atleast_2d(poses)):
             kp, kd = gains.gains(m_diag(pose))
@@ -235,12 +281,13 @@ def measure_holds(leader, clock, poses: np.ndarray, g_desc, m_diag, rate_hz: flo
                 taus.append(tau_m)
                 q_prev = pose
             q_out.append(np.mean(qs, axis=0))
+            spread.append(np.abs(qs[0] - qs[1]))
             tau_out.append(np.mean(taus, axis=0))
             if progress is not None:
                 progress(k + 1, len(poses))
     finally:
         leader.zero_torque("leader gravity identification done")
-    return np.array(q_out), np.array(tau_out)
+    return np.array(q_out), np.array(tau_out), np.array(spread)
 
 
 def _track(leader, clock, q_from, q_to, move_s, settle_s, dt, g_desc, kp, kd, measure_s):
@@ -283,15 +330,16 @@ def identify(leader, clock, arm, n_fit: int = 12, n_check: int = 6, seed: int = 
     poses = hold_poses(lim.q_min, lim.q_max, n_fit + n_check, seed=seed, q_home=arm.q_home, g_fn=g_desc,
                        tau_max=lim.tau_max)
     t0, c0 = time.monotonic(), clock.now()
-    q, tau = measure_holds(leader, clock, poses, g_desc, m_diag, rate_hz, gains, progress)
-    ok = good_holds(q, tau, poses, lim.tau_max)
+    q, tau, spread = measure_holds(leader, clock, poses, g_desc, m_diag, rate_hz, gains, progress)
+    ok = good_holds(q, tau, poses, lim.tau_max, spread)
     fit, check = ok & (np.arange(len(q)) < n_fit), ok & (np.arange(len(q)) >= n_fit)
     if fit.sum() < 3 or check.sum() < 1:
         raise DeviceError(f"only {int(ok.sum())} of {len(q)} poses could be held", where=arm.name,
                           fix="check the leader's torque limits and offsets, then run it again")
     p0 = description_params(model)
     Y = gravity_regressor(model, q)
-    params = fit_gravity_params(Y[fit], tau[fit], p0)
+    null = gravity_null_space(model, lim.q_min, lim.q_max, seed=seed)
+    params = described_where_unidentified(fit_gravity_params(Y[fit], tau[fit], p0), p0, null)
     fitted = model_with_params(model, params)
     fdata = fitted.createData()
     g_fit = np.array([pin.computeGeneralizedGravity(fitted, fdata, qq) for qq in q[check]])

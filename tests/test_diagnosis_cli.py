@@ -232,3 +232,33 @@ def test_recordings_name_their_arms_in_the_session_metadata(tmp_path):
     record_session(path, n=300, dt=0.01, episodes=1, cameras=False, contact=False, metadata=meta).close()
     segs = load_segments(path)
     assert segs[0].arm == "piper" and len(segs[0].arm_sha256) == 64
+
+
+def test_cli_declared_report_of_an_arm_is_its_prior(tmp_path, capsys):
+    """With an arm description, a report carries the base parameters it identified; --declared of it pulls the
+    next diagnosis toward them (the arm before a change), and a report of another arm is one line, exit 2."""
+    pin = pytest.importorskip("pinocchio")
+    from calibration.diagnosis.synthetic import pinocchio_arm
+
+    model = pin.buildSampleModelManipulator()
+    paths = []
+    for s in range(2):
+        g = pinocchio_arm(model, None, 1, 8.0, seed=s)
+        p = tmp_path / f"run{s}.npz"
+        np.savez(p, t=g.t, q=g.q, qd=g.qd, q_cmd=g.q, tau_m=g.tau)
+        paths.append(str(p))
+    first = tmp_path / "ref"
+    arm = ["--arm", "pinocchio-sample", "--no-plots"]
+    assert main(["diagnose", *paths, *arm, "--prior-weight", "0.001", "--out", str(first)]) == 0
+    rigid = json.loads((first / "report.json").read_text())["rigid_parameters"]
+    assert rigid["prior_weight"] == 0.001 and len(rigid["theta"]) == len(rigid["columns"])
+    capsys.readouterr()
+    assert main(["diagnose", *paths, *arm, "--declared", str(first / "report.json"),
+                 "--out", str(tmp_path / "second")]) == 0
+    assert "prior: the base parameters identified in ref/report.json" in capsys.readouterr().out
+    bad = tmp_path / "bad.json"
+    other = {**rigid, "columns": rigid["columns"][1:]}
+    bad.write_text(json.dumps({"effects": [], "rigid_parameters": other}))
+    assert main(["diagnose", *paths, *arm, "--declared", str(bad), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not this arm's" in err[0], err

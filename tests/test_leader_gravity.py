@@ -114,3 +114,22 @@ def test_cli_bad_input_is_one_line_and_exit_2(capsys):
     assert main(["leader-gravity", "--rig", "sim-piper", "--poses", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 3 and "Traceback" not in "".join(err)
+
+
+def test_what_gravity_never_sees_stays_as_described(gello):
+    """A fit's parameters mapped back (gravity_null_space, described_where_unidentified): the same gravity
+    at every pose, and a mass the holds cannot see (J1 turns about the vertical: link 1's mass) is the
+    description's -- a fit that moved it to -1 kg (what `factr2 leader-gravity` refused) is repaired."""
+    arm, model = gello
+    lim = arm.limits
+    null = lg.gravity_null_space(model, lim.q_min, lim.q_max)
+    p0 = lg.description_params(model)
+    assert 0 < null.shape[1] < p0.size
+    fit = p0 * 1.1
+    fit[0, 0] = -1.0  # link 1's mass: gravity never sees it
+    mapped = lg.described_where_unidentified(fit, p0, null)
+    assert mapped[0, 0] == pytest.approx(p0[0, 0]) and np.all(mapped[:, 0] > 0)
+    Q = lg.hold_poses(lim.q_min, lim.q_max, 8, seed=3)
+    Y = lg.gravity_regressor(model, Q)
+    np.testing.assert_allclose(Y @ mapped.reshape(-1), Y @ fit.reshape(-1), atol=1e-10)
+    lg.model_with_params(model, mapped)  # accepted

@@ -13,6 +13,15 @@ reduced to base parameters by QR with column pivoting on a stack of regressors a
 identifiable combinations), shared by all joints. Physical consistency: the fit is regularised toward the
 nominal base parameters of the description (ridge on theta - theta_nominal), so poorly excited combinations
 stay at their nominal, physically consistent values instead of drifting to arbitrary ones.
+
+A payload on the last link is a change of that link's inertial parameters: its columns (payload_columns) lie
+in the span of the base regressor (measured on the UR5: residual 0 after projection). So the data alone cannot
+tell a payload from an error of the description's last links; only the prior can. Pulled toward the CAD
+description, every difference between the real wrist and its CAD values is reported as payload (the twin's
+true body, +-15 % mass and +-1 cm centre of mass per link, put a 2 kg payload at -8 % and its position 16 %
+off). `reference_prior` pulls toward the arm as identified on a run without the change instead (a
+calibration run, fitted with the weak REFERENCE_RIDGE: a coverage trajectory excites every base parameter),
+so what is found is the change since then.
 """
 
 from __future__ import annotations
@@ -136,6 +145,20 @@ def select_ridge(basis: DataBasis, segments: list[Segment], grid=RIDGE_GRID, joi
         idx = blocks[0][j][0]
         basis.ridge[idx] = chosen[j]
     return chosen
+
+
+REFERENCE_RIDGE = 1e-3  # prior weight of a reference identification (UR5 twin: held-out L1 of the shoulder
+# 0.022 N*m at 1e-3, 0.321 at the default 1.0, which holds the base parameters at the CAD description's)
+
+
+def reference_prior(basis: PinocchioBasis, theta, columns) -> None:
+    """Pull `basis` toward base parameters identified on a reference run (the arm before a change: a
+    payload, a new tool) instead of the description's. theta: their values, columns: the base-regressor
+    columns they belong to (ValueError when they are not this basis' columns: another arm or version)."""
+    if list(columns) != [int(c) for c in basis.cols] or len(theta) != basis.n_params:
+        raise ValueError(f"{len(theta)} base parameters of columns {list(columns)[:4]}..., this arm has "
+                         f"{basis.n_params} of columns {basis.cols.tolist()[:4]}...")
+    basis.prior = np.asarray(theta, float).copy()
 
 
 class PinocchioBasis:

@@ -45,7 +45,18 @@ def to_json(dg: Diagnosis, meta: dict) -> dict:
                    "heldout_l1_mean": _mean_l1(first.heldout_l1)},
         "after": {"heldout_l1": l1_after.tolist(), "heldout_rms": rms_after.tolist(),
                   "heldout_l1_mean": _mean_l1(l1_after)},
+        **_rigid(dg.model),
     }
+
+
+def _rigid(model) -> dict:
+    """The identified base parameters of an arm description's regressor (basis.reference_prior reads them
+    back: `factr2 diagnose --declared` of this report pulls toward this arm, not the description)."""
+    cols = getattr(model.basis, "cols", None)
+    if cols is None:
+        return {}
+    return {"rigid_parameters": {"columns": [int(c) for c in cols], "theta": model.theta.tolist(),
+                                 "prior_weight": float(model.basis.ridge)}}
 
 
 def headline(dg: Diagnosis, names: list, meta: dict) -> str:

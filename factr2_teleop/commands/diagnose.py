@@ -37,11 +37,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--abs-gain", type=float, default=0.005,
                    help="minimum absolute gain as a fraction of the joint's held-out RMS target (0.005)")
     p.add_argument("--prior-weight", type=float, default=1.0,
-                   help="with --arm: ridge weight pulling base parameters toward the description's (1.0)")
+                   help="with --arm: ridge weight pulling base parameters toward the description's (1.0); "
+                        "0.001 on a reference run (a calibration trajectory identifies the arm itself)")
     p.add_argument("--max-effects", type=int, default=20)
     p.add_argument("--declared", metavar="REPORT.json",
                    help="effects already known (a first pass: the `effects` of an earlier report.json); "
-                        "fitted from the start, not counted as found")
+                        "fitted from the start, not counted as found. With --arm, the base parameters that "
+                        "run identified become the prior: a payload is then the change since that run")
     p.add_argument("--no-plots", action="store_true")
 
 
@@ -130,7 +132,9 @@ def _declared(path: str, basis, n: int) -> list:
 
     fix = "pass the report.json an earlier `factr2 diagnose` wrote"
     try:
-        items = json.loads(Path(path).read_text())["effects"]
+        rep = json.loads(Path(path).read_text())
+        items = rep["effects"]
+        _reference(rep, basis, path)
         effects = [Effect.from_json(d, ref=basis.prior.copy()) for d in items]
     except OSError as e:
         raise UserError(f"cannot read it: {e.strerror}", where=path, fix=fix) from None
@@ -145,6 +149,22 @@ def _declared(path: str, basis, n: int) -> list:
         raise UserError(f"{scaled[0].family} needs an arm description (its feature is the rigid part)",
                         where=path, fix="add --arm, or remove that effect from the declared report")
     return effects
+
+
+def _reference(rep: dict, basis, path: str) -> None:
+    """The arm as an earlier run identified it (report.json `rigid_parameters`), as the prior of the rigid
+    part (calibration.diagnosis.basis.reference_prior), when both runs use the same arm description."""
+    rigid = rep.get("rigid_parameters")
+    if rigid is None or not hasattr(basis, "cols"):
+        return
+    from calibration.diagnosis.basis import reference_prior
+
+    try:
+        reference_prior(basis, rigid["theta"], rigid["columns"])
+    except ValueError as e:
+        raise UserError(f"its base parameters are not this arm's ({str(e)[:120]})", where=path,
+                        fix="declare a report of the same arm description, or pass --arm none") from None
+    print(f"prior: the base parameters identified in {_short(path)} (not the description's)")
 
 
 def _short(path: str) -> str:

@@ -38,6 +38,9 @@ PIPER_GAINS = [0.06, 0.08, 0.08, 0.03, 0.03, 0.02]  # K_f, leader N*m per follow
 SURFACE_NORMAL = np.array([0.0, 0.0, 1.0])  # table normal (world, up)
 LAG_GRID_S = 0.001  # s: feedback lag resolution
 SETTLE_S = 1.0  # s: the hand holds the leader still at the start (soft start)
+# leaders whose joints ABOVE / PRESS are written for; any other arm's poses come from its description
+# (factr2_teleop/demo/poses.py)
+TASK_LAYOUT_LEADERS = ("gello_piper", "gello_yam")
 
 
 @dataclass
@@ -81,14 +84,15 @@ class DemoConfig:
                              next_worker=self.next_worker)
 
 
-def task_script(q_home: np.ndarray, seconds: float) -> OperatorScript:
+def task_script(q_home: np.ndarray, seconds: float, above: np.ndarray = ABOVE,
+                press: np.ndarray = PRESS) -> OperatorScript:
     """Task cycles (free, reach, contact, wipe, release) filling `seconds`; shorter runs get one scaled
-    cycle (>= 5 s recommended so that there is contact)."""
+    cycle (>= 5 s recommended so that there is contact). above / press: leader joints [rad]."""
     cycle = sum(CYCLE_S.values())
     seconds = max(seconds - SETTLE_S, 1.0)
     n = max(1, int(seconds // cycle))
     scale = seconds / (n * cycle)
-    one = make_task_script(q_home, ABOVE, PRESS, WIPE_AMP, free_s=CYCLE_S["free"] * scale,
+    one = make_task_script(q_home, above, press, WIPE_AMP, free_s=CYCLE_S["free"] * scale,
                            reach_s=CYCLE_S["reach"] * scale, contact_s=CYCLE_S["contact"] * scale,
                            wipe_s=CYCLE_S["wipe"] * scale, release_s=CYCLE_S["release"] * scale)
     # the hand holds still first, as an operator does while the soft start brings the follower over
@@ -221,7 +225,7 @@ class DemoRun:
         world = s.twin.devices[fspec.name].world
         self._gt_world, self._gt_bank = world, world.banks.index(s.twin.bank(fspec.name))
         self._model_fns = (self.pair.law.gravity_fn, self.pair.law.jacobian_fn)
-        self.script = task_script(self.leader.read().q, cfg.seconds)
+        self.script = task_script(self.leader.read().q, cfg.seconds, *self._task_poses(s, fspec, world))
         self.operator = VirtualOperator(self.script, cfg.hand_stiffness, cfg.hand_damping,
                                         cfg.hand_tau_max_nm,
                                         jacobian_fn=self.pair.law.jacobian_fn, surface_normal=SURFACE_NORMAL,
@@ -234,6 +238,17 @@ class DemoRun:
         self._tick_n = 0
         self._truth_every = cfg.truth_every or (1 if cfg.clock == "lockstep" else 2)
         self.wall_s = self.cpu_s = float("nan")
+
+    def _task_poses(self, s, fspec, world) -> tuple[np.ndarray, np.ndarray]:
+        """ABOVE / PRESS for the leaders they are written for; else derived from the follower's description
+        when its leader copies its joints (a generated GELLO)."""
+        from hardware.arms import load_arm
+
+        if s.rig.leaders[0].arm in TASK_LAYOUT_LEADERS or self.leader.n_joints != self.n:
+            return ABOVE, PRESS
+        from factr2_teleop.demo.poses import derived_task_poses
+
+        return derived_task_poses(load_arm(fspec.arm), world.model)
 
     def _on_tick(self, rec: TickRecord) -> None:
         with sim_cpu.simulated():  # the simulated hand and the metrics' ground truth: not the app's CPU
