@@ -14,6 +14,9 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from factr2_teleop.commands._twin_fault import add_twin_fault_argument, twin_faults
+from factr2_teleop.session.teleop import message_lines
+
 if TYPE_CHECKING:
     from factr2_teleop.session.rollout_report import RolloutResult
 
@@ -47,6 +50,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--force", action="store_true", help="roll out on a task the policy's demonstrations "
                         "did not come from (refused without it)")
     parser.add_argument("--json", type=Path, default=None, help="write the summary JSON here")
+    add_twin_fault_argument(parser)
 
 
 def summary_lines(out: RolloutResult) -> list[str]:
@@ -76,7 +80,7 @@ def summary_lines(out: RolloutResult) -> list[str]:
               f"{'wall time':>26s}  {out.wall_s:.0f} s"]
     if out.recording:
         lines.append(f"{'recording':>26s}  {out.recording}")
-    return lines
+    return lines + message_lines(out.messages)
 
 
 def _holds(holds) -> str:
@@ -123,7 +127,8 @@ def run(args) -> int:
     opts = RolloutOptions(rig=args.rig, policy=args.policy, task=args.task, episodes=args.episodes,
                           seed=args.seed, record=args.record, max_seconds=args.max_seconds, next=args.next,
                           realtime=args.realtime, mode=args.mode, schedule=args.schedule,
-                          ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks, force=args.force)
+                          ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks, force=args.force,
+                          faults=twin_faults(args))
     if args.force and args.task:
         from factr2_teleop.session.task_check import task_mismatch
         from policies.checkpoint import read_meta

@@ -41,6 +41,7 @@ class FaultOutcome:
     follower_q_sent: np.ndarray | None = None  # (n, joints) follower position commands on the wire [rad]
     follower_t_sent: np.ndarray | None = None  # (n,) when each was issued [s, rig clock]
     follower_q_read: np.ndarray | None = None  # (ticks, joints) the follower positions the pair used [rad]
+    device_notes: list = field(default_factory=list)  # the drivers' warnings (a leader servo rebooted, ...)
 
 
 def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-piper") -> FaultOutcome:
@@ -76,6 +77,7 @@ def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-
     out.follower_q_sent, out.follower_t_sent, out.follower_q_read = qf, tf, np.array(q_read)
     out.safe_at_end = bool(len(hold) and hold[-1] and len(tau_l) and np.all(tau_l[-1] == 0.0))
     out.jumps_rejected = run.leader.safety.jumps_rejected + run.follower.safety.jumps_rejected
+    out.device_notes = [w for d in (run.leader, run.follower) for w in getattr(d, "warnings", [])]
     starts = [e for e in out.log if e["event"] == "start"]
     ends = {e["kind"] + repr(e.get("joint")): e["t_s"] for e in out.log if e["event"] == "end"}
     t_last = phases[-1][0] if phases else -np.inf  # the loop's last tick: the stop's hold comes after it

@@ -94,6 +94,9 @@ class SessionRecording:
         if session.cameras and start_cameras is not None:
             meta["cameras"] = ",".join(session.cameras)
         rec = Recorder(p, joint_names=names, metadata=meta, t0=session.clock.now())
+        faults = getattr(session.twin, "faults", None)
+        if faults is not None:  # SIMULATED disk_full fills this recording's filesystem (sim/faults.py)
+            faults.recording_dir = p.parent
         return cls(rec, session, pairs, rate_hz, start_cameras=start_cameras)
 
     @property

@@ -79,6 +79,7 @@ class RolloutOptions:
     lean: bool | None = None
     force: bool = False  # roll out on another task than the demonstrations' (session/task_check.py)
     ema: bool = True  # the checkpoint's moving-average weights where it has them (else the trained ones)
+    faults: list | None = None  # hardware.sim.faults.FaultSpec the twin plays (None: the rig's [twin] faults)
 
 
 # -- the NEXT checkpoint the policy was trained with -----------------------------------------------------
@@ -273,7 +274,7 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
     # to hand the GIL to), as the demo does: in real time a pty thread costs the loop its p99 period
     transport = "inprocess" if rig.simulated else None
     with open_rig(rig, clock="realtime" if plan.realtime else "lockstep", seed=opts.seed,
-                  dynamixel_transport=transport) as s:
+                  dynamixel_transport=transport, faults=opts.faults) as s:
         clock = s.clock
         if plan.realtime and s.twin is not None:  # the loop's thread steps the twin (as the demo does)
             s.twin.stop_realtime()
@@ -340,6 +341,8 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
         holds = sum((p.holds for p in ts.pairs), Counter())
         clipped = sum(int(p.follower.safety.clipped) for p in ts.pairs)
         feedback = ts.pairs[0].mode
+        messages = list(ts.loop.snapshot().messages)
+        faults = list(s.twin.faults.log) if s.twin is not None and s.twin.faults is not None else []
     res = eps.results
     out = RolloutResult(
         simulated=rig.simulated, rig=rig.name, task=task.name if task else None, policy=str(runner.path),
@@ -353,7 +356,7 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
         mean_progress=float(np.mean([r.progress for r in res])) if res else 0.0,
         stage_rates={s: float(np.mean([r.stages.get(s) is not None for r in res])) if res else 0.0
                      for s in stages},
-        recording=rec_path, arms=[a.arm for a in arms])
+        recording=rec_path, arms=[a.arm for a in arms], messages=messages, faults=faults)
     wire = wire_summary(wires)
     out.timing = timing_summary(periods, runner.latencies_s, target.ages_s, plan.realtime, ts.rate_hz)
     out.timing.update({"commands_sent": wire["commands_sent"],
