@@ -107,7 +107,10 @@ def _load_and_answer(conn, path: str, arm: str, n: int, loop_period_s: float) ->
         except (EOFError, OSError):
             return  # the loop closed the pipe or its process ended
         est = adapter.update(unpack_sample(buf, n))
-        conn.send_bytes(pack_result(est, adapter.ood_count, time.process_time() - c0, n))
+        try:
+            conn.send_bytes(pack_result(est, adapter.ood_count, time.process_time() - c0, n))
+        except OSError:  # the loop closed the pipe meanwhile (it stopped, or gave up on us): done, quietly
+            return
 
 
 # -- the loop's side ---------------------------------------------------------------------------------

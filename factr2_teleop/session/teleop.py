@@ -143,7 +143,7 @@ class TeleopSession:
         cams = self.cameras
         if cams is not None:
             for t, _name, text in cams.take_events():
-                self.loop.say("cameras", text)
+                self.loop.say("cameras", text, t)  # when the camera was asked (its thread may lag)
                 if rec is not None:
                     rec.recorder.note(t, text)
 

@@ -260,9 +260,10 @@ class TeleopLoop:
                         self._message(now, dev.name, m)
                     self._notes_seen[dev.name] = len(notes)
 
-    def say(self, who: str, text: str) -> None:
-        """A message from beside the pairs (the recording, a camera) into the loop's list, stamped now."""
-        self._message(self.clock.now(), who, text)
+    def say(self, who: str, text: str, t: float | None = None) -> None:
+        """A message from beside the pairs (the recording, a camera) into the loop's list, stamped t [s]
+        (default now)."""
+        self._message(self.clock.now() if t is None else t, who, text)
 
     def _message(self, t: float, who: str, text: str) -> None:
         with self._lock:

@@ -28,6 +28,8 @@ import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 
+from hardware.recording.space import SpaceReserve
+
 STATUS_BYTES = 4096
 STARTING, RUNNING, FINISHED, FAILED = range(4)
 # u64 word offsets in the status block
@@ -90,6 +92,7 @@ class _Writer:
         self.pending: deque = deque()  # (camera, t, future) in arrival order
         self.pool = ThreadPoolExecutor(max(1, int(cfg["encoder_threads"])), thread_name_prefix="factr2-jpeg")
         self.consumed = self.drop_samples = self.drop_frames = 0
+        self.reserve = SpaceReserve(self.path)  # space to end the file complete when the disk fills
 
     def warn(self, text: str) -> None:
         self.status.set_text("warning", text)
@@ -165,6 +168,14 @@ class _Writer:
             self.write_encoded(wait=False)
             now = time.monotonic()
             if now - last_flush >= flush_every:
+                free = self.reserve.low()
+                if free is not None:  # the disk is (nearly) full: the reserve takes what came, then the end
+                    self.reserve.release()
+                    self.write_encoded(wait=True)
+                    st.set_text("error", f"recording stopped: the disk is full ({free >> 10} KiB free) at "
+                                         f"{self.path}; everything up to now was written and the file is "
+                                         "complete")
+                    return "disk full"
                 sync = now - last_sync >= sync_every
                 self.sink.flush(fsync=sync)
                 last_flush = now
@@ -233,21 +244,31 @@ def serve(cfg: dict) -> int:
         ended = w.run()
         w.finish(ended)
         st.set(W_STATE, FINISHED)
+        if ended == "disk full":
+            _drain_until_closed(cfg, st, samples, frames)
         return 0
     except Exception as e:  # noqa: BLE001 -- disk full, device gone: said to the parent in one line
         st.set_text("error", fail_text(cfg["path"], e))
         st.set(W_STATE, FAILED)
-        if w is not None:  # keep the rings moving until the parent closes, so that it never waits on us
-            while not st.get(W_CLOSING) and os.getppid() == cfg["parent_pid"]:
-                samples.take()
-                frames.take()
-                time.sleep(0.01)
+        if w is not None:
+            w.reserve.release()
+            _drain_until_closed(cfg, st, samples, frames)
         return 1
     finally:
+        if w is not None:
+            w.reserve.release()
         try:
             f.close()
         except OSError:
             pass
+
+
+def _drain_until_closed(cfg: dict, st, samples, frames) -> None:
+    """Keep the rings moving (dropping what comes) until the parent closes, so that it never waits on us."""
+    while not st.get(W_CLOSING) and os.getppid() == cfg["parent_pid"]:
+        samples.take()
+        frames.take()
+        time.sleep(0.01)
 
 
 if __name__ == "__main__":
