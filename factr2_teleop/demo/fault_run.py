@@ -82,8 +82,9 @@ def check_recording(path, t_ticks, t_fault: float, error: str | None) -> Recordi
             rec = Recording(path, use_cache=False, write_cache=False)
             t_rec = rec.topic("/follower/joint_state").t
             notes = [e.get("text", "") for e in rec.events if e.get("kind") == "note"]
-    except Exception:  # noqa: BLE001 -- a file that does not open is the outcome measured
-        return RecordingCheck(str(path), False, error, 0, 0, 0)
+    except Exception:  # noqa: BLE001 -- a file that does not open is the outcome measured: all lost
+        n, _ = samples_lost(t_ticks, [], t_fault)
+        return RecordingCheck(str(path), False, error, n, n, 0)
     n, lost = samples_lost(t_ticks, t_rec, t_fault)
     return RecordingCheck(str(path), True, error, n, lost, int(len(t_rec)), notes)
 
@@ -114,7 +115,8 @@ def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-
             err = f"{type(e).__name__}: {e}"
         else:
             err = None
-        status = run.teleop.close_recording("fault run ended") if rec is not None else None
+        finally:  # (also on SIGTERM's interrupt: the file ends complete, as the app's)
+            status = run.teleop.close_recording("fault run ended") if rec is not None else None
         res = run.result()
         out = FaultOutcome(log=list(twin.faults.log) if twin.faults else [],
                            t_offset_s=twin.rig_time() - twin.t,

@@ -39,6 +39,7 @@ from hardware.reasons import Reason, messages, render
 from policies.rollout.schedule import ACT_ENSEMBLE_M, ENSEMBLE, RECEDING, ChunkSchedule
 
 FRAME_WAIT_S = 5.0  # s (wall): lockstep waits this long at most for a camera's frame of now
+FRAME_POLL_S = 0.02  # s (wall): while waiting, look this often whether the renders answered without a frame
 K_EXEC_SHARE = 3  # flow: by default a third of each chunk is executed (10 of 30 steps, 1/3 s at 30 Hz)
 EPISODE_KEYS = ("index", "seed", "outcome", "progress", "stages", "duration_s")  # of each EpisodeResult
 MARK_TIME_LIMIT_S = 60.0  # s: an operator-marked episode without --max-seconds ends unlabelled after this
@@ -146,9 +147,15 @@ class RolloutSession(TeleopSession):
                 if all(now - t <= max_age_s for t, _ in got.values()):
                     return {c: rgb for c, (_, rgb) in got.items()}
                 left = end - time.monotonic()
-                if not wait or left <= 0:
-                    return None
-                self._cond.wait(left)
+                if not wait or left <= 0 or self._renders_done(cameras, now - max_age_s):
+                    return None  # (renders caught up and no fresh frame: a frozen or gone camera)
+                self._cond.wait(min(left, FRAME_POLL_S))
+
+    def _renders_done(self, cameras: list[str], t: float) -> bool:
+        """Every camera's render thread has answered (frame or failure) the snapshot of t [s] or later."""
+        stream = self.cameras
+        done = getattr(stream, "answered_t", None)
+        return done is not None and all(done.get(c, -np.inf) >= t for c in cameras)
 
 
 # -- the whole rollout ----------------------------------------------------------------------------------

@@ -31,6 +31,7 @@ class CollectConfig:
     checkpoint: str | None = None
     cameras: bool = True
     faults: list | None = None  # hardware.sim.faults.FaultSpec the twin plays (None: the rig's [twin] faults)
+    on_session: object = None  # callable(TeleopSession, rig session) before the loop runs (bench/faults.py)
 
 
 def output_paths(cfg: CollectConfig, rig_name: str) -> tuple[Path, Path]:
@@ -89,6 +90,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
         ts.hooks.append(ep.on_tick)
         ts.hooks.append(lambda r: scores.add(r, ep))
         srec = ts.recording
+        if cfg.on_session is not None:
+            cfg.on_session(ts, s)
         try:
             ts.loop.run()
         finally:

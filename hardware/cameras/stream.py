@@ -70,6 +70,7 @@ class CameraStream:
         self._lock = threading.Lock()
         self._observer = None
         self.health: dict[str, CameraHealth] = {}
+        self.answered_t: dict[str, float] = {}  # per twin camera: newest snapshot rendered or failed [s]
         self._fails_in_row: dict[str, int] = {}
 
     # -- lifecycle ------------------------------------------------------------------------------------
@@ -196,11 +197,13 @@ class CameraStream:
                 rgb = cam.render(snap)
             except Exception as e:  # noqa: BLE001 -- a dead render process: stop asking this camera
                 self._fail(name, e, t_req)
+                self.answered_t[name] = t_req
                 if not cam.is_connected or self._fails_in_row.get(name, 0) >= MAX_FAILURES:
                     self._queues.pop(name, None)
                     break
                 continue
             self._deliver(name, snap.t, rgb, t_req)
+            self.answered_t[name] = t_req
         cam.disconnect()
 
     # -- real cameras -----------------------------------------------------------------------------------

@@ -3,7 +3,8 @@ back when the filesystem runs low, so that everything handed over so far, the su
 fit (hardware/recording/writer_process.py). A disk filling mid-session then costs the rest of the session's
 recording, not the last flush interval before it.
 
-    r = SpaceReserve(path)        # .NAME.reserve beside path: min(RESERVE_BYTES, a quarter of the free space)
+    r = SpaceReserve(path)        # the Recorder: .NAME.reserve beside path, min(RESERVE_BYTES, free / 4)
+    r = SpaceReserve(path, create=False)   # the writer process: that file
     if r.low(): r.release()       # checked at every flush: free < LOW_SPACE_BYTES -> finish the file now
 """
 
@@ -22,10 +23,15 @@ def free_bytes(folder) -> int:
 
 
 class SpaceReserve:
-    def __init__(self, path):
+    def __init__(self, path, create: bool = True):
+        """create: make the reserve file now (the Recorder, as it opens the file: the reserve exists before
+        the writer process starts); False: the one made for this path (the writer, which gives it back)."""
         p = Path(path)
         self.path = p.parent / f".{p.name}.reserve"
         self.size = 0
+        if not create:
+            self.size = self.path.stat().st_size if self.path.exists() else 0
+            return
         try:
             size = min(RESERVE_BYTES, free_bytes(p.parent) // 4)
             fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)

@@ -39,6 +39,8 @@ ERROR_AT, WARNING_AT, TEXT_MAX = 128, 1152, 1024
 _U64 = struct.Struct("<Q")
 IDLE_SLEEP_S = 0.002
 FRAMES_PER_PASS = 8
+DISK_FULL_GRACE_S = 0.5  # s: after the disk is found full, records on their way (packed, in the rings) are
+# still written from the space reserve for this long; then the file is finished (hardware/recording/space.py)
 
 
 class SharedStatus:
@@ -92,7 +94,7 @@ class _Writer:
         self.pending: deque = deque()  # (camera, t, future) in arrival order
         self.pool = ThreadPoolExecutor(max(1, int(cfg["encoder_threads"])), thread_name_prefix="factr2-jpeg")
         self.consumed = self.drop_samples = self.drop_frames = 0
-        self.reserve = SpaceReserve(self.path)  # space to end the file complete when the disk fills
+        self.reserve = SpaceReserve(self.path, create=False)  # the Recorder's: to end the file complete
 
     def warn(self, text: str) -> None:
         self.status.set_text("warning", text)
@@ -158,6 +160,7 @@ class _Writer:
         parent = cfg["parent_pid"]
         flush_every, sync_every = cfg["flush_interval_s"], cfg["fsync_interval_s"]
         last_flush = last_sync = time.monotonic()
+        full_at, free = None, 0  # when the disk was found (nearly) full [s, monotonic]
         st.set(W_FLUSH_NS, time.monotonic_ns())
         while True:
             recs = self.samples.take(max_records=4000)
@@ -167,15 +170,18 @@ class _Writer:
                 self.handle(r)
             self.write_encoded(wait=False)
             now = time.monotonic()
-            if now - last_flush >= flush_every:
+            if full_at is None and (recs or frames):
                 free = self.reserve.low()
-                if free is not None:  # the disk is (nearly) full: the reserve takes what came, then the end
+                if free is not None:  # the disk is (nearly) full: the reserve takes what is on its way
                     self.reserve.release()
-                    self.write_encoded(wait=True)
-                    st.set_text("error", f"recording stopped: the disk is full ({free >> 10} KiB free) at "
-                                         f"{self.path}; everything up to now was written and the file is "
-                                         "complete")
-                    return "disk full"
+                    full_at = now
+            if full_at is not None and now - full_at >= DISK_FULL_GRACE_S:
+                self.write_encoded(wait=True)
+                st.set_text("error", f"recording stopped: the disk is full ({free >> 10} KiB free) at "
+                                     f"{self.path}; everything up to then was written and the file is "
+                                     "complete")
+                return "disk full"
+            if now - last_flush >= flush_every:
                 sync = now - last_sync >= sync_every
                 self.sink.flush(fsync=sync)
                 last_flush = now
