@@ -4,7 +4,7 @@ turns its torque back on when it answers without the alert: the session resumes 
 pair holds the follower meanwhile (STATUS_DRIVER_ERROR on that joint).
 
     reb = AlertRebooter()
-    reb.step(bus, t, alerting_ids, answered_ids, torque_on)   # each read that saw an alert or has one pending
+    reb.service(leader, alerting_ids, answered_ids)  # each read that saw an alert or has one pending
     reb.notes                                                 # what it did, in words (the driver's warnings)
 """
 
@@ -65,3 +65,11 @@ class AlertRebooter:
                 continue
             self.rebooted.discard(i)
             self._note(f"servo id {i}: back after its reboot" + (", torque on" if torque_on else ""))
+
+    def service(self, leader, alerting: list[int], answered) -> None:
+        """step() for a DynamixelLeader (its bus, clock and torque state); what it did goes to the leader's
+        warnings (the loop says them)."""
+        seen = len(self.notes)
+        self.step(leader.bus, leader.clock.now(), alerting, answered, leader._torque_on)
+        for text in self.notes[seen:]:
+            leader._warn(f"leader {leader.config.name}: {text}")

@@ -350,7 +350,7 @@ class DynamixelLeader(Leader):
             st.status[alert[:n]] |= np.uint32(STATUS_DRIVER_ERROR)
         if alert.any() or self.alerts.pending:
             ids = self.read_ids
-            self._service_alerts([ids[k] for k in range(m) if alert[k]],
+            self.alerts.service(self, [ids[k] for k in range(m) if alert[k]],
                                  {ids[k] for k in range(m) if fresh[k]})
         if m > n and fresh[n]:
             st.gripper_pos, st.gripper_effort = self._trigger(int(raw[n, 0]))
@@ -379,7 +379,8 @@ class DynamixelLeader(Leader):
         if any(e & p.ERR_ALERT_BIT for e in errs[:n]):
             status[np.array([bool(e & p.ERR_ALERT_BIT) for e in errs[:n]])] |= np.uint32(STATUS_DRIVER_ERROR)
         if self.alerts.pending or any(e & p.ERR_ALERT_BIT for e in errs):
-            self._service_alerts([i for i, e in zip(ids, errs, strict=True) if e & p.ERR_ALERT_BIT], set(ids))
+            alerting = [i for i, e in zip(ids, errs, strict=True) if e & p.ERR_ALERT_BIT]
+            self.alerts.service(self, alerting, set(ids))
         grip_pos, grip_effort = self._trigger(int(raw[n, 0])) if len(ids) > n else (prev.gripper_pos,
                                                                                      prev.gripper_effort)
         nan = self._nan_n
@@ -387,13 +388,6 @@ class DynamixelLeader(Leader):
                           q_dot=self.signs * p.velocity_units_to_rad_s(raw[:n, 1]), tau_m=tau, current=cur,
                           q_cmd=nan.copy(), temperature=nan.copy(), status=status,
                           gripper_pos=grip_pos, gripper_effort=grip_effort)
-
-    def _service_alerts(self, alerting: list[int], answered: set[int]) -> None:
-        """Reboot servos whose alert lasts, torque back on after (alerts.py); said in warnings."""
-        seen = len(self.alerts.notes)
-        self.alerts.step(self.bus, self.clock.now(), alerting, answered, self._torque_on)
-        for text in self.alerts.notes[seen:]:
-            self._warn(f"leader {self.config.name}: {text}")
 
     def _trigger(self, current_units: int) -> tuple[float, float]:
         """(gripper_pos, gripper_effort [N*m]) of the trigger servo just read (its angle in _q_servo)."""
