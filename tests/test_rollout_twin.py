@@ -172,8 +172,8 @@ def test_the_runner_builds_the_input_training_saw(tiny_run):
 
 def test_a_follower_motor_error_holds_the_rollout_and_it_resumes(tiny_run):
     """SIMULATED fault (hardware/sim/faults.py): a follower motor reporting over-temperature holds the
-    policy's
-    follower within one watchdog period, said and counted; the policy drives again once the motor is clear."""
+    policy's follower within one watchdog period, said and counted; the policy drives again once the motor
+    is clear."""
     from hardware.sim.faults import parse_fault
 
     out = run_rollout(_opts(tiny_run, max_seconds=1.0, faults=[parse_fault("motor_overtemp@0.5:0.2")]))
