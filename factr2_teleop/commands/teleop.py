@@ -91,6 +91,7 @@ def _execute(args) -> dict:
     out["messages"] = list(loop.snapshot().messages)  # (t [s], who, text): holds, notes
     twin = session.twin
     out["faults"] = list(twin.faults.log) if twin is not None and twin.faults is not None else []
+    out["twin_t_offset_s"] = twin.rig_time() - twin.t if twin is not None else None  # rig - twin clock [s]
     return out
 
 
