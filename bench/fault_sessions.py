@@ -26,7 +26,6 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 TAIL_S = 1.2  # s of twin time a session runs after its fault ends (to see the recovery)
-REACT_WINDOW_S = 0.1  # s: a hold up to this long after the fault ends is the reaction to it
 SIGNAL_KINDS = ("app_sigterm", "app_sigkill")
 COLLECT_TASK = "peg-insert"
 WRITER_FINISH_S = 15.0  # s: a killed app's writer process finishes the file within this (wall)
@@ -71,7 +70,7 @@ class Watch:
             self.t_ticks.append(r.t)
 
     def outcome(self, status_error=None, error=None) -> dict:
-        from factr2_teleop.demo.fault_run import check_recording
+        from factr2_teleop.demo.fault_run import REACT_WINDOW_S, check_recording
 
         twin = self.s.twin
         log = list(twin.faults.log) if twin.faults is not None else []

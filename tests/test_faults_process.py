@@ -4,6 +4,7 @@ of the app (subprocess runs of `factr2 collect`)."""
 
 from __future__ import annotations
 
+import inspect
 import os
 import subprocess
 import sys
@@ -15,11 +16,13 @@ import numpy as np
 import pytest
 
 from factr2_teleop.demo.fault_run import run_with_faults, samples_lost
+from hardware.recording import Recorder
 from hardware.sim.faults import WALL_STEP_S, parse_fault
 from tests.fault_helpers import run_fault, said
 
 REPO = Path(__file__).resolve().parents[1]
-FLUSH_S = 0.25  # s: the recorder's flush interval (hardware/recording/writer.py Recorder flush_interval_s)
+# s: the recorder's flush interval (its default): what a SIGKILL of app and writer may lose at most
+FLUSH_S = inspect.signature(Recorder).parameters["flush_interval_s"].default
 
 
 def _faults(*texts):
