@@ -86,3 +86,18 @@ def test_frozen_and_gone_camera_are_said_marked_and_used_again_when_back(tmp_pat
     t = rec.frames(cam).t
     assert np.all(np.diff(t) > 0)  # no frame twice
     assert t[-1] > 1.6  # frames again after the unplug
+
+
+def test_camera_health_by_frame_age_is_pure():
+    from hardware.cameras.health import STALE_S, CameraHealth
+
+    h = CameraHealth("c", 0.0)
+    assert h.frame(0.0, 0.0) and h.frame(0.1, 0.1)  # the first frame at the start time is fresh
+    assert not h.frame(0.2, 0.1) and h.take_events() == []  # a repeat: not passed on, not yet stale
+    assert not h.frame(0.1 + STALE_S + 0.01, 0.1)
+    (ev,) = h.take_events()
+    assert ev[0] == 0.1 + STALE_S + 0.01 and "frozen" in ev[1] and h.state == "frozen"
+    assert h.frame(0.6, 0.6) and "back after 0.50 s" in h.take_events()[0][1]
+    h.failed(0.7, "CameraError: x")
+    h.failed(0.6 + STALE_S + 0.01, "CameraError: x")
+    assert h.state == "gone" and h.outages == 2 and h.stale == 2

@@ -21,6 +21,7 @@ class CameraHealth:
     def __init__(self, name: str, t_start: float):
         self.name = name
         self.t_good = float(t_start)  # timestamp of the newest fresh frame [s] (the start until one came)
+        self._t_last = float("-inf")  # timestamp of the newest frame passed on (any first frame is fresh)
         self.state = OK
         self.stale = 0  # frames not passed on: their timestamp was not newer than the newest one
         self.outages = 0  # times the camera stopped being live
@@ -29,12 +30,12 @@ class CameraHealth:
 
     def frame(self, t_req: float, t_frame: float) -> bool:
         """A frame stamped t_frame [s] came for the request at t_req [s]; True: fresh, pass it on."""
-        if t_frame > self.t_good:
+        if t_frame > self._t_last:
             if self.state != OK:
                 self._events.append((t_req, f"camera {self.name}: back after {t_req - self.t_good:.2f} s "
                                             f"without new frames ({self.state})"))
                 self.state = OK
-            self.t_good = t_frame
+            self.t_good = self._t_last = t_frame
             return True
         self.stale += 1
         self._age(t_req, FROZEN, f"the same frame again (newest {1e3 * (t_req - self.t_good):.0f} ms old)")
