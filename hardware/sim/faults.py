@@ -1,4 +1,5 @@
-"""Faults the twin plays on its wires (SIMULATED): a schedule (pure) and the injector that applies it.
+"""Faults the twin plays (SIMULATED): the kinds and their schedule (pure). The injector that applies them is
+hardware/sim/fault_injector.py (Twin builds it), the process kinds' actions hardware/sim/process_faults.py.
 
     specs = [parse_fault("can_busoff@2.0:0.3"), parse_fault("spike_leader@3.5")]   # KIND@T[:DURATION]
     specs = random_schedule(seed=1, kinds=["can_loss", "dxl_unplug"], n=4, t_min_s=1.0, t_max_s=9.0)
@@ -9,8 +10,8 @@ T and DURATION are seconds of twin (sim) time from the twin's start. Each kind a
 CAN emulator or the first leader's Dynamixel emulator, through the fault knobs those emulators already have
 (drop_prob, silent, fault_flags / err, set_hardware_error, corrupt_prob, spike_rad); camera kinds act on
 the cameras of the first follower's world (world.camera_fault, read by hardware/cameras/mujoco_camera.py).
-Process kinds act on this process (hardware/sim/fault_injector.py): the NEXT worker killed, the recording's
-filesystem filled, SIGTERM / SIGKILL of the app, the wall clock stepped.
+Process kinds (PROCESS_KINDS) act on this process: the NEXT worker killed, the recording's filesystem
+filled, SIGTERM / SIGKILL of the app, the wall clock stepped.
 A kind the rig's device cannot play is a ConfigError when the twin is built, not a fault silently skipped.
 """
 
