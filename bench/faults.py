@@ -1,14 +1,22 @@
-"""The fault campaign on the twin (SIMULATED, lockstep, seeded): per fault kind, N sessions of teleop, each
-with one fault at a random time, and what happened (docs/safety.md "Fault campaign").
+"""The fault campaign on the twin (SIMULATED, lockstep, seeded): per activity and fault kind, N sessions with
+one fault each at a random time, and what happened (docs/safety.md "Fault campaign").
 
-    python bench/faults.py --seed 0 --per-kind 3 --activities teleop --json /tmp/faults.json
-    python bench/faults.py --seed 0 --per-kind 20 --kinds can_busoff,dxl_unplug --json OUT
+    python bench/faults.py --seed 0 --per-kind 3 --json /tmp/faults.json
+    python bench/faults.py --seed 0 --per-kind 20 --kinds can_busoff,dxl_unplug --activities teleop,collect \\
+        --json OUT
 
-JSON, per kind: injected, sessions, sessions_safe, safe_ms {p50, p99, max} (start of the fault to the first
-follower hold on the wire; over the injections that held), holds, violations (commands outside the limits),
-samples_lost (null: these runs do not record yet, see null_why), recoveries (the pair tracked the leader
-again after the fault ended), jumps_rejected, errors (sessions that ended in an exception).
-Activities: only teleop so far; collect and rollout are #35's next step (a one-line error says so).
+Sessions (bench/fault_sessions.py): teleop (the demo's operator through the teleop session, recorded),
+collect (`factr2 collect`'s collect(), one peg-insert episode), rollout (run_rollout of a tiny policy trained
+once into OUT.state/). Each is cut TAIL_S after its fault. Resumable: every finished session is a line of
+OUT.sessions.jsonl; a run that was killed continues where it stopped (same arguments). One progress line per
+session on stderr.
+
+JSON, per kind (over its activities, and per activity under "activities"): injected (sessions whose fault was
+played), sessions, sessions_safe (both arms safe at the end, no error), safe_unobservable (SIGKILL: the twin
+dies with the app), safe_ms {p50, p99, max} (fault start -> first follower hold on the wire, over the sessions
+that held), violations (follower commands outside the limits), samples_lost (follower samples the recording
+lacks from before the fault, summed; null when nothing recorded), recoveries (the follower tracked again after
+the fault ended) of recovery_owed, errors, tracebacks; cost_s_per_injection per activity (wall).
 """
 
 from __future__ import annotations
@@ -16,25 +24,34 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for p in (ROOT, ROOT / "bench"):
+    if str(p) not in sys.path:
+        sys.path.insert(0, str(p))
 
-from factr2_teleop.demo.fault_run import run_with_faults  # noqa: E402
+from fault_sessions import run_session  # noqa: E402
+
 from hardware.errors import ConfigError  # noqa: E402
 from hardware.sim.faults import KINDS, random_schedule  # noqa: E402
 
-ACTIVITIES = ("teleop",)  # collect, rollout: not yet
-# camera kinds need sessions that record with cameras (the campaign's sessions do not yet)
-CAMPAIGN_KINDS = tuple(k for k in KINDS if not k.startswith("camera_"))
+LEADER_KINDS = ("dxl_unplug", "dxl_overload", "dxl_corrupt", "spike_leader")
+# next_killed: the NEXT worker runs only with real-time clocks (tests/test_faults_process.py plays it)
+NOT_IN_CAMPAIGN = {"next_killed": "the NEXT worker runs with real-time clocks only; lockstep sessions keep "
+                                  "NEXT inline (tests/test_faults_process.py kills and restarts it)"}
+ACTIVITY_KINDS = {
+    "teleop": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN),
+    "collect": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN),
+    # a rollout's leader is passive (zero torque, not read by the policy): leader faults do not concern it
+    "rollout": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN and k not in LEADER_KINDS),
+}
 FAULT_WINDOW_S = (0.6, 1.4)  # s of twin time: when a session's fault starts (after the soft start)
-TAIL_S = 1.2  # s: the session runs this long after the fault ends (to see the recovery)
-SAMPLES_LOST_WHY = "not measured: the campaign's lockstep sessions do not record yet (issue #35, next step)"
+POLICY_STEPS = 25  # training steps of the rollout sessions' tiny policy (it only has to run, not succeed)
 
 
 def percentiles(ms: list[float]) -> dict:
@@ -45,66 +62,120 @@ def percentiles(ms: list[float]) -> dict:
     return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}
 
 
-def campaign_kind(kind: str, per_kind: int, seed: int) -> dict:
-    """per_kind sessions with one `kind` fault each (seeded times and joints); the kind's JSON row."""
-    row = {"injected": 0, "sessions": 0, "sessions_safe": 0, "holds": 0, "violations": 0,
-           "samples_lost": None, "recoveries": 0, "jumps_rejected": 0, "errors": 0}
-    safe_ms: list[float] = []
-    for i in range(per_kind):
-        spec = random_schedule(seed * 1000 + i, [kind], 1, *FAULT_WINDOW_S)[0]
-        out = run_with_faults([spec], seconds=spec.t_s + spec.duration_s + TAIL_S, seed=seed + i)
-        row["sessions"] += 1
-        row["injected"] += sum(e["event"] == "start" for e in out.log)
-        row["sessions_safe"] += int(out.safe_at_end and out.error is None)
-        row["violations"] += out.violations
-        row["recoveries"] += int(all(out.recovered))
-        row["jumps_rejected"] += out.jumps_rejected
-        row["errors"] += int(out.error is not None)
-        held = [m for m in out.safe_ms if m is not None]
-        row["holds"] += len(held)
-        safe_ms += held
-    row["safe_ms"] = percentiles(safe_ms)
-    return row
+def aggregate(rows: list[dict]) -> dict:
+    """One JSON row over sessions (run_session outcomes)."""
+    safe_ms = [r["safe_ms"] for r in rows if r.get("safe_ms") is not None]
+    lost = [r["samples_lost"] for r in rows if r.get("samples_lost") is not None]
+    owed = [r for r in rows if r.get("recovered") is not None]
+    return {"injected": sum(bool(r.get("played")) for r in rows), "sessions": len(rows),
+            "sessions_safe": sum(bool(r.get("safe_end")) and not r.get("error") for r in rows),
+            "safe_unobservable": sum(r.get("safe_end", False) is None for r in rows),
+            "holds": len(safe_ms), "safe_ms": percentiles(safe_ms),
+            "violations": sum(int(r.get("violations") or 0) for r in rows),
+            "samples_lost": int(sum(lost)) if lost else None,
+            "recordings_open": sum(bool(r.get("recording_opens")) for r in rows),
+            "recoveries": sum(bool(r["recovered"]) for r in owed), "recovery_owed": len(owed),
+            "errors": sum(bool(r.get("error")) for r in rows),
+            "tracebacks": sum(bool(r.get("traceback")) for r in rows)}
+
+
+def _policy(state: Path) -> Path:
+    """The rollout sessions' tiny policy, trained once (a held-still peg-insert recording, 25 steps)."""
+    run = state / "policy" / "run"
+    if not (run / "done").exists():
+        from tests.rollout_helpers import record_task_session, train_tiny
+
+        (state / "policy").mkdir(parents=True, exist_ok=True)
+        print("training the rollout sessions' tiny policy (once)...", file=sys.stderr, flush=True)
+        train_tiny(record_task_session(state / "policy"), run, policy="act", steps=POLICY_STEPS)
+        (run / "done").write_text("ok")
+    return run
+
+
+def _plan(args) -> list[tuple[str, str, int]]:
+    kinds = [k for k in args.kinds.split(",") if k] if args.kinds else None
+    acts = [a for a in args.activities.split(",") if a]
+    bad = [a for a in acts if a not in ACTIVITY_KINDS]
+    if bad:
+        raise ConfigError(f"unknown activity {', '.join(bad)}", where="--activities",
+                          fix=f"use some of {', '.join(ACTIVITY_KINDS)}")
+    if kinds:
+        bad = [k for k in kinds if k not in KINDS]
+        if bad:
+            raise ConfigError(f"unknown fault kind {', '.join(bad)}", where="--kinds", fix=f"use some of "
+                              f"{', '.join(KINDS)}")
+    if args.per_kind < 1:
+        raise ConfigError(f"--per-kind {args.per_kind}", where="--per-kind", fix="give 1 or more")
+    return [(a, k, i) for k in (kinds or KINDS) for a in acts if k in ACTIVITY_KINDS[a]
+            for i in range(args.per_kind)]
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--per-kind", type=int, default=20, help="sessions (one injection each) per fault kind")
-    ap.add_argument("--kinds", default=",".join(CAMPAIGN_KINDS),
-                    help="comma-separated fault kinds (default: all but the camera kinds)")
-    ap.add_argument("--activities", default="teleop", help="comma-separated; only teleop so far")
+    ap.add_argument("--per-kind", type=int, default=20, help="sessions (one injection each) per kind and "
+                    "activity")
+    ap.add_argument("--kinds", default="", help="comma-separated fault kinds (default: all)")
+    ap.add_argument("--activities", default="teleop,collect,rollout", help="comma-separated")
     ap.add_argument("--json", required=True, metavar="OUT", help="write the results here")
     args = ap.parse_args(argv)
     try:
-        kinds = [k for k in args.kinds.split(",") if k]
-        bad = [k for k in kinds if k not in CAMPAIGN_KINDS]
-        if bad:
-            raise ConfigError(f"fault kind(s) {', '.join(bad)} not in the campaign", where="--kinds",
-                              fix=f"use some of {', '.join(CAMPAIGN_KINDS)} (camera kinds: not yet)")
-        acts = [a for a in args.activities.split(",") if a]
-        later = [a for a in acts if a not in ACTIVITIES]
-        if later:
-            raise ConfigError(f"activity {', '.join(later)} is not in the campaign yet", where="--activities",
-                              fix="use --activities teleop (collect and rollout: issue #35, next step)")
-        if args.per_kind < 1:
-            raise ConfigError(f"--per-kind {args.per_kind}", where="--per-kind", fix="give 1 or more")
+        plan = _plan(args)
     except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    out = Path(args.json)
+    journal = out.with_name(out.name + ".sessions.jsonl")
+    state = out.with_name(out.name + ".state")
+    done = {}
+    if journal.exists():  # resume: what a killed run finished
+        for line in journal.read_text().splitlines():
+            try:
+                r = json.loads(line)
+            except ValueError:
+                continue  # a line cut by the kill
+            if r.get("seed") == args.seed:
+                done[(r["activity"], r["kind"], r["i"])] = r
+    todo = [p for p in plan if p not in done]
+    print(f"{len(plan)} sessions, {len(plan) - len(todo)} done before, {len(todo)} to run", file=sys.stderr)
+    policy = _policy(state) if any(a == "rollout" for a, _, _ in todo) else None
     t0 = time.perf_counter()
+    with journal.open("a") as jf, tempfile.TemporaryDirectory(prefix="factr2-faults-") as tmp:
+        for n, (act, kind, i) in enumerate(todo, 1):
+            spec = random_schedule(args.seed * 1000 + i, [kind], 1, FAULT_WINDOW_S[0],
+                                   FAULT_WINDOW_S[1] + KINDS[kind][1], gap_s=0.0)[0]
+            r = run_session(act, spec, args.seed + i, Path(tmp) / f"{act}-{kind}-{i}", policy)
+            r = {k: v for k, v in r.items() if k not in ("log", "messages")}
+            r.update(activity=act, kind=kind, i=i, seed=args.seed, spec=spec.text())
+            jf.write(json.dumps(r, default=str) + "\n")
+            jf.flush()
+            done[(act, kind, i)] = r
+            el = time.perf_counter() - t0
+            safe = {True: "safe", False: "NOT SAFE", None: "safe n/a"}[r.get("safe_end")]
+            ms = "-" if r.get("safe_ms") is None else f"{r['safe_ms']:.0f} ms"
+            print(f"[{n}/{len(todo)}] {act} {spec.text()}: {safe}, hold {ms}, lost {r.get('samples_lost')}, "
+                  f"recovered {r.get('recovered')}{', ERROR ' + str(r['error']) if r.get('error') else ''} "
+                  f"({r['wall_s']:.1f} s; ETA {el / n * (len(todo) - n):.0f} s)", file=sys.stderr, flush=True)
+    rows = [done[p] for p in plan]
+    acts = sorted({a for a, _, _ in plan})
     result = {"seed": args.seed, "per_kind": args.per_kind, "activities": acts, "simulated": True,
-              "null_why": {"samples_lost": SAMPLES_LOST_WHY}, "kinds": {}}
-    for kind in kinds:
-        row = campaign_kind(kind, args.per_kind, args.seed)
+              "not_in_campaign": NOT_IN_CAMPAIGN, "kinds": {},
+              "cost_s_per_injection": {a: float(np.mean([r["wall_s"] for r in rows if r["activity"] == a]))
+                                       for a in acts},
+              "wall_s_this_run": time.perf_counter() - t0}
+    for kind in dict.fromkeys(k for _, k, _ in plan):
+        mine = [r for r in rows if r["kind"] == kind]
+        row = aggregate(mine)
+        row["activities"] = {a: aggregate([r for r in mine if r["activity"] == a])
+                             for a in acts if any(r["activity"] == a for r in mine)}
         result["kinds"][kind] = row
+    out.write_text(json.dumps(result, indent=1))
+    for kind, row in result["kinds"].items():
         s = row["safe_ms"]
         p99 = "-" if s["p99"] is None else f"{s['p99']:.0f}"
         print(f"{kind:18s} injected {row['injected']:3d}  safe {row['sessions_safe']}/{row['sessions']}  "
-              f"holds {row['holds']:3d}  safe_ms p99 {p99:>4s}  violations {row['violations']}  "
-              f"recoveries {row['recoveries']}  jumps rejected {row['jumps_rejected']}", flush=True)
-    result["wall_s"] = time.perf_counter() - t0
-    Path(args.json).write_text(json.dumps(result, indent=1))
+              f"safe_ms p99 {p99:>4s}  violations {row['violations']}  lost {row['samples_lost']}  "
+              f"recoveries {row['recoveries']}/{row['recovery_owed']}  errors {row['errors']}")
     return 0
 
 

@@ -6,6 +6,7 @@
 
 so subcommands are added without touching this file. Errors the user can fix (hardware.errors.UserError,
 a missing file, a bad value) print one line and exit 2; Ctrl-C exits 130; no tracebacks unless --debug.
+SIGTERM takes Ctrl-C's path (arms safe, recording closed) and exits 143.
 """
 
 from __future__ import annotations
@@ -13,11 +14,22 @@ from __future__ import annotations
 import argparse
 import importlib
 import pkgutil
+import signal
 import sys
+import threading
 
 from factr2_teleop import __version__
 from factr2_teleop import commands as _commands_pkg
 from hardware.errors import UserError
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread: every command's Ctrl-C path leaves the arms safe and closes the
+    recording (a service manager's stop, `kill PID`)."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise Terminated("SIGTERM")
 
 
 def _command_modules():
@@ -48,8 +60,13 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 0
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return int(args._run(args) or 0)
+    except Terminated:
+        print(f"factr2 {args.command}: terminated (SIGTERM): stopped safely", file=sys.stderr)
+        return 143
     except UserError as e:
         if args.debug:
             raise

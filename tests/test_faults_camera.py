@@ -56,3 +56,48 @@ def test_freeze_repeats_one_frame_and_gone_fails_until_back(rig):
     events = [(e["kind"], e["event"]) for e in s.twin.faults.log]
     assert events == [("camera_freeze", "start"), ("camera_freeze", "end"),
                       ("camera_gone", "start"), ("camera_gone", "end")]
+
+
+def test_frozen_and_gone_camera_are_said_marked_and_used_again_when_back(tmp_path):
+    """A teleop run that records with its camera: a freeze and an unplug are detected by frame age (said in
+    the loop's messages and noted in the recording), no repeated frame is recorded, and the camera is used
+    again once it is back (no restart)."""
+    from factr2_teleop.demo.fault_run import run_with_faults
+    from hardware.cameras.health import STALE_S
+
+    try:
+        out = run_with_faults([parse_fault("camera_freeze@0.4:0.5"), parse_fault("camera_gone@1.1:0.45")],
+                              seconds=1.9, record_dir=tmp_path, cameras=True)
+    except CameraError as e:  # pragma: no cover
+        pytest.skip(f"no OpenGL here: {e}")
+    assert out.error is None and out.violations == 0 and out.safe_at_end
+    said = [(t, text) for t, who, text in out.messages if who == "cameras"]
+    kinds = [text.split(": ")[1] for _, text in said]
+    assert [k.split(" ")[0] for k in kinds] == ["frozen", "back", "gone", "back"], said
+    assert kinds[1].endswith("(frozen)") and kinds[3].endswith("(gone)")
+    assert said[0][0] <= 0.4 + STALE_S + 0.05 and said[2][0] <= 1.1 + STALE_S + 0.05  # within the age bound
+    rc = out.recording
+    assert rc.opens and rc.lost_before_fault == 0
+    assert [n for n in rc.notes if n.startswith("camera")] == [text for _, text in said]
+    from hardware.recording.reader import Recording
+
+    rec = Recording(rc.path, use_cache=False, write_cache=False)
+    (cam,) = rec.cameras
+    t = rec.frames(cam).t
+    assert np.all(np.diff(t) > 0)  # no frame twice
+    assert t[-1] > 1.6  # frames again after the unplug
+
+
+def test_camera_health_by_frame_age_is_pure():
+    from hardware.cameras.health import STALE_S, CameraHealth
+
+    h = CameraHealth("c", 0.0)
+    assert h.frame(0.0, 0.0) and h.frame(0.1, 0.1)  # the first frame at the start time is fresh
+    assert not h.frame(0.2, 0.1) and h.take_events() == []  # a repeat: not passed on, not yet stale
+    assert not h.frame(0.1 + STALE_S + 0.01, 0.1)
+    (ev,) = h.take_events()
+    assert ev[0] == 0.1 + STALE_S + 0.01 and "frozen" in ev[1] and h.state == "frozen"
+    assert h.frame(0.6, 0.6) and "back after 0.50 s" in h.take_events()[0][1]
+    h.failed(0.7, "CameraError: x")
+    h.failed(0.6 + STALE_S + 0.01, "CameraError: x")
+    assert h.state == "gone" and h.outages == 2 and h.stale == 2

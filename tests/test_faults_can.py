@@ -38,5 +38,5 @@ def test_damiao_motor_error_holds_and_a_kind_the_rig_cannot_play_is_refused():
     assert out.error is None and out.violations == 0 and out.safe_at_end
     assert out.safe_ms[0] is not None and out.safe_ms[0] <= WATCHDOG_MS and out.recovered == [True]
     assert said(out, "follower motor error: j2 over-temperature")
-    with pytest.raises(ConfigError, match="cannot be played on this rig"):
-        run_with_faults([parse_fault("spike_follower@0.8")], seconds=1.0, rig="sim-yam")
+    with pytest.raises(ConfigError, match="cannot be played on this rig"):  # sim-panda: no CAN follower
+        run_with_faults([parse_fault("can_busoff@0.8")], seconds=1.0, rig="sim-panda")

@@ -59,3 +59,14 @@ def test_the_twin_plays_the_rig_files_faults_and_logs_them(tmp_path):
         assert not emu.silent
         assert [(e["kind"], e["event"]) for e in twin.faults.log] == [("can_busoff", "start"),
                                                                       ("can_busoff", "end")]
+
+
+@pytest.mark.parametrize("cmd", [["teleop", "--rig", "sim-piper"],
+                                 ["collect", "--task", "peg-insert", "--out", "unused"],
+                                 ["rollout", "--policy", "unused", "--task", "peg-insert"]])
+def test_every_twin_command_takes_twin_fault_and_a_bad_one_is_one_line(cmd, capsys):
+    from factr2_teleop.cli import main
+
+    assert main([*cmd, "--twin-fault", "busoff@1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--twin-fault: bad fault 'busoff@1': unknown kind" in err

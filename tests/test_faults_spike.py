@@ -7,7 +7,7 @@ import pytest
 
 from factr2_teleop.demo.fault_run import run_with_faults
 from hardware.safety import implausible_jump
-from hardware.sim.faults import SPIKE_RAD
+from hardware.sim.faults import SPIKE_RAD, parse_fault
 from tests.fault_helpers import run_fault, said
 
 SECONDS = 1.5
@@ -35,4 +35,12 @@ def test_spike_is_rejected_not_followed(who, no_fault):
     n = min(len(a), len(b))
     assert np.abs(a[:n] - b[:n]).max() < 0.01 * SPIKE_RAD
     # what the pair used (and a recording holds) never shows the jump
+    assert np.abs(np.diff(out.follower_q_read, axis=0)).max() < 0.1 * SPIKE_RAD
+
+
+def test_damiao_follower_spike_is_rejected_not_followed():
+    """sim-yam: the Damiao follower's encoder glitches once (DamiaoEmulator.spike_rad)."""
+    out = run_with_faults([parse_fault("spike_follower@0.8")], seconds=SECONDS, rig="sim-yam")
+    assert out.error is None and out.violations == 0 and out.safe_at_end
+    assert out.jumps_rejected >= 1 and said(out, "follower encoder jump rejected")
     assert np.abs(np.diff(out.follower_q_read, axis=0)).max() < 0.1 * SPIKE_RAD

@@ -168,3 +168,20 @@ def test_the_runner_builds_the_input_training_saw(tiny_run):
             np.testing.assert_allclose(live[k].numpy(), trained[k].numpy(), atol=1e-5)
         diff = np.abs(live["images"].numpy().astype(int) - trained["images"].numpy().astype(int))
         assert live["images"].shape == trained["images"].shape and diff.mean() < 3.0, diff.mean()
+
+
+def test_a_follower_motor_error_holds_the_rollout_and_it_resumes(tiny_run):
+    """SIMULATED fault (hardware/sim/faults.py): a follower motor reporting over-temperature holds the
+    policy's follower within one watchdog period, said and counted; the policy drives again once the motor
+    is clear."""
+    from hardware.sim.faults import parse_fault
+
+    out = run_rollout(_opts(tiny_run, max_seconds=1.0, faults=[parse_fault("motor_overtemp@0.5:0.2")]))
+    t = out.timing
+    assert t["holds"].get("follower motor error") == 1 and t["command_violations"] == 0
+    assert t["end_follower_held"]
+    said = [(tt, text) for tt, _who, text in out.messages]
+    held = [tt for tt, text in said if text == "follower on hold: follower motor error: j2 over-temperature"]
+    assert held and 0.5 <= held[0] <= 0.55
+    assert any(tt > 0.7 and "follows the policy" in text for tt, text in said)
+    assert [e["kind"] for e in out.faults] == ["motor_overtemp", "motor_overtemp"]

@@ -16,8 +16,9 @@ pickled: its LSTM state shares memory between numpy and torch), in a fresh inter
 caller's __main__ (a script without a main guard, stdin, a notebook).
 
 Failure is loud and safe: a worker that dies, or falls MAX_IN_FLIGHT samples behind, raises in update();
-the pair then turns feedback off with a message (factr2_teleop.teleop.pair). Messages are raw float64
-rows (no pickling per sample): ~3 us per tick on the loop's side.
+the pair then turns feedback off with a message (factr2_teleop.teleop.pair). A worker that died is started
+again (RESTARTS_MAX times): feedback comes back, said by the pair, once the new one is ready and warm.
+Messages are raw float64 rows (no pickling per sample): ~3 us per tick on the loop's side.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from hardware.types import JointState
 
 READY_TIMEOUT_S = 60.0  # s: the child imports torch and loads the checkpoint (2-5 s on a 2-vCPU VM)
 MAX_IN_FLIGHT = 25  # samples posted and not answered (0.25 s at 100 Hz): the worker cannot keep up
+RESTARTS_MAX = 3  # a worker that died is started again this many times per session (then feedback stays off)
 
 
 # -- wire format (pure) ------------------------------------------------------------------------------
@@ -105,7 +107,10 @@ def _load_and_answer(conn, path: str, arm: str, n: int, loop_period_s: float) ->
         except (EOFError, OSError):
             return  # the loop closed the pipe or its process ended
         est = adapter.update(unpack_sample(buf, n))
-        conn.send_bytes(pack_result(est, adapter.ood_count, time.process_time() - c0, n))
+        try:
+            conn.send_bytes(pack_result(est, adapter.ood_count, time.process_time() - c0, n))
+        except OSError:  # the loop closed the pipe meanwhile (it stopped, or gave up on us): done, quietly
+            return
 
 
 # -- the loop's side ---------------------------------------------------------------------------------
@@ -120,16 +125,9 @@ class NextWorker(Estimator):
         self.n = n
         self.period_s = next_period_s(rate_hz, loop_period_s)
         self._path, self._timeout_s = str(path), ready_timeout_s
-        self._deadline = time.monotonic() + ready_timeout_s
-        ours, theirs = socket.socketpair()
-        # a fresh interpreter: no inherited threads, locks or twin state
-        self._proc = subprocess.Popen(
-            [sys.executable, "-m", "calibration.next.worker", "--fd", str(theirs.fileno()), str(path), arm,
-             str(n), repr(float(loop_period_s))], pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
-        theirs.close()
-        self._conn = Connection(ours.detach())
-        self._finalizer = weakref.finalize(self, _stop, self._conn, self._proc)
-        self.ready = False
+        self._args = (str(path), arm, str(n), repr(float(loop_period_s)))
+        self.restarts = 0  # times a dead worker was started again (RESTARTS_MAX at most)
+        self._spawn()
         self.ood_count = 0
         self.flags = 0
         self.cpu_s = 0.0  # CPU time [s] the worker spent answering samples so far
@@ -139,6 +137,30 @@ class NextWorker(Estimator):
         self.answer_delay_sum_s = self.answer_delay_max_s = 0.0  # post -> picked up by the loop [s]
         self._held: Estimate | None = None  # newest estimate not yet handed to the loop
         self._tau_f: np.ndarray | None = None
+
+    def _spawn(self) -> None:
+        """Start the child (a fresh interpreter: no inherited threads, locks or twin state); not ready yet."""
+        self._deadline = time.monotonic() + self._timeout_s
+        ours, theirs = socket.socketpair()
+        self._proc = subprocess.Popen(
+            [sys.executable, "-m", "calibration.next.worker", "--fd", str(theirs.fileno()), *self._args],
+            pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
+        theirs.close()
+        self._conn = Connection(ours.detach())
+        self._finalizer = weakref.finalize(self, _stop, self._conn, self._proc)
+        self.ready = False
+
+    def _died(self, why: str) -> RuntimeError:
+        """The worker stopped: start a new one (its estimates come once it is ready, after NEXT's warm-up),
+        up to RESTARTS_MAX times; the error to raise (the pair turns feedback off and says it)."""
+        self.in_flight, self._posted, self._held, self._tau_f = 0, [], None, None
+        self._finalizer()
+        if self.restarts >= RESTARTS_MAX:
+            return RuntimeError(f"the NEXT worker process stopped ({why}); not restarted again "
+                                f"({RESTARTS_MAX} restarts)")
+        self.restarts += 1
+        self._spawn()
+        return RuntimeError(f"the NEXT worker process stopped ({why}); restarting it")
 
     @classmethod
     def of(cls, next_est, n: int, loop_period_s: float) -> NextWorker:
@@ -196,8 +218,7 @@ class NextWorker(Estimator):
                 self._tau_f = est.tau_f if est.valid else None
                 self._held = est
         except (EOFError, OSError) as e:  # a child that ended closed its end (no waitpid per tick needed)
-            raise RuntimeError(f"the NEXT worker process stopped ({type(e).__name__}, exit code "
-                               f"{self._proc.poll()})") from None
+            raise self._died(f"{type(e).__name__}, exit code {self._proc.poll()}") from None
 
     def _give(self) -> Estimate | None:
         est, self._held = self._held, None
@@ -211,7 +232,7 @@ class NextWorker(Estimator):
         try:
             self._conn.send_bytes(pack_sample(inp))
         except (BrokenPipeError, OSError) as e:
-            raise RuntimeError(f"the NEXT worker process stopped ({type(e).__name__})") from None
+            raise self._died(type(e).__name__) from None
         self.in_flight += 1
         self._posted.append(time.monotonic())
         self._take()

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import sys
 
+from factr2_teleop.commands._twin_fault import add_twin_fault_argument, twin_faults
+
 HELP = "collect scripted demonstrations of a twin task through the leader, force feedback and recording"
 
 
@@ -19,13 +21,15 @@ def add_arguments(parser) -> None:
     parser.add_argument("--checkpoint", default=None, help="NEXT checkpoint (next.json from factr2 calibrate;"
                         " default: the rig's, else the demo's cache)")
     parser.add_argument("--no-cameras", action="store_true", help="record no camera frames (faster)")
+    add_twin_fault_argument(parser)
 
 
 def run(args) -> int:
     from factr2_teleop.tasks.run import CollectConfig, collect, summary_lines
 
     cfg = CollectConfig(rig=args.rig, task=args.task, episodes=args.episodes, out=args.out, seed=args.seed,
-                        mode=args.mode, checkpoint=args.checkpoint, cameras=not args.no_cameras)
+                        mode=args.mode, checkpoint=args.checkpoint, cameras=not args.no_cameras,
+                        faults=twin_faults(args))
     result = collect(cfg, progress=sys.stderr.isatty() or True)
     for line in summary_lines(result):
         print(line)

@@ -15,6 +15,9 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from factr2_teleop.commands._twin_fault import add_twin_fault_argument, twin_faults
+from factr2_teleop.session.teleop import message_lines
+
 if TYPE_CHECKING:
     from factr2_teleop.session.rollout_report import RolloutResult
 
@@ -53,6 +56,7 @@ def add_arguments(parser) -> None:
                         "real time and on real rigs, off for a lockstep twin). With --task on a twin, the "
                         "scripted operator steps in when the policy stalls (SIMULATED)")
     parser.add_argument("--json", type=Path, default=None, help="write the summary JSON here")
+    add_twin_fault_argument(parser)
 
 
 def summary_lines(out: RolloutResult) -> list[str]:
@@ -94,7 +98,7 @@ def summary_lines(out: RolloutResult) -> list[str]:
                          f"rad, max {err['max']:.4f} rad")
     if out.recording:
         lines.append(f"{'recording':>26s}  {out.recording}")
-    return lines
+    return lines + message_lines(out.messages)
 
 
 def _holds(holds) -> str:
@@ -147,7 +151,7 @@ def run(args) -> int:
                           seed=args.seed, record=args.record, max_seconds=args.max_seconds, next=args.next,
                           realtime=args.realtime, mode=args.mode, schedule=args.schedule,
                           ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks, force=args.force,
-                          takeover=args.takeover)
+                          takeover=args.takeover, faults=twin_faults(args))
     if args.force and args.task:
         from factr2_teleop.session.task_check import task_mismatch
         from policies.checkpoint import read_meta

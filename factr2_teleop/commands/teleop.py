@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 import time
 
+from factr2_teleop.commands._twin_fault import add_twin_fault_argument, twin_faults
 from hardware.errors import UserError
 
 HELP = "bilateral force-feedback teleop on a rig (Ctrl-C stops: leader zero torque, follower holds)"
@@ -28,21 +29,6 @@ def add_arguments(p) -> None:
     p.add_argument("--rate", type=float, help="loop rate [Hz] (default: rig [teleop] rate_hz, else 500)")
     p.add_argument("--seconds", type=float, help="stop after this long (default: until Ctrl-C)")
     add_twin_fault_argument(p)
-
-
-def add_twin_fault_argument(p) -> None:
-    """--twin-fault KIND@T[:DURATION] (repeatable): faults the twin plays (hardware/sim/faults.py)."""
-    p.add_argument("--twin-fault", action="append", metavar="KIND@T[:DURATION]",
-                   help="a fault the twin plays at T s for DURATION s (repeatable; simulated rigs; kinds: "
-                        "docs/safety.md)")
-
-
-def twin_faults(args):
-    """The FaultSpecs of --twin-fault (None: none given, the rig's [twin] faults apply)."""
-    from hardware.sim.faults import parse_fault
-
-    given = getattr(args, "twin_fault", None)
-    return [parse_fault(x) for x in given] if given else None
 
 
 def options(args):
@@ -105,6 +91,7 @@ def _execute(args) -> dict:
     out["messages"] = list(loop.snapshot().messages)  # (t [s], who, text): holds, notes
     twin = session.twin
     out["faults"] = list(twin.faults.log) if twin is not None and twin.faults is not None else []
+    out["twin_t_offset_s"] = twin.rig_time() - twin.t if twin is not None else None  # rig - twin clock [s]
     return out
 
 
@@ -134,7 +121,10 @@ def _watch(loop) -> None:
             if tty:
                 phases = " ".join(f"{k}:{v}" for k, v in s.phases.items())
                 print(f"\r{phases} | {s.timing.line()}   ", end="", file=sys.stderr, flush=True)
-    except KeyboardInterrupt:
-        print("\nCtrl-C: stopping (leaders zero torque, followers hold)", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        why = "SIGTERM" if str(e) == "SIGTERM" else "Ctrl-C"
+        print(f"\n{why}: stopping (leaders zero torque, followers hold)", file=sys.stderr)
+        if why == "SIGTERM":
+            raise  # after the safe stop (execute's finally), the CLI exits 143
     if tty:
         print(file=sys.stderr)

@@ -41,10 +41,58 @@ class FaultOutcome:
     follower_q_sent: np.ndarray | None = None  # (n, joints) follower position commands on the wire [rad]
     follower_t_sent: np.ndarray | None = None  # (n,) when each was issued [s, rig clock]
     follower_q_read: np.ndarray | None = None  # (ticks, joints) the follower positions the pair used [rad]
+    device_notes: list = field(default_factory=list)  # the drivers' warnings (a leader servo rebooted, ...)
+    recording: RecordingCheck | None = None  # with record_dir: what the file holds against the ticks run
+    t_ticks: np.ndarray | None = None  # (ticks,) when each tick ran [s, rig clock]
 
 
-def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-piper") -> FaultOutcome:
-    """Run the demo task's teleop (ground-truth feedback) in lockstep while the twin plays `specs`."""
+@dataclass
+class RecordingCheck:
+    """A fault run's recording against what happened: ticks the loop ran before the first fault started
+    (each hands one follower sample to the recorder) and how many of them the file lacks; whether the file
+    opens; the recorder's error (disk full) and the notes it holds (camera marks)."""
+
+    path: str
+    opens: bool
+    error: str | None
+    ticks_before_fault: int
+    lost_before_fault: int
+    samples_recorded: int
+    notes: list = field(default_factory=list)
+
+
+def samples_lost(t_ticks: np.ndarray, t_recorded: np.ndarray, t_before: float) -> tuple[int, int]:
+    """(ticks before t_before [s], how many of them have no recorded sample): a tick's sample is recorded
+    when a recorded timestamp equals its time (to 1 us; both are the rig clock)."""
+    t_ticks = np.asarray(t_ticks, float)
+    before = t_ticks[t_ticks < t_before]
+    got = np.isin(np.round(before * 1e6), np.round(np.asarray(t_recorded, float) * 1e6))
+    return int(len(before)), int((~got).sum())
+
+
+def check_recording(path, t_ticks, t_fault: float, error: str | None) -> RecordingCheck:
+    """Open the recording (without its cache) and count what it lacks before t_fault [s, rig clock]."""
+    import warnings
+
+    from hardware.recording.reader import Recording
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a truncated file reads with a warning: counted, not shown
+            rec = Recording(path, use_cache=False, write_cache=False)
+            t_rec = rec.topic("/follower/joint_state").t
+            notes = [e.get("text", "") for e in rec.events if e.get("kind") == "note"]
+    except Exception:  # noqa: BLE001 -- a file that does not open is the outcome measured: all lost
+        n, _ = samples_lost(t_ticks, [], t_fault)
+        return RecordingCheck(str(path), False, error, n, n, 0)
+    n, lost = samples_lost(t_ticks, t_rec, t_fault)
+    return RecordingCheck(str(path), True, error, n, lost, int(len(t_rec)), notes)
+
+
+def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-piper", record_dir=None,
+                    cameras: bool = False) -> FaultOutcome:
+    """Run the demo task's teleop (ground-truth feedback) in lockstep while the twin plays `specs`;
+    record_dir: record the run there (one episode; cameras: with the rig's cameras) and check the file."""
     run = DemoRun(DemoConfig(rig=rig, seconds=seconds, mode="ground_truth", clock="lockstep", rate_hz=RATE_HZ,
                              seed=seed, faults=tuple(specs)))
     phases: list[tuple[float, str]] = []
@@ -57,12 +105,18 @@ def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-
     run.teleop.hooks.append(on_tick)
     try:
         twin = run.session.twin
+        rec = None
+        if record_dir is not None:
+            rec = run.teleop.record(record_dir, cameras=cameras)
+            rec.start_episode("faults")
         try:
             run.run()
         except Exception as e:  # noqa: BLE001 -- an outcome to count, not a test's traceback
             err = f"{type(e).__name__}: {e}"
         else:
             err = None
+        finally:  # (also on SIGTERM's interrupt: the file ends complete, as the app's)
+            status = run.teleop.close_recording("fault run ended") if rec is not None else None
         res = run.result()
         out = FaultOutcome(log=list(twin.faults.log) if twin.faults else [],
                            t_offset_s=twin.rig_time() - twin.t,
@@ -74,9 +128,14 @@ def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-
     hold = np.array(run.wire_f.hold, dtype=bool)
     _, tau_l = run.wire_l.arrays()
     out.follower_q_sent, out.follower_t_sent, out.follower_q_read = qf, tf, np.array(q_read)
+    out.t_ticks = np.array([t for t, _ in phases])
     out.safe_at_end = bool(len(hold) and hold[-1] and len(tau_l) and np.all(tau_l[-1] == 0.0))
     out.jumps_rejected = run.leader.safety.jumps_rejected + run.follower.safety.jumps_rejected
+    out.device_notes = [w for d in (run.leader, run.follower) for w in getattr(d, "warnings", [])]
     starts = [e for e in out.log if e["event"] == "start"]
+    if rec is not None:
+        t_fault = min((e["t_s"] for e in starts), default=np.inf) + out.t_offset_s
+        out.recording = check_recording(rec.path, [t for t, _ in phases], t_fault, status.error)
     ends = {e["kind"] + repr(e.get("joint")): e["t_s"] for e in out.log if e["event"] == "end"}
     t_last = phases[-1][0] if phases else -np.inf  # the loop's last tick: the stop's hold comes after it
     for e in starts:

@@ -96,6 +96,9 @@ class SessionRecording:
         # simulated time waits for a starved writer rather than dropping (Recorder's lossless)
         rec = Recorder(p, joint_names=names, metadata=meta, t0=session.clock.now(),
                        lossless=not session.clock.realtime)
+        faults = getattr(session.twin, "faults", None)
+        if faults is not None:  # SIMULATED disk_full fills this recording's filesystem (sim/faults.py)
+            faults.recording_dir = p.parent
         return cls(rec, session, pairs, rate_hz, start_cameras=start_cameras)
 
     @property

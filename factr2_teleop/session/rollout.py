@@ -41,6 +41,7 @@ from hardware.reasons import Reason, messages, render
 from policies.rollout.schedule import ACT_ENSEMBLE_M, ENSEMBLE, RECEDING, ChunkSchedule
 
 FRAME_WAIT_S = 5.0  # s (wall): lockstep waits this long at most for a camera's frame of now
+FRAME_POLL_S = 0.02  # s (wall): while waiting, look this often whether the renders answered without a frame
 K_EXEC_SHARE = 3  # flow: by default a third of each chunk is executed (10 of 30 steps, 1/3 s at 30 Hz)
 EPISODE_KEYS = ("index", "seed", "outcome", "progress", "stages", "duration_s")  # of each EpisodeResult
 MARK_TIME_LIMIT_S = 60.0  # s: an operator-marked episode without --max-seconds ends unlabelled after this
@@ -88,6 +89,7 @@ class RolloutOptions:
     takeover: bool | None = None
     operator: object = None
     takeover_keys: object = field(default_factory=queue.SimpleQueue)  # TOGGLE_KEY presses (any thread)
+    faults: list | None = None  # hardware.sim.faults.FaultSpec the twin plays (None: the rig's [twin] faults)
 
 
 # -- the NEXT checkpoint the policy was trained with -----------------------------------------------------
@@ -154,9 +156,15 @@ class RolloutSession(TeleopSession):
                 if all(now - t <= max_age_s for t, _ in got.values()):
                     return {c: rgb for c, (_, rgb) in got.items()}
                 left = end - time.monotonic()
-                if not wait or left <= 0:
-                    return None
-                self._cond.wait(left)
+                if not wait or left <= 0 or self._renders_done(cameras, now - max_age_s):
+                    return None  # (renders caught up and no fresh frame: a frozen or gone camera)
+                self._cond.wait(min(left, FRAME_POLL_S))
+
+    def _renders_done(self, cameras: list[str], t: float) -> bool:
+        """Every camera's render thread has answered (frame or failure) the snapshot of t [s] or later."""
+        stream = self.cameras
+        done = getattr(stream, "answered_t", None)
+        return done is not None and all(done.get(c, -np.inf) >= t for c in cameras)
 
 
 # -- the whole rollout ----------------------------------------------------------------------------------
@@ -285,7 +293,7 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
     # to hand the GIL to), as the demo does: in real time a pty thread costs the loop its p99 period
     transport = "inprocess" if rig.simulated else None
     with open_rig(rig, clock="realtime" if plan.realtime else "lockstep", seed=opts.seed,
-                  dynamixel_transport=transport) as s:
+                  dynamixel_transport=transport, faults=opts.faults) as s:
         clock = s.clock
         if plan.realtime and s.twin is not None:  # the loop's thread steps the twin (as the demo does)
             s.twin.stop_realtime()
@@ -358,6 +366,8 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
         holds = sum((p.holds for p in ts.pairs), Counter())
         clipped = sum(int(p.follower.safety.clipped) for p in ts.pairs)
         feedback = ts.pairs[0].mode
+        messages = list(ts.loop.snapshot().messages)
+        faults = list(s.twin.faults.log) if s.twin is not None and s.twin.faults is not None else []
     res = eps.results
     out = RolloutResult(
         simulated=rig.simulated, rig=rig.name, task=task.name if task else None, policy=str(runner.path),
@@ -371,7 +381,7 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
         mean_progress=float(np.mean([r.progress for r in res])) if res else 0.0,
         stage_rates={s: float(np.mean([r.stages.get(s) is not None for r in res])) if res else 0.0
                      for s in stages},
-        recording=rec_path, arms=[a.arm for a in arms],
+        recording=rec_path, arms=[a.arm for a in arms], messages=messages, faults=faults,
         takeover=takeover_summary(tk, ts.pairs, res) if tk is not None else {})
     wire = wire_summary(wires)
     out.timing = timing_summary(periods, runner.latencies_s, target.ages_s, plan.realtime, ts.rate_hz)

@@ -97,6 +97,8 @@ class RolloutPair(ArmPair):
         if service:
             self._t_leader = now + LEADER_SERVICE_PERIOD_S - 0.5 * self.dt_s  # half a tick: no drift to n+1
         dt, ls, fs, leader_ok, follower_ok = self._read_both(now, read_leader=service)
+        motor = self._check_samples(ls, fs).get("follower")  # (the passive leader's errors do not matter)
+        follower_ok = follower_ok and not motor
         q_ref = self.q_target if self.q_target is not None else fs.q
         if follower_ok:
             self._tick_estimator(now, fs, q_ref)
@@ -106,7 +108,9 @@ class RolloutPair(ArmPair):
         if follower_ok:
             q, grip, why = self.target_fn(now, fs)
         else:
-            q, grip, why = None, None, Reason.of(PolicyHold.FOLLOWER_STALE)
+            q, grip = None, None
+            why = Reason.of(PolicyHold.FOLLOWER_MOTOR_ERROR, what=motor) if motor else \
+                Reason.of(PolicyHold.FOLLOWER_STALE)
         if q is None:
             if self.phase != HOLD:
                 self.follower.hold(why)

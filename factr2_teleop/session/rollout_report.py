@@ -100,6 +100,8 @@ class RolloutResult:
     arms: list[str] = field(default_factory=list)  # the follower arms the policy drove
     timing: dict = field(default_factory=dict)
     takeover: dict = field(default_factory=dict)  # session/rollout_takeover.py takeover_summary ({}: off)
+    messages: list = field(default_factory=list)  # the loop's (t [s], who, text): holds, faults, recoveries
+    faults: list = field(default_factory=list)  # the twin's log of what it injected (sim/faults.py)
 
     def to_dict(self) -> dict:
         return asdict(self)

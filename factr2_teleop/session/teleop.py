@@ -22,6 +22,9 @@ from factr2_teleop.session.recording import SessionRecording
 from factr2_teleop.teleop.loop import TeleopLoop
 from factr2_teleop.teleop.record import TickRecord
 
+HEALTH_EVERY_TICKS = 25  # the recording's and the cameras' health is looked at every this many ticks (0.1 s
+# at 250 Hz): a recording that stopped (disk full) and a camera frozen, gone or back are said and marked
+
 
 class TeleopSession:
     def __init__(self, session, opts: TeleopOptions | None = None, *, clock=None,
@@ -40,6 +43,8 @@ class TeleopSession:
         self._next_paths = dict(next_paths or {})
         self.loop = TeleopLoop(self.pairs, clock or session.clock, self.rate_hz, recorder=self._on_tick)
         self.loop.idle.append(self._idle)
+        self._idle_ticks = 0
+        self._recording_error_said = False
 
     # -- what runs ---------------------------------------------------------------------------------------
     @property
@@ -123,6 +128,24 @@ class TeleopSession:
         rec = self.recording
         if rec is not None:
             rec.hand_over()  # this tick's records to the recording's packing thread, as the loop sleeps
+        self._idle_ticks += 1
+        if self._idle_ticks % HEALTH_EVERY_TICKS == 0:
+            self._check_health(rec)
+
+    def _check_health(self, rec) -> None:
+        """Say (and mark in the recording) a recording that stopped and cameras that froze, went or came back.
+        Reads only: the arms' commands do not depend on it."""
+        if rec is not None and not self._recording_error_said:
+            err = rec.recorder.status().error
+            if err:  # e.g. the disk is full: what was flushed stays readable; the arms go on
+                self._recording_error_said = True
+                self.loop.say("recording", f"{err} -- teleop goes on without recording")
+        cams = self.cameras
+        if cams is not None:
+            for t, _name, text in cams.take_events():
+                self.loop.say("cameras", text, t)  # when the camera was asked (its thread may lag)
+                if rec is not None:
+                    rec.recorder.note(t, text)
 
     def _on_tick(self, r: TickRecord) -> None:
         for h in self.hooks:
@@ -130,3 +153,11 @@ class TeleopSession:
         rec = self.recording
         if rec is not None:
             rec.on_tick(r)
+
+
+def message_lines(messages, most: int = 20) -> list[str]:
+    """The loop's messages (t [s], who, text) as lines for a summary: holds, faults and recoveries, the first
+    `most` of them and how many more."""
+    lines = [f"{t:9.3f} s  {who}: {text}" for t, who, text in list(messages)[:most]]
+    more = len(messages) - most
+    return lines + ([f"... and {more} more messages"] if more > 0 else [])

@@ -30,6 +30,8 @@ class CollectConfig:
     mode: str | None = None  # feedback mode; None: next with a checkpoint, else dob
     checkpoint: str | None = None
     cameras: bool = True
+    faults: list | None = None  # hardware.sim.faults.FaultSpec the twin plays (None: the rig's [twin] faults)
+    on_session: object = None  # callable(TeleopSession, rig session) before the loop runs (bench/faults.py)
 
 
 def output_paths(cfg: CollectConfig, rig_name: str) -> tuple[Path, Path]:
@@ -73,7 +75,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
 
         bar = tqdm(total=cfg.episodes, desc=f"{task.name} (SIMULATED)", unit="ep", leave=False)
     t_wall, c_cpu = time.perf_counter(), time.process_time()
-    with open_rig(rig, clock="lockstep", seed=cfg.seed) as s:
+    with open_rig(rig, clock="lockstep", seed=cfg.seed, faults=cfg.faults) as s:
         ts = TeleopSession(s, TeleopOptions(mode=mode, checkpoint=ck))
         ts.record(cfg.out, path=mcap, task=task.name, cameras=cfg.cameras,
                   extra_meta={"simulated": "true", "collect_seed": cfg.seed, "operator": "scripted"})
@@ -88,6 +90,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
         ts.hooks.append(ep.on_tick)
         ts.hooks.append(lambda r: scores.add(r, ep))
         srec = ts.recording
+        if cfg.on_session is not None:
+            cfg.on_session(ts, s)
         try:
             ts.loop.run()
         finally:
@@ -97,6 +101,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
         sim_s = s.clock.now() - scores.t0 if np.isfinite(scores.t0) else float("nan")
         cams = {k: asdict(v) for k, v in (srec.camera_stats or {}).items()}  # hardware.cameras.stream stats
         timing = ts.loop.timing.stats()
+        messages = list(ts.loop.snapshot().messages)
+        faults = list(s.twin.faults.log) if s.twin is not None and s.twin.faults is not None else []
     wall = time.perf_counter() - t_wall
     thresholds = _thresholds(ck, scores)
     shares = scores.shares(ep.results, thresholds)
@@ -116,7 +122,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
            "frames_written": getattr(status, "frames_written", 0),
            "samples_dropped": status.dropped_samples if status else 0,
            "frames_dropped": status.dropped_frames if status else 0, "cameras": cams,
-           "recording": str(mcap), "results": res}
+           "recording": str(mcap), "recording_error": getattr(status, "error", None), "results": res,
+           "messages": messages, "faults": faults}
     summary_path.write_text(json.dumps(out, indent=1, default=float))
     return out
 
@@ -187,4 +194,8 @@ def summary_lines(out: dict) -> list[str]:
         lines.append(f"{'camera ' + name:>22s}  {c['captured']} / {c['expected']} frames, "
                      f"{c['dropped']} dropped, "
                      f"{c['failed']} failed")
-    return lines
+    if out.get("recording_error"):
+        lines.append(f"{'recording stopped':>22s}  {out['recording_error']}")
+    from factr2_teleop.session.teleop import message_lines
+
+    return lines + message_lines(out.get("messages", []))

@@ -86,6 +86,9 @@ class TeleopLoop:
         self.error: BaseException | None = None
         self.recorder_errors = 0
         self._messages: deque[tuple[float, str, str]] = deque(maxlen=max_messages)
+        # device name -> its warnings said so far (those of its start-up were said by whoever connected it)
+        self._notes_seen = {d.name: len(getattr(d, "warnings", None) or ()) for p in pairs
+                            for d in (p.leader, p.follower)}
         self._stop = threading.Event()
         self._lock = threading.Lock()
         self._running = False
@@ -249,6 +252,18 @@ class TeleopLoop:
             for m in p.messages:
                 self._message(now, p.cfg.name, m)
             p.messages.clear()
+            for dev in (p.leader, p.follower):  # what a driver did by itself (a servo rebooted), said once
+                notes = getattr(dev, "warnings", None)
+                seen = self._notes_seen.get(dev.name, 0)
+                if notes is not None and len(notes) > seen:
+                    for m in notes[seen:]:
+                        self._message(now, dev.name, m)
+                    self._notes_seen[dev.name] = len(notes)
+
+    def say(self, who: str, text: str, t: float | None = None) -> None:
+        """A message from beside the pairs (the recording, a camera) into the loop's list, stamped t [s]
+        (default now)."""
+        self._message(self.clock.now() if t is None else t, who, text)
 
     def _message(self, t: float, who: str, text: str) -> None:
         with self._lock:

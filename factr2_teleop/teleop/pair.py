@@ -155,6 +155,7 @@ class ArmPair:
         self.messages: list[str] = []  # drained by the loop each tick
         self._last_msg = ""
         self.estimator_errors = 0
+        self._estimator_down = False  # feedback off after an estimator error, until a valid estimate again
         self.last: TickRecord | None = None
         self.sent: SafeFollowerCommand | None = None  # what reached the follower this tick
         self._t_ok = {"leader": -np.inf, "follower": -np.inf}  # time of the last complete sample [s]
@@ -346,9 +347,13 @@ class ArmPair:
             self.estimate = Estimate(tau_ext=np.full(self.follower.n_joints, np.nan), t=now,
                                      flags=FLAG_NONFINITE)
             self._say(f"feedback off: estimator failed ({type(e).__name__}: {e})")
+            self._estimator_down = True
             return
         if new is not None:
             self.estimate = new
+            if self._estimator_down and new.valid:  # e.g. a restarted NEXT worker answers again
+                self._estimator_down = False
+                self._say("feedback back on: the estimator answers again", logging.INFO)
 
     def _input(self, now: float, fs: JointState, q_leader_f: np.ndarray) -> EstimatorInput:
         return EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f, q_target_f=self.q_target)

@@ -7,7 +7,7 @@ Thread rule: read() renders from the attached MjData; call it from the thread th
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -125,11 +125,12 @@ class TwinCamera(MujocoCamera):
         return self.render(self.snapshot(self.clock.now()))
 
     def snapshot(self, t: float) -> WorldSnapshot:
-        """The state the frame at t shows. The twin's camera faults (world.camera_fault): "freeze" keeps
-        the state the freeze began with, "gone" marks the snapshot so that render() fails."""
+        """The state the frame at t shows. The twin's camera faults (world.camera_fault): "freeze" hands
+        out the frame the freeze began with again, its timestamp included (a hung driver's last buffer),
+        "gone" marks the snapshot so that render() fails."""
         d, fault = self.world.data, self.world.camera_fault
         if fault == "freeze" and self._frozen is not None:
-            return replace(self._frozen, t=float(t))
+            return self._frozen
         with self.world.lock:
             snap = WorldSnapshot(float(t), d.qpos.copy(), d.qvel.copy(), d.mocap_pos.copy(),
                                  d.mocap_quat.copy(), gone=fault == "gone")

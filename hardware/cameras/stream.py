@@ -12,6 +12,9 @@ frame handed to sink(camera, t [s, rig clock], rgb). The control loop never wait
 
     stream = CameraStream(session.cameras, session.clock, sink=recorder.log_image, twin=session.twin)
     stream.start(); ...; stream.stop(); stream.stats()   # {camera: CameraStats}
+    stream.take_events()   # [(t, camera, text)]: a camera frozen, gone, back (hardware/cameras/health.py)
+
+A frame whose timestamp is not newer than the camera's newest (a frozen camera) is not passed on.
 """
 
 from __future__ import annotations
@@ -24,11 +27,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hardware.cameras.base import Camera
+from hardware.cameras.base import Camera, CameraError
+from hardware.cameras.health import CameraHealth
 from hardware.clock import Clock
 
 QUEUE_FRAMES = 15  # snapshots waiting per twin camera (0.5 s at 30 Hz: a render burst is absorbed)
-MAX_FAILURES = 10  # failed renders after which a camera is given up (the loop goes on without it)
+MAX_FAILURES = 10  # failed renders in a row (other than CameraError: no frame now) after which a camera
+# is given up (the loop goes on without it); a camera that says it has no frame (unplugged) is asked again
 LATE_FRACTION = 0.5  # a real camera's grab later than this many periods counts as late
 
 
@@ -64,6 +69,9 @@ class CameraStream:
         self._t_last = float("nan")
         self._lock = threading.Lock()
         self._observer = None
+        self.health: dict[str, CameraHealth] = {}
+        self.answered_t: dict[str, float] = {}  # per twin camera: newest snapshot rendered or failed [s]
+        self._fails_in_row: dict[str, int] = {}
 
     # -- lifecycle ------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -72,6 +80,7 @@ class CameraStream:
             return
         self._stop.clear()
         self._t0 = self._t_last = self.clock.now()
+        self.health = {name: CameraHealth(name, self._t0) for name in self.cameras}
         ready = []
         for name, cam in self.cameras.items():
             snap = self.twin is not None and hasattr(cam, "snapshot")
@@ -95,6 +104,7 @@ class CameraStream:
             now = self.clock.now()
             for name in self._queues:
                 self._due[name] = self._t_start[name] = now
+                self.health[name].t_good = now
             self._observer = self._on_step
             self.twin.add_step_observer(self._observer)
 
@@ -117,6 +127,11 @@ class CameraStream:
         """One line per camera that failed (for the shells to say)."""
         return [f"camera {n}: {s.failed} failure(s), last: {s.error}" for n, s in self.stats().items()
                 if s.failed]
+
+    def take_events(self) -> list[tuple[float, str, str]]:
+        """(t [s, rig clock], camera, text): each camera that went frozen / gone / back since last asked."""
+        with self._lock:
+            return [(t, n, text) for n, h in self.health.items() for t, text in h.take_events()]
 
     def stats(self) -> dict[str, CameraStats]:
         """Per camera, with `expected` counted up to now (or the stop)."""
@@ -143,7 +158,7 @@ class CameraStream:
             if late:
                 with self._lock:
                     self._stats[name].dropped += late
-            snap = cam.snapshot(t)
+            snap = (t, cam.snapshot(t))  # (asked at, what the camera gives: a frozen one repeats its t)
             if self.clock.realtime:
                 try:
                     q.put_nowait(snap)
@@ -177,15 +192,18 @@ class CameraStream:
                 continue
             if snap is None:
                 break
+            t_req, snap = snap
             try:
                 rgb = cam.render(snap)
             except Exception as e:  # noqa: BLE001 -- a dead render process: stop asking this camera
-                self._fail(name, e)
-                if not cam.is_connected or self.stats()[name].failed >= MAX_FAILURES:
+                self._fail(name, e, t_req)
+                self.answered_t[name] = t_req
+                if not cam.is_connected or self._fails_in_row.get(name, 0) >= MAX_FAILURES:
                     self._queues.pop(name, None)
                     break
                 continue
-            self._deliver(name, snap.t, rgb)
+            self._deliver(name, snap.t, rgb, t_req)
+            self.answered_t[name] = t_req
         cam.disconnect()
 
     # -- real cameras -----------------------------------------------------------------------------------
@@ -208,16 +226,22 @@ class CameraStream:
             try:
                 frame = cam.read()
             except Exception as e:  # noqa: BLE001
-                self._fail(name, e)
+                self._fail(name, e, due)
                 k += 1
                 continue
             if frame.t - due > LATE_FRACTION * period:
                 with self._lock:
                     self._stats[name].late += 1
-            self._deliver(name, frame.t, frame.rgb)
+            self._deliver(name, frame.t, frame.rgb, due)
             k = max(k + 1, int((self.clock.now() - self._t0) / period))  # skip frames that are past
 
-    def _deliver(self, name: str, t: float, rgb: np.ndarray) -> None:
+    def _deliver(self, name: str, t: float, rgb: np.ndarray, t_req: float) -> None:
+        """A frame stamped t for the request at t_req: to the sink when it is newer than the last one."""
+        with self._lock:
+            self._fails_in_row[name] = 0
+            fresh = self.health[name].frame(t_req, t)
+        if not fresh:
+            return
         try:
             self.sink(name, t, rgb)
         except Exception as e:  # noqa: BLE001 -- a sink error costs the frame, not the stream
@@ -226,8 +250,13 @@ class CameraStream:
         with self._lock:
             self._stats[name].captured += 1
 
-    def _fail(self, name: str, e: BaseException) -> None:
+    def _fail(self, name: str, e: BaseException, t_req: float | None = None) -> None:
         with self._lock:
             st = self._stats[name]
             st.failed += 1
             st.error = f"{type(e).__name__}: {e}"
+            if t_req is not None:
+                self.health[name].failed(t_req, st.error)
+                # a camera that says it has no frame now (unplugged) is asked again; other errors add up
+                self._fails_in_row[name] = 0 if isinstance(e, CameraError) else \
+                    self._fails_in_row.get(name, 0) + 1

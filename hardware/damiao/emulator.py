@@ -10,7 +10,8 @@ emit(t) sends nothing periodic (Damiao motors only answer) but runs each motor's
 (register 9, units of 50 us; 0 = off): a motor without commands for that long drops to damping
 (kp=0, kd=timeout_kd, tau=0) until the next command. Fault injection: drop_prob (each frame in either
 direction lost with this probability), silent (answer nothing), err (per-motor ERR code forced into the
-feedback, e.g. protocol.ERR_COIL_OVERTEMP; cleared by the clear-error frame).
+feedback, e.g. protocol.ERR_COIL_OVERTEMP; cleared by the clear-error frame), spike_rad (per motor [rad]
+added to that motor's next feedback frame only: an encoder glitch; each entry is cleared once sent).
 """
 
 from __future__ import annotations
@@ -49,6 +50,7 @@ class DamiaoEmulator(CanEmulatorIO):
         n = bank.n
         self.enabled = np.zeros(n, dtype=bool)
         self.err = np.zeros(n, dtype=int)  # forced ERR codes (0: none)
+        self.spike_rad: np.ndarray | None = None  # SIMULATED encoder glitch (hardware/sim/faults.py)
         self.zero_offset = np.zeros(n)  # rad, set by the save-zero frame
         self.last_cmd_t = np.full(n, -np.inf)
         self.timed_out = np.zeros(n, dtype=bool)
@@ -156,6 +158,9 @@ class DamiaoEmulator(CanEmulatorIO):
                 self.last_cmd_t[k] = r.t
                 self.timed_out[k] = False
                 err = self.err[k] or (D.ERR_ENABLED if self.enabled[k] else D.ERR_DISABLED)
+                if self.spike_rad is not None and k < len(self.spike_rad) and self.spike_rad[k]:
+                    q[k] += float(self.spike_rad[k])  # one glitched frame, then the encoder reads true
+                    self.spike_rad[k] = 0.0
                 raw = D.encode_feedback(self.ids[k], int(err), q[k], v[k], tau[k], temp[k], temp[k],
                                         self.ranges[k])
             self._send(self.master_ids[k], raw)

@@ -179,6 +179,11 @@ class DynamixelBus:
         res, err = self.ph.writeTxRx(self._ready(), dxl_id, addr, size, list(p.le(int(value), size)))
         self._check(dxl_id, f"write of address {addr}", res, err)
 
+    def reboot(self, dxl_id: int) -> None:
+        """Reboot instruction: clears Hardware Error Status; the servo comes back with its torque off."""
+        res, err = self.ph.reboot(self._ready(), dxl_id)
+        self._check(dxl_id, "reboot", res, err & ~p.ERR_ALERT_BIT)
+
     def _check(self, dxl_id: int, what: str, res: int, err: int) -> None:
         if res != sdk.COMM_SUCCESS:
             raise DeviceError(

@@ -22,6 +22,7 @@ import numpy as np
 
 from hardware.clock import Clock
 from hardware.dynamixel import protocol as p
+from hardware.dynamixel.alerts import AlertRebooter
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.config import DynamixelLeaderConfig
 from hardware.dynamixel.fast_sync import choose_fast_sync_read, fast_sync_read_bytes, plain_sync_read_bytes
@@ -160,6 +161,7 @@ class DynamixelLeader(Leader):
         self._ticks_prev: np.ndarray | None = None
         self._q_servo: np.ndarray | None = None
         self._torque_on = False
+        self.alerts = AlertRebooter()  # reboots a servo whose hardware alert lasts (dynamixel/alerts.py)
 
     # -- connect -------------------------------------------------------------------------------------
     @property
@@ -346,6 +348,10 @@ class DynamixelLeader(Leader):
         st.status[~j] |= np.uint32(STATUS_STALE | STATUS_COMM_LOST)
         if alert.any():
             st.status[alert[:n]] |= np.uint32(STATUS_DRIVER_ERROR)
+        if alert.any() or self.alerts.pending:
+            ids = self.read_ids
+            self.alerts.service(self, [ids[k] for k in range(m) if alert[k]],
+                                 {ids[k] for k in range(m) if fresh[k]})
         if m > n and fresh[n]:
             st.gripper_pos, st.gripper_effort = self._trigger(int(raw[n, 0]))
         if self._torque_on:
@@ -372,6 +378,9 @@ class DynamixelLeader(Leader):
         status = (self._status_enabled if self._torque_on else self._status_zero).copy()
         if any(e & p.ERR_ALERT_BIT for e in errs[:n]):
             status[np.array([bool(e & p.ERR_ALERT_BIT) for e in errs[:n]])] |= np.uint32(STATUS_DRIVER_ERROR)
+        if self.alerts.pending or any(e & p.ERR_ALERT_BIT for e in errs):
+            alerting = [i for i, e in zip(ids, errs, strict=True) if e & p.ERR_ALERT_BIT]
+            self.alerts.service(self, alerting, set(ids))
         grip_pos, grip_effort = self._trigger(int(raw[n, 0])) if len(ids) > n else (prev.gripper_pos,
                                                                                      prev.gripper_effort)
         nan = self._nan_n

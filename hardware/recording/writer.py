@@ -36,6 +36,7 @@ from hardware.recording import wire_records as R
 from hardware.recording import writer_process as W
 from hardware.recording.ring import ByteRing, region_size
 from hardware.recording.session import session_metadata
+from hardware.recording.space import SpaceReserve
 
 SAMPLES_BUFFER_BYTES = 32 << 20  # ~50 s of a bimanual 500 Hz session if the writer stalls (a slow disk)
 JPEG_QUALITY = 85  # camera frames' JPEG quality (PIL, 4:2:0); policies read the settings back from the frames
@@ -138,6 +139,7 @@ class Recorder:
         except OSError as e:
             raise UserError(f"cannot create recording ({e.strerror or e})", where=str(self.path),
                             fix="check the folder exists, is writable and has free space") from None
+        self._reserve = SpaceReserve(self.path)  # before the writer starts: a disk that fills meanwhile
         meta = session_metadata(clock_offset_s=self.clock_offset_s, joint_names=self._joint_names)
         meta.update({k: str(v) for k, v in (metadata or {}).items()})
         self._start_writer(dict(
@@ -388,6 +390,7 @@ class Recorder:
         if st.get(W.W_STATE) not in (W.FINISHED, W.FAILED) and st.text("error") is None:
             st.set_text("error", f"recording stopped: the writer process ended ({self._proc.returncode}); "
                                  f"run `factr2 recover {self.path}`")
+        self._reserve.release()  # (the writer gave it back already unless it died)
         with self._life:
             self._final = self._read_status()
             self._final.recording = False

@@ -28,6 +28,8 @@ import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 
+from hardware.recording.space import SpaceReserve
+
 STATUS_BYTES = 4096
 STARTING, RUNNING, FINISHED, FAILED = range(4)
 # u64 word offsets in the status block
@@ -37,6 +39,8 @@ ERROR_AT, WARNING_AT, TEXT_MAX = 128, 1152, 1024
 _U64 = struct.Struct("<Q")
 IDLE_SLEEP_S = 0.002
 FRAMES_PER_PASS = 8
+DISK_FULL_GRACE_S = 0.5  # s: after the disk is found full, records on their way (packed, in the rings) are
+# still written from the space reserve for this long; then the file is finished (hardware/recording/space.py)
 
 
 class SharedStatus:
@@ -90,6 +94,7 @@ class _Writer:
         self.pending: deque = deque()  # (camera, t, future) in arrival order
         self.pool = ThreadPoolExecutor(max(1, int(cfg["encoder_threads"])), thread_name_prefix="factr2-jpeg")
         self.consumed = self.drop_samples = self.drop_frames = 0
+        self.reserve = SpaceReserve(self.path, create=False)  # the Recorder's: to end the file complete
 
     def warn(self, text: str) -> None:
         self.status.set_text("warning", text)
@@ -155,6 +160,7 @@ class _Writer:
         parent = cfg["parent_pid"]
         flush_every, sync_every = cfg["flush_interval_s"], cfg["fsync_interval_s"]
         last_flush = last_sync = time.monotonic()
+        full_at, free = None, 0  # when the disk was found (nearly) full [s, monotonic]
         st.set(W_FLUSH_NS, time.monotonic_ns())
         while True:
             recs = self.samples.take(max_records=4000)
@@ -164,6 +170,17 @@ class _Writer:
                 self.handle(r)
             self.write_encoded(wait=False)
             now = time.monotonic()
+            if full_at is None and (recs or frames):
+                free = self.reserve.low()
+                if free is not None:  # the disk is (nearly) full: the reserve takes what is on its way
+                    self.reserve.release()
+                    full_at = now
+            if full_at is not None and now - full_at >= DISK_FULL_GRACE_S:
+                self.write_encoded(wait=True)
+                st.set_text("error", f"recording stopped: the disk is full ({free >> 10} KiB free) at "
+                                     f"{self.path}; everything up to then was written and the file is "
+                                     "complete")
+                return "disk full"
             if now - last_flush >= flush_every:
                 sync = now - last_sync >= sync_every
                 self.sink.flush(fsync=sync)
@@ -233,21 +250,31 @@ def serve(cfg: dict) -> int:
         ended = w.run()
         w.finish(ended)
         st.set(W_STATE, FINISHED)
+        if ended == "disk full":
+            _drain_until_closed(cfg, st, samples, frames)
         return 0
     except Exception as e:  # noqa: BLE001 -- disk full, device gone: said to the parent in one line
         st.set_text("error", fail_text(cfg["path"], e))
         st.set(W_STATE, FAILED)
-        if w is not None:  # keep the rings moving until the parent closes, so that it never waits on us
-            while not st.get(W_CLOSING) and os.getppid() == cfg["parent_pid"]:
-                samples.take()
-                frames.take()
-                time.sleep(0.01)
+        if w is not None:
+            w.reserve.release()
+            _drain_until_closed(cfg, st, samples, frames)
         return 1
     finally:
+        if w is not None:
+            w.reserve.release()
         try:
             f.close()
         except OSError:
             pass
+
+
+def _drain_until_closed(cfg: dict, st, samples, frames) -> None:
+    """Keep the rings moving (dropping what comes) until the parent closes, so that it never waits on us."""
+    while not st.get(W_CLOSING) and os.getppid() == cfg["parent_pid"]:
+        samples.take()
+        frames.take()
+        time.sleep(0.01)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
-"""Faults the twin plays on its wires (SIMULATED): a schedule (pure) and the injector that applies it.
+"""Faults the twin plays (SIMULATED): the kinds and their schedule (pure). The injector that applies them is
+hardware/sim/fault_injector.py (Twin builds it), the process kinds' actions hardware/sim/process_faults.py.
 
     specs = [parse_fault("can_busoff@2.0:0.3"), parse_fault("spike_leader@3.5")]   # KIND@T[:DURATION]
     specs = random_schedule(seed=1, kinds=["can_loss", "dxl_unplug"], n=4, t_min_s=1.0, t_max_s=9.0)
@@ -9,6 +10,8 @@ T and DURATION are seconds of twin (sim) time from the twin's start. Each kind a
 CAN emulator or the first leader's Dynamixel emulator, through the fault knobs those emulators already have
 (drop_prob, silent, fault_flags / err, set_hardware_error, corrupt_prob, spike_rad); camera kinds act on
 the cameras of the first follower's world (world.camera_fault, read by hardware/cameras/mujoco_camera.py).
+Process kinds (PROCESS_KINDS) act on this process: the NEXT worker killed, the recording's filesystem
+filled, SIGTERM / SIGKILL of the app, the wall clock stepped.
 A kind the rig's device cannot play is a ConfigError when the twin is built, not a fault silently skipped.
 """
 
@@ -20,7 +23,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from hardware.errors import ConfigError
-from hardware.types import STATUS_DRIVER_ERROR, STATUS_OVERCURRENT, STATUS_OVERTEMP
 
 # kind -> (what it plays, default duration [s]; 0: a single sample)
 KINDS: dict[str, tuple[str, float]] = {
@@ -36,15 +38,22 @@ KINDS: dict[str, tuple[str, float]] = {
     "spike_follower": ("one follower encoder sample jumps by SPIKE_RAD on one joint", 0.0),
     "camera_freeze": ("the first follower world's cameras keep showing one frame", 1.0),
     "camera_gone": ("the first follower world's cameras deliver nothing (unplugged), then come back", 1.0),
+    "next_killed": ("the NEXT worker process is killed (SIGKILL, as the OOM killer does)", 0.0),
+    "disk_full": ("the recording's filesystem fills up (another writer takes the space), freed at the end",
+                  1.0),
+    "app_sigterm": ("the app receives SIGTERM (a service manager stops it)", 0.0),
+    "app_sigkill": ("the app is killed with SIGKILL (none of its own code runs)", 0.0),
+    "wall_step_fwd": ("the wall clock (time.time) steps WALL_STEP_S forwards, as an NTP correction", 0.0),
+    "wall_step_back": ("the wall clock (time.time) steps WALL_STEP_S backwards", 0.0),
 }
+# kinds that act on this process, not on a device of the rig (hardware/sim/fault_injector.py)
+PROCESS_KINDS = ("next_killed", "disk_full", "app_sigterm", "app_sigkill", "wall_step_fwd", "wall_step_back")
 CAN_LOSS_PROB = 0.5  # each frame lost with this probability during a can_loss burst
 DXL_CORRUPT_PROB = 0.5  # each status packet corrupted with this probability during a dxl_corrupt storm
+WALL_STEP_S = 3600.0  # s: a wall-clock step (larger than any real NTP step: an hour either way)
 SPIKE_RAD = 1.0  # rad: an encoder glitch's jump (far beyond any motion in one sample)
 DEFAULT_JOINT = 1  # joint index a parsed fault acts on (J2: a shoulder joint under gravity load)
 DXL_OVERLOAD_BIT = 1 << 5  # Hardware Error Status(70) bit 5: overload
-_FLAGS = {"motor_overcurrent": STATUS_OVERCURRENT, "motor_overtemp": STATUS_OVERTEMP,
-          "motor_encoder": STATUS_DRIVER_ERROR}
-_DAMIAO_ERR = {"motor_overcurrent": 0xA, "motor_overtemp": 0xC, "motor_encoder": 0x8}  # damiao.protocol ERR_*
 
 
 @dataclass(frozen=True)
@@ -100,94 +109,3 @@ def random_schedule(seed: int, kinds: list[str], n: int, t_min_s: float, t_max_s
         out.append(FaultSpec(kind, round(t, 3), d, joint=rng.randrange(n_joints)))
         t += d + gap_s
     return out
-
-
-def _can_play(kind: str, emu) -> bool:
-    """Whether this emulator has the knob the kind turns."""
-    if emu is None:
-        return False
-    if kind.startswith("motor_"):
-        return hasattr(emu, "fault_flags") or hasattr(emu, "err")
-    if kind.startswith("spike_"):
-        return hasattr(emu, "spike_rad")
-    return True
-
-
-class FaultInjector:
-    """Applies a schedule to a twin's emulators as sim time passes (Twin calls on_time after each advance).
-    log: one dict per start/end: {"kind", "event": "start" | "end", "t_s" (sim time), "joint", "detail"}."""
-
-    def __init__(self, twin, specs: list[FaultSpec]):
-        self.specs = sorted(specs, key=lambda s: s.t_s)
-        self.log: list[dict] = []
-        self._follower = next((d for d in twin.devices.values() if d.wire == "can"), None)
-        self._worlds = [twin.devices[twin.rig.followers[0].name].world] if twin.rig.followers else []
-        self._leader = next((d for d in twin.devices.values() if d.wire == "serial"), None)
-        for s in self.specs:
-            self._target(s)  # a kind this rig cannot play: ConfigError now
-        self._started = [False] * len(self.specs)
-        self._ended = [False] * len(self.specs)
-        self._saved: dict[int, object] = {}
-
-    def _target(self, s: FaultSpec):
-        if s.kind.startswith("camera_"):
-            if not self._worlds:
-                raise ConfigError(f"fault {s.text()}: this twin has no world", where="fault schedule",
-                                  fix="drop it")
-            return None, None
-        dev = self._leader if s.kind.startswith(("dxl_", "spike_leader")) else self._follower
-        emu = None if dev is None else dev.emulator
-        if not _can_play(s.kind, emu):
-            raise ConfigError(f"fault {s.text()} cannot be played on this rig (its twin device has no such "
-                              "fault)", where="[twin] faults / --twin-fault",
-                              fix="drop it, or use a rig whose device plays it (sim-piper plays every kind)")
-        if not 0 <= s.joint < dev.n_arm:
-            raise ConfigError(f"fault {s.text()}: joint {s.joint} out of range", where="fault schedule",
-                              fix=f"use 0..{dev.n_arm - 1}")
-        return dev, emu
-
-    def on_time(self, t_s: float) -> None:
-        """Start / end every fault due at sim time t_s [s]."""
-        for i, s in enumerate(self.specs):
-            if not self._started[i] and t_s >= s.t_s:
-                self._started[i] = True
-                self._apply(i, s, start=True, t_s=t_s)
-            if self._started[i] and not self._ended[i] and t_s >= s.t_s + s.duration_s:
-                self._ended[i] = True
-                self._apply(i, s, start=False, t_s=t_s)
-
-    def _apply(self, i: int, s: FaultSpec, start: bool, t_s: float) -> None:
-        dev, emu = self._target(s)
-        k, j, detail = s.kind, s.joint, ""
-        if k == "can_loss":
-            if start:
-                self._saved[i] = emu.drop_prob
-            emu.drop_prob = CAN_LOSS_PROB if start else self._saved.pop(i)
-        elif k == "can_busoff":
-            if start:
-                self._saved[i] = emu.drop_prob
-            emu.silent, emu.drop_prob = (True, 1.0) if start else (False, self._saved.pop(i))
-        elif k.startswith("motor_"):
-            if hasattr(emu, "fault_flags"):
-                emu.fault_flags[j] = _FLAGS[k] if start else 0
-            else:
-                emu.err[j] = _DAMIAO_ERR[k] if start else 0
-        elif k == "dxl_unplug":
-            emu.set_silent(start)
-        elif k == "dxl_overload":
-            if start:  # latched by the servo until it is rebooted: nothing to undo at the end
-                sid = emu.servos[j].id
-                emu.set_hardware_error(sid, DXL_OVERLOAD_BIT)
-                detail = f"servo id {sid}"
-        elif k == "dxl_corrupt":
-            emu.corrupt_prob = DXL_CORRUPT_PROB if start else 0.0
-        elif k.startswith("camera_"):
-            for w in self._worlds:
-                w.camera_fault = k.removeprefix("camera_") if start else None
-        elif k.startswith("spike_") and start:
-            spike = np.zeros(6 if k == "spike_follower" else dev.bank.n)
-            spike[j] = SPIKE_RAD
-            emu.spike_rad = spike
-            detail = f"{SPIKE_RAD:g} rad"
-        self.log.append({"kind": k, "event": "start" if start else "end", "t_s": float(t_s), "joint": j,
-                         "detail": detail})

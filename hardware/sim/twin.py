@@ -47,7 +47,7 @@ from hardware.realtime import EMULATOR_PRIORITY, TWIN_PRIORITY, set_fifo
 from hardware.registry import EmulatorContext, device_kind
 from hardware.sim.actuators import ActuatorParams, Effects
 from hardware.sim.effects_hook import load_hook
-from hardware.sim.faults import FaultInjector
+from hardware.sim.fault_injector import FaultInjector
 from hardware.sim.mujoco_bank import MujocoBank
 from hardware.sim.presets import arm_params, motor_params
 from hardware.sim.tasks.base import scene_model
@@ -368,6 +368,8 @@ class Twin:
 
     def close(self) -> None:
         self.stop_realtime()
+        if self.faults is not None:
+            self.faults.close()
         for e in self._dxl_emus:
             e.close()
         for d in self.devices.values():

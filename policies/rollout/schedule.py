@@ -45,6 +45,7 @@ class PolicyHold(Enum):
     STALLED = "policy stalled"  # detail: ms
     USED_UP = "policy chunks used up"
     FOLLOWER_STALE = "follower data stale"
+    FOLLOWER_MOTOR_ERROR = "follower motor error"  # detail: what ("j2 over-current")
     BETWEEN_EPISODES = "waiting"
     NOT_STARTED = "waiting to start"
     NO_POLICY = "no policy attached"
@@ -63,6 +64,7 @@ messages({
     PolicyHold.STALLED: "policy stalled: no new chunk {ms:.0f} ms after one was due",
     PolicyHold.USED_UP: "policy chunks used up",
     PolicyHold.FOLLOWER_STALE: "follower data stale",
+    PolicyHold.FOLLOWER_MOTOR_ERROR: "follower motor error: {what}",
     PolicyHold.BETWEEN_EPISODES: "waiting: between episodes",
     PolicyHold.NOT_STARTED: "waiting to start",
     PolicyHold.NO_POLICY: "no policy attached",

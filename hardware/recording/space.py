@@ -1,0 +1,59 @@
+"""Disk space for a recording that must end complete: a reserve the writer holds from the start and gives
+back when the filesystem runs low, so that everything handed over so far, the summary and the footer still
+fit (hardware/recording/writer_process.py). A disk filling mid-session then costs the rest of the session's
+recording, not the last flush interval before it.
+
+    r = SpaceReserve(path)        # the Recorder: .NAME.reserve beside path, min(RESERVE_BYTES, free / 4)
+    r = SpaceReserve(path, create=False)   # the writer process: that file
+    if r.low(): r.release()       # checked at every flush: free < LOW_SPACE_BYTES -> finish the file now
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+RESERVE_BYTES = 2 << 20  # B held back per recording (a flush interval of samples and frames, the summary)
+LOW_SPACE_BYTES = 512 << 10  # B free below which the writer finishes the file and stops
+
+
+def free_bytes(folder) -> int:
+    st = os.statvfs(folder)
+    return st.f_bavail * st.f_frsize
+
+
+class SpaceReserve:
+    def __init__(self, path, create: bool = True):
+        """create: make the reserve file now (the Recorder, as it opens the file: the reserve exists before
+        the writer process starts); False: the one made for this path (the writer, which gives it back)."""
+        p = Path(path)
+        self.path = p.parent / f".{p.name}.reserve"
+        self.size = 0
+        if not create:
+            self.size = self.path.stat().st_size if self.path.exists() else 0
+            return
+        try:
+            size = min(RESERVE_BYTES, free_bytes(p.parent) // 4)
+            fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            try:
+                os.posix_fallocate(fd, 0, max(size, 1))
+                self.size = size
+            finally:
+                os.close(fd)
+        except OSError:  # no reserve (a filesystem without fallocate, already full): the writer goes on
+            self.release()
+
+    def low(self) -> int | None:
+        """The free bytes when below LOW_SPACE_BYTES, else None."""
+        try:
+            free = free_bytes(self.path.parent)
+        except OSError:
+            return None
+        return free if free < LOW_SPACE_BYTES else None
+
+    def release(self) -> None:
+        try:
+            self.path.unlink()
+        except OSError:
+            pass
+        self.size = 0

@@ -1,0 +1,142 @@
+"""SIMULATED faults of the app's process and machine (hardware/sim/process_faults.py), seeded: the wall clock
+stepping, the recording disk filling (a tmpfs the test mounts), the NEXT worker killed, SIGTERM and SIGKILL
+of the app (subprocess runs of `factr2 collect`)."""
+
+from __future__ import annotations
+
+import inspect
+import os
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from factr2_teleop.demo.fault_run import run_with_faults, samples_lost
+from hardware.recording import Recorder
+from hardware.sim.faults import WALL_STEP_S, parse_fault
+from tests.fault_helpers import run_fault, said
+
+REPO = Path(__file__).resolve().parents[1]
+# s: the recorder's flush interval (its default): what a SIGKILL of app and writer may lose at most
+FLUSH_S = inspect.signature(Recorder).parameters["flush_interval_s"].default
+
+
+def _faults(*texts):
+    return [parse_fault(t) for t in texts]
+
+
+def test_wall_clock_steps_change_nothing_the_loop_or_the_recording_does(tmp_path):
+    real = time.time
+    base = run_with_faults([], seconds=1.5, record_dir=tmp_path / "a")
+    out = run_with_faults(_faults("wall_step_fwd@0.5", "wall_step_back@1.0"), seconds=1.5,
+                          record_dir=tmp_path / "b")
+    assert out.error is None and out.violations == 0 and out.safe_at_end
+    assert [e["detail"] for e in out.log if e["event"] == "start"] == [f"wall clock {WALL_STEP_S:+g} s",
+                                                                        f"wall clock {-WALL_STEP_S:+g} s"]
+    np.testing.assert_array_equal(out.follower_q_sent, base.follower_q_sent)  # bit for bit
+    np.testing.assert_array_equal(out.t_ticks, base.t_ticks)
+    from hardware.recording.reader import Recording
+
+    t_rec = Recording(out.recording.path, use_cache=False, write_cache=False).topic("/follower/joint_state").t
+    assert samples_lost(out.t_ticks, t_rec, np.inf) == (len(out.t_ticks), 0)  # every tick, at its time
+    assert np.all(np.diff(t_rec) > 0)
+    assert time.time is real  # the twin's close undid the step
+
+
+@pytest.fixture()
+def small_fs(tmp_path):
+    """A 4 MiB tmpfs the test mounts (root with CAP_SYS_ADMIN). Without it this test is skipped; the
+    recorder's size-limited writer (EFBIG at RLIMIT_FSIZE) is covered by tests/test_recording_crash.py."""
+    d = tmp_path / "fs"
+    d.mkdir()
+    r = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4m", "tmpfs", str(d)], capture_output=True,
+                       text=True)
+    if r.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here ({r.stderr.strip() or r.returncode})")
+    yield d
+    subprocess.run(["umount", "-l", str(d)], check=False)
+
+
+def test_disk_full_stops_the_recording_said_teleop_goes_on_and_the_file_opens(small_fs):
+    out = run_fault("disk_full@1.0:0.5", seconds=2.0)  # nothing records here: not played
+    assert out.log[0]["played"] is False and "nothing records" in out.log[0]["detail"]
+    out = run_with_faults(_faults("disk_full@1.0:1.5"), seconds=3.0, record_dir=small_fs)
+    assert out.error is None and out.violations == 0 and out.safe_at_end
+    assert out.log[0]["played"] and out.log[0]["detail"].startswith("filled")
+    rc = out.recording
+    assert rc.opens and rc.error and "the disk is full" in rc.error and "the file is complete" in rc.error
+    assert said(out, "teleop goes on without recording")
+    assert out.ticks == len(out.t_ticks) and out.t_ticks[-1] > 2.9  # the session ran to its end
+    # everything handed over before the disk filled is in the file (the writer's space reserve took it)
+    assert rc.samples_recorded >= rc.ticks_before_fault > 0 and rc.lost_before_fault == 0, rc
+    assert not list(small_fs.glob(".*.reserve"))
+    assert not list(small_fs.glob(".factr2-fault-disk-full"))  # the filler went with the twin
+
+
+def test_killed_next_worker_is_restarted_and_estimates_come_back(tmp_path):
+    from calibration.next.checkpoint import save_checkpoint
+    from calibration.next.worker import NextWorker
+    from hardware.sim.process_faults import kill_next_workers
+    from tests.test_next_estimator import _ck
+    from tests.test_next_worker import _answer, _inputs
+
+    path = save_checkpoint(_ck(history=12, n_j=3), tmp_path / "next")
+    w = NextWorker(path, "test", 3, 0.002)
+    try:
+        w.wait_ready()
+        inputs = _inputs(200)
+        for x in inputs[:40]:
+            w.update(x)
+            _answer(w)
+        assert w.answers == 40
+        assert kill_next_workers().startswith("killed NEXT worker pid")
+        with pytest.raises(RuntimeError, match="restarting it"):
+            for x in inputs[40:80]:
+                w.update(x)
+                time.sleep(0.01)
+        assert w.restarts == 1
+        w.wait_ready()
+        est = []
+        for x in inputs[80:]:
+            est.append(w.update(x))
+            _answer(w)
+            est.append(w.refresh(x))
+        assert any(e is not None and e.valid for e in est)  # feedback comes back (warm again)
+    finally:
+        w.close()
+    assert kill_next_workers() == "not played: no NEXT worker"
+
+
+def _collect(out: Path, fault: str):
+    env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
+    return subprocess.run([sys.executable, "-m", "factr2_teleop.cli", "collect", "--task", "peg-insert",
+                           "--episodes", "1", "--out", str(out), "--mode", "dob", "--no-cameras",
+                           "--twin-fault", fault], capture_output=True, text=True, env=env, timeout=300)
+
+
+def _follower_times(out: Path):
+    from hardware.recording.reader import Recording
+
+    (path,) = out.glob("*.mcap")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = Recording(path, use_cache=False, write_cache=False)
+        return rec, rec.topic("/follower/joint_state").t
+
+
+@pytest.mark.parametrize("sig", ["sigterm", "sigkill"])
+def test_app_signal_ends_safely_and_the_recording_opens(tmp_path, sig):
+    r = _collect(tmp_path, f"app_{sig}@2.0")
+    assert "Traceback" not in r.stderr
+    rec, t = _follower_times(tmp_path)
+    assert len(t) and np.all(np.diff(t) > 0)
+    if sig == "sigterm":  # Ctrl-C's path: the arms made safe, the episode closed with a note
+        assert r.returncode == 143 and "terminated (SIGTERM): stopped safely" in r.stderr
+        assert any(e["kind"] == "note" and "interrupted" in e["text"] for e in rec.events)
+    else:  # nothing of the app ran: its writer process finished the file
+        assert r.returncode == -9
+    assert t[-1] >= 2.0 - FLUSH_S  # at most the last flush interval lost (lockstep: sim time ~ wall time)
