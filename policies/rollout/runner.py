@@ -35,6 +35,11 @@ from policies.checkpoint import load_policy
 from policies.rollout.schedule import Chunk
 
 
+def flat_values(obs: dict, names: list[str]) -> np.ndarray:
+    """The named features of a flat observation, concatenated (float32 (D,))."""
+    return np.concatenate([np.atleast_1d(np.asarray(obs[n], dtype=np.float32)) for n in names])
+
+
 class PolicyRunner:
     def __init__(self, path: str | Path, seed: int = 0, ema: bool = True):
         self.model, self.meta, self.pre = load_policy(path, ema=ema)
@@ -128,7 +133,7 @@ class PolicyRunner:
     def batch(self, obs: dict) -> dict:
         """The model's input (batch of one) from a flat observation (feature name -> value)."""
         def cat(names):
-            return np.concatenate([np.atleast_1d(np.asarray(obs[n], dtype=np.float32)) for n in names])[None]
+            return flat_values(obs, names)[None]
 
         objects = np.asarray(obs[TASK_OBJECTS_FEATURE], np.float32)[None] if self.object_names else None
         images = (np.stack([self.pre.image.live(c, obs[IMAGES + c]) for c in self.cameras])[None]
@@ -143,8 +148,7 @@ class PolicyRunner:
         noise = self.model.draw_noise(self.cfg, 1, self._gen)
         with torch.inference_mode():
             z = self.model.predict(b, noise)[0].float().numpy()
-        state = np.concatenate([np.atleast_1d(np.asarray(obs[n], np.float32)) for n in self.state_names])
-        actions = np.asarray(self.pre.actions(z, state), dtype=float)
+        actions = np.asarray(self.pre.actions(z, flat_values(obs, self.state_names)), dtype=float)
         lat = time.perf_counter() - t0
         self.latencies_s.append(lat)
         return Chunk(t_obs=float(t_obs), actions=actions, dt=self.dt, seq=seq, latency_s=lat)
