@@ -203,11 +203,13 @@ def _signal_session(activity, spec, seed, folder, policy) -> dict:
            # SIGTERM: Ctrl-C's path made the arms safe (said); SIGKILL: the twin died with the app, the
            # arms' own command timeouts are not observable here
            "safe_end": ("stopped safely" in r.stderr) if spec.kind == "app_sigterm" else None}
+    from hardware.recording.reader import open_when_finished
+
     files = sorted(folder.glob("*.mcap"))
     out["recording_opens"], out["samples_lost"] = False, None
     if files:
         try:
-            rec = _finished(files[0])
+            rec = open_when_finished(files[0], WRITER_FINISH_S)
             t = rec.topic("/follower/joint_state").t
             out["recording_opens"], out["recording_truncated"] = True, rec.truncated
             if len(t) > 2:
@@ -217,27 +219,6 @@ def _signal_session(activity, spec, seed, folder, policy) -> dict:
         except Exception as e:  # noqa: BLE001
             out["error"] = f"recording does not open: {e}"
     return out
-
-
-def _finished(path: Path, wait_s: float = WRITER_FINISH_S):
-    """The recording once its writer process (which outlives a killed app) has finished it, or as it is
-    after wait_s [s]."""
-    import warnings
-
-    from hardware.recording.reader import Recording
-
-    end = time.monotonic() + wait_s
-    while True:
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                rec = Recording(path, use_cache=False, write_cache=False)
-            if not rec.truncated or time.monotonic() > end:
-                return rec
-        except Exception:  # noqa: BLE001 -- not written yet (the writer starts, drains, finishes)
-            if time.monotonic() > end:
-                raise
-        time.sleep(0.2)
 
 
 def _child(argv: list[str]) -> int:

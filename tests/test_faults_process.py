@@ -9,7 +9,6 @@ import os
 import subprocess
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -119,13 +118,12 @@ def _collect(out: Path, fault: str):
 
 
 def _follower_times(out: Path):
-    from hardware.recording.reader import Recording
+    from hardware.recording.reader import open_when_finished
 
     (path,) = out.glob("*.mcap")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        rec = Recording(path, use_cache=False, write_cache=False)
-        return rec, rec.topic("/follower/joint_state").t
+    rec = open_when_finished(path, wait_s=60.0)  # after a SIGKILL its writer is still draining
+    assert not rec.truncated, "the writer process did not finish the file"
+    return rec, rec.topic("/follower/joint_state").t
 
 
 @pytest.mark.parametrize("sig", ["sigterm", "sigkill"])

@@ -25,6 +25,11 @@ from hardware.recording.arm_tick import record_arm_tick
 TRUTH_EVERY = 5  # ticks between ground-truth samples (each the mean over those ticks): 100 Hz at 500 Hz
 TIMING_EVERY = 50  # ticks between loop-timing samples (10 Hz at 500 Hz)
 HAND_OVER_EVERY = 50  # ticks kept before a hand-over if no loop calls hand_over() while it sleeps
+# s of rig time: simulated time (a lossless recorder) keeps the packer at most this far behind the loop, so
+# that a SIGKILL of the app loses no more than this plus the loop's unhanded batch (the writer process
+# drains its rings); real time never waits: the backlog is the packer's, unbounded
+SIM_BACKLOG_S = 0.05
+BACKLOG_POLL_S = 0.0005  # s: how often a lockstep loop looks whether the packer caught up
 
 
 def session_path(out_dir: str | Path, stem: str) -> Path:
@@ -54,6 +59,7 @@ class SessionRecording:
         self.camera_stats: dict = {}  # filled at close by the owner of the stream
         self._ticks = 0
         self._lock = threading.Lock()  # two loops (bimanual, real time) may share one file
+        self._count_lock = threading.Lock()  # the backlog count: the loop adds, the packer takes away
         self.recording = False  # an episode is open
         # [t_start, t_stop] of every episode [s, rig clock]: a frame belongs to an episode by its timestamp,
         # not by when its render finished (a twin camera renders behind the lockstep stepper)
@@ -66,6 +72,9 @@ class SessionRecording:
         # new ones; tests/test_recording_process.py compares lockstep records with copies taken at the tick).
         self._batch: list = []
         self._pending: queue.SimpleQueue = queue.SimpleQueue()
+        self._backlog = 0  # ticks handed over and not yet packed (the packer's count; read by the loop)
+        self._max_backlog = max(1, int(SIM_BACKLOG_S * self.rate_hz)) if getattr(recorder, "lossless",
+                                                                                  False) else None
         self._packer = threading.Thread(target=self._pack_ticks, name="factr2-record-ticks", daemon=True)
         self._packer.start()
 
@@ -154,8 +163,13 @@ class SessionRecording:
 
     def _hand_over_locked(self) -> None:
         if self._batch:
+            with self._count_lock:
+                self._backlog += len(self._batch)
             self._pending.put(self._batch)
             self._batch = []
+            if self._max_backlog is not None:  # simulated time: nothing is late by waiting for the packer
+                while self._backlog > self._max_backlog and self._packer.is_alive():
+                    time.sleep(BACKLOG_POLL_S)
 
     def _pack_ticks(self) -> None:
         rec = self.recorder
@@ -169,6 +183,8 @@ class SessionRecording:
                     rec.log_ground_truth(f"{pre}follower", r.t, gt.tau_ext[:n], gt.contact)
                 if timing:
                     rec.log_loop_timing(r.t, r.loop_period_s, 0.0, 0.0, r.loop_overruns)
+            with self._count_lock:
+                self._backlog -= len(batch)
 
     # -- end -----------------------------------------------------------------------------------------------
     def close(self, why: str = ""):

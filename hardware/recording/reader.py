@@ -267,3 +267,23 @@ class Recording:
             t_stop = stops[-1] if stops else t_last
             eps.append(Episode(self, idx, s["t"], max(s["t"], t_stop), outcome, s["text"], mine))
         return eps
+
+
+def open_when_finished(path: str | Path, wait_s: float = 15.0, poll_s: float = 0.2) -> Recording:
+    """The recording once its writer process has finished it (a killed app's writer outlives it and drains
+    its rings first: read at once, the file is still truncated), or as it is after wait_s [s, wall].
+    No array cache is read or written; the truncated file's warnings are not repeated while waiting."""
+    import time
+
+    end = time.monotonic() + wait_s
+    while True:
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                rec = Recording(path, use_cache=False, write_cache=False)
+            if not rec.truncated or time.monotonic() > end:
+                return rec
+        except Exception:  # noqa: BLE001 -- not written yet (the writer starts, drains, finishes)
+            if time.monotonic() > end:
+                raise
+        time.sleep(poll_s)
