@@ -22,3 +22,22 @@ def test_teleop_ground_truth_on_real_rig_is_refused(capsys):
     assert main(["teleop", "--rig", "piper", "--mode", "ground_truth", "--seconds", "0.1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "only on simulated rigs" in err[0]
+
+
+def test_teleop_record_no_cameras_records_no_frames(tmp_path, capsys):
+    """`--record DIR --no-cameras`: the samples, no camera frame (the rig has a scene camera); with the
+    cameras, frames (the episode starts once they are open: a second or so of the 3 s)."""
+    from hardware.recording.reader import Recording
+
+    counts = {}
+    for name, extra in (("without", ["--no-cameras"]), ("with", [])):
+        out = tmp_path / name
+        assert main(["teleop", "--rig", "sim-piper", "--seconds", "3", "--mode", "dob", "--record",
+                     str(out), *extra]) == 0
+        (path,) = out.glob("*.mcap")
+        rec = Recording(path, use_cache=False, write_cache=False)
+        n_frames = sum(len(rec.frames(c)) for c in rec.cameras)
+        counts[name] = (len(rec.topic("/follower/joint_state").t), n_frames)
+    capsys.readouterr()
+    assert counts["without"][0] > 1000 and counts["without"][1] == 0, counts
+    assert counts["with"][1] > 0, counts

@@ -67,7 +67,7 @@ def _execute(args) -> dict:
         rec = ts.record(args.record, cameras=not args.no_cameras) if args.record else None
         ts.loop.start(duration_s=args.seconds)  # at once: a twin's unheld leader sinks until the loop runs
         if rec is not None:
-            for line in ts.start_cameras():  # a second or so to open, while the loop already runs
+            for line in ts.start_cameras() if not args.no_cameras else []:  # a second or so to open
                 print(f"recording without it: {line}", file=sys.stderr)
             rec.start_episode("teleop")
         _watch(ts.loop)

@@ -133,8 +133,9 @@ class SessionRecording:
 
     def frame(self, camera: str, t: float, rgb: np.ndarray) -> None:
         """A camera frame (the camera stream's thread) taken at t [s]: written when t lies in an episode,
-        even if it arrives after that episode stopped (the file is still open)."""
-        if any(t0 <= t <= t1 for t0, t1 in reversed(self._spans)):
+        even if it arrives after that episode stopped (the file is still open). A recording opened without
+        cameras (start_cameras None: `--no-cameras`) takes none, whoever else runs the stream."""
+        if self._start_cameras is not None and any(t0 <= t <= t1 for t0, t1 in reversed(self._spans)):
             self.recorder.log_image(camera, t, rgb)
 
     # -- per tick (the loop's thread) --------------------------------------------------------------------
