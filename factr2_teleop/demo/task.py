@@ -23,7 +23,13 @@ import numpy as np
 from calibration.estimators import DOB_GAIN_PER_S, FEEDBACK_MODES, PP_STIFFNESS_NM_PER_RAD
 from factr2_teleop.demo import metrics as M
 from factr2_teleop.teleop.record import TickRecord
-from factr2_teleop.teleop.virtual_operator import OperatorScript, Segment, VirtualOperator, make_task_script
+from factr2_teleop.teleop.virtual_operator import (
+    OperatorScript,
+    Segment,
+    VirtualOperator,
+    felt_joints,
+    make_task_script,
+)
 from hardware import sim_cpu
 from hardware.sim.twin import TwinDrivenClock
 from hardware.threads import limit_threads
@@ -224,6 +230,7 @@ class DemoRun:
         self.n = self.follower.n_joints
         world = s.twin.devices[fspec.name].world
         self._gt_world, self._gt_bank = world, world.banks.index(s.twin.bank(fspec.name))
+        self._hand_bank = s.twin.bank(s.rig.leaders[0].name)  # what the simulated hand feels (felt_joints)
         self._model_fns = (self.pair.law.gravity_fn, self.pair.law.jacobian_fn)
         self.script = task_script(self.leader.read().q, cfg.seconds, *self._task_poses(s, fspec, world))
         self.operator = VirtualOperator(self.script, cfg.hand_stiffness, cfg.hand_damping,
@@ -252,8 +259,8 @@ class DemoRun:
 
     def _on_tick(self, rec: TickRecord) -> None:
         with sim_cpu.simulated():  # the simulated hand and the metrics' ground truth: not the app's CPU
-            ls = self.leader.last_state
-            tau_hand = self.operator.torque(rec.t, ls.q, np.nan_to_num(ls.q_dot))
+            q_l, qd_l = felt_joints(self.leader.last_state, self._hand_bank)
+            tau_hand = self.operator.torque(rec.t, q_l, qd_l)
             self.session.twin.apply_leader_hand_torque(tau_hand)
             self._tick_n += 1
             if self._tick_n % self._truth_every == 0:

@@ -27,6 +27,7 @@ import numpy as np
 from factr2_teleop.session.task_episodes import SETTLE_S, TaskEpisodes
 from factr2_teleop.tasks import script_for
 from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept, percept
+from factr2_teleop.teleop.virtual_operator import felt_joints
 from hardware import sim_cpu
 from hardware.sim.tasks import Task
 
@@ -90,9 +91,9 @@ class EpisodeDriver(TaskEpisodes):
         self.twin.bank(self.lname).set_hand_torque(np.zeros(self.pair.leader.n_joints + 1))
 
     def _apply_hand(self, r) -> None:
-        ls = r.leader
-        tau = self.op.torques(ls.q, ls.q_dot, ls.gripper_pos)
-        self.twin.bank(self.lname).set_hand_torque(tau)
+        bank = self.twin.bank(self.lname)
+        q_l, qd_l = felt_joints(r.leader, bank)
+        bank.set_hand_torque(self.op.torques(q_l, qd_l, r.leader.gripper_pos))
 
     def _percept(self, r) -> Percept:
         return percept(r, self.data, self.ee_site, self.task.observe(self.model, self.data, self.params))

@@ -28,6 +28,7 @@ from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept, percep
 from factr2_teleop.tasks.scripts import grip, move
 from factr2_teleop.teleop.pair import HOLD
 from factr2_teleop.teleop.takeover import OPERATOR
+from factr2_teleop.teleop.virtual_operator import felt_joints
 from hardware import sim_cpu
 
 STALL_S = 6.0  # s: no new task stage for this long while the policy drives: the operator steps in
@@ -143,8 +144,8 @@ class TwinTakeoverOperator:
         self._apply(r)
 
     def _apply(self, r) -> None:
-        ls = r.leader
-        self.bank.set_hand_torque(self.op.torques(ls.q, ls.q_dot, ls.gripper_pos))
+        q_l, qd_l = felt_joints(r.leader, self.bank)
+        self.bank.set_hand_torque(self.op.torques(q_l, qd_l, r.leader.gripper_pos))
 
     def _let_go(self) -> None:
         self.bank.set_hand_torque(self._zero)

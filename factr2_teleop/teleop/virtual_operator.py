@@ -20,8 +20,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hardware.params import PerJoint, per_joint
+from hardware.types import STATUS_COMM_LOST, STATUS_STALE
 
 PHASES = ("free", "reach", "contact", "wipe", "release")
+_NOT_READ = STATUS_STALE | STATUS_COMM_LOST
 _ENVELOPE_S = 0.3  # s: oscillations fade in/out over this so the reference stays smooth
 
 
@@ -191,3 +193,18 @@ def _press_direction(script: OperatorScript) -> np.ndarray:
             return np.asarray(seg.q_end, dtype=float) - prev
         prev = np.asarray(seg.q_end, dtype=float)
     return np.zeros(len(script.q_start))
+
+
+def felt_joints(state, bank) -> tuple[np.ndarray, np.ndarray]:
+    """The leader's joints as a simulated hand on it feels them ([rad], [rad/s], NaN velocity as 0): the app's
+    reading where it is fresh (the arm to an encoder tick and one loop tick: every lockstep result stays as
+    it was), the twin's true joints (bank.true_state(), SIMULATED) where the driver holds a stale sample. A
+    Dynamixel chain that stops answering freezes the reading, not the arm: a hand impedance on the frozen
+    reading pushed at its clip for the whole gap and flung the leader 1-3 rad (re-coupling was refused)."""
+    q, qd = np.asarray(state.q, float), np.nan_to_num(np.asarray(state.q_dot, float))
+    stale = (np.asarray(state.status, np.uint32) & np.uint32(_NOT_READ)) != 0
+    if not stale.any():
+        return q, qd
+    q_true, qd_true = bank.true_state()
+    n = len(q)
+    return np.where(stale, q_true[:n], q), np.where(stale, qd_true[:n], qd)
