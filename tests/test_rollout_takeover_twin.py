@@ -188,7 +188,9 @@ def test_the_twin_operator_steps_into_a_stalled_policy(state_run, smooth_policy,
     tk = log["tk"]
     assert tk.count == 1 and tk.marks[0]["by"] == "hand", tk.marks
     t0 = next(t for t, st, *_ in log["ticks"] if st == "run")
-    assert 1.0 <= tk.marks[0]["t_grab"] - t0 <= 1.5  # it watched for STALL_S, then grabbed
+    # it watched for STALL_S, then grabbed: its impedance hand pushes up slowly against a slowly moving
+    # follower, whose lag and load the detector discounts (teleop/takeover.py): sensed within 1 s of the grab
+    assert 1.0 <= tk.marks[0]["t_grab"] - t0 <= 2.0
     drove = [d for t, st, d, *_ in log["ticks"] if st == "run" and t > tk.marks[0]["t_takeover"]]
     assert drove and all(d == OPERATOR for d in drove)  # the operator drove to the (extended) time limit
     assert out["episodes"][0]["duration_s"] > 4.0  # the limit restarted at the grab

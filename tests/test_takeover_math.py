@@ -21,9 +21,12 @@ from factr2_teleop.teleop.takeover import (
     blend_weight,
     detect_step,
     follow_torque,
+    hand_baseline_step,
     hand_torque_nm,
     handover_target,
+    lag_allowance,
     leader_goal,
+    spring_torque_nm,
 )
 
 DT = 1 / 500.0
@@ -95,15 +98,34 @@ def test_following_torque_is_capped_and_has_no_spring_on_unmapped_joints():
     assert np.all(np.isfinite(tau)) and np.all(tau == 0.0)
 
 
-def test_hand_torque_discounts_the_lag_behind_a_moving_follower():
+def test_hand_torque_discounts_the_lag_behind_a_moving_follower_and_the_leaders_load():
     kp, lag = np.full(2, 2.0), np.full(2, 0.15)
-    assert hand_torque_nm(np.zeros(2), np.array([0.2, 0.0]), np.zeros(2), kp, lag) == pytest.approx(0.4)
+    spring = spring_torque_nm(np.zeros(2), np.array([0.2, 0.0]), kp)
+    zero = np.zeros(2)
+    assert hand_torque_nm(spring, zero, zero, zero) == pytest.approx(0.4)
     # the same gap behind a follower moving at 2 rad/s is mostly lag
     moving = np.array([2.0, 0.0])
-    assert hand_torque_nm(np.zeros(2), np.array([0.2, 0.0]), moving, kp, lag) == pytest.approx(0.1)
-    assert hand_torque_nm(np.full(2, np.nan), np.zeros(2), np.zeros(2), kp, lag) == 0.0
+    allow = lag_allowance(zero, moving, lag, 0.002, 0.5)
+    assert hand_torque_nm(spring, zero, allow, moving) == pytest.approx(0.1)
+    # ... and stays lag for a while after the follower stopped: the allowance decays over hold_s
+    allow_later = lag_allowance(allow, zero, lag, 0.25, 0.5)
+    assert allow_later[0] == pytest.approx(0.3 * np.exp(-0.5))
+    assert hand_torque_nm(spring, zero, allow_later, zero) == pytest.approx(0.4 - 0.3 * np.exp(-0.5))
+    # a steady load the spring holds (the leader's gravity residual) is the baseline, not a hand
+    assert hand_torque_nm(spring, spring, zero, zero) == 0.0
+    assert hand_torque_nm(spring_torque_nm(np.full(2, np.nan), zero, kp), zero, zero, zero) == 0.0
     # faster than grab_max_speed_rad_s: not sensed at all (the key takes over then)
-    assert hand_torque_nm(np.zeros(2), np.array([0.9, 0.0]), np.array([1.6, 0.0]), kp, lag, 1.5) == 0.0
+    assert hand_torque_nm(spring_torque_nm(zero, np.array([0.9, 0.0]), kp), zero, zero,
+                          np.array([1.6, 0.0]), 1.5) == 0.0
+
+
+def test_hand_baseline_follows_a_slow_load_and_keeps_through_a_missing_reading():
+    b = np.zeros(2)
+    for _ in range(2000):  # 4 s at 2 ms of a steady 0.3 N*m on joint 0: the baseline converges (tau 0.7 s)
+        b = hand_baseline_step(b, np.array([0.3, 0.0]), 0.002, 0.7)
+    np.testing.assert_allclose(b, [0.3, 0.0], atol=1e-3)
+    b2 = hand_baseline_step(b, np.array([np.nan, 1.0]), 0.002, 0.7)
+    assert b2[0] == b[0] and 0.0 < b2[1] < 0.01
 
 
 @settings(max_examples=300, deadline=None)

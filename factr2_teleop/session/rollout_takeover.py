@@ -30,6 +30,7 @@ from factr2_teleop.session.rollout_pair import RUN, PolicyTarget, RolloutPair
 from factr2_teleop.teleop.pair import COUPLED, HOLD, PairHold
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.takeover import (
+    BASELINE_ADAPT_NM,
     HANDBACK,
     OPERATOR,
     POLICY,
@@ -40,9 +41,12 @@ from factr2_teleop.teleop.takeover import (
     blend_weight,
     detect_step,
     follow_torque,
+    hand_baseline_step,
     hand_torque_nm,
     handover_target,
+    lag_allowance,
     leader_goal,
+    spring_torque_nm,
     switched,
 )
 from hardware.params import per_joint
@@ -240,6 +244,8 @@ class TakeoverPair(RolloutPair):
         self._offset = np.zeros(self.follower.n_joints)
         self._g_off, self._g_cmd = 0.0, None
         self.hand_nm = 0.0
+        self._allow = np.zeros(n)  # [N*m] the spring torque the leader's lag may explain (lag_allowance)
+        self._base: np.ndarray | None = None  # [N*m] the leader's slow load on the spring (baseline)
         self.tracking_err_rad: list[float] = []  # leader vs follower (leader joints) while the policy drives
         self._safe = False
 
@@ -254,8 +260,7 @@ class TakeoverPair(RolloutPair):
         goal = leader_goal(self.map.backward(fs.q), ls.q)
         qd_goal = self.map.backward_velocity(fs.q_dot)
         ok = leader_ok and follower_ok
-        self.hand_nm = hand_torque_nm(ls.q, goal, qd_goal, self._kp, self._lag,
-                                      self.cfg.takeover.grab_max_speed_rad_s) if ok else 0.0
+        self.hand_nm = self._sense_hand(dt, ls, goal, qd_goal, tk.driver) if ok else 0.0
         tk.sense(self.index, now, self.hand_nm, ls.q)
         if follower_ok:
             self._tick_estimator(now, fs, self.q_target if self.q_target is not None else fs.q)
@@ -270,6 +275,22 @@ class TakeoverPair(RolloutPair):
         self._follow(now, dt, ls, fs, tk)
         self.last = self._record(now, ls, fs, tau_sent, out)
         return self.last
+
+    def _sense_hand(self, dt: float, ls, goal, qd_goal, driver: str) -> float:
+        """The hand torque [N*m] (teleop/takeover.py): while the policy drives, the spring's torque less its
+        baseline and the lag allowance, the baseline adapting while no hand is sensed; while the operator
+        drives (no spring acts), the leader-follower gap as it is (the hand at rest hands back)."""
+        tc = self.cfg.takeover
+        spring = spring_torque_nm(ls.q, goal, self._kp)
+        dt = dt if np.isfinite(dt) and dt > 0 else self.dt_s
+        self._allow = lag_allowance(self._allow, qd_goal, self._lag, dt, tc.follow_lag_hold_s)
+        if self._base is None:
+            self._base = np.nan_to_num(spring)
+        base = self._base if driver == POLICY else 0.0
+        hand = hand_torque_nm(spring, base, self._allow, qd_goal, tc.grab_max_speed_rad_s)
+        if driver == POLICY and hand < tc.release_nm and float(self._allow.max()) > BASELINE_ADAPT_NM:
+            self._base = hand_baseline_step(self._base, spring, dt, tc.hand_baseline_s)
+        return hand
 
     def _lead(self, now: float, ls, fs, goal, qd_goal, following: bool):
         """The leader's torque: teleop's law (feedback gated and capped as in teleop) + the spring."""

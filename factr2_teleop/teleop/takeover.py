@@ -8,10 +8,17 @@ feedback), so the hand feels the policy's motion and its contacts and can overpo
                                                                           [N*m, leader joints]
 (drag qd_goal: a feed-forward of the back-driven servo gearbox's drag, so the spring is not what moves it)
 
-What the spring holds against is the hand: hand_torque_nm = max_j (|kp_j (q_goal - q)_j| - lag_j |qd_goal_j|)
-[N*m], the spring's torque before its cap less what the leader's lag behind a moving follower explains (it
-cannot accelerate as fast as the follower: a small servo's torque, a back-driven gearbox); at rest it is
-the hand's torque, minus the leader's small uncompensated gravity.
+What the spring holds against is the hand, and two things that are not one:
+- the leader's uncompensated load, a slow function of the pose (measured on the twin's GELLO leader: the
+  spring held 0.3 N*m on j2 and 0.2 N*m on j3 at rest, its gravity model against its servos' torque
+  constants and friction): a baseline, the spring torque low-passed over hand_baseline_s while no hand is
+  sensed (hand_baseline_step), is taken off;
+- the leader's lag behind a moving follower (it cannot accelerate as fast: a small servo's torque, a
+  back-driven gearbox), which outlasts the motion by a few tenths of a second: an allowance lag_j |qd_goal_j|
+  that decays over follow_lag_hold_s once the follower slows (lag_allowance).
+  hand_torque_nm = max_j (|s_j - baseline_j| - allowance_j), s = kp (q_goal - q) [N*m], the spring's torque
+  before its cap. With the velocity-only allowance and no baseline, a peg-insert policy on the twin
+  "took over" every few seconds with no hand on the leader (docs/rollout.md, "Sensing the hand").
 
 Takeover (detect_step): the hand torque at or above grab_nm for grab_min_s (hysteresis: the timer keeps
 running while it stays above release_nm, and restarts below it); hand-back: the hand torque at most release_nm
@@ -38,6 +45,9 @@ from hardware.params import PerJoint, clamp
 POLICY, OPERATOR = "policy", "operator"  # who drives the follower
 TAKEOVER, HANDBACK = "takeover", "handback"  # detect_step's events (and the recording's marks)
 _T_EPS_S = 1e-9  # s: tick times are sums of floats; a duration of exactly N ticks counts as reached
+# N*m: the hand baseline adapts only while some joint's lag allowance is above this (the arm moved in the
+# last second or so): the leader's load changes with its pose; a hand on a leader at rest is never absorbed
+BASELINE_ADAPT_NM = 0.05
 
 
 @dataclass
@@ -48,7 +58,9 @@ class TakeoverConfig:
     (low: a hand overpowers it); follow_tau_max_nm [N*m]: its per-joint cap (a few N*m at most; the leader's
     JointLimits.tau_max and its safety layer bound it further); follow_drag_nm_s_rad [N*m*s/rad]: the
     velocity feed-forward of the leader's own drag (the twin's GELLO leader lags ~0.4 rad at 3 rad/s without);
-    follow_lag_nm_s_rad [N*m*s/rad]: spring torque per follower speed that is the leader's lag, not a hand.
+    follow_lag_nm_s_rad [N*m*s/rad]: spring torque per follower speed that is the leader's lag, not a hand;
+    follow_lag_hold_s [s]: how long that allowance outlasts the speed (decay time constant);
+    hand_baseline_s [s]: time constant of the spring-torque baseline (the leader's slow uncompensated load).
     grab_nm / release_nm [N*m]: hand-torque thresholds of the hysteresis; grab_min_s [s]: how long above
     grab before the hand drives; grab_max_speed_rad_s [rad/s]: the hand is not sensed while the follower moves
     faster (the leader's lag is no hand: the key takes over); rest_s [s] and rest_tol_rad [rad]: the hand at
@@ -60,7 +72,9 @@ class TakeoverConfig:
     follow_kd_nm_s_rad: PerJoint = 0.1
     follow_tau_max_nm: PerJoint = 1.5
     follow_drag_nm_s_rad: PerJoint = 0.2
-    follow_lag_nm_s_rad: PerJoint = 0.15
+    follow_lag_nm_s_rad: PerJoint = 0.6
+    follow_lag_hold_s: float = 0.5
+    hand_baseline_s: float = 0.7
     grab_nm: float = 0.3
     release_nm: float = 0.15
     grab_min_s: float = 0.1
@@ -77,7 +91,7 @@ class TakeoverConfig:
             raise ConfigError(f"needs 0 <= release_nm <= grab_nm, got {self.release_nm}, {self.grab_nm}",
                               where=where, fix="set release_nm below grab_nm")
         for name in ("grab_min_s", "grab_max_speed_rad_s", "rest_s", "rest_tol_rad", "blend_s",
-                     "pre_window_s"):
+                     "pre_window_s", "follow_lag_hold_s", "hand_baseline_s"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"{name} must be >= 0", where=f"{where}.{name}", fix="fix the value")
 
@@ -100,18 +114,40 @@ def follow_torque(q: np.ndarray, qd: np.ndarray, q_goal: np.ndarray, qd_goal: np
     return clamp(np.where(np.isfinite(tau), tau, 0.0), -cap_nm, cap_nm)
 
 
-def hand_torque_nm(q: np.ndarray, q_goal: np.ndarray, qd_goal: np.ndarray, kp: np.ndarray,
-                   lag: np.ndarray, max_speed_rad_s: float = np.inf) -> float:
-    """The torque the following spring holds against beyond the leader's lag [N*m]: max over joints of
-    |kp (q_goal - q)| - lag |qd_goal| (uncapped, at least 0; 0 when no joint is finite, and 0 while the
-    follower moves faster than max_speed_rad_s on some joint: a leader that cannot keep up is no hand, and
-    the key takes over then)."""
+def spring_torque_nm(q: np.ndarray, q_goal: np.ndarray, kp: np.ndarray) -> np.ndarray:
+    """kp (q_goal - q) [N*m] per leader joint, before the cap (NaN where a joint is not finite)."""
+    return kp * (np.asarray(q_goal, dtype=float) - np.asarray(q, dtype=float))
+
+
+def lag_allowance(prev_nm: np.ndarray, qd_goal: np.ndarray, lag: np.ndarray, dt_s: float,
+                  hold_s: float) -> np.ndarray:
+    """The spring torque the leader's lag may explain [N*m]: lag |qd_goal| now, or the previous allowance
+    decayed by exp(-dt/hold_s), whichever is larger (the lag outlasts the follower's motion)."""
+    now = lag * np.abs(np.nan_to_num(np.asarray(qd_goal, dtype=float)))
+    decay = math.exp(-dt_s / hold_s) if hold_s > 0 else 0.0
+    return np.maximum(now, np.asarray(prev_nm, dtype=float) * decay)
+
+
+def hand_baseline_step(baseline_nm: np.ndarray, spring_nm: np.ndarray, dt_s: float,
+                       tau_s: float) -> np.ndarray:
+    """One step of the spring-torque baseline [N*m]: a first-order low-pass with time constant tau_s (the
+    caller freezes it while a hand is sensed); non-finite readings leave it as it was."""
+    s = np.asarray(spring_nm, dtype=float)
+    a = min(1.0, dt_s / tau_s) if tau_s > 0 else 1.0
+    return np.where(np.isfinite(s), baseline_nm + a * (s - baseline_nm), baseline_nm)
+
+
+def hand_torque_nm(spring_nm: np.ndarray, baseline_nm: np.ndarray, allowance_nm: np.ndarray,
+                   qd_goal: np.ndarray, max_speed_rad_s: float = np.inf) -> float:
+    """The torque the following spring holds against beyond the leader's load and lag [N*m]: max over joints
+    of |spring - baseline| - allowance (at least 0; 0 when no joint is finite, and 0 while the follower moves
+    faster than max_speed_rad_s on some joint: a leader that cannot keep up is no hand, and the key takes
+    over then)."""
     qd = np.abs(np.nan_to_num(np.asarray(qd_goal, dtype=float)))
     if qd.size and float(qd.max()) > max_speed_rad_s:
         return 0.0
-    t = np.abs(kp * (np.asarray(q_goal, dtype=float) - np.asarray(q, dtype=float)))
-    t = np.maximum(t - lag * qd, 0.0)
-    t = t[np.isfinite(t)]
+    t = np.abs(np.asarray(spring_nm, dtype=float) - baseline_nm) - allowance_nm
+    t = np.maximum(t[np.isfinite(t)], 0.0)
     return float(t.max()) if t.size else 0.0
 
 
