@@ -55,6 +55,15 @@ def test_tiny_policy_rolls_out_through_the_real_drivers_and_records(tiny_run, tm
     assert stop["seed"] == episode_seed(5, 0)
 
 
+def test_record_without_cameras_keeps_the_policys_frames_out_of_the_file(tiny_run, tmp_path):
+    """`factr2 rollout --record DIR --no-cameras`: the policy (it looks) still gets its frames, the file
+    holds none."""
+    out = run_rollout(_opts(tiny_run, record=tmp_path, record_cameras=False)).to_dict()
+    assert out["timing"]["chunks"] >= 5  # the image policy ran: its cameras were served
+    rec = Recording(out["recording"])
+    assert rec.cameras == [] and len(rec.episodes[0].topic(S.command_topic("follower"))) > 10
+
+
 def _corrupt(monkeypatch, fn):
     real = PolicyRunner.infer
 

@@ -36,6 +36,8 @@ def add_arguments(parser) -> None:
                         "seed your demonstrations did not (default 0)")
     parser.add_argument("--record", type=Path, default=None,
                         help="write the rollouts as one MCAP in this folder")
+    parser.add_argument("--no-cameras", action="store_true",
+                        help="record without the rig's cameras (a policy that looks still gets its frames)")
     parser.add_argument("--max-seconds", type=float, default=None,
                         help="episode time limit [s] (default: the task's)")
     parser.add_argument("--next", type=Path, default=None, help="a NEXT checkpoint other than the policy's "
@@ -151,7 +153,8 @@ def run(args) -> int:
                           seed=args.seed, record=args.record, max_seconds=args.max_seconds, next=args.next,
                           realtime=args.realtime, mode=args.mode, schedule=args.schedule,
                           ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks, force=args.force,
-                          takeover=args.takeover, faults=twin_faults(args))
+                          takeover=args.takeover, faults=twin_faults(args),
+                          record_cameras=not args.no_cameras)
     if args.force and args.task:
         from factr2_teleop.session.task_check import task_mismatch
         from policies.checkpoint import read_meta

@@ -72,6 +72,7 @@ class RolloutOptions:
     episodes: int = 1
     seed: int = 0
     record: Path | None = None
+    record_cameras: bool = True  # the recording takes the rig's cameras' frames (`--no-cameras`: not)
     max_seconds: float | None = None
     next: Path | None = None
     realtime: bool = False
@@ -337,6 +338,7 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
         if opts.record is not None:
             tname = task.name if task else ""
             rec = ts.record(opts.record, stem=f"rollout-{tname or rig.name}", task=tname,
+                            cameras=opts.record_cameras,
                             extra_meta={"simulated": str(s.twin is not None).lower(), "operator": "policy",
                                         "policy": str(runner.path), "rollout_seed": opts.seed})
             rec_path = str(rec.path)
