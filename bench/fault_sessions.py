@@ -59,18 +59,22 @@ class Watch:
         pair.follower.add_command_observer(self.wire)
         pair.leader.add_command_observer(self.wire.leader)
         self.t_ticks: list[float] = []
+        self.t_all: list[float] = []  # every tick of the pair [s], and the sample times it used
+        self.t_samples: list[tuple[float, float]] = []
         self.rec_path = None
         first = pair.cfg.name
         ts.hooks.append(lambda r: self._tick(r) if r.pair == first else None)
 
     def _tick(self, r) -> None:
+        self.t_all.append(r.t)
+        self.t_samples.append((r.follower.t, r.leader.t))
         rec = self.ts.recording
         if rec is not None and rec.recording:
             self.rec_path = rec.path
             self.t_ticks.append(r.t)
 
     def outcome(self, status_error=None, error=None) -> dict:
-        from factr2_teleop.demo.fault_run import REACT_WINDOW_S, check_recording
+        from factr2_teleop.demo.fault_run import REACT_WINDOW_S, check_recording, data_age_ms
 
         twin = self.s.twin
         log = list(twin.faults.log) if twin.faults is not None else []
@@ -83,12 +87,13 @@ class Watch:
                "messages": list(self.ts.loop.snapshot().messages)}
         tau = self.wire.leader_tau
         out["safe_end"] = bool(len(hold) and hold[-1] and (tau is None or np.all(tau == 0.0)))
-        out["safe_ms"], out["recovered"] = None, None
+        out["safe_ms"], out["stale_ms"], out["recovered"] = None, None, None
         if starts:
             t0 = starts[0]["t_s"] + off
             t1 = (ends[0]["t_s"] if ends else starts[0]["t_s"]) + off
             after = t[hold & (t >= t0) & (t <= t1 + REACT_WINDOW_S)]
             out["safe_ms"] = float((after[0] - t0) * 1e3) if len(after) else None
+            out["stale_ms"] = data_age_ms(float(after[0]) if len(after) else None, self.t_all, self.t_samples)
             out["recovered"] = bool(np.any(~hold[:-1] & (t[:-1] > t1 + REACT_WINDOW_S)))  # last: the stop
         out["samples_lost"], out["recording_opens"], out["recording_error"] = None, None, status_error
         if self.rec_path is not None:
@@ -110,6 +115,7 @@ def _teleop(spec, seed: int, folder: Path) -> dict:
     return {"played": bool(starts) and all(e.get("played", True) for e in starts), "error": out.error,
             "violations": out.violations, "safe_end": out.safe_at_end,
             "safe_ms": out.safe_ms[0] if out.safe_ms else None,
+            "stale_ms": out.stale_ms[0] if out.stale_ms else None,
             "recovered": all(out.recovered) if ends else None, "samples_lost": rc.lost_before_fault,
             "recording_opens": rc.opens, "recording_error": rc.error,
             "ticks_before_fault": rc.ticks_before_fault, "log": out.log, "messages": out.messages}
@@ -198,7 +204,7 @@ def _signal_session(activity, spec, seed, folder, policy) -> dict:
     r = subprocess.run([sys.executable, __file__, "--child", activity, spec.text(), str(seed), str(folder),
                         str(policy or "")], capture_output=True, text=True, env=env, timeout=600)
     out = {"played": True, "error": None if r.returncode in (143, -9) else f"exit {r.returncode}",
-           "violations": 0, "safe_ms": None, "recovered": None, "exit": r.returncode,
+           "violations": 0, "safe_ms": None, "stale_ms": None, "recovered": None, "exit": r.returncode,
            "traceback": "Traceback" in r.stderr,
            # SIGTERM: Ctrl-C's path made the arms safe (said); SIGKILL: the twin died with the app, the
            # arms' own command timeouts are not observable here

@@ -14,9 +14,11 @@ session on stderr.
 JSON, per kind (over its activities, and per activity under "activities"): injected (sessions whose fault was
 played), sessions, sessions_safe (both arms safe at the end, no error), safe_unobservable (SIGKILL: the twin
 dies with the app), safe_ms {p50, p99, max} (fault start -> first follower hold on the wire, over the sessions
-that held), violations (follower commands outside the limits), samples_lost (follower samples the recording
-lacks from before the fault, summed; null when nothing recorded), recoveries (the follower tracked again after
-the fault ended) of recovery_owed, errors, tracebacks; cost_s_per_injection per activity (wall).
+that held), stale_ms {p50, p99, max} (at that hold, the age of the oldest sample the pair used: from the last
+fresh answer, the reaction a partial fault owes), violations (follower commands outside the limits),
+samples_lost (follower samples the recording lacks from before the fault, summed; null when nothing recorded),
+recoveries (the follower tracked again after the fault ended) of recovery_owed, errors, tracebacks;
+cost_s_per_injection per activity (wall).
 """
 
 from __future__ import annotations
@@ -65,12 +67,13 @@ def percentiles(ms: list[float]) -> dict:
 def aggregate(rows: list[dict]) -> dict:
     """One JSON row over sessions (run_session outcomes)."""
     safe_ms = [r["safe_ms"] for r in rows if r.get("safe_ms") is not None]
+    stale_ms = [r["stale_ms"] for r in rows if r.get("stale_ms") is not None]
     lost = [r["samples_lost"] for r in rows if r.get("samples_lost") is not None]
     owed = [r for r in rows if r.get("recovered") is not None]
     return {"injected": sum(bool(r.get("played")) for r in rows), "sessions": len(rows),
             "sessions_safe": sum(bool(r.get("safe_end")) and not r.get("error") for r in rows),
             "safe_unobservable": sum(r.get("safe_end", False) is None for r in rows),
-            "holds": len(safe_ms), "safe_ms": percentiles(safe_ms),
+            "holds": len(safe_ms), "safe_ms": percentiles(safe_ms), "stale_ms": percentiles(stale_ms),
             "violations": sum(int(r.get("violations") or 0) for r in rows),
             "samples_lost": int(sum(lost)) if lost else None,
             "recordings_open": sum(bool(r.get("recording_opens")) for r in rows),

@@ -40,3 +40,20 @@ def test_damiao_motor_error_holds_and_a_kind_the_rig_cannot_play_is_refused():
     assert said(out, "follower motor error: j2 over-temperature")
     with pytest.raises(ConfigError, match="cannot be played on this rig"):  # sim-panda: no CAN follower
         run_with_faults([parse_fault("can_busoff@0.8")], seconds=1.0, rig="sim-panda")
+
+
+def test_data_age_at_the_hold_is_the_reaction_a_partial_fault_owes():
+    """can_loss drops half the frames: the hold comes when a gap first exceeds the staleness limit, not at the
+    fault's start; the age of the data at the hold stays within one watchdog period."""
+    import numpy as np
+
+    from factr2_teleop.demo.fault_run import data_age_ms
+
+    out = run_fault("can_loss@0.8:0.4")  # (seeded: its first gap over the limit opens 30 ms in)
+    assert out.safe_ms[0] > WATCHDOG_MS and out.stale_ms[0] <= WATCHDOG_MS, (out.safe_ms, out.stale_ms)
+    # the pure function: at the last tick up to the hold, the hold time minus the oldest sample used
+    t = np.array([0.0, 0.002, 0.004, 0.006])
+    samples = np.array([[0.0, 0.0], [0.002, 0.002], [0.002, 0.004], [0.002, 0.006]])
+    assert data_age_ms(0.006, t, samples) == 4.0
+    assert data_age_ms(0.005, t, samples) == 3.0
+    assert data_age_ms(None, t, samples) is None and data_age_ms(-1.0, t, samples) is None

@@ -23,7 +23,8 @@ class FaultOutcome:
     """log: the twin's own record of what it injected (t_s on the twin's clock, as the injector logged it);
     t_offset_s: rig clock - twin clock [s]; safe_ms: per fault start, ms to the first follower hold
     command after it, before the fault ended + REACT_WINDOW_S (None: no hold in that window; the stop's
-    hold at the end of the run does not count); recovered: per fault, the pair tracked
+    hold at the end of the run does not count); stale_ms: per fault start, the age of the oldest sample
+    the pair used at that hold (data_age_ms), None without one; recovered: per fault, the pair tracked
     the leader again (coupled or soft start) after the fault ended; violations: commands outside the limits;
     safe_at_end: leader at zero torque and follower holding after the run; jumps_rejected: leader + follower
     samples held as implausible; messages: (t, who, text)."""
@@ -31,6 +32,7 @@ class FaultOutcome:
     log: list
     t_offset_s: float
     safe_ms: list = field(default_factory=list)
+    stale_ms: list = field(default_factory=list)
     recovered: list = field(default_factory=list)
     violations: int = 0
     safe_at_end: bool = False
@@ -70,6 +72,20 @@ def samples_lost(t_ticks: np.ndarray, t_recorded: np.ndarray, t_before: float) -
     return int(len(before)), int((~got).sum())
 
 
+def data_age_ms(t_hold: float | None, t_ticks, t_samples) -> float | None:
+    """How old the data was when the follower was held [ms]: at the last tick up to t_hold [s], t_hold minus
+    the oldest of the samples that tick used (t_samples: (ticks, devices) sample times [s], each device's
+    newest answer). The reaction a partial fault owes (a burst of loss, a corrupted packet) starts when a
+    device's data goes stale, not when the fault starts: one watchdog period from the last fresh sample."""
+    if t_hold is None:
+        return None
+    t_ticks = np.asarray(t_ticks, float)
+    k = int(np.searchsorted(t_ticks, t_hold + 1e-9, "right")) - 1
+    if k < 0:
+        return None
+    return float((t_hold - np.min(np.asarray(t_samples, float)[k])) * 1e3)
+
+
 def check_recording(path, t_ticks, t_fault: float, error: str | None) -> RecordingCheck:
     """Open the recording (without its cache) and count what it lacks before t_fault [s, rig clock]."""
     import warnings
@@ -97,10 +113,12 @@ def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-
                              seed=seed, faults=tuple(specs)))
     phases: list[tuple[float, str]] = []
     q_read: list[np.ndarray] = []
+    sample_t: list[tuple[float, float]] = []  # (follower, leader) sample times each tick used [s]
 
     def on_tick(rec) -> None:
         phases.append((rec.t, rec.phase))
         q_read.append(np.array(rec.follower.q, dtype=float))
+        sample_t.append((rec.follower.t, rec.leader.t))
 
     run.teleop.hooks.append(on_tick)
     try:
@@ -143,5 +161,6 @@ def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-
         t_end = ends.get(e["kind"] + repr(e.get("joint")), e["t_s"]) + out.t_offset_s
         after = tf[hold & (tf >= t0) & (tf <= min(t_end + REACT_WINDOW_S, t_last))]
         out.safe_ms.append(float((after[0] - t0) * 1e3) if len(after) else None)
+        out.stale_ms.append(data_age_ms(float(after[0]) if len(after) else None, out.t_ticks, sample_t))
         out.recovered.append(any(t > t_end and p in (COUPLED, SOFT_START) for t, p in phases))
     return out
