@@ -220,8 +220,9 @@ def _signal_session(activity, spec, seed, folder, policy) -> dict:
             out["recording_opens"], out["recording_truncated"] = True, rec.truncated
             if len(t) > 2:
                 dt = float(np.median(np.diff(t)))
-                expect = int(np.floor((min(spec.t_s, t[-1] + dt) - t[0]) / dt + 1e-6)) + 1
-                out["samples_lost"] = max(0, expect - int(np.sum(t <= spec.t_s + 1e-9)))
+                # the ticks strictly before the signal (the tick it lands in is cut short by it)
+                expect = int(np.ceil((min(spec.t_s, t[-1] + dt) - t[0]) / dt - 1e-6))
+                out["samples_lost"] = max(0, expect - int(np.sum(t < spec.t_s - 1e-9)))
         except Exception as e:  # noqa: BLE001
             out["error"] = f"recording does not open: {e}"
     return out

@@ -89,7 +89,10 @@ def ruckig_move(q0: np.ndarray, q1: np.ndarray, v_max, a_max, j_max, rate_hz: fl
     inp.target_velocity = inp.target_acceleration = [0.0] * n
     inp.max_velocity, inp.max_acceleration, inp.max_jerk = (list(map(float, a))
                                                             for a in (v_max, a_max, j_max))
-    res = otg.calculate(inp, traj)
+    try:
+        res = otg.calculate(inp, traj)
+    except ruckig.RuckigError as e:  # (an Exception, not a RuntimeError): said as the result is
+        raise ValueError(f"ruckig could not plan the move ({str(e).strip().splitlines()[0]})") from None
     if res not in (ruckig.Result.Working, ruckig.Result.Finished):
         raise ValueError(f"ruckig could not plan the move ({res})")
     ts = np.arange(int(np.ceil(traj.duration * rate_hz)) + 1) / rate_hz

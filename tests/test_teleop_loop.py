@@ -45,6 +45,42 @@ def test_soft_start_refuses_large_mismatch_with_per_joint_message():
     assert rig.fb.q[1] == pytest.approx(0.0, abs=1e-6)  # the follower never moved
 
 
+def test_soft_start_survives_ruckig_rejecting_its_input():
+    """ruckig raised RuckigError (not a RuntimeError) on a joint at exactly v_max in the fault campaign's
+    collect sessions, and the collection ended with it: now retried inside the limits, then from rest."""
+    import ruckig
+
+    s = SoftStart(SoftStartConfig(v_max_rad_s=0.5, a_max_rad_s2=2.0, j_max_rad_s3=10.0), 2, 0.002)
+    s.reset(np.zeros(2))
+    for _ in range(50):
+        s.step(np.array([1.0, -1.0]))
+    real, calls = s._otg, []
+
+    class Rejecting:  # rejects the first n inputs it is given, then plans as ruckig does
+        def __init__(self, n):
+            self.n = n
+
+        def update(self, inp, out):
+            calls.append(list(inp.current_velocity))
+            if len(calls) <= self.n:
+                raise ruckig.RuckigError("[ruckig] error in step 2 in dof: 0 for t sync")
+            return real.update(inp, out)
+
+    q_before = s.q.copy()
+    s._otg = Rejecting(1)
+    q, _ = s.step(np.array([1.0, -1.0]))
+    assert np.all(np.abs(calls[1]) <= 0.99 * 0.5 + 1e-12)  # retried just inside the velocity limit
+    assert np.all(np.abs(q - q_before) <= 0.5 * 0.002 + 1e-9)  # and moved on from where it was
+    calls.clear()
+    s._otg = Rejecting(2)
+    q, _ = s.step(np.array([1.0, -1.0]))
+    assert calls[2] == [0.0, 0.0]  # then from rest at the last target
+    calls.clear()
+    s._otg = Rejecting(3)
+    q2, done = s.step(np.array([1.0, -1.0]))
+    assert np.array_equal(q2, q) and not done  # still rejected: the last target is kept, no exception
+
+
 def test_soft_start_ruckig_ramps_within_limits():
     s = SoftStart(SoftStartConfig(v_max_rad_s=0.5, a_max_rad_s2=2.0, j_max_rad_s3=20.0), 2, 0.002)
     s.reset(np.zeros(2))

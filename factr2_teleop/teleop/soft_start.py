@@ -89,16 +89,31 @@ class SoftStart:
         inp.max_velocity, inp.max_acceleration = self.v.tolist(), self.a.tolist()
         inp.max_jerk = self.j.tolist()
 
+    def _update(self):
+        """One ruckig update; a rejected input (RuckigError: not a RuntimeError) is retried once from the
+        same position with the velocity just inside its limit and no acceleration (the rejections seen: a
+        joint at exactly v_max, the fault campaign's collect sessions), then from rest at the last target.
+        None when it still fails: the caller keeps the last target and tries again next tick."""
+        inp = self._inp
+        for attempt in range(3):
+            try:
+                return self._otg.update(inp, self._out)
+            except (RuntimeError, ruckig.RuckigError):
+                n = self.n
+                v = np.clip(np.asarray(inp.current_velocity, float), -0.99 * self.v, 0.99 * self.v)
+                if np.all(np.isfinite(self.q)):
+                    inp.current_position = self.q.tolist()
+                inp.current_velocity = (v if attempt == 0 else np.zeros(n)).tolist()
+                inp.current_acceleration = [0.0] * n
+        return None
+
     def step(self, q_goal: np.ndarray) -> tuple[np.ndarray, bool]:
         """Next follower target [rad] toward q_goal, and whether it is there (within done_tol_rad, slow)."""
         goal = np.asarray(q_goal, dtype=float)
         if not np.all(np.isfinite(goal)):
             return self.q.copy(), False  # no valid goal this tick: hold where the move is
         self._inp.target_position = goal.tolist()
-        try:
-            res = self._otg.update(self._inp, self._out)
-        except RuntimeError:  # ruckig rejects the input: keep the last target, try again next tick
-            return self.q.copy(), False
+        res = self._update()
         if res not in (ruckig.Result.Working, ruckig.Result.Finished):
             return self.q.copy(), False
         self._out.pass_to_input(self._inp)
