@@ -76,6 +76,47 @@ def test_disk_full_stops_the_recording_said_teleop_goes_on_and_the_file_opens(sm
     assert not list(small_fs.glob(".factr2-fault-disk-full"))  # the filler went with the twin
 
 
+def test_disk_full_behind_a_stalled_writer_keeps_everything_handed_over_before(small_fs):
+    """A lockstep loop runs ahead of its writer: the disk fills while the writer is seconds behind (stopped
+    here with SIGSTOP). Everything handed over before the fill is in the file (the reserve takes it); what
+    comes after is refused and counted."""
+    import signal
+
+    from hardware.recording.reader import Recording
+    from hardware.sim.process_faults import fill_disk, free_disk
+    from hardware.types import JointState
+
+    def js(t):
+        z = np.zeros(6)
+        return JointState(t=t, q=z + t, q_dot=z, tau_m=z, current=z, q_cmd=z, temperature=z,
+                          status=np.zeros(6, np.uint32))
+
+    rec = Recorder(small_fs / "s.mcap", joint_names={"follower": [f"j{i}" for i in range(6)]}, t0=0.0,
+                   lossless=True)
+    rec.start_episode(0.0, "fill")
+    for k in range(500):
+        rec.log_joint_state("follower", k * 0.002, js(k * 0.002))
+    deadline = time.monotonic() + 20
+    while rec.status().messages_written < 500 and time.monotonic() < deadline:  # the writer is running
+        time.sleep(0.01)
+    os.kill(rec._proc.pid, signal.SIGSTOP)  # the writer falls behind: everything below waits in the ring
+    try:
+        for k in range(500, 1500):
+            rec.log_joint_state("follower", k * 0.002, js(k * 0.002))
+        assert fill_disk(small_fs).startswith("filled")
+    finally:
+        os.kill(rec._proc.pid, signal.SIGCONT)
+    deadline = time.monotonic() + 20
+    while rec.status().recording and time.monotonic() < deadline:  # refused once the writer sees the fill
+        time.sleep(0.01)
+    after = [rec.log_joint_state("follower", 3.0 + k * 0.002, js(3.0)) for k in range(10)]
+    st = rec.close()
+    free_disk(small_fs)
+    assert not any(after) and st.error and "the disk is full" in st.error, st
+    t = Recording(small_fs / "s.mcap", use_cache=False, write_cache=False).topic("/follower/joint_state").t
+    assert len(t) == 1500 and np.all(np.diff(t) > 0)
+
+
 def test_killed_next_worker_is_restarted_and_estimates_come_back(tmp_path):
     from calibration.next.checkpoint import save_checkpoint
     from calibration.next.worker import NextWorker

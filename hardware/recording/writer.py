@@ -354,7 +354,8 @@ class Recorder:
         except (OSError, ValueError):
             size = 0
         error = st.text("error")
-        if error is None and st.get(W.W_STATE) in (W.STARTING, W.RUNNING) and self._proc.poll() is not None:
+        live = (W.STARTING, W.RUNNING, W.FULL)
+        if error is None and st.get(W.W_STATE) in live and self._proc.poll() is not None:
             # died without a word (killed, out of memory)
             error = (f"recording stopped: its writer process ended unexpectedly "
                      f"(exit {self._proc.returncode}); "

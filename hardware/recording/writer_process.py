@@ -31,7 +31,7 @@ from concurrent.futures import ThreadPoolExecutor
 from hardware.recording.space import SpaceReserve
 
 STATUS_BYTES = 4096
-STARTING, RUNNING, FINISHED, FAILED = range(4)
+STARTING, RUNNING, FINISHED, FAILED, FULL = range(5)  # FULL: the disk filled; what was handed over is written
 # u64 word offsets in the status block
 (W_STATE, W_CLOSING, W_WRITTEN, W_FRAMES, W_DROP_FRAMES, W_DROP_SAMPLES, W_BAD, W_CONSUMED, W_FLUSH_NS,
  W_ERROR_LEN, W_WARNING_LEN, W_PARENT_DROP_SAMPLES, W_PARENT_DROP_FRAMES) = range(0, 104, 8)
@@ -39,8 +39,10 @@ ERROR_AT, WARNING_AT, TEXT_MAX = 128, 1152, 1024
 _U64 = struct.Struct("<Q")
 IDLE_SLEEP_S = 0.002
 FRAMES_PER_PASS = 8
-DISK_FULL_GRACE_S = 0.5  # s: after the disk is found full, records on their way (packed, in the rings) are
-# still written from the space reserve for this long; then the file is finished (hardware/recording/space.py)
+DISK_FULL_GRACE_S = 0.5  # s: after the disk is found full, the producer is refused at once (W_STATE FULL)
+# and everything already in the rings is written from the space reserve (hardware/recording/space.py), however
+# far behind the writer was (a lockstep loop runs ahead of it); then, at least this long after, the file is
+# finished. A write that fails meanwhile ends it as any write error does.
 
 
 class SharedStatus:
@@ -165,17 +167,21 @@ class _Writer:
         while True:
             recs = self.samples.take(max_records=4000)
             frames = self.frames.take(max_records=FRAMES_PER_PASS)
+            if full_at is None and (recs or frames):  # before writing them: a write that finds no space fails
+                free = self.reserve.low()
+                if free is not None:  # the disk is (nearly) full: the reserve takes what is on its way
+                    self.reserve.release()
+                    full_at = time.monotonic()
+                    st.set(W_STATE, FULL)  # the producer stops handing over: what is in the rings is older
+                    st.set_text("warning", "the disk is full: writing what was handed over, then stopping")
             self.consumed += len(recs) + len(frames)
             for r in recs + frames:
                 self.handle(r)
             self.write_encoded(wait=False)
             now = time.monotonic()
-            if full_at is None and (recs or frames):
-                free = self.reserve.low()
-                if free is not None:  # the disk is (nearly) full: the reserve takes what is on its way
-                    self.reserve.release()
-                    full_at = now
-            if full_at is not None and now - full_at >= DISK_FULL_GRACE_S:
+            drained = not recs and not frames and not self.samples.used() and not self.frames.used()
+            closing = st.get(W_CLOSING) or os.getppid() != parent
+            if full_at is not None and drained and (now - full_at >= DISK_FULL_GRACE_S or closing):
                 self.write_encoded(wait=True)
                 st.set_text("error", f"recording stopped: the disk is full ({free >> 10} KiB free) at "
                                      f"{self.path}; everything up to then was written and the file is "
@@ -189,7 +195,6 @@ class _Writer:
                 st.set(W_FLUSH_NS, time.monotonic_ns())
             self.publish()
             if not recs and not frames:
-                closing = st.get(W_CLOSING) or os.getppid() != parent
                 if closing and not self.samples.used() and not self.frames.used():
                     return "closed" if st.get(W_CLOSING) else "producer ended without closing"
                 time.sleep(IDLE_SLEEP_S)
