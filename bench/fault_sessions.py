@@ -66,8 +66,11 @@ class Watch:
         ts.hooks.append(lambda r: self._tick(r) if r.pair == first else None)
 
     def _tick(self, r) -> None:
+        from factr2_teleop.demo.fault_run import fresh_times
+
         self.t_all.append(r.t)
-        self.t_samples.append((r.follower.t, r.leader.t))
+        prev = self.t_samples[-1] if self.t_samples else None
+        self.t_samples.append(fresh_times(prev, r.follower, r.leader))
         rec = self.ts.recording
         if rec is not None and rec.recording:
             self.rec_path = rec.path

@@ -57,3 +57,21 @@ def test_data_age_at_the_hold_is_the_reaction_a_partial_fault_owes():
     assert data_age_ms(0.006, t, samples) == 4.0
     assert data_age_ms(0.005, t, samples) == 3.0
     assert data_age_ms(None, t, samples) is None and data_age_ms(-1.0, t, samples) is None
+
+
+def test_fresh_times_keep_the_last_all_fresh_sample_of_each_device():
+    """A partial Dynamixel read is stamped when it was read, its unanswered joints flagged stale: the data's
+    age counts from the last sample with every joint fresh."""
+    from types import SimpleNamespace as NS
+
+    import numpy as np
+
+    from factr2_teleop.demo.fault_run import fresh_times
+    from hardware.types import STATUS_ENABLED, STATUS_STALE
+
+    ok, stale = np.full(3, STATUS_ENABLED, np.uint32), np.array([STATUS_ENABLED, STATUS_STALE, 0], np.uint32)
+    prev = fresh_times(None, NS(t=1.0, status=ok), NS(t=1.0, status=ok))
+    assert prev == (1.0, 1.0)
+    prev = fresh_times(prev, NS(t=1.002, status=ok), NS(t=1.002, status=stale))
+    assert prev == (1.002, 1.0)
+    assert fresh_times(prev, NS(t=1.004, status=ok), NS(t=1.004, status=ok)) == (1.004, 1.004)

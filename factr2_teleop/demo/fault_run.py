@@ -13,6 +13,7 @@ import numpy as np
 
 from factr2_teleop.demo.task import DemoConfig, DemoRun
 from factr2_teleop.teleop.pair import COUPLED, SOFT_START
+from hardware.types import STATUS_COMM_LOST, STATUS_STALE
 
 RATE_HZ = 250.0  # Hz: the lockstep loop rate of fault runs (a few seconds of twin time each)
 REACT_WINDOW_S = 0.1  # s: a hold up to this long after a fault ends is the reaction to it (not a later one)
@@ -72,10 +73,24 @@ def samples_lost(t_ticks: np.ndarray, t_recorded: np.ndarray, t_before: float) -
     return int(len(before)), int((~got).sum())
 
 
+_NOT_FRESH = STATUS_STALE | STATUS_COMM_LOST
+
+
+def fresh_times(prev: tuple[float, ...] | None, *states) -> tuple[float, ...]:
+    """Each device's newest sample time with every joint fresh [s]: a sample's own t where no joint is
+    flagged stale, else the previous value (a partial Dynamixel read is stamped when it was read, its
+    unanswered joints flagged; a lost CAN frame leaves the old sample and its old t)."""
+    out = []
+    for i, st in enumerate(states):
+        fresh = not np.any(np.asarray(st.status, np.uint32) & np.uint32(_NOT_FRESH))
+        out.append(float(st.t) if fresh or prev is None else prev[i])
+    return tuple(out)
+
+
 def data_age_ms(t_hold: float | None, t_ticks, t_samples) -> float | None:
     """How old the data was when the follower was held [ms]: at the last tick up to t_hold [s], t_hold minus
-    the oldest of the samples that tick used (t_samples: (ticks, devices) sample times [s], each device's
-    newest answer). The reaction a partial fault owes (a burst of loss, a corrupted packet) starts when a
+    the oldest of the devices' newest all-fresh samples at that tick (t_samples: (ticks, devices) [s],
+    fresh_times). The reaction a partial fault owes (a burst of loss, a corrupted packet) starts when a
     device's data goes stale, not when the fault starts: one watchdog period from the last fresh sample."""
     if t_hold is None:
         return None
@@ -113,12 +128,12 @@ def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-
                              seed=seed, faults=tuple(specs)))
     phases: list[tuple[float, str]] = []
     q_read: list[np.ndarray] = []
-    sample_t: list[tuple[float, float]] = []  # (follower, leader) sample times each tick used [s]
+    sample_t: list[tuple[float, float]] = []  # (follower, leader) newest all-fresh sample times [s]
 
     def on_tick(rec) -> None:
         phases.append((rec.t, rec.phase))
         q_read.append(np.array(rec.follower.q, dtype=float))
-        sample_t.append((rec.follower.t, rec.leader.t))
+        sample_t.append(fresh_times(sample_t[-1] if sample_t else None, rec.follower, rec.leader))
 
     run.teleop.hooks.append(on_tick)
     try:
