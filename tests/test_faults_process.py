@@ -179,3 +179,29 @@ def test_app_signal_ends_safely_and_the_recording_opens(tmp_path, sig):
     else:  # nothing of the app ran: its writer process finished the file
         assert r.returncode == -9
     assert t[-1] >= 2.0 - FLUSH_S  # at most the last flush interval lost (lockstep: sim time ~ wall time)
+
+
+def test_a_write_that_finds_the_disk_full_takes_the_reserve_and_goes_on(small_fs):
+    """The race the campaign found: the disk fills between the writer's look at the free space and its write.
+    The write gives the reserve back and goes on; without a reserve, ENOSPC is raised as before."""
+    import errno
+
+    from hardware.recording.space import ReserveBackedFile, SpaceReserve
+    from hardware.sim.process_faults import fill_disk, free_disk
+
+    path = small_fs / "r.bin"
+    reserve = SpaceReserve(path)
+    assert reserve.size > 0
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT, 0o644)
+    raw = ReserveBackedFile(fd, reserve)
+    try:
+        assert fill_disk(small_fs).startswith("filled")
+        data = b"x" * 65536
+        assert raw.write(data) == len(data) and raw.full.is_set() and reserve.size == 0
+        with pytest.raises(OSError) as e:
+            while True:  # the reserve is spent: the disk is full again
+                raw.write(data)
+        assert e.value.errno == errno.ENOSPC
+    finally:
+        raw.close()
+        free_disk(small_fs)

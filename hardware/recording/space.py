@@ -5,12 +5,18 @@ recording, not the last flush interval before it.
 
     r = SpaceReserve(path)        # the Recorder: .NAME.reserve beside path, min(RESERVE_BYTES, free / 4)
     r = SpaceReserve(path, create=False)   # the writer process: that file
-    if r.low(): r.release()       # checked at every flush: free < LOW_SPACE_BYTES -> finish the file now
+    if r.low(): r.release()       # checked before every pass: free < LOW_SPACE_BYTES -> finish the file
+    f = io.BufferedWriter(ReserveBackedFile(fd, r))   # a write that finds the disk full gives the reserve
+                                                      # back and goes on (r.full is set): no race with a
+                                                      # disk that fills between the check and the write
 """
 
 from __future__ import annotations
 
+import errno
+import io
 import os
+import threading
 from pathlib import Path
 
 RESERVE_BYTES = 2 << 20  # B held back per recording (a flush interval of samples and frames, the summary)
@@ -57,3 +63,47 @@ class SpaceReserve:
         except OSError:
             pass
         self.size = 0
+
+
+class ReserveBackedFile(io.RawIOBase):
+    """The recording's file descriptor for the writer: a write that fails with ENOSPC while the reserve is
+    held gives the reserve back, sets `full` and is tried again (a disk can fill between the writer's
+    look at the free space and its next write: another process filled it). Without a reserve left, ENOSPC
+    is raised as before."""
+
+    def __init__(self, fd: int, reserve: SpaceReserve):
+        super().__init__()
+        self._fd, self._reserve = fd, reserve
+        self.full = threading.Event()
+
+    def writable(self) -> bool:
+        return True
+
+    def seekable(self) -> bool:
+        return True
+
+    def fileno(self) -> int:
+        return self._fd
+
+    def seek(self, offset: int, whence: int = os.SEEK_SET) -> int:
+        return os.lseek(self._fd, offset, whence)
+
+    def tell(self) -> int:
+        return os.lseek(self._fd, 0, os.SEEK_CUR)
+
+    def write(self, b) -> int:
+        try:
+            return os.write(self._fd, b)
+        except OSError as e:
+            if e.errno != errno.ENOSPC or not self._reserve.size:
+                raise
+            self._reserve.release()
+            self.full.set()
+            return os.write(self._fd, b)
+
+    def close(self) -> None:
+        if not self.closed:
+            try:
+                os.close(self._fd)
+            finally:
+                super().close()

@@ -18,6 +18,7 @@ nothing that reached the ring is lost. When both die, what was flushed stays rea
 
 from __future__ import annotations
 
+import io
 import json
 import mmap
 import os
@@ -28,7 +29,7 @@ import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 
-from hardware.recording.space import SpaceReserve
+from hardware.recording.space import ReserveBackedFile, SpaceReserve
 
 STATUS_BYTES = 4096
 STARTING, RUNNING, FINISHED, FAILED, FULL = range(5)  # FULL: the disk filled; what was handed over is written
@@ -82,7 +83,7 @@ def _encode_jpeg(frame, quality: int) -> bytes:
 
 
 class _Writer:
-    def __init__(self, cfg: dict, status: SharedStatus, samples, frames, f):
+    def __init__(self, cfg: dict, status: SharedStatus, samples, frames, f, reserve, full):
         from hardware.recording import wire_records as R
         from hardware.recording.mcap_sink import McapSink
 
@@ -96,7 +97,7 @@ class _Writer:
         self.pending: deque = deque()  # (camera, t, future) in arrival order
         self.pool = ThreadPoolExecutor(max(1, int(cfg["encoder_threads"])), thread_name_prefix="factr2-jpeg")
         self.consumed = self.drop_samples = self.drop_frames = 0
-        self.reserve = SpaceReserve(self.path, create=False)  # the Recorder's: to end the file complete
+        self.reserve, self.full = reserve, full  # full: a write found the disk full (ReserveBackedFile)
 
     def warn(self, text: str) -> None:
         self.status.set_text("warning", text)
@@ -167,9 +168,10 @@ class _Writer:
         while True:
             recs = self.samples.take(max_records=4000)
             frames = self.frames.take(max_records=FRAMES_PER_PASS)
-            if full_at is None and (recs or frames):  # before writing them: a write that finds no space fails
+            if full_at is None and (recs or frames or self.full.is_set()):  # before writing them
                 free = self.reserve.low()
-                if free is not None:  # the disk is (nearly) full: the reserve takes what is on its way
+                if free is not None or self.full.is_set():  # (nearly) full: the reserve takes what comes
+                    free = free if free is not None else 0
                     self.reserve.release()
                     full_at = time.monotonic()
                     st.set(W_STATE, FULL)  # the producer stops handing over: what is in the rings is older
@@ -247,10 +249,12 @@ def serve(cfg: dict) -> int:
     mm = mmap.mmap(cfg["shm_fd"], total, flags=mmap.MAP_SHARED | getattr(mmap, "MAP_POPULATE", 0))
     st = SharedStatus(mm)
     samples, frames = attach_rings(mm, cfg["samples_bytes"], cfg["frames_bytes"])
-    f = os.fdopen(cfg["file_fd"], "wb")
+    reserve = SpaceReserve(cfg["path"], create=False)  # the Recorder's: to end the file complete
+    raw = ReserveBackedFile(cfg["file_fd"], reserve)
+    f = io.BufferedWriter(raw)
     w = None
     try:
-        w = _Writer(cfg, st, samples, frames, f)
+        w = _Writer(cfg, st, samples, frames, f, reserve, raw.full)
         st.set(W_STATE, RUNNING)
         ended = w.run()
         w.finish(ended)
