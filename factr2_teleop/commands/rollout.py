@@ -46,7 +46,7 @@ def add_arguments(parser) -> None:
                         "(default: the rig's)")
     parser.add_argument("--realtime", action="store_true", help="a twin in real time (timing), not lockstep")
     parser.add_argument("--schedule", choices=("ensemble", "receding"), default=None,
-                        help="chunk execution (default: ACT ensemble, flow receding)")
+                        help="chunk execution (default: temporal ensembling, ACT and flow)")
     parser.add_argument("--ensemble-m", type=float, default=0.01, help="temporal ensembling weight exp(-m i)")
     parser.add_argument("--k-exec", type=int, default=None,
                         help="receding horizon: steps executed per chunk (default a third of the chunk)")

@@ -54,7 +54,7 @@ class RolloutOptions:
     record: folder for the MCAP; max_seconds: episode time limit [s] (default the task's); next: a NEXT
     checkpoint other than the policy's (said); realtime: wall-clock loop on a twin (timing); progress: print
     a line per episode. mode: estimator when the policy names no NEXT checkpoint (default the rig's);
-    schedule: "ensemble" / "receding" (default ACT ensemble, flow receding); ensemble_m; k_exec; threaded:
+    schedule: "ensemble" / "receding" (default ensemble, ACT and flow); ensemble_m; k_exec; threaded:
     inference on its own thread (default: in real time only); marks: a queue.SimpleQueue of keys (s/y/n/q)
     for operator-marked episodes; on_start: callable(session, target, episodes) once everything is built,
     before the loop runs (a UI's live view: add a tick hook, stop the loop). lean: skip what only a recording
@@ -225,7 +225,7 @@ def run_rollout(opts: RolloutOptions) -> RolloutResult:
         mode = "none"  # the estimate is an input of the policy and a recorded topic only: nobody reads it
     plan = RolloutPlan(next_path=next_path, note=note, mode=mode, lean=lean, realtime=realtime,
                        threaded=opts.threaded if opts.threaded is not None else realtime,
-                       schedule=opts.schedule or (ENSEMBLE if runner.policy == "act" else RECEDING),
+                       schedule=opts.schedule or ENSEMBLE,  # flow too: docs/first.md "Chunk execution"
                        k_exec=opts.k_exec or max(1, runner.cfg.chunk // K_EXEC_SHARE), takeover=takeover)
     # the loop keeps a core of its own; a chunk's work is small (docs/rollout.md)
     with limit_threads(1, torch=True):
