@@ -79,6 +79,7 @@ class Takeover:
         self._q: list = [np.zeros(0)] * n_pairs  # each pair's leader joints at its last tick [rad]
         self._t_grab = math.nan  # s: the hand torque reached grab_nm (the latency's start)
         self.t_switch = -math.inf  # s: the follower's source last changed
+        self.epoch = 0  # +1 when an episode's policy starts and at every change of driver (hand baselines)
         self._armed = False
 
     # -- what the UI shows --------------------------------------------------------------------------------
@@ -102,6 +103,7 @@ class Takeover:
         armed = self.target.state == RUN
         if armed and not self._armed:  # an episode's policy starts: its first driver mark
             self._log_driver(now, DRIVER_POLICY)
+            self.epoch += 1
         if not armed:
             if self.driver == OPERATOR:
                 self._end(now, "episode end")
@@ -195,6 +197,7 @@ class Takeover:
         if driver != self.driver:
             self.driver = driver
             self.t_switch = now
+            self.epoch += 1
             self._log_driver(now, DRIVER_OPERATOR if driver == OPERATOR else DRIVER_POLICY)
 
     def _log_driver(self, now: float, code: int) -> None:
@@ -246,6 +249,7 @@ class TakeoverPair(RolloutPair):
         self.hand_nm = 0.0
         self._allow = np.zeros(n)  # [N*m] the spring torque the leader's lag may explain (lag_allowance)
         self._base: np.ndarray | None = None  # [N*m] the leader's slow load on the spring (baseline)
+        self._epoch = -1  # the Takeover.epoch the baseline was taken in
         self.tracking_err_rad: list[float] = []  # leader vs follower (leader joints) while the policy drives
         self._safe = False
 
@@ -284,8 +288,11 @@ class TakeoverPair(RolloutPair):
         spring = spring_torque_nm(ls.q, goal, self._kp)
         dt = dt if np.isfinite(dt) and dt > 0 else self.dt_s
         self._allow = lag_allowance(self._allow, qd_goal, self._lag, dt, tc.follow_lag_hold_s)
-        if self._base is None:
-            self._base = np.nan_to_num(spring)
+        if self._base is None or (driver == POLICY and self._epoch != self.takeover.epoch):
+            # the policy starts or resumes driving, no hand on the leader (an episode starts; the hand
+            # handed back): the baseline frozen meanwhile belongs to another pose. Measured: every second
+            # takeover of the DAgger round came ~1 s after a hand-back, on the stale baseline
+            self._base, self._epoch = np.nan_to_num(spring), self.takeover.epoch
         base = self._base if driver == POLICY else 0.0
         hand = hand_torque_nm(spring, base, self._allow, qd_goal, tc.grab_max_speed_rad_s)
         if driver == POLICY and hand < tc.release_nm and float(self._allow.max()) > BASELINE_ADAPT_NM:
