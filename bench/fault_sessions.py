@@ -53,6 +53,9 @@ class Watch:
     """What a session's campaign measure needs: the wire of its first pair, the ticks it recorded."""
 
     def __init__(self, ts, rig_session):
+        from factr2_teleop.demo.fault_run import fresh_times
+
+        self._fresh_times = fresh_times  # per tick: looked up once here, not imported in every tick
         self.ts, self.s = ts, rig_session
         pair = ts.pairs[0]
         self.wire = Wire(pair.follower.safety.limits)
@@ -66,11 +69,9 @@ class Watch:
         ts.hooks.append(lambda r: self._tick(r) if r.pair == first else None)
 
     def _tick(self, r) -> None:
-        from factr2_teleop.demo.fault_run import fresh_times
-
         self.t_all.append(r.t)
         prev = self.t_samples[-1] if self.t_samples else None
-        self.t_samples.append(fresh_times(prev, r.follower, r.leader))
+        self.t_samples.append(self._fresh_times(prev, r.follower, r.leader))
         rec = self.ts.recording
         if rec is not None and rec.recording:
             self.rec_path = rec.path
