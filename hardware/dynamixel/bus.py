@@ -12,10 +12,16 @@ the same calls run on an InProcessPortHandler; it exists only in the process tha
 from __future__ import annotations
 
 import os
+import select
 import time
 
 import dynamixel_sdk as sdk
 import serial
+
+try:
+    import termios  # POSIX: the direct per-tick path below; elsewhere pyserial's calls
+except ImportError:  # pragma: no cover -- not POSIX
+    termios = None
 
 from hardware.dynamixel import protocol as p
 from hardware.dynamixel.inprocess import InProcessPortHandler, is_inprocess
@@ -50,25 +56,83 @@ def _port_fix(port: str) -> str:
 class BufferedPortHandler(sdk.PortHandler):
     """dynamixel-sdk's PortHandler whose readPort serves the sdk's many small reads (11 bytes, then the rest,
     per status packet) from one larger read of everything waiting: two syscalls per sync read instead of ~4
-    per servo. Bytes and timeouts are unchanged; clearPort() drops the local buffer with the OS one."""
+    per servo. Bytes and timeouts are unchanged; clearPort() drops the local buffer with the OS one.
+
+    The per-tick calls (write, flush, the whole-reply read) go to the port's file descriptor directly, with
+    pyserial's semantics (a non-blocking write returns what the OS took; a read blocks at most READ_BLOCK_S
+    per call; a port that is readable but gives no bytes was unplugged: SerialException), without its
+    per-call Timeout objects and abort pipe (this app never cancels a read). With the sync write's flush
+    gone too (sync_io.write_only), the two per-tick transactions cost the loop 100-135 us of CPU a tick
+    instead of 152 against a real-time twin's pty on the dev VM (issue #37; thread CPU of the calls, 10 s
+    of `factr2 teleop --rig sim-piper`, two runs after, one before)."""
 
     def __init__(self, port_name: str):
         super().__init__(port_name)
         self._rx = bytearray()
+        self._fd = -1
+
+    def setupPort(self, cflag_baud):  # noqa: N802 -- sdk name
+        ok = super().setupPort(cflag_baud)
+        self._fd = getattr(self.ser, "fd", -1) if termios is not None else -1
+        return ok
+
+    def closePort(self):  # noqa: N802 -- sdk name
+        self._fd = -1
+        super().closePort()
 
     def readPort(self, length):  # noqa: N802 -- sdk name
         if len(self._rx) < length:
             want = length - len(self._rx)
             # a whole reply asked for at once (sync_io: the fast reply's length) needs no in_waiting ioctl;
             # the sdk's small reads (11 bytes, then the rest) take whatever is waiting with them
-            self._rx += self.ser.read(want if want >= WHOLE_READ_BYTES else max(want, self.ser.in_waiting))
+            if want >= WHOLE_READ_BYTES and self._fd >= 0:
+                self._read_fd(want)
+            else:
+                self._rx += self.ser.read(max(want, self.ser.in_waiting))
         out = bytes(self._rx[:length])
         del self._rx[:length]
         return out
 
+    def _read_fd(self, want: int) -> None:
+        """Up to `want` bytes into the buffer, blocking at most READ_BLOCK_S (pyserial's read, direct)."""
+        fd, rx = self._fd, self._rx
+        end, goal = time.monotonic() + READ_BLOCK_S, len(rx) + want
+        while len(rx) < goal:
+            left = end - time.monotonic()
+            try:
+                if not select.select((fd,), (), (), max(left, 0.0))[0]:
+                    return  # timed out
+                buf = os.read(fd, goal - len(rx))
+            except InterruptedError:
+                continue
+            except BlockingIOError:
+                buf = None
+            except OSError as e:
+                raise serial.SerialException(f"read failed: {e}") from None
+            if buf is not None:
+                if not buf:  # readable with nothing in it: pyserial's sign of an unplugged device
+                    raise serial.SerialException("device reports readiness to read but returned no data "
+                                                 "(device disconnected or multiple access on port?)")
+                rx += buf
+            if left <= 0.0:
+                return
+
+    def writePort(self, packet):  # noqa: N802 -- sdk name
+        if self._fd < 0:
+            return super().writePort(packet)
+        try:  # non-blocking (open() sets write_timeout 0): the bytes the OS took; a short count is a failure
+            return os.write(self._fd, packet if isinstance(packet, (bytes, bytearray)) else bytes(packet))
+        except (BlockingIOError, InterruptedError):
+            return 0
+        except OSError as e:
+            raise serial.SerialException(f"write failed: {e}") from None
+
     def clearPort(self):  # noqa: N802 -- sdk name
         self._rx.clear()
-        super().clearPort()
+        if self._fd >= 0:
+            termios.tcflush(self._fd, termios.TCIFLUSH)  # pyserial's reset_input_buffer
+        else:
+            super().clearPort()
 
     def getBytesAvailable(self):  # noqa: N802 -- sdk name
         return len(self._rx) + self.ser.in_waiting

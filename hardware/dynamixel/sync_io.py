@@ -80,12 +80,13 @@ class SyncWriteGroup:
 _INT_FORMATS = {1: "b", 2: "h", 4: "i"}  # struct codes of a signed field of 1, 2, 4 bytes
 
 
-def _begin(port, packet: bytes) -> bool:
-    """Claim the port, drop stale bytes, send packet; False (port released) if it was busy or short."""
+def _begin(port, packet: bytes, flush: bool = True) -> bool:
+    """Claim the port, drop stale bytes (flush), send packet; False (port released) if busy or short."""
     if port.is_using:
         return False
     port.is_using = True
-    port.clearPort()
+    if flush:
+        port.clearPort()
     if port.writePort(packet) != len(packet):
         port.is_using = False
         return False
@@ -93,8 +94,9 @@ def _begin(port, packet: bytes) -> bool:
 
 
 def write_only(port, packet: bytes) -> bool:
-    """Send an instruction that has no reply (a sync write)."""
-    if not _begin(port, packet):
+    """Send an instruction that has no reply (a sync write). Stale input bytes stay: they are no reply to
+    this, and the next read's transaction drops them (a flush is a syscall on the loop's every tick)."""
+    if not _begin(port, packet, flush=False):
         return False
     port.is_using = False
     return True
