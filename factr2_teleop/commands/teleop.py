@@ -87,7 +87,7 @@ def _execute(args) -> dict:
     loop = ts.loop
     if loop.error is not None and not isinstance(loop.error, KeyboardInterrupt):
         raise UserError(f"teleop stopped: {loop.error}", where="factr2 teleop", fix="see the messages above")
-    out["timing"] = loop.timing.stats()
+    out["timing"] = loop.timing.stats(whole_run=True)  # the whole session, not its last seconds
     out["messages"] = list(loop.snapshot().messages)  # (t [s], who, text): holds, notes
     twin = session.twin
     out["faults"] = list(twin.faults.log) if twin is not None and twin.faults is not None else []

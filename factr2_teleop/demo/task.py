@@ -314,7 +314,7 @@ class DemoRun:
 
     def result(self) -> DemoResult:
         cfg, rows = self.cfg, self._rows
-        st = self.loop.timing.stats()
+        st = self.loop.timing.stats(whole_run=True)
         nl = self.leader.n_joints
         coupled = np.array([r[1] == "coupled" for r in rows])
         fb = np.array([r[2] if r[2] is not None else np.zeros(nl) for r in rows])

@@ -100,7 +100,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
                 bar.close()
         sim_s = s.clock.now() - scores.t0 if np.isfinite(scores.t0) else float("nan")
         cams = {k: asdict(v) for k, v in (srec.camera_stats or {}).items()}  # hardware.cameras.stream stats
-        timing = ts.loop.timing.stats()
+        timing = ts.loop.timing.stats(whole_run=True)
         messages = list(ts.loop.snapshot().messages)
         faults = list(s.twin.faults.log) if s.twin is not None and s.twin.faults is not None else []
     wall = time.perf_counter() - t_wall
