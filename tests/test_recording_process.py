@@ -64,6 +64,11 @@ def test_realtime_teleop_counts_frames_from_capture_start(tmp_path):
     assert stats.failed == 0 and stats.expected >= 20 and stats.ratio >= 0.9, stats
     frames = Recording(rec.path).episodes[0].frames("scene")
     assert len(frames) >= 0.9 * (stats.expected - 1) and np.all(np.diff(frames.t) > 0)
+    # the loop's sampled timing is measured, not written as zeros: time inside the previous tick, lateness
+    tm = Recording(rec.path).topic("/loop/timing").fields
+    busy, late = tm["busy_s"], tm["late_s"]
+    assert len(busy) >= 20 and np.all(np.isfinite(busy)) and np.all(np.isfinite(late))
+    assert np.median(busy) > 1e-5 and np.all(busy < 1.0) and np.all(late > -1e-3)
 
 
 def test_recorded_ticks_equal_copies_taken_at_the_tick(tmp_path):

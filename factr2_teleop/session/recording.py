@@ -183,7 +183,7 @@ class SessionRecording:
                 if gt is not None:  # SIMULATED ground truth: hardware has none to record
                     rec.log_ground_truth(f"{pre}follower", r.t, gt.tau_ext[:n], gt.contact)
                 if timing:
-                    rec.log_loop_timing(r.t, r.loop_period_s, 0.0, 0.0, r.loop_overruns)
+                    rec.log_loop_timing(r.t, r.loop_period_s, r.loop_busy_s, r.loop_late_s, r.loop_overruns)
             with self._count_lock:
                 self._backlog -= len(batch)
 

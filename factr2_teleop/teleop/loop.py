@@ -95,6 +95,7 @@ class TeleopLoop:
         self._thread: threading.Thread | None = None
         self._t_pub = float("nan")
         self._t_last_start = float("nan")
+        self._busy_s = self._late_s = float("nan")  # the last tick's time inside it, this tick's lateness [s]
         self._phases: dict[str, str] = {}
         self._records: dict[str, TickRecord] = {}
         self._publish(float("nan"))
@@ -142,11 +143,13 @@ class TeleopLoop:
             next_t, ticks = t0, 0
             while not self._stop.is_set():
                 t_start, cpu0, sim0 = self.clock.now(), time.thread_time(), sim_cpu.charged()
+                self._late_s = t_start - next_t  # this tick's start after its deadline (the records carry it)
                 self._tick_all(t_start)
                 ticks += 1
                 cpu, sim = time.thread_time() - cpu0, sim_cpu.charged() - sim0
+                self._busy_s = self.clock.now() - t_start  # the next tick's records carry it
                 with self._lock:  # the loop's own CPU: what a twin did on this thread is kept apart (sim_cpu)
-                    self.timing.record(t_start, self.clock.now() - t_start, cpu - sim, sim)
+                    self.timing.record(t_start, self._busy_s, cpu - sim, sim)
                 self._publish(t_start)
                 if (max_ticks is not None and ticks >= max_ticks) or \
                         (duration_s is not None and t_start - t0 + 1.5 * self.period_s >= duration_s):
@@ -237,6 +240,7 @@ class TeleopLoop:
         for p in self.pairs:
             rec = p.tick(self.clock.now())
             rec.loop_period_s, rec.loop_overruns = period, self.timing.overruns
+            rec.loop_busy_s, rec.loop_late_s = self._busy_s, self._late_s
             if self.recorder is not None:
                 try:
                     self.recorder(rec)

@@ -23,7 +23,8 @@ class TickRecord:
     after its safety layer [rad] / [m] (NaN: nothing sent this tick); action_hold: the layer turned it into a
     hold; gate, contact, fresh: the feedback gate [0, 1], the contact hysteresis and the estimate's freshness;
     leader_gripper_tau_fb: gripper feedback [N*m]; loop_period_s: time since the previous tick [s];
-    loop_overruns: ticks late so far."""
+    loop_overruns: ticks late so far; loop_busy_s: wall time the loop spent inside the previous tick [s];
+    loop_late_s: how long after its deadline this tick started [s] (NaN: not measured)."""
 
     t: float
     pair: str
@@ -42,6 +43,8 @@ class TickRecord:
     leader_gripper_tau_fb: float = 0.0
     loop_period_s: float = float("nan")
     loop_overruns: int = 0
+    loop_busy_s: float = float("nan")
+    loop_late_s: float = float("nan")
 
     def tau_term(self, name: str) -> np.ndarray | None:
         """One leader-law term [N*m] (None when the law did not run this tick)."""

@@ -141,9 +141,9 @@ GROUND_TRUTH = Schema("factr2.GroundTruth", "twin ground truth (simulated: only 
     _f("contact", "", "bool", False, "contact_true", "any contact on the arm"),
     _f("force", "N", "float", True, "force_true", "net contact force on the arm, world frame (x, y, z)"),
 ))
-LOOP_TIMING = Schema("factr2.LoopTiming", "control-loop timing, one sample per tick", (
+LOOP_TIMING = Schema("factr2.LoopTiming", "control-loop timing of one sampled tick", (
     _f("period_s", "s", "float", False, "period", "time since the previous tick"),
-    _f("busy_s", "s", "float", False, "busy", "compute time of this tick"),
+    _f("busy_s", "s", "float", False, "busy", "wall time the loop spent inside the previous tick"),
     _f("late_s", "s", "float", False, "late", "how late this tick started versus its deadline"),
     _f("overruns", "", "int", False, "overruns", "ticks that missed their deadline so far"),
 ))
