@@ -1,15 +1,15 @@
 """The twin's operator during a policy rollout with takeover (issue #33 item 5, SIMULATED).
 
 The scripted operator that collects demonstrations (operator.py, the task scripts) watches the policy drive.
-When the task's progress stalls (no new stage for STALL_S) or the follower holds on a policy fault for HOLD_S,
-it grabs the leader: its hand (the twin leader's hand torque, as in collection) pushes the leader toward where
-the task script wants the arm, the hand torque on the following spring crosses the takeover threshold, and the
-follower follows the leader (session/rollout_takeover.py). It finishes the task through force-feedback teleop
-with the same script a demonstration uses (from the arm's state: it first opens and lifts a gripper that holds
-nothing), then lets go; the hand at rest hands back to the policy. While its script runs it holds the clutch
-(Takeover.clutch, as a person would hold a pedal down): the script's pauses (lining up, waiting) do not hand
-back. One intervention per episode at most;
-the episode's time limit restarts at the grab (the operator needs its time).
+When the task's progress stalls (no new stage for STALL_S: its pre-intervention window) or the follower holds
+on a policy fault for HOLD_S, it grabs the leader: its hand (the twin leader's hand torque, as in collection)
+pushes the leader toward where the task script wants the arm, the hand torque on the following spring crosses
+the takeover threshold, and the follower follows the leader (session/rollout_takeover.py). It finishes the
+task through force-feedback teleop with the same script a demonstration uses (from the arm's state: it first
+opens and lifts a gripper that holds nothing), then lets go; the hand at rest hands back to the policy. While
+its script runs it holds the clutch (Takeover.clutch, as a person would hold a pedal down): the script's
+pauses (lining up, waiting) do not hand back. One intervention per episode at most; the episode's time limit
+restarts at the grab (the operator needs its time).
 
     RolloutOptions(..., takeover=True, operator=TwinTakeoverOperator)   # `factr2 rollout --task T --takeover`
 
@@ -17,6 +17,8 @@ Hook on the loop's thread, after the pairs' ticks: the hand torque it sets acts 
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import mujoco
 import numpy as np
@@ -66,6 +68,10 @@ class TwinTakeoverOperator:
         from hardware.arms.dynamics import ArmDynamics
 
         self.ts, self.target, self.eps, self.tk = ts, target, eps, tk
+        # the pre-intervention window covers this operator's decision delay: it grabs after STALL_S of policy
+        # control without progress, all of which it judged wrong (the rig's default 2 s is Sirius's, for a
+        # person who intervenes as trouble starts); training weights the window as `pre`
+        tk.cfg = dataclasses.replace(tk.cfg, pre_window_s=max(tk.cfg.pre_window_s, STALL_S))
         self.pair = ts.pairs[0]
         self.bank = eps.twin.bank(self.pair.leader.name)
         self.ee_site = mujoco.mj_name2id(eps.model, mujoco.mjtObj.mjOBJ_SITE, "ee")
