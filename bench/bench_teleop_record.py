@@ -75,7 +75,10 @@ def measure(seconds: float, mode: str, out: Path) -> dict:
                       "ts_error_ms_median": float(np.median(err) * 1e3),
                       "ts_error_ms_p99": float(np.percentile(err, 99) * 1e3)}
     stale = stale_holds(res["messages"])
+    dt_rec = np.diff(t_js)  # the recording's per-tick stamps: whole-run numbers for any code version
     return {"load_before": load0, "seconds": seconds, "mode": mode, "loop_hz": tm.rate_hz,
+            "loop_hz_recording": float(1.0 / dt_rec.mean()),
+            "period_p99_ms_recording": float(np.percentile(dt_rec, 99) * 1e3),
             "period_p50_ms": tm.period_p50_ms, "period_p99_ms": tm.period_p99_ms,
             "period_max_ms": tm.period_max_ms, "overruns": tm.overruns, "ticks": tm.ticks,
             "loop_cpu_ms": tm.cpu_mean_ms, "loop_cpu_share": tm.cpu_share,
@@ -83,6 +86,9 @@ def measure(seconds: float, mode: str, out: Path) -> dict:
             "messages_written": st.messages_written, "recorder_error": st.error, "cameras": cams,
             "stale_holds": len(stale), "stale_texts": stale[:5], "process_cpu_s": cpu, "wall_s": wall,
             "file": str(res["recording"]), "file_mb": Path(res["recording"]).stat().st_size / 1e6}
+
+
+TRAIN_THREADS = [0]  # the training beside: torch threads (0: `factr2 train` picks from the load average)
 
 
 def start_beside(kind: str, tmp: Path) -> subprocess.Popen | None:
@@ -93,6 +99,8 @@ def start_beside(kind: str, tmp: Path) -> subprocess.Popen | None:
     elif kind.startswith("train:"):
         cmd = [sys.executable, "-m", "factr2_teleop.cli", "train", kind[6:], "--obs", "state",
                "--out", str(tmp / f"run-{time.time_ns()}"), "--steps", "100000"]
+        if TRAIN_THREADS[0]:  # --train-threads: fixed, so that before / after pairs train alike
+            cmd += ["--threads", str(TRAIN_THREADS[0])]
     else:
         raise SystemExit(f"--beside {kind}: use none, spin or train:DEMOS_DIR")
     p = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=ROOT)
@@ -153,11 +161,14 @@ def main() -> int:
     ap.add_argument("--beside", default="none", help="none, spin or train:DEMOS_DIR")
     ap.add_argument("--table", action="store_true", help="quiet, spin and train one after the other")
     ap.add_argument("--train-demos", default=None, help="recordings for the training beside (--table)")
+    ap.add_argument("--train-threads", type=int, default=0,
+                    help="the training's --threads (default: its own choice from the load average)")
     ap.add_argument("--starts", type=int, default=0, help="count stale holds in N teleop starts instead")
     ap.add_argument("--no-record", action="store_true", help="--starts without --record")
     ap.add_argument("--json", default=None)
     ap.add_argument("--quiet", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args()
+    TRAIN_THREADS[0] = a.train_threads
     machine = f"{platform.node()} {platform.processor() or platform.machine()}, {os.cpu_count()} cpu"
     if a.starts:
         seconds = a.seconds if a.seconds < 30 else 2.0
