@@ -175,3 +175,27 @@ def test_bad_config_is_one_line():
 
     with pytest.raises(ConfigError, match="release_nm below grab_nm"):
         TakeoverConfig(grab_nm=0.1, release_nm=0.2).validate()
+
+
+def test_gripper_keeps_the_policys_squeeze_until_the_trigger_picks_it_up():
+    """A takeover while the policy squeezes a held object: the resting trigger (at the object's width) must
+    not open the gripper; squeezing picks the command up, and so does working the trigger open."""
+    from factr2_teleop.teleop.takeover import GRIP_MOVE_M, gripper_pickup
+
+    held, pick = 0.0002, None  # m: the policy's command, past the 9.6 mm object's width
+    rng = np.random.default_rng(0)
+    for _ in range(500):  # the hand rests: the trigger's target jitters at the object's width
+        g, picked, pick = gripper_pickup(held, 0.0099 + rng.normal(0.0, 1e-4), pick)
+        assert not picked and g == held
+    g, picked, pick = gripper_pickup(held, 0.0, pick)  # the hand squeezes past the command: picked up
+    assert picked and g == 0.0
+    # from the other side: the hand opens the trigger (to let go) -- picked once it moved GRIP_MOVE_M
+    pick, g_t = None, 0.0099
+    for _ in range(100):
+        g, picked, pick = gripper_pickup(held, g_t, pick)
+        if picked:
+            break
+        assert g == held
+        g_t += 0.0001
+    assert picked and g_t >= 0.0099 + GRIP_MOVE_M - 1e-9
+    assert gripper_pickup(held, float("nan"), None)[:2] == (held, False)  # no reading: keep the command

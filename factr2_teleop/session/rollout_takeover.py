@@ -41,6 +41,7 @@ from factr2_teleop.teleop.takeover import (
     blend_weight,
     detect_step,
     follow_torque,
+    gripper_pickup,
     hand_baseline_step,
     hand_torque_nm,
     handover_target,
@@ -246,6 +247,8 @@ class TakeoverPair(RolloutPair):
         self._src, self._t_sw = POLICY, -math.inf
         self._offset = np.zeros(self.follower.n_joints)
         self._g_off, self._g_cmd = 0.0, None
+        self._g_pick = None  # (held gripper command [m], gripper_pickup's pick) until the trigger picks it up
+        self._t_gsw = -math.inf  # when the gripper's gap started to fade [s]
         self.hand_nm = 0.0
         self._allow = np.zeros(n)  # [N*m] the spring torque the leader's lag may explain (lag_allowance)
         self._base: np.ndarray | None = None  # [N*m] the leader's slow load on the spring (baseline)
@@ -335,9 +338,20 @@ class TakeoverPair(RolloutPair):
             self._src, self._t_sw = src, now
             self._offset = prev - np.asarray(q, dtype=float)
             self._g_off = (self._g_cmd - grip) if (self._g_cmd is not None and grip is not None) else 0.0
+            self._t_gsw = now
+            # to the operator, the gripper keeps the policy's command until the trigger picks it up
+            self._g_pick = (self._g_cmd, None) if src == OPERATOR and self._g_cmd is not None else None
         w = blend_weight(now - self._t_sw, self.cfg.takeover.blend_s)
         self.q_target = handover_target(q, self._offset, w, prev, self.soft.rate, dt)
-        grip = blend_gripper(grip, self._g_off, w)
+        if self._g_pick is not None:
+            held, g_lead = self._g_pick[0], grip
+            grip, picked, pick = gripper_pickup(held, g_lead, self._g_pick[1])
+            self._g_pick = None if picked else (held, pick)
+            if picked:  # from here the trigger: what is left of the gap fades over blend_s
+                self._g_off, self._t_gsw, grip = held - g_lead, now, held
+        else:
+            grip = blend_gripper(grip, self._g_off, blend_weight(now - self._t_gsw,
+                                                                 self.cfg.takeover.blend_s))
         self._g_cmd = grip if grip is not None else self._g_cmd
         self.sent = self.follower.command(FollowerCommand(q=self.q_target, gripper=grip))
         if src == OPERATOR and bool(np.all(np.abs(self.q_target - q) <= TRACKING_TOL_RAD)):

@@ -216,3 +216,28 @@ def blend_gripper(g_source: float | None, g_offset: float, w: float) -> float | 
     if g_source is None:
         return None
     return float(g_source + (1.0 - w) * g_offset)
+
+
+GRIP_CATCH_M = 0.0005  # m: the trigger's gripper target this close to the held command has picked it up
+GRIP_MOVE_M = 0.002  # m: the trigger moved this far since the takeover: the hand works it
+
+
+def gripper_pickup(g_held: float, g_leader: float | None, pick: tuple[float, float] | None
+                   ) -> tuple[float, bool, tuple[float, float] | None]:
+    """The follower's gripper target [m] after an operator takeover, until the trigger picks up the command
+    the policy left (a soft takeover, as a mixing desk's fader picks up a value): (target, picked, pick).
+    pick: (the trigger's first target after the takeover, the side it started on: sign of g_leader - g_held),
+    None before the first reading. The target stays g_held until the trigger's target g_leader comes within
+    GRIP_CATCH_M of it, crosses it, or moves GRIP_MOVE_M from where it was (the hand works the trigger: to
+    open, too). Why: the trigger is not driven during a rollout, so at a takeover it sits wherever the hand
+    left it; fading the gripper to it released an object the policy squeezed (its command lies past the
+    object's width, a resting trigger at it)."""
+    if g_leader is None or not math.isfinite(g_leader):
+        return g_held, False, pick
+    d = g_leader - g_held
+    if pick is None:
+        pick = (g_leader, math.copysign(1.0, d) if d != 0.0 else 0.0)
+    g0, side = pick
+    if abs(d) <= GRIP_CATCH_M or d * side < 0.0 or abs(g_leader - g0) >= GRIP_MOVE_M:
+        return g_leader, True, pick
+    return g_held, False, pick
