@@ -122,10 +122,10 @@ class TeleopLoop:
         wake = None
         if self.clock.realtime:
             # Python's full collection holds the GIL while it walks every tracked object: ~200k after start-up
-            # (numpy, torch, MuJoCo, the rig), 50-80 ms on the dev VM, a stall of the loop whichever thread
-            # triggers it. Collected once here and frozen out of every later collection (gc.freeze), a full
-            # collection in a long session walks only what the session made.
-            gc.collect()
+            # (numpy, torch, MuJoCo, the rig), 50-130 ms on the dev VM, a stall of the loop whichever thread
+            # triggers it. Frozen out of every later collection (gc.freeze, O(1)), a full collection in a long
+            # session walks only what the session made. Not collected first: that took 0.2 s with the GIL
+            # held at every start; start-up's garbage waits for the unfreeze at the end instead.
             gc.freeze()
             sys.setswitchinterval(min(switch, SWITCH_FRACTION * self.period_s))
             why = set_fifo(LOOP_PRIORITY)
