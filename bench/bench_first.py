@@ -67,6 +67,8 @@ class BenchConfig:
     jobs: int = 2  # worker processes (each training run then uses cores / jobs torch threads)
     next_checkpoint: str = ""  # "" = the demo's cached NEXT for sim-piper (made once when missing)
     quick: bool = False  # the smoke configuration (QUICK): said in the report
+    demos_from: dict = field(default_factory=dict)  # task -> recorded folders used instead of a collection
+    eval_seed: int = EVAL_SEED  # rollout seed (range B): a run may pre-register a fresh one
 
     def cells(self, task: str) -> dict:
         out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
@@ -87,10 +89,36 @@ def _json(path: Path, obj) -> None:
     os.replace(tmp, path)  # written whole or not at all: a killed run leaves no half result
 
 
+def demo_folders(cfg: BenchConfig, task: str) -> list[Path]:
+    """Where a task's demonstrations are: the folders the run was given, or its own collection."""
+    return [Path(d) for d in cfg.demos_from.get(task, [])] or [Path(cfg.out) / task / "demos"]
+
+
+def recorded_summary(task: str, folders: list[Path]) -> dict:
+    """The collection summaries (`factr2 collect`'s JSON) of given folders, merged into one."""
+    parts = [json.loads(f.read_text()) for d in folders for f in sorted(d.glob("*.json"))]
+    parts = [p for p in parts if isinstance(p, dict) and "results" in p]
+    if not parts or any(p.get("task") != task for p in parts):
+        raise SystemExit(f"--demos-from {task}: {', '.join(map(str, folders))} hold no {task} collection "
+                         "summary (the JSON `factr2 collect` writes beside its recording)")
+    results = [r for p in parts for r in p["results"]]
+    n = len(results)
+    return {"episodes": n, "success_rate": sum(r.get("outcome") == "success" for r in results) / n,
+            "progress_mean": sum(r.get("progress", 0.0) for r in results) / n,
+            "sim_s": sum(p.get("sim_s", 0.0) for p in parts),
+            "wall_s": sum(p.get("wall_s", 0.0) for p in parts),
+            "cpu_s": 0.0,  # not this run's work
+            "folders": [str(d) for d in folders], "collection_seeds": [p.get("seed") for p in parts],
+            "results": results}
+
+
 def collect_demos(cfg: BenchConfig, task: str, checkpoint: str) -> dict:
-    """The task's demonstrations (factr2 collect's function), kept in OUT/TASK/demos."""
+    """The task's demonstrations (factr2 collect's function), kept in OUT/TASK/demos, or those the run was
+    given (--demos-from)."""
     from factr2_teleop.tasks.run import CollectConfig, collect, output_paths
 
+    if task in cfg.demos_from:
+        return recorded_summary(task, demo_folders(cfg, task))
     folder = Path(cfg.out) / task / "demos"
     cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(folder), seed=DEMO_SEED, mode="next",
                        checkpoint=checkpoint, cameras=cfg.obs != "state")
@@ -114,14 +142,13 @@ def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
     if done.is_file():
         return json.loads(done.read_text())
     method, ratio = cfg.cells(task)[cell]
-    demos = Path(cfg.out) / task / "demos"
     last = last_checkpoint(run)
     if last is None:
         shutil.rmtree(run, ignore_errors=True)
     # the warm-up / validation / checkpoint periods: fitted to the run's length by the loop
     tc = TrainConfig(steps=cfg.steps, batch=cfg.batch, log_every=10, seed=seed,
                      threads=max(1, (os.cpu_count() or 1) // cfg.jobs))
-    opts = RunOptions(inputs=[demos], out=run, policy=cfg.policy, method=method,
+    opts = RunOptions(inputs=demo_folders(cfg, task), out=run, policy=cfg.policy, method=method,
                       ratio=ratio, preset=cfg.preset, thresholds=cfg.thresholds, observation=cfg.obs,
                       progress=False, train=tc, resume=last is not None, include_failed=cfg.include_failed,
                       actions=cfg.actions)
@@ -130,7 +157,8 @@ def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
     meta = read_meta(run)
     out = {"task": task, "cell": cell, "method": method, "ratio": meta["ratio"], "seed": seed,
            "val": meta.get("metrics", {}), "samples": meta["samples"], "steps": meta["step"],
-           "phases": meta["phases"], "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
+           "phases": meta["phases"], "phase_shares": meta.get("phase_shares"),
+           "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
            "torch_threads": torch.get_num_threads(), "run": str(run)}
     _json(done, out)
     return out
@@ -144,7 +172,7 @@ def rollout_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
     done = run / "rollout.json"
     if done.is_file():
         return json.loads(done.read_text())
-    kw = {"rig": RIG, "policy": str(run), "task": task, "episodes": cfg.rollouts, "seed": EVAL_SEED,
+    kw = {"rig": RIG, "policy": str(run), "task": task, "episodes": cfg.rollouts, "seed": cfg.eval_seed,
           "record": None, "progress": False}
     if cfg.max_seconds is not None and "max_seconds" in {f.name for f in fields(RolloutOptions)}:
         kw["max_seconds"] = cfg.max_seconds
@@ -207,7 +235,7 @@ class _Elapsed:
 
 # what the kept results depend on (tasks and seeds may be added)
 SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds",
-                  "next_checkpoint", "preset", "include_failed")
+                  "next_checkpoint", "preset", "include_failed", "demos_from", "eval_seed")
 
 
 def check_resume(cfg: BenchConfig, out: Path) -> None:
@@ -227,8 +255,9 @@ def run_pipeline(cfg: BenchConfig, ck: str) -> tuple[dict, list[dict], list[dict
     """Every job of the benchmark in cfg.jobs workers, each started as soon as what it needs is there: a
     task's training runs when its demonstrations are, a policy's rollouts when its training is (no worker
     idles at a stage boundary: 3 collections on 2 workers left one idle for a whole collection)."""
-    cells = [(task, cell, s) for task in cfg.tasks for cell in CELL_ORDER if cell in cfg.cells(task)
-             for s in range(cfg.seeds)]
+    # seed by seed, so that the paired comparison (same seed, both methods) fills in first
+    cells = [(task, cell, s) for task in cfg.tasks for s in range(cfg.seeds) for cell in CELL_ORDER
+             if cell in cfg.cells(task)]
     demos, trains, rolls = {}, {}, {}
     t0 = time.perf_counter()
     if cfg.jobs <= 1:
@@ -246,9 +275,17 @@ def run_pipeline(cfg: BenchConfig, ck: str) -> tuple[dict, list[dict], list[dict
 
     print(f"{len(cfg.tasks)} collection(s), {len(cells)} training run(s) and as many rollout sets on "
           f"{cfg.jobs} worker(s)", flush=True)
+    # a queue, not a submit-all: a trained policy's rollouts run before the next training, so a run stopped
+    # early leaves whole (policy, rollouts) pairs, the earliest task's first
+    pending: list[tuple[str, tuple]] = [("collect", (t,)) for t in cfg.tasks]
+    jobs = {"collect": collect_demos, "train": train_cell, "rollout": rollout_cell}
     with ProcessPoolExecutor(cfg.jobs, mp_context=mp.get_context("spawn")) as ex:
-        running = {ex.submit(collect_demos, cfg, t, ck): ("collect", (t,)) for t in cfg.tasks}
-        while running:
+        running: dict = {}
+        while pending or running:
+            while pending and len(running) < cfg.jobs:
+                stage, args = pending.pop(0)
+                extra = (ck,) if stage == "collect" else ()
+                running[ex.submit(jobs[stage], cfg, *args, *extra)] = (stage, args)
             done, _ = wait(running, return_when=FIRST_COMPLETED)
             for f in done:
                 stage, args = running.pop(f)
@@ -256,12 +293,10 @@ def run_pipeline(cfg: BenchConfig, ck: str) -> tuple[dict, list[dict], list[dict
                 _done(stage, args, t0)
                 if stage == "collect":
                     demos[args[0]] = res
-                    for c in cells:
-                        if c[0] == args[0]:
-                            running[ex.submit(train_cell, cfg, *c)] = ("train", c)
+                    pending += [("train", c) for c in cells if c[0] == args[0]]
                 elif stage == "train":
                     trains[args] = res
-                    running[ex.submit(rollout_cell, cfg, *args)] = ("rollout", args)
+                    pending.insert(0, ("rollout", args))
                 else:
                     rolls[args] = res
     return {t: demos[t] for t in cfg.tasks}, [trains[c] for c in cells], [rolls[c] for c in cells]
@@ -289,7 +324,8 @@ def run_bench(cfg: BenchConfig) -> dict:
                     "python": platform.python_version(), "loadavg_end": os.getloadavg()},
         "timing": timing,
         "demos": {k: {x: v[x] for x in ("episodes", "success_rate", "progress_mean", "phase_shares",
-                                        "phase_thresholds_nm", "sim_s", "wall_s", "cpu_s") if x in v}
+                                        "phase_thresholds_nm", "sim_s", "wall_s", "cpu_s", "folders",
+                                        "collection_seeds") if x in v}
                   for k, v in demos.items()},
         "train": trains, "rollout": rolls,
     }
@@ -322,6 +358,10 @@ def parse_args(argv=None) -> tuple[BenchConfig, bool]:
     ap.add_argument("--thresholds", default="recording", metavar="recording|next|LOW:HIGH",
                     help="FIRST label thresholds [N*m] (default: from the demonstrations, as factr2 train)")
     ap.add_argument("--max-seconds", type=float, default=None, help="rollout episode limit [s]")
+    ap.add_argument("--demos-from", action="append", default=[], metavar="TASK=DIR[+DIR...]",
+                    help="train TASK on these recorded folders (factr2 collect's) instead of collecting")
+    ap.add_argument("--eval-seed", type=int, default=EVAL_SEED,
+                    help=f"rollout seed (default {EVAL_SEED}); never one a choice was made on")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2: both cores here)")
     ap.add_argument("--next", default="", help="NEXT checkpoint (default: the demo's cache)")
     ap.add_argument("--quick", action="store_true", help="a few-minute smoke configuration: " + str(QUICK))
@@ -330,7 +370,14 @@ def parse_args(argv=None) -> tuple[BenchConfig, bool]:
     a = ap.parse_args(argv)
     cfg = BenchConfig(out=a.out, obs=a.obs, policy=a.policy, ablation_task=a.ablation_task,
                       max_seconds=a.max_seconds, jobs=max(1, a.jobs), next_checkpoint=a.next, preset=a.preset,
-                      table=a.table, include_failed=a.include_failed, actions=a.actions)
+                      table=a.table, include_failed=a.include_failed, actions=a.actions,
+                      eval_seed=a.eval_seed)
+    for item in a.demos_from:
+        task, sep, dirs = item.partition("=")
+        folders = [d for d in dirs.split("+") if d]
+        if not sep or not folders or any(not Path(d).is_dir() for d in folders):
+            ap.error(f"--demos-from {item!r}: TASK=DIR[+DIR...], each DIR a folder factr2 collect wrote")
+        cfg.demos_from[task.strip()] = [str(Path(d).resolve()) for d in folders]
     if a.quick:
         cfg.quick = True
         for k, v in QUICK.items():

@@ -163,6 +163,16 @@ def _ranges(seeds: dict) -> str:
                      for t, s in seeds.items())
 
 
+def _labels(results: dict, task: str) -> tuple[float, float, dict]:
+    """The thresholds [N*m] and phase shares the training runs used (their meta), else the collection's."""
+    for r in results.get("train", []):
+        if r.get("task") == task and r.get("phase_shares") and "t_low" in (r.get("phases") or {}):
+            return r["phases"]["t_low"], r["phases"]["t_high"], r["phase_shares"]
+    d = results["demos"].get(task, {})
+    lo, hi = d.get("phase_thresholds_nm") or (np.nan, np.nan)
+    return lo, hi, d.get("phase_shares") or {}
+
+
 def table(results: dict) -> str:
     cfg, summ, tm = results["config"], results["summary"], results["timing"]
     smoke = ("**Smoke run (`--quick`): far too small to compare the methods; it shows that the pipeline "
@@ -170,17 +180,18 @@ def table(results: dict) -> str:
     lines = [f"{smoke}SIMULATED (MuJoCo twin `sim-piper`), observation: {results['observation']}; "
              f"{cfg['policy']} policy, {cfg.get('preset') or 'default'} preset, {cfg['steps']} steps x batch "
              f"{cfg['batch']}, EMA weights; "
-             f"{cfg['demos']} demonstrations per task, {cfg['rollouts']} rollouts per policy on other "
+             f"{'the given' if cfg.get('demos_from') else cfg['demos']} demonstrations per task, "
+             f"{cfg['rollouts']} rollouts per policy on other "
              f"initial conditions (episode seeds: {_ranges(results['seeds'])}).", ""]
     for task in cfg["tasks"]:
         cells = summ.get(task, {})
         d = results["demos"].get(task, {})
-        sh = d.get("phase_shares") or {}
+        lo, hi, sh = _labels(results, task)
         shares = " / ".join(f"{100 * sh.get(k, np.nan):.0f}" for k in ("free", "pre_contact", "contact"))
-        lo, hi = d.get("phase_thresholds_nm") or (np.nan, np.nan)
-        lines += [f"**{task}** (demonstrations: {d.get('episodes', '?')} episodes, scripted success "
+        given = f" from {', '.join(d['folders'])}" if d.get("folders") else ""
+        lines += [f"**{task}** (demonstrations: {d.get('episodes', '?')} episodes{given}, scripted success "
                   f"{100 * d.get('success_rate', np.nan):.0f} %; FIRST labels at {lo:.2f} / {hi:.2f} N*m: "
-                  f"free / pre-contact / contact {shares} %)", "", HEADER]
+                  f"free / pre-contact / contact {shares} % of the training samples)", "", HEADER]
         lines += [_row(m, cells[m]) for m in METHOD_ORDER if m in cells]
         lines += ["", _paired_line(paired(results, task)), ""]
         if "C" in cells:

@@ -168,6 +168,8 @@ def prepare(o: RunOptions, d: Dist):
         "skipped_episodes": skipped,
         "tasks": _tasks(episodes),  # what rollout checks its --task against (session/task_check.py)
         "samples": {"train": int(len(train_idx)), "val": int(len(data) - len(train_idx))},
+        # what the sampler re-weights: the training split's share of each phase (free, pre-contact, contact)
+        "phase_shares": dict(zip(("free", "pre_contact", "contact"), map(float, _shares(data)))),
         "rig": describe_rig(episodes[0]),
         "arms": arms.to_dict(),
         "software_version": software_version(),
