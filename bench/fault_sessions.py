@@ -26,6 +26,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 TAIL_S = 1.2  # s of twin time a session runs after its fault ends (to see the recovery)
+NEXT_TAIL_S = 10.0  # s (real time) after a NEXT worker's kill: a new worker starts, loads torch, warms up
 SIGNAL_KINDS = ("app_sigterm", "app_sigkill")
 COLLECT_TASK = "peg-insert"
 WRITER_FINISH_S = 15.0  # s: a killed app's writer process finishes the file within this (wall)
@@ -111,8 +112,22 @@ class Watch:
 def _teleop(spec, seed: int, folder: Path) -> dict:
     from factr2_teleop.demo.fault_run import run_with_faults
 
+    if spec.kind == "next_killed":  # NEXT is a process of its own only on a real-time clock
+        out = run_with_faults([spec], seconds=spec.t_s + NEXT_TAIL_S, seed=seed, record_dir=folder,
+                              mode="next", clock="realtime")
+        said = [m[2] for m in out.messages]
+        back = any("feedback back on" in m for m in said)
+        res = _teleop_outcome(out, recovered=back)
+        res["worker_restarted"] = any("restarting it" in m for m in said)
+        return res
     out = run_with_faults([spec], seconds=spec.t_s + spec.duration_s + TAIL_S, seed=seed, record_dir=folder,
                           cameras=spec.kind.startswith("camera_"))
+    return _teleop_outcome(out)
+
+
+def _teleop_outcome(out, recovered=None) -> dict:
+    """A teleop run_with_faults outcome as a campaign row; recovered: the kind's own test of it (else the
+    loop's re-coupling after each fault that ended)."""
     rc = out.recording
     ends = [e for e in out.log if e["event"] == "end"]
     starts = [e for e in out.log if e["event"] == "start"]
@@ -120,7 +135,8 @@ def _teleop(spec, seed: int, folder: Path) -> dict:
             "violations": out.violations, "safe_end": out.safe_at_end,
             "safe_ms": out.safe_ms[0] if out.safe_ms else None,
             "stale_ms": out.stale_ms[0] if out.stale_ms else None,
-            "recovered": all(out.recovered) if ends else None, "samples_lost": rc.lost_before_fault,
+            "recovered": recovered if recovered is not None else (all(out.recovered) if ends else None),
+            "samples_lost": rc.lost_before_fault,
             "recording_opens": rc.opens, "recording_error": rc.error,
             "ticks_before_fault": rc.ticks_before_fault, "log": out.log, "messages": out.messages}
 

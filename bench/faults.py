@@ -7,9 +7,9 @@ one fault each at a random time, and what happened (docs/safety.md "Fault campai
 
 Sessions (bench/fault_sessions.py): teleop (the demo's operator through the teleop session, recorded),
 collect (`factr2 collect`'s collect(), one peg-insert episode), rollout (run_rollout of a tiny policy trained
-once into OUT.state/). Each is cut TAIL_S after its fault. Resumable: every finished session is a line of
-OUT.sessions.jsonl; a run that was killed continues where it stopped (same arguments). One progress line per
-session on stderr.
+once into OUT.state/). next_killed: teleop only, in real time with NEXT feedback (recovered: feedback back
+on). Each is cut TAIL_S after its fault. Resumable: every finished session is a line of OUT.sessions.jsonl;
+a run that was killed continues where it stopped (same arguments). One progress line per session on stderr.
 
 JSON, per kind (over its activities, and per activity under "activities"): injected (sessions whose fault was
 played), sessions, sessions_safe (both arms safe at the end, no error), safe_unobservable (SIGKILL: the twin
@@ -43,11 +43,12 @@ from hardware.errors import ConfigError  # noqa: E402
 from hardware.sim.faults import KINDS, random_schedule  # noqa: E402
 
 LEADER_KINDS = ("dxl_unplug", "dxl_overload", "dxl_corrupt", "spike_leader")
-# next_killed: the NEXT worker runs only with real-time clocks (tests/test_faults_process.py plays it)
-NOT_IN_CAMPAIGN = {"next_killed": "the NEXT worker runs with real-time clocks only; lockstep sessions keep "
-                                  "NEXT inline (tests/test_faults_process.py kills and restarts it)"}
+# next_killed: the NEXT worker exists only on a real-time clock: its teleop sessions run in real time (mode
+# next, the demo's NEXT), collect and rollout (lockstep here, NEXT inline) have no worker to kill
+NOT_IN_CAMPAIGN = {"next_killed": "collect and rollout: lockstep sessions keep NEXT inline (no worker "
+                                  "process); teleop plays it in real time"}
 ACTIVITY_KINDS = {
-    "teleop": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN),
+    "teleop": tuple(KINDS),
     "collect": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN),
     # a rollout's leader is passive (zero torque, not read by the policy): leader faults do not concern it
     "rollout": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN and k not in LEADER_KINDS),

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import struct
+import subprocess
 import threading
 from collections.abc import Callable
 from enum import Enum
@@ -57,6 +58,56 @@ def set_fifo(priority: int, native_id: int | None = None) -> Reason | None:
     except OSError as e:
         return Reason.of(RtRefusal.REFUSED, error=e.strerror or e)
     return None
+
+
+# the CPUs this process may use, read before any thread is pinned (a pinned thread's own set is one CPU)
+PROCESS_CPUS: frozenset[int] = frozenset(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else \
+    frozenset()
+
+
+def _inherits_realtime() -> bool:
+    """Whether a process started from the calling thread would inherit a real-time policy or a pinned CPU."""
+    if not hasattr(os, "sched_getscheduler"):
+        return False
+    try:
+        pinned = bool(PROCESS_CPUS) and set(os.sched_getaffinity(0)) != set(PROCESS_CPUS)
+        return os.sched_getscheduler(0) != os.SCHED_OTHER or pinned
+    except OSError:
+        return False
+
+
+def spawn_normal(args: list[str], **popen_kw) -> subprocess.Popen:
+    """subprocess.Popen(args, **popen_kw), the child at normal priority on every CPU of the process.
+
+    A new process inherits the policy and the CPU affinity of the thread that starts it. Started from the
+    control loop's thread (a NEXT worker restarted after it died, mid-session), a child ran its start-up
+    (a Python interpreter importing torch, ~1 s) at the loop's SCHED_FIFO priority on the loop's own CPU,
+    where an equal-priority FIFO thread is not preempted: the loop stood still for 1.26 s (measured, the
+    fault campaign's next_killed on the twin). So from such a thread the Popen runs on a short-lived thread
+    that first drops to normal priority and the process's CPUs (the caller waits for the fork and exec
+    only, a few ms); from any other thread it is a plain Popen."""
+    if not _inherits_realtime():
+        return subprocess.Popen(args, **popen_kw)
+    box: dict = {}
+
+    def start() -> None:
+        set_normal()
+        try:
+            if PROCESS_CPUS:
+                os.sched_setaffinity(0, PROCESS_CPUS)
+        except OSError:
+            pass  # a cpuset that changed meanwhile: the policy is what matters most
+        try:
+            box["proc"] = subprocess.Popen(args, **popen_kw)
+        except BaseException as e:  # noqa: BLE001 -- raised again on the caller's thread
+            box["error"] = e
+
+    th = threading.Thread(target=start, name="spawn-normal", daemon=True)
+    th.start()
+    th.join()
+    if "error" in box:
+        raise box["error"]
+    return box["proc"]
 
 
 def set_normal(native_id: int | None = None) -> None:

@@ -151,6 +151,27 @@ def test_killed_next_worker_is_restarted_and_estimates_come_back(tmp_path):
     assert kill_next_workers() == "not played: no NEXT worker"
 
 
+def test_next_worker_killed_while_it_loads_is_started_again(tmp_path):
+    """Killed before it said ready (a real-time session's first seconds, when the worker imports torch):
+    the same restart as a worker killed later, not a load failure that keeps feedback off for the session."""
+    from calibration.next.checkpoint import save_checkpoint
+    from calibration.next.worker import NextWorker
+    from hardware.sim.process_faults import kill_next_workers
+    from tests.test_next_estimator import _ck
+
+    path = save_checkpoint(_ck(history=12, n_j=3), tmp_path / "next")
+    w = NextWorker(path, "test", 3, 0.002)
+    try:
+        assert kill_next_workers().startswith("killed NEXT worker pid")  # at once: it is still loading
+        with pytest.raises(RuntimeError, match="ended while loading.*restarting it"):
+            w.wait_ready()
+        assert w.restarts == 1
+        w.wait_ready()  # the new one loads
+        assert w.ready
+    finally:
+        w.close()
+
+
 def _collect(out: Path, fault: str):
     env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
     return subprocess.run([sys.executable, "-m", "factr2_teleop.cli", "collect", "--task", "peg-insert",

@@ -35,7 +35,7 @@ import numpy as np
 
 from calibration.estimate import Estimate
 from calibration.estimators import Estimator, EstimatorInput, NextAdapter, next_period_s, refresh_with
-from hardware.realtime import ESTIMATOR_PRIORITY
+from hardware.realtime import ESTIMATOR_PRIORITY, spawn_normal
 from hardware.types import JointState
 
 READY_TIMEOUT_S = 60.0  # s: the child imports torch and loads the checkpoint (2-5 s on a 2-vCPU VM)
@@ -142,7 +142,8 @@ class NextWorker(Estimator):
         """Start the child (a fresh interpreter: no inherited threads, locks or twin state); not ready yet."""
         self._deadline = time.monotonic() + self._timeout_s
         ours, theirs = socket.socketpair()
-        self._proc = subprocess.Popen(
+        # at normal priority even when a restart starts it from the real-time loop's thread
+        self._proc = spawn_normal(
             [sys.executable, "-m", "calibration.next.worker", "--fd", str(theirs.fileno()), *self._args],
             pass_fds=(theirs.fileno(),), stdin=subprocess.DEVNULL)
         theirs.close()
@@ -181,9 +182,9 @@ class NextWorker(Estimator):
                     raise RuntimeError(f"the NEXT worker did not start in {self._timeout_s:.0f} s")
                 return False
             kind, value = self._conn.recv()
-        except (EOFError, OSError):
-            kind, value = "error", f"the process ended (exit code {self._proc.poll()})"
-        if kind != "ready":
+        except (EOFError, OSError):  # killed while it loaded (the OOM killer, a user): start it again
+            raise self._died(f"it ended while loading, exit code {self._proc.poll()}") from None
+        if kind != "ready":  # it said why it cannot load: a new one would not either
             raise RuntimeError(f"the NEXT worker could not load {self._path}: {value}")
         self.ready = True
         return True

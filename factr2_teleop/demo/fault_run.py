@@ -13,6 +13,7 @@ import numpy as np
 
 from factr2_teleop.demo.task import DemoConfig, DemoRun
 from factr2_teleop.teleop.pair import COUPLED, SOFT_START
+from hardware.errors import UserError
 from hardware.types import STATUS_COMM_LOST, STATUS_STALE
 
 RATE_HZ = 250.0  # Hz: the lockstep loop rate of fault runs (a few seconds of twin time each)
@@ -121,11 +122,28 @@ def check_recording(path, t_ticks, t_fault: float, error: str | None) -> Recordi
 
 
 def run_with_faults(specs, seconds: float = 2.5, seed: int = 0, rig: str = "sim-piper", record_dir=None,
-                    cameras: bool = False) -> FaultOutcome:
+                    cameras: bool = False, mode: str = "ground_truth",
+                    clock: str = "lockstep") -> FaultOutcome:
     """Run the demo task's teleop (ground-truth feedback) in lockstep while the twin plays `specs`;
-    record_dir: record the run there (one episode; cameras: with the rig's cameras) and check the file."""
-    run = DemoRun(DemoConfig(rig=rig, seconds=seconds, mode="ground_truth", clock="lockstep", rate_hz=RATE_HZ,
-                             seed=seed, faults=tuple(specs)))
+    record_dir: record the run there (one episode; cameras: with the rig's cameras) and check the file.
+    mode / clock: DemoConfig's (a killed NEXT worker needs "next" on a real-time clock: only there is NEXT a
+    process of its own)."""
+    next_src, next_path = None, None
+    if mode == "next":  # the demo's NEXT (the cache `factr2 demo` makes), as the demo itself runs it
+        from factr2_teleop.session.next_cache import find_checkpoint
+        from factr2_teleop.session.pairs import load_next
+        from hardware.rigs.rig import load_rig
+
+        next_path = find_checkpoint(rig, None)
+        if next_path is None:
+            raise UserError(f"no NEXT checkpoint for {rig}", where="fault run, mode next",
+                            fix=f"run `factr2 demo --rig {rig} --mode next` once (it trains the cache)")
+        next_src = load_next(next_path, load_rig(rig).followers[0].arm)
+    # a real-time run at the app's own rate (DemoConfig's default), a lockstep one at RATE_HZ
+    rate = RATE_HZ if clock == "lockstep" else DemoConfig.rate_hz
+    run = DemoRun(DemoConfig(rig=rig, seconds=seconds, mode=mode, clock=clock, rate_hz=rate,
+                             seed=seed, faults=tuple(specs)), next_source=next_src,
+                  next_path=str(next_path) if next_path else None)
     phases: list[tuple[float, str]] = []
     q_read: list[np.ndarray] = []
     sample_t: list[tuple[float, float]] = []  # (follower, leader) newest all-fresh sample times [s]

@@ -316,11 +316,11 @@ class DemoRun:
         cfg, rows = self.cfg, self._rows
         st = self.loop.timing.stats(whole_run=True)
         nl = self.leader.n_joints
-        coupled = np.array([r[1] == "coupled" for r in rows])
+        coupled = np.array([r[1] == "coupled" for r in rows], dtype=bool)  # (bool also when no row)
         fb = np.array([r[2] if r[2] is not None else np.zeros(nl) for r in rows])
         est = np.array([r[3] for r in rows])
         true = np.array([r[4] for r in rows])
-        contact = np.array([r[5] for r in rows]) & coupled
+        contact = np.array([r[5] for r in rows], dtype=bool) & coupled
         force = np.array([r[6] for r in rows])
         mp = self.pair.map
         gain = np.asarray(self.pair.law.cfg.feedback.gain, dtype=float) * np.ones(nl)

@@ -26,6 +26,7 @@ from multiprocessing.connection import Client, Listener
 import numpy as np
 
 from hardware.cameras.base import CameraError
+from hardware.realtime import spawn_normal
 
 START_TIMEOUT_S = 30.0  # a cold start imports mujoco and opens an OpenGL context
 RENDER_TIMEOUT_S = 5.0
@@ -113,7 +114,7 @@ class RenderProcess:
                        LP_NUM_THREADS=os.environ.get("LP_NUM_THREADS", str(RASTER_THREADS)))
             # its output goes to a log file (the caller's stdout/stderr may be no real file: a terminal UI)
             self._log = open(os.path.join(self._dir, "render.log"), "wb")  # noqa: SIM115 (closed in close())
-            self._proc = subprocess.Popen([sys.executable, "-m", "hardware.cameras.render_process"], env=env,
+            self._proc = spawn_normal([sys.executable, "-m", "hardware.cameras.render_process"], env=env,
                                           stdin=subprocess.DEVNULL, stdout=self._log, stderr=self._log,
                                           close_fds=True)
             # Not raised to real time with the loop (it was, as a helper): a real-time process that renders

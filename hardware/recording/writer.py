@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from hardware.errors import UserError
+from hardware.realtime import spawn_normal
 from hardware.recording import schemas as S
 from hardware.recording import wire_records as R
 from hardware.recording import writer_process as W
@@ -163,7 +164,7 @@ class Recorder:
         cfg.update(shm_fd=self._shm_fd, file_fd=self._f.fileno())
         # A new interpreter (`python -m`), as the twin's render process: multiprocessing's spawn re-runs the
         # user's __main__, a fork would copy the loop's threads. Its own session: Ctrl-C is the app's.
-        self._proc = subprocess.Popen([sys.executable, "-m", "hardware.recording.writer_process"],
+        self._proc = spawn_normal([sys.executable, "-m", "hardware.recording.writer_process"],
                                       stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
                                       stderr=subprocess.DEVNULL,
                                       pass_fds=(self._shm_fd, self._f.fileno()), start_new_session=True)
