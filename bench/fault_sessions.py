@@ -119,6 +119,7 @@ def _teleop(spec, seed: int, folder: Path) -> dict:
         back = any("feedback back on" in m for m in said)
         res = _teleop_outcome(out, recovered=back)
         res["worker_restarted"] = any("restarting it" in m for m in said)
+        res["killed_while_loading"] = any("ended while loading" in m for m in said)
         return res
     out = run_with_faults([spec], seconds=spec.t_s + spec.duration_s + TAIL_S, seed=seed, record_dir=folder,
                           cameras=spec.kind.startswith("camera_"))

@@ -54,6 +54,8 @@ ACTIVITY_KINDS = {
     "rollout": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN and k not in LEADER_KINDS),
 }
 FAULT_WINDOW_S = (0.6, 1.4)  # s of twin time: when a session's fault starts (after the soft start)
+# a NEXT worker loads for ~2-5 s after the session starts: its kills span loading and answering
+WINDOW_S_BY_KIND = {"next_killed": (0.6, 10.0)}
 POLICY_STEPS = 25  # training steps of the rollout sessions' tiny policy (it only has to run, not succeed)
 
 
@@ -146,8 +148,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     with journal.open("a") as jf, tempfile.TemporaryDirectory(prefix="factr2-faults-") as tmp:
         for n, (act, kind, i) in enumerate(todo, 1):
-            spec = random_schedule(args.seed * 1000 + i, [kind], 1, FAULT_WINDOW_S[0],
-                                   FAULT_WINDOW_S[1] + KINDS[kind][1], gap_s=0.0)[0]
+            lo, hi = WINDOW_S_BY_KIND.get(kind, FAULT_WINDOW_S)
+            spec = random_schedule(args.seed * 1000 + i, [kind], 1, lo, hi + KINDS[kind][1], gap_s=0.0)[0]
             r = run_session(act, spec, args.seed + i, Path(tmp) / f"{act}-{kind}-{i}", policy)
             r = {k: v for k, v in r.items() if k not in ("log", "messages")}
             r.update(activity=act, kind=kind, i=i, seed=args.seed, spec=spec.text())
