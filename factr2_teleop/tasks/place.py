@@ -77,7 +77,9 @@ def _upright(yaw: float, p) -> np.ndarray:
     return K.pose(np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]]), p)
 
 
-def pick_and_place(op, params: dict, rng: np.random.Generator, pl: Place):
+def pick_and_place(op, params: dict, rng: np.random.Generator, pl: Place, held: bool = False):
+    """held: the object is already in the hand (an operator taking over from a policy that carries it):
+    no grasp, and the approach is looked at carefully (no misjudged arrival), from where the arm is."""
     speed = rng.uniform(0.8, 1.3)  # this demonstration's pace (1 = nominal)
 
     def dur(s):
@@ -85,27 +87,28 @@ def pick_and_place(op, params: dict, rng: np.random.Generator, pl: Place):
 
     out = op.log = {"gave_up": False, "retries": 0, "felt": []}  # op.log: read on a timeout too
     yield
-    for _grasp in range(GRASP_TRIES):
-        obs = op.p.obs
-        top = obs[f"{pl.obj}_pos"] + [0, 0, pl.half_h]
-        grasp_p = top - [0, 0, pl.grasp_below_m]
-        yaw = best_down_yaw(op, grasp_p, yaw_of(obs[f"{pl.obj}_rot"]), np.pi / 2)
-        bump = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.0, 0.05)])
-        yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.07]), dur(1.8), bump=bump)
-        T_grasp = K.pose(K.down_rotation(yaw), grasp_p)
-        yield from move(op, T_grasp, dur(1.0))
-        yield from _arrive(op, T_grasp)  # closes only with the fingers seen around the object
-        yield from grip(op, 1.0, dur(0.5))
-        yield from wait(op, 0.5)
-        yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.075]), dur(0.9))
-        if np.all(op.p.obs["finger_touch"]) and op.p.obs[f"{pl.obj}_pos"][2] > top[2] - pl.half_h + 0.03:
-            break
-        out["regrasps"] = out.get("regrasps", 0) + 1  # not in the hand: open, look again, grasp again
-        yield from grip(op, 0.0, dur(0.4))
-        yield from wait(op, 0.5)
-    else:
-        out["gave_up"] = True
-        return out
+    if not held:
+        for _grasp in range(GRASP_TRIES):
+            obs = op.p.obs
+            top = obs[f"{pl.obj}_pos"] + [0, 0, pl.half_h]
+            grasp_p = top - [0, 0, pl.grasp_below_m]
+            yaw = best_down_yaw(op, grasp_p, yaw_of(obs[f"{pl.obj}_rot"]), np.pi / 2)
+            bump = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.0, 0.05)])
+            yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.07]), dur(1.8), bump=bump)
+            T_grasp = K.pose(K.down_rotation(yaw), grasp_p)
+            yield from move(op, T_grasp, dur(1.0))
+            yield from _arrive(op, T_grasp)  # closes only with the fingers seen around the object
+            yield from grip(op, 1.0, dur(0.5))
+            yield from wait(op, 0.5)
+            yield from move(op, K.pose(K.down_rotation(yaw), grasp_p + [0, 0, 0.075]), dur(0.9))
+            if np.all(op.p.obs["finger_touch"]) and op.p.obs[f"{pl.obj}_pos"][2] > top[2] - pl.half_h + 0.03:
+                break
+            out["regrasps"] = out.get("regrasps", 0) + 1  # not in the hand: open, look again, grasp again
+            yield from grip(op, 0.0, dur(0.4))
+            yield from wait(op, 0.5)
+        else:
+            out["gave_up"] = True
+            return out
 
     def in_hand() -> np.ndarray:  # where the object sits in the gripper, as seen now
         o = op.p.obs
@@ -126,7 +129,7 @@ def pick_and_place(op, params: dict, rng: np.random.Generator, pl: Place):
     obj_yaw = yaw_of(op.p.obs[f"{pl.obj}_rot"])
     target_yaw = goal_yaw + np.pi / 2 * np.round((obj_yaw - goal_yaw) / (np.pi / 2))
     off, dyaw = np.zeros(3), 0.0
-    if rng.random() < P_MISALIGN:  # misjudged: arrives beside the target or turned
+    if not held and rng.random() < P_MISALIGN:  # misjudged: arrives beside the target or turned
         if rng.random() < 0.6:
             a = rng.uniform(0, 2 * np.pi)
             off = rng.uniform(0.0025, 0.004) * np.array([np.cos(a), np.sin(a), 0.0])
@@ -256,9 +259,12 @@ def _push_home(op, pl: Place, T_goal, seconds: float, out: dict, tool, seen):
     return "home" if seen()[2] <= pl.home_z_m else "jammed"  # out of time: in deep enough, or not
 
 
-def peg_insert(op, params, rng):
-    return (yield from pick_and_place(op, params, rng, PEG_PLACE))
+def peg_insert(op, params, rng, held: bool = False):
+    return (yield from pick_and_place(op, params, rng, PEG_PLACE, held))
 
 
-def press_fit(op, params, rng):
-    return (yield from pick_and_place(op, params, rng, PRESS_PLACE))
+def press_fit(op, params, rng, held: bool = False):
+    return (yield from pick_and_place(op, params, rng, PRESS_PLACE, held))
+
+
+RESUMES_HELD = ("peg-insert", "press-fit")  # scripts that can start from an object already in the hand

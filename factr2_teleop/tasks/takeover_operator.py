@@ -27,6 +27,7 @@ from factr2_teleop.session.rollout_pair import RUN
 from factr2_teleop.tasks import kinematics as K
 from factr2_teleop.tasks import script_for
 from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept, percept
+from factr2_teleop.tasks.place import RESUMES_HELD
 from factr2_teleop.tasks.scripts import grip, move
 from factr2_teleop.teleop.pair import HOLD
 from factr2_teleop.teleop.takeover import OPERATOR
@@ -44,13 +45,18 @@ WATCH, DRIVE, LET_GO = "watch", "drive", "let go"
 
 
 def finish_script(task_name: str):
-    """A script that finishes the task from wherever the arm is: the demonstration script, after opening
-    and lifting a gripper that holds nothing (the pick-and-place scripts then pick it up again; a held
-    object is picked up where it is)."""
+    """A script that finishes the task from wherever the arm is. An object already in the hand is carried
+    on from where it is (the pick-and-place scripts from their approach: line up and push, as a person
+    correcting the policy would; before, the whole demonstration ran again -- lift 7 cm, grasp again -- and
+    those corrections taught "start over" where the demonstrations push, docs/rollout.md). Otherwise the
+    demonstration script, after opening and lifting a gripper that holds nothing."""
     demo = script_for(task_name)
 
     def script(op, params, rng):
         touch = op.p.obs.get("finger_touch")
+        held = touch is not None and bool(np.all(touch)) and op.grip > 0.5
+        if held and task_name in RESUMES_HELD:
+            return (yield from demo(op, params, rng, held=True))
         if touch is not None and not bool(np.all(touch)) and op.grip > 0.0:
             T = op.ee_pose_des()
             yield from grip(op, 0.0, 0.4)
