@@ -97,7 +97,7 @@ def demo_folders(cfg: BenchConfig, task: str) -> list[Path]:
 def recorded_summary(task: str, folders: list[Path]) -> dict:
     """The collection summaries (`factr2 collect`'s JSON) of given folders, merged into one."""
     parts = [json.loads(f.read_text()) for d in folders for f in sorted(d.glob("*.json"))]
-    parts = [p for p in parts if isinstance(p, dict) and "results" in p]
+    parts = [p for p in parts if isinstance(p, dict) and p.get("results")]
     if not parts or any(p.get("task") != task for p in parts):
         raise SystemExit(f"--demos-from {task}: {', '.join(map(str, folders))} hold no {task} collection "
                          "summary (the JSON `factr2 collect` writes beside its recording)")
