@@ -34,6 +34,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.first_ledger import demos_fingerprint, export_cells, import_cells, next_weights_digest  # noqa: E402
 from bench.first_report import aggregate, write_docs, write_report  # noqa: E402
 
 DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, session/task_episodes.py)
@@ -69,6 +70,7 @@ class BenchConfig:
     quick: bool = False  # the smoke configuration (QUICK): said in the report
     demos_from: dict = field(default_factory=dict)  # task -> recorded folders used instead of a collection
     eval_seed: int = EVAL_SEED  # rollout seed (range B): a run may pre-register a fresh one
+    ledger: str = ""  # finished cells kept in the repository across sessions (bench/first_ledger.py)
 
     def cells(self, task: str) -> dict:
         out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
@@ -251,12 +253,13 @@ def check_resume(cfg: BenchConfig, out: Path) -> None:
                          "use another --out or the same options")
 
 
-def run_pipeline(cfg: BenchConfig, ck: str) -> tuple[dict, list[dict], list[dict]]:
+def run_pipeline(cfg: BenchConfig, ck: str, on_cell=lambda: None) -> tuple[dict, list[dict], list[dict]]:
     """Every job of the benchmark in cfg.jobs workers, each started as soon as what it needs is there: a
     task's training runs when its demonstrations are, a policy's rollouts when its training is (no worker
     idles at a stage boundary: 3 collections on 2 workers left one idle for a whole collection)."""
-    # seed by seed, so that the paired comparison (same seed, both methods) fills in first
-    cells = [(task, cell, s) for task in cfg.tasks for s in range(cfg.seeds) for cell in CELL_ORDER
+    # seed by seed across the tasks, so that a run stopped early (a table spans sessions) leaves the paired
+    # comparison (same seed, both methods) on every task first
+    cells = [(task, cell, s) for s in range(cfg.seeds) for task in cfg.tasks for cell in CELL_ORDER
              if cell in cfg.cells(task)]
     demos, trains, rolls = {}, {}, {}
     t0 = time.perf_counter()
@@ -269,6 +272,7 @@ def run_pipeline(cfg: BenchConfig, ck: str) -> tuple[dict, list[dict], list[dict
             _done("train", c, t0)
             rolls[c] = rollout_cell(cfg, *c)
             _done("rollout", c, t0)
+            on_cell()
         return demos, [trains[c] for c in cells], [rolls[c] for c in cells]
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, wait
@@ -279,6 +283,7 @@ def run_pipeline(cfg: BenchConfig, ck: str) -> tuple[dict, list[dict], list[dict
     # early leaves whole (policy, rollouts) pairs, the earliest task's first
     pending: list[tuple[str, tuple]] = [("collect", (t,)) for t in cfg.tasks]
     jobs = {"collect": collect_demos, "train": train_cell, "rollout": rollout_cell}
+    rank = {("collect", (t,)): -1 for t in cfg.tasks} | {("train", c): i for i, c in enumerate(cells)}
     with ProcessPoolExecutor(cfg.jobs, mp_context=mp.get_context("spawn")) as ex:
         running: dict = {}
         while pending or running:
@@ -294,32 +299,75 @@ def run_pipeline(cfg: BenchConfig, ck: str) -> tuple[dict, list[dict], list[dict
                 if stage == "collect":
                     demos[args[0]] = res
                     pending += [("train", c) for c in cells if c[0] == args[0]]
+                    pending.sort(key=lambda j: rank.get(j, -2))  # rollouts, collections, then cells' order
                 elif stage == "train":
                     trains[args] = res
                     pending.insert(0, ("rollout", args))
                 else:
                     rolls[args] = res
+                    on_cell()
     return {t: demos[t] for t in cfg.tasks}, [trains[c] for c in cells], [rolls[c] for c in cells]
 
 
-def run_bench(cfg: BenchConfig) -> dict:
+def task_summaries(cfg: BenchConfig) -> dict:
+    """The collection summary of every task whose demonstrations are there (given or collected earlier)."""
+    from factr2_teleop.tasks.run import CollectConfig, output_paths
+
+    out = {}
+    for task in cfg.tasks:
+        if task in cfg.demos_from:
+            out[task] = recorded_summary(task, demo_folders(cfg, task))
+            continue
+        cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(Path(cfg.out) / task / "demos"),
+                           seed=DEMO_SEED)
+        summary = output_paths(cc, RIG)[1]
+        if summary.is_file():
+            out[task] = json.loads(summary.read_text())
+    return out
+
+
+def fingerprints(cfg: BenchConfig, ck: str) -> dict:
+    digest = next_weights_digest(ck)
+    return {t: demos_fingerprint(s, digest) for t, s in task_summaries(cfg).items()}
+
+
+def run_bench(cfg: BenchConfig, report_only: bool = False) -> dict:
+    """Run every job not yet done (or, report_only, none) and report what is finished."""
     out = Path(cfg.out)
     check_resume(cfg, out)
     out.mkdir(parents=True, exist_ok=True)
     _json(out / "config.json", asdict(cfg))
     ck = next_checkpoint(cfg)
+    config = json.loads(json.dumps(asdict(cfg)))
+    if cfg.ledger:
+        n, skipped = import_cells(out, Path(cfg.ledger), fingerprints(cfg, ck), config)
+        print(f"ledger {cfg.ledger}: {n} finished cell(s) taken", *skipped, sep="\n  ", flush=True)
+
+    def on_cell():  # every finished cell goes to the ledger at once: a session may end at any moment
+        if cfg.ledger:
+            export_cells(out, Path(cfg.ledger), fingerprints(cfg, ck), config, session=time.strftime("%F"))
+
     elapsed = _Elapsed(out / "elapsed.json")  # wall time, summed over resumed invocations
-    with elapsed("pipeline"):
-        demos, trains, rolls = run_pipeline(cfg, ck)
+    if report_only:
+        demos = task_summaries(cfg)
+        cells = [(json.loads((r.parent / "train.json").read_text()), json.loads(r.read_text()))
+                 for r in sorted(out.glob("*/*/seed*/rollout.json")) if (r.parent / "train.json").is_file()]
+        trains, rolls = [c[0] for c in cells], [c[1] for c in cells]
+    else:
+        with elapsed("pipeline"):
+            demos, trains, rolls = run_pipeline(cfg, ck, on_cell)
+    on_cell()
     timing = {f"{k}_wall_s": v for k, v in elapsed.totals.items()}
     timing["total_wall_s"] = sum(elapsed.totals.values())
     timing.update({"collect_cpu_s": sum(d.get("cpu_s", 0.0) for d in demos.values()),
                    "train_cpu_s": sum(r["cpu_s"] for r in trains),
-                   "rollout_cpu_s": sum(r["cpu_s"] for r in rolls)})
+                   "rollout_cpu_s": sum(r["cpu_s"] for r in rolls),
+                   "cells_wall_s": sum(r["wall_s"] for r in trains + rolls)})
     results = {
         "simulated": True, "command": " ".join(["python", "bench/bench_first.py", *sys.argv[1:]]),
         "observation": cfg.obs + (" (PRIVILEGED twin object state, no images)" if cfg.obs == "state" else ""),
-        "config": asdict(cfg), "next_checkpoint": ck, "seeds": check_disjoint_seeds(demos, rolls),
+        "config": asdict(cfg), "next_checkpoint": ck, "next_weights_sha256": next_weights_digest(ck),
+        "seeds": check_disjoint_seeds(demos, rolls),
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                     "python": platform.python_version(), "loadavg_end": os.getloadavg()},
         "timing": timing,
@@ -335,7 +383,8 @@ def run_bench(cfg: BenchConfig) -> dict:
     return results
 
 
-def parse_args(argv=None) -> tuple[BenchConfig, bool]:
+def parse_args(argv=None) -> tuple[BenchConfig, str]:
+    """The configuration and what to do: run, report (the finished cells) or docs (write OUT's report)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench_first", help="results folder (resumable)")
     ap.add_argument("--obs", choices=("state", "images"), default="state",
@@ -365,13 +414,18 @@ def parse_args(argv=None) -> tuple[BenchConfig, bool]:
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2: both cores here)")
     ap.add_argument("--next", default="", help="NEXT checkpoint (default: the demo's cache)")
     ap.add_argument("--quick", action="store_true", help="a few-minute smoke configuration: " + str(QUICK))
+    ap.add_argument("--ledger", default="", metavar="FILE",
+                    help="finished cells kept across sessions: taken from FILE, each new one added to it "
+                    "(docs/first_cells.json; bench/first_ledger.py)")
+    ap.add_argument("--report", action="store_true",
+                    help="run nothing: report the finished cells (a partial table) into OUT")
     ap.add_argument("--write-docs", action="store_true",
                     help="only write OUT's table and chart into docs/first.md / docs/first_bench.png")
     a = ap.parse_args(argv)
     cfg = BenchConfig(out=a.out, obs=a.obs, policy=a.policy, ablation_task=a.ablation_task,
                       max_seconds=a.max_seconds, jobs=max(1, a.jobs), next_checkpoint=a.next, preset=a.preset,
                       table=a.table, include_failed=a.include_failed, actions=a.actions,
-                      eval_seed=a.eval_seed)
+                      eval_seed=a.eval_seed, ledger=a.ledger)
     for item in a.demos_from:
         task, sep, dirs = item.partition("=")
         folders = [d for d in dirs.split("+") if d]
@@ -394,12 +448,12 @@ def parse_args(argv=None) -> tuple[BenchConfig, bool]:
         except ValueError:
             ap.error(f"--thresholds {a.thresholds!r}: LOW:HIGH in N*m, e.g. 6:9")
         cfg.thresholds = (lo, hi)
-    return cfg, a.write_docs
+    return cfg, "docs" if a.write_docs else "report" if a.report else "run"
 
 
 def main(argv=None) -> int:
-    cfg, docs_only = parse_args(argv)
-    if docs_only:
+    cfg, mode = parse_args(argv)
+    if mode == "docs":
         results = json.loads((Path(cfg.out) / "results.json").read_text())
         write_docs(results, Path(cfg.out), Path(__file__).resolve().parents[1] / "docs")
         return 0
@@ -410,7 +464,7 @@ def main(argv=None) -> int:
     import signal
 
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # killed: keep the elapsed time (resumable)
-    res = run_bench(cfg)
+    res = run_bench(cfg, report_only=mode == "report")
     print((Path(cfg.out) / "table.md").read_text())
     print(f"wall {res['timing']['total_wall_s']:.0f} s; results {cfg.out}/results.json")
     return 0

@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# The FIRST headline (issue #31, docs/first.md): first vs base-torque, 3 tasks x 3 training seeds x 32
+# rollouts on evaluation seed 15 (pre-registered), SIMULATED, PRIVILEGED state. It takes longer than one
+# working session on two cores, so it runs across sessions: every finished cell goes to the ledger
+# docs/first_cells.json (commit it), and a new session re-collects the same demonstrations (deterministic:
+# the same seeds and the committed NEXT checkpoint) and skips the ledger's cells.
+#
+#   bash bench/first_headline.sh [WORK]       # WORK: scratch folder (default /tmp/first_headline)
+#   python bench/bench_first.py --report ... # the same options: the table of the finished cells
+set -euo pipefail
+cd "$(dirname "$0")/.."
+W=${1:-/tmp/first_headline}
+CK=bench/assets/next_sim_piper_first/next.json
+export OMP_NUM_THREADS=1
+mkdir -p "$W"
+collect() {  # folder task episodes seed
+  [ -f "$W/$1/done" ] && return 0
+  rm -rf "${W:?}/$1"
+  factr2 collect --task "$2" --episodes "$3" --seed "$4" --mode next --checkpoint "$CK" --no-cameras \
+    --out "$W/$1" > "$W/$1.log" 2>&1 && touch "$W/$1/done"
+}
+# the demonstrations: peg-insert 122 episodes (seeds 1, 9), press-fit 122 (1, 9), wipe 50 (1); two queues
+( collect peg1 peg-insert 50 1 && collect peg9 peg-insert 72 9 ) &
+( collect press1 press-fit 50 1 && collect press9 press-fit 72 9 && collect wipe1 wipe 50 1 ) &
+wait
+python bench/bench_first.py --out "$W/out" --table headline --eval-seed 15 --next "$CK" \
+  --ledger docs/first_cells.json --jobs 2 \
+  --demos-from "peg-insert=$W/peg1+$W/peg9" --demos-from "press-fit=$W/press1+$W/press9" \
+  --demos-from "wipe=$W/wipe1" "${@:2}"

@@ -1,0 +1,133 @@
+"""Finished FIRST benchmark cells, carried across working sessions (issue #31).
+
+A cell -- (task, cell, training seed) -- is finished when its training and its rollouts are; their results
+are small JSON files in OUT/TASK/CELL/seedN (bench/bench_first.py). A table takes longer than one session on
+two cores, and the scratch folder does not outlive a session: the repository does. So:
+
+- `export_cells(out, ledger, ...)` merges the finished cells of OUT into a ledger file in the repository
+  (docs/first_cells.json), each with the fingerprint of the demonstrations and the NEXT checkpoint it was
+  trained on;
+- `import_cells(out, ledger, ...)` writes a ledger's cells back into a new OUT, so its queue skips them, when
+  the settings that shape a result are the same and the demonstrations are the same (re-collected with the
+  same seeds and the same committed NEXT checkpoint: the lockstep collection is deterministic). A cell
+  whose demonstrations differ is not imported, and the reason is said.
+
+The fingerprint is a hash of what the collection summaries say of every episode (seed, outcome, progress,
+duration, start and end times) and of the checkpoint's weights: two collections with the same fingerprint
+are the same scripted runs through the same estimator.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+LEDGER_VERSION = 1
+# settings a kept result depends on, compared between a ledger and a run (folders and checkpoint paths are
+# compared through the fingerprint instead: they move between sessions)
+SAME_SETTINGS = ("obs", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds", "preset",
+                 "include_failed", "actions", "eval_seed")
+
+
+def file_digest(path: str | Path) -> str:
+    """sha256 of a file's bytes; '' when it cannot be read."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError:
+        return ""
+
+
+def next_weights_digest(checkpoint: str | Path) -> str:
+    """The digest of a NEXT checkpoint's weights (next.safetensors beside next.json; else the JSON itself)."""
+    p = Path(checkpoint)
+    w = p.with_name("next.safetensors") if p.suffix == ".json" else p
+    return file_digest(w if w.is_file() else p)
+
+
+def demos_fingerprint(summary: dict, next_digest: str) -> str:
+    """A task's demonstrations as one hash: every episode of its collection summary (factr2 collect's JSON,
+    several merged in order) and the NEXT checkpoint's weights."""
+    eps = [[r.get("seed"), r.get("outcome"), round(float(r.get("progress", 0.0)), 9),
+            round(float(r.get("duration_s", 0.0)), 9), round(float(r.get("t_start", 0.0)), 9),
+            round(float(r.get("t_end", 0.0)), 9)] for r in summary.get("results") or []]
+    blob = json.dumps({"episodes": eps, "next": next_digest}, sort_keys=True)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def finished_cells(out: Path) -> list[dict]:
+    """{"train", "rollout"} of every cell of OUT whose training and rollouts are both done."""
+    cells = []
+    for roll in sorted(Path(out).glob("*/*/seed*/rollout.json")):
+        train = roll.with_name("train.json")
+        if train.is_file():
+            cells.append({"train": json.loads(train.read_text()), "rollout": json.loads(roll.read_text())})
+    return cells
+
+
+def _key(c: dict) -> tuple:
+    return c["rollout"]["task"], c["rollout"]["cell"], int(c["rollout"]["seed"])
+
+
+def read_ledger(ledger: Path) -> dict:
+    if not Path(ledger).is_file():
+        return {"version": LEDGER_VERSION, "cells": []}
+    data = json.loads(Path(ledger).read_text())
+    if data.get("version") != LEDGER_VERSION:
+        raise SystemExit(f"{ledger}: ledger version {data.get('version')}, this code reads {LEDGER_VERSION}")
+    return data
+
+
+def _settings(config: dict) -> dict:
+    return {k: config.get(k) for k in SAME_SETTINGS}
+
+
+def export_cells(out: Path, ledger: Path, fingerprints: dict, config: dict, session: str = "") -> int:
+    """Merge OUT's finished cells into the ledger (a cell already there is kept as it was); returns how many
+    were added. fingerprints: task -> demos_fingerprint of the demonstrations OUT trained on."""
+    data = read_ledger(ledger)
+    if data["cells"] and data.get("settings") != _settings(config):
+        raise SystemExit(f"{ledger}: its cells were made with other settings ({data.get('settings')}); "
+                         "export to another ledger")
+    data["settings"] = _settings(config)
+    have = {_key(c) for c in data["cells"]}
+    added = 0
+    for c in finished_cells(out):
+        k = _key(c)
+        if k in have or k[0] not in fingerprints:
+            continue
+        c["demos_fingerprint"] = fingerprints[k[0]]
+        c["session"] = session
+        data["cells"].append(c)
+        added += 1
+    data["cells"].sort(key=_key)
+    tmp = Path(ledger).with_name(f".{Path(ledger).name}.tmp")
+    tmp.write_text(json.dumps(data, indent=1, default=float))
+    os.replace(tmp, ledger)
+    return added
+
+
+def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict) -> tuple[int, list[str]]:
+    """Write the ledger's cells into OUT where OUT lacks them and the demonstrations match; returns (imported,
+    one line per cell left out and why)."""
+    data = read_ledger(ledger)
+    if not data["cells"]:
+        return 0, []
+    if data.get("settings") != _settings(config):
+        return 0, [f"{ledger}: made with other settings ({data.get('settings')}): nothing imported"]
+    n, skipped = 0, []
+    for c in data["cells"]:
+        task, cell, seed = _key(c)
+        run = Path(out) / task / cell / f"seed{seed}"
+        if (run / "rollout.json").is_file():
+            continue
+        if fingerprints.get(task) != c.get("demos_fingerprint"):
+            skipped.append(f"{task} {cell} seed {seed}: trained on other demonstrations "
+                           f"({c.get('demos_fingerprint')} vs {fingerprints.get(task)}): runs again")
+            continue
+        run.mkdir(parents=True, exist_ok=True)
+        for name in ("train", "rollout"):
+            (run / f"{name}.json").write_text(json.dumps(c[name], indent=1, default=float))
+        n += 1
+    return n, skipped

@@ -1,0 +1,93 @@
+"""The FIRST benchmark's ledger (bench/first_ledger.py): finished cells leave OUT for the repository and come
+back into a new OUT only when the settings and the demonstrations are the same."""
+
+import json
+
+import pytest
+
+from bench.first_ledger import (
+    demos_fingerprint,
+    export_cells,
+    finished_cells,
+    import_cells,
+    next_weights_digest,
+)
+
+CONFIG = {"obs": "state", "rollouts": 4, "steps": 100, "batch": 8, "policy": "flow",
+          "thresholds": "recording", "max_seconds": None, "preset": "", "include_failed": False,
+          "actions": "absolute", "eval_seed": 15,
+          "demos_from": {"wipe": ["/somewhere"]}}
+
+
+def _cell(out, task, cell, seed, success, rollout=True):
+    run = out / task / cell / f"seed{seed}"
+    run.mkdir(parents=True)
+    (run / "train.json").write_text(json.dumps({"task": task, "cell": cell, "seed": seed, "cpu_s": 1.0}))
+    if rollout:
+        eps = [{"seed": 1500000 + i, "outcome": "success" if s else "failure"} for i, s in enumerate(success)]
+        (run / "rollout.json").write_text(json.dumps({"task": task, "cell": cell, "seed": seed,
+                                                      "episodes": eps, "cpu_s": 2.0}))
+
+
+def _summary(progress=1.0):
+    return {"results": [{"seed": 100003, "outcome": "success", "progress": progress, "duration_s": 12.5,
+                         "t_start": 1.0, "t_end": 13.5}]}
+
+
+def test_fingerprint_changes_with_any_episode_or_the_estimator():
+    a = demos_fingerprint(_summary(), "abc")
+    assert a == demos_fingerprint(_summary(), "abc")
+    assert a != demos_fingerprint(_summary(progress=0.75), "abc")
+    assert a != demos_fingerprint(_summary(), "abd")
+
+
+def test_only_cells_with_training_and_rollouts_are_finished(tmp_path):
+    _cell(tmp_path, "wipe", "first", 0, [1, 0])
+    _cell(tmp_path, "wipe", "first", 1, [], rollout=False)  # trained, not rolled out
+    assert [c["rollout"]["seed"] for c in finished_cells(tmp_path)] == [0]
+
+
+def test_cells_go_to_the_ledger_and_back_when_the_demonstrations_match(tmp_path):
+    out, ledger = tmp_path / "s16", tmp_path / "cells.json"
+    _cell(out, "wipe", "first", 0, [1, 0, 1])
+    _cell(out, "wipe", "base-torque", 0, [0, 0, 1])
+    _cell(out, "peg-insert", "first", 0, [1])  # its demonstrations have no fingerprint: not exported
+    assert export_cells(out, ledger, {"wipe": "f1"}, CONFIG, session="s16") == 2
+    assert export_cells(out, ledger, {"wipe": "f1"}, CONFIG) == 0  # kept once
+    new = tmp_path / "s17"
+    n, skipped = import_cells(new, ledger, {"wipe": "f1"}, dict(CONFIG, demos_from={"wipe": ["/elsewhere"]}))
+    assert n == 2 and not skipped
+    got = json.loads((new / "wipe" / "first" / "seed0" / "rollout.json").read_text())
+    assert [e["outcome"] for e in got["episodes"]] == ["success", "failure", "success"]
+    assert (new / "wipe" / "base-torque" / "seed0" / "train.json").is_file()
+
+
+def test_other_demonstrations_or_settings_import_nothing(tmp_path):
+    out, ledger = tmp_path / "a", tmp_path / "cells.json"
+    _cell(out, "wipe", "first", 0, [1])
+    export_cells(out, ledger, {"wipe": "f1"}, CONFIG)
+    n, skipped = import_cells(tmp_path / "b", ledger, {"wipe": "f2"}, CONFIG)
+    assert n == 0 and "other demonstrations" in skipped[0]
+    n, skipped = import_cells(tmp_path / "c", ledger, {"wipe": "f1"}, dict(CONFIG, steps=8000))
+    assert n == 0 and "other settings" in skipped[0]
+    with pytest.raises(SystemExit, match="other settings"):
+        export_cells(out, ledger, {"wipe": "f1"}, dict(CONFIG, rollouts=32))
+
+
+def test_a_cell_already_in_out_is_not_overwritten(tmp_path):
+    out, ledger = tmp_path / "a", tmp_path / "cells.json"
+    _cell(out, "wipe", "first", 0, [1])
+    export_cells(out, ledger, {"wipe": "f1"}, CONFIG)
+    new = tmp_path / "b"
+    _cell(new, "wipe", "first", 0, [0, 0])
+    assert import_cells(new, ledger, {"wipe": "f1"}, CONFIG)[0] == 0
+    assert len(json.loads((new / "wipe" / "first" / "seed0" / "rollout.json").read_text())["episodes"]) == 2
+
+
+def test_weights_digest_reads_the_weights_beside_the_json(tmp_path):
+    (tmp_path / "next.json").write_text("{}")
+    (tmp_path / "next.safetensors").write_bytes(b"w1")
+    a = next_weights_digest(tmp_path / "next.json")
+    (tmp_path / "next.safetensors").write_bytes(b"w2")
+    assert a and a != next_weights_digest(tmp_path / "next.json")
+    assert next_weights_digest(tmp_path / "none" / "next.json") == ""
