@@ -66,6 +66,7 @@ class BenchConfig:
     thresholds: tuple | str = "recording"  # FIRST labels: from each task's demonstrations (as `factr2 train`)
     max_seconds: float | None = None  # rollout episode limit [s]; None = the task's own
     jobs: int = 2  # worker processes (each training run then uses cores / jobs torch threads)
+    threads: int = 0  # torch threads per training run; 0 = cores / jobs (two runs side by side: pass 1 each)
     next_checkpoint: str = ""  # "" = the demo's cached NEXT for sim-piper (made once when missing)
     quick: bool = False  # the smoke configuration (QUICK): said in the report
     demos_from: dict = field(default_factory=dict)  # task -> recorded folders used instead of a collection
@@ -149,7 +150,7 @@ def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
         shutil.rmtree(run, ignore_errors=True)
     # the warm-up / validation / checkpoint periods: fitted to the run's length by the loop
     tc = TrainConfig(steps=cfg.steps, batch=cfg.batch, log_every=10, seed=seed,
-                     threads=max(1, (os.cpu_count() or 1) // cfg.jobs))
+                     threads=cfg.threads or max(1, (os.cpu_count() or 1) // cfg.jobs))
     opts = RunOptions(inputs=demo_folders(cfg, task), out=run, policy=cfg.policy, method=method,
                       ratio=ratio, preset=cfg.preset, thresholds=cfg.thresholds, observation=cfg.obs,
                       progress=False, train=tc, resume=last is not None, include_failed=cfg.include_failed,
@@ -412,6 +413,8 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     ap.add_argument("--eval-seed", type=int, default=EVAL_SEED,
                     help=f"rollout seed (default {EVAL_SEED}); never one a choice was made on")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2: both cores here)")
+    ap.add_argument("--threads", type=int, default=0,
+                    help="torch threads per training run (default: cores / jobs)")
     ap.add_argument("--next", default="", help="NEXT checkpoint (default: the demo's cache)")
     ap.add_argument("--quick", action="store_true", help="a few-minute smoke configuration: " + str(QUICK))
     ap.add_argument("--ledger", default="", metavar="FILE",
@@ -425,7 +428,8 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     cfg = BenchConfig(out=a.out, obs=a.obs, policy=a.policy, ablation_task=a.ablation_task,
                       max_seconds=a.max_seconds, jobs=max(1, a.jobs), next_checkpoint=a.next, preset=a.preset,
                       table=a.table, include_failed=a.include_failed, actions=a.actions,
-                      eval_seed=a.eval_seed, ledger=a.ledger)
+                      eval_seed=a.eval_seed, ledger=a.ledger,
+                      threads=max(0, a.threads))
     for item in a.demos_from:
         task, sep, dirs = item.partition("=")
         folders = [d for d in dirs.split("+") if d]
