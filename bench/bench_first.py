@@ -34,7 +34,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.first_ledger import demos_fingerprint, export_cells, import_cells, next_weights_digest  # noqa: E402
+from bench.first_ledger import (  # noqa: E402
+    demos_fingerprint,
+    export_cells,
+    finished_cells,
+    import_cells,
+    next_weights_digest,
+)
 from bench.first_report import aggregate, write_docs, write_report  # noqa: E402
 
 DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, session/task_episodes.py)
@@ -351,9 +357,8 @@ def run_bench(cfg: BenchConfig, report_only: bool = False) -> dict:
     elapsed = _Elapsed(out / "elapsed.json")  # wall time, summed over resumed invocations
     if report_only:
         demos = task_summaries(cfg)
-        cells = [(json.loads((r.parent / "train.json").read_text()), json.loads(r.read_text()))
-                 for r in sorted(out.glob("*/*/seed*/rollout.json")) if (r.parent / "train.json").is_file()]
-        trains, rolls = [c[0] for c in cells], [c[1] for c in cells]
+        cells = finished_cells(out)
+        trains, rolls = [c["train"] for c in cells], [c["rollout"] for c in cells]
     else:
         with elapsed("pipeline"):
             demos, trains, rolls = run_pipeline(cfg, ck, on_cell)

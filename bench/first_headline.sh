@@ -23,6 +23,9 @@ collect() {  # folder task episodes seed
 ( collect peg1 peg-insert 50 1 && collect peg9 peg-insert 72 9 ) &
 ( collect press1 press-fit 50 1 && collect press9 press-fit 72 9 && collect wipe1 wipe 50 1 ) &
 wait
+for d in peg1 peg9 press1 press9 wipe1; do  # a collection that failed is not trained on
+  [ -f "$W/$d/done" ] || { echo "collection $W/$d did not finish: see $W/$d.log, then run again" >&2; exit 1; }
+done
 python bench/bench_first.py --out "$W/out" --table headline --eval-seed 15 --next "$CK" \
   --ledger docs/first_cells.json --jobs 2 \
   --demos-from "peg-insert=$W/peg1+$W/peg9" --demos-from "press-fit=$W/press1+$W/press9" \
