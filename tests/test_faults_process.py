@@ -226,3 +226,15 @@ def test_a_write_that_finds_the_disk_full_takes_the_reserve_and_goes_on(small_fs
     finally:
         raw.close()
         free_disk(small_fs)
+
+
+def test_a_disk_full_that_took_the_reserve_too_is_said_as_the_disk_full():
+    """Whichever write meets ENOSPC first, the line says the disk is full, what was kept and what to do."""
+    import errno
+
+    from hardware.recording.writer_process import fail_text
+
+    text = fail_text("/x/r.mcap", OSError(errno.ENOSPC, "No space left on device"))
+    assert "the disk is full" in text and "factr2 recover /x/r.mcap" in text and "\n" not in text
+    other = fail_text("/x/r.mcap", OSError(errno.EIO, "Input/output error"))
+    assert "Input/output error" in other and "the disk is full" not in other

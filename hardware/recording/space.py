@@ -5,10 +5,11 @@ recording, not the last flush interval before it.
 
     r = SpaceReserve(path)        # the Recorder: .NAME.reserve beside path, min(RESERVE_BYTES, free / 4)
     r = SpaceReserve(path, create=False)   # the writer process: that file
-    if r.low(): r.release()       # checked before every pass: free < LOW_SPACE_BYTES -> finish the file
-    f = io.BufferedWriter(ReserveBackedFile(fd, r))   # a write that finds the disk full gives the reserve
+    r.low()                       # checked before every pass: free < LOW_SPACE_BYTES -> finish the file
+    f = io.BufferedWriter(ReserveBackedFile(fd, r))   # the write that finds the disk full gives the reserve
                                                       # back and goes on (r.full is set): no race with a
-                                                      # disk that fills between the check and the write
+                                                      # disk that fills between the check and the write,
+                                                      # and the reserve is held as long as it can be
 """
 
 from __future__ import annotations

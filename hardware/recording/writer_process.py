@@ -18,6 +18,7 @@ nothing that reached the ring is lost. When both die, what was flushed stays rea
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import mmap
@@ -170,9 +171,11 @@ class _Writer:
             frames = self.frames.take(max_records=FRAMES_PER_PASS)
             if full_at is None and (recs or frames or self.full.is_set()):  # before writing them
                 free = self.reserve.low()
-                if free is not None or self.full.is_set():  # (nearly) full: the reserve takes what comes
+                if free is not None or self.full.is_set():  # (nearly) full: what the rings hold is written
+                    # into what is left, and the reserve is given back only by the write that meets ENOSPC
+                    # (ReserveBackedFile): held till then, another process still filling the disk cannot
+                    # take it before that write
                     free = free if free is not None else 0
-                    self.reserve.release()
                     full_at = time.monotonic()
                     st.set(W_STATE, FULL)  # the producer stops handing over: what is in the rings is older
                     st.set_text("warning", "the disk is full: writing what was handed over, then stopping")
@@ -213,6 +216,9 @@ class _Writer:
 
 
 def fail_text(path: str, e: BaseException) -> str:
+    if getattr(e, "errno", None) == errno.ENOSPC:  # the space held to finish the file was taken as well
+        return (f"recording stopped: the disk is full at {path} and the space held to finish the file was "
+                f"taken too; data up to the last flush was kept -- free space, then run `factr2 recover {path}`")
     why = getattr(e, "strerror", None) or str(e) or type(e).__name__
     return (f"recording stopped: {why} while writing {path}; data up to the last flush was kept -- free "
             f"space, then run `factr2 recover {path}`")

@@ -63,7 +63,8 @@ def fill_disk(folder) -> str:
     n, chunk = 0, b"\0" * FILL_CHUNK_BYTES
     try:
         with open(Path(folder) / FILL_NAME, "ab", buffering=0) as f:
-            while True:
+            n = _take_at_once(f.fileno(), folder)
+            while True:  # the last pages (or all of it where fallocate is refused)
                 try:
                     n += f.write(chunk)
                 except OSError as e:
@@ -75,6 +76,24 @@ def fill_disk(folder) -> str:
     except OSError as e:
         return f"not played: {e.strerror} at {folder}"
     return f"filled {n} bytes at {folder}"
+
+
+def _take_at_once(fd: int, folder) -> int:
+    """Allocate the free space in one call, as another process writing a big file would (a filler writing
+    chunk by chunk would go on taking space the recorder frees meanwhile: a race the fault does not mean to
+    play). Returns the bytes taken; 0 where the filesystem refuses (then the chunks take it)."""
+    for _ in range(3):  # the recorder wrote meanwhile: the space is smaller, try again
+        st = os.statvfs(folder)
+        free = st.f_bavail * st.f_frsize
+        if free <= 0:
+            return 0
+        try:
+            os.posix_fallocate(fd, 0, free)
+            return free
+        except OSError as e:
+            if e.errno != errno.ENOSPC:
+                return 0
+    return 0
 
 
 def free_disk(folder) -> str:
