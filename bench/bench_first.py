@@ -42,6 +42,7 @@ from bench.first_ledger import (  # noqa: E402
     next_weights_digest,
 )
 from bench.first_report import aggregate, write_docs, write_report  # noqa: E402
+from policies.rollout.schedule import LIMIT_TOL_FRACTION  # noqa: E402
 
 DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, session/task_episodes.py)
 EVAL_SEED = 2  # rollout seed: range B, disjoint from A (checked on the episodes' recorded seeds)
@@ -78,6 +79,9 @@ class BenchConfig:
     demos_from: dict = field(default_factory=dict)  # task -> recorded folders used instead of a collection
     eval_seed: int = EVAL_SEED  # rollout seed (range B): a run may pre-register a fresh one
     ledger: str = ""  # finished cells kept in the repository across sessions (bench/first_ledger.py)
+    # the rollouts' rule for chunks beyond a joint limit (policies/rollout/schedule.py), recorded: results of
+    # the earlier rule (a fixed 0.15 rad refused, before the eighteenth session) are not mixed with these
+    limit_tol_fraction: float = LIMIT_TOL_FRACTION
 
     def cells(self, task: str) -> dict:
         out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
@@ -244,7 +248,8 @@ class _Elapsed:
 
 # what the kept results depend on (tasks and seeds may be added)
 SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds",
-                  "next_checkpoint", "preset", "include_failed", "demos_from", "eval_seed")
+                  "next_checkpoint", "preset", "include_failed", "demos_from", "eval_seed",
+                  "limit_tol_fraction")
 
 
 def check_resume(cfg: BenchConfig, out: Path) -> None:

@@ -22,6 +22,7 @@ from policies.rollout.schedule import (
     ensemble_weights,
     ensembled_target,
     interp_chunk,
+    limit_tolerance,
     overdue_s,
     receding_target,
     request_period_s,
@@ -148,3 +149,17 @@ def test_only_the_steps_that_can_run_are_judged_against_the_limits():
     assert s.add(Chunk(t_obs=1.0, actions=b, dt=DT)) is None
     t_last = 1.0 + s.period_s + s.stall_s - 1e-9
     assert s.target(t_last)[0] is not None and (t_last - 1.0) / DT <= n - 1
+
+
+def test_an_overshoot_at_a_limit_is_clamped_not_refused_a_wild_target_is():
+    """A policy working at a joint limit overshoots it (flow samples: 0.15-0.43 rad past a 0 limit, measured):
+    within a quarter of the joint's range the chunk runs (the safety layer clamps it); beyond: refused."""
+    q_min, q_max = np.array([-3.0, -1.0]), np.array([0.0, 1.0])  # ranges 3 and 2 rad
+    np.testing.assert_allclose(limit_tolerance(q_min, q_max), [0.75, 0.5])
+    s = ChunkSchedule(mode=ENSEMBLE, dt=DT, q_min=q_min, q_max=q_max)
+    over = Chunk(t_obs=0.0, actions=np.array([[0.43, 0.0, 0.0]] * 5), dt=DT)
+    assert s.add(over) is None and s.outside_limits == 0 and s.target(0.01)[0] is not None
+    wild = Chunk(t_obs=0.1, actions=np.array([[0.0, 1.6, 0.0]] * 5), dt=DT)  # 0.6 rad past a 2 rad joint
+    why = s.add(wild)
+    assert why.kind is PolicyHold.OUTSIDE_LIMITS and why.get("joint") == 2 and s.outside_limits == 1
+    assert s.target(0.11)[0] is None  # held until a good chunk
