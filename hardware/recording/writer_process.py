@@ -217,10 +217,9 @@ class _Writer:
 
 def fail_text(path: str, e: BaseException) -> str:
     if getattr(e, "errno", None) == errno.ENOSPC:  # the space held to finish the file was taken as well
-        return (f"recording stopped: the disk is full at {path} and the space held to finish the file was "
-                "taken too; data up to the last flush was kept -- free space, then run "
-                f"`factr2 recover {path}`")
-    why = getattr(e, "strerror", None) or str(e) or type(e).__name__
+        why = "the disk is full and the space held to finish the file was taken too"
+    else:
+        why = getattr(e, "strerror", None) or str(e) or type(e).__name__
     return (f"recording stopped: {why} while writing {path}; data up to the last flush was kept -- free "
             f"space, then run `factr2 recover {path}`")
 

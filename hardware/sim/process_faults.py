@@ -15,6 +15,8 @@ import signal
 import time
 from pathlib import Path
 
+from hardware.recording.space import free_bytes
+
 NEXT_WORKER_MODULE = b"calibration.next.worker"  # the NEXT worker's command line names this module
 FILL_NAME = ".factr2-fault-disk-full"  # the filler file disk_full writes beside the recording
 FILL_MAX_FREE_BYTES = 512 << 20  # refuse to fill a filesystem with more free space: a test's small tmpfs only
@@ -83,8 +85,7 @@ def _take_at_once(fd: int, folder) -> int:
     chunk by chunk would go on taking space the recorder frees meanwhile: a race the fault does not mean to
     play). Returns the bytes taken; 0 where the filesystem refuses (then the chunks take it)."""
     for _ in range(3):  # the recorder wrote meanwhile: the space is smaller, try again
-        st = os.statvfs(folder)
-        free = st.f_bavail * st.f_frsize
+        free = free_bytes(folder)
         if free <= 0:
             return 0
         try:
