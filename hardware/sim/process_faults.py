@@ -11,11 +11,10 @@ from __future__ import annotations
 
 import errno
 import os
+import shutil
 import signal
 import time
 from pathlib import Path
-
-from hardware.recording.space import free_bytes
 
 NEXT_WORKER_MODULE = b"calibration.next.worker"  # the NEXT worker's command line names this module
 FILL_NAME = ".factr2-fault-disk-full"  # the filler file disk_full writes beside the recording
@@ -58,8 +57,7 @@ def fill_disk(folder) -> str:
     more than FILL_MAX_FREE_BYTES free: this plays a small test filesystem filling, never a real disk."""
     if folder is None:
         return "not played: nothing records"
-    st = os.statvfs(folder)
-    free = st.f_bavail * st.f_frsize
+    free = shutil.disk_usage(folder).free  # bytes an unprivileged writer may take (f_bavail)
     if free > FILL_MAX_FREE_BYTES:
         return f"not played: {free >> 20} MiB free at {folder} (only a small test filesystem is filled)"
     n, chunk = 0, b"\0" * FILL_CHUNK_BYTES
@@ -85,7 +83,7 @@ def _take_at_once(fd: int, folder) -> int:
     chunk by chunk would go on taking space the recorder frees meanwhile: a race the fault does not mean to
     play). Returns the bytes taken; 0 where the filesystem refuses (then the chunks take it)."""
     for _ in range(3):  # the recorder wrote meanwhile: the space is smaller, try again
-        free = free_bytes(folder)
+        free = shutil.disk_usage(folder).free
         if free <= 0:
             return 0
         try:
