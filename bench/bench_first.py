@@ -42,6 +42,7 @@ from bench.first_ledger import (  # noqa: E402
     next_weights_digest,
 )
 from bench.first_report import aggregate, write_docs, write_report  # noqa: E402
+from policies.rollout.runner import SAMPLER_SEEDING  # noqa: E402
 from policies.rollout.schedule import LIMIT_TOL_FRACTION  # noqa: E402
 
 DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, session/task_episodes.py)
@@ -82,6 +83,7 @@ class BenchConfig:
     # the rollouts' rule for chunks beyond a joint limit (policies/rollout/schedule.py), recorded: results of
     # the earlier rule (a fixed 0.15 rad refused, before the eighteenth session) are not mixed with these
     limit_tol_fraction: float = LIMIT_TOL_FRACTION
+    sampler_seeding: str = SAMPLER_SEEDING  # the flow noise seeded per episode (policies/rollout/runner.py)
 
     def cells(self, task: str) -> dict:
         out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
@@ -249,7 +251,7 @@ class _Elapsed:
 # what the kept results depend on (tasks and seeds may be added)
 SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds",
                   "next_checkpoint", "preset", "include_failed", "demos_from", "eval_seed",
-                  "limit_tol_fraction")
+                  "limit_tol_fraction", "sampler_seeding")
 
 
 def check_resume(cfg: BenchConfig, out: Path) -> None:

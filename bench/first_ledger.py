@@ -28,7 +28,8 @@ LEDGER_VERSION = 1
 # settings a kept result depends on, compared between a ledger and a run (folders and checkpoint paths are
 # compared through the fingerprint instead: they move between sessions)
 SAME_SETTINGS = ("obs", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds", "preset",
-                 "include_failed", "actions", "eval_seed", "limit_tol_fraction")
+                 "include_failed", "actions", "eval_seed", "limit_tol_fraction",
+                 "sampler_seeding")
 
 
 def file_digest(path: str | Path) -> str:

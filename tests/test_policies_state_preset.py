@@ -155,6 +155,11 @@ def test_relative_actions_train_and_come_back_in_joint_units(state_recordings, t
     shifted = {**obs, joints: np.full(6, 0.1, np.float32)}
     a = runner.infer(obs, 0.0).actions
     assert a.shape == (8, 7) and np.isfinite(a).all()
+    runner.reseed(3)  # an episode's draws repeat whatever was drawn before it
+    first = runner.infer(obs, 0.0).actions
+    assert not np.allclose(runner.infer(obs, 0.0).actions, first)  # the noise moves on within the episode
+    runner.reseed(3)
+    assert np.array_equal(runner.infer(obs, 0.0).actions, first)
     z = torch.randn(1, 8, 7)  # one fixed model output, whatever the observation
     runner.model.predict = lambda batch, noise: z
     a, b = runner.infer(obs, 0.0).actions, runner.infer(shifted, 0.0).actions

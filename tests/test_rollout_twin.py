@@ -55,6 +55,17 @@ def test_tiny_policy_rolls_out_through_the_real_drivers_and_records(tiny_run, tm
     assert stop["seed"] == episode_seed(5, 0)
 
 
+def test_each_episode_draws_the_samplers_noise_from_its_own_seed(tiny_run, monkeypatch):
+    """The flow sampler is reseeded with each episode's seed as the policy takes over: an episode's noise does
+    not depend on how the episodes before it went (a benchmark's rollout set is repeatable episode by
+    episode)."""
+    seeds = []
+    real = PolicyRunner.reseed
+    monkeypatch.setattr(PolicyRunner, "reseed", lambda self, s: (seeds.append(s), real(self, s))[1])
+    out = run_rollout(_opts(tiny_run, episodes=2)).to_dict()
+    assert seeds == [e["seed"] for e in out["episodes"]] == [episode_seed(5, 0), episode_seed(5, 1)]
+
+
 def test_record_without_cameras_keeps_the_policys_frames_out_of_the_file(tiny_run, tmp_path):
     """`factr2 rollout --record DIR --no-cameras`: the policy (it looks) still gets its frames, the file
     holds none."""

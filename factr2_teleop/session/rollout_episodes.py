@@ -49,7 +49,7 @@ class TwinRollout(TaskEpisodes):
             self._state, self._t_state = "settle", r.t
         elif st == "settle" and r.t - self._t_state >= SETTLE_S:
             self.rec_start()
-            self.target.run(r.t, objects=self.objects)
+            self.target.run(r.t, objects=self.objects, seed=self._ep_seed)
             self._state = RUN
         elif st == RUN and self._k % DETECT_EVERY == 0:
             obs = self.observe()

@@ -198,9 +198,12 @@ class PolicyTarget:
     def settle(self) -> None:
         self.state = SETTLE
 
-    def run(self, now: float, objects=None) -> None:
-        """The policy drives from `now`; objects: callable -> the PRIVILEGED object vector (a twin task)."""
+    def run(self, now: float, objects=None, seed: int | None = None) -> None:
+        """The policy drives from `now`; objects: callable -> the PRIVILEGED object vector (a twin task);
+        seed: the episode's, the sampler's noise drawn from it (an episode repeats on its own)."""
         self.objects = objects
+        if seed is not None:
+            self.runner.reseed(seed)
         self.runner.take()  # chunks of an earlier episode are dropped
         self.schedule.clear()
         self._t_next = now

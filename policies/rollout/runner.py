@@ -40,6 +40,11 @@ def flat_values(obs: dict, names: list[str]) -> np.ndarray:
     return np.concatenate([np.atleast_1d(np.asarray(obs[n], dtype=np.float32)) for n in names])
 
 
+# how a rollout seeds the flow sampler's noise (recorded by the benchmark, whose results of the earlier way,
+# one generator running on across the episodes, are not mixed with these): each episode from its own seed
+SAMPLER_SEEDING = "per-episode"
+
+
 class PolicyRunner:
     def __init__(self, path: str | Path, seed: int = 0, ema: bool = True):
         self.model, self.meta, self.pre = load_policy(path, ema=ema)
@@ -128,6 +133,12 @@ class PolicyRunner:
             grip = cols.get(f"{action_of(arm)}.gripper.pos")
             out[arm] = (slice(q0, q1), grip[0] if grip else None)
         return out
+
+    def reseed(self, seed: int) -> None:
+        """The flow sampler's noise from `seed` on (a rollout calls it with each episode's seed: an episode's
+        draws then do not depend on how long the episodes before it ran). A new generator, not a reseed in
+        place: an inference still running on the worker thread keeps the one it started with."""
+        self._gen = torch.Generator().manual_seed(int(seed))
 
     # -- one chunk ---------------------------------------------------------------------------------------
     def batch(self, obs: dict) -> dict:
