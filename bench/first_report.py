@@ -35,6 +35,18 @@ def _mean_std(x: list[float]) -> tuple[float, float]:
     return float(a.mean()), float(a.std(ddof=1)) if a.size > 1 else 0.0
 
 
+def pooled_stages(rolls: list[dict]) -> dict[str, float]:
+    """Share of all episodes of these rollout sets that reached each stage, in the task's stage order (each
+    set's stage_rates weighted by its episodes): where the failing episodes stop."""
+    n_all, reached = 0, {}
+    for r in rolls:
+        n = len(r.get("episodes") or [])
+        n_all += n
+        for stage, rate in (r.get("stage_rates") or {}).items():
+            reached[stage] = reached.get(stage, 0.0) + float(rate) * n
+    return {k: v / n_all for k, v in reached.items()} if n_all else {}
+
+
 def aggregate(trains: list[dict], rolls: list[dict]) -> dict:
     """{task: {cell: {success / progress mean and sd over seeds, val loss per phase (mean), ...}}}"""
     out: dict = {}
@@ -54,6 +66,7 @@ def aggregate(trains: list[dict], rolls: list[dict]) -> dict:
             s["per_seed"] = [float(np.mean(x)) if x else float("nan") for x in succ]
             s["k"], s["n"] = int(sum(map(sum, succ))), int(sum(map(len, succ)))
             s["wilson"] = wilson(s["k"], s["n"])
+            s["stages"] = pooled_stages(d["roll"])
             for p in ("",) + tuple(f"_{x}" for x in PHASES):
                 s[f"val_loss{p}"], s[f"val_loss{p}_std"] = _mean_std(
                     [t["val"].get(f"val/loss{p}") for t in d["train"]])
@@ -135,13 +148,15 @@ def _row(label: str, s: dict) -> str:
     per_seed = " / ".join("n/a" if not np.isfinite(x) else f"{100 * x:.0f}" for x in s.get("per_seed", []))
     pooled = ("n/a" if not s.get("n")
               else f"**{100 * s['k'] / s['n']:.0f} %** [{100 * lo:.0f}, {100 * hi:.0f}]")
+    stages = " / ".join(f"{k} {100 * v:.0f}" for k, v in (s.get("stages") or {}).items()) or "n/a"
     return (f"| {label} | {ratio} | {pooled} | {per_seed} | "
-            f"{_prog(s['progress_mean'], s['progress_std'])} | {_val(s)} | {s['seeds']} x "
+            f"{_prog(s['progress_mean'], s['progress_std'])} | {stages} | {_val(s)} | {s['seeds']} x "
             f"{max(s['rollouts_per_seed'] or [0])} |")
 
 
 HEADER = ("| method | w_F:w_PC:w_C | success, pooled [95 % Wilson] | per seed [%] | task progress (mean ± sd "
-          "over seeds) | val loss F / PC / C | seeds x rollouts |\n|---|---|---|---|---|---|---|")
+          "over seeds) | stages reached [% of episodes] | val loss F / PC / C | seeds x rollouts |\n"
+          "|---|---|---|---|---|---|---|---|")
 
 
 def _paired_line(p: dict | None) -> str:

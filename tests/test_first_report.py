@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from bench.bench_first import BenchConfig
-from bench.first_report import mcnemar_p, paired, raw_results, wilson
+from bench.first_report import mcnemar_p, paired, pooled_stages, raw_results, wilson
 
 
 def test_wilson_matches_the_textbook_values():
@@ -52,3 +52,12 @@ def test_tables_choose_their_cells():
     assert set(cfg.cells("peg-insert")) == {"base", "C", "PC+C", "first"} and cfg.cells("wipe") == {}
     cfg.table = "all"
     assert set(cfg.cells("peg-insert")) == {"base", "base-torque", "first", "C", "PC+C"}
+
+
+def test_stages_pool_over_the_episodes_of_every_seed():
+    a = {"episodes": [{}] * 4, "stage_rates": {"grasp": 1.0, "align": 0.5, "seat": 0.25}}
+    b = {"episodes": [{}] * 12, "stage_rates": {"grasp": 0.75, "align": 0.5, "seat": 0.0}}
+    got = pooled_stages([a, b])
+    assert list(got) == ["grasp", "align", "seat"]  # the task's order, where episodes stop
+    assert got == pytest.approx({"grasp": 13 / 16, "align": 0.5, "seat": 1 / 16})
+    assert pooled_stages([]) == {} and pooled_stages([{"episodes": [], "stage_rates": {}}]) == {}
