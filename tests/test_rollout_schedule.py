@@ -12,6 +12,7 @@ from calibration.next.ident import NextId
 from factr2_teleop.session.rollout import NextNote, resolve_next
 from hardware.errors import UserError
 from policies.rollout.schedule import (
+    ACT_ENSEMBLE_M,
     ENSEMBLE,
     RECEDING,
     STALL_S,
@@ -20,12 +21,14 @@ from policies.rollout.schedule import (
     PolicyHold,
     chunk_problem,
     ensemble_weights,
+    ensembled_stacked,
     ensembled_target,
     interp_chunk,
     limit_tolerance,
     overdue_s,
     receding_target,
     request_period_s,
+    stack_chunks,
 )
 
 DT = 0.1
@@ -64,6 +67,34 @@ def test_temporal_ensembling_weights_every_chunk_covering_now():
     a, k = ensembled_target([old, new], 0.45, m=0.01)  # the old chunk ends at 0.4: only the new one
     np.testing.assert_allclose(a[0], 0.75)
     assert ensembled_target([old], 1.0) == (None, -1)
+
+
+def _by_chunk(chunks, t, m):
+    """The reference: each chunk interpolated on its own (interp_chunk), weighted oldest first."""
+    vals = [(k, interp_chunk(c.actions, c.t_obs, c.dt, t)) for k, c in enumerate(chunks)]
+    vals = [(k, a) for k, a in vals if a is not None]
+    if not vals:
+        return None, -1
+    return np.tensordot(ensemble_weights(len(vals), m), np.stack([a for _, a in vals]), axes=1), vals[-1][0]
+
+
+@pytest.mark.parametrize("h", [1, 2, 5, 30])
+def test_stacked_ensembling_equals_interpolating_chunk_by_chunk(h):
+    """The loop's stacked path (all chunks at once) gives the chunk-by-chunk target at every time: before a
+    chunk starts, between its steps, on its last step, past its end, with none left."""
+    rng = np.random.default_rng(h)
+    chunks = [Chunk(t_obs=0.03 * k, actions=rng.normal(size=(h, 7)), dt=0.034) for k in range(12)]
+    edges = [-0.5, 0.0, 0.03 * 11, 0.03 * 11 + 0.034 * (h - 1)]
+    for t in np.concatenate([edges, rng.uniform(-0.1, 2.0, 300)]):
+        want, k_want = _by_chunk(chunks, t, 0.01)
+        got, k = ensembled_stacked(*stack_chunks(chunks), t, 0.01)
+        assert k == k_want and (got is None) == (want is None), t
+        if want is not None:
+            np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert stack_chunks([]) is None
+    mixed = chunks[:2] + [Chunk(t_obs=0.1, actions=np.zeros((h + 1, 7)), dt=0.034)]
+    assert stack_chunks(mixed) is None  # different lengths: chunk by chunk
+    np.testing.assert_allclose(ensembled_target(mixed, 0.1)[0], _by_chunk(mixed, 0.1, ACT_ENSEMBLE_M)[0])
 
 
 def test_receding_horizon_runs_the_newest_chunk_and_requests_every_k_steps():

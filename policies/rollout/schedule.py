@@ -122,10 +122,45 @@ def interp_chunk(actions: np.ndarray, t_obs: float, dt: float, t: float) -> np.n
     return (1.0 - f) * np.asarray(actions[i], dtype=float) + f * np.asarray(actions[i + 1], dtype=float)
 
 
+def stack_chunks(chunks: list[Chunk]) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(actions (n, H, A), t_obs (n,) [s], dt [s]) of chunks of one length and step, for
+    ensembled_stacked; None when they differ (then ensembled_target goes chunk by chunk)."""
+    if not chunks:
+        return None
+    h, dt = chunks[0].actions.shape, chunks[0].dt
+    if any(c.actions.shape != h or c.dt != dt for c in chunks):
+        return None
+    return (np.stack([np.asarray(c.actions, dtype=float) for c in chunks]),
+            np.array([c.t_obs for c in chunks], dtype=float), float(dt))
+
+
+def ensembled_stacked(actions: np.ndarray, t_obs: np.ndarray, dt: float, t: float,
+                      m: float = ACT_ENSEMBLE_M) -> tuple[np.ndarray | None, int]:
+    """ensembled_target on stacked chunks (stack_chunks): every chunk interpolated at t at once (the loop
+    asks every tick, 500 Hz, over up to a chunk's length of chunks: chunk by chunk it cost ~0.3 ms a tick,
+    a sixth of a rollout's CPU)."""
+    n, h = actions.shape[:2]
+    u = (t - t_obs) / dt
+    live = np.flatnonzero(u <= h - 1)  # a chunk past its last step is used up
+    if not live.size:
+        return None, -1
+    u = u[live]
+    if h == 1:
+        vals = actions[live, 0]
+    else:
+        i = np.clip(np.floor(u), 0, h - 2).astype(np.intp)
+        f = np.clip(u - i, 0.0, 1.0)[:, None]  # before t_obs: the first step
+        vals = (1.0 - f) * actions[live, i] + f * actions[live, i + 1]
+    return np.tensordot(ensemble_weights(live.size, m), vals, axes=1), int(live[-1])
+
+
 def ensembled_target(chunks: list[Chunk], t: float,
                      m: float = ACT_ENSEMBLE_M) -> tuple[np.ndarray | None, int]:
     """Temporal ensembling at t over the chunks (oldest first) that still cover t: (target, newest index
     used) or (None, -1) when none does."""
+    stacked = stack_chunks(chunks)
+    if stacked is not None:
+        return ensembled_stacked(*stacked, t, m)
     vals, used = [], []
     for k, c in enumerate(chunks):
         a = interp_chunk(c.actions, c.t_obs, c.dt, t)
@@ -200,6 +235,7 @@ class ChunkSchedule:
     problem: Reason | None = None  # the newest chunk's problem: holds until a good chunk arrives
     t_obs_min: float = -math.inf  # s: a chunk observed before this is dropped (restart: a hand-back)
     stale_dropped: int = 0  # chunks dropped for that
+    _stacked: tuple | None = field(default=None, repr=False)  # stack_chunks(chunks), made as chunks change
 
     def __post_init__(self):
         if self.tol is None:
@@ -233,12 +269,14 @@ class ChunkSchedule:
                 self.outside_limits += 1
             self.problem = why
             self.chunks.clear()  # nothing of a policy gone wrong is executed any more
+            self._stacked = None
             return why
         self.problem = None
         self.accepted += 1
         self.chunks.append(chunk)
         keep = int(np.ceil((len(chunk.actions) * chunk.dt) / self.period_s)) + 1
         del self.chunks[:-keep]  # older chunks no longer cover any time ahead
+        self._stacked = stack_chunks(self.chunks) if self.mode == ENSEMBLE else None
         return None
 
     def target(self, t: float) -> tuple[np.ndarray | None, Reason | None, float]:
@@ -250,7 +288,9 @@ class ChunkSchedule:
         late = overdue_s(t, self.chunks[-1].t_obs, self.period_s)
         if late > self.stall_s:
             return None, Reason.of(PolicyHold.STALLED, ms=1e3 * self.stall_s), float("nan")
-        if self.mode == ENSEMBLE:
+        if self.mode == ENSEMBLE and self._stacked is not None:  # once per chunk, not per tick
+            a, k = ensembled_stacked(*self._stacked, t, self.m)
+        elif self.mode == ENSEMBLE:
             a, k = ensembled_target(self.chunks, t, self.m)
         else:
             a, k = receding_target(self.chunks, t)
@@ -261,6 +301,7 @@ class ChunkSchedule:
     def clear(self) -> None:
         """Forget every chunk (a new episode)."""
         self.chunks.clear()
+        self._stacked = None
         self.problem = None
 
     def restart(self, t_obs_min: float) -> None:
