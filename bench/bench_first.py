@@ -354,7 +354,8 @@ def run_bench(cfg: BenchConfig, report_only: bool = False) -> dict:
     ck = next_checkpoint(cfg)
     config = json.loads(json.dumps(asdict(cfg)))
     if cfg.ledger:
-        n, skipped = import_cells(out, Path(cfg.ledger), fingerprints(cfg, ck), config)
+        n, skipped = import_cells(out, Path(cfg.ledger), fingerprints(cfg, ck), config,
+                                  needed={t: list(cfg.cells(t)) for t in cfg.tasks})
         print(f"ledger {cfg.ledger}: {n} finished cell(s) taken", *skipped, sep="\n  ", flush=True)
 
     def on_cell():  # every finished cell goes to the ledger at once: a session may end at any moment

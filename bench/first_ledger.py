@@ -32,6 +32,26 @@ SAME_SETTINGS = ("obs", "rollouts", "steps", "batch", "policy", "thresholds", "m
                  "sampler_seeding")
 
 
+def environment() -> dict:
+    """The versions a cell's numbers depend on beyond the code: the twin's physics engine above all (MuJoCo
+    4.0.0 and 3.17.0 collect other demonstrations from the same seeds: docs/first.md, 2026-11-29)."""
+    import mujoco
+    import numpy
+    import torch
+
+    return {"mujoco": mujoco.__version__, "numpy": numpy.__version__, "torch": torch.__version__}
+
+
+def _why_other(c: dict, env: dict) -> str:
+    """A hint after 'trained on other demonstrations': the MuJoCo version, when that is what differs."""
+    was = (c.get("env") or {}).get("mujoco")
+    if was is None:
+        return f" (its MuJoCo version was not recorded; this is {env['mujoco']})"
+    if was != env["mujoco"]:
+        return f" (collected under MuJoCo {was}, this is {env['mujoco']}: `pip install mujoco=={was}`)"
+    return ""
+
+
 def file_digest(path: str | Path) -> str:
     """sha256 of a file's bytes; '' when it cannot be read."""
     try:
@@ -93,13 +113,14 @@ def export_cells(out: Path, ledger: Path, fingerprints: dict, config: dict, sess
                          "export to another ledger")
     data["settings"] = _settings(config)
     have = {_key(c) for c in data["cells"]}
-    added = 0
+    added, env = 0, environment()
     for c in finished_cells(out):
         k = _key(c)
         if k in have or k[0] not in fingerprints:
             continue
         c["demos_fingerprint"] = fingerprints[k[0]]
         c["session"] = session
+        c["env"] = env
         data["cells"].append(c)
         added += 1
     data["cells"].sort(key=_key)
@@ -109,24 +130,47 @@ def export_cells(out: Path, ledger: Path, fingerprints: dict, config: dict, sess
     return added
 
 
-def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict) -> tuple[int, list[str]]:
-    """Write the ledger's cells into OUT where OUT lacks them and the demonstrations match; returns (imported,
-    one line per cell left out and why)."""
+def _whole_seed_groups(cells: list[dict], needed: dict) -> set:
+    """(task, seed, fingerprint) of every training seed whose cells the run needs are all in the ledger,
+    trained on one collection: a paired comparison complete on its own demonstrations."""
+    have: dict = {}
+    for c in cells:
+        task, cell, seed = _key(c)
+        have.setdefault((task, seed, c.get("demos_fingerprint")), set()).add(cell)
+    return {k for k, got in have.items() if needed.get(k[0]) and set(needed[k[0]]) <= got}
+
+
+def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict,
+                 needed: dict | None = None) -> tuple[int, list[str]]:
+    """Write the ledger's cells into OUT where OUT lacks them; returns (imported, one line per cell left out
+    and why).
+
+    A cell comes in when its demonstrations match the run's. needed (task -> the cells the run trains for
+    it): a cell trained on another collection of the same seeds comes in too when every needed cell of its
+    task and training seed is in the ledger on that same collection -- the seed's paired comparison is
+    whole on its own demonstrations. Re-collections are not bit-identical across machines (CPU rounding,
+    amplified by contact: docs/twin.md), so a table spread over sessions pairs methods within a seed on one
+    collection, and its seeds may come from different collections of the same seeds (said per cell)."""
     data = read_ledger(ledger)
     if not data["cells"]:
         return 0, []
     if data.get("settings") != _settings(config):
         return 0, [f"{ledger}: made with other settings ({data.get('settings')}): nothing imported"]
-    n, skipped = 0, []
+    whole = _whole_seed_groups(data["cells"], needed or {})
+    n, skipped, env = 0, [], environment()
     for c in data["cells"]:
         task, cell, seed = _key(c)
         run = Path(out) / task / cell / f"seed{seed}"
         if (run / "rollout.json").is_file():
             continue
-        if fingerprints.get(task) != c.get("demos_fingerprint"):
-            skipped.append(f"{task} {cell} seed {seed}: trained on other demonstrations "
-                           f"({c.get('demos_fingerprint')} vs {fingerprints.get(task)}): runs again")
-            continue
+        fp = c.get("demos_fingerprint")
+        if fingerprints.get(task) != fp:
+            if (task, seed, fp) not in whole:
+                skipped.append(f"{task} {cell} seed {seed}: trained on other demonstrations "
+                               f"({fp} vs {fingerprints.get(task)}): runs again{_why_other(c, env)}")
+                continue
+            skipped.append(f"{task} {cell} seed {seed}: taken, its seed's pair whole on collection {fp} "
+                           f"(this run's: {fingerprints.get(task)})")
         run.mkdir(parents=True, exist_ok=True)
         for name in ("train", "rollout"):
             (run / f"{name}.json").write_text(json.dumps(c[name], indent=1, default=float))

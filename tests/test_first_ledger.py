@@ -91,3 +91,37 @@ def test_weights_digest_reads_the_weights_beside_the_json(tmp_path):
     (tmp_path / "next.safetensors").write_bytes(b"w2")
     assert a and a != next_weights_digest(tmp_path / "next.json")
     assert next_weights_digest(tmp_path / "none" / "next.json") == ""
+
+
+def test_a_mismatch_names_the_mujoco_version_it_was_collected_under(tmp_path):
+    out, ledger = tmp_path / "a", tmp_path / "cells.json"
+    _cell(out, "wipe", "first", 0, [1])
+    export_cells(out, ledger, {"wipe": "f1"}, CONFIG)
+    data = json.loads(ledger.read_text())
+    assert set(data["cells"][0]["env"]) == {"mujoco", "numpy", "torch"}
+    n, skipped = import_cells(tmp_path / "b", ledger, {"wipe": "f2"}, CONFIG)
+    assert n == 0 and skipped[0].endswith("runs again")  # same MuJoCo: nothing to add
+    data["cells"][0]["env"]["mujoco"] = "0.0.1"
+    ledger.write_text(json.dumps(data))
+    _, skipped = import_cells(tmp_path / "c", ledger, {"wipe": "f2"}, CONFIG)
+    assert "collected under MuJoCo 0.0.1" in skipped[0] and "pip install mujoco==0.0.1" in skipped[0]
+    del data["cells"][0]["env"]
+    ledger.write_text(json.dumps(data))
+    _, skipped = import_cells(tmp_path / "d", ledger, {"wipe": "f2"}, CONFIG)
+    assert "MuJoCo version was not recorded" in skipped[0]
+
+
+def test_a_seed_whose_pair_is_whole_on_another_collection_is_taken(tmp_path):
+    out, ledger = tmp_path / "a", tmp_path / "cells.json"
+    for cell in ("first", "base-torque"):
+        _cell(out, "wipe", cell, 0, [1])
+    _cell(out, "wipe", "first", 1, [0])  # seed 1: half a pair
+    export_cells(out, ledger, {"wipe": "f1"}, CONFIG)
+    needed = {"wipe": ["base-torque", "first"]}
+    n, skipped = import_cells(tmp_path / "b", ledger, {"wipe": "f2"}, CONFIG, needed=needed)
+    assert n == 2 and (tmp_path / "b" / "wipe" / "base-torque" / "seed0" / "rollout.json").is_file()
+    assert not (tmp_path / "b" / "wipe" / "first" / "seed1").exists()  # trains again, beside its partner
+    assert sum("runs again" in s for s in skipped) == 1 and sum("pair whole" in s for s in skipped) == 2
+    n, _ = import_cells(tmp_path / "c", ledger, {"wipe": "f2"}, CONFIG,
+                        needed={"wipe": ["base-torque", "first", "base"]})  # the run needs a third
+    assert n == 0
