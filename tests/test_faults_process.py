@@ -68,7 +68,9 @@ def test_disk_full_stops_the_recording_said_teleop_goes_on_and_the_file_opens(sm
     assert out.log[0]["played"] and out.log[0]["detail"].startswith("filled")
     rc = out.recording
     assert rc.opens and rc.error and "the disk is full" in rc.error and "the file is complete" in rc.error
-    assert said(out, "teleop goes on without recording")
+    # said while teleop runs; or, when the writer reported after the loop's last health check (a writer
+    # starved by other work on the machine: seen in CI beside a training), as the recording closed
+    assert said(out, "teleop goes on without recording") or said(out, "found as the recording closed")
     assert out.ticks == len(out.t_ticks) and out.t_ticks[-1] > 2.9  # the session ran to its end
     # everything handed over before the disk filled is in the file (the writer's space reserve took it)
     assert rc.samples_recorded >= rc.ticks_before_fault > 0 and rc.lost_before_fault == 0, rc

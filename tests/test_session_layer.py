@@ -97,3 +97,29 @@ def test_teleop_recording_holds_frames_actions_and_estimates(tmp_path):
     assert np.all(np.abs(np.diff(frames.t) - 1 / 30) < 0.0021)
     t_js = ep.topic("/follower/joint_state").t
     assert np.min(np.abs(t_js[:, None] - frames.t[None, :]), axis=0).max() < 1e-6  # a frame per tick time
+
+
+def test_a_recording_error_reported_after_the_last_health_check_is_said_at_close():
+    """A writer starved by other work can report a full disk after the loop's last health check: the
+    session says it as the recording closes, once, and a new recording's error is said again."""
+    from types import SimpleNamespace
+
+    from factr2_teleop.session.pairs import TeleopOptions
+    from factr2_teleop.session.teleop import TeleopSession
+    from hardware.connect import open_rig
+
+    class LateError:  # the recording's close() returns the writer's status, its error set late
+        camera_stats: dict = {}
+
+        def close(self, why=""):
+            return SimpleNamespace(error="the disk is full at /x; the file is complete up to 1.0 s")
+
+    with open_rig("sim-piper", clock="lockstep") as s:
+        ts = TeleopSession(s, TeleopOptions(mode="dob"))
+        ts.recording = LateError()
+        status = ts.close_recording("end")
+        ts.recording = LateError()
+        ts.close_recording("again")  # said already: once per recording
+        texts = [m[2] for m in ts.loop.snapshot().messages if m[1] == "recording"]
+    assert status.error.startswith("the disk is full")
+    assert texts == [f"{status.error} -- found as the recording closed"]

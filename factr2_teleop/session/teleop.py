@@ -80,6 +80,7 @@ class TeleopSession:
         gains = {str(list(p.law.feedback.gain)) for p in self.pairs}
         meta["feedback_gain"] = ",".join(sorted(gains))
         meta.update(extra_meta or {})
+        self._recording_error_said = False  # a new recording's error is said again
         self.recording = SessionRecording.open(
             out, self.session, self.pairs, self.rate_hz, stem=stem, extra_meta=meta,
             next_checkpoint=self.next_checkpoint_id(), task=task, path=path,
@@ -94,7 +95,12 @@ class TeleopSession:
         if rec is None:
             return None
         rec.camera_stats = stats
-        return rec.close(why)
+        status = rec.close(why)
+        err = getattr(status, "error", None)
+        if err and not self._recording_error_said:  # the writer said it after the last health check (a
+            self._recording_error_said = True  # writer starved by other work reports late): said here
+            self.loop.say("recording", f"{err} -- found as the recording closed")
+        return status
 
     # -- cameras -----------------------------------------------------------------------------------------
     def start_cameras(self) -> list[str]:
