@@ -143,14 +143,15 @@ def _whole_seed_groups(cells: list[dict], needed: dict) -> set:
 def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict,
                  needed: dict | None = None) -> tuple[int, list[str]]:
     """Write the ledger's cells into OUT where OUT lacks them; returns (imported, one line per cell left out
-    and why).
+    or taken from another collection, and why).
 
     A cell comes in when its demonstrations match the run's. needed (task -> the cells the run trains for
     it): a cell trained on another collection of the same seeds comes in too when every needed cell of its
     task and training seed is in the ledger on that same collection -- the seed's paired comparison is
-    whole on its own demonstrations. Re-collections are not bit-identical across machines (CPU rounding,
-    amplified by contact: docs/twin.md), so a table spread over sessions pairs methods within a seed on one
-    collection, and its seeds may come from different collections of the same seeds (said per cell)."""
+    whole on its own demonstrations. Re-collections are not bit-identical across machines or MuJoCo
+    versions (measured 2026-11-29: docs/first.md), so a table spread over sessions pairs methods within a
+    seed on one collection, and its seeds may come from different collections of the same seeds (said
+    per cell)."""
     data = read_ledger(ledger)
     if not data["cells"]:
         return 0, []

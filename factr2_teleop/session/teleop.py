@@ -97,8 +97,9 @@ class TeleopSession:
         rec.camera_stats = stats
         status = rec.close(why)
         err = getattr(status, "error", None)
-        if err and not self._recording_error_said:  # the writer said it after the last health check (a
-            self._recording_error_said = True  # writer starved by other work reports late): said here
+        # a writer starved by other work can report after the loop's last health check: said here instead
+        if err and not self._recording_error_said:
+            self._recording_error_said = True
             self.loop.say("recording", f"{err} -- found as the recording closed")
         return status
 
