@@ -291,8 +291,9 @@ def run_pipeline(cfg: BenchConfig, ck: str, on_cell=lambda: None) -> tuple[dict,
     import multiprocessing as mp
     from concurrent.futures import FIRST_COMPLETED, wait
 
-    print(f"{len(cfg.tasks)} collection(s), {len(cells)} training run(s) and as many rollout sets on "
-          f"{cfg.jobs} worker(s)", flush=True)
+    kept = sum((Path(cfg.out) / t / c / f"seed{s}" / "rollout.json").is_file() for t, c, s in cells)
+    print(f"{len(cfg.tasks)} collection(s), {len(cells) - kept} training run(s) and as many rollout sets "
+          f"on {cfg.jobs} worker(s) ({kept} cell(s) already finished)", flush=True)
     # a queue, not a submit-all: a trained policy's rollouts run before the next training, so a run stopped
     # early leaves whole (policy, rollouts) pairs, the earliest task's first
     pending: list[tuple[str, tuple]] = [("collect", (t,)) for t in cfg.tasks]

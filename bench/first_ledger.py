@@ -151,7 +151,8 @@ def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict,
     whole on its own demonstrations. Re-collections are not bit-identical across machines or MuJoCo
     versions (measured 2026-11-29: docs/first.md), so a table spread over sessions pairs methods within a
     seed on one collection, and its seeds may come from different collections of the same seeds (said
-    per cell)."""
+    per cell). A cell the run does not train comes in only on the run's own demonstrations (shown beside
+    its table), and is not listed otherwise."""
     data = read_ledger(ledger)
     if not data["cells"]:
         return 0, []
@@ -165,6 +166,8 @@ def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict,
         if (run / "rollout.json").is_file():
             continue
         fp = c.get("demos_fingerprint")
+        if fingerprints.get(task) != fp and needed is not None and cell not in needed.get(task, ()):
+            continue  # a cell this run does not train, on other demonstrations: nothing to take or say
         if fingerprints.get(task) != fp:
             if (task, seed, fp) not in whole:
                 skipped.append(f"{task} {cell} seed {seed}: trained on other demonstrations "

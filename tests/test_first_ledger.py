@@ -125,3 +125,17 @@ def test_a_seed_whose_pair_is_whole_on_another_collection_is_taken(tmp_path):
     n, _ = import_cells(tmp_path / "c", ledger, {"wipe": "f2"}, CONFIG,
                         needed={"wipe": ["base-torque", "first", "base"]})  # the run needs a third
     assert n == 0
+
+
+def test_cells_the_run_does_not_train_are_not_listed_as_running_again(tmp_path):
+    out, ledger = tmp_path / "a", tmp_path / "cells.json"
+    _cell(out, "wipe", "base-torque", 0, [1])
+    _cell(out, "peg-insert", "first", 0, [1])
+    export_cells(out, ledger, {"wipe": "f1", "peg-insert": "p1"}, CONFIG)
+    # a run of the second table on peg-insert, on another collection: wipe and base-torque are not its cells
+    n, skipped = import_cells(tmp_path / "b", ledger, {"peg-insert": "p2"}, CONFIG,
+                              needed={"peg-insert": ["base", "first"]})
+    assert n == 0 and len(skipped) == 1 and skipped[0].startswith("peg-insert first seed 0")
+    # on the run's own collection a cell it does not train still comes in, shown beside its table
+    n, skipped = import_cells(tmp_path / "c", ledger, {"wipe": "f1"}, CONFIG, needed={"wipe": ["base"]})
+    assert n == 1 and skipped == []
