@@ -254,7 +254,9 @@ def train(
         [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
         lr=cfg.lr,
         betas=cfg.betas,
-        fused=d.device.type == "cuda",
+        # one kernel for every parameter on CPU too: 7.6 -> 1.9 ms a step for 6 x 512^2 weights, ~6 % of a
+        # state-preset step (differs from the per-tensor loop by rounding only, ~3e-8 after 60 steps)
+        fused=True,
     )
     start = 0
     ema = Ema(model, cfg.ema_power, cfg.ema_max) if cfg.ema else None
