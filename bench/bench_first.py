@@ -35,6 +35,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.first_ledger import (  # noqa: E402
+    SETTING_BEFORE,
     demos_fingerprint,
     export_cells,
     finished_cells,
@@ -84,6 +85,8 @@ class BenchConfig:
     # the earlier rule (a fixed 0.15 rad refused, before the eighteenth session) are not mixed with these
     limit_tol_fraction: float = LIMIT_TOL_FRACTION
     sampler_seeding: str = SAMPLER_SEEDING  # the flow noise seeded per episode (policies/rollout/runner.py)
+    # the training's matmuls (factr2 train --precision): fp32, as the ledger's cells were trained
+    precision: str = "fp32"
 
     def cells(self, task: str) -> dict:
         out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
@@ -162,7 +165,8 @@ def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
         shutil.rmtree(run, ignore_errors=True)
     # the warm-up / validation / checkpoint periods: fitted to the run's length by the loop
     tc = TrainConfig(steps=cfg.steps, batch=cfg.batch, log_every=10, seed=seed,
-                     threads=cfg.threads or max(1, (os.cpu_count() or 1) // cfg.jobs))
+                     threads=cfg.threads or max(1, (os.cpu_count() or 1) // cfg.jobs),
+                     precision=cfg.precision)
     opts = RunOptions(inputs=demo_folders(cfg, task), out=run, policy=cfg.policy, method=method,
                       ratio=ratio, preset=cfg.preset, thresholds=cfg.thresholds, observation=cfg.obs,
                       progress=False, train=tc, resume=last is not None, include_failed=cfg.include_failed,
@@ -251,7 +255,7 @@ class _Elapsed:
 # what the kept results depend on (tasks and seeds may be added)
 SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds",
                   "next_checkpoint", "preset", "include_failed", "demos_from", "eval_seed",
-                  "limit_tol_fraction", "sampler_seeding")
+                  "limit_tol_fraction", "sampler_seeding", "precision")
 
 
 def check_resume(cfg: BenchConfig, out: Path) -> None:
@@ -260,7 +264,7 @@ def check_resume(cfg: BenchConfig, out: Path) -> None:
     if not old_path.is_file():
         return
     old, new = json.loads(old_path.read_text()), json.loads(json.dumps(asdict(cfg)))
-    diff = [k for k in SAME_ON_RESUME if old.get(k) != new.get(k)]
+    diff = [k for k in SAME_ON_RESUME if old.get(k, SETTING_BEFORE.get(k)) != new.get(k)]
     if diff:
         was = ", ".join(f"{k} {old.get(k)}" for k in diff)
         raise SystemExit(f"{out}: its kept results were made with other settings ({was}); "
@@ -426,6 +430,8 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
                     help="train TASK on these recorded folders (factr2 collect's) instead of collecting")
     ap.add_argument("--eval-seed", type=int, default=EVAL_SEED,
                     help=f"rollout seed (default {EVAL_SEED}); never one a choice was made on")
+    ap.add_argument("--precision", choices=("fp32", "bf16", "auto"), default="fp32",
+                    help="the trainings' matmuls (factr2 train --precision; default fp32: the ledger's)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2: both cores here)")
     ap.add_argument("--threads", type=int, default=0,
                     help="torch threads per training run (default: cores / jobs)")
@@ -442,7 +448,7 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     cfg = BenchConfig(out=a.out, obs=a.obs, policy=a.policy, ablation_task=a.ablation_task,
                       max_seconds=a.max_seconds, jobs=max(1, a.jobs), next_checkpoint=a.next, preset=a.preset,
                       table=a.table, include_failed=a.include_failed, actions=a.actions,
-                      eval_seed=a.eval_seed, ledger=a.ledger,
+                      eval_seed=a.eval_seed, ledger=a.ledger, precision=a.precision,
                       threads=max(0, a.threads))
     for item in a.demos_from:
         task, sep, dirs = item.partition("=")

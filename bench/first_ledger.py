@@ -29,7 +29,9 @@ LEDGER_VERSION = 1
 # compared through the fingerprint instead: they move between sessions)
 SAME_SETTINGS = ("obs", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds", "preset",
                  "include_failed", "actions", "eval_seed", "limit_tol_fraction",
-                 "sampler_seeding")
+                 "sampler_seeding", "precision")
+# what a setting was before it was recorded: a ledger or a results folder from then compares as this
+SETTING_BEFORE = {"precision": "fp32"}
 
 
 def environment() -> dict:
@@ -101,14 +103,14 @@ def read_ledger(ledger: Path) -> dict:
 
 
 def _settings(config: dict) -> dict:
-    return {k: config.get(k) for k in SAME_SETTINGS}
+    return {k: config.get(k, SETTING_BEFORE.get(k)) for k in SAME_SETTINGS}
 
 
 def export_cells(out: Path, ledger: Path, fingerprints: dict, config: dict, session: str = "") -> int:
     """Merge OUT's finished cells into the ledger (a cell already there is kept as it was); returns how many
     were added. fingerprints: task -> demos_fingerprint of the demonstrations OUT trained on."""
     data = read_ledger(ledger)
-    if data["cells"] and data.get("settings") != _settings(config):
+    if data["cells"] and _settings(data.get("settings") or {}) != _settings(config):
         raise SystemExit(f"{ledger}: its cells were made with other settings ({data.get('settings')}); "
                          "export to another ledger")
     data["settings"] = _settings(config)
@@ -156,7 +158,7 @@ def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict,
     data = read_ledger(ledger)
     if not data["cells"]:
         return 0, []
-    if data.get("settings") != _settings(config):
+    if _settings(data.get("settings") or {}) != _settings(config):
         return 0, [f"{ledger}: made with other settings ({data.get('settings')}): nothing imported"]
     whole = _whole_seed_groups(data["cells"], needed or {})
     n, skipped, env = 0, [], environment()

@@ -46,6 +46,8 @@ def _entry(meta: dict, key: str):
     """meta's entry `key` ("train.lr": nested); the model config with the defaults of fields added since."""
     if key == "policy":
         return PolicyConfig.from_dict(meta.get("policy", {})).to_dict()
+    if key == "train.precision":  # runs from before the choice: the default (its precision: precision_used)
+        return (meta.get("train") or {}).get("precision", "auto")
     if key == "actions":  # runs from before the choice learned absolute targets
         return meta.get("actions", "absolute")
     if key == "phases":  # the thresholds and their kind of source; the source's message is for people

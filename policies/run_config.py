@@ -159,6 +159,10 @@ class TrainConfig:
     warmup: int = _train("warmup", default=500, flag=Flag(
         "--warmup", "linear warm-up of the learning rate", type=int, unit="steps"))
     grad_clip: float = _train("grad_clip", default=1.0)
+    # the matmuls' precision (policies.train.pick_precision): auto = bf16 autocast where the hardware has it
+    precision: str = _train("precision", default="auto", flag=Flag(
+        "--precision", "bf16 autocast or fp32 (auto: bf16 on a GPU or a CPU with native bf16)",
+        choices=("auto", "bf16", "fp32")))
     val_every: int = option(500, flag=Flag("--val-every", "steps between validations", type=int, at_least=1))
     ckpt_every: int = option(1000, flag=Flag("--ckpt-every", "steps between checkpoints", type=int,
                                              at_least=1))

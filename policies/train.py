@@ -174,7 +174,8 @@ def evaluate(
     for lo in range(0, len(idx), chunk):
         b = _to(data.batch(idx[lo : lo + chunk]), device)
         n = {k: v[lo : lo + chunk].to(device) for k, v in noise.items()}
-        with _autocast(device):
+        # fp32 on a CPU whatever the training's precision: validation losses compare across precisions
+        with _autocast(device, "bf16" if device.type == "cuda" else "fp32"):
             losses.append(model.loss(b, n)[1]["action"].float().cpu())
     model.train(was)
     loss = torch.cat(losses).numpy()
@@ -204,10 +205,26 @@ def _say(bar, text: str) -> None:
         print(text, flush=True)
 
 
-def _autocast(device):
+def pick_precision(asked: str, device) -> tuple[str, str]:
+    """(the matmuls' precision, "bf16" or "fp32"; why). auto: bf16 autocast (weights, optimiser and EMA stay
+    fp32) on a GPU and on a CPU with native bf16 (AVX512-BF16 / AMX: 2.8x a state-preset forward+backward on
+    the 2-vCPU EPYC VM, docs/first.md), fp32 elsewhere (emulated bf16 is slower than fp32)."""
+    if asked == "fp32":
+        return "fp32", "fp32 (as asked)"
     if device.type == "cuda":
-        return torch.autocast("cuda", dtype=torch.bfloat16)
-    return torch.autocast("cpu", enabled=False)
+        return "bf16", f"bf16 autocast on the GPU ({'as asked' if asked == 'bf16' else 'auto'})"
+    native = bool(torch.backends.mkldnn.is_available() and torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    if asked == "bf16":
+        return "bf16", "bf16 autocast (as asked)" + ("" if native else
+                                                     ": this CPU has no native bf16, slower than fp32")
+    if native:
+        return "bf16", "bf16 autocast (auto: this CPU has native bf16; --precision fp32 to train in fp32)"
+    return "fp32", "fp32 (auto: this CPU has no native bf16)"
+
+
+def _autocast(device, precision: str):
+    kind = "cuda" if device.type == "cuda" else "cpu"
+    return torch.autocast(kind, dtype=torch.bfloat16, enabled=precision == "bf16")
 
 
 def train(
@@ -243,8 +260,10 @@ def train(
     total = total_steps(cfg, sampler)
     asked = cfg
     cfg, notes = clamp_schedule(cfg, total)
+    precision, why_precision = pick_precision(cfg.precision, d.device)
+    meta["precision_used"] = precision
     if d.main and progress:
-        print(f"torch threads: {why_threads}" + "".join(f"; {n}" for n in notes), flush=True)
+        print(f"torch threads: {why_threads}; {why_precision}" + "".join(f"; {n}" for n in notes), flush=True)
     spe = sampler.steps_per_epoch(cfg.batch)
     torch.manual_seed(cfg.seed)  # identical initial weights on every rank
     model = make_policy(pcfg).to(d.device)
@@ -320,7 +339,7 @@ def train(
         lr = lr_at(s, cfg, total)
         for g in opt.param_groups:
             g["lr"] = lr
-        with _autocast(d.device):
+        with _autocast(d.device, precision):
             loss_ps, parts = net(batch, noise)
         loss = loss_ps.float().mean()
         loss.backward()

@@ -139,3 +139,12 @@ def test_cells_the_run_does_not_train_are_not_listed_as_running_again(tmp_path):
     # on the run's own collection a cell it does not train still comes in, shown beside its table
     n, skipped = import_cells(tmp_path / "c", ledger, {"wipe": "f1"}, CONFIG, needed={"wipe": ["base"]})
     assert n == 1 and skipped == []
+
+
+def test_a_ledger_from_before_precision_was_recorded_is_fp32(tmp_path):
+    out, ledger = tmp_path / "a", tmp_path / "cells.json"
+    _cell(out, "wipe", "first", 0, [1])
+    export_cells(out, ledger, {"wipe": "f1"}, CONFIG)  # CONFIG has no precision: a ledger from before
+    assert import_cells(tmp_path / "b", ledger, {"wipe": "f1"}, {**CONFIG, "precision": "fp32"})[0] == 1
+    n, why = import_cells(tmp_path / "c", ledger, {"wipe": "f1"}, {**CONFIG, "precision": "bf16"})
+    assert n == 0 and "other settings" in why[0]

@@ -165,8 +165,10 @@ def _cli_args(rec, out, extra=()):
 def test_two_process_gloo_ddp_matches_one_process(recordings, tmp_path):
     from factr2_teleop.cli import main
 
-    assert main(_cli_args(recordings, tmp_path / "one", ["--threads", "1"])) == 0
-    assert main(_cli_args(recordings, tmp_path / "two", ["--nproc", "2", "--threads", "1"])) == 0
+    # fp32: the DDP arithmetic is what is compared (bf16 rounds each rank's half-batch apart)
+    fp32 = ["--threads", "1", "--precision", "fp32"]
+    assert main(_cli_args(recordings, tmp_path / "one", fp32)) == 0
+    assert main(_cli_args(recordings, tmp_path / "two", ["--nproc", "2", *fp32])) == 0
     one, two = _losses(tmp_path / "one"), _losses(tmp_path / "two")
     assert len(one) == len(two) == 4
     np.testing.assert_allclose(two, one, rtol=2e-4)
@@ -214,3 +216,19 @@ def test_factr_blur_schedule_and_kernel():
     assert out.sum().item() == pytest.approx(3.0, rel=1e-4)  # mass kept per channel
     assert out[0, 0, 16, 16] < 0.05 and out[0, 0, 16, 18] > 0.01
     assert torch.equal(gaussian_blur(img, 0.05), img)
+
+
+def test_precision_auto_uses_bf16_only_where_the_hardware_has_it(monkeypatch):
+    import torch
+
+    from policies.train import pick_precision
+
+    cpu = torch.device("cpu")
+    assert pick_precision("fp32", cpu)[0] == "fp32"
+    monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda: False)
+    assert pick_precision("auto", cpu)[0] == "fp32"
+    p, why = pick_precision("bf16", cpu)
+    assert p == "bf16" and "slower than fp32" in why
+    monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda: True)
+    assert pick_precision("auto", cpu)[0] == "bf16"
+    assert pick_precision("auto", torch.device("cuda"))[0] == "bf16"
