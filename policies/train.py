@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from hardware.realtime import KeepOffLoopCpus
 from policies import checkpoint as C
 from policies.config import PolicyConfig
 from policies.curves import RunLog
@@ -321,7 +322,9 @@ def train(
         C.save(run / "checkpoints", step, model, opt, dict(meta, metrics=last_val), final=final,
                ema=ema.model if ema is not None else None, keep=cfg.keep_checkpoints)
     model.train()
+    keep_off = KeepOffLoopCpus()  # off the CPU of a teleop loop running beside (hardware/realtime.py)
     for s in range(start, min(total, stop_at or total)):
+        keep_off.refresh(time.monotonic())
         if probe is not None:
             probe.before(s // 100, s % 100)
         epoch, k = divmod(s, spe)
