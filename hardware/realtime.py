@@ -305,8 +305,9 @@ class LoopCpu:
 # LoopCpu keeps the loop's own process off its CPU; a training started beside it (the operator collects the
 # next demonstrations while the last ones train) is another process that floats onto that CPU whenever the
 # loop sleeps and evicts its caches. Measured on the 2-vCPU dev VM, `bench/bench_teleop_record.py`, 30 s
-# with recording beside `factr2 train --obs state --threads 1`: loop CPU 0.52 ms a tick (26 %) with the
-# training floating, 0.34 ms (17 %) with it kept on the other CPU (quiet: 0.27 ms). So a pinned loop claims
+# with recording beside `factr2 train --obs state --threads 1`: loop CPU 0.52 ms a tick (26 %) once with the
+# training floating, 0.34 ms (17 %) with it kept on the other CPU (quiet: 0.27 ms; later runs floating were
+# 0.33-0.38 ms: the cost comes and goes with where the scheduler puts it). So a pinned loop claims
 # its CPU in a file, and the app's background jobs (policies.train) keep their threads off claimed CPUs.
 def _claims_dir():
     import tempfile
