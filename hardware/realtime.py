@@ -12,9 +12,11 @@ from __future__ import annotations
 import os
 import struct
 import subprocess
+import tempfile
 import threading
 from collections.abc import Callable
 from enum import Enum
+from pathlib import Path
 
 from hardware.reasons import Reason, messages
 from hardware.switches import switches
@@ -309,15 +311,12 @@ class LoopCpu:
 # training floating, 0.34 ms (17 %) with it kept on the other CPU (quiet: 0.27 ms; later runs floating were
 # 0.33-0.38 ms: the cost comes and goes with where the scheduler puts it). So a pinned loop claims
 # its CPU in a file, and the app's background jobs (policies.train) keep their threads off claimed CPUs.
-def _claims_dir():
-    import tempfile
-    from pathlib import Path
-
+def _claims_dir() -> Path:
     base = os.environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
     return Path(base) / f"factr2-{os.getuid() if hasattr(os, 'getuid') else 0}" / "loop-cpus"
 
 
-def claim_loop_cpu(cpu: int):
+def claim_loop_cpu(cpu: int) -> Path | None:
     """Say that this process's real-time loop runs alone on `cpu`; returns the claim (release_loop_cpu)."""
     try:
         d = _claims_dir()
@@ -329,7 +328,7 @@ def claim_loop_cpu(cpu: int):
         return None  # no writable runtime folder: background jobs just float, as before
 
 
-def release_loop_cpu(claim) -> None:
+def release_loop_cpu(claim: Path | None) -> None:
     if claim is not None:
         try:
             claim.unlink()
