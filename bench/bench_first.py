@@ -43,6 +43,7 @@ from bench.first_ledger import (  # noqa: E402
     next_weights_digest,
 )
 from bench.first_report import aggregate, write_docs, write_report  # noqa: E402
+from policies.phases import LABEL_RULE  # noqa: E402
 from policies.rollout.runner import SAMPLER_SEEDING  # noqa: E402
 from policies.rollout.schedule import LIMIT_TOL_FRACTION  # noqa: E402
 
@@ -87,6 +88,8 @@ class BenchConfig:
     sampler_seeding: str = SAMPLER_SEEDING  # the flow noise seeded per episode (policies/rollout/runner.py)
     # the training's matmuls (factr2 train --precision): fp32, as the ledger's cells were trained
     precision: str = "fp32"
+    # the contact labeller (policies.phases.LABEL_RULE): cells labelled by an earlier rule are not mixed in
+    labels: str = LABEL_RULE
 
     def cells(self, task: str) -> dict:
         out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
@@ -255,7 +258,7 @@ class _Elapsed:
 # what the kept results depend on (tasks and seeds may be added)
 SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds",
                   "next_checkpoint", "preset", "include_failed", "demos_from", "eval_seed",
-                  "limit_tol_fraction", "sampler_seeding", "precision")
+                  "limit_tol_fraction", "sampler_seeding", "precision", "labels")
 
 
 def check_resume(cfg: BenchConfig, out: Path) -> None:

@@ -29,9 +29,10 @@ LEDGER_VERSION = 1
 # compared through the fingerprint instead: they move between sessions)
 SAME_SETTINGS = ("obs", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds", "preset",
                  "include_failed", "actions", "eval_seed", "limit_tol_fraction",
-                 "sampler_seeding", "precision")
-# what a setting was before it was recorded: a ledger or a results folder from then compares as this
-SETTING_BEFORE = {"precision": "fp32"}
+                 "sampler_seeding", "precision", "labels")
+# what a setting was before it was recorded: a ledger or a results folder from then compares as this (labels:
+# the causal hysteresis at Otsu : 1.5 Otsu, before the twenty-third session's contact runs)
+SETTING_BEFORE = {"precision": "fp32", "labels": "hysteresis; recording band 1:3/2 of Otsu"}
 
 
 def environment() -> dict:

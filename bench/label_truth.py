@@ -92,7 +92,7 @@ def _with_payload(episodes, arms, tare: str, kg: float) -> tuple[object, list]:
     n = sum(int(np.isfinite(s).sum()) for _, s, _ in per)  # the recordings' own split, semi-synthetic payload
     th = L.Thresholds(lo, hi, Reason.of(L.ThresholdSource.RECORDING, tared=tare != "off", episodes=len(per),
                                           samples=n), tare)
-    return th, [(t, P.label_phases(t, P.hysteresis(s, lo, hi)), h, s) for t, s, h in per]
+    return th, [(t, P.label_phases(t, P.contact_runs(s, lo, hi)), h, s) for t, s, h in per]
 
 
 def measure(directory: Path, tare: str, add_kg: float = 0.0) -> dict:

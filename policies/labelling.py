@@ -89,7 +89,7 @@ class Thresholds:
         "tare" only when the scores were tared (a run from before the tare, or with --no-tare, reads the same
         and so resumes)."""
         d = {"t_low": self.t_low, "t_high": self.t_high, "source": str(self.source),
-             "source_kind": self.source.key, "pre_contact_s": P.PRE_CONTACT_S}
+             "source_kind": self.source.key, "pre_contact_s": P.PRE_CONTACT_S, "rule": P.LABEL_RULE}
         return d | ({"tare": self.tare} if self.tare != "off" else {})
 
 
@@ -308,7 +308,7 @@ def label_episode(
     score, raw, held, note = episode_scores(ep, arms, th.tare, next_model)
     if th.tare != "off":
         source += f"; tare {th.tare}" + (f" ({note})" if note else "")
-    phases = P.label_phases(t, P.hysteresis(score, th.t_low, th.t_high))
+    phases = P.label_phases(t, P.contact_runs(score, th.t_low, th.t_high))
     return EpisodeLabels(episode_id(ep), t, tau, score, phases, source, raw, held, th.tare)
 
 

@@ -15,6 +15,17 @@ def test_hysteresis_switches_at_high_and_low_and_keeps_between():
     assert c.tolist() == [False, False, True, True, True, False, False, True, True, False]
 
 
+def test_contact_runs_take_the_whole_run_above_low_that_reaches_high():
+    # a run that rises through low before it crosses high: its rise is contact too (the causal hysteresis
+    # starts at the crossing); a run above low that never reaches high is not contact; NaN keeps the state
+    s = np.array([0, 1.5, 2.0, 3.5, 2.0, 1.2, 0.5, 1.5, 2.9, 1.5, 0.5, 2.0, np.nan, 3.0, 0.2])
+    c = P.contact_runs(s, t_low=1.0, t_high=3.0)
+    assert c.tolist() == [False, True, True, True, True, True, False, False, False, False, False,
+                          True, True, True, False]
+    causal = P.hysteresis(s, 1.0, 3.0)
+    assert not (causal & ~c).any() and c[1] and not causal[1]
+
+
 def test_hysteresis_rejects_inverted_thresholds():
     with pytest.raises(ValueError):
         P.hysteresis(np.zeros(3), 2.0, 1.0)
@@ -111,7 +122,8 @@ def test_otsu_splits_noise_from_contact_in_log_space():
     t2 = P.otsu_log_threshold(np.r_[noise[:2000], contact, contact])
     assert 1.0 < t2 < 3.5 and P.otsu_log_threshold(10 * np.r_[noise, contact]) == pytest.approx(10 * t, 0.05)
     lo, hi = P.recording_thresholds(np.r_[noise, contact])
-    assert lo == pytest.approx(t) and hi == pytest.approx(P.HIGH_RATIO * t)
+    assert lo == pytest.approx(P.OTSU_LOW_X * t) and hi == pytest.approx(P.OTSU_HIGH_X * t)
+    assert lo < t < hi  # a band around the valley
     with pytest.raises(ValueError):
         P.otsu_log_threshold(np.full(10, 0.5))
 
