@@ -35,3 +35,28 @@ def test_one_wipe_demonstration_is_recorded_with_stages_outcome_and_frames(tmp_p
     frames = ep.frames("wrist")
     assert len(frames) > 10 and frames.rgb(0).shape == (240, 320, 3)
     assert (tmp_path / "wipe-sim-piper-seed0.json").is_file()
+
+
+def test_collect_summary_shows_the_labels_training_makes_of_the_recording(tmp_path):
+    """The summary's phase shares are those `factr2 train` / `factr2 episodes phases` give the written file
+    (the recording's thresholds on the tared score), not a label of the live scores of another kind."""
+    pytest.importorskip("mujoco")
+    from pathlib import Path
+
+    from policies import labelling as L
+    from policies.recordings import load_episodes
+
+    ck = Path(__file__).resolve().parents[1] / "bench/assets/next_sim_piper_first/next.json"
+    out = collect(CollectConfig(task="wipe", episodes=1, out=str(tmp_path), seed=0, mode="next",
+                                checkpoint=str(ck), cameras=False), progress=False)
+    episodes, arms = load_episodes([out["recording"]])
+    th = L.resolve_thresholds("recording", None, episodes, arms)
+    phases = np.concatenate([L.label_episode(e, arms, th).phases for e in episodes])
+    want = np.bincount(phases.astype(np.int64), minlength=3)[:3] / len(phases)
+    sh = out["phase_shares"]
+    assert [sh["free"], sh["pre_contact"], sh["contact"]] == pytest.approx(want.tolist())
+    assert out["phase_thresholds_nm"] == pytest.approx([th.t_low, th.t_high])
+    assert sh["contact"] > 0.2 and out["phase_labels"] == f"tare {th.tare}"  # wiping presses most of the time
+    from factr2_teleop.tasks.run import summary_lines
+
+    assert any("as `factr2 train` makes them" in ln for ln in summary_lines(out))

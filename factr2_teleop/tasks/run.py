@@ -79,7 +79,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
         ts = TeleopSession(s, TeleopOptions(mode=mode, checkpoint=ck))
         ts.record(cfg.out, path=mcap, task=task.name, cameras=cfg.cameras,
                   extra_meta={"simulated": "true", "collect_seed": cfg.seed, "operator": "scripted"})
-        scores = PhaseLog()
+        first_tick = FirstTick()
 
         def done(res):
             if bar is not None:
@@ -88,7 +88,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
 
         ep = EpisodeDriver(ts, task, cfg.episodes, seed=cfg.seed, on_episode=done)
         ts.hooks.append(ep.on_tick)
-        ts.hooks.append(lambda r: scores.add(r, ep))
+        ts.hooks.append(lambda r: first_tick.add(r, ep))
         srec = ts.recording
         if cfg.on_session is not None:
             cfg.on_session(ts, s)
@@ -98,14 +98,15 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
             status = ts.close_recording("collection interrupted" if len(ep.results) < cfg.episodes else "")
             if bar is not None:
                 bar.close()
-        sim_s = s.clock.now() - scores.t0 if np.isfinite(scores.t0) else float("nan")
+        sim_s = s.clock.now() - first_tick.t0 if np.isfinite(first_tick.t0) else float("nan")
         cams = {k: asdict(v) for k, v in (srec.camera_stats or {}).items()}  # hardware.cameras.stream stats
         timing = ts.loop.timing.stats(whole_run=True)
         messages = list(ts.loop.snapshot().messages)
         faults = list(s.twin.faults.log) if s.twin is not None and s.twin.faults is not None else []
     wall = time.perf_counter() - t_wall
-    thresholds = _thresholds(ck, scores)
-    shares = scores.shares(ep.results, thresholds)
+    # the labels training will use, from the file just written (a NEXT session records tau_ext)
+    shares, thresholds, label_note = (recorded_phase_shares(mcap) if ck is not None and mcap.exists()
+                                      else (None, None, "no NEXT estimate recorded"))
     res = [asdict(r) for r in ep.results]
     ok = [r["outcome"] == "success" for r in res]
     lengths = [r["duration_s"] for r in res]
@@ -116,7 +117,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
            "episode_s_min": float(np.min(lengths)) if lengths else 0.0,
            "episode_s_max": float(np.max(lengths)) if lengths else 0.0,
            "retries_mean": float(np.mean([r["retries"] for r in res])) if res else 0.0,
-           "phase_shares": shares, "phase_thresholds_nm": thresholds, "sim_s": sim_s, "wall_s": wall,
+           "phase_shares": shares, "phase_thresholds_nm": thresholds, "phase_labels": label_note,
+           "sim_s": sim_s, "wall_s": wall,
            "x_realtime": sim_s / wall if wall > 0 else float("nan"),
            "cpu_s": time.process_time() - c_cpu, "loop_overruns": timing.overruns,
            "frames_written": getattr(status, "frames_written", 0),
@@ -128,48 +130,42 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
     return out
 
 
-def _thresholds(ck: str | None, scores) -> list | None:
-    """Phase-label thresholds (T_low, T_high) [N*m] of a NEXT session: the labels' default, Otsu's split of
-    the session's own scores (policies.phases.recording_thresholds, docs/first.md); None without NEXT."""
-    if ck is None or not scores.tau:
-        return None
-    from policies.phases import contact_score, recording_thresholds
-
-    try:
-        return list(recording_thresholds(contact_score(np.asarray(scores.tau, float))))
-    except ValueError:  # too few distinct scores to split
-        return None
-
-
-class PhaseLog:
-    """Per tick inside episodes: t [s] and the estimate tau_ext [N*m] fed back (for the FIRST phase shares),
-    and the twin's contact flag (SIMULATED truth, for comparison)."""
+class FirstTick:
+    """The rig-clock time [s] of the first tick inside an episode (the simulated time of the collection)."""
 
     def __init__(self):
-        self.t, self.tau, self.t0 = [], [], float("nan")
+        self.t0 = float("nan")
 
     def add(self, r, ep) -> None:
-        if ep._state == "run":
-            if not np.isfinite(self.t0):
-                self.t0 = r.t
-            self.t.append(r.t)
-            self.tau.append(np.asarray(r.tau_ext, float))
+        if ep._state == "run" and not np.isfinite(self.t0):
+            self.t0 = r.t
 
-    def shares(self, results, thresholds) -> dict | None:
-        """Share of free / pre-contact / contact samples over all episodes (labels per episode)."""
-        if not thresholds or not self.t:
-            return None
-        from policies.phases import phases_from_torque
 
-        t, tau = np.asarray(self.t), np.nan_to_num(np.asarray(self.tau))
-        counts = np.zeros(3)
-        for r in results:
-            m = (t >= r.t_start) & (t <= r.t_end)
-            if m.sum():
-                ph = phases_from_torque(t[m], tau[m], *thresholds)
-                counts += np.bincount(ph.astype(int), minlength=3)[:3]
-        tot = counts.sum()
-        return dict(zip(("free", "pre_contact", "contact"), (counts / tot).tolist())) if tot else None
+def recorded_phase_shares(mcap: Path) -> tuple[dict | None, list | None, str]:
+    """(free / pre-contact / contact shares, [T_low, T_high] [N*m], note) of a written recording, labelled as
+    `factr2 train` and `factr2 episodes phases` label it (the recording's own thresholds on the tared score,
+    docs/first.md), so that the summary shows what training will see; (None, None, why) when it cannot be
+    labelled (no tau_ext recorded, too few samples)."""
+    import warnings
+
+    from policies import labelling as L
+    from policies.phases import PHASE_NAMES
+    from policies.recordings import load_episodes
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            episodes, arms = load_episodes([mcap])
+            th = L.resolve_thresholds("recording", None, episodes, arms)
+            counts = np.zeros(3)
+            for e in episodes:
+                counts += np.bincount(L.label_episode(e, arms, th).phases.astype(np.int64), minlength=3)[:3]
+    except UserError as e:
+        return None, None, e.what
+    if not counts.sum():
+        return None, None, "no labelled samples"
+    keys = [n.replace("-", "_") for n in PHASE_NAMES]
+    return dict(zip(keys, (counts / counts.sum()).tolist())), [th.t_low, th.t_high], f"tare {th.tare}"
 
 
 def summary_lines(out: dict) -> list[str]:
@@ -185,7 +181,9 @@ def summary_lines(out: dict) -> list[str]:
     if sh:
         lines.append(f"{'free / pre / contact':>22s}  {sh['free'] * 100:.1f} / "
                      f"{sh['pre_contact'] * 100:.1f} / "
-                     f"{sh['contact'] * 100:.1f} %  (NEXT phase labels)")
+                     f"{sh['contact'] * 100:.1f} %  (FIRST labels as `factr2 train` makes them: "
+                     f"{out['phase_thresholds_nm'][0]:.2f} : {out['phase_thresholds_nm'][1]:.2f} N*m, "
+                     f"{out.get('phase_labels', '')})")
     lines += [f"{'wall time':>22s}  {out['wall_s']:.0f} s for {out['sim_s']:.0f} s simulated "
               f"({out['x_realtime']:.2f}x real time)",
               f"{'recording':>22s}  {out['recording']} ({out['frames_written']} frames, "
