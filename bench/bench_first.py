@@ -86,8 +86,9 @@ class BenchConfig:
     # the earlier rule (a fixed 0.15 rad refused, before the eighteenth session) are not mixed with these
     limit_tol_fraction: float = LIMIT_TOL_FRACTION
     sampler_seeding: str = SAMPLER_SEEDING  # the flow noise seeded per episode (policies/rollout/runner.py)
-    # the training's matmuls (factr2 train --precision): fp32, as the ledger's cells were trained
-    precision: str = "fp32"
+    # the training's matmuls (factr2 train --precision): auto, as the ledger's cells were trained since the
+    # twenty-third session (docs/first_cells_fp32_hysteresis.json: fp32 and the earlier labels)
+    precision: str = "auto"
     # the contact labeller (policies.phases.LABEL_RULE): cells labelled by an earlier rule are not mixed in
     labels: str = LABEL_RULE
 
@@ -433,8 +434,9 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
                     help="train TASK on these recorded folders (factr2 collect's) instead of collecting")
     ap.add_argument("--eval-seed", type=int, default=EVAL_SEED,
                     help=f"rollout seed (default {EVAL_SEED}); never one a choice was made on")
-    ap.add_argument("--precision", choices=("fp32", "bf16", "auto"), default="fp32",
-                    help="the trainings' matmuls (factr2 train --precision; default fp32: the ledger's)")
+    ap.add_argument("--precision", choices=("fp32", "bf16", "auto"), default="auto",
+                    help="the trainings' matmuls (factr2 train --precision; default auto, as the ledger "
+                         "docs/first_cells.json: bf16 where the CPU or GPU has it natively)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2: both cores here)")
     ap.add_argument("--threads", type=int, default=0,
                     help="torch threads per training run (default: cores / jobs)")

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The FIRST headline (issue #31, docs/first.md): first vs base-torque, 3 tasks x 3 training seeds x 32
-# rollouts on evaluation seed 15 (pre-registered), SIMULATED, PRIVILEGED state. It takes longer than one
-# working session on two cores, so it runs across sessions: every finished cell goes to the ledger
+# rollouts on evaluation seed 15 (pre-registered), SIMULATED, PRIVILEGED state. From nothing (collections
+# included) it ran in one session on two cores with bf16 training (--precision auto, the default; measured
+# in docs/first.md). A run stopped part-way resumes: every finished cell goes to the ledger
 # docs/first_cells.json (commit it), and a new session re-collects the same demonstrations (deterministic:
 # the same seeds and the committed NEXT checkpoint) and skips the ledger's cells.
 #

@@ -148,3 +148,15 @@ def test_a_ledger_from_before_precision_was_recorded_is_fp32(tmp_path):
     assert import_cells(tmp_path / "b", ledger, {"wipe": "f1"}, {**CONFIG, "precision": "fp32"})[0] == 1
     n, why = import_cells(tmp_path / "c", ledger, {"wipe": "f1"}, {**CONFIG, "precision": "bf16"})
     assert n == 0 and "other settings" in why[0]
+
+
+def test_cells_labelled_by_the_earlier_rule_are_not_mixed_with_contact_runs(tmp_path):
+    from policies.phases import LABEL_RULE
+
+    out, ledger = tmp_path / "a", tmp_path / "cells.json"
+    _cell(out, "wipe", "first", 0, [1])
+    export_cells(out, ledger, {"wipe": "f1"}, CONFIG)  # CONFIG has no labels: a ledger from before the rule
+    n, why = import_cells(tmp_path / "b", ledger, {"wipe": "f1"}, {**CONFIG, "labels": LABEL_RULE})
+    assert n == 0 and "other settings" in why[0]
+    with pytest.raises(SystemExit, match="another ledger"):
+        export_cells(out, ledger, {"wipe": "f1"}, {**CONFIG, "labels": LABEL_RULE})
