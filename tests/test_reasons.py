@@ -229,13 +229,15 @@ def test_threshold_sources_resume_the_same_whatever_their_messages_say(monkeypat
 
 def test_a_run_from_before_the_kind_was_stored_still_resumes():
     from policies.labelling import Thresholds, ThresholdSource
-    from policies.phases import PRE_CONTACT_S
+    from policies.phases import LABEL_RULE, PRE_CONTACT_S
     from policies.run import _compare
 
     new = Thresholds(0.5, 0.9, Reason.of(ThresholdSource.RECORDING, tared=True, episodes=2, samples=400),
                      "payload").to_dict()
-    old = {"t_low": 0.5, "t_high": 0.9, "pre_contact_s": PRE_CONTACT_S, "tare": "payload",
+    old = {"t_low": 0.5, "t_high": 0.9, "pre_contact_s": PRE_CONTACT_S, "tare": "payload", "rule": LABEL_RULE,
            "source": "recording: Otsu split of log ||tau_ext||_1, tared, 2 episodes, 399 samples"}
     assert "phases" not in _compare({"phases": old}, {"phases": new})  # same thresholds, same kind of source
+    # a run labelled before the contact runs (no rule stored) does not resume on the new labels
+    assert "phases" in _compare({"phases": {k: v for k, v in old.items() if k != "rule"}}, {"phases": new})
     assert "phases" in _compare({"phases": old | {"source": "given"}}, {"phases": new})  # another kind
     assert "phases" in _compare({"phases": old | {"t_high": 1.0}}, {"phases": new})
