@@ -149,7 +149,7 @@ def recorded_phase_shares(mcap: Path) -> tuple[dict | None, list | None, str]:
     import warnings
 
     from policies import labelling as L
-    from policies.phases import PHASE_NAMES
+    from policies.phases import PHASE_NAMES, phase_shares
     from policies.recordings import load_episodes
 
     try:
@@ -157,15 +157,13 @@ def recorded_phase_shares(mcap: Path) -> tuple[dict | None, list | None, str]:
             warnings.simplefilter("ignore")
             episodes, arms = load_episodes([mcap])
             th = L.resolve_thresholds("recording", None, episodes, arms)
-            counts = np.zeros(3)
-            for e in episodes:
-                counts += np.bincount(L.label_episode(e, arms, th).phases.astype(np.int64), minlength=3)[:3]
+            phases = np.concatenate([L.label_episode(e, arms, th).phases for e in episodes] or [[]])
     except UserError as e:
         return None, None, e.what
-    if not counts.sum():
+    if not len(phases):
         return None, None, "no labelled samples"
     keys = [n.replace("-", "_") for n in PHASE_NAMES]
-    return dict(zip(keys, (counts / counts.sum()).tolist())), [th.t_low, th.t_high], f"tare {th.tare}"
+    return dict(zip(keys, phase_shares(phases).tolist())), [th.t_low, th.t_high], f"tare {th.tare}"
 
 
 def summary_lines(out: dict) -> list[str]:
