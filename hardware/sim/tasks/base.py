@@ -85,6 +85,9 @@ class Task:
     episode_s: float = 30.0  # s: time limit of one demonstration
     scene_camera = "task_scene"  # MJCF camera names the task adds (rendered by the rig's cameras)
     wrist_camera = "wrist"
+    # the simulated pose detector's settings for this task (hardware/sim/perception.py PerceptionParams
+    # fields), over the defaults and under a rig's [twin.perception]; {}: the defaults
+    perception: dict = {}
 
     def add_objects(self, spec: mujoco.MjSpec, arm) -> None:
         raise NotImplementedError
@@ -105,6 +108,12 @@ class Task:
     def final_ok(self, obs: dict, params: dict, memory: dict) -> bool:
         """Whether the end state still holds the result (default: the last stage's condition now)."""
         return bool(self.detect(obs, params, dict(memory))[-1])
+
+    def detectables(self, model, data, params: dict) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """The TRUE poses (position [m] (3,), rotation (3, 3), world = robot base frame) of the objects a
+        camera-based pose estimator could report, by name (hardware/sim/perception.py perturbs them). Only
+        poses: no contact state, velocities, forces or hidden parameters."""
+        raise NotImplementedError(f"task {self.name} names no detectable objects (Task.detectables)")
 
     def check_arm(self, arm_name: str, where: str) -> None:
         if arm_name not in self.arms:
@@ -139,6 +148,15 @@ def set_static_pos(model, data, body: str, pos, yaw: float = 0.0) -> None:
         raise ValueError(f"task body {body!r} is not a mocap body")
     data.mocap_pos[k] = pos
     data.mocap_quat[k] = yaw_quat(yaw)
+
+
+def task_perception(task: Task, rig_table: dict | None = None, where: str = "[twin.perception]"):
+    """The detector settings of a task on a rig (PerceptionParams): defaults, then the task's own, then the
+    rig file's [twin.perception] table; ConfigError (one line) for a bad entry."""
+    from hardware.sim.perception import perception_params
+
+    own = perception_params(task.perception, where=f"task {task.name} perception")
+    return perception_params(rig_table, base=own, where=where)
 
 
 def yaw_quat(yaw: float) -> np.ndarray:

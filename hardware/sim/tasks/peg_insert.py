@@ -119,3 +119,6 @@ class PegInsert(B.Task):
 
     def final_ok(self, obs, params, memory) -> bool:  # inserted, whether or not still held
         return bool(detect_peg(obs)[2])
+
+    def detectables(self, model, data, params) -> dict:  # the peg, and the hole (the fixture's frame)
+        return {"peg": B.body_pose(model, data, "peg"), "hole": B.body_pose(model, data, "fixture")}

@@ -129,3 +129,6 @@ class PressFit(B.Task):
 
     def final_ok(self, obs, params, memory) -> bool:
         return bool(detect_press(obs)[2])
+
+    def detectables(self, model, data, params) -> dict:  # the block, and the base plate with its studs
+        return {"block": B.body_pose(model, data, "block"), "base": B.body_pose(model, data, "base")}

@@ -92,3 +92,6 @@ class Wipe(B.Task):
 
     def final_ok(self, obs, params, memory) -> bool:
         return bool(memory.get("covered", np.zeros(1)).mean() >= COVERAGE_MIN)
+
+    def detectables(self, model, data, params) -> dict:  # the mark (a printed patch: a tag-like target)
+        return {"mark": B.body_pose(model, data, "mark")}
