@@ -57,3 +57,19 @@ def test_task_then_rig_settings_override_the_defaults(monkeypatch):
     assert (p.bias_pos_m, p.rate_hz) == (0.004, 10.0)
     with pytest.raises(ConfigError, match="twin.perception"):
         task_perception(task, {"rate": 10.0}, where="sim-piper.toml: twin.perception")
+
+
+def test_rig_file_perception_table(tmp_path):
+    from hardware.rigs.rig import RIG_DIR, load_rig
+
+    text = (RIG_DIR / "sim-piper.toml").read_text()
+    good = tmp_path / "mine.toml"
+    good.write_text(text + "\n[twin.perception]\nbias_pos_m = 0.004\nlatency_s = 0.2\n")
+    rig = load_rig(good)
+    p = task_perception(get_task("peg-insert"), rig.twin.perception)
+    assert (p.bias_pos_m, p.latency_s) == (0.004, 0.2)
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text + "\n[twin.perception]\nbias_pos = 0.004\n")
+    with pytest.raises(ConfigError) as e:
+        load_rig(bad)
+    assert "twin.perception" in str(e.value) and str(bad) in str(e.value) and "\n" not in str(e.value)

@@ -11,7 +11,8 @@ A rig is a TOML file (built-in ones live next to this module; see docs/twin.md f
     [[cameras]]      name, source, width, height, fps
     [twin]           seed, effect ("MODULE:FUNCTION"), [twin.effects] (bool per actuator effect),
                      faults (["KIND@T[:DURATION]", ...]: hardware/sim/faults.py),
-                     description_error (bool, default true: the twin's arms are not their descriptions)
+                     description_error (bool, default true: the twin's arms are not their descriptions),
+                     [twin.perception] (the simulated pose detector's settings: hardware/sim/perception.py)
 
 load_rig(name_or_path) validates everything up front; every problem is a ConfigError naming the file, the
 field and the fix. Ports and channels of simulated rigs are "twin": open_rig/serve_twin fill in the twin's
@@ -34,6 +35,7 @@ from hardware.errors import ConfigError
 from hardware.registry import device_kind
 from hardware.sim.actuators import EFFECT_NAMES, ActuatorParams
 from hardware.sim.faults import parse_fault
+from hardware.sim.perception import perception_params
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -50,7 +52,7 @@ TOP_KEYS = {"rig", "leaders", "followers", "cameras", "twin", "pairs", "teleop"}
 RIG_KEYS = {"name", "description", "simulated"}
 CAMERA_KEYS = {"name": str, "source": str, "width": int, "height": int, "fps": float}
 TWIN_KEYS = {"seed", "effect", "effects", "physics_hz", "control_hz", "scene", "task", "description_error",
-             "faults"}
+             "faults", "perception"}
 
 
 @dataclass
@@ -120,6 +122,9 @@ class TwinSpec:
     # does (hardware/arms/true_body.py, per seed); false: the twin simulates the description exactly
     description_error: bool = True
     faults: tuple = ()  # hardware.sim.faults.FaultSpec to play, from ["KIND@T[:DURATION]", ...]
+    # the simulated pose detector's settings ([twin.perception]: PerceptionParams fields, hardware/sim/
+    # perception.py), over the defaults and the task's own; checked when the rig is loaded
+    perception: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -301,7 +306,9 @@ def _twin(t, f: str) -> TwinSpec:
                           where=f"{f}: twin.control_hz",
                           fix="use physics_hz / k for a whole k >= 1, e.g. 1000 or 500")
     eff = t.get("effect")
-    return TwinSpec(seed=_typed(t.get("seed", 0), int, f, "twin.seed"),
+    perception = _table(t.get("perception", {}), f, "twin.perception")
+    perception_params(perception, where=f"{f}: twin.perception")  # ConfigError (one line) when bad
+    return TwinSpec(perception=dict(perception), seed=_typed(t.get("seed", 0), int, f, "twin.seed"),
                     effect=None if eff is None else _typed(eff, str, f, "twin.effect"),
                     effects=dict(effects), physics_hz=hz, control_hz=chz,
                     scene=_typed(t.get("scene", "table"), str, f, "twin.scene"),
