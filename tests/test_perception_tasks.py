@@ -37,7 +37,7 @@ def test_detectables_are_true_poses_only(name):
 
 @pytest.mark.parametrize("name,pos_key,yaw_key,obj", [("peg-insert", "hole_pos", "hole_yaw", "hole"),
                                                      ("press-fit", "base_pos", "base_yaw", "base"),
-                                                     ("wipe", "area_pos", "area_yaw", "mark")])
+                                                     ("wipe", "area_pos", "area_yaw", "area")])
 def test_existing_tasks_report_their_targets(name, pos_key, yaw_key, obj):
     task = get_task(name)
     m = scene_model(load_arm("piper"), "table", task)

@@ -112,7 +112,9 @@ class Task:
     def detectables(self, model, data, params: dict) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """The TRUE poses (position [m] (3,), rotation (3, 3), world = robot base frame) of the objects a
         camera-based pose estimator could report, by name (hardware/sim/perception.py perturbs them). Only
-        poses: no contact state, velocities, forces or hidden parameters."""
+        poses: no contact state, velocities, forces or hidden parameters. Naming: an object `n` is the one
+        that observe() / the episode params hold as `n_pos`, `n_rot` or `n_yaw` (where they do), so that
+        what is seen can stand in for them (factr2_teleop/tasks/seen.py)."""
         raise NotImplementedError(f"task {self.name} names no detectable objects (Task.detectables)")
 
     def check_arm(self, arm_name: str, where: str) -> None:

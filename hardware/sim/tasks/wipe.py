@@ -94,4 +94,4 @@ class Wipe(B.Task):
         return bool(memory.get("covered", np.zeros(1)).mean() >= COVERAGE_MIN)
 
     def detectables(self, model, data, params) -> dict:  # the mark (a printed patch: a tag-like target)
-        return {"mark": B.body_pose(model, data, "mark")}
+        return {"area": B.body_pose(model, data, "mark")}
