@@ -41,6 +41,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hardware.dynamixel import protocol as p
+from hardware.dynamixel import watchdog as wd
 from hardware.dynamixel.fast_sync import FAST_SYNC_READ_MIN_FIRMWARE, build_fast_status
 from hardware.dynamixel.models import resolve_models
 from hardware.dynamixel.servo_table import FIRMWARE_VERSION, ServoTable
@@ -128,6 +129,8 @@ class DynamixelEmulator:
         self._stop = threading.Event()
         self._last_rx = time.monotonic()  # pty thread only (a real-time transport): partial-packet timeout
         self._tick_clock = clock or time.monotonic
+        self._wd_armed = False  # some servo has Bus Watchdog(98) > 0 and torque on (_watchdog_* below)
+        self.watchdog_trips: list[tuple[int, float]] = []  # (servo id, when it latched [s of the clock])
         self._refresh()  # power-on: latch each servo's turn base
         self._thread: threading.Thread | None = None
         if transport == "inprocess":
@@ -232,8 +235,11 @@ class DynamixelEmulator:
     # -- thread --------------------------------------------------------------------------------------
     def _run(self) -> None:
         while not self._stop.is_set():
+            wait = 0.02
+            if self._wd_armed:  # wake at the next watchdog deadline: the servo stops on time
+                wait = min(wait, max(0.0, self._watchdog_deadline() - self._tick_clock()))
             try:
-                ready, _, _ = select.select([self._master], [], [], 0.02)
+                ready, _, _ = select.select([self._master], [], [], wait)
             except (OSError, ValueError):
                 return
             with self._cv:
@@ -265,6 +271,8 @@ class DynamixelEmulator:
                 self._handle(pkt)
         elif self.parser.buf and now - self._last_rx > PARTIAL_TIMEOUT_S:
             self.parser.discard_partial()
+        if self._wd_armed:
+            self.poll_watchdogs()
 
     def _send(self, servo: ServoTable, pkt: bytes) -> None:
         if self.corrupt_prob and self._corrupt_rng.random() < self.corrupt_prob:
@@ -323,6 +331,8 @@ class DynamixelEmulator:
         if self.drop_prob > 0 and self._rng.random() < self.drop_prob:
             self.dropped += 1
             return
+        if self._wd_armed:
+            self._watchdog_rx()
         inst, prm = pkt.instruction, pkt.params
         if inst == p.INST_SYNC_READ or inst == p.INST_BULK_READ:
             self._chain_read(inst, prm)
@@ -361,6 +371,9 @@ class DynamixelEmulator:
         if inst == p.INST_REBOOT:
             self._write(s, p.ADDR_TORQUE_ENABLE[0], b"\x00")
             s.table[p.ADDR_HARDWARE_ERROR_STATUS[0]] = 0
+            s.table[wd.ADDR[0]] = 0  # RAM back to its defaults: the watchdog off, its error cleared
+            s.watchdog.latched = False
+            self._watchdog_rearm_state()
             s.turn_base = None
             self._refresh([s])
             return p.ERR_NONE, b""
@@ -373,6 +386,8 @@ class DynamixelEmulator:
             return err
         torque_before = s.torque_on
         s.store(addr, data)
+        if addr <= wd.ADDR[0] < addr + len(data) or addr <= p.ADDR_TORQUE_ENABLE[0] < addr + len(data):
+            self._watchdog_written(s)
         self._apply(s, torque_before, addr, addr + len(data))
         return p.ERR_NONE
 
@@ -489,6 +504,8 @@ class DynamixelEmulator:
             s = live.get(body[k])
             if s is None:
                 continue
+            if s.watchdog.latched:
+                continue  # Bus Watchdog Error: goals are read-only (a sync write has no status to say so)
             t, raw = s.table, body[k + 1 : k + 3]
             v = int.from_bytes(raw, "little", signed=True)
             if abs(v) > t[lim] | (t[lim + 1] << 8):
@@ -500,6 +517,63 @@ class DynamixelEmulator:
         if idx:
             with self._bank_lock:
                 self.bank.command_current(np.array(idx), np.array(amps))
+
+    # -- Bus Watchdog(98) (hardware/dynamixel/watchdog.py: the e-Manual's semantics) ------------------
+    def poll_watchdogs(self) -> None:
+        """Latch every servo whose watchdog expired by now (the pty thread calls this at each deadline; a
+        twin stepping an in-process emulator calls it every step; from any other thread a pty emulator's
+        call does nothing: its own thread keeps the deadlines)."""
+        if not self._wd_armed or (self._thread is not None and threading.get_ident() != self._thread.ident):
+            return
+        now = self._tick_clock()
+        for s in self.servos:  # (the serving thread, or the in-process caller's: never both)
+            if s.watchdog.expire(now, s.table[wd.ADDR[0]], s.torque_on):
+                self._watchdog_trip(s)
+
+    def _watchdog_deadline(self) -> float:
+        return min((s.watchdog.deadline(s.table[wd.ADDR[0]], s.torque_on) for s in self.servos),
+                   default=math.inf)
+
+    def _watchdog_rx(self) -> None:
+        """An instruction packet reached the servos: expire what ran out before it, then restart the timers
+        of the servos that heard it (a silent servo, cable out, hears nothing)."""
+        now = self._tick_clock()
+        silent, deaf = self.silent_ids, self.silent
+        for s in self.servos:
+            if s.watchdog.expire(now, s.table[wd.ADDR[0]], s.torque_on):
+                self._watchdog_trip(s)
+            if not deaf and s.id not in silent:
+                s.watchdog.last_rx_s = now
+
+    def _watchdog_trip(self, s: ServoTable) -> None:
+        """The servo stops: Bus Watchdog(98) reads -1; current mode outputs 0 A, position modes hold the
+        present position, other modes no torque. Torque Enable and Hardware Error Status are untouched."""
+        s.table[wd.ADDR[0]] = wd.ERROR_VALUE & 0xFF
+        self.watchdog_trips.append((s.id, float(s.watchdog.t_tripped)))
+        idx = np.array([s.index])
+        mode = s.table[p.ADDR_OPERATING_MODE[0]]
+        holds = mode in (p.OP_MODE_POSITION, p.OP_MODE_EXTENDED_POSITION, p.OP_MODE_CURRENT_BASED_POSITION)
+        if holds:
+            self._refresh([s])  # where it is now, not at the last read
+        with self._bank_lock:
+            if holds:
+                q = s.joint_angle(s.get(p.ADDR_PRESENT_POSITION, signed=True))
+                self.bank.command_position(idx, np.array([q]))
+            else:
+                self.bank.command_current(idx, np.zeros(1))
+        self._watchdog_rearm_state()
+
+    def _watchdog_written(self, s: ServoTable) -> None:
+        """Bus Watchdog(98) or Torque Enable(64) written: 0 clears a latched error; the timer starts now."""
+        if s.table[wd.ADDR[0]] == 0:
+            s.watchdog.latched = False
+        s.watchdog.last_rx_s = self._tick_clock()
+        self._watchdog_rearm_state()
+
+    def _watchdog_rearm_state(self) -> None:
+        a = wd.ADDR[0]
+        self._wd_armed = any(0 < s.table[a] <= wd.MAX_UNITS and s.torque_on and not s.watchdog.latched
+                             for s in self.servos)
 
 
 def _rint(x: float) -> int:

@@ -10,6 +10,7 @@ import struct
 import time
 
 from hardware.dynamixel import protocol as p
+from hardware.dynamixel import watchdog as wd
 from hardware.dynamixel.models import ServoModel
 
 FIRMWARE_VERSION = 52  # default Firmware Version(6) of an emulated servo (>= 45: has Fast Sync Read)
@@ -57,6 +58,8 @@ class ServoTable:
         self._put(p.ADDR_MAX_POSITION_LIMIT, 4095)
         self._put(p.ADDR_STATUS_RETURN_LEVEL, 2)
         self.turn_base: int | None = None  # ticks added to the raw angle so power-on reads [0, 4096)
+        self.watchdog = wd.BusWatchdogState()  # Bus Watchdog(98): hardware/dynamixel/watchdog.py
+        self.has_watchdog = wd.supported(model.name, firmware)
 
     def get(self, field: tuple[int, int], signed: bool = False) -> int:
         a, n = field
@@ -109,6 +112,11 @@ class ServoTable:
             return p.ERR_ACCESS
         if addr < p.EEPROM_END and self.torque_on:
             return p.ERR_ACCESS
+        if addr <= wd.ADDR[0] < end and not self.has_watchdog:
+            return p.ERR_ACCESS  # firmware before v38: no Bus Watchdog(98)
+        err = wd.write_error(data, self.watchdog.latched, addr)
+        if err:
+            return err
         g = p.ADDR_GOAL_CURRENT[0]
         if addr <= g and g + 2 <= end:
             if abs(p.from_le(data[g - addr : g - addr + 2], True)) > self.get(p.ADDR_CURRENT_LIMIT):

@@ -255,6 +255,8 @@ class Twin:
         self.steps = k
         for e in self._can_emus:
             e.emit(self.t)
+        for e in self._dxl_emus:  # the servos' Bus Watchdog on twin time (dynamixel/watchdog.py)
+            e.poll_watchdogs()
 
     def advance(self, t_target: float) -> int:
         """Step until sim time reaches t_target [s] (clock time when attached); returns steps taken."""

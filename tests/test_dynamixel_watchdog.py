@@ -1,0 +1,173 @@
+"""Bus Watchdog(98) against the ROBOTIS e-Manual's description (hardware/dynamixel/watchdog.py cites it):
+0 off / clears the error, 1..127 in 20 ms units, -1 the latched error; it monitors the interval between
+instruction packets while torque is on; on expiry the servo stops and the Goal values become read-only
+(Data Range Error) until 0 is written; from firmware v38 (every XL330)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hardware.dynamixel import protocol as p
+from hardware.dynamixel import watchdog as wd
+from hardware.dynamixel.emulator import DynamixelEmulator
+from hardware.sim.motors import MODE_CURRENT, MODE_POSITION, IdealMotorBank
+
+
+class Clock:
+    def __init__(self):
+        self.t = 10.0
+
+    def __call__(self):
+        return self.t
+
+
+def status(emu, dxl_id, inst, params=b""):
+    got = p.parse_packets(emu.serve(p.build_instruction(dxl_id, inst, params)))
+    return got[0] if got else None
+
+
+def write(emu, dxl_id, field, value):
+    return status(emu, dxl_id, p.INST_WRITE, p.le(field[0], 2) + p.le(value, field[1]))
+
+
+def read(emu, dxl_id, field, signed=False):
+    return p.from_le(status(emu, dxl_id, p.INST_READ, p.read_params(*field)).params, signed)
+
+
+@pytest.fixture
+def chain():
+    clock = Clock()
+    bank = IdealMotorBank(2, torque_constant=0.5, q0=np.array([0.4, -0.2]))
+    emu = DynamixelEmulator(bank, [1, 2], ["XL330-M288", "XM430-W350"], emulate_return_delay=False,
+                            operating_mode=p.OP_MODE_CURRENT, transport="inprocess", clock=clock,
+                            firmware=[52, 52])
+    yield clock, bank, emu
+    emu.close()
+
+
+def current_on(emu, bank, units=200):
+    for i in (1, 2):
+        assert write(emu, i, p.ADDR_TORQUE_ENABLE, 1).error == 0
+        assert write(emu, i, p.ADDR_GOAL_CURRENT, units).error == 0
+    assert np.all(bank.mode == MODE_CURRENT) and np.all(np.abs(bank.current_cmd) > 0)
+
+
+# -- the codec ---------------------------------------------------------------------------------------------
+def test_units_and_values():
+    assert wd.UNIT_S == 0.020 and wd.ADDR == (98, 1)
+    assert wd.units_for(wd.LEADER_PERIOD_S) == 5
+    assert wd.units_for(0.021) == 2 and wd.units_for(0.020) == 1 and wd.units_for(100.0) == 127
+    with pytest.raises(ValueError):
+        wd.units_for(0.0)
+    assert wd.period_s(5) == pytest.approx(0.1) and wd.period_s(0) is None and wd.period_s(0xFF) is None
+    assert wd.describe(0xFF).startswith("-1: tripped") and wd.describe(0) == "off"
+    assert wd.describe(5) == "5 x 20 ms = 100 ms"
+    assert wd.supported("XL330-M288", 10) and wd.supported("XM430-W350", 38)
+    assert not wd.supported("XM430-W350", 37)
+
+
+def test_write_rules():
+    goal = p.ADDR_GOAL_CURRENT[0]
+    assert wd.write_error(b"\x10\x00", latched=True, addr=goal) == p.ERR_DATA_RANGE
+    assert wd.write_error(b"\x10\x00", latched=False, addr=goal) == p.ERR_NONE
+    assert wd.write_error(bytes([128]), latched=False, addr=98) == p.ERR_DATA_RANGE  # 1..127 only
+    assert wd.write_error(bytes([0]), latched=True, addr=98) == p.ERR_NONE  # clearing is always allowed
+    assert wd.write_error(b"\x01", latched=True, addr=p.ADDR_LED[0]) == p.ERR_NONE  # not a goal
+
+
+# -- the emulated servo --------------------------------------------------------------------------------------
+def test_expiry_stops_latches_and_refuses_goals(chain):
+    clock, bank, emu = chain
+    current_on(emu, bank)
+    assert write(emu, 1, wd.ADDR, 5).error == 0 and write(emu, 2, wd.ADDR, 5).error == 0
+    assert read(emu, 1, wd.ADDR, signed=True) == 5
+    clock.t += 0.099
+    emu.poll_watchdogs()
+    assert np.all(np.abs(bank.current_cmd) > 0)  # not yet: 100 ms is the set value
+    clock.t += 0.002
+    emu.poll_watchdogs()
+    assert np.all(bank.current_cmd == 0.0)  # stopped: no current into the operator's hand
+    assert [i for i, _ in emu.watchdog_trips] == [1, 2]
+    assert emu.watchdog_trips[0][1] == pytest.approx(10.1)  # at its deadline
+    assert read(emu, 1, wd.ADDR, signed=True) == -1
+    assert read(emu, 1, p.ADDR_TORQUE_ENABLE) == 1  # torque stays enabled; the goal is what is refused
+    assert read(emu, 1, p.ADDR_HARDWARE_ERROR_STATUS) == 0
+    st = write(emu, 1, p.ADDR_GOAL_CURRENT, 300)
+    assert st.error == p.ERR_DATA_RANGE and not st.error & p.ERR_ALERT_BIT
+    emu.serve(p.build_instruction(p.BROADCAST_ID, p.INST_SYNC_WRITE,
+                                  p.sync_write_params(*p.ADDR_GOAL_CURRENT, {1: p.le(300, 2), 2: p.le(300, 2)})))
+    assert np.all(bank.current_cmd == 0.0)  # a sync write's goals are refused as well
+    assert write(emu, 1, wd.ADDR, 0).error == 0  # 0 clears the Bus Watchdog Error
+    assert read(emu, 1, wd.ADDR, signed=True) == 0
+    assert write(emu, 1, p.ADDR_GOAL_CURRENT, 300).error == 0
+    assert bank.current_cmd[0] != 0.0 and bank.current_cmd[1] == 0.0  # servo 2 is still latched
+
+
+def test_any_instruction_packet_feeds_it(chain):
+    clock, bank, emu = chain
+    current_on(emu, bank)
+    write(emu, 1, wd.ADDR, 5)
+    for _ in range(20):  # 1.2 s of pings (to another id) 60 ms apart: never 100 ms without a packet
+        clock.t += 0.06
+        status(emu, 2, p.INST_PING)
+        emu.poll_watchdogs()
+    assert emu.watchdog_trips == [] and bank.current_cmd[0] != 0.0
+    clock.t += 0.2  # then the host goes quiet; the late packet finds the servo latched at its deadline
+    st = write(emu, 1, p.ADDR_GOAL_CURRENT, 100)
+    assert st.error == p.ERR_DATA_RANGE and emu.watchdog_trips[0][0] == 1
+
+
+def test_silent_servo_hears_nothing(chain):
+    clock, bank, emu = chain
+    current_on(emu, bank)
+    write(emu, 1, wd.ADDR, 5)
+    emu.silent_ids = {1}  # its cable out: the host's packets do not reach it
+    for _ in range(3):
+        clock.t += 0.06
+        status(emu, 2, p.INST_PING)
+    assert emu.watchdog_trips and emu.watchdog_trips[0][0] == 1
+
+
+def test_not_monitored_with_torque_off(chain):
+    clock, bank, emu = chain
+    write(emu, 1, wd.ADDR, 1)
+    clock.t += 5.0
+    emu.poll_watchdogs()
+    assert emu.watchdog_trips == [] and read(emu, 1, wd.ADDR) == 1
+
+
+def test_reboot_clears_it(chain):
+    clock, bank, emu = chain
+    current_on(emu, bank)
+    write(emu, 2, wd.ADDR, 1)
+    clock.t += 0.05
+    emu.poll_watchdogs()
+    assert read(emu, 2, wd.ADDR, signed=True) == -1
+    assert status(emu, 2, p.INST_REBOOT).error == 0
+    assert read(emu, 2, wd.ADDR) == 0 and read(emu, 2, p.ADDR_TORQUE_ENABLE) == 0
+
+
+def test_position_mode_holds_where_it_is():
+    clock = Clock()
+    bank = IdealMotorBank(1, torque_constant=0.5, q0=np.array([0.3]))
+    emu = DynamixelEmulator(bank, [1], "XL330-M288", emulate_return_delay=False, transport="inprocess",
+                            clock=clock)
+    write(emu, 1, p.ADDR_TORQUE_ENABLE, 1)
+    write(emu, 1, p.ADDR_GOAL_POSITION, int(p.rad_to_ticks(1.5)))
+    write(emu, 1, wd.ADDR, 2)
+    bank.q[:] = 0.8  # on its way to the goal
+    clock.t += 0.05
+    emu.poll_watchdogs()
+    assert bank.mode[0] == MODE_POSITION and bank.q_d[0] == pytest.approx(0.8, abs=2e-3)
+    emu.close()
+
+
+def test_old_firmware_refuses_the_write():
+    bank = IdealMotorBank(2)
+    emu = DynamixelEmulator(bank, [1, 2], ["XM430-W350", "XL330-M288"], emulate_return_delay=False,
+                            transport="inprocess", firmware=[37, 37])
+    assert write(emu, 1, wd.ADDR, 5).error == p.ERR_ACCESS  # XM430 before v38: no Bus Watchdog
+    assert write(emu, 2, wd.ADDR, 5).error == 0  # every XL330 has it
+    assert write(emu, 2, wd.ADDR, 200).error == p.ERR_DATA_RANGE
+    emu.close()
