@@ -95,8 +95,9 @@ def test_expiry_stops_latches_and_refuses_goals(chain):
     assert read(emu, 1, p.ADDR_HARDWARE_ERROR_STATUS) == 0
     st = write(emu, 1, p.ADDR_GOAL_CURRENT, 300)
     assert st.error == p.ERR_DATA_RANGE and not st.error & p.ERR_ALERT_BIT
-    emu.serve(p.build_instruction(p.BROADCAST_ID, p.INST_SYNC_WRITE,
-                                  p.sync_write_params(*p.ADDR_GOAL_CURRENT, {1: p.le(300, 2), 2: p.le(300, 2)})))
+    goals = {1: p.le(300, 2), 2: p.le(300, 2)}
+    prm = p.sync_write_params(*p.ADDR_GOAL_CURRENT, goals)
+    emu.serve(p.build_instruction(p.BROADCAST_ID, p.INST_SYNC_WRITE, prm))
     assert np.all(bank.current_cmd == 0.0)  # a sync write's goals are refused as well
     assert write(emu, 1, wd.ADDR, 0).error == 0  # 0 clears the Bus Watchdog Error
     assert read(emu, 1, wd.ADDR, signed=True) == 0
@@ -171,3 +172,80 @@ def test_old_firmware_refuses_the_write():
     assert write(emu, 2, wd.ADDR, 5).error == 0  # every XL330 has it
     assert write(emu, 2, wd.ADDR, 200).error == p.ERR_DATA_RANGE
     emu.close()
+
+
+# -- the leader driver: set at connect, read back, cleared on reconnect, re-armed after a freeze
+def leader_on(emu_kw=None, model="XL330-M288"):
+    from hardware.clock import LockstepClock
+    from hardware.dynamixel.config import DynamixelLeaderConfig
+    from hardware.dynamixel.leader import DynamixelLeader
+    from hardware.types import JointLimits
+
+    clock = LockstepClock(5.0)
+    bank = IdealMotorBank(2, torque_constant=0.35, q0=np.array([0.1, -0.2]))
+    emu = DynamixelEmulator(bank, [1, 2], model, emulate_return_delay=False, transport="inprocess",
+                            clock=clock.now, **(emu_kw or {}))
+    lim = JointLimits(q_min=np.full(2, -5.0), q_max=np.full(2, 5.0), v_max=np.full(2, 10.0),
+                      tau_max=np.full(2, 0.3), tau_rate_max=np.full(2, 1e4))
+    cfg = DynamixelLeaderConfig(port=emu.port_path, ids=[1, 2], signs=[1, 1], offsets_rad=[0.0, 0.0],
+                                gripper_id=None, model=model, loop_hz=10.0, rx_timeout_ms=30.0)
+    return clock, bank, emu, DynamixelLeader(cfg, lim, clock=clock)
+
+
+def test_leader_sets_and_reads_back_the_watchdog():
+    clock, bank, emu, leader = leader_on()
+    leader.connect()
+    try:
+        assert leader.fallback.ok and leader.fallback.read_back == {1: 5, 2: 5}
+        assert all(s.table[98] == 5 for s in emu.servos)
+        assert "100 ms" in leader.fallback_lines()[0]
+    finally:
+        leader.disconnect()
+        emu.close()
+
+
+def test_leader_clears_a_latched_watchdog_on_connect():
+    clock, bank, emu, leader = leader_on()
+    s = emu.servo(2)  # a previous app crashed: the servo latched
+    s.table[98], s.watchdog.latched = 0xFF, True
+    leader.connect()
+    try:
+        assert leader.fallback.ok and not s.watchdog.latched and s.table[98] == 5
+    finally:
+        leader.disconnect()
+        emu.close()
+
+
+def test_leader_on_a_servo_that_refuses_says_what_it_means():
+    clock, bank, emu, leader = leader_on({"firmware": [52, 37]}, model="XM430-W350")
+    leader.connect()
+    try:
+        assert leader.fallback.refused.keys() == {2} and not leader.fallback.ok
+        said = [w for w in leader.warnings if "Bus Watchdog not set" in w]
+        assert len(said) == 1 and "id 2" in said[0] and "until its power is cut" in said[0]
+        assert said[0] in leader.fallback_lines()
+    finally:
+        leader.disconnect()
+        emu.close()
+
+
+def test_leader_recovers_after_a_freeze():
+    clock, bank, emu, leader = leader_on()
+    leader.connect()
+    try:
+        for _ in range(5):
+            clock._t += 0.002
+            leader.read()
+            leader.command_torque(np.array([0.2, -0.2]))
+        assert np.all(bank.current_cmd != 0)
+        clock._t += 2.0  # the app is stopped (SIGSTOP) for 2 s: the servos stop by themselves
+        emu.poll_watchdogs()
+        assert np.all(bank.current_cmd == 0) and all(s.watchdog.latched for s in emu.servos)
+        assert [t for _, t in emu.watchdog_trips] == pytest.approx([clock._t - 2.0 + 0.1] * 2, abs=1e-9)
+        clock._t += 0.002
+        leader.read()  # the app's own watchdog zeroes the torque: that write re-arms the servos first
+        assert leader._wd.rearms == 1 and all(s.table[98] == 5 and not s.watchdog.latched for s in emu.servos)
+        assert write(emu, 1, p.ADDR_GOAL_CURRENT, 100).error == 0 and bank.current_cmd[0] != 0  # obeyed
+    finally:
+        leader.disconnect()
+        emu.close()

@@ -22,6 +22,7 @@ import numpy as np
 
 from hardware.clock import Clock
 from hardware.dynamixel import protocol as p
+from hardware.dynamixel import watchdog as wd
 from hardware.dynamixel.alerts import AlertRebooter
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.config import DynamixelLeaderConfig
@@ -96,6 +97,8 @@ def trigger_fraction(q_servo_rad: float, open_rad: float, closed_rad: float) -> 
 class DynamixelLeader(Leader):
     """Leader role over a Dynamixel chain. warnings: start-up problems found by connect() (also logged)."""
 
+    wrap_period_rad = TWO_PI  # single-turn encoders: the turn is inferred, so a reading can be one off
+
     def __init__(
         self,
         config: DynamixelLeaderConfig,
@@ -162,6 +165,9 @@ class DynamixelLeader(Leader):
         self._q_servo: np.ndarray | None = None
         self._torque_on = False
         self.alerts = AlertRebooter()  # reboots a servo whose hardware alert lasts (dynamixel/alerts.py)
+        self.fallback: wd.ArmResult | None = None  # the servos' Bus Watchdog as set and read back at connect
+        self._wd: wd.BusWatchdogKeeper | None = None
+        self._wd_reboots = 0  # servo reboots seen by the keeper (a reboot turns the watchdog off)
 
     # -- connect -------------------------------------------------------------------------------------
     @property
@@ -193,6 +199,7 @@ class DynamixelLeader(Leader):
         joint_ids = list(c.ids)
         for i, dxl_id in enumerate(joint_ids):
             bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 0)  # EEPROM is writable only with torque off
+            self._clear_watchdog(bus, dxl_id)  # a crashed app's latched watchdog refuses the goal below
             info = self.servo_info[dxl_id]
             for field, want, key in (
                 (p.ADDR_RETURN_DELAY_TIME, 0, "return_delay"),
@@ -232,6 +239,7 @@ class DynamixelLeader(Leader):
         for dxl_id in joint_ids:
             bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 1)
         self._torque_on = True
+        self._arm_watchdog(bus, joint_ids)
         zero = {i: p.le(0, 2) for i in joint_ids}
         self.round_trip_s, complete = bus.measure_round_trip(
             self._read_group, self.read_ids, self.rx_timeout_ms, self._write_group, zero, fast=self.fast_read
@@ -320,6 +328,8 @@ class DynamixelLeader(Leader):
         n, rc = self.n_joints, self.config.read_current
         got = self.bus.sync_read(self._read_group, self.read_ids, self.rx_timeout_ms, self.fast_read)
         if len(got) == len(self.read_ids):
+            if self._wd is not None:
+                self._wd.traffic(self.clock.now())  # the servos heard this tick
             return self._state_all_fresh(got)
         prev = self._last_state  # some servos did not answer: they keep the previous sample, flagged stale
         m = len(self.read_ids)  # joints, then the trigger (if any)
@@ -402,9 +412,56 @@ class DynamixelLeader(Leader):
             raise DeviceError(
                 "leader is not connected", where=f"leader {self.config.name}", fix="call connect() first"
             )
+        if self._wd is not None:
+            self._keep_watchdog()
         units = torque_to_current_units(safe.tau, self.signs, self.k, self.amps_per_unit, self.limit_units)
         if not self.bus.sync_write_ints(self._write_group, units.tolist()):
             self.failed_writes += 1
+
+    # -- the servos' own fallback: Bus Watchdog(98) (hardware/dynamixel/watchdog.py) -------------------------
+    def _clear_watchdog(self, bus: DynamixelBus, dxl_id: int) -> None:
+        """Clear a Bus Watchdog Error a previous app left latched (its goals would be refused); a servo
+        without the register is reported by _arm_watchdog."""
+        if wd.supported(self.servo_info[dxl_id]["model"], self.servo_info[dxl_id]["firmware"]):
+            bus.write(dxl_id, wd.ADDR, 0)
+
+    def _arm_watchdog(self, bus: DynamixelBus, joint_ids: list[int]) -> None:
+        """Set every joint servo's Bus Watchdog (wd.LEADER_PERIOD_S), read it back; a servo that refuses
+        gets the one-line warning of what that means for the operator."""
+        res = wd.arm_bus_watchdog(bus, joint_ids, wd.LEADER_PERIOD_S)
+        self.fallback = res
+        if res.refused:
+            self._warn(wd.refusal_line(self.config.name, res))
+        armed = [i for i in joint_ids if i not in res.refused]
+        self._wd = wd.BusWatchdogKeeper(armed, res.units) if armed else None
+        if self._wd is not None:
+            self._wd.traffic(self.clock.now())
+
+    def _keep_watchdog(self) -> None:
+        """Before a goal write: re-arm the servos after a gap long enough for them to have latched (an app
+        freeze, a slow start, a silent chain), or after a reboot (it turns the watchdog off)."""
+        k, now = self._wd, self.clock.now()
+        reboots = sum(self.alerts.counts.values())
+        if reboots != self._wd_reboots and not self.alerts.rebooted:
+            self._wd_reboots = reboots
+            k.mark_due()
+        if k.rearm_if_due(self.bus, now):
+            log.info("leader %s: Bus Watchdog re-armed (%d)", self.config.name, k.rearms)
+
+    def fallback_lines(self) -> list[str]:
+        """The servos' own fallback as read back at connect (doctor, start-up summary)."""
+        res = self.fallback
+        if res is None:
+            return [f"leader {self.config.name}: Bus Watchdog not set (not connected)"]
+        ok = {i: v for i, v in res.read_back.items() if i not in res.refused}
+        out = []
+        if ok:
+            out.append(f"leader {self.config.name}: Bus Watchdog(98) read back on servo ids "
+                       f"{sorted(ok)}: {wd.describe(res.units)} (set {res.units}); the servo stops "
+                       "(0 current) when the app is silent that long")
+        if res.refused:
+            out.append(wd.refusal_line(self.config.name, res))
+        return out
 
     def _disconnect_bus(self) -> None:
         bus, self.bus = self.bus, None

@@ -184,6 +184,10 @@ class BusWatchdogKeeper:
             self._due = True
         self.last_tx_s = now
 
+    def mark_due(self) -> None:
+        """Re-arm before the next goal write (a servo was rebooted: its watchdog is off again)."""
+        self._due = True
+
     def rearm_if_due(self, bus, now: float) -> bool:
         """Before a goal write: clear and set again where the servos may have latched. True when it did."""
         if not self._due or not self.units:
