@@ -205,7 +205,7 @@ def _episode_samples(
         action.append(act)
         if force == "current":
             force_parts.append(interp_linear(js.t, js.fields["current"], grid))
-    labels = label_episode(ep, arms, th, next_model)
+    labels = label_episode(ep, arms, th, next_model) if th is not None else None  # None: no force at all
     if force == "tau_ext":
         force_parts.append(interp_linear(labels.t, labels.tau_ext, grid))
     state, action = np.concatenate(state, axis=1), np.concatenate(action, axis=1)
@@ -232,7 +232,7 @@ def _episode_samples(
         "action": a,
         "mask": m,
         "force_chunk": fc,
-        "phase": labels.at(grid[keep]),
+        "phase": labels.at(grid[keep]) if labels is not None else np.zeros(len(keep), np.int8),
         "source": source_on_grid(ep, grid[keep]),
         "frame_idx": fidx[keep],
         **({"objects": ovals[keep]} if objects else {}),

@@ -47,12 +47,18 @@ class ArmSet:
         }
 
 
-def recording_files(paths) -> list[Path]:
+def recording_files(paths, lerobot_map: str | None = None) -> list[Path]:
     """Every .mcap under the given files/folders (folders: their .mcap files, not recursive), sorted; in a
-    folder, a damaged file whose `factr2 recover` copy is beside it is left out (the copy holds its data)."""
+    folder, a damaged file whose `factr2 recover` copy is beside it is left out (the copy holds its data).
+    A LeRobotDataset folder is read as its converted recording (hardware/importers/lerobot.py; lerobot_map:
+    its --lerobot-map)."""
+    from hardware.importers.lerobot import is_lerobot_dataset, lerobot_recordings
+
     out: list[Path] = []
     for p in map(Path, paths):
-        if p.is_dir():
+        if is_lerobot_dataset(p):
+            out += lerobot_recordings(p, lerobot_map)
+        elif p.is_dir():
             out += drop_superseded(sorted(
                 f for f in p.iterdir() if f.is_file() and f.suffix == ".mcap" and ".tmp-" not in f.name
             ))
@@ -100,9 +106,11 @@ def arm_set(rec: Recording) -> ArmSet:
     return ArmSet(tuple(followers), tuple(joints), tuple(_rig_arm_models(rec, followers)))
 
 
-def load_episodes(paths, *, keep_discarded: bool = False) -> tuple[list[Episode], ArmSet]:
-    """All usable episodes of the recordings under `paths`, and their common arm set."""
-    files = recording_files(paths)
+def load_episodes(paths, *, keep_discarded: bool = False, lerobot_map: str | None = None
+                  ) -> tuple[list[Episode], ArmSet]:
+    """All usable episodes of the recordings under `paths` (LeRobotDataset folders too), and their common
+    arm set."""
+    files = recording_files(paths, lerobot_map)
     if not files:
         raise UserError(
             "no recordings (.mcap) found",

@@ -13,6 +13,7 @@ import torch
 
 from calibration.next.ident import format_ids
 from hardware.errors import UserError
+from hardware.recording import schemas as S
 from hardware.recording.cache import cache_key
 from hardware.recording.session import software_version
 from policies import checkpoint as C
@@ -85,7 +86,7 @@ def _check_out(o: RunOptions):
 def _load(o: RunOptions):
     """The run's episodes (only those o.episodes names, when it names some), their arm set, and the
     episodes skipped as failed or incomplete ([{"episode": id, "why": ...}])."""
-    episodes, arms = load_episodes(o.inputs)
+    episodes, arms = load_episodes(o.inputs, lerobot_map=o.lerobot_map or None)
     if o.episodes is not None:
         keep = set(o.episodes)
         episodes = [e for e in episodes if episode_id(e) in keep]
@@ -107,7 +108,30 @@ def precheck(o: RunOptions) -> None:
     """The cheap checks, once, before worker processes start (--nproc): folder, recordings, thresholds."""
     _check_out(o)
     episodes, arms, _ = _load(o)
-    resolve_thresholds(o.thresholds, load_next(o.next) if o.next is not None else None, episodes, arms)
+    _thresholds(o.resolved(), load_next(o.next) if o.next is not None else None, episodes, arms)
+
+
+NO_FORCE_PHASES = {"source": "none: no force-like signal in the recordings, every sample free",
+                   "source_kind": None}
+
+
+def _thresholds(o: RunOptions, next_model, episodes, arms):
+    """The contact thresholds, or None for episodes without any force-like signal (a LeRobotDataset
+    without effort / current / tau_ext) and no --next: their samples are all free, and a method that needs
+    a force input or FIRST's re-sampling is refused here with the reason."""
+    if next_model is not None or any(
+            S.tau_ext_topic(arms.followers[0]) in ep.recording.topics for ep in episodes):
+        return resolve_thresholds(o.thresholds, next_model, episodes, arms)
+    m = METHODS[o.method]
+    if m.force or len(set(o.ratio)) > 1:
+        raise UserError(
+            f"--method {o.method}" + (f" --ratio {format_ratio(o.ratio)}" if not m.force else "")
+            + " needs FIRST phase labels or a force input, and these episodes have no force-like signal "
+            "(no tau_ext, effort or current)",
+            where=", ".join(map(str, o.inputs)),
+            fix="train a base method (--method base), or bring data with joint effort or motor current "
+            "(docs/bringing_data.md)")
+    return None
 
 
 def prepare(o: RunOptions, d: Dist):
@@ -123,7 +147,7 @@ def prepare(o: RunOptions, d: Dist):
         )
     episodes, arms, skipped = _load(o)
     next_model = load_next(o.next) if o.next is not None else None
-    th = resolve_thresholds(o.thresholds, next_model, episodes, arms)
+    th = _thresholds(o, next_model, episodes, arms)
     pcfg = o.policy_config()
 
     def build():
@@ -160,7 +184,7 @@ def prepare(o: RunOptions, d: Dist):
         **o.to_meta(pcfg),  # the configuration (policies.run_config)
         "features": data.names.to_dict(),
         "preprocess": data.pre.to_dict(),  # normaliser + image path: the rollout rebuilds exactly this
-        "phases": th.to_dict(),
+        "phases": th.to_dict() if th is not None else NO_FORCE_PHASES,
         "next_checkpoint": str(next_model.id) if next_model is not None else format_ids(named_next),
         "tau_ext_source": "offline" if next_model is not None else "recorded",
         "data_hash": data_hash(episodes),

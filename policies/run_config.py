@@ -219,6 +219,10 @@ class RunOptions:
     next: Path | None = option(None, resume="phases", flag=Flag("--next", NEXT_HELP, type=Path,
                                                                 metavar="CKPT"))
     thresholds: object = option(None, resume="phases", flag=ThresholdsFlag("--thresholds"))
+    lerobot_map: str = option("", resume="data_hash", flag=Flag(
+        "--lerobot-map", "LeRobotDataset inputs: ROLE=KEY,... over the default feature names (state, "
+        "action, velocity, effort, current, tau_ext; KEY none drops one; angles=deg; docs/bringing_data.md)",
+        metavar="ROLE=KEY,..."))
     rate_hz: float | None = option(None, resume="rate_hz", flag=Flag(
         "--rate", "policy rate (default: the camera rate)", type=float, unit="Hz"))
     resume: bool = option(False, flag=Switch("--resume",

@@ -14,9 +14,12 @@ HELP = "list, show, trim, delete, merge or phase-label recorded episodes"
 def add_arguments(parser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     p = sub.add_parser("list", help="one line per episode: outcome, duration, samples, contact share")
-    p.add_argument("path", type=Path, help="a folder of recordings (.mcap, .npz) or one file")
+    p.add_argument("path", type=Path, help="a folder of recordings (.mcap, .npz), one file, or a "
+                   "LeRobotDataset folder")
+    _lerobot_map(p)
     p = sub.add_parser("show", help="metadata, topics, cameras, episodes and events of one recording")
     p.add_argument("path", type=Path)
+    _lerobot_map(p)
     p = sub.add_parser("trim", help="keep only [--start, --end] seconds of one episode")
     p.add_argument("path", type=Path)
     p.add_argument("--episode", type=int, required=True)
@@ -37,13 +40,26 @@ def add_arguments(parser) -> None:
     add_label_arguments(p)
     p.add_argument("--out", type=Path, default=None,
                    help="folder for the PNGs (default: phases/ beside the first recording)")
+    _lerobot_map(p)
+
+
+def _lerobot_map(p) -> None:
+    p.add_argument("--lerobot-map", default=None, metavar="ROLE=KEY,...",
+                   help="LeRobotDataset folders: feature names over the defaults (docs/bringing_data.md)")
+
+
+def _converted(path: Path, args) -> Path:
+    """A LeRobotDataset folder -> its converted recording (hardware/importers/lerobot.py); else path."""
+    from hardware.importers.lerobot import is_lerobot_dataset, lerobot_recordings
+
+    return lerobot_recordings(path, args.lerobot_map)[0] if is_lerobot_dataset(path) else path
 
 
 def run(args) -> int:
     if args.action == "list":
-        print(E.format_rows(E.list_episodes(args.path)))
+        print(E.format_rows(E.list_episodes(_converted(args.path, args))))
     elif args.action == "show":
-        print(E.show(args.path))
+        print(E.show(_converted(args.path, args)))
     elif args.action == "trim":
         print(E.trim_episode(args.path, args.episode, args.start, args.end, args.output).summary())
     elif args.action == "delete":
@@ -61,7 +77,7 @@ def _phases(args) -> None:
     from policies.recordings import load_episodes
 
     given = thresholds_arg(args)
-    episodes, arms = load_episodes(args.path)
+    episodes, arms = load_episodes(args.path, lerobot_map=args.lerobot_map)
     model = L.load_next(args.next) if args.next is not None else None
     th = L.resolve_thresholds(given, model, episodes, arms)
     labels = [L.label_episode(ep, arms, th, model) for ep in episodes]  # all checked before any PNG

@@ -24,6 +24,8 @@ def add_arguments(parser) -> None:
                    help="rows per second (default: the camera's rate in the rig file; no cameras: 30)")
     add_label_arguments(p)
     p.add_argument("--robot-type", default="", help="info.json robot_type (default: factr2)")
+    p.add_argument("--lerobot-map", default=None, metavar="ROLE=KEY,...",
+                   help="LeRobotDataset inputs: feature names over the defaults (docs/bringing_data.md)")
 
 
 def run(args) -> int:
@@ -36,7 +38,7 @@ def run(args) -> int:
         raise UserError(f"--fps must be >= 1, got {args.fps}")
     if args.out.exists():
         raise UserError("output folder exists", where=str(args.out), fix="name a new --out folder")
-    episodes, arms = load_episodes(args.inputs)
+    episodes, arms = load_episodes(args.inputs, lerobot_map=args.lerobot_map)
     model = load_next(args.next) if args.next is not None else None
     th = resolve_thresholds(given, model, episodes, arms)
     info = export_lerobot(episodes, arms, args.out, th, model, args.fps, args.robot_type)
