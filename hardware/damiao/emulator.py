@@ -33,7 +33,8 @@ class DamiaoEmulator(CanEmulatorIO):
 
     def __init__(self, bus: can.BusABC, bank, ids: list[int], models: list[str], *,
                  master_ids: list[int] | None = None, drop_prob: float = 0.0, seed: int = 0,
-                 timeout_kd: float = TIMEOUT_KD, timeout_reg: int = 0, ctrl_mode: int = D.CTRL_MODE_MIT):
+                 timeout_kd: float = TIMEOUT_KD, timeout_reg: int = 0, ctrl_mode: int = D.CTRL_MODE_MIT,
+                 read_only_rids: frozenset = frozenset()):
         if len(ids) != bank.n or len(models) != bank.n:
             raise ValueError(f"DamiaoEmulator: {len(ids)} ids / {len(models)} models for a bank of {bank.n}")
         self._init_io(bus, drop_prob, seed)
@@ -56,6 +57,8 @@ class DamiaoEmulator(CanEmulatorIO):
         self.timed_out = np.zeros(n, dtype=bool)
         self.counters = D.RejectCounters()
         self.timeouts = 0
+        self.t_timed_out = np.full(n, np.nan)  # when each motor last fell back to damping [s]
+        self.read_only_rids = frozenset(read_only_rids)  # fault: writes keep the old value (old firmware)
 
     @property
     def decode_errors(self) -> int:
@@ -140,7 +143,7 @@ class DamiaoEmulator(CanEmulatorIO):
         if rid not in regs:
             self.ignored += 1
             return None
-        if op == D.REG_WRITE:
+        if op == D.REG_WRITE and rid not in self.read_only_rids:
             regs[rid] = value
             if rid in (D.RID_PMAX, D.RID_VMAX, D.RID_TMAX):
                 self.ranges[k] = D.MotorRanges(regs[D.RID_PMAX], regs[D.RID_VMAX], regs[D.RID_TMAX])
@@ -176,6 +179,7 @@ class DamiaoEmulator(CanEmulatorIO):
                 self.bank.command_mit(np.array([k]), np.array([q]), np.zeros(1), np.zeros(1),
                                       np.array([self.timeout_kd]), np.zeros(1))
                 self.timed_out[k] = True
+                self.t_timed_out[k] = self.last_cmd_t[k] + reg * D.TIMEOUT_UNIT_S
                 self.timeouts += 1
         return 0
 

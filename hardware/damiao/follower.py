@@ -12,6 +12,8 @@ flowing and a lost frame cannot leave a stiff command active. Disconnect: dampin
 
 from __future__ import annotations
 
+import logging
+
 import numpy as np
 
 from hardware.can_bus import CanLink, bus_load, open_bus
@@ -25,6 +27,7 @@ from hardware.types import STATUS_HOLD, STATUS_STALE, JointLimits, JointState
 
 HOLD_RESEND_S = 0.02  # s: the damping command is repeated this often while on hold
 REGISTER_TRIES = 5  # a register read is retried this often before the motor counts as absent
+log = logging.getLogger("factr2.damiao")
 STARTUP_RIDS = (D.RID_CTRL_MODE, D.RID_PMAX, D.RID_VMAX, D.RID_TMAX)
 
 
@@ -78,6 +81,8 @@ class DamiaoFollower(Follower):
         self._q_cmd = np.full(n, np.nan)
         self._grip_target = float("nan")  # motor angle [rad]
         self._hold: SafeFollowerCommand | None = None
+        self.fallback: dict[int, float | None] = {}  # slave id -> command timeout read back at connect [s]
+        self.warnings: list[str] = []
         self._t_hold_sent = float("nan")
 
     # -- connection --------------------------------------------------------------------------------------
@@ -107,7 +112,8 @@ class DamiaoFollower(Follower):
                 r = self.registers[k]
                 self.ranges[k] = D.MotorRanges(float(r[D.RID_PMAX]), float(r[D.RID_VMAX]),
                                                float(r[D.RID_TMAX]))
-                self._write_register(k, D.RID_TIMEOUT, D.timeout_register(c.timeout_ms * 1e-3))
+                self._set_timeout(k)
+            self._say_timeout_refusals()
             t0 = self.clock.now()
             enabling = True
             missing = list(self.slave_ids)
@@ -146,6 +152,43 @@ class DamiaoFollower(Follower):
             self._to_wire(self._hold)
         self._last_state = self._build_state(self.clock.now())
         self.safety.watchdog.feed_feedback(self._last_state.t)
+
+    # -- the motors' own fallback: the command timeout (register 9) ------------------------------------------
+    def _set_timeout(self, k: int) -> None:
+        """Write register 9 (config.timeout_ms) and read it back: fallback[sid] is what the motor holds
+        [s] (None: no answer)."""
+        sid, want = self.slave_ids[k], D.timeout_register(self.config.timeout_ms * 1e-3)
+        self._register_round_trip(k, D.encode_reg_write(sid, D.RID_TIMEOUT, want), D.RID_TIMEOUT)
+        try:
+            got = int(self._read_register(k, D.RID_TIMEOUT))
+        except DeviceNotFound:
+            got = None
+        self.registers[k][D.RID_TIMEOUT] = got
+        self.fallback[sid] = None if got is None else got * D.TIMEOUT_UNIT_S
+
+    def _say_timeout_refusals(self) -> None:
+        """One line for the motors whose timeout is not what was written: what that means for the operator."""
+        want = D.timeout_register(self.config.timeout_ms * 1e-3) * D.TIMEOUT_UNIT_S
+        bad = [f"id {sid} ({'no answer' if v is None else 'off' if v == 0 else f'{1e3 * v:.0f} ms'})"
+               for sid, v in self.fallback.items() if v is None or abs(v - want) > 1e-9]
+        if bad:
+            msg = (f"follower {self.config.name}: command timeout (register 9 = {1e3 * want:.0f} ms) not set "
+                   f"on motor {', '.join(bad)}: if this app dies, that motor keeps its last MIT command "
+                   "(stiff at the last target, with its last torque) until its power is cut -- keep the "
+                   "e-stop within reach; check the motor's firmware with the Damiao tool")
+            self.warnings.append(msg)
+            log.warning(msg)
+
+    def fallback_lines(self) -> list[str]:
+        """The motors' own fallback as read back at connect (doctor, start-up summary)."""
+        if not self.fallback:
+            return [f"follower {self.config.name}: command timeout not set (not connected)"]
+        ok = {sid: v for sid, v in self.fallback.items() if v}
+        out = [f"follower {self.config.name}: command timeout (register 9) read back "
+               + ", ".join(f"id {sid} {1e3 * v:.0f} ms" for sid, v in ok.items())
+               + "; a motor without commands that long drops to damping (kp 0, its firmware's kd)"
+               ] if ok else []
+        return out + [w for w in self.warnings if "command timeout" in w]
 
     def _motor_errors(self) -> list[tuple[int, int]]:
         """(slave id, ERR nibble) of every motor's latest feedback."""

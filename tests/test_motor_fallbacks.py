@@ -1,0 +1,51 @@
+"""The motors' own fallbacks other than the Dynamixel watchdog (tests/test_dynamixel_watchdog.py): the Damiao
+command timeout (register 9, 50 us units; the motor drops to damping), set and read back at connect, and the
+one line for a motor that does not take it; the Piper, whose firmware offers none."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_damiao_driver import DT, Q0, Rig
+
+from hardware.damiao import protocol as D
+from hardware.types import FollowerCommand
+
+
+def test_damiao_timeout_read_back_at_connect():
+    r = Rig(timeout_ms=50.0)
+    r.f.connect()
+    try:
+        assert r.f.fallback == {i: pytest.approx(0.05) for i in [1, 2, 3, 4, 5, 6, 7]}
+        assert all(regs[D.RID_TIMEOUT] == 1000 for regs in r.emu.registers)
+        lines = r.f.fallback_lines()
+        assert len(lines) == 1 and "id 1 50 ms" in lines[0] and "damping" in lines[0] and not r.f.warnings
+    finally:
+        r.close()
+
+
+def test_damiao_motor_that_keeps_its_old_timeout_gets_one_line():
+    r = Rig()
+    r.emu.read_only_rids = frozenset({D.RID_TIMEOUT})  # a firmware that does not take the write
+    r.f.connect()  # it still connects: the arm works, the operator is told what a crash would leave
+    try:
+        assert r.f.fallback[1] == 0
+        said = [w for w in r.f.warnings if "command timeout" in w]
+        assert len(said) == 1 and "id 1 (off)" in said[0] and "keeps its last MIT command" in said[0]
+        assert said[0] in r.f.fallback_lines()
+    finally:
+        r.close()
+
+
+def test_damiao_timeout_falls_back_at_its_deadline():
+    r = Rig(timeout_ms=50.0)
+    r.f.connect()
+    r.run(FollowerCommand(q=Q0[:6] + 0.05), 0.1)
+    t_last = r.emu.last_cmd_t.max()
+    r.f.link.close()  # the app dies: no hold, no disable
+    r.f.link = None
+    for _ in range(30):
+        r.clock.sleep(DT)
+    assert r.emu.timeouts == 7 and np.all(r.bank.kp == 0.0) and np.all(r.bank.kd[:7] == 1.0)
+    assert np.all(r.emu.t_timed_out <= t_last + 0.05 + 1e-9)  # each at its own deadline: last command + 50 ms
+    r.emu_bus.shutdown()
