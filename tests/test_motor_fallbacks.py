@@ -49,3 +49,32 @@ def test_damiao_timeout_falls_back_at_its_deadline():
     assert r.emu.timeouts == 7 and np.all(r.bank.kp == 0.0) and np.all(r.bank.kd[:7] == 1.0)
     assert np.all(r.emu.t_timed_out <= t_last + 0.05 + 1e-9)  # each at its own deadline: last command + 50 ms
     r.emu_bus.shutdown()
+
+
+# -- Piper: no command timeout to set; the twin does what the vendor's position loop does -------------------
+@pytest.mark.parametrize("mode", ["position", "mit"])
+def test_piper_keeps_its_last_command_when_the_host_dies(mode):
+    from test_piper_driver import DT as PDT
+    from test_piper_driver import Q0 as PQ0
+    from test_piper_driver import Rig as PiperRig
+
+    from hardware.sim.motors import MODE_MIT, MODE_POSITION
+
+    r = PiperRig(mode=mode)
+    r.f.connect()
+    target = PQ0 + 0.05
+    tau = np.full(6, 0.5) if mode == "mit" else None
+    r.run(FollowerCommand(q=target, tau_ff=tau), 0.4)
+    line = r.f.fallback_lines()[0]
+    assert "no motor-side command timeout" in line and ("last joint target" in line if mode == "position"
+                                                       else "last MIT command" in line)
+    r.f.link.close()  # the app dies: nothing more on the bus
+    r.f.link = None
+    for _ in range(int(1.0 / PDT)):
+        r.clock.sleep(PDT)
+    if mode == "position":
+        assert np.all(r.bank.mode[:6] == MODE_POSITION)
+        np.testing.assert_allclose(r.bank.q_d[:6], target, atol=1e-3)  # still its last target, 1 s later
+    else:
+        assert np.all(r.bank.mode[:6] == MODE_MIT) and np.all(np.abs(r.bank.tau_ff[:6]) > 0.2)  # pushing
+    r.emu_bus.shutdown()

@@ -30,6 +30,18 @@ from hardware.roles import Follower
 from hardware.safety import DEFAULT_WATCHDOG_S, SafeFollowerCommand
 from hardware.types import STATUS_ENABLED, STATUS_HOLD, STATUS_STALE, JointLimits, JointState
 
+
+def fallback_line(name: str, mode: str) -> str:
+    """What a Piper does when its host dies. The vendor's SDK and manual document no command timeout to set
+    (0x151's residence-time byte is the SDK's offline-trajectory point dwell, not a watchdog), so nothing is configured."""
+    if mode == "mit":
+        what = ("MIT mode: each joint keeps its last MIT command (gains and feed-forward torque) -- not "
+                "documented by the vendor; the twin does that; a feed-forward torque goes on pushing")
+    else:
+        what = "position mode: the arm holds its last joint target (the vendor's position loop)"
+    return (f"follower {name} (Piper): no motor-side command timeout (the firmware offers none to set): if "
+            f"this app dies, {what}; stop it with its e-stop or power switch")
+
 STATUS_FIELDS = ("ctrl_mode", "arm_status", "mode_feed", "teach", "motion", "trajectory", "limit_bits",
                  "comm_bits")  # 0x2A1 bytes in order
 FRAMES_PER_COMMAND = {"position": 4, "mit": 7}  # 0x151 + targets (the gripper frame only when it changes)
@@ -132,6 +144,10 @@ class PiperFollower(Follower):
         if self.link is not None:
             self.link.close()
             self.link = None
+
+    def fallback_lines(self) -> list[str]:
+        """The arm's own fallback when this app dies: the firmware offers none (docs/safety.md)."""
+        return [fallback_line(self.config.name, self.config.mode)]
 
     def _disconnect_bus(self) -> None:
         self._close()
