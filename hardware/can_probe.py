@@ -20,6 +20,7 @@ from hardware.damiao import protocol as D
 from hardware.damiao.config import DamiaoFollowerConfig
 from hardware.piper import protocol as P
 from hardware.piper.config import PiperFollowerConfig
+from hardware.piper.follower import fallback_line
 
 PIPER_LISTEN_S = 0.25  # s of passive listening to measure feedback rates
 PIPER_MIN_HZ = 100.0  # a fast feedback id below this rate is reported (real arm: about 200 Hz)
@@ -137,6 +138,7 @@ def probe_piper(bus, config: PiperFollowerConfig, clock: Clock | None = None,
             rep.notes.append("firmware <= 1.8-2 reports J1-J3 effort 4x low: set firmware_effort_x4 = true")
     else:
         rep.notes.append("no answer to the firmware query (0x4AF) -- some firmwares do not answer it")
+    rep.notes.append(fallback_line(config.name, config.mode))
     return rep
 
 
@@ -194,6 +196,8 @@ def probe_damiao(bus, config: DamiaoFollowerConfig, clock: Clock | None = None,
                 f"TMAX {regs.get(D.RID_TMAX, nan):.1f}")
         if timeout:
             text += f", timeout {timeout * D.TIMEOUT_UNIT_S * 1e3:.0f} ms"
+        elif timeout == 0:  # the follower sets it at connect; a motor left at 0 has no fallback of its own
+            text += ", command timeout off (the follower sets it at connect)"
         rep.status[f"id {sid}"] = text
     if trips:
         rep.round_trip_ms = sorted(trips)[len(trips) // 2]

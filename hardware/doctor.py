@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from hardware.dynamixel import protocol as p
+from hardware.dynamixel import watchdog as wd
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.models import MODELS_BY_NUMBER, model_name
 from hardware.errors import UserError
@@ -81,6 +82,33 @@ def rig_checks(rig, loop_hz: float = 500.0) -> tuple[list[DeviceCheck], list[str
 
 
 # -- ports and interfaces ----------------------------------------------------------------------------
+def fallback_check(session) -> DeviceCheck:
+    """Every connected device's own fallback as its driver set and read it back at connect (the Dynamixel
+    Bus Watchdog, the Damiao command timeout; the Piper has none): one line each, and the one line of what a
+    device that could not take it means for the operator (a warning)."""
+    chk = DeviceCheck("motor-side fallbacks (what each motor does by itself if this app dies):")
+    for name, dev in list(session.leaders.items()) + list(session.followers.items()):
+        lines = dev.fallback_lines() if hasattr(dev, "fallback_lines") else [
+            f"{name}: no motor-side fallback is known for driver {type(dev).__name__}"]
+        for ln in lines:
+            bad = "not set" in ln or "no motor-side" in ln
+            chk.findings.append(Finding("warn" if bad else "ok", name, ln.split(": ", 1)[-1]))
+    return chk
+
+
+def rig_fallbacks(rig, seed: int | None = None) -> DeviceCheck:
+    """Connect a rig's drivers (sim rigs: on their twin, lockstep; real rigs: torque on, motors enabled),
+    take fallback_check, disconnect. Unlike the rest of the doctor this writes to the devices: it sets each
+    motor's own timeout exactly as a session's connect does."""
+    from hardware.connect import open_rig
+
+    session = open_rig(rig, clock="lockstep" if rig.simulated else "realtime", seed=seed)
+    try:
+        return fallback_check(session)
+    finally:
+        session.close()
+
+
 def check_serial_ports(extra: list[str] | None = None) -> list[SerialPortInfo]:
     return list_serial_ports(extra)
 
@@ -163,6 +191,7 @@ class ServoReport:
     torque_on: bool
     hardware_error: int
     current_limit_a: float
+    bus_watchdog: int | None = None  # Bus Watchdog(98) as read (unsigned byte); None: the servo has none
 
 
 @dataclass
@@ -213,11 +242,14 @@ def dynamixel_check(port: str, baud: int, ids: list[int], loop_hz: float = 500.0
     if rep.latency_timer_ms is not None:
         chk.details.append(f"latency timer: {rep.latency_timer_ms} ms")
     if rep.servos:
-        chk.details.append("id  model        fw  mode                    delay  temp  torque  hw-error")
+        chk.details.append("id  model        fw  mode                    delay  temp  torque  hw-error  "
+                           "bus watchdog")
     for s in rep.servos:
         mode = p.OP_MODE_NAMES.get(s.operating_mode, str(s.operating_mode))
         chk.details.append(f"{s.id:<3} {s.model:<12} {s.firmware:<3} {mode:<23} {s.return_delay_us:>4}us "
-                           f"{s.temperature_c:>3}C  {'on' if s.torque_on else 'off':<6}  {s.hardware_error}")
+                           f"{s.temperature_c:>3}C  {'on' if s.torque_on else 'off':<6}  "
+                           f"{s.hardware_error:<8}  "
+                           f"{'none (firmware)' if s.bus_watchdog is None else wd.describe(s.bus_watchdog)}")
     if rep.round_trip_s == rep.round_trip_s:
         chk.details.append(f"round trip (sync read): {1e3 * rep.round_trip_s:.2f} ms")
     return chk
@@ -251,6 +283,7 @@ def _probe_servos(bus: DynamixelBus, rep: DynamixelReport, ids: list[int], expec
                 torque_on=bool(bus.read(i, p.ADDR_TORQUE_ENABLE)),
                 hardware_error=bus.read(i, p.ADDR_HARDWARE_ERROR_STATUS),
                 current_limit_a=bus.read(i, p.ADDR_CURRENT_LIMIT) * (m.amps_per_unit if m else float("nan")),
+                bus_watchdog=bus.read(i, wd.ADDR) if wd.supported(model_name(number), fw) else None,
             )
         except UserError as e:
             rep.findings.append(Finding("error", f"servo {i}", e.what, e.fix))

@@ -78,3 +78,32 @@ def test_piper_keeps_its_last_command_when_the_host_dies(mode):
     else:
         assert np.all(r.bank.mode[:6] == MODE_MIT) and np.all(np.abs(r.bank.tau_ff[:6]) > 0.2)  # pushing
     r.emu_bus.shutdown()
+
+
+# -- `factr2 doctor --rig RIG --fallbacks` ------------------------------------------------------------------
+def test_doctor_reads_back_every_fallback_on_the_twin():
+    from hardware.doctor import rig_fallbacks
+    from hardware.rigs import load_rig
+
+    chk = rig_fallbacks(load_rig("sim-yam"))
+    text = [f.line() for f in chk.findings]
+    assert len(text) == 2 and all(t.startswith("OK") for t in text), text
+    assert "100 ms" in text[0] and "id 7 50 ms" in text[1]
+
+
+def test_doctor_line_for_a_servo_that_refuses_its_watchdog():
+    from hardware.connect import open_rig
+    from hardware.doctor import fallback_check
+
+    s = open_rig("sim-piper", connect=False)
+    try:
+        s.twin.devices["leader"].emulator.servo(3).has_watchdog = False  # as firmware before v38
+        for d in list(s.leaders.values()) + list(s.followers.values()):
+            d.connect()
+        chk = fallback_check(s)
+    finally:
+        s.close()
+    warn = [f.line() for f in chk.findings if f.level == "warn" and f.subject == "leader"]
+    assert len(warn) == 1 and "servo id 3" in warn[0] and "until its power is cut" in warn[0], warn
+    ok = [f.line() for f in chk.findings if f.level == "ok"]
+    assert any("[1, 2, 4, 5, 6]" in t for t in ok), ok

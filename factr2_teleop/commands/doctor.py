@@ -1,5 +1,6 @@
 """`factr2 doctor`: list serial ports and CAN interfaces; with --port/--ids (or --rig) probe the Dynamixel
-servos and CAN devices and say plainly what is wrong. Read-only: nothing is written to any device.
+servos and CAN devices and say plainly what is wrong. Read-only (nothing is written to any device), but for
+--fallbacks, which connects a rig's drivers to set and read back each motor's own timeout.
 
 Exit code: 0 when no check failed, 1 when one did (a missing port, a servo that does not answer, ...).
 """
@@ -7,6 +8,7 @@ Exit code: 0 when no check failed, 1 when one did (a missing port, a servo that 
 from __future__ import annotations
 
 import argparse
+import sys
 
 from hardware import doctor as dr
 from hardware.errors import ConfigError
@@ -50,6 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--can", action="append", default=[], help="CAN interface to probe (repeatable)")
     parser.add_argument("--rig", default=None, help="probe every device of this rig (name or .toml path)")
+    parser.add_argument("--fallbacks", action="store_true",
+                        help="with --rig: connect its drivers (a sim rig on its twin; a real rig: torque on, "
+                        "motors enabled) and show each motor's own fallback as set and read back (the "
+                        "Dynamixel Bus Watchdog, the Damiao command timeout, the Piper's none)")
 
 
 def run(args) -> int:
@@ -79,6 +85,11 @@ def run(args) -> int:
     if rig is not None:
         rig_checks, notes = dr.rig_checks(rig, args.loop_hz)
         checks += rig_checks
+    if args.fallbacks:
+        if rig is None:
+            print("error: --fallbacks needs --rig RIG", file=sys.stderr)
+            return 2
+        checks.append(dr.rig_fallbacks(rig))
     for n in notes:
         print(f"note: {n}")
     for chk in checks:

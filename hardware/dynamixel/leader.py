@@ -423,7 +423,10 @@ class DynamixelLeader(Leader):
         """Clear a Bus Watchdog Error a previous app left latched (its goals would be refused); a servo
         without the register is reported by _arm_watchdog."""
         if wd.supported(self.servo_info[dxl_id]["model"], self.servo_info[dxl_id]["firmware"]):
-            bus.write(dxl_id, wd.ADDR, 0)
+            try:
+                bus.write(dxl_id, wd.ADDR, 0)
+            except DeviceError:
+                pass  # refused: said once by _arm_watchdog
 
     def _arm_watchdog(self, bus: DynamixelBus, joint_ids: list[int]) -> None:
         """Set every joint servo's Bus Watchdog (wd.LEADER_PERIOD_S), read it back; a servo that refuses

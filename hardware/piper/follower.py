@@ -33,7 +33,8 @@ from hardware.types import STATUS_ENABLED, STATUS_HOLD, STATUS_STALE, JointLimit
 
 def fallback_line(name: str, mode: str) -> str:
     """What a Piper does when its host dies. The vendor's SDK and manual document no command timeout to set
-    (0x151's residence-time byte is the SDK's offline-trajectory point dwell, not a watchdog), so nothing is configured."""
+    (0x151's residence-time byte is the SDK's offline-trajectory point dwell, not a watchdog), so nothing is
+    configured."""
     if mode == "mit":
         what = ("MIT mode: each joint keeps its last MIT command (gains and feed-forward torque) -- not "
                 "documented by the vendor; the twin does that; a feed-forward torque goes on pushing")
