@@ -30,10 +30,15 @@ from hardware.safety import (
     implausible_jump,
 )
 from hardware.types import STATUS_IMPLAUSIBLE, STATUS_STALE, FollowerCommand, JointLimits, JointState
+from hardware.wrap import unwrap_reading
 
 
 class Device(abc.ABC):
     """Shared shell: connect/disconnect as a context manager, read() that feeds the watchdog."""
+
+    # rad: the period a joint reading can be off by (a single-turn encoder: a full turn; hardware/wrap.py);
+    # inf: the driver's reading is absolute. A driver whose readings wrap sets it (scalar or per joint).
+    wrap_period_rad: float | np.ndarray = math.inf
 
     def __init__(self, name: str, limits: JointLimits, clock: Clock | None = None,
                  watchdog_s: float = DEFAULT_WATCHDOG_S):
@@ -47,6 +52,7 @@ class Device(abc.ABC):
         self._observers: list = []
         self._q_ok: np.ndarray | None = None  # per joint: the last accepted position [rad] and its time [s]
         self._t_q_ok = np.full(limits.n, -math.inf)
+        self.turns_unwrapped = 0  # joint samples read a whole turn off and put back on theirs, cumulative
 
     def add_command_observer(self, fn) -> None:
         """fn(t_issued, t_sent, safe) for every safe command before it goes on the wire, on the sending
@@ -101,6 +107,7 @@ class Device(abc.ABC):
         follows it nor counts the sample as fresh) and counted in safety.jumps_rejected."""
         q = np.asarray(st.q, dtype=float)
         if self._q_ok is None or q.shape != self._q_ok.shape or not math.isfinite(st.t):
+            st, q = self._on_turn(st, q, None)  # a (re)start in another turn reads the same pose
             self._q_ok, self._t_q_ok = q.copy(), np.full(q.shape, st.t)
             return st
         # the common case first, at a third of the CPU: no joint moved more than a glitch-free step can in no
@@ -109,6 +116,7 @@ class Device(abc.ABC):
             np.copyto(self._q_ok, q)
             self._t_q_ok.fill(st.t)
             return st
+        st, q = self._on_turn(st, q, self._q_ok)  # a reading a turn off is not a jump (hardware/wrap.py)
         bad = implausible_jump(q, self._q_ok, st.t - self._t_q_ok)
         if not bad.any():
             np.copyto(self._q_ok, q)
@@ -120,6 +128,20 @@ class Device(abc.ABC):
         status = np.asarray(st.status, dtype=np.uint32).copy()
         status[bad] |= np.uint32(STATUS_IMPLAUSIBLE | STATUS_STALE)
         return dataclasses.replace(st, q=np.where(bad, self._q_ok, q), status=status)
+
+    def _on_turn(self, st: JointState, q: np.ndarray, q_ref: np.ndarray | None
+                 ) -> tuple[JointState, np.ndarray]:
+        """The sample with each wrapping joint on its turn (inside the limits, nearest q_ref: the last
+        accepted value), counted in turns_unwrapped; unchanged for a driver whose readings do not wrap."""
+        if not np.any(np.isfinite(self.wrap_period_rad)):
+            return st, q
+        lim = self.safety.limits
+        qu = unwrap_reading(q, q_ref, self.wrap_period_rad, lim.q_min, lim.q_max)
+        moved = int(np.count_nonzero(np.isfinite(q) & (qu != q)))
+        if not moved:
+            return st, q
+        self.turns_unwrapped += moved
+        return dataclasses.replace(st, q=qu), qu
 
     @property
     def last_state(self) -> JointState:

@@ -162,6 +162,7 @@ class ArmPair:
         self._leader_ok = False
         self._refused = False  # a resume is refused (mismatch): said once, not every tick
         self._jumps = {"leader": 0, "follower": 0}  # implausible jumps already said (safety.jumps_rejected)
+        self._turns = {"leader": 0, "follower": 0}  # turns unwrapped already said (Device.turns_unwrapped)
 
     # -- helpers -------------------------------------------------------------------------------------
     def _say(self, text: str, level: int = logging.WARNING) -> None:
@@ -312,6 +313,11 @@ class ArmPair:
             if n != self._jumps[who]:
                 self._jumps[who] = n
                 self._say(f"{who} encoder jump rejected (implausible in one sample): previous value held")
+            n = getattr(dev, "turns_unwrapped", 0)
+            if n != self._turns[who]:
+                self._turns[who] = n
+                self._say(f"{who} reading a whole turn off: put back on the joint's turn (hardware/wrap.py)",
+                          logging.INFO)
         out = {}
         for who, st in (("leader", ls), ("follower", fs)):
             what = motor_errors(st)
