@@ -44,6 +44,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="effects already known (a first pass: the `effects` of an earlier report.json); "
                         "fitted from the start, not counted as found. With --arm, the base parameters that "
                         "run identified become the prior: a payload is then the change since that run")
+    p.add_argument("--prior-only", action="store_true",
+                   help="with --model: the checkpoint's physics prior alone is the base model (the "
+                        "calibration's own prior, without the network)")
+    p.add_argument("--known-mass", type=float, metavar="KG",
+                   help="with --model on current logs: the mass of a payload on --known-mass-run, which "
+                        "sets the common current-per-torque factor (the payload's mass is then in kg)")
+    p.add_argument("--known-mass-run", nargs="+", metavar="FILE",
+                   help="the run(s) with the --known-mass payload")
+    p.add_argument("--mass-reference", choices=("description", "none"), default="description",
+                   help="with --model on current logs: whether the identified-current prior's scales count "
+                        "as referenced to the description's masses (kg) or not ('none': the mass cannot be "
+                        "stated in kg, the centre of mass still is)")
+    p.add_argument("--joint-map", metavar="LOG=ARM,...",
+                   help="which arm joint each log joint is (every log joint once), when the names differ by "
+                        "more than a common prefix/suffix or come in another order")
     p.add_argument("--no-plots", action="store_true")
 
 
@@ -80,11 +95,6 @@ def _kinematics(name: str | None, segs, n: int):
         except ConfigError as e:
             raise UserError(f"cannot load arm description {name!r} ({e.what})", where="--arm",
                             fix="pass --arm NAME_OR_MJCF_PATH of the arm, or --arm none") from None
-        logged = {s.joint_names for s in segs if s.arm == name and s.joint_names}
-        if logged and logged != {tuple(desc.joint_names)}:
-            raise UserError(f"the logs' joints {', '.join(sorted(logged)[0])} are not arm {name}'s "
-                            f"{', '.join(desc.joint_names)}", where="--arm",
-                            fix="pass the arm the logs come from")
         stale = {s.arm_sha256 for s in segs if s.arm == name and s.arm_sha256} - {desc.sha256}
         if stale:
             print(f"note: arm description {name} changed since the logs were written (sha256 "
@@ -94,6 +104,36 @@ def _kinematics(name: str | None, segs, n: int):
         raise UserError(f"the arm has {model.nv} joints, the logs {n}", where="--arm",
                         fix="pick the arm the logs were recorded on")
     return model
+
+
+def _joint_order(args, arm: str | None, segs, n: int):
+    """(order, arm joint names) matching the logs' columns to the arm's joints (calibration.joint_map),
+    None when there is no described arm; the one line it has to say is printed."""
+    if arm is None or arm == "pinocchio-sample":
+        return None
+    from calibration.joint_map import JointMismatch, match_joints
+    from hardware.arms import load_arm
+    from hardware.errors import ConfigError
+
+    try:
+        want = list(load_arm(arm).joint_names)
+    except ConfigError as e:
+        raise UserError(f"cannot load arm description {arm!r} ({e.what})", where="--arm",
+                        fix="pass --arm NAME_OR_MJCF_PATH of the arm, or --arm none") from None
+    named = sorted({s.joint_names for s in segs if s.joint_names})
+    if len(named) > 1:
+        raise UserError(f"the logs name different joints ({'; '.join(', '.join(x) for x in named)})",
+                        where=", ".join(args.inputs), fix="diagnose the runs of one arm at a time")
+    try:
+        order, note = match_joints(named[0] if named else (), want, args.joint_map, arm, n)
+    except JointMismatch as e:
+        raise UserError(e.what, where="--joint-map" if args.joint_map else "joint names", fix=e.fix) from None
+    except ValueError as e:
+        raise UserError(str(e), where="--joint-map",
+                        fix="LOG_NAME=ARM_NAME,... for every log joint") from None
+    if note:
+        print(f"note: {note}")
+    return order, want
 
 
 def _basis(args, model, n: int, units: str):
@@ -107,9 +147,10 @@ def _basis(args, model, n: int, units: str):
     return PinocchioBasis(model, ridge=args.prior_weight)
 
 
-def _apply_kt(segments, kt: str | None, n: int):
+def _parse_kt(kt: str | None, n: int):
+    """--kt as (n,) N*m per A (arm joint order), or None."""
     if not kt:
-        return segments
+        return None
     import numpy as np
 
     try:
@@ -118,6 +159,15 @@ def _apply_kt(segments, kt: str | None, n: int):
         raise UserError(f"cannot parse {kt!r}", where="--kt", fix="comma-separated numbers, N*m/A") from None
     if len(k) != n:
         raise UserError(f"{len(k)} torque constants for {n} joints", where="--kt", fix="one per joint")
+    if not np.all(np.isfinite(k)) or np.any(k == 0):
+        raise UserError(f"torque constants {kt} must be finite and non-zero", where="--kt",
+                        fix="the vendor's N*m per A of each joint (with the gear ratio)")
+    return k
+
+
+def _apply_kt(segments, k):
+    if k is None:
+        return segments
     for s in segments:
         if s.units == "A":
             s.tau, s.units = s.tau * k, "N*m"
@@ -185,9 +235,19 @@ def run(args) -> int:
     if any(s.n != n for s in every) or len({s.units for s in every}) != 1:
         raise UserError("the logs differ in joint count or units", where=", ".join(args.inputs),
                         fix="diagnose runs of one arm at a time")
-    _apply_kt(every, args.kt, n)
-    train, heldout = split_heldout(runs, held)
     arm, arm_source = _arm(args, every)
+    mapped = _joint_order(args, arm, every, n)
+    if mapped is not None:
+        from calibration.joint_map import reorder
+
+        runs = [[reorder(s, *mapped) for s in run] for run in runs]
+        held = [reorder(s, *mapped) for s in held] if held else None
+        every = [s for run in runs for s in run] + (held or [])
+    units = every[0].units
+    kt = _parse_kt(args.kt, n)
+    if not args.model:  # the physics model works in N*m: current through the vendor's constants
+        _apply_kt(every, kt)
+    train, heldout = split_heldout(runs, held)
     model = _kinematics(arm, every, n)
     cfg = LoopConfig(rel_gain=args.rel_gain, abs_gain=args.abs_gain, max_effects=args.max_effects)
     meta = {"units": every[0].units, "joint_names": list(every[0].joint_names) or None,
@@ -195,16 +255,35 @@ def run(args) -> int:
             "train_runs": [s.name for s in train], "heldout_runs": [s.name for s in heldout],
             "data_source": ", ".join(_short(p) for p in args.inputs) + (
                 " | held out: " + ", ".join(_short(p) for p in args.heldout) if args.heldout else "")}
+    if (args.known_mass is None) != (args.known_mass_run is None):
+        raise UserError("--known-mass and --known-mass-run go together", where="--known-mass",
+                        fix="--known-mass KG --known-mass-run RUN.npz (a run with that payload on)")
+    if args.known_mass is not None and not args.model:
+        raise UserError("--known-mass works around a model with current-per-torque scales",
+                        where="--known-mass",
+                        fix="add --model next.json (its identified-current prior), or give --kt")
     t0 = time.perf_counter()
     if args.model:
         from calibration.diagnosis.next_loop import diagnose_next
 
+        known = None
+        if args.known_mass is not None:
+            known = (args.known_mass, [seg for p in args.known_mass_run for seg in load_segments(p)])
+            if mapped is not None:
+                from calibration.joint_map import reorder
+
+                known = (known[0], [reorder(s, *mapped) for s in known[1]])
         dg, extra = diagnose_next(args.model, train, heldout, cfg, log=print, kinematics=model,
-                                  no_arm=args.arm == "none")
+                                  no_arm=args.arm == "none", kt=kt, known_mass=known,
+                                  prior_only=args.prior_only, referenced=args.mass_reference != "none")
         meta.update(extra)
     else:
+        from calibration.diagnosis.payload import CurrentScale
+
         basis = _basis(args, model, n, every[0].units)
         meta.update({"basis": basis.describe(), "title": "grey-box physics model"})
+        if units == "A" and kt is not None:
+            meta["payload_scale"] = CurrentScale(1.0 / kt, "torque constants")
         declared = _declared(args.declared, basis, n) if args.declared else None
         dg = diagnose(basis, train, heldout, cfg, log=print, declared=declared)
     meta["seconds"] = round(time.perf_counter() - t0, 2)
