@@ -46,6 +46,7 @@ class Effect:
     hyper: dict = field(default_factory=dict)
     coef: np.ndarray | None = None
     ref: np.ndarray | None = None  # frozen rigid-part parameters (torque_constant_scale, delay)
+    in_kg: bool = True  # payload: False when its current scale has no reference (payload.py)
 
     @property
     def key(self) -> tuple:
@@ -122,7 +123,9 @@ class Effect:
             d = p["distance_m"]
             static = ("; its gravity only: the data show no inertia of it (a static load, e.g. a cable or "
                       "hose weight)") if self.hyper.get("dynamics") == "gravity" else ""
-            return (f"an unknown payload: about {p['mass_kg']:.2g} kg at {100 * d:.0f} cm from the flange "
+            mass = (f"about {p['mass_kg']:.2g} kg" if self.in_kg else
+                    "its mass cannot be stated in kg (no reference for the current-per-torque scale),")
+            return (f"an unknown payload: {mass} at {100 * d:.0f} cm from the flange "
                     f"(centre of mass {100 * p['com_x_m']:.1f}, {100 * p['com_y_m']:.1f}, "
                     f"{100 * p['com_z_m']:.1f} cm in the last link's frame{static})")
         if self.family == "gravity_load":

@@ -52,15 +52,19 @@ class Design:
 
     def payload_columns(self, dynamics: str = "full") -> np.ndarray:
         """(N, n, 4) torque per unit payload mass and first moment (basis.payload_columns) on the basis'
-        arm description (its `kinematics`); dynamics "gravity": of a static load (qd = qdd = 0)."""
+        arm description (its `kinematics`); dynamics "gravity": of a static load (qd = qdd = 0). Logs in
+        current: joint j's columns times the basis' `current_scale` [A per N*m] (payload.py: where it comes
+        from decides whether the mass is in kg)."""
         key = ("payload", dynamics)
         if key not in self._cache:
             from .basis import payload_columns
 
             z = np.zeros_like(self.qd)
             moving = dynamics == "full"
-            self._cache[key] = payload_columns(self.basis.kinematics, self.q, self.qd if moving else z,
-                                               self.qdd if moving else z)
+            cols = payload_columns(self.basis.kinematics, self.q, self.qd if moving else z,
+                                   self.qdd if moving else z)
+            scale = getattr(self.basis, "current_scale", None)
+            self._cache[key] = cols if scale is None else cols * np.asarray(scale, float)[None, :, None]
         return self._cache[key]
 
 
@@ -77,38 +81,59 @@ class GreyBox:
         m.theta = self.theta.copy()
         return m
 
-    def fit(self, d: Design) -> GreyBox:
-        p0 = self.basis.n_params
+    def offsets(self, d: Design) -> np.ndarray:
+        """Where each effect's coefficients start in the solution vector (rigid parameters first)."""
+        sizes = [d.features(e).shape[-1] for e in self.effects]
+        return self.basis.n_params + np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+
+    def normal_equations(self, d: Design, rows=None) -> tuple[np.ndarray, np.ndarray]:
+        """(A^T A, A^T y) of the stacked rigid + effect columns over all joints' equations; rows: a subset
+        of the design's samples (index array; a bootstrap of contiguous blocks sums these), None = all."""
         feats = [d.features(e) for e in self.effects]
-        sizes = [f.shape[-1] for f in feats]
-        offs = p0 + np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        offs = self.offsets(d)
         p = int(offs[-1])
         h = np.zeros((p, p))
         g = np.zeros(p)
         for j, (idx, cols) in enumerate(d.base):
-            gj, bj = d.gram[j]
+            y = d.y[:, j]
+            if rows is None:
+                gj, bj = d.gram[j]
+            else:
+                cols, y = cols[rows], y[rows]
+                gj, bj = cols.T @ cols, cols.T @ y
             h[np.ix_(idx, idx)] += gj
             g[idx] += bj
-            mine = [(k, f) for k, e in enumerate(self.effects) if (f := e.on_joint(feats[k], j)) is not None]
+            mine = [(k, f if rows is None else f[rows]) for k, e in enumerate(self.effects)
+                    if (f := e.on_joint(feats[k], j)) is not None]
             for a, (k, fk) in enumerate(mine):
                 sk = slice(offs[k], offs[k + 1])
                 h[idx, sk] += cols.T @ fk
                 h[sk, idx] += (cols.T @ fk).T
-                g[sk] += fk.T @ d.y[:, j]
+                g[sk] += fk.T @ y
                 for k2, f2 in mine[a:]:
                     s2 = slice(offs[k2], offs[k2 + 1])
                     blk = fk.T @ f2
                     h[sk, s2] += blk
                     if k2 != k:
                         h[s2, sk] += blk.T
-        diag = np.maximum(np.diag(h).copy(), 1e-12)
+        return h, g
+
+    def solve(self, h: np.ndarray, g: np.ndarray, diag: np.ndarray | None = None) -> np.ndarray:
+        """The regularised least-squares solution of normal equations (h, g); diag: the column energies
+        the ridge is relative to (default: h's own diagonal)."""
+        p0, p = self.basis.n_params, len(g)
+        diag = np.maximum(np.diag(h).copy() if diag is None else diag, 1e-12)
         lam = np.full(p, EFFECT_RIDGE)
         lam[:p0] = self.basis.ridge
         prior = np.zeros(p)
         prior[:p0] = self.basis.prior
         reg = lam * diag
-        sol = np.linalg.lstsq(h + np.diag(reg), g + reg * prior, rcond=None)[0]
-        self.theta = sol[:p0]
+        return np.linalg.lstsq(h + np.diag(reg), g + reg * prior, rcond=None)[0]
+
+    def fit(self, d: Design) -> GreyBox:
+        sol = self.solve(*self.normal_equations(d))
+        offs = self.offsets(d)
+        self.theta = sol[:self.basis.n_params]
         for k, e in enumerate(self.effects):
             e.coef = sol[offs[k]:offs[k + 1]]
         return self

@@ -26,12 +26,15 @@ class NextBasis:
     kind = "next"
     separable = True
 
-    def __init__(self, n: int, predictions: dict[int, np.ndarray], label: str, kinematics=None):
+    def __init__(self, n: int, predictions: dict[int, np.ndarray], label: str, kinematics=None,
+                 current_scale=None):
         self.n, self.preds, self.label = n, predictions, label
-        # a new load (payload) on runs NEXT was not trained for: through the arm's kinematics when the
-        # description is known, else the gravity-like family of link orientations
+        # a new load on runs NEXT was not trained for: the payload through the arm's kinematics when the
+        # description is known (in current: its columns times current_scale [A per N*m], payload.py), and
+        # always the gravity-like family of link orientations, so the loop ranks the two on held-out gain
         self.kinematics = kinematics
-        self.offers_gravity_load = kinematics is None
+        self.current_scale = current_scale
+        self.offers_gravity_load = True
         self.n_params = n
         self.prior = np.ones(n)
         self.ridge = np.full(n, 1e3)
@@ -76,6 +79,7 @@ def prepare(segments: list[Segment], rate_hz: float, history: int) -> list[Segme
 
 def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments, prior=None
                  ) -> tuple[list[Segment], dict]:
+    """ck_model None: the prior alone (the calibration's own physics prior, without the network)."""
     preds, out = {}, []
     for s in segments:
         r = resample(s, rate_hz)
@@ -83,7 +87,8 @@ def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments, prior
             continue
         # the checkpoint was trained on the logged velocity, not on diagnosis's cleaner one
         seen = r if r.qd_logged is None else dataclasses.replace(r, qd=r.qd_logged)
-        p = predict_next(ck_model, normalizer, history, inputs, seen)
+        p = (np.zeros_like(seen.tau) if ck_model is None
+             else predict_next(ck_model, normalizer, history, inputs, seen))
         if prior is not None:  # the checkpoint's physics prior is part of its model
             from calibration.next.prior import prior_torque
 
@@ -97,11 +102,38 @@ def _predictions(ck_model, normalizer, history, inputs, rate_hz, segments, prior
     return out, preds
 
 
+def fixed_basis(train, heldout, predict, label: str, kinematics=None, scale=None):
+    """A NextBasis around any fixed predictor: predict(segments) -> (segments cut, {id: (N, n)})."""
+    tr, p_tr = predict(train)
+    ho, p_ho = predict(heldout)
+    sc = None if scale is None else scale.scale
+    return NextBasis(train[0].n, {**p_tr, **p_ho}, label, kinematics, sc), tr, ho
+
+
+def known_mass_alpha(basis: NextBasis, segments: list[Segment], predict, known_kg: float) -> float:
+    """alpha of payload.alpha_from_known_mass on a reference run of known payload mass: the payload fitted
+    on the fixed model's residual there, its columns scaled as the basis scales them."""
+    from .greybox import Design, GreyBox
+    from .payload import alpha_from_known_mass, fit_payload
+
+    segs, preds = predict(segments)
+    b = NextBasis(basis.n, preds, basis.label, basis.kinematics, basis.current_scale)
+    d = Design(b, segs)
+    res = d.y - GreyBox(b).rigid(d)
+    return alpha_from_known_mass(float(fit_payload(res, d.payload_columns("full"))[0]), known_kg)
+
+
 def diagnose_next(ckpt: str, train: list[Segment], heldout: list[Segment], cfg, log=print, kinematics=None,
-                  no_arm: bool = False):
+                  no_arm: bool = False, kt=None, known_mass: tuple | None = None, prior_only: bool = False,
+                  referenced: bool = True):
     """Load a NEXT checkpoint and run the diagnose loop with it as the base model. kinematics: the arm's
-    pinocchio model for the payload family (default: the checkpoint's arm, unless no_arm)."""
+    pinocchio model for the payload family (default: the checkpoint's arm, unless no_arm). Logs in current:
+    the payload's columns are scaled by kt (vendor torque constants [N*m per A]) or the identified-current
+    prior's scales (referenced to the description's masses unless `referenced` is False), times the alpha
+    of known_mass = (kg, reference-run segments) (payload.py). prior_only: the checkpoint's physics prior
+    alone is the base model (the calibration's own prior, without the network)."""
     from .loop import diagnose
+    from .payload import choose_scale
 
     try:
         from calibration.next.checkpoint import load_checkpoint
@@ -115,20 +147,37 @@ def diagnose_next(ckpt: str, train: list[Segment], heldout: list[Segment], cfg, 
     if ck.normalizer.y_mean.shape[0] != train[0].n:
         raise UserError(f"checkpoint has {ck.normalizer.y_mean.shape[0]} joints, logs {train[0].n}",
                         where=ckpt, fix="use the checkpoint of this arm")
-    tr, p_tr = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, train, ck.prior)
-    ho, p_ho = _predictions(ck.model, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, heldout, ck.prior)
-    if kinematics is None and ck.arm and not no_arm and ck.units == "N*m":
+    if prior_only and ck.prior is None:
+        raise UserError("the checkpoint has no physics prior", where=ckpt, fix="drop --prior-only")
+    net = None if prior_only else ck.model
+
+    def predict(segs):
+        return _predictions(net, ck.normalizer, ck.history, ck.inputs, ck.rate_hz, segs, ck.prior)
+
+    if kinematics is None and ck.arm and not no_arm:
         from hardware.arms import load_arm
 
         kinematics = load_arm(ck.arm).pinocchio_model()
-    if ck.units != "N*m":
-        kinematics = None  # the payload family is in N*m
-    basis = NextBasis(train[0].n, {**p_tr, **p_ho}, f"NEXT checkpoint {ckpt} ({ck.model.cfg.arch}, "
-                      f"history {ck.history}, inputs {ck.inputs}) + grey-box terms on its residual",
-                      kinematics)
+    prior_scale = getattr(ck.prior, "scale", None)  # the identified-current prior's [A per N*m]
+    scale = choose_scale(ck.units, kt, prior_scale, None, referenced)
+    if scale is None:
+        kinematics = None  # current without any per-joint scale: only the gravity-like load
+        log("logs in current and no current-per-torque scale (no --kt, prior not identified-current): the "
+            "payload cannot go through the arm's kinematics; a gravity-like load is looked for instead")
+    what = ("the checkpoint's physics prior alone" if prior_only else
+            f"NEXT checkpoint {ckpt} ({ck.model.cfg.arch}, history {ck.history}, inputs {ck.inputs})")
+    basis, tr, ho = fixed_basis(train, heldout, predict, f"{what} + grey-box terms on its residual",
+                                kinematics, scale)
+    if known_mass is not None and scale is not None and kinematics is not None:
+        alpha = known_mass_alpha(basis, known_mass[1], predict, known_mass[0])
+        scale = choose_scale(ck.units, None, scale.scale, alpha)
+        basis.current_scale = scale.scale
+        runs = ", ".join(s.name for s in known_mass[1])
+        log(f"known mass {known_mass[0]:g} kg on {runs}: alpha {alpha:.4g}")
     dg = diagnose(basis, tr, ho, cfg, log=log)
-    return dg, {"basis": basis.describe(), "title": "NEXT + grey-box terms on its residual",
-                "next_checkpoint": str(ckpt)}
+    return dg, {"basis": basis.describe(), "title": f"{what} + grey-box terms on its residual",
+                "next_checkpoint": str(ckpt), "payload_scale": None if scale is None or kinematics is None
+                else scale}
 
 
 def train_next(segments: list[Segment], seconds: float, residual_of=None, seed: int = 0,

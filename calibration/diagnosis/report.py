@@ -17,6 +17,8 @@ def _mean_l1(x) -> float:
 
 
 def to_json(dg: Diagnosis, meta: dict) -> dict:
+    meta = dict(meta)
+    physical = _physical(dg, meta.pop("payload_scale", None))
     n = dg.model.n
     names = list(meta.get("joint_names") or [f"joint{j}" for j in range(n)])
     l1_after, rms_after = errors(dg.heldout.y, dg.model.predict(dg.heldout))
@@ -45,8 +47,27 @@ def to_json(dg: Diagnosis, meta: dict) -> dict:
                    "heldout_l1_mean": _mean_l1(first.heldout_l1)},
         "after": {"heldout_l1": l1_after.tolist(), "heldout_rms": rms_after.tolist(),
                   "heldout_l1_mean": _mean_l1(l1_after)},
-        **_rigid(dg.model),
+        **_rigid(dg.model), **physical,
     }
+
+
+def _physical(dg: Diagnosis, scale) -> dict:
+    """`payload`: the found payload with its reference, mass and centre of mass and their bootstrap interval
+    (payload.py); `springs`: each found spring's stiffness checked against a free rigid part (springs.py).
+    scale: the payload columns' payload.CurrentScale (None: N*m logs, or no arm description)."""
+    from .payload import CurrentScale, bootstrap, summary
+    from .springs import spring_checks
+
+    out: dict = {}
+    k = next((i for i, e in enumerate(dg.model.effects) if e.family == "payload"), None)
+    if k is not None:
+        scale = scale if scale is not None else CurrentScale(None, "torque")
+        dg.model.effects[k].in_kg = scale.in_kg
+        out["payload"] = summary(dg.model.effects[k].coef, bootstrap(dg.model, dg.train, k), scale)
+    springs = spring_checks(dg)
+    if springs:
+        out["springs"] = springs
+    return out
 
 
 def _rigid(model) -> dict:

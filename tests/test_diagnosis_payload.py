@@ -1,0 +1,132 @@
+"""A payload through the arm's kinematics on logs in motor current, with the reference that sets its scale
+(calibration/diagnosis/payload.py): pure arrays on pinocchio's sample manipulator (SIMULATED: RNEA plus a
+point payload, current = s * torque + noise), around a fixed model as `factr2 diagnose --model` does."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calibration.diagnosis.basis import payload_columns
+from calibration.diagnosis.data import differentiate, make_segment
+from calibration.diagnosis.loop import diagnose
+from calibration.diagnosis.next_loop import fixed_basis, known_mass_alpha
+from calibration.diagnosis.payload import (
+    CurrentScale,
+    alpha_from_known_mass,
+    bootstrap,
+    choose_scale,
+    fit_payload,
+    interval,
+    summary,
+)
+from calibration.diagnosis.report import to_json
+from calibration.diagnosis.synthetic import trajectory
+
+pin = pytest.importorskip("pinocchio")
+MASS, COM = 0.8, np.array([0.02, -0.01, 0.06])
+S_TRUE = np.array([0.12, 0.08, 0.12, 0.5, 0.5, 0.5])  # A per N*m
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return pin.buildSampleModelManipulator()
+
+
+def _run(model, seed, mass=MASS, com=COM, seconds=20.0, noise=0.01):
+    data = model.createData()
+    t, q = trajectory(seconds, 100.0, model.nv, seed)
+    qd = differentiate(t, q, 1)
+    qdd = differentiate(t, qd, 1)
+    tau = np.stack([pin.rnea(model, data, q[i], qd[i], qdd[i]) for i in range(len(t))])
+    tau = tau + payload_columns(model, q, qd, qdd) @ np.concatenate([[mass], mass * com])
+    cur = S_TRUE * tau + noise * np.random.default_rng(seed + 7).standard_normal(tau.shape)
+    return make_segment(f"run{seed}", t, q, qd, cur, "A", qdd=qdd)
+
+
+def _predict(model):
+    """The arm without payload in current (a fixed model that knows the scale: NEXT / its prior)."""
+    data = model.createData()
+
+    def predict(segs):
+        return segs, {id(s): S_TRUE * np.stack([pin.rnea(model, data, s.q[i], s.qd[i], s.qdd[i])
+                                                for i in range(len(s))]) for s in segs}
+    return predict
+
+
+@pytest.fixture(scope="module")
+def runs(arm):
+    return [_run(arm, 0), _run(arm, 1)], [_run(arm, 2)]
+
+
+def _diagnose(arm, runs, scale):
+    train, held = runs
+    basis, tr, ho = fixed_basis(train, held, _predict(arm), "exact arm", arm, scale)
+    return diagnose(basis, tr, ho)
+
+
+def test_payload_in_current_is_found_first_in_kg_with_the_scale_known(arm, runs):
+    dg = _diagnose(arm, runs, CurrentScale(S_TRUE, "torque constants"))
+    first = dg.steps[1].added
+    assert first["effect"] == "payload"  # ranked against gravity_load on every joint, and kept first
+    rep = to_json(dg, {"units": "A", "payload_scale": CurrentScale(S_TRUE, "torque constants")})
+    p = rep["payload"]
+    assert p["in_kg"] and p["mass_kg"] == pytest.approx(MASS, rel=0.02)
+    assert np.allclose(p["com_m"], COM, atol=0.005)
+    lo, hi = p["interval"]["mass"]
+    assert lo <= p["mass_kg"] <= hi and hi - lo < 0.1 * MASS
+    assert lo - 0.01 * MASS <= MASS <= hi + 0.01 * MASS  # noise-free regressors: a narrow, near-exact band
+    assert "kg" in rep["headline"] and "torque constants" in p["words"]
+
+
+def test_without_a_reference_the_mass_is_not_stated_in_kg_but_the_centre_is(arm, runs):
+    wrong = CurrentScale(1.3 * S_TRUE, "none")  # the ratios right, the common factor unknown
+    dg = _diagnose(arm, runs, wrong)
+    rep = to_json(dg, {"units": "A", "payload_scale": wrong})
+    p = rep["payload"]
+    assert not p["in_kg"] and p["mass_kg"] is None
+    assert p["mass"] == pytest.approx(MASS / 1.3, rel=0.02)  # kg times the unknown factor
+    assert np.allclose(p["com_m"], COM, atol=0.005)  # the centre does not depend on it
+    assert "cannot be stated in kg" in p["words"] and "cannot be stated in kg" in rep["headline"]
+
+
+def test_a_known_mass_on_a_reference_run_sets_the_common_factor(arm, runs):
+    wrong = CurrentScale(1.3 * S_TRUE, "description masses")
+    train, held = runs
+    basis, _, _ = fixed_basis(train, held, _predict(arm), "exact arm", arm, wrong)
+    ref = [_run(arm, 5, mass=0.5, com=np.array([0.0, 0.0, 0.03]))]
+    alpha = known_mass_alpha(basis, ref, _predict(arm), 0.5)
+    assert alpha == pytest.approx(1 / 1.3, rel=0.02)
+    fixed = choose_scale("A", prior_scale=wrong.scale, known_alpha=alpha)
+    assert fixed.reference == "known mass" and np.allclose(fixed.scale, S_TRUE, rtol=0.02)
+
+
+def test_choose_scale_and_alpha_rules():
+    assert choose_scale("N*m").reference == "torque" and choose_scale("N*m").in_kg
+    kt = choose_scale("A", kt=[2.0, 4.0])
+    assert kt.reference == "torque constants" and np.allclose(kt.scale, [0.5, 0.25])
+    assert choose_scale("A") is None  # no scale at all: no payload through the kinematics
+    assert not choose_scale("A", prior_scale=[1.0], referenced=False).in_kg
+    assert alpha_from_known_mass(1.2, 1.0) == pytest.approx(1.2)
+    with pytest.raises(ValueError):
+        alpha_from_known_mass(-0.1, 1.0)
+
+
+def test_bootstrap_interval_is_honest_for_white_noise(arm):
+    seg = _run(arm, 3, noise=0.05)
+    cols = payload_columns(arm, seg.q, seg.qd, seg.qdd) * S_TRUE[None, :, None]
+    res = seg.tau - _predict(arm)([seg])[1][id(seg)]
+    coef = fit_payload(res, cols)
+    assert coef[0] == pytest.approx(MASS, rel=0.03)
+    basis, tr, ho = fixed_basis([seg], [seg], _predict(arm), "exact arm", arm,
+                                CurrentScale(S_TRUE, "torque constants"))
+    from calibration.diagnosis.effects import Effect
+    from calibration.diagnosis.greybox import Design, GreyBox
+
+    d = Design(basis, tr)
+    model = GreyBox(basis, [Effect("payload", 5, {"dynamics": "full"})]).fit(d)
+    draws = bootstrap(model, d, 0, n_boot=100)
+    iv = interval(draws)
+    assert iv["mass"][0] <= MASS <= iv["mass"][1]
+    s = summary(model.effects[0].coef, draws, CurrentScale(S_TRUE, "torque constants"))
+    assert s["mass_kg"] == pytest.approx(MASS, rel=0.03) and "interval" in s
