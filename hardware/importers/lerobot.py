@@ -55,7 +55,7 @@ MAP_DEFAULT: dict[str, tuple[str, ...]] = {
     "tau_ext": ("observation.tau_ext", "observation.force"),
 }
 IMAGES = "observation.images."
-CONVERTER_VERSION = 1  # bump when the conversion changes: cached conversions are made again
+CONVERTER_VERSION = 2  # bump when the conversion changes: cached conversions are made again
 FIX_MAP = "name the features with --lerobot-map ROLE=KEY,... (docs/bringing_data.md)"
 
 
@@ -289,7 +289,7 @@ def read_episodes(root: Path, m: Mapping, info: dict) -> list[ImportedEpisode]:
                 seq = _video_frames(root, info, meta, cam, len(rows), fps)
             else:
                 seq = _image_frames(data.column(cam).take(pa.array(rows)).to_pylist())
-            ep.frames[cam] = (t, seq)
+            ep.frames[cam[len(IMAGES):]] = (t, seq)  # the camera's name, as a rig names it
         out.append(ep)
     if not out:
         raise _bad(root, "no rows")
