@@ -197,3 +197,4 @@ def _print_summary(d: dict) -> None:
           f"free {f(d['tau_ext_l1_free'], '.2f')} N*m")
     print(f"  hand push into the table {f(d['hand_push_n'], '.2f')} N, command violations "
           f"{d['max_command_violation']}")
+    print(f"  holds {d['holds']} ({f(d['hold_s'], '.2f')} s on hold), refused resumes {d['refused_resumes']}")

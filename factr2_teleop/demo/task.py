@@ -22,6 +22,7 @@ import numpy as np
 
 from calibration.estimators import DOB_GAIN_PER_S, FEEDBACK_MODES, PP_STIFFNESS_NM_PER_RAD
 from factr2_teleop.demo import metrics as M
+from factr2_teleop.teleop.pair import COUPLED, HOLD
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.virtual_operator import (
     OperatorScript,
@@ -168,6 +169,9 @@ class DemoResult:
     loop_cpu_share: float = float("nan")  # loop_cpu_ms_per_tick over the period (target <= 0.25 at 500 Hz)
     loop_twin_cpu_ms_per_tick: float = float("nan")  # the twin's work on the loop's thread (hardware/sim_cpu)
     next_worker_cpu_ms_per_tick: float = float("nan")  # NEXT's own process, if used (calibration/next/worker)
+    holds: int = 0  # times the follower went on hold
+    hold_s: float = 0.0  # time spent on hold [s]
+    refused_resumes: int = 0  # resumes refused (leader too far from the follower), once per refusal
     hand_push_n: float = float("nan")  # mean Cartesian force the virtual hand pushes into the table [N]
     hand_tau_l1_wipe_nm: float = float("nan")
     peak_contact_force_n: float = float("nan")
@@ -243,6 +247,7 @@ class DemoRun:
         self.loop = self.teleop.loop
         self._rows: list[tuple] = []  # per ground-truth tick: t, phase, fb, est, true, contact, force, task
         self._tick_n = 0
+        self._return_goal: np.ndarray | None = None  # leader pose the operator brings it back to [rad]
         self._truth_every = cfg.truth_every or (1 if cfg.clock == "lockstep" else 2)
         self.wall_s = self.cpu_s = float("nan")
 
@@ -260,7 +265,7 @@ class DemoRun:
     def _on_tick(self, rec: TickRecord) -> None:
         with sim_cpu.simulated():  # the simulated hand and the metrics' ground truth: not the app's CPU
             q_l, qd_l = felt_joints(self.leader.last_state, self._hand_bank)
-            tau_hand = self.operator.torque(rec.t, q_l, qd_l)
+            tau_hand = self.operator.torque(rec.t, q_l, qd_l, self._operator_goal(rec))
             self.session.twin.apply_leader_hand_torque(tau_hand)
             self._tick_n += 1
             if self._tick_n % self._truth_every == 0:
@@ -268,6 +273,20 @@ class DemoRun:
                 f = contact_force_n(self._gt_world) if self.cfg.contact_force else float("nan")
                 self._rows.append((rec.t, rec.phase, rec.tau_feedback, rec.tau_ext,
                                    gt.tau_ext[: self.n].copy(), gt.contact, f, self.operator.log[-1].phase))
+
+    def _operator_goal(self, rec: TickRecord) -> np.ndarray | None:
+        """What the operator does about a hold, as a person does: stops the task while the follower holds,
+        brings the leader back to the follower's pose after a refused resume (the pair resumes by itself
+        once they are close), keeps still while the soft start brings the follower over, then carries on
+        with the task once the pair is coupled again."""
+        if rec.phase == COUPLED:
+            self.operator.resume(rec.t)
+            self._return_goal = None
+        elif rec.phase == HOLD:
+            self.operator.pause(rec.t)
+            if self.pair.resume_refused:
+                self._return_goal = self.pair.map.backward(np.asarray(rec.follower.q, dtype=float))
+        return self._return_goal
 
     def run(self) -> None:
         self._warm_up()
@@ -357,6 +376,7 @@ class DemoRun:
             loop_cpu_ms_per_tick=st.cpu_mean_ms, loop_cpu_share=st.cpu_share,
             loop_twin_cpu_ms_per_tick=st.sim_cpu_mean_ms,
             next_worker_cpu_ms_per_tick=1e3 * getattr(self.pair.estimator, "cpu_s", np.nan) / (st.ticks or 1),
+            holds=self.pair.holds, hold_s=self.pair.hold_s, refused_resumes=self.pair.resume_refusals,
             hand_push_n=float(wipe.get("force_n", float("nan"))),
             hand_tau_l1_wipe_nm=float(wipe.get("tau_l1_nm", float("nan"))),
             peak_contact_force_n=float(np.max(fw)) if fw.size else float("nan"),

@@ -161,6 +161,8 @@ class ArmPair:
         self._t_ok = {"leader": -np.inf, "follower": -np.inf}  # time of the last complete sample [s]
         self._leader_ok = False
         self._refused = False  # a resume is refused (mismatch): said once, not every tick
+        # holds entered, time spent in them [s], resumes refused (once per refusal): the demo's summary
+        self.holds, self.hold_s, self.resume_refusals = 0, 0.0, 0
         self._jumps = {"leader": 0, "follower": 0}  # implausible jumps already said (safety.jumps_rejected)
         self._turns = {"leader": 0, "follower": 0}  # turns unwrapped already said (Device.turns_unwrapped)
 
@@ -174,6 +176,7 @@ class ArmPair:
     def _enter_hold(self, reason: Reason, leader_ok: bool) -> None:
         self.follower.hold(reason)
         self.phase = HOLD
+        self.holds += 1
         if not leader_ok:
             try:  # a leader that stopped answering may also refuse the write; the follower is held already
                 self.leader.zero_torque(reason)
@@ -187,6 +190,7 @@ class ArmPair:
         if err is not None:
             if not self._refused:  # the numbers change every tick: say it once per refusal
                 self._say(str(err))
+                self.resume_refusals += 1
             self._refused = True
             return False
         self._refused = False
@@ -207,6 +211,12 @@ class ArmPair:
         errors = make_safe([self.leader], [self.follower], reason)
         if errors:
             log.error("%s: could not make an arm safe: %s", self.cfg.name, errors)
+
+    @property
+    def resume_refused(self) -> bool:
+        """On hold and the resume refused: the leader is too far from the follower (the operator brings it
+        back; the pair resumes by itself once it is within soft_start.max_mismatch_rad)."""
+        return self.phase == HOLD and self._refused
 
     # -- lifecycle ------------------------------------------------------------------------------------
     def begin(self, clock: Clock | None = None) -> None:
@@ -246,6 +256,8 @@ class ArmPair:
 
     def tick(self, now: float) -> TickRecord:
         """One control period. Returns the record of this tick (also kept as self.last)."""
+        if self.phase == HOLD and math.isfinite(self._t_prev):
+            self.hold_s += now - self._t_prev  # the time since the last tick was spent on hold
         dt, ls, fs, leader_ok, follower_ok = self._read_both(now)
         errors = self._check_samples(ls, fs)
         if errors:

@@ -141,9 +141,32 @@ class VirtualOperator:
         self.jacobian_fn, self.normal = jacobian_fn, surface_normal
         self.defer_force = defer_force  # True: force_n is computed in arrays() (batched), not per tick
         self.log: list[OperatorSample] = []
+        self._paused_at: float | None = None  # while the follower is on hold: when the task stopped [s]
 
-    def torque(self, t: float, q: np.ndarray, q_dot: np.ndarray) -> np.ndarray:
-        q_ref, qd_ref, phase = scripted_target(t - self.t0, self.script)
+    def pause(self, t: float) -> None:
+        """The follower went on hold at t [s]: a person stops the task and holds the leader where it is
+        (phase "hold"), rather than carry on the script and leave the follower behind."""
+        if self._paused_at is None:
+            self._paused_at = float(t)
+
+    def resume(self, t: float) -> None:
+        """The pair tracks again at t [s]: the task goes on from where it stopped."""
+        if self._paused_at is not None:
+            self.t0 += float(t) - self._paused_at
+            self._paused_at = None
+
+    def torque(self, t: float, q: np.ndarray, q_dot: np.ndarray, goal: np.ndarray | None = None
+               ) -> np.ndarray:
+        """The hand's torque [N*m] at t [s] on the leader at q [rad], q_dot [rad/s]. Paused: toward where the
+        task stopped, or toward `goal` [rad, leader joints] when given (phase "return": after a refused
+        resume a person brings the leader back to the held follower's pose)."""
+        if goal is not None:
+            q_ref, qd_ref, phase = np.asarray(goal, dtype=float), np.zeros(self.n), "return"
+        elif self._paused_at is not None:
+            q_ref, phase = _position(self._paused_at - self.t0, self.script)[0], "hold"
+            qd_ref = np.zeros(self.n)
+        else:
+            q_ref, qd_ref, phase = scripted_target(t - self.t0, self.script)
         tau = hand_torque(q, q_dot, q_ref, qd_ref, self.k, self.d, self.tau_max)
         force = float("nan")
         if self.jacobian_fn is not None and self.normal is not None and not self.defer_force:
