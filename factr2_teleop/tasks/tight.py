@@ -1,0 +1,284 @@
+"""Tight-insert demonstrations (SIMULATED): reach by sight, find the bore by feel, stop on force.
+
+The operator sees the pin and the fixture ONLY through the simulated pose detector (op.p.seen: name ->
+hardware.sim.perception.Seen: calibration bias, noise, latency, occlusion near the gripper), knows
+where its own arm is (the follower's reported joints through FK, and its gripper stroke), and feels the
+leader's force feedback (op.p.felt_nm). It never reads the twin's truth (op.p.obs): the bore's 0.2 mm per side
+clearance is far below the detector's millimetres, so what sight gives is only where to start looking.
+
+1. Look (Sight averages the detections frame by frame: the noise averages out, the bias does not), grasp the
+   pin's head from above; a grasp is checked by the stroke at which the fingers stopped (something between
+   them) and by the pin no longer being seen where it stood once the hand has lifted.
+2. Carry it over the bore as seen; lower slowly until the touch is felt (or until it is felt far below the
+   fixture's seen top: the pin went straight in).
+3. Search: press lightly (the felt push regulated to a target, like wipe.py's strokes: the lean on the joint
+   error is off, the push comes from the hand's compliance) while the hand traces an Archimedean spiral around
+   the seen bore; the pin drops when its tip crosses the chamfer: the hand is felt to sink DROP_M below where
+   it touched. A spiral that reaches SEARCH_R_M without a drop: lift, look again, search again.
+4. Push it home on the same felt push; seated when the hand has stopped sinking for STILL_S deep in the
+   bore (stop on force); a stop short of that depth is a jam: lift a little and push again.
+5. Let go, lift.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from factr2_teleop.tasks import kinematics as K
+from factr2_teleop.tasks.scripts import DECIDE_DT_S, FELT_NM, best_down_yaw, grip, move, wait, yaw_of
+from hardware.sim.tasks import tight_insert as TI
+
+LOOK_S = 0.5  # s: how long it looks before it moves (some 15 camera frames)
+GRASP_BELOW_M = 0.010  # m: ee site this far below the head's top (fingertips 4 mm above the head's underside)
+PIN_LEN_M = TI.SHAFT_L_M + 2 * TI.HEAD_HALF[2]
+TIP_BELOW_EE_M = PIN_LEN_M - GRASP_BELOW_M  # m: the tip under the ee site when held as grasped
+HELD_STROKE_M = 0.008  # m: fingers that stop at least this far apart hold something (the head is 18 mm)
+GRASP_TRIES = 3
+LIFT_M = 0.075
+APPROACH_ABOVE_M = 0.012  # m: tip this far above the fixture's seen top before the touch-down
+TOUCH_SPEED_M_S = 0.008
+TOUCH_MAX_M = 0.045  # m: the longest touch-down (past the seen top: straight in)
+STRAIGHT_IN_M = 0.010  # m: a touch felt this far below the seen top means the pin went in on its own
+PUSH_FELT_NM = (0.18, 0.28)  # N*m: the felt push a demonstration searches with (drawn per episode)
+DEPTH_KI = 0.05  # m per (N*m * s): how fast the aimed depth follows the felt push error (wipe.py's)
+DEPTH_RANGE_M = (-0.003, 0.03)  # m: aimed depth below the touch, bounds
+SEARCH_PITCH_M = 0.0015  # m: spiral pitch (the pin drops when its tip is within 1.2 mm of the axis)
+SEARCH_SPEED_M_S = 0.010  # m/s along the spiral
+SEARCH_R_M = 0.010  # m: the widest spiral (the seen bore is off by 2.8-3.6 mm std per axis, relative)
+SEARCHES = 2  # spirals before giving up
+DROP_M = 0.0025  # m: the hand sinking this far below where it touched means the pin dropped into the bore
+HOME_M = TI.DEPTH_M - 0.004  # m: sunk this far below the touch: deep in the bore
+STILL_S = 0.5  # s: no sinking (< STILL_M) for this long while pushed: it has stopped
+STILL_M = 0.0003
+PUSH_S = 6.0  # s: the longest push home
+JAM_TRIES = 3
+
+
+class Sight:
+    """What the operator has seen: per object, the mean of its detections (one per camera frame, counted
+    once), restartable (look again)."""
+
+    def __init__(self):
+        self.sum: dict = {}
+        self.n: dict = {}
+        self.last: dict = {}
+        self.rot: dict = {}
+
+    def add(self, seen: dict | None) -> None:
+        for k, s in (seen or {}).items():
+            if not s.visible or not np.all(np.isfinite(s.pos_m)):
+                continue
+            if k in self.last and np.array_equal(self.last[k], s.pos_m):
+                continue  # the same frame, held
+            self.last[k] = np.array(s.pos_m, float)
+            self.sum[k] = self.sum.get(k, 0.0) + self.last[k]
+            self.n[k] = self.n.get(k, 0) + 1
+            self.rot[k] = np.array(s.rot, float)
+
+    def forget(self, k: str) -> None:
+        self.sum.pop(k, None)
+        self.n.pop(k, None)
+
+    def pos(self, k: str) -> np.ndarray | None:
+        return self.sum[k] / self.n[k] if self.n.get(k) else None
+
+    def frames(self, k: str) -> int:
+        return self.n.get(k, 0)
+
+
+def hand_pose(op) -> np.ndarray:
+    """Where the gripper is, from the follower's reported joints (FK): the operator's own arm, not the twin's
+    truth."""
+    return op.fk(op.p.q_follower)
+
+
+def stroke_m(op) -> float:
+    s = getattr(op.p, "stroke_m", float("nan"))
+    return float(s) if s is not None else float("nan")
+
+
+def spiral_xy(s_m: float, pitch_m: float) -> np.ndarray:
+    """Point [m] of an Archimedean spiral (r = pitch * theta / 2 pi) after arc length s_m [m] from its centre
+    (pure; the arc length approximated by pitch * theta^2 / 4 pi, exact enough past the first turn)."""
+    th = np.sqrt(4 * np.pi * max(s_m, 0.0) / pitch_m)
+    r = pitch_m * th / (2 * np.pi)
+    return np.array([r * np.cos(th), r * np.sin(th)])
+
+
+def tight_insert(op, params, rng: np.random.Generator, held: bool = False):
+    """The script (a generator: one decision per yield); params are not read (the truth is in there)."""
+    sight = Sight()
+    inner = _script(op, rng, sight)
+    while True:
+        sight.add(getattr(op.p, "seen", None))
+        try:
+            next(inner)
+        except StopIteration as stop:
+            return stop.value
+        yield
+
+
+def _down(yaw: float, p) -> np.ndarray:
+    return K.pose(K.down_rotation(yaw), p)
+
+
+def _script(op, rng, sight: Sight):
+    speed = rng.uniform(0.8, 1.3)
+
+    def dur(s):
+        return s * speed * rng.uniform(0.85, 1.15)
+
+    out = op.log = {"gave_up": False, "retries": 0, "felt": [], "grasps": 0, "spirals": 0, "jams": 0}
+    yield
+    yield from wait(op, LOOK_S)
+    if sight.pos("pin") is None or sight.pos("hole") is None:
+        yield from wait(op, 1.0)  # nothing seen yet (dropped frames): look a while longer
+    if sight.pos("pin") is None or sight.pos("hole") is None:  # no detector behind op.p.seen: blind
+        out["gave_up"], out["result"] = True, "nothing seen"
+        return out
+    for _grasp in range(GRASP_TRIES):
+        out["grasps"] += 1
+        ok, yaw = yield from _grasp_pin(op, sight, rng, dur)
+        if ok:
+            break
+    else:
+        out["gave_up"] = True
+        return out
+    result = yield from _find_and_insert(op, sight, rng, dur, yaw, out)
+    out["result"] = result
+    out["gave_up"] = result != "seated"
+    op.servo_on = True
+    yield from grip(op, 0.0, dur(0.4))
+    yield from wait(op, 0.3)
+    T = hand_pose(op)
+    yield from move(op, _down(yaw, T[:3, 3] + [0, 0, 0.06]), dur(0.9), T_from=T)
+    return out
+
+
+def _grasp_pin(op, sight: Sight, rng, dur):
+    """Grasp the pin's head where it is seen; (True, gripper yaw) once it is in the hand."""
+    p = sight.pos("pin")
+    R = sight.rot["pin"]
+    top = p + PIN_LEN_M * R[:, 2]
+    grasp_p = top - [0, 0, GRASP_BELOW_M]
+    yaw = best_down_yaw(op, grasp_p, yaw_of(R), np.pi / 2)
+    bump = np.array([rng.uniform(-0.03, 0.03), rng.uniform(-0.03, 0.03), rng.uniform(0.0, 0.05)])
+    yield from grip(op, 0.0, 0.2)
+    yield from move(op, _down(yaw, grasp_p + [0, 0, 0.07]), dur(1.8), bump=bump)
+    yield from move(op, _down(yaw, grasp_p), dur(1.0))
+    yield from wait(op, 0.4)
+    yield from grip(op, 1.0, dur(0.5))
+    yield from wait(op, 0.5)
+    closed_on = stroke_m(op)
+    sight.forget("pin")  # from here on, a detection of the pin is a new look
+    yield from move(op, _down(yaw, grasp_p + [0, 0, LIFT_M]), dur(0.9))
+    yield from wait(op, 0.4)  # a pin left standing comes back into view (latency, frames)
+    left = sight.pos("pin")
+    in_hand = not (closed_on < HELD_STROKE_M) and not (left is not None and left[2] < 0.02)
+    if not in_hand:
+        yield from grip(op, 0.0, dur(0.4))
+        yield from wait(op, 0.6)
+    return in_hand, yaw
+
+
+def _find_and_insert(op, sight: Sight, rng, dur, yaw: float, out: dict):
+    """Over the bore as seen, touch down, search by feel, push home; 'seated', 'lost' or 'jammed'."""
+    felt_target = rng.uniform(*PUSH_FELT_NM)
+    for search in range(SEARCHES):
+        hole = sight.pos("hole")
+        top_z = hole[2] + TI.DEPTH_M  # the fixture's top, as seen
+        centre = hole[:2].copy()
+        above = np.array([*centre, top_z + APPROACH_ABOVE_M + TIP_BELOW_EE_M])
+        bump = np.array([rng.uniform(-0.02, 0.02), 0.0, rng.uniform(0.0, 0.04)]) if search == 0 else None
+        yield from move(op, _down(yaw, above), dur(2.0), bump=bump)
+        yield from wait(op, 0.3)
+        z_touch = yield from _touch_down(op, yaw, above, out)
+        if z_touch is None:
+            return "lost"
+        op.servo_on = False  # from here the push is regulated by feel (wipe.py)
+        if z_touch < above[2] - APPROACH_ABOVE_M - STRAIGHT_IN_M:
+            status = "dropped"  # felt far below the top: it went in on the way down
+            z_touch = above[2] - APPROACH_ABOVE_M  # the hand's height with the tip at the top, as seen
+        else:
+            out["spirals"] += 1
+            t0 = op.p.t
+            status = yield from _spiral(op, yaw, centre, z_touch, felt_target, rng)
+            out["search_s"] = round(out.get("search_s", 0.0) + op.p.t - t0, 2)
+        if status == "dropped":
+            for _jam in range(JAM_TRIES):
+                t0 = op.p.t
+                status = yield from _push_home(op, yaw, z_touch, felt_target)
+                out["push_s"] = round(out.get("push_s", 0.0) + op.p.t - t0, 2)
+                if status == "seated":
+                    return status
+                out["jams"] += 1
+            return "jammed"
+        out["retries"] += 1  # nothing found: lift, look again
+        op.servo_on = True
+        T = hand_pose(op)
+        yield from move(op, _down(yaw, T[:3, 3] + [0, 0, 0.02]), dur(0.6), T_from=T)
+        yield from wait(op, 0.5)
+    return "lost"
+
+
+def _touch_down(op, yaw, above, out):
+    """Lower slowly until contact is felt; the hand's height then [m] (None: nothing felt)."""
+    z = above[2]
+    for _ in range(round(TOUCH_MAX_M / TOUCH_SPEED_M_S / DECIDE_DT_S)):
+        z -= TOUCH_SPEED_M_S * DECIDE_DT_S
+        op.aim(_down(yaw, [*above[:2], z]))
+        yield
+        if op.p.felt_nm > FELT_NM:
+            zt = float(hand_pose(op)[2, 3])
+            out["felt"].append({"t": round(op.p.t, 2), "by": "feedback", "what": "touch",
+                                "height_mm": round(zt * 1e3, 1)})
+            return zt
+    return None
+
+
+def _regulate(op, depth: float, felt_target: float) -> float:
+    return float(np.clip(depth + DEPTH_KI * (felt_target - op.p.felt_nm) * DECIDE_DT_S, *DEPTH_RANGE_M))
+
+
+def _spiral(op, yaw, centre, z_touch, felt_target, rng):
+    """Trace the spiral around centre pressing with the felt push; 'dropped' when the hand sinks DROP_M
+    below the touch, 'none' when the spiral is done."""
+    depth = 0.0
+    s = 0.0
+    phase = rng.uniform(0, 2 * np.pi)
+    c, sn = np.cos(phase), np.sin(phase)
+    while True:
+        xy = spiral_xy(s, SEARCH_PITCH_M)
+        if np.hypot(*xy) > SEARCH_R_M:
+            return "none"
+        xy = np.array([c * xy[0] - sn * xy[1], sn * xy[0] + c * xy[1]])
+        depth = _regulate(op, depth, felt_target)
+        op.aim(_down(yaw, [*(centre + xy), z_touch - depth]))
+        yield
+        if hand_pose(op)[2, 3] < z_touch - DROP_M:
+            return "dropped"
+        s += SEARCH_SPEED_M_S * DECIDE_DT_S
+
+
+def _push_home(op, yaw, z_touch, felt_target):
+    """Hold where the pin dropped and push on the felt push until the hand stops sinking: 'seated' deep in
+    the bore, 'jammed' (after lifting a little) when it stopped short."""
+    xy = hand_pose(op)[:2, 3].copy()
+    depth = max(0.0, z_touch - float(hand_pose(op)[2, 3]))
+    window = round(STILL_S / DECIDE_DT_S)
+    zs: list[float] = []
+    for _ in range(round(PUSH_S / DECIDE_DT_S)):
+        depth = _regulate(op, depth, felt_target * 1.3)
+        op.aim(_down(yaw, [*xy, z_touch - depth]))
+        yield
+        z = float(hand_pose(op)[2, 3])
+        zs.append(z)
+        still = len(zs) > window and abs(zs[-window] - z) < STILL_M and op.p.felt_nm > FELT_NM
+        if still:
+            if z_touch - z > HOME_M:
+                return "seated"
+            break
+    for k in range(round(0.4 / DECIDE_DT_S)):  # stopped short: ease off and lift a little, then again
+        op.aim(_down(yaw, [*xy, z_touch - depth + 0.002 * k / round(0.4 / DECIDE_DT_S)]))
+        yield
+    return "jammed"

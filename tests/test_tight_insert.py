@@ -1,0 +1,116 @@
+"""tight-insert (SIMULATED): stages judged from the twin's truth on scripted states (success and near misses),
+what a camera could detect (poses only), seeded resets, the contacts at 0.2 mm per side (the pin goes in
+when its tip is within the chamfer's reach, stays on top beyond, drops when slid across the mouth, and no
+task contact interpenetrates beyond half the per-side clearance), and the demonstrator's pure pieces (the
+search spiral covers the area it searches, what it has seen is averaged frame by frame)."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from factr2_teleop.tasks import tight as S
+from hardware.arms import load_arm
+from hardware.sim.perception import Seen
+from hardware.sim.tasks import get_task, scene_model
+from hardware.sim.tasks import tight_insert as TI
+from hardware.sim.tasks.tight_check import lower_held_pin, slide_held_pin
+
+HOLE = np.array([0.3, 0.1, 0.0])
+HALF_SIDE_CLEARANCE_M = TI.CLEARANCE_M / 4  # the stated bound on task-contact interpenetration (0.1 mm)
+
+
+def _tilt_x(a):
+    return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+
+
+def _obs(dx=0.0, dy=0.0, tip_z=0.0, tilt=0.0, held=(True, True)):
+    return {"pin_pos": HOLE + [dx, dy, tip_z], "pin_rot": _tilt_x(tilt), "hole_pos": HOLE, "hole_yaw": 0.3,
+            "finger_touch": np.array(held)}
+
+
+def test_tight_detectors_success_and_near_misses():
+    d = TI.detect_tight
+    assert d(_obs(dx=0.05, tip_z=0.05)).tolist() == [True, False, False, False]  # carried
+    assert not d(_obs(dx=0.05, tip_z=0.05, held=(True, False)))[0]  # one finger
+    assert not d(_obs(dx=0.05, tip_z=0.005))[0]  # not lifted
+    over = _obs(dx=0.0008, dy=-0.0008, tip_z=TI.DEPTH_M + 0.001)
+    assert d(over).tolist() == [True, True, False, False]  # within the chamfer's reach, on the mouth
+    assert not d(_obs(dx=0.0015, tip_z=TI.DEPTH_M))[1]  # 1.5 mm off: rests on the rim
+    assert not d(_obs(tip_z=TI.DEPTH_M + 0.01))[1]  # too high
+    assert not d(_obs(tip_z=TI.DEPTH_M, tilt=np.deg2rad(4)))[1]
+    assert d(_obs(dx=0.0002, tip_z=0.01)).tolist()[2:] == [True, False]  # half way down the bore
+    assert not d(_obs(dx=0.0002, tip_z=TI.DEPTH_M - TI.CHAMFER_M))[2]  # in the chamfer, not the bore
+    assert d(_obs(dx=0.0002, tip_z=0.0001, held=(False, False)))[3]  # seated, let go
+    assert not d(_obs(dx=0.0002, tip_z=0.001))[3]  # 1 mm short of the floor
+    assert not d(_obs(dx=0.003, tip_z=0.0))[3]  # beside the bore (not possible in the twin: judged anyway)
+    assert not d(_obs(tip_z=0.0, tilt=np.deg2rad(3)))[3]
+
+
+def test_tight_detectables_are_poses_named_as_observed():
+    task = get_task("tight-insert")
+    m = scene_model(load_arm("piper"), "table", task)
+    d = mujoco.MjData(m)
+    params = task.reset(m, d, np.random.default_rng(7))
+    mujoco.mj_forward(m, d)
+    det = task.detectables(m, d, params)
+    assert sorted(det) == ["hole", "pin"]
+    for pos, rot in det.values():
+        assert np.shape(pos) == (3,) and np.shape(rot) == (3, 3)
+        assert np.allclose(rot @ rot.T, np.eye(3), atol=1e-9)
+    obs = task.observe(m, d, params)
+    assert np.allclose(det["pin"][0], obs["pin_pos"]) and np.allclose(det["hole"][0], params["hole_pos"])
+    assert np.isclose(np.arctan2(det["hole"][1][1, 0], det["hole"][1][0, 0]), params["hole_yaw"])
+
+
+def test_tight_reset_is_seeded():
+    task = get_task("tight-insert")
+    m = scene_model(load_arm("piper"), "table", task)
+    d = mujoco.MjData(m)
+    a = task.reset(m, d, np.random.default_rng(11))
+    b = task.reset(m, d, np.random.default_rng(11))
+    c = task.reset(m, d, np.random.default_rng(12))
+    assert all(np.array_equal(a[k], b[k]) for k in a) and not np.array_equal(a["hole_pos"], c["hole_pos"])
+
+
+@pytest.mark.parametrize("offset_m", [0.0, 0.001])  # within CAPTURE_M (1.2 mm): the chamfer leads it in
+def test_pin_within_reach_goes_in_and_seats(offset_m):
+    r = lower_held_pin(offset_m)
+    assert r["stages"][2:].tolist() == [True, True]
+    assert r["pen_fixture_m"] < HALF_SIDE_CLEARANCE_M and r["jitter_m"] < 1e-5
+
+
+@pytest.mark.parametrize("offset_m", [0.0016, 0.003])
+def test_pin_beyond_reach_stays_on_top(offset_m):
+    r = lower_held_pin(offset_m)
+    assert not r["stages"][1] and r["tip_z_m"] > TI.DEPTH_M - 0.0005
+    assert r["pen_fixture_m"] < HALF_SIDE_CLEARANCE_M
+
+
+def test_pin_slid_across_the_mouth_drops_in():
+    r = slide_held_pin(from_m=0.004, speed_m_s=S.SEARCH_SPEED_M_S)
+    assert r["stages"][2] and r["tip_z_m"] < TI.DEPTH_M - 0.002
+
+
+def test_search_spiral_covers_its_disc():
+    s = np.arange(0, 0.2, 0.0002)
+    pts = np.array([S.spiral_xy(x, S.SEARCH_PITCH_M) for x in s])
+    pts = pts[np.hypot(*pts.T) <= S.SEARCH_R_M]
+    assert np.allclose(np.hypot(*S.spiral_xy(0.0, 0.001)), 0.0)
+    rng = np.random.default_rng(0)
+    r = (S.SEARCH_R_M - S.SEARCH_PITCH_M) * np.sqrt(rng.random(400))
+    a = rng.uniform(0, 2 * np.pi, 400)
+    targets = np.column_stack([r * np.cos(a), r * np.sin(a)])
+    gaps = np.min(np.linalg.norm(targets[:, None, :] - pts[None], axis=2), axis=1)
+    assert gaps.max() < TI.CAPTURE_M  # every bore centre in the disc passes within the pin's reach
+
+
+def test_sight_counts_each_frame_once_and_skips_stale():
+    sight = S.Sight()
+    a = Seen(np.array([1.0, 0.0, 0.0]), np.eye(3), 0.0, True)
+    b = Seen(np.array([3.0, 0.0, 0.0]), np.eye(3), 0.0, True)
+    stale = Seen(np.array([9.0, 0.0, 0.0]), np.eye(3), 0.5, False)
+    for seen in ({"pin": a}, {"pin": a}, {"pin": stale}, {"pin": b}):  # a held frame, an occluded one
+        sight.add(seen)
+    assert sight.frames("pin") == 2 and np.allclose(sight.pos("pin"), [2.0, 0.0, 0.0])
+    sight.forget("pin")
+    assert sight.pos("pin") is None and sight.pos("hole") is None
