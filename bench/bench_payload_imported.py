@@ -19,6 +19,12 @@
    no-payload calibration run by the current-scaled prior (calibration/next/scaled_prior.py), which the CAD
    masses anchor (the "one known mass" of docs/arms.md), then i / s_fitted. Each diagnosed as in 3.
 
+   (c) in current, around the calibration's own prior (issue 57): the identified-current prior fitted on the
+   no-payload calibration run IN CURRENT is the base model (as `factr2 diagnose --model next.json
+   --prior-only`), and the payload's regressor columns are scaled by that prior's per-joint scales (CAD-
+   referenced: calibration/diagnosis/payload.py); the loop ranks it against gravity_load per joint. The
+   report's mass (with its bootstrap interval) and centre of mass.
+
 Writes bench/out/payload_imported.json and prints the table.
 """
 
@@ -116,6 +122,43 @@ def diagnose(train: Path, held: Path, reference=None):
     return run(basis, tr, he, declared=first_pass(reference))
 
 
+def in_current(prior, calib, plain_held, train, held, mass: float, com) -> dict:
+    """Case (c): the loaded runs in current, diagnosed around the identified-current prior fitted on the
+    unloaded calibration run, the payload's columns times its scales (payload.choose_scale)."""
+    import tempfile as tf
+
+    from calibration.diagnosis.data import load_segments
+    from calibration.diagnosis.loop import diagnose as run
+    from calibration.diagnosis.next_loop import _predictions, fixed_basis
+    from calibration.diagnosis.payload import choose_scale
+    from calibration.diagnosis.report import to_json
+    from hardware.arms import load_arm
+
+    folder = Path(tf.mkdtemp(prefix="payload_current_"))
+    paths = {k: _save(folder, k, a, S_CURRENT) for k, a in (("train", train), ("held", held))}
+    scale = choose_scale("A", prior_scale=prior.scale)
+
+    def predict(segs):
+        return _predictions(None, None, 1, "", 100.0, segs, prior)
+
+    basis, tr, ho = fixed_basis(load_segments(paths["train"]), load_segments(paths["held"]), predict,
+                                "identified-current prior", load_arm("ur5").pinocchio_model(), scale)
+    dg = run(basis, tr, ho)
+    rep = to_json(dg, {"units": "A", "payload_scale": scale, "next_checkpoint": "prior"})
+    r = first_payload(dg)
+    p = rep.get("payload")
+    if p:
+        r["mass_err"] = p["mass"] / mass - 1
+        r["position_err_m"] = float(np.linalg.norm(np.array(p["com_m"]) - np.array(com)))
+        r["interval"] = p.get("interval")
+        r["words"] = p["words"]
+    r["headline"] = rep["headline"]
+    r["heldout_l1_before"], r["heldout_l1_after"] = dg.steps[0].heldout_l1, rep["after"]["heldout_l1"]
+    print(f"A, in current around the prior: first {r['first']}; {r.get('words')}; mass err "
+          f"{r.get('mass_err', np.nan):+.1%}", flush=True)
+    return r
+
+
 def first_payload(dg) -> dict:
     added = [s.added for s in dg.steps[1:] if s.added]
     first = added[0] if added else None
@@ -135,6 +178,7 @@ def main() -> int:
     ap.add_argument("--mechanical", action="store_true",
                     help="the twin's mechanical effects on too (friction, Stribeck, backlash, ripple, "
                          "thermal)")
+    ap.add_argument("--only-current", action="store_true", help="case (c) only")
     ap.add_argument("--out", default=str(ROOT / "bench/out/payload_imported.json"))
     args = ap.parse_args()
     com = [float(v) for v in args.com.split(",")]
@@ -162,11 +206,13 @@ def main() -> int:
     from calibration.next.scaled_prior import fit_scaled_prior
 
     c = calib
-    fitted = fit_scaled_prior("ur5", [(c["t"], c["q"], c["qd"], c["tau_m"] * S_CURRENT)]).scale
+    fitted_prior = fit_scaled_prior("ur5", [(c["t"], c["q"], c["qd"], c["tau_m"] * S_CURRENT)])
+    fitted = fitted_prior.scale
     print("current-per-torque scale fitted on the no-payload run [A per N*m]:", np.round(fitted, 4).tolist())
     for case, scale_in, scale_back in (("N*m", None, None),
                                        ("A, known torque constant", S_CURRENT, S_CURRENT),
-                                       ("A, scale identified (CAD masses)", S_CURRENT, fitted)):
+                                       ("A, scale identified (CAD masses)", S_CURRENT, fitted)
+                                       )[3 if args.only_current else 0:]:
         runs = {"calib": calib, "calib_held": plain_held, "train": train, "held": held}
         if scale_in is not None:  # through current and back with the scale the case knows
             runs = {k: {**a, "tau_m": a["tau_m"] * scale_in / scale_back} for k, a in runs.items()}
@@ -187,6 +233,8 @@ def main() -> int:
               f"mass err {r.get('mass_err', np.nan):+.1%}, "
               f"position err {r.get('position_err_m', np.nan):.3f} m",
               flush=True)
+    out["cases"]["A, in current around the prior (scaled columns)"] = in_current(
+        fitted_prior, calib, plain_held, train, held, args.mass, com)
     out["scale_fitted"] = fitted.tolist()
     out["scale_true"] = S_CURRENT.tolist()
     out["wall_s"] = round(time.perf_counter() - t0, 1)

@@ -130,3 +130,59 @@ def test_bootstrap_interval_is_honest_for_white_noise(arm):
     assert iv["mass"][0] <= MASS <= iv["mass"][1]
     s = summary(model.effects[0].coef, draws, CurrentScale(S_TRUE, "torque constants"))
     assert s["mass_kg"] == pytest.approx(MASS, rel=0.03) and "interval" in s
+
+
+def test_cli_prior_only_on_current_logs_states_kg_and_refuses_a_lone_known_mass(tmp_path):
+    """`factr2 diagnose LOADED --model next.json --prior-only`: a checkpoint of arm piper in A whose prior is
+    identified-current (here the description with scales S, as a calibration of a unit whose CAD masses
+    are right would fit it); the loaded runs carry a payload the checkpoint never saw."""
+    import json
+
+    torch = pytest.importorskip("torch")
+    torch.set_num_threads(1)
+    from calibration.next.checkpoint import NextCheckpoint, save_checkpoint
+    from calibration.next.data import Segment as NSeg
+    from calibration.next.data import build_windows
+    from calibration.next.prior import description_prior
+    from calibration.next.scaled_prior import ScaledPrior
+    from calibration.next.train import TrainConfig, train
+    from factr2_teleop.cli import main
+    from hardware.arms import load_arm
+
+    desc = load_arm("piper")
+    model = desc.pinocchio_model()
+    data = model.createData()
+    s = np.array([0.2, 0.2, 0.2, 0.5, 0.5, 0.5])
+    paths = []
+    for seed in range(3):
+        t, q = trajectory(20.0, 100.0, 6, seed)
+        q = 0.5 * q + np.array([0.0, 1.2, -1.2, 0.0, 0.0, 0.0])
+        qd = differentiate(t, q, 1)
+        qdd = differentiate(t, qd, 1)
+        tau = np.stack([pin.rnea(model, data, q[i], qd[i], qdd[i]) for i in range(len(t))])
+        tau += payload_columns(model, q, qd, qdd) @ np.array([0.5, 0.0, 0.0, 0.5 * 0.05])
+        cur = s * tau + 0.005 * np.random.default_rng(seed).standard_normal(tau.shape)
+        p = tmp_path / f"loaded{seed}.npz"
+        np.savez(p, t=t, q=q, qd=qd, q_cmd=q, current=cur, joint_names=np.array(desc.joint_names))
+        paths.append(str(p))
+    d0 = np.load(paths[0])
+    w = build_windows([NSeg(t=d0["t"], q=d0["q"], qd=d0["qd"], q_cmd=d0["q"], tau=d0["current"],
+                            rate_hz=100.0)], history=10, inputs="q,qd,dq")
+    res = train(w, TrainConfig(arch="mlp", history=10, head_hidden=16, max_epochs=1, threads=1, device="cpu",
+                               samples_per_epoch=512), progress_bar=False)
+    ck = NextCheckpoint(model=res.model, normalizer=w.normalizer, arm="piper",
+                        joint_names=list(desc.joint_names), units="A", inputs="q,qd,dq", rate_hz=100.0,
+                        x_min=w.x_min, x_max=w.x_max, prior=ScaledPrior(description_prior("piper"), s))
+    ckpt = save_checkpoint(ck, tmp_path / "next")
+    out = tmp_path / "diag"
+    assert main(["diagnose", *paths, "--model", str(ckpt), "--prior-only", "--out", str(out), "--no-plots",
+                 "--max-effects", "3"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["steps"][1]["added"]["effect"] == "payload"
+    assert rep["payload"]["reference"] == "description masses" and rep["payload"]["in_kg"]
+    assert rep["payload"]["mass_kg"] == pytest.approx(0.5, rel=0.1)
+    assert main(["diagnose", *paths, "--model", str(ckpt), "--prior-only", "--mass-reference", "none",
+                 "--out", str(out), "--no-plots", "--max-effects", "1"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["payload"]["mass_kg"] is None and "cannot be stated in kg" in rep["headline"]
+    assert main(["diagnose", *paths, "--known-mass", "0.5", "--out", str(out)]) == 2

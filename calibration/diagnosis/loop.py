@@ -110,6 +110,7 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
         comparable = not hasattr(basis, "per_joint")
         order, near = proposals(cands, cfg.close if comparable else np.inf, comparable)
         tries: dict[int, int] = {}
+        compared: list[dict] = []  # every trial fit of the round, with what it removes (the ranking shown)
         for c in order:
             if accepted is not None and not near(c):
                 break  # a close candidate passed; the weaker ones are not compared
@@ -123,6 +124,8 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
                 continue
             tries[who] = tries.get(who, 0) + 1
             tried = _try(model, c, train, held, (l1, rms), floor, cfg)
+            compared.append({"effect": c.effect.family, "joint": c.effect.joint, "passed": tried is not None,
+                             "heldout_explained_units": c.evidence.get("heldout_explained_units")})
             if tried is None:
                 _reject(c, rejected, log)
                 continue
@@ -152,7 +155,8 @@ def diagnose(basis, train_segments, heldout_segments, config: LoopConfig | None 
         final = next(e for e in trial.effects if e.key == c.effect.key)
         added.coef = final.coef
         held_res = held.y - model.predict(held)
-        steps.append(Step({**final.to_json(), "evidence": c.evidence}, l1_new.tolist(), rms_new.tolist(),
+        steps.append(Step({**final.to_json(), "evidence": {**c.evidence, "compared_in_round": compared}},
+                          l1_new.tolist(), rms_new.tolist(),
                           ltr_new.tolist(), trial, (res_train, held_res)))
         log(f"added {c.effect.family} on {_where(c.effect)} {final.params()}: held-out L1 "
             f"{_where(c.effect)} {_l1_of(c.effect, l1):.4f} -> {_l1_of(c.effect, l1_new):.4f}")

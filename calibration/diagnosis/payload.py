@@ -56,6 +56,20 @@ class CurrentScale:
                 "current_per_torque": None if self.scale is None else np.asarray(self.scale).tolist()}
 
 
+UNIDENTIFIED = 0.25  # a fitted scale under this fraction of the joints' median (or <= 0) is not identified
+
+
+def identified(scale) -> np.ndarray:
+    """(n,) bool: which of the identified-current prior's scales are identified. A joint whose current
+    carries almost no rigid-body torque (a wrist roll) gets a scale that friction absorbs at any value --
+    on the real UR5 wrist 2 0.008 and wrist 3 -0.072 A per N*m against the controller's 0.09 / 0.12
+    (docs/arms.md) -- and its payload columns would be scaled by that: such joints are left out of the
+    payload's fit (columns zero) and named."""
+    s = np.asarray(scale, float)
+    pos = s[s > 0]
+    return (s > 0) & (s >= UNIDENTIFIED * (np.median(pos) if len(pos) else np.inf))
+
+
 def choose_scale(units: str, kt=None, prior_scale=None, known_alpha: float | None = None,
                  referenced: bool = True) -> CurrentScale | None:
     """The scale of the payload columns and its reference. units: of the logs; kt: vendor torque constants
@@ -69,10 +83,14 @@ def choose_scale(units: str, kt=None, prior_scale=None, known_alpha: float | Non
         return CurrentScale(1.0 / np.asarray(kt, float), "torque constants")
     if prior_scale is None:
         return None
-    s = np.asarray(prior_scale, float)
+    ok = identified(prior_scale)
+    s = np.where(ok, np.asarray(prior_scale, float), 0.0)
+    left = ("" if ok.all() else "joints " + ", ".join(str(j) for j in np.flatnonzero(~ok))
+            + " left out of the payload's fit (their scale is not identified)")
     if known_alpha is not None:
-        return CurrentScale(s * known_alpha, "known mass", f"alpha {known_alpha:.4g} on the prior's scales")
-    return CurrentScale(s, "description masses" if referenced else "none")
+        what = f"alpha {known_alpha:.4g} on the prior's scales"
+        return CurrentScale(s * known_alpha, "known mass", "; ".join(x for x in (what, left) if x))
+    return CurrentScale(s, "description masses" if referenced else "none", left)
 
 
 def alpha_from_known_mass(m_found: float, m_known_kg: float) -> float:

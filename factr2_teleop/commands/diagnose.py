@@ -143,7 +143,8 @@ def _basis(args, model, n: int, units: str):
         return DataBasis(n)
     if units != "N*m":
         raise UserError("logs are in current [A]; the arm's regressor is in N*m", where="--arm",
-                        fix="pass --kt K1,K2,... (N*m/A per joint), or --arm none for the data-only basis")
+                        fix="pass --kt K1,K2,... (N*m/A per joint), or --model next.json --prior-only of a "
+                            "calibration on these logs (its prior's current scales), or --arm none")
     return PinocchioBasis(model, ridge=args.prior_weight)
 
 
