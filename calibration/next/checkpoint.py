@@ -68,7 +68,17 @@ def save_checkpoint(ck: NextCheckpoint, path: str | Path) -> Path:
 
 def load_checkpoint(path: str | Path, arm: str | None = None, joint_names: list[str] | None = None
                     ) -> NextCheckpoint:
-    """Load a checkpoint; with `arm` / `joint_names` given, refuse one trained for anything else."""
+    """Load a checkpoint; with `arm` / `joint_names` given, refuse one trained for anything else. A folder in
+    the official stack's layout (model.pt, normalization.npz: calibration.next.official) loads too; it names
+    no joints unless written here, so only their number is checked then."""
+    if Path(path).is_dir():
+        from calibration.next.official import load_official
+
+        ck = load_official(path)
+        if joint_names is not None and len(joint_names) != len(ck.joint_names):
+            raise UserError(f"official NEXT checkpoint for {len(ck.joint_names)} joints, this arm has "
+                            f"{len(joint_names)}", where=str(path), fix="use the checkpoint of this arm")
+        return ck
     w_path, j_path = _paths(path)
     for p in (j_path, w_path):
         if not p.exists():

@@ -232,7 +232,15 @@ def _read_mcap(path: Path, arm: str, rate_hz: float) -> list[LogRead]:
 
 
 def read_logs(path: str | Path, rate_hz: float = 100.0, arm: str = "follower") -> list[LogRead]:
-    """Every run in a file: a plain .npz log is one run, an MCAP recording one run per episode of `arm`."""
+    """Every run in a file: a plain .npz log is one run, an MCAP recording one run per episode of `arm`, an
+    official NEXT H5 file one run per episode (calibration.next.h5_logs; FILE.h5::ARM names its arm)."""
+    from calibration.next.h5_logs import H5_SUFFIXES, read_h5, split_arm
+
+    h5, h5_arm = split_arm(path)
+    if h5.suffix.lower() in H5_SUFFIXES:
+        if not h5.is_file():
+            raise _bad(h5, "file not found", "check the path")
+        return read_h5(h5, rate_hz, h5_arm)
     path = Path(path)
     if not path.is_file():
         raise _bad(path, "file not found", "check the path")

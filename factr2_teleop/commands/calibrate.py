@@ -23,7 +23,8 @@ HELP = "train NEXT external-torque estimation from free-motion logs and compare 
 
 def add_arguments(p) -> None:
     p.add_argument("--from-logs", nargs="+", metavar="LOG", help="free-motion logs to train on: plain .npz "
-                   "logs or .mcap recordings (a --rig run's data/calibration.mcap)")
+                   "logs, .mcap recordings (a --rig run's data/calibration.mcap) or the official NEXT H5 "
+                   "files (FILE.h5, FILE.h5::ARM for one arm of several)")
     p.add_argument("--eval", nargs="*", default=[], metavar="LOG.npz",
                    help="held-out logs: free motion (scored vs 0) unless they carry contact/tau_ext_true")
     p.add_argument("--eval-unlabeled", nargs="*", default=[], metavar="LOG.npz",
@@ -139,7 +140,7 @@ def _check_files(paths, flag: str) -> list[Path]:
     out = []
     for p in paths:
         path = Path(p)
-        if not path.is_file():
+        if not Path(str(p).rsplit("::", 1)[0]).is_file():  # FILE.h5::ARM: an arm of an official H5 file
             raise UserError("log file not found", where=str(path), fix=f"check the paths given to {flag}")
         out.append(path)
     return out

@@ -1,5 +1,7 @@
 """`factr2 export lerobot RECORDING_OR_DIR... --out DIR`: recorded episodes as a LeRobotDataset v3.0
-folder (state, tau_ext, action, images as mp4, the FIRST phase of every frame); policies/export_lerobot.py."""
+folder (state, tau_ext, action, images as mp4, the FIRST phase of every frame); policies/export_lerobot.py.
+`factr2 export next-official CKPT --out DIR`: a NEXT checkpoint in the official stack's layout
+(calibration/next/official.py)."""
 
 from __future__ import annotations
 
@@ -26,9 +28,32 @@ def add_arguments(parser) -> None:
     p.add_argument("--robot-type", default="", help="info.json robot_type (default: factr2)")
     p.add_argument("--lerobot-map", default=None, metavar="ROLE=KEY,...",
                    help="LeRobotDataset inputs: feature names over the defaults (docs/bringing_data.md)")
+    p = sub.add_parser("next-official", help="a NEXT checkpoint in the official ROS 2 stack's layout "
+                       "(model.pt, normalization.npz, metrics.json, config.yaml)")
+    p.add_argument("checkpoint", type=Path, metavar="CKPT",
+                   help="a `factr2 calibrate` checkpoint (next.json)")
+    p.add_argument("--out", type=Path, required=True, metavar="DIR", help="the run folder (must not exist)")
+
+
+def _next_official(args) -> int:
+    from calibration.next.checkpoint import load_checkpoint
+    from calibration.next.official import OFFICIAL_RATE_HZ, write_official
+
+    if args.out.exists():
+        raise UserError("output folder exists", where=str(args.out), fix="name a new --out folder")
+    ck = load_checkpoint(args.checkpoint)
+    write_official(ck, args.out)
+    print(f"{args.out}: official NEXT layout, {len(ck.joint_names)} joints, history {ck.history} samples at "
+          f"{ck.rate_hz:g} Hz, estimates in {ck.units}")
+    if ck.rate_hz != OFFICIAL_RATE_HZ:
+        print(f"warning: trained at {ck.rate_hz:g} Hz; the official recorder runs at {OFFICIAL_RATE_HZ:g} "
+              f"Hz: calibrate with --rate-hz {OFFICIAL_RATE_HZ:g} to run it there", file=sys.stderr)
+    return 0
 
 
 def run(args) -> int:
+    if args.format == "next-official":
+        return _next_official(args)
     from policies.export_lerobot import export_lerobot
     from policies.labelling import load_next, resolve_thresholds
     from policies.recordings import load_episodes
