@@ -14,8 +14,10 @@ loss per phase F / PC / C.
     python bench/bench_first.py --out /tmp/fb_full --write-docs        # table + chart into docs/first.md
 
 `--obs state` (default) trains on the PRIVILEGED object state of the twin (policies/privileged.py), not on
-images: labelled so everywhere. `--out` is resumable: finished demonstrations, training runs and rollouts are
-kept and skipped (an interrupted training run resumes from its last checkpoint).
+images: labelled so everywhere; `--obs perceived` on those poses as the simulated camera pose detector
+reported them during collection (SIMULATED, docs/perception.md). `--out` is resumable: finished
+demonstrations, training runs and rollouts are kept and skipped (an interrupted training run resumes from its
+last checkpoint).
 """
 
 from __future__ import annotations
@@ -55,6 +57,8 @@ HEADLINE_CELLS = {"base-torque": ("base-torque", None), "first": ("first", (1, 5
 SECOND_CELLS = {"base": ("base", None), "C": ("first", (1, 1, 5)), "PC+C": ("first", (1, 3, 3))}
 TABLES = ("headline", "second", "all")  # which cells a run trains: each one fits a working session
 RIG = "sim-piper"
+OBS_LABELS = {"state": " (PRIVILEGED twin object state, no images)",
+              "perceived": " (SIMULATED camera pose detector's object poses, no images; docs/perception.md)"}
 
 
 @dataclass
@@ -143,7 +147,7 @@ def collect_demos(cfg: BenchConfig, task: str, checkpoint: str) -> dict:
         return recorded_summary(task, demo_folders(cfg, task))
     folder = Path(cfg.out) / task / "demos"
     cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(folder), seed=DEMO_SEED, mode="next",
-                       checkpoint=checkpoint, cameras=cfg.obs != "state")
+                       checkpoint=checkpoint, cameras=cfg.obs == "images")
     mcap, summary = output_paths(cc, RIG)
     if summary.is_file():
         return json.loads(summary.read_text())
@@ -388,7 +392,7 @@ def run_bench(cfg: BenchConfig, report_only: bool = False) -> dict:
                    "cells_wall_s": sum(r["wall_s"] for r in trains + rolls)})
     results = {
         "simulated": True, "command": " ".join(["python", "bench/bench_first.py", *sys.argv[1:]]),
-        "observation": cfg.obs + (" (PRIVILEGED twin object state, no images)" if cfg.obs == "state" else ""),
+        "observation": cfg.obs + OBS_LABELS.get(cfg.obs, ""),
         "config": asdict(cfg), "next_checkpoint": ck, "next_weights_sha256": next_weights_digest(ck),
         "seeds": check_disjoint_seeds(demos, rolls),
         "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
@@ -410,8 +414,10 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     """The configuration and what to do: run, report (the finished cells) or docs (write OUT's report)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench_first", help="results folder (resumable)")
-    ap.add_argument("--obs", choices=("state", "images"), default="state",
-                    help="state: PRIVILEGED object poses, the CPU configuration; images: camera frames (GPU)")
+    ap.add_argument("--obs", choices=("state", "perceived", "images"), default="state",
+                    help="state: PRIVILEGED object poses, the CPU configuration; perceived: those poses "
+                    "through the simulated camera pose detector (SIMULATED, docs/perception.md); images: "
+                    "camera frames (GPU)")
     ap.add_argument("--tasks", default=None, help="comma-separated (default: every task)")
     ap.add_argument("--demos", type=int, default=None)
     ap.add_argument("--seeds", type=int, default=None, help="training seeds per method")

@@ -96,6 +96,8 @@ def preset(name: str, policy: str = "flow") -> PolicyConfig:
 
 
 def default_preset(observation: str) -> str:
-    """The preset `factr2 train` uses when none is named: `state` for a state-only observation, else
-    `small` (images on a CPU; `paper` on a GPU is the user's choice)."""
-    return "state" if observation == "state" else "small"
+    """The preset `factr2 train` uses when none is named: `state` for an observation without images (state
+    or perceived), else `small` (images on a CPU; `paper` on a GPU is the user's choice)."""
+    from policies.privileged import low_dimensional
+
+    return "state" if low_dimensional(observation) else "small"

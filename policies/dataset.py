@@ -7,6 +7,9 @@ camera rate) with
     observation.state.objects  PRIVILEGED (twins only, `observation` "state" / "images+state"): the task
                                objects' vector (policies/privileged.py) last recorded at or before the tick;
                                "state" reads no frames at all
+    observation.perceived.objects  SIMULATED (twins only, "perceived" / "images+perceived"), in its place:
+                               the simulated pose detector's vector as recorded live (hardware/sim/
+                               perception.py; what the demonstrator's camera gave), held the same way
     action                     the next `chunk` commanded joint targets [rad] + gripper [m]
                                (/follower/command) from this tick on; past the episode end the last one is
                                repeated and masked out
@@ -39,7 +42,7 @@ from policies.frame_cache import camera_frames
 from policies.labelling import NextModel, Thresholds, label_episode
 from policies.normalizer import Normalizer
 from policies.preprocess import ImagePath, Preprocess, crop_pool, relative_columns, to_frame
-from policies.privileged import OBSERVATIONS, uses_images, uses_objects
+from policies.privileged import OBSERVATIONS, objects_feature, uses_images
 from policies.recordings import ArmSet, episode_id, follower_state_action, recording_features
 
 FORCE_SOURCES = ("tau_ext", "current", "none")
@@ -53,7 +56,8 @@ class FeatureNames:
     force: list[str]
     action: list[str]
     cameras: list[str]
-    objects: list[str] = field(default_factory=list)  # element names of the privileged vector, [] if unused
+    objects: list[str] = field(default_factory=list)  # element names of the object vector, [] if unused
+    objects_feature: str = S.TASK_OBJECTS_FEATURE  # which: privileged (state) or perceived (SIMULATED)
 
     def to_dict(self) -> dict:
         out = {
@@ -63,7 +67,7 @@ class FeatureNames:
             "observation.images": [f"{IMAGES}{c}" for c in self.cameras],
         }
         if self.objects:
-            out[S.TASK_OBJECTS_FEATURE] = self.objects
+            out[self.objects_feature] = self.objects
         return out
 
 
@@ -190,8 +194,9 @@ def _episode_samples(
     force: str,
     th: Thresholds,
     next_model: NextModel | None,
-    objects: bool = False,
+    objects: str | None = None,
 ) -> dict | None:
+    """One episode's samples; objects: the topic of the object vector to hold onto the ticks (None: none)."""
     js0 = ep.topic(S.joint_state_topic(arms.followers[0]))
     t0 = max([js0.t[0]] + [rec_frames_t[c][0] for c in cams if len(rec_frames_t[c])])
     if t0 >= js0.t[-1]:
@@ -213,7 +218,7 @@ def _episode_samples(
     fvals = np.nan_to_num(fvals)  # NEXT's first window (offline) has no estimate yet: 0 N*m
     ovals = None
     if objects:  # the latest vector at or before each tick, as a live policy has it (NaN before the first)
-        ob = ep.topic(S.TOPIC_TASK_OBJECTS)
+        ob = ep.topic(objects)
         ovals = hold_previous(ob.t, ob.fields["objects"], grid)  # all NaN when the episode has none
     fidx = (
         np.stack([latest_frame(rec_frames_t[c], grid) for c in cams], axis=1)
@@ -256,8 +261,9 @@ def build_dataset(
     observation: str = "images",
     action_frame: str = "absolute",
 ) -> PolicyData:
-    """observation: "images" (camera frames), "state" (the PRIVILEGED task-object vector, no frames read)
-    or "images+state" (policies/privileged.py); action_frame: "absolute" or "relative" (Preprocess)."""
+    """observation: "images" (camera frames), "state" (the PRIVILEGED task-object vector, no frames read),
+    "perceived" (the SIMULATED detector's vector instead) or either with images ("images+state",
+    policies/privileged.py); action_frame: "absolute" or "relative" (Preprocess)."""
     if force not in FORCE_SOURCES:
         raise ValueError(f"force {force!r}: one of {FORCE_SOURCES}")
     if observation not in OBSERVATIONS:
@@ -272,7 +278,8 @@ def build_dataset(
             fix="record with cameras (`factr2 teleop --record` on a rig with [[cameras]]), or train on the "
             "twin's privileged object state with --obs state (task recordings of `factr2 collect`)",
         )
-    object_names = _object_names(recs) if uses_objects(observation) else []
+    feature = objects_feature(observation)
+    object_names = _object_names(recs, feature) if feature else []
     rate = rate_hz or (camera_rate(episodes, cams or common) if (cams or common) else STATE_RATE_HZ)
     image = ImagePath.from_recordings(recs, cams, image_size)  # the frames' encoding: rollout repeats it
     frames = [{c: camera_frames(r, c, image.size, progress) for c in cams} for r in recs]
@@ -281,7 +288,7 @@ def build_dataset(
     for ep in episodes:
         ri = recs.index(ep.recording)
         got = _episode_samples(ep, arms, cams, frames_t[ri], rate, chunk, force, th, next_model,
-                               bool(object_names))
+                               S.OBJECT_TOPICS[feature] if object_names else None)
         if got is None:
             continue
         got["episode"] = np.full(len(got["state"]), len(ids), np.int32)
@@ -299,7 +306,7 @@ def build_dataset(
     features = recording_features(recs[0])
     io = policy_names(features, list(arms.followers), force)  # the one schema's names
     names = FeatureNames(state=io["state"], force=io["force"], action=io["action"], cameras=list(cams),
-                         objects=object_names)
+                         objects=object_names, objects_feature=feature or S.TASK_OBJECTS_FEATURE)
     n_val = int(round(val_fraction * len(ids))) if len(ids) >= 2 else 0
     n_val = min(max(n_val, 1 if val_fraction > 0 and len(ids) >= 2 else 0), len(ids) - 1)
     val = sorted(np.random.default_rng([seed, 0xE915]).permutation(len(ids))[:n_val].tolist())
@@ -336,15 +343,18 @@ def build_dataset(
     return data
 
 
-def _object_names(recs) -> list[str]:
-    """The PRIVILEGED object vector's element names, the same in every recording (UserError otherwise)."""
+def _object_names(recs, feature: str = S.TASK_OBJECTS_FEATURE) -> list[str]:
+    """The object vector's element names (PRIVILEGED or perceived, by its feature), the same in every
+    recording (UserError otherwise)."""
     names = None
+    topic = S.OBJECT_TOPICS[feature]
+    what = "perceived objects" if feature == S.PERCEIVED_FEATURE else "privileged object state"
+    obs = "perceived" if feature == S.PERCEIVED_FEATURE else "state"
     for r in recs:
-        got = r.task_object_names() if S.TOPIC_TASK_OBJECTS in r.topics else []
+        got = r.task_object_names(topic) if topic in r.topics else []
         if not got:
             raise UserError(
-                "no privileged object state (/task/objects) in this recording: --obs state needs twin task "
-                "demonstrations",
+                f"no {what} ({topic}) in this recording: --obs {obs} needs twin task demonstrations",
                 where=str(r.path),
                 fix="record them with `factr2 collect --rig sim-piper --task T`, or train on images",
             )

@@ -14,7 +14,8 @@ observation.state (follower joints [rad] + gripper [m]), observation.force = tau
 offline), action (the commanded joint targets + gripper), phase (FIRST: 0 free, 1 pre-contact, 2 contact),
 the images (the latest frame of each camera at the row's time; none in a state-only dataset), on twin task
 recordings observation.state.objects (PRIVILEGED, SIMULATED: the task objects' state, labelled so in
-info.json), and LeRobot's timestamp / frame_index / episode_index / index / task_index. Written to a
+info.json) and observation.perceived.objects (SIMULATED: the simulated pose detector's report, as recorded
+live), and LeRobot's timestamp / frame_index / episode_index / index / task_index. Written to a
 temporary folder and renamed: never half a dataset.
 """
 
@@ -81,12 +82,14 @@ def nominal_fps(episodes, cams: list[str]) -> tuple[int, str]:
     return max(1, int(round(nominal))), warn
 
 
-def _episode_rows(ep, arms, cams, fps, th, next_model, objects: bool):
+def _episode_rows(ep, arms, cams, fps, th, next_model, objects):
+    """objects: the object features to export (PRIVILEGED state, perceived; feature -> names)."""
     js0 = ep.topic(S.joint_state_topic(arms.followers[0]))
     starts = [js0.t[0]] + [ep.recording.frames(c).t[0] for c in cams if len(ep.recording.frames(c))]
-    ob = ep.topic(S.TOPIC_TASK_OBJECTS) if objects else None
-    if ob is not None and len(ob):
-        starts.append(ob.t[0])  # from the first object vector on: LeRobot rows have no missing values
+    obs = {f: ep.topic(S.OBJECT_TOPICS[f]) for f in objects or ()}
+    for ob in obs.values():
+        if len(ob):
+            starts.append(ob.t[0])  # from the first object vector on: LeRobot rows have no missing values
     t0 = max(starts)
     n = int(np.floor((js0.t[-1] - t0) * fps + 1e-9)) + 1
     grid = t0 + np.arange(max(n, 0)) / fps
@@ -102,10 +105,11 @@ def _episode_rows(ep, arms, cams, fps, th, next_model, objects: bool):
         OBS_FORCE: np.nan_to_num(interp_linear(lab.t, lab.tau_ext, grid)),
         "phase": lab.at(grid).astype(np.int64),
     }
-    if ob is not None:  # the latest vector at or before each row, as a live policy has it
-        rows[S.TASK_OBJECTS_FEATURE] = hold_previous(ob.t, ob.fields["objects"], grid)
+    for f, ob in obs.items():  # the latest vector at or before each row, as a live policy has it
+        rows[f] = hold_previous(ob.t, ob.fields["objects"], grid)
     frame_idx = {c: latest_frame(ep.recording.frames(c).t, grid) for c in cams}
-    ok = valid_samples(rows["observation.state"], rows["action"], rows.get(S.TASK_OBJECTS_FEATURE),
+    held = np.concatenate([rows[f] for f in obs], axis=1) if obs else None
+    ok = valid_samples(rows["observation.state"], rows["action"], held,
                        np.stack([frame_idx[c] for c in cams], axis=1) if cams else None)
     # LeRobot needs timestamps on the fps grid from 0: keep the longest valid run from the start
     first_bad = int(np.argmin(ok)) if not ok.all() else len(ok)
@@ -124,7 +128,7 @@ def _stats(x: np.ndarray) -> dict:
     }
 
 
-def _names(arms, objects: list[str]) -> dict:
+def _names(arms, objects: dict) -> dict:
     """info.json element names per vector feature."""
     out = {
         "observation.state": [n for a, j in zip(arms.followers, arms.joint_names)
@@ -133,15 +137,19 @@ def _names(arms, objects: list[str]) -> dict:
                    for n in [f"{action_of(a)}.{x}" for x in j] + [f"{action_of(a)}.gripper"]],
         OBS_FORCE: [f"{a}.{x}" for a, j in zip(arms.followers, arms.joint_names) for x in j],
     }
-    if objects:
-        out[S.TASK_OBJECTS_FEATURE] = list(objects)
+    out.update({f: list(n) for f, n in (objects or {}).items()})
     return out
 
 
-def _object_names(recs) -> list[str]:
-    """The PRIVILEGED object vector's element names when every recording has the same one, else []."""
-    names = [tuple(r.task_object_names()) if S.TOPIC_TASK_OBJECTS in r.topics else () for r in recs]
-    return list(names[0]) if names[0] and len(set(names)) == 1 else []
+def _object_names(recs) -> dict[str, list[str]]:
+    """The object vectors to export, feature -> element names: the PRIVILEGED state and the perceived one
+    (SIMULATED), each when every recording has the same one."""
+    out = {}
+    for feature, topic in S.OBJECT_TOPICS.items():
+        names = [tuple(r.task_object_names(topic)) if topic in r.topics else () for r in recs]
+        if names[0] and len(set(names)) == 1:
+            out[feature] = list(names[0])
+    return out
 
 
 def export_lerobot(
@@ -178,7 +186,7 @@ def export_lerobot(
         ep_rows = []
         index = 0
         for ep in episodes:
-            rows, fidx = _episode_rows(ep, arms, cams, fps, th, next_model, bool(objects))
+            rows, fidx = _episode_rows(ep, arms, cams, fps, th, next_model, objects)
             n = len(rows["phase"])
             if n == 0:
                 continue
@@ -230,10 +238,15 @@ def export_lerobot(
             v = cat[k].astype(np.float32)
             arrays[k] = pa.FixedSizeListArray.from_arrays(pa.array(v.reshape(-1)), v.shape[1])
             features[k] = {"dtype": "float32", "shape": [v.shape[1]], "names": names[k]}
-        if objects:
+        if S.TASK_OBJECTS_FEATURE in objects:
             features[S.TASK_OBJECTS_FEATURE]["description"] = (
                 "PRIVILEGED, SIMULATED: the twin task objects' state (policies/privileged.py); a real robot "
                 "has no such input")
+        if S.PERCEIVED_FEATURE in objects:
+            features[S.PERCEIVED_FEATURE]["description"] = (
+                "SIMULATED: the twin task objects as a simulated camera pose detector reports them "
+                "(hardware/sim/perception.py, docs/perception.md): per object position [m], rotation's first "
+                "two columns, visible 0/1, age [s]; a real robot's camera pose estimator gives the like")
         features["phase"] = {
             "dtype": "int64",
             "shape": [1],

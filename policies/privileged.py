@@ -1,5 +1,7 @@
 """The PRIVILEGED state observation (twins only, SIMULATED): a twin task's object state as one flat float
-vector, a policy input in place of (or beside) camera frames (`factr2 train --obs state`).
+vector, a policy input in place of (or beside) camera frames (`factr2 train --obs state`); and which object
+input each observation takes (OBSERVATIONS: `--obs perceived` takes the simulated detector's vector instead,
+hardware/sim/perception.py seen_vector, docs/perception.md).
 
 Order (fixed per task, recorded with the data as the /task/objects channel's `names`): every entry of
 `task.observe(model, data, params)` in its dict order, then every entry of the episode's `params` that
@@ -23,20 +25,41 @@ from __future__ import annotations
 
 import numpy as np
 
-OBSERVATIONS = ("images", "state", "images+state")  # PolicyConfig.observation / `factr2 train --obs`
+from hardware.recording import schemas as S
+
+# PolicyConfig.observation / `factr2 train --obs`. "perceived" is the object input a camera-based pose
+# estimator could give (SIMULATED, not privileged: the twin's simulated detector, hardware/sim/perception.py,
+# recorded live on /perceived/objects: per object its pose, visible flag and detection age), in place of the
+# privileged "state"; the model takes either as its `objects` input.
+OBSERVATIONS = ("images", "state", "images+state", "perceived", "images+perceived")
+OBJECT_INPUTS = {"state": S.TASK_OBJECTS_FEATURE, "perceived": S.PERCEIVED_FEATURE}  # part -> feature
 
 
 def uses_images(observation: str) -> bool:
     return "images" in observation.split("+")
 
 
+def objects_feature(observation: str) -> str | None:
+    """The recorded feature an observation takes its object vector from (None: no object input)."""
+    parts = [OBJECT_INPUTS[p] for p in observation.split("+") if p in OBJECT_INPUTS]
+    return parts[0] if parts else None
+
+
 def uses_objects(observation: str) -> bool:
-    return "state" in observation.split("+")
+    return objects_feature(observation) is not None
+
+
+def low_dimensional(observation: str) -> bool:
+    """No camera frames: an object vector only (the `state` preset's input)."""
+    return uses_objects(observation) and not uses_images(observation)
 
 
 def _entries(obs: dict, params: dict) -> list[tuple[str, np.ndarray]]:
     out = [(k, np.asarray(v, dtype=float).ravel()) for k, v in obs.items()]
-    out += [(k, np.asarray(v, dtype=float).ravel()) for k, v in params.items() if k not in obs]
+    # a param named with a leading underscore is hidden from every observation (cap-screw's thread friction,
+    # strip torque: what the task is built to leave unobserved), even the privileged one
+    out += [(k, np.asarray(v, dtype=float).ravel()) for k, v in params.items()
+            if k not in obs and not k.startswith("_")]
     return out
 
 

@@ -249,7 +249,9 @@ def _inputs(data) -> str:
     """What the policy sees besides joints and force, for the start-of-run line."""
     parts = [f"cameras {', '.join(data.names.cameras)}"] if data.names.cameras else []
     if data.objects is not None:
-        parts.append(f"PRIVILEGED object state ({data.objects.shape[1]} values, SIMULATED)")
+        perceived = data.names.objects_feature == S.PERCEIVED_FEATURE
+        what = "perceived objects (simulated camera detector" if perceived else "PRIVILEGED object state ("
+        parts.append(f"{what}, {data.objects.shape[1]} values, SIMULATED)")
     return ", ".join(parts)
 
 

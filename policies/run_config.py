@@ -26,7 +26,7 @@ from policies.labelling import TARE_DEFAULT, LabelChoice, ThresholdSource, sourc
 from policies.methods import METHODS
 from policies.policy import policy_names
 from policies.preprocess import ACTION_FRAMES
-from policies.privileged import OBSERVATIONS
+from policies.privileged import OBSERVATIONS, low_dimensional
 from policies.sampler import DEFAULT_SOURCE_WEIGHTS, parse_ratio, parse_source_weights
 
 STATE_EPOCHS, STATE_BATCH = 80.0, 256  # the state preset's defaults: the learning curve (docs/first.md) still
@@ -35,7 +35,7 @@ STATE_EPOCHS, STATE_BATCH = 80.0, 256  # the state preset's defaults: the learni
 
 def default_length(observation: str) -> tuple[float, int]:
     """(epochs, batch) of a run that names neither: from the learning curve for a state observation."""
-    return (STATE_EPOCHS, STATE_BATCH) if observation == "state" else (20.0, 128)
+    return (STATE_EPOCHS, STATE_BATCH) if low_dimensional(observation) else (20.0, 128)
 
 
 class ParsedFlag(Flag):
@@ -243,7 +243,9 @@ class RunOptions:
         "--set", "override a policy config field of the preset (policies/config.py), e.g. --set hidden=128"))
     observation: str = option("images", resume="observation", flag=Flag(
         "--obs", "what the policy sees besides joints and force: camera frames (default), or `state`: the "
-        "twin task objects' poses, PRIVILEGED and SIMULATED (recorded by `factr2 collect`; no frames read)",
+        "twin task objects' poses, PRIVILEGED and SIMULATED (recorded by `factr2 collect`; no frames read), "
+        "or `perceived`: those poses as a simulated camera pose detector reports them (bias, noise, latency, "
+        "occlusion; SIMULATED, docs/perception.md)",
         choices=OBSERVATIONS))
     actions: str = option("absolute", resume="actions", flag=Flag(
         "--actions", "the frame the policy learns its joint targets in: absolute (default) or relative to "
@@ -325,9 +327,10 @@ class RunOptions:
 
 
 def _preset(name: str, policy: str, observation: str) -> PolicyConfig:
-    if name == "state" and observation != "state":
+    if name == "state" and not low_dimensional(observation):
         raise UserError(f"preset state takes no images, the observation is {observation}",
-                        where="--preset state", fix="train with --obs state, or --preset small|paper")
+                        where="--preset state",
+                        fix="train with --obs state or perceived, or --preset small|paper")
     if policy not in policy_names():
         raise UserError(f"unknown policy {policy!r}", where="--policy",
                         fix=f"one of {', '.join(policy_names())}")

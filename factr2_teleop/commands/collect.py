@@ -21,6 +21,13 @@ def add_arguments(parser) -> None:
     parser.add_argument("--checkpoint", default=None, help="NEXT checkpoint (next.json from factr2 calibrate;"
                         " default: the rig's, else the demo's cache)")
     parser.add_argument("--no-cameras", action="store_true", help="record no camera frames (faster)")
+    see = parser.add_mutually_exclusive_group()
+    see.add_argument("--perception", dest="perception", action="store_true", default=None,
+                     help="the operator sees the objects through the simulated camera pose detector "
+                     "(bias, noise, latency, occlusion: docs/perception.md), not the twin's truth "
+                     "(default: the task's choice; peg-insert, press-fit and wipe see the truth)")
+    see.add_argument("--no-perception", dest="perception", action="store_false",
+                     help="the operator sees the twin's truth")
     add_twin_fault_argument(parser)
 
 
@@ -29,7 +36,7 @@ def run(args) -> int:
 
     cfg = CollectConfig(rig=args.rig, task=args.task, episodes=args.episodes, out=args.out, seed=args.seed,
                         mode=args.mode, checkpoint=args.checkpoint, cameras=not args.no_cameras,
-                        faults=twin_faults(args))
+                        faults=twin_faults(args), perception=args.perception)
     result = collect(cfg, progress=sys.stderr.isatty() or True)
     for line in summary_lines(result):
         print(line)

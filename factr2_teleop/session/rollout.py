@@ -193,7 +193,8 @@ def check_options(opts: RolloutOptions, runner):
                         f"{', '.join(sorted(have)) or 'none'}", where=str(rig.path),
                         fix="add them to the rig (the names used in training), or pass --task on a twin")
     if runner.uses_objects and task is None:
-        raise UserError("the policy observes the PRIVILEGED twin object state: it runs only on a twin task",
+        raise UserError("the policy observes twin task objects (privileged or perceived): it runs only on a "
+                        "twin task",
                         where="--policy", fix="pass --task T on a sim-* rig, or train on images")
     if opts.schedule not in (None, ENSEMBLE, RECEDING):
         raise UserError(f"unknown schedule {opts.schedule!r}", where="--schedule", fix="ensemble or receding")

@@ -29,9 +29,15 @@ class TwinRollout(TaskEpisodes):
         self.t_extended = -np.inf  # s: an operator's takeover restarts the time limit here (its own time)
 
     def objects(self):
-        """The PRIVILEGED object vector of the task as the twin has it now (policies/privileged.py)."""
+        """The policy's object input now: the PRIVILEGED vector of the task as the twin has it
+        (policies/privileged.py), or for a policy trained on perceived objects the simulated detector's
+        latest report (SIMULATED; the detector runs every DETECT_EVERY ticks, its bias from the episode
+        seed)."""
+        from hardware.recording.schemas import PERCEIVED_FEATURE
         from policies.privileged import task_state_vector
 
+        if getattr(self.target.runner, "object_feature", None) == PERCEIVED_FEATURE:
+            return self.perceived_vector()
         return task_state_vector(self.task, self.model, self.data, self.params)
 
     def _begin_episode(self, r) -> None:
@@ -47,13 +53,17 @@ class TwinRollout(TaskEpisodes):
             self._reset_episode()  # under the world's lock
             self.target.settle()
             self._state, self._t_state = "settle", r.t
-        elif st == "settle" and r.t - self._t_state >= SETTLE_S:
+        elif st == "settle" and self._k % DETECT_EVERY == 0:
+            self.perceive(r.t)  # the camera runs from the reset: a detection is there when the policy starts
+        if st == "settle" and r.t - self._t_state >= SETTLE_S:
             self.rec_start()
             self.target.run(r.t, objects=self.objects, seed=self._ep_seed)
             self._state = RUN
         elif st == RUN and self._k % DETECT_EVERY == 0:
             obs = self.observe()
+            self.perceive(r.t)
             self._log_objects(r.t, obs)
+            self._log_perceived(r.t)
             self._detect_obs(r.t, obs)
             done = bool(self.tracker.done.all()) and self.task.final_ok(obs, self.params, self.tracker.memory)
             timeout = r.t - max(self._t_state, self.t_extended) >= self.time_limit_s

@@ -162,7 +162,7 @@ class PolicyTarget:
     def __init__(self, arms: list[TargetArm], runner, schedule: ChunkSchedule, features: dict, frames):
         self.arms, self.runner, self.schedule = list(arms), runner, schedule
         self.features, self.frames = features, frames
-        self.objects = None  # callable -> the PRIVILEGED object vector, from run() (twin tasks)
+        self.objects = None  # callable -> the object vector (privileged or perceived), from run() (twin task)
         self.state = IDLE
         self.started = False
         self._t_next = -np.inf
@@ -279,5 +279,5 @@ class PolicyTarget:
                 return None
             obs.update({f"{IMAGES}{c}": rgb for c, rgb in frames.items()})
         if self.runner.uses_objects:
-            obs[TASK_OBJECTS_FEATURE] = self.objects()
+            obs[getattr(self.runner, "object_feature", TASK_OBJECTS_FEATURE)] = self.objects()
         return obs

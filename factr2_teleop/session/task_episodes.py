@@ -19,6 +19,8 @@ from hardware.sim.tasks import StageTracker, Task, get_task
 
 SETTLE_S = 0.3  # s: the hand holds still after the soft start and after each reset
 EPISODE_SEED_STRIDE = 100_003  # episode k of a session seeded S has seed S * stride + k
+PERCEPTION_STREAM = 0x5EE  # the pose detector's generator is seeded [episode seed, this]: apart from the
+# task's and the script's draws, so recordings without it stay as they were
 
 
 def gripper_mapping(arm_name: str) -> dict:
@@ -96,6 +98,9 @@ class TaskEpisodes:
         self.world = self.twin.devices[fname].world
         self.model, self.data = self.world.model, self.world.data
         self.results: list[EpisodeResult] = []
+        self.ee_site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "ee")
+        self.detector = None  # the task's PoseDetector, made at the first episode (_detector)
+        self.seen: dict = {}  # the detector's latest output (name -> hardware.sim.perception.Seen)
         self._k = 0
         self._state = "wait"  # wait (soft start) -> settle -> run -> (next episode) ... -> done
         self._t_state = float("nan")
@@ -103,6 +108,49 @@ class TaskEpisodes:
 
     def _begin_episode(self, r) -> None:
         raise NotImplementedError
+
+    def _detector(self):
+        """The simulated camera pose detector of the task's detectable objects (SIMULATED; settings: the
+        defaults, the task's, the rig's [twin.perception]); None for a task that names none."""
+        from hardware.sim.perception import PoseDetector
+        from hardware.sim.tasks.base import task_perception
+
+        try:
+            names = tuple(self.task.detectables(self.model, self.data, self.params))
+        except NotImplementedError:
+            return None
+        rig = self.ts.session.rig
+        params = task_perception(self.task, getattr(rig.twin, "perception", None),
+                                 where=f"{rig.path}: twin.perception")
+        return PoseDetector(params, names)
+
+    def perceive(self, t: float) -> dict:
+        """Advance the detector to t [s] (rig clock) with the twin's true poses now; returns (and keeps in
+        self.seen) what it reports. Call on the stepping thread, every decision."""
+        if self.detector is not None:
+            truth = self.task.detectables(self.model, self.data, self.params)
+            self.seen = self.detector.update(t, truth, self.data.site_xpos[self.ee_site])
+        return self.seen
+
+    def perceived_vector(self) -> np.ndarray:
+        """SIMULATED: the latest detections as the policy's input (hardware/sim/perception.py seen_vector)."""
+        from hardware.errors import UserError
+        from hardware.sim.perception import seen_vector
+
+        if self.detector is None:
+            raise UserError(f"task {self.task.name} names no detectable objects", where="--obs perceived",
+                            fix="use a task with Task.detectables, or a policy trained with --obs state")
+        return seen_vector(self.seen, self.detector.names)
+
+    def _log_perceived(self, t: float) -> None:
+        """SIMULATED (not privileged): the detections as one vector on /perceived/objects, beside
+        /task/objects, for policies trained with `--obs perceived`."""
+        rec = self.ts.recording
+        if rec is not None and rec.recording and self.detector is not None and self.seen:
+            from hardware.sim.perception import seen_names, seen_vector
+
+            names = self.detector.names
+            rec.recorder.log_perceived(t, seen_vector(self.seen, names), seen_names(names))
 
     def _reset_episode(self) -> np.random.Generator:
         """The next episode's objects placed for its seed; returns the episode's generator."""
@@ -113,6 +161,13 @@ class TaskEpisodes:
             self.params = self.task.reset(self.model, self.data, rng)
             mujoco.mj_forward(self.model, self.data)
         self.tracker = StageTracker(self.task.stages)
+        if self._ep == 0:
+            self.detector = self._detector()
+        if self.detector is not None:  # this episode's calibration bias, from its seed
+            from hardware.sim.perception import NEVER
+
+            self.detector.reset(np.random.default_rng([self._ep_seed, PERCEPTION_STREAM]))
+            self.seen = {k: NEVER for k in self.detector.names}
         return rng
 
     def observe(self) -> dict:

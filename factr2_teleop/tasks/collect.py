@@ -21,12 +21,12 @@ policy are two drivers of it.
 
 from __future__ import annotations
 
-import mujoco
 import numpy as np
 
 from factr2_teleop.session.task_episodes import SETTLE_S, TaskEpisodes
 from factr2_teleop.tasks import script_for
 from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept, percept
+from factr2_teleop.tasks.seen import OperatorView
 from factr2_teleop.teleop.virtual_operator import felt_joints
 from hardware import sim_cpu
 from hardware.sim.tasks import Task
@@ -35,12 +35,18 @@ from hardware.sim.tasks import Task
 class EpisodeDriver(TaskEpisodes):
     """The per-tick hook: operator + script + detectors + episode bookkeeping (see the module doc)."""
 
-    def __init__(self, ts, task: Task, episodes: int, seed: int = 0, on_episode=None):
+    def __init__(self, ts, task: Task, episodes: int, seed: int = 0, on_episode=None,
+                 perception: bool = False):
+        """perception: the operator sees the objects through the simulated pose detector (the perceived
+        poses, seen.py), not the twin's truth."""
         from hardware.arms.dynamics import ArmDynamics
 
         super().__init__(ts, task, episodes, seed, on_episode)
+        self.perception = bool(perception)
+        self.view = OperatorView()
+        self.params_seen: dict = {}  # the episode params as the operator sees them (updated in place)
+        self._obs_true: dict = {}  # the twin's truth at this decision: recorded, judged; not the operator's
         fname = self.pair.follower.name
-        self.ee_site = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_SITE, "ee")
         dyn = ArmDynamics(self.ts.session.rig.device(fname).arm)
         lim = self.pair.follower.safety.limits
         self._op_args = (dyn.fk, dyn.jacobian, lim.q_min, lim.q_max, self.pair.map.backward,
@@ -64,6 +70,7 @@ class EpisodeDriver(TaskEpisodes):
             return
         op = self.op
         if self._k % DECIDE_EVERY == 0:
+            self.perceive(r.t)
             p = self._percept(r)
             if self._state == "settle":
                 op.decide(p, DECIDE_EVERY * self.pair.dt_s)
@@ -72,7 +79,8 @@ class EpisodeDriver(TaskEpisodes):
                     self.rec_start()
             else:
                 op.p = p  # what the script sees at this decision
-                self._log_objects(r.t, p.obs)
+                self._log_objects(r.t, self._obs_true)
+                self._log_perceived(r.t)
                 try:
                     next(self.script)
                 except StopIteration as stop:
@@ -96,7 +104,19 @@ class EpisodeDriver(TaskEpisodes):
         bank.set_hand_torque(self.op.torques(q_l, qd_l, r.leader.gripper_pos))
 
     def _percept(self, r) -> Percept:
-        return percept(r, self.data, self.ee_site, self.task.observe(self.model, self.data, self.params))
+        """What the operator has now: the twin's objects, or with perception what the detector reports."""
+        obs = self._obs_true = self.task.observe(self.model, self.data, self.params)
+        p = percept(r, self.data, self.ee_site, obs)
+        p.seen = dict(self.seen)
+        if self.perception:
+            if self.detector is None:
+                from hardware.errors import UserError
+
+                raise UserError(f"task {self.task.name} names no detectable objects", where="--perception",
+                                fix="collect it without --perception (the operator then sees the truth)")
+            p.obs, seen_params = self.view.look(obs, self.params, self.seen, p.T_ee)
+            self.params_seen.update(seen_params)
+        return p
 
     def _begin_episode(self, r) -> None:
         rng = self._reset_episode()
@@ -104,9 +124,13 @@ class EpisodeDriver(TaskEpisodes):
         if self.op is None:
             self.op = Operator(*self._op_args, q_start=q0)
         self.op.grip, self.op.servo_on, self.op.log = 0.0, True, {}
+        self.view.reset()
+        self.params_seen.clear()
+        self.perceive(r.t)
         self.op.p = self._percept(r)
-        self.script = script_for(self.task.name)(self.op, self.params, rng)
+        params = self.params_seen if self.perception else self.params
+        self.script = script_for(self.task.name)(self.op, params, rng)
         self._state, self._t_state = "settle", r.t
 
     def _detect(self, t: float, p: Percept) -> None:
-        self._detect_obs(t, p.obs)
+        self._detect_obs(t, self._obs_true)  # stages are judged from the twin's truth, never from the view

@@ -3,8 +3,9 @@
 The operator never touches the follower. Each tick it pushes the leader's joints and trigger with a hand
 impedance toward a reference (hand_torque), exactly as the demo's virtual operator does; the teleop stack
 (Dynamixel leader -> pair -> CAN follower, NEXT feedback) does the rest. What it decides from is what a person
-has: the follower's pose and the task objects as seen (the twin's state, "vision"), and the force feedback
-felt in the hand (the leader law's feedback torque).
+has: the follower's pose and the task objects as seen (the twin's state, "vision", or with `--perception` the
+simulated camera pose detector's report: seen.py), and the force feedback felt in the hand (the leader law's
+feedback torque).
 
 References. A script (a generator, see scripts.py) sets a Cartesian target for the gripper or for a held tool
 (the peg); IK on the follower's description (kinematics.py) turns it into follower joints q_des. Because the
@@ -80,7 +81,10 @@ def interp_pose(T0: np.ndarray, T1: np.ndarray, s: float, bump=None) -> np.ndarr
 class Percept:
     """What the operator has at a decision: t [s]; leader q/qd [rad, rad/s], trigger fraction; follower q
     [rad] (as reported); felt_nm: ||feedback torque on the leader||_1 [N*m]; T_ee: follower gripper pose seen
-    (4x4, m); obs: the task's observe() arrays."""
+    (4x4, m); obs: the task's observe() arrays (with `factr2 collect --perception`: as seen, tasks/seen.py);
+    seen: what the simulated camera pose detector reports now, name -> hardware.sim.perception.Seen (every
+    collection fills it, for the tasks that name detectables: scripts that must not read the truth use only
+    this, T_ee / q_follower and felt_nm)."""
 
     t: float
     q_leader: np.ndarray
@@ -90,6 +94,10 @@ class Percept:
     felt_nm: float
     T_ee: np.ndarray
     obs: dict = field(default_factory=dict)
+    seen: dict = field(default_factory=dict)
+    # the follower's external-torque estimate per joint [N*m] (NEXT / DOB: what the leader's feedback is made
+    # from, before its contact gate and gain), for scripts that feel one joint (cap-screw: the wrist roll)
+    tau_ext: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def percept(r, data, ee_site: int, obs: dict) -> Percept:
@@ -100,7 +108,8 @@ def percept(r, data, ee_site: int, obs: dict) -> Percept:
     fb = r.tau_feedback
     felt = float(np.sum(np.abs(fb))) if fb is not None and np.all(np.isfinite(fb)) else 0.0
     return Percept(t=r.t, q_leader=r.leader.q, qd_leader=r.leader.q_dot, trigger=r.leader.gripper_pos,
-                   q_follower=r.follower.q, felt_nm=felt, T_ee=T, obs=obs)
+                   q_follower=r.follower.q, felt_nm=felt, T_ee=T, obs=obs,
+                   tau_ext=np.asarray(r.tau_ext, dtype=float))
 
 
 class Operator:

@@ -32,6 +32,8 @@ class CollectConfig:
     cameras: bool = True
     faults: list | None = None  # hardware.sim.faults.FaultSpec the twin plays (None: the rig's [twin] faults)
     on_session: object = None  # callable(TeleopSession, rig session) before the loop runs (bench/faults.py)
+    perception: bool | None = None  # the operator sees through the simulated pose detector (None: the
+    # task's Task.operator_perception); the perceived channel is recorded either way
 
 
 def output_paths(cfg: CollectConfig, rig_name: str) -> tuple[Path, Path]:
@@ -69,6 +71,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
             raise UserError("output file already exists", where=str(p),
                             fix="choose another --out or --seed (recordings are never overwritten)")
     mode, ck = _mode_and_checkpoint(cfg, rig.name)
+    sees = bool(task.operator_perception if cfg.perception is None else cfg.perception)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -78,7 +81,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
     with open_rig(rig, clock="lockstep", seed=cfg.seed, faults=cfg.faults) as s:
         ts = TeleopSession(s, TeleopOptions(mode=mode, checkpoint=ck))
         ts.record(cfg.out, path=mcap, task=task.name, cameras=cfg.cameras,
-                  extra_meta={"simulated": "true", "collect_seed": cfg.seed, "operator": "scripted"})
+                  extra_meta={"simulated": "true", "collect_seed": cfg.seed, "operator": "scripted",
+                              "operator_sees": "perceived" if sees else "truth"})
         first_tick = FirstTick()
 
         def done(res):
@@ -86,7 +90,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
                 bar.update(1)
                 bar.set_postfix(ok=sum(r.outcome == "success" for r in ep.results))
 
-        ep = EpisodeDriver(ts, task, cfg.episodes, seed=cfg.seed, on_episode=done)
+        ep = EpisodeDriver(ts, task, cfg.episodes, seed=cfg.seed, on_episode=done, perception=sees)
         ts.hooks.append(ep.on_tick)
         ts.hooks.append(lambda r: first_tick.add(r, ep))
         srec = ts.recording
@@ -111,7 +115,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
     ok = [r["outcome"] == "success" for r in res]
     lengths = [r["duration_s"] for r in res]
     out = {"simulated": True, "task": task.name, "rig": rig.name, "seed": cfg.seed, "mode": mode,
-           "checkpoint": ck, "episodes": len(res), "success_rate": float(np.mean(ok)) if ok else 0.0,
+           "checkpoint": ck, "operator_sees": "perceived" if sees else "truth",
+           "episodes": len(res), "success_rate": float(np.mean(ok)) if ok else 0.0,
            "progress_mean": float(np.mean([r["progress"] for r in res])) if res else 0.0,
            "episode_s_mean": float(np.mean(lengths)) if lengths else 0.0,
            "episode_s_min": float(np.min(lengths)) if lengths else 0.0,
@@ -167,7 +172,8 @@ def recorded_phase_shares(mcap: Path) -> tuple[dict | None, list | None, str]:
 
 
 def summary_lines(out: dict) -> list[str]:
-    lines = [f"{out['task']} on {out['rig']} (SIMULATED), feedback {out['mode']}, seed {out['seed']}",
+    lines = [f"{out['task']} on {out['rig']} (SIMULATED), feedback {out['mode']}, seed {out['seed']}, "
+             f"the operator sees {out.get('operator_sees', 'truth')}",
              f"{'episodes':>22s}  {out['episodes']}",
              f"{'success rate':>22s}  {out['success_rate'] * 100:.1f} %  "
              f"(task progress {out['progress_mean']:.2f})",

@@ -233,10 +233,11 @@ class Recording:
         names = (ta.meta.get("joint_names", "") if ta else "").split(",")
         return [n for n in names if n]
 
-    def task_object_names(self) -> list[str]:
-        """Element names of the PRIVILEGED task-object vector (/task/objects, read back as
-        "observation.state.objects"; twin only); [] when the recording has none."""
-        ta = self._d.topics.get(S.TOPIC_TASK_OBJECTS)
+    def task_object_names(self, topic: str = S.TOPIC_TASK_OBJECTS) -> list[str]:
+        """Element names of an object vector: the PRIVILEGED task-object vector (/task/objects, read back as
+        "observation.state.objects") or, topic S.TOPIC_PERCEIVED, the SIMULATED perceived one (twin only);
+        [] when the recording has none."""
+        ta = self._d.topics.get(topic)
         return [n for n in (ta.meta.get("joint_names", "") if ta else "").split(",") if n]
 
     def time_span(self) -> tuple[float, float]:

@@ -29,6 +29,12 @@ TOPIC_LOOP = "/loop/timing"
 # read back as this feature name, a policy input in place of camera frames (`factr2 train --obs state`)
 TOPIC_TASK_OBJECTS = "/task/objects"
 TASK_OBJECTS_FEATURE = "observation.state.objects"
+# SIMULATED (twins only), not privileged: the task objects as a simulated camera pose detector reports them
+# (hardware/sim/perception.py seen_vector: pose, visible, age per object), recorded live as the demonstrator
+# or the policy saw them; read back as this feature name (`factr2 train --obs perceived`)
+TOPIC_PERCEIVED = "/perceived/objects"
+PERCEIVED_FEATURE = "observation.perceived.objects"
+OBJECT_TOPICS = {TASK_OBJECTS_FEATURE: TOPIC_TASK_OBJECTS, PERCEIVED_FEATURE: TOPIC_PERCEIVED}  # by feature
 # a policy rollout with operator takeover (issue #33): who drives the follower, written when it changes (and
 # at each episode's start), so a tick's driver is the latest value at or before it (previous-value hold)
 TOPIC_ROLLOUT_DRIVER = "/rollout/driver"
@@ -155,6 +161,14 @@ TASK_OBJECTS = Schema(
         "object poses [m] (positions), rotation-matrix entries [1], yaws [rad], finger contacts (0/1), "
         "contact force [N]"),),
 )
+PERCEIVED_OBJECTS = Schema(
+    "factr2.PerceivedObjects",
+    "SIMULATED, twin only: the task objects as a simulated camera pose detector reports them (calibration "
+    "bias, noise, rate, latency, occlusion; hardware/sim/perception.py), flattened in the order the "
+    "channel's `names` metadata lists",
+    (_f("objects", "m, 1 or s (per element: see names)", "float", True, "objects",
+        "perceived positions [m], rotations (first two columns) [1], visible (0/1), detection age [s]"),),
+)
 ROLLOUT_DRIVER = Schema("factr2.RolloutDriver", "who drives the follower in a rollout, from this tick on "
                         "(written on a change only)", (
     _f("driver", "", "int", False, "driver", "0 = the policy, 1 = the operator through the leader"),
@@ -162,7 +176,8 @@ ROLLOUT_DRIVER = Schema("factr2.RolloutDriver", "who drives the follower in a ro
 ))
 NUMERIC_SCHEMAS: dict[str, Schema] = {s.name: s for s in (JOINT_STATE, EXTERNAL_TORQUE, TORQUE_COMMAND,
                                                            FOLLOWER_COMMAND, GROUND_TRUTH, LOOP_TIMING,
-                                                           TASK_OBJECTS, ROLLOUT_DRIVER)}
+                                                           TASK_OBJECTS, ROLLOUT_DRIVER,
+                                                           PERCEIVED_OBJECTS)}
 EVENT_SCHEMA_NAME = "factr2.Event"
 ACTION = "action"  # the arm prefix of the follower's command: the policy's action (hardware/features.py)
 
@@ -173,6 +188,8 @@ def signal_name(topic: str, schema_name: str, feature: str) -> str:
     and the privileged task-object vector as "observation.state.objects"."""
     if schema_name == TASK_OBJECTS.name:
         return TASK_OBJECTS_FEATURE  # not an arm's signal: the policy's privileged state input
+    if schema_name == PERCEIVED_OBJECTS.name:
+        return PERCEIVED_FEATURE  # the policy's perceived (simulated camera) object input
     arm = topic.split("/")[1]
     if schema_name == FOLLOWER_COMMAND.name:
         arm = arm[: -len("follower")] + ACTION if arm.endswith("follower") else f"{arm}_{ACTION}"

@@ -263,12 +263,21 @@ class Recorder:
     def log_task_objects(self, t: float, values, names) -> bool:
         """PRIVILEGED (twin only): the task objects' state vector (policies/privileged.py); `names` (one per
         element, fixed for the session) go into the channel's metadata on first use."""
-        arm = S.TOPIC_TASK_OBJECTS.split("/")[1]
+        return self._named_vector(S.TASK_OBJECTS, S.TOPIC_TASK_OBJECTS, t, values, names)
+
+    @_never_raises
+    def log_perceived(self, t: float, values, names) -> bool:
+        """SIMULATED (twin only): the task objects as the simulated pose detector reports them
+        (hardware/sim/perception.py seen_vector); `names` as for log_task_objects."""
+        return self._named_vector(S.PERCEIVED_OBJECTS, S.TOPIC_PERCEIVED, t, values, names)
+
+    def _named_vector(self, schema: S.Schema, topic: str, t: float, values, names) -> bool:
+        arm = topic.split("/")[1]
         if arm not in self._joint_names:
             self._joint_names[arm] = [str(n) for n in names]
             with self._lock:
                 self._put(R.pack_names({arm: self._joint_names[arm]}))
-        return self._numeric(S.TASK_OBJECTS, S.TOPIC_TASK_OBJECTS, t, (), (values,))
+        return self._numeric(schema, topic, t, (), (values,))
 
     @_never_raises
     def log_driver(self, t: float, driver: int, hand_nm: float = float("nan")) -> bool:

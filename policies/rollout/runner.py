@@ -13,8 +13,10 @@ The input is built by feature name from the names the checkpoint stores, through
 stores (policies/preprocess.py: the training's normaliser and image path, the same batch assembly):
 observation.state = the listed follower features concatenated ([rad], [m]), observation.force = tau_ext
 [N*m] (or current [A]), observation.state.objects = the PRIVILEGED twin object vector
-(policies/privileged.py), observation.images.<cam> = the camera's latest raw RGB frame, JPEG-encoded as the
-recording encoded that camera and decoded as training decoded it (the same RGB gives the same input).
+(policies/privileged.py) or observation.perceived.objects = the SIMULATED detector's vector
+(hardware/sim/perception.py; the rollout runs the detector live), observation.images.<cam> = the camera's
+latest raw RGB frame, JPEG-encoded as the recording encoded that camera and decoded as training decoded it
+(the same RGB gives the same input).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ import torch
 from hardware.errors import UserError
 from hardware.features import IMAGES, OBS_FORCE, OBS_IMAGES, OBS_STATE, action_of
 from hardware.features import size as feature_size
-from hardware.recording.schemas import ACTION, TASK_OBJECTS_FEATURE
+from hardware.recording.schemas import ACTION, PERCEIVED_FEATURE, TASK_OBJECTS_FEATURE
 from policies.checkpoint import load_policy
 from policies.rollout.schedule import Chunk
 
@@ -53,7 +55,9 @@ class PolicyRunner:
         f = self.meta["features"]
         self.state_names: list[str] = list(f[OBS_STATE])
         self.force_names: list[str] = list(f.get(OBS_FORCE) or [])
-        self.object_names: list[str] = list(f.get(TASK_OBJECTS_FEATURE) or [])
+        # the object input: the PRIVILEGED state or the perceived one (SIMULATED), whichever it trained on
+        self.object_feature = PERCEIVED_FEATURE if f.get(PERCEIVED_FEATURE) else TASK_OBJECTS_FEATURE
+        self.object_names: list[str] = list(f.get(self.object_feature) or [])
         self.cameras = [n[len(IMAGES):] for n in f.get(OBS_IMAGES) or []]
         self.action_names: list[str] = list(f[ACTION])
         self.rate_hz = float(self.meta["rate_hz"])
@@ -82,7 +86,9 @@ class PolicyRunner:
         obs = ", ".join(x for x in (
             "joints+gripper", self.force_names and f"force ({self.meta.get('force')})",
             self.cameras and f"cameras {', '.join(self.cameras)}",
-            self.object_names and "PRIVILEGED object state") if x)
+            self.object_names and ("perceived objects (SIMULATED detector)"
+                                   if self.object_feature == PERCEIVED_FEATURE
+                                   else "PRIVILEGED object state")) if x)
         return (f"{self.cfg.policy} policy, method {self.meta.get('method')}, step {self.meta.get('step')}, "
                 f"{self.rate_hz:.3g} Hz, chunk {self.cfg.chunk}; observes {obs}")
 
@@ -146,7 +152,7 @@ class PolicyRunner:
         def cat(names):
             return flat_values(obs, names)[None]
 
-        objects = np.asarray(obs[TASK_OBJECTS_FEATURE], np.float32)[None] if self.object_names else None
+        objects = np.asarray(obs[self.object_feature], np.float32)[None] if self.object_names else None
         images = (np.stack([self.pre.image.live(c, obs[IMAGES + c]) for c in self.cameras])[None]
                   if self.cameras else None)
         return self.pre.inputs(cat(self.state_names), cat(self.force_names) if self.force_names else None,

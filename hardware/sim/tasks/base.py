@@ -88,6 +88,9 @@ class Task:
     # the simulated pose detector's settings for this task (hardware/sim/perception.py PerceptionParams
     # fields), over the defaults and under a rig's [twin.perception]; {}: the defaults
     perception: dict = {}
+    # whether `factr2 collect` lets the scripted operator see through the detector by default (--perception
+    # / --no-perception decide otherwise); False: it sees the twin's truth
+    operator_perception: bool = False
 
     def add_objects(self, spec: mujoco.MjSpec, arm) -> None:
         raise NotImplementedError
