@@ -1,5 +1,6 @@
-"""`factr2 episodes list|show|trim|delete|merge|phases`: manage recorded episodes (.mcap sessions, .npz logs);
-`phases` labels them free / pre-contact / contact for FIRST (policies.labelling)."""
+"""`factr2 episodes list|show|trim|delete|merge|phases|import`: manage recorded episodes (.mcap sessions, .npz
+logs; list and show read LeRobotDataset folders too); `phases` labels them free / pre-contact / contact for
+FIRST (policies.labelling); `import gello DIR` turns GELLO's saves into a recording."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from pathlib import Path
 from hardware.recording import episodes as E
 from policies.label_flags import add_label_arguments, thresholds_arg
 
-HELP = "list, show, trim, delete, merge or phase-label recorded episodes"
+HELP = "list, show, trim, delete, merge, phase-label or import (GELLO) recorded episodes"
 
 
 def add_arguments(parser) -> None:
@@ -34,6 +35,13 @@ def add_arguments(parser) -> None:
     p = sub.add_parser("merge", help="concatenate recordings (files or folders) into one")
     p.add_argument("path", type=Path, nargs="+")
     p.add_argument("-o", "--output", type=Path, required=True)
+    p = sub.add_parser("import", help="another tool's saves as one recording: gello (per-step pickles)")
+    p.add_argument("format", choices=("gello",))
+    p.add_argument("path", type=Path, metavar="DIR", help="an episode folder, or a folder of them")
+    p.add_argument("--out", type=Path, required=True, metavar="FILE.mcap", help="the recording to write")
+    p.add_argument("--rate", type=float, default=None, help="steps per second when step files are "
+                   "numbered rather than timed (GELLO's --hz) [Hz]")
+    p.add_argument("--task", default="", help="task name for episodes that do not say one")
     p = sub.add_parser("phases", help="FIRST phase labels: per-episode shares of free / pre-contact / "
                        "contact and a PNG per episode (tau_ext with the phases shaded)")
     p.add_argument("path", type=Path, nargs="+", help="recordings (.mcap) or folders of them")
@@ -68,7 +76,21 @@ def run(args) -> int:
         print(E.merge(args.path, args.output).summary())
     elif args.action == "phases":
         _phases(args)
+    elif args.action == "import":
+        _import(args)
     return 0
+
+
+def _import(args) -> None:
+    from hardware.errors import UserError
+    from hardware.importers.gello import import_gello
+
+    if args.rate is not None and not args.rate > 0:
+        raise UserError(f"--rate must be positive, got {args.rate}")
+    out, notes = import_gello(args.path, args.out, args.rate, args.task, say=print)
+    for n in notes:
+        print(f"note: {n}")
+    print(E.format_rows(E.list_episodes(out)))
 
 
 def _phases(args) -> None:
