@@ -7,7 +7,7 @@ from __future__ import annotations
 
 def script_for(task_name: str):
     """The demonstration script (a generator function (op, params, rng)) of a task."""
-    from factr2_teleop.tasks import place, tight, wipe
+    from factr2_teleop.tasks import place, screw, tight, wipe
 
     return {"peg-insert": place.peg_insert, "press-fit": place.press_fit, "wipe": wipe.wipe,
-            "tight-insert": tight.tight_insert}[task_name]
+            "tight-insert": tight.tight_insert, "cap-screw": screw.cap_screw}[task_name]

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 from hardware.errors import ConfigError
 from hardware.sim.tasks.base import StageTracker, Task, scene_model, task_progress
+from hardware.sim.tasks.cap_screw import CapScrew
 from hardware.sim.tasks.peg_insert import PegInsert
 from hardware.sim.tasks.press_fit import PressFit
 from hardware.sim.tasks.tight_insert import TightInsert
 from hardware.sim.tasks.wipe import Wipe
 
-TASKS: dict[str, Task] = {t.name: t for t in (PegInsert(), Wipe(), PressFit(), TightInsert())}
+TASKS: dict[str, Task] = {t.name: t for t in (PegInsert(), Wipe(), PressFit(), TightInsert(), CapScrew())}
 
 
 def get_task(name: str | Task | None) -> Task | None:
