@@ -92,3 +92,18 @@ def write_recording(
         t += 0.5
     rec.close()
     return path
+
+
+def train_tiny(demos: Path, run: Path, observation: str):
+    """A 3-step training of a tiny policy on `demos` (the observation's plumbing, not learning): its
+    (model, meta, preprocessing)."""
+    from policies.checkpoint import load_policy
+    from policies.run import RunOptions, run_training
+    from policies.train import Dist, TrainConfig
+
+    tiny = {"hidden": 32, "heads": 2, "dec_layers": 1, "enc_layers": 1, "ff": 64, "chunk": 8, "dropout": 0.0}
+    opts = RunOptions(inputs=[demos], out=run, observation=observation, thresholds=(0.5, 1.0),
+                      val_fraction=0.0, progress=False, overrides=tiny,
+                      train=TrainConfig(steps=3, batch=8, warmup=1, val_every=3, ckpt_every=3, threads=1))
+    run_training(opts, Dist())
+    return load_policy(run)

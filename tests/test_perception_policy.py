@@ -75,10 +75,7 @@ def test_carried_and_substitute_are_pure():
 def test_collect_train_rollout_on_the_perceived_observation(tmp_path):
     from factr2_teleop.tasks.run import CollectConfig, collect
     from hardware.recording.reader import Recording
-    from policies.checkpoint import load_policy
     from policies.rollout.runner import PolicyRunner
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
 
     out = collect(CollectConfig(task="wipe", episodes=1, out=str(tmp_path / "demos"), seed=0,
                                 mode="ground_truth", cameras=False, perception=True), progress=False)
@@ -100,21 +97,19 @@ def test_collect_train_rollout_on_the_perceived_observation(tmp_path):
     meta = json.loads((tmp_path / "demos" / "wipe-sim-piper-seed0.json").read_text())
     assert meta["operator_sees"] == "perceived"
 
+    from tests.policy_helpers import train_tiny
+
     run = tmp_path / "run"
-    tiny = {"hidden": 32, "heads": 2, "dec_layers": 1, "enc_layers": 1, "ff": 64, "chunk": 8, "dropout": 0.0}
-    opts = RunOptions(inputs=[tmp_path / "demos"], out=run, observation="perceived", thresholds=(0.5, 1.0),
-                      val_fraction=0.0, progress=False, overrides=tiny,
-                      train=TrainConfig(steps=3, batch=8, warmup=1, val_every=3, ckpt_every=3, threads=1))
-    run_training(opts, Dist())
-    _, meta, pre = load_policy(run)
+    _, meta, pre = train_tiny(tmp_path / "demos", run, "perceived")
     assert meta["observation"] == "perceived" and meta["policy"]["objects_dim"] == 11
     assert meta["features"][S.PERCEIVED_FEATURE] == names and S.TASK_OBJECTS_FEATURE not in meta["features"]
     assert PolicyRunner(run).object_feature == S.PERCEIVED_FEATURE
 
     roll = tmp_path / "roll"
-    r = subprocess.run([sys.executable, "-m", "factr2_teleop.cli", "rollout", "--policy", str(run), "--task",
-                        "wipe", "--episodes", "1", "--seed", "7", "--record", str(roll), "--max-seconds", "1.5",
-                        "--json", str(tmp_path / "roll.json")], capture_output=True, text=True, timeout=600)
+    cmd = ["rollout", "--policy", str(run), "--task", "wipe", "--episodes", "1", "--seed", "7", "--record",
+           str(roll), "--max-seconds", "1.5", "--json", str(tmp_path / "roll.json")]
+    r = subprocess.run([sys.executable, "-m", "factr2_teleop.cli", *cmd], capture_output=True, text=True,
+                       timeout=600)
     assert r.returncode == 0, r.stderr[-800:]
     (path,) = sorted(roll.glob("*.mcap"))
     rrec = Recording(path)

@@ -60,9 +60,6 @@ def test_state_observation_needs_the_recorded_object_vector(tmp_path):
 def test_collected_episode_trains_a_state_policy_without_frames(tmp_path):
     from factr2_teleop.tasks.run import CollectConfig, collect
     from hardware.recording.reader import Recording
-    from policies.checkpoint import load_policy
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
 
     out = collect(CollectConfig(task="wipe", episodes=1, out=str(tmp_path / "demos"), seed=0,
                                 mode="ground_truth", cameras=False), progress=False)
@@ -75,13 +72,9 @@ def test_collected_episode_trains_a_state_policy_without_frames(tmp_path):
     area = np.asarray(out["results"][0]["params"]["area_pos"])
     assert np.allclose(vals[:, 4:7], area, atol=1e-6)  # the mark does not move during the episode
 
-    run = tmp_path / "run"
-    tiny = {"hidden": 32, "heads": 2, "dec_layers": 1, "enc_layers": 1, "ff": 64, "chunk": 8, "dropout": 0.0}
-    opts = RunOptions(inputs=[tmp_path / "demos"], out=run, observation="state", thresholds=(0.5, 1.0),
-                      val_fraction=0.0, progress=False, overrides=tiny,
-                      train=TrainConfig(steps=3, batch=8, warmup=1, val_every=3, ckpt_every=3, threads=1))
-    run_training(opts, Dist())
-    model, meta, pre = load_policy(run)
+    from tests.policy_helpers import train_tiny
+
+    model, meta, pre = train_tiny(tmp_path / "demos", tmp_path / "run", "state")
     assert meta["observation"] == "state" and meta["policy"]["objects_dim"] == 8
     assert meta["features"]["observation.images"] == [] and len(meta["features"][S.TASK_OBJECTS_FEATURE]) == 8
     assert model.obs.backbone is None  # no image encoder at all

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from factr2_teleop.tasks import kinematics as K
+from hardware.sim.perception import rotvec_exp
 
 HAND_K = 8.0  # N*m/rad: a firm grip on a small leader (the demo's relaxed hand is 3)
 HAND_D = 0.12  # N*m*s/rad
@@ -57,13 +58,7 @@ def min_jerk(s: float) -> float:
     return s ** 3 * (10.0 - 15.0 * s + 6.0 * s * s)
 
 
-def rodrigues(w: np.ndarray) -> np.ndarray:
-    a = float(np.linalg.norm(w))
-    if a < 1e-12:
-        return np.eye(3)
-    k = w / a
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(a) * Kx + (1 - np.cos(a)) * Kx @ Kx
+rodrigues = rotvec_exp  # rotation matrix of a rotation vector [rad] (one implementation, hardware's)
 
 
 def interp_pose(T0: np.ndarray, T1: np.ndarray, s: float, bump=None) -> np.ndarray:
