@@ -8,8 +8,12 @@ one fault each at a random time, and what happened (docs/safety.md "Fault campai
 Sessions (bench/fault_sessions.py): teleop (the demo's operator through the teleop session, recorded),
 collect (`factr2 collect`'s collect(), one peg-insert episode), rollout (run_rollout of a tiny policy trained
 once into OUT.state/). next_killed: teleop only, in real time with NEXT feedback (recovered: feedback back
-on). Each is cut TAIL_S after its fault. Resumable: every finished session is a line of OUT.sessions.jsonl;
-a run that was killed continues where it stopped (same arguments). One progress line per session on stderr.
+on). app_sigkill / app_freeze: the app beside a twin in a process of its own (bench/crash_sessions.py: teleop
+and collect as `factr2 teleop`, recording for collect, over sim-piper, sim-yam and sim-bimanual-piper in turn;
+per kind fallback_ms {p50, p99, max}, leader_tau_after_nm_max, follower_motion_rad, and for the freeze
+recovered_after_freeze and jumps). Each other session is cut TAIL_S after its fault. Resumable: every finished
+session is a line of OUT.sessions.jsonl; a run that was killed continues where it stopped (same arguments).
+One progress line per session on stderr.
 
 JSON, per kind (over its activities, and per activity under "activities"): injected (sessions whose fault was
 played), sessions, sessions_safe (both arms safe at the end, no error), safe_unobservable (SIGKILL: the twin
@@ -37,6 +41,7 @@ for p in (ROOT, ROOT / "bench"):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
 
+from crash_sessions import CRASH_RIGS, run_crash_session  # noqa: E402
 from fault_sessions import run_session  # noqa: E402
 
 from hardware.errors import ConfigError  # noqa: E402
@@ -47,11 +52,17 @@ LEADER_KINDS = ("dxl_unplug", "dxl_overload", "dxl_corrupt", "spike_leader")
 # next, the demo's NEXT), collect and rollout (lockstep here, NEXT inline) have no worker to kill
 NOT_IN_CAMPAIGN = {"next_killed": "collect and rollout: lockstep sessions keep NEXT inline (no worker "
                                   "process); teleop plays it in real time"}
+# the app killed / frozen beside a twin in a process of its own (bench/crash_sessions.py): teleop and
+# collect are `factr2 teleop` (recording for collect) on the twin's app rig, across CRASH_RIGS
+CRASH_KINDS = ("app_sigkill", "app_freeze")
+CRASH_NOT_IN = {"rollout": "rollout needs its task's world and cameras from an in-process twin; against a "
+                           "twin in another process it has neither (app_sigkill / app_freeze)"}
 ACTIVITY_KINDS = {
     "teleop": tuple(KINDS),
     "collect": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN),
     # a rollout's leader is passive (zero torque, not read by the policy): leader faults do not concern it
-    "rollout": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN and k not in LEADER_KINDS),
+    "rollout": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN and k not in LEADER_KINDS
+                     and k not in CRASH_KINDS),
 }
 FAULT_WINDOW_S = (0.6, 1.4)  # s of twin time: when a session's fault starts (after the soft start)
 # a NEXT worker loads for ~2-5 s after the session starts: its kills span loading and answering
@@ -73,7 +84,7 @@ def aggregate(rows: list[dict]) -> dict:
     stale_ms = [r["stale_ms"] for r in rows if r.get("stale_ms") is not None]
     lost = [r["samples_lost"] for r in rows if r.get("samples_lost") is not None]
     owed = [r for r in rows if r.get("recovered") is not None]
-    return {"injected": sum(bool(r.get("played")) for r in rows), "sessions": len(rows),
+    out = {"injected": sum(bool(r.get("played")) for r in rows), "sessions": len(rows),
             "sessions_safe": sum(bool(r.get("safe_end")) and not r.get("error") for r in rows),
             "safe_unobservable": sum(r.get("safe_end", False) is None for r in rows),
             "holds": len(safe_ms), "safe_ms": percentiles(safe_ms), "stale_ms": percentiles(stale_ms),
@@ -83,6 +94,41 @@ def aggregate(rows: list[dict]) -> dict:
             "recoveries": sum(bool(r["recovered"]) for r in owed), "recovery_owed": len(owed),
             "errors": sum(bool(r.get("error")) for r in rows),
             "tracebacks": sum(bool(r.get("traceback")) for r in rows)}
+    if any("fallback_ms" in r for r in rows):
+        out.update(crash_aggregate(rows))
+    return out
+
+
+def crash_aggregate(rows: list[dict]) -> dict:
+    """The crash kinds' measures (bench/crash_sessions.py) over sessions."""
+    from factr2_teleop.teleop.soft_start import SoftStartConfig
+
+    def vals(key):
+        return [r[key] for r in rows if r.get(key) is not None]
+
+    tau = vals("leader_tau_after_nm")
+    out = {"fallback_ms": percentiles(vals("fallback_ms")),
+           "fallback_deadline_ms": percentiles(vals("fallback_deadline_ms")),
+           "twin_overruns": int(sum(r.get("overruns") or 0 for r in rows)),
+           "fallback_missing": sum(r.get("fallback_ms") is None for r in rows),
+           "leader_tau_after_nm_max": max(tau) if tau else None,
+           "leader_tau_at_signal_nm": percentiles(vals("leader_tau_at_signal_nm")),
+           "follower_motion_rad": percentiles(vals("follower_motion_rad")),
+           "rigs": sorted({r.get("rig") for r in rows if r.get("rig")})}
+    per_dev: dict[str, list] = {}
+    for r in rows:
+        for dev, ms in (r.get("fallback_ms_per_device") or {}).items():
+            if ms is not None:
+                per_dev.setdefault(f"{r.get('rig')}:{dev}", []).append(ms)
+    out["fallback_ms_per_device"] = {k: percentiles(v) for k, v in sorted(per_dev.items())}
+    if any(r.get("t_cont") for r in rows):
+        limit = float(np.max(SoftStartConfig().rate_limit_rad_s))
+        sp = vals("follower_speed_after_resume_rad_s")
+        out.update({"follower_speed_after_resume_rad_s": percentiles(sp),
+                    "follower_speed_before_rad_s": percentiles(vals("follower_speed_before_rad_s")),
+                    "jump_limit_rad_s": limit, "jumps": sum(v > limit for v in sp),
+                    "recovered_after_freeze": sum(bool(r.get("recovered")) for r in rows)})
+    return out
 
 
 def _policy(state: Path) -> Path:
@@ -148,24 +194,40 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     with journal.open("a") as jf, tempfile.TemporaryDirectory(prefix="factr2-faults-") as tmp:
         for n, (act, kind, i) in enumerate(todo, 1):
-            lo, hi = WINDOW_S_BY_KIND.get(kind, FAULT_WINDOW_S)
-            spec = random_schedule(args.seed * 1000 + i, [kind], 1, lo, hi + KINDS[kind][1], gap_s=0.0)[0]
-            r = run_session(act, spec, args.seed + i, Path(tmp) / f"{act}-{kind}-{i}", policy)
+            if kind in CRASH_KINDS:
+                rig = CRASH_RIGS[i % len(CRASH_RIGS)]
+                text = f"{kind}@active+1..2s" + (f":{KINDS[kind][1]:g}" if KINDS[kind][1] else "") + f" {rig}"
+                t_s = time.perf_counter()
+                r = run_crash_session(act, kind, rig, args.seed * 1000 + i, Path(tmp) / f"{act}-{kind}-{i}",
+                                      KINDS[kind][1])
+                r["wall_s"] = time.perf_counter() - t_s
+            else:
+                lo, hi = WINDOW_S_BY_KIND.get(kind, FAULT_WINDOW_S)
+                spec = random_schedule(args.seed * 1000 + i, [kind], 1, lo, hi + KINDS[kind][1], gap_s=0.0)[0]
+                r = run_session(act, spec, args.seed + i, Path(tmp) / f"{act}-{kind}-{i}", policy)
+                text = spec.text()
             r = {k: v for k, v in r.items() if k not in ("log", "messages")}
-            r.update(activity=act, kind=kind, i=i, seed=args.seed, spec=spec.text())
+            r.update(activity=act, kind=kind, i=i, seed=args.seed, spec=text)
             jf.write(json.dumps(r, default=str) + "\n")
             jf.flush()
             done[(act, kind, i)] = r
             el = time.perf_counter() - t0
             safe = {True: "safe", False: "NOT SAFE", None: "safe n/a"}[r.get("safe_end")]
             ms = "-" if r.get("safe_ms") is None else f"{r['safe_ms']:.0f} ms"
-            print(f"[{n}/{len(todo)}] {act} {spec.text()}: {safe}, hold {ms}, lost {r.get('samples_lost')}, "
+            if r.get("fallback_ms") is not None:
+                moved = r.get("follower_motion_rad") or 0.0
+                ms = f"{ms}, motors' fallback {r['fallback_ms']:.0f} ms, leader torque after " \
+                     f"{r.get('leader_tau_after_nm')}, follower moved {moved:.3f} rad"
+            print(f"[{n}/{len(todo)}] {act} {text}: {safe}, hold {ms}, lost {r.get('samples_lost')}, "
                   f"recovered {r.get('recovered')}{', ERROR ' + str(r['error']) if r.get('error') else ''} "
                   f"({r['wall_s']:.1f} s; ETA {el / n * (len(todo) - n):.0f} s)", file=sys.stderr, flush=True)
     rows = [done[p] for p in plan]
     acts = sorted({a for a, _, _ in plan})
+    nic = dict(NOT_IN_CAMPAIGN)
+    if any(k in CRASH_KINDS for _, k, _ in plan):
+        nic.update({f"{k} ({a})": why for k in CRASH_KINDS for a, why in CRASH_NOT_IN.items()})
     result = {"seed": args.seed, "per_kind": args.per_kind, "activities": acts, "simulated": True,
-              "not_in_campaign": NOT_IN_CAMPAIGN, "kinds": {},
+              "not_in_campaign": nic, "kinds": {},
               "cost_s_per_injection": {a: float(np.mean([r["wall_s"] for r in rows if r["activity"] == a]))
                                        for a in acts},
               "wall_s_this_run": time.perf_counter() - t0}

@@ -249,6 +249,14 @@ def open_bus(channel: str, interface: str = "socketcan", bitrate: int = CAN_BITR
                              fix="set channel (e.g. can0) in the rig file")
     if interface == "virtual":
         return FastVirtualBus(channel=channel, **kwargs)
+    if interface == "pty":  # a twin served by another process (hardware/can_pty.py)
+        from hardware.can_pty import PtyCanBus
+
+        try:
+            return PtyCanBus(channel)
+        except can.CanInitializationError as e:
+            raise DeviceNotFound(str(e), where=where, fix="start the twin (factr2 twin --can-pty) and use "
+                                 "the channel it prints") from None
     if interface == "socketcan":
         problem = _socketcan_problem(channel)
         if problem is not None:

@@ -88,7 +88,7 @@ def test_expiry_stops_latches_and_refuses_goals(chain):
     clock.t += 0.002
     emu.poll_watchdogs()
     assert np.all(bank.current_cmd == 0.0)  # stopped: no current into the operator's hand
-    assert [i for i, _ in emu.watchdog_trips] == [1, 2]
+    assert [i for i, *_ in emu.watchdog_trips] == [1, 2]
     assert emu.watchdog_trips[0][1] == pytest.approx(10.1)  # at its deadline
     assert read(emu, 1, wd.ADDR, signed=True) == -1
     assert read(emu, 1, p.ADDR_TORQUE_ENABLE) == 1  # torque stays enabled; the goal is what is refused
@@ -241,7 +241,7 @@ def test_leader_recovers_after_a_freeze():
         clock._t += 2.0  # the app is stopped (SIGSTOP) for 2 s: the servos stop by themselves
         emu.poll_watchdogs()
         assert np.all(bank.current_cmd == 0) and all(s.watchdog.latched for s in emu.servos)
-        assert [t for _, t in emu.watchdog_trips] == pytest.approx([clock._t - 2.0 + 0.1] * 2, abs=1e-9)
+        assert [t for _, t, _ in emu.watchdog_trips] == pytest.approx([clock._t - 2.0 + 0.1] * 2, abs=1e-9)
         clock._t += 0.002
         leader.read()  # the app's own watchdog zeroes the torque: that write re-arms the servos first
         assert leader._wd.rearms == 1 and all(s.table[98] == 5 and not s.watchdog.latched for s in emu.servos)

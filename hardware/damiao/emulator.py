@@ -58,6 +58,7 @@ class DamiaoEmulator(CanEmulatorIO):
         self.counters = D.RejectCounters()
         self.timeouts = 0
         self.t_timed_out = np.full(n, np.nan)  # when each motor last fell back to damping [s]
+        self.timeout_log: list[tuple[int, float]] = []  # (motor index, its deadline [s]) of every fallback
         self.read_only_rids = frozenset(read_only_rids)  # fault: writes keep the old value (old firmware)
 
     @property
@@ -180,6 +181,7 @@ class DamiaoEmulator(CanEmulatorIO):
                                       np.array([self.timeout_kd]), np.zeros(1))
                 self.timed_out[k] = True
                 self.t_timed_out[k] = self.last_cmd_t[k] + reg * D.TIMEOUT_UNIT_S
+                self.timeout_log.append((k, float(self.t_timed_out[k])))
                 self.timeouts += 1
         return 0
 

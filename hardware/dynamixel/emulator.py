@@ -130,7 +130,8 @@ class DynamixelEmulator:
         self._last_rx = time.monotonic()  # pty thread only (a real-time transport): partial-packet timeout
         self._tick_clock = clock or time.monotonic
         self._wd_armed = False  # some servo has Bus Watchdog(98) > 0 and torque on (_watchdog_* below)
-        self.watchdog_trips: list[tuple[int, float]] = []  # (servo id, when it latched [s of the clock])
+        # (servo id, its deadline, when the emulator stopped it [s of the clock]: later by its thread's wake-up)
+        self.watchdog_trips: list[tuple[int, float, float]] = []
         self._refresh()  # power-on: latch each servo's turn base
         self._thread: threading.Thread | None = None
         if transport == "inprocess":
@@ -549,7 +550,7 @@ class DynamixelEmulator:
         """The servo stops: Bus Watchdog(98) reads -1; current mode outputs 0 A, position modes hold the
         present position, other modes no torque. Torque Enable and Hardware Error Status are untouched."""
         s.table[wd.ADDR[0]] = wd.ERROR_VALUE & 0xFF
-        self.watchdog_trips.append((s.id, float(s.watchdog.t_tripped)))
+        self.watchdog_trips.append((s.id, float(s.watchdog.t_tripped), float(self._tick_clock())))
         idx = np.array([s.index])
         mode = s.table[p.ADDR_OPERATING_MODE[0]]
         holds = mode in (p.OP_MODE_POSITION, p.OP_MODE_EXTENDED_POSITION, p.OP_MODE_CURRENT_BASED_POSITION)

@@ -41,7 +41,7 @@ def _can_play(kind: str, emu) -> bool:
     return True
 
 
-def _play_process(kind: str, start: bool, recording_dir) -> str:
+def _play_process(kind: str, start: bool, recording_dir, duration_s: float = 0.0) -> str:
     """A process kind (faults.PROCESS_KINDS) at its start / end; the log's detail."""
     if kind == "disk_full":
         return PF.fill_disk(recording_dir) if start else PF.free_disk(recording_dir)
@@ -51,6 +51,8 @@ def _play_process(kind: str, start: bool, recording_dir) -> str:
         return PF.kill_next_workers()
     if kind.startswith("wall_step_"):
         return PF.step_wall_clock(WALL_STEP_S if kind == "wall_step_fwd" else -WALL_STEP_S)
+    if kind == "app_freeze":
+        return PF.freeze_app(duration_s)
     return PF.signal_app(signal.SIGTERM if kind == "app_sigterm" else signal.SIGKILL)
 
 
@@ -133,7 +135,7 @@ class FaultInjector:
                 w.camera_fault = k.removeprefix("camera_") if start else None
         elif k in PROCESS_KINDS:
             self.wall_stepped |= k.startswith("wall_step_")
-            detail = _play_process(k, start, self.recording_dir)
+            detail = _play_process(k, start, self.recording_dir, s.duration_s)
         elif k.startswith("spike_") and start:
             spike = np.zeros(6 if k == "spike_follower" else dev.bank.n)
             spike[j] = SPIKE_RAD

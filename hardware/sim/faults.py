@@ -43,11 +43,13 @@ KINDS: dict[str, tuple[str, float]] = {
                   1.0),
     "app_sigterm": ("the app receives SIGTERM (a service manager stops it)", 0.0),
     "app_sigkill": ("the app is killed with SIGKILL (none of its own code runs)", 0.0),
+    "app_freeze": ("the app is stopped (SIGSTOP) for the duration, then continued (SIGCONT)", 2.0),
     "wall_step_fwd": ("the wall clock (time.time) steps WALL_STEP_S forwards, as an NTP correction", 0.0),
     "wall_step_back": ("the wall clock (time.time) steps WALL_STEP_S backwards", 0.0),
 }
 # kinds that act on this process, not on a device of the rig (hardware/sim/fault_injector.py)
-PROCESS_KINDS = ("next_killed", "disk_full", "app_sigterm", "app_sigkill", "wall_step_fwd", "wall_step_back")
+PROCESS_KINDS = ("next_killed", "disk_full", "app_sigterm", "app_sigkill", "app_freeze", "wall_step_fwd",
+                 "wall_step_back")
 CAN_LOSS_PROB = 0.5  # each frame lost with this probability during a can_loss burst
 DXL_CORRUPT_PROB = 0.5  # each status packet corrupted with this probability during a dxl_corrupt storm
 WALL_STEP_S = 3600.0  # s: a wall-clock step (larger than any real NTP step: an hour either way)

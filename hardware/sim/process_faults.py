@@ -111,6 +111,19 @@ def signal_app(sig: int) -> str:
     return f"sent {signal.Signals(sig).name}"
 
 
+def freeze_app(seconds: float) -> str:
+    """SIGSTOP this process for seconds [s] of wall time, then SIGCONT (a laptop lid, a debugger, a stalled
+    host): a helper shell outside the process sends the SIGCONT. Everything of the process stops, an
+    in-process twin too: only a twin in a process of its own (hardware/sim/process_twin.py) sees the motors
+    fall back meanwhile."""
+    import subprocess
+
+    subprocess.Popen(["/bin/sh", "-c", f"sleep {float(seconds):.3f}; kill -CONT {os.getpid()}"],
+                     start_new_session=True)
+    os.kill(os.getpid(), signal.SIGSTOP)
+    return f"stopped {seconds:g} s (SIGSTOP, then SIGCONT)"
+
+
 def _stepped_time() -> float:
     return _REAL_TIME() + _wall_offset_s
 

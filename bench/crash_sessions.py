@@ -1,0 +1,233 @@
+"""The app dies (or freezes) beside a twin in a process of its own: what the motors do by themselves
+(SIMULATED; docs/safety.md "The app killed or frozen"). For bench/faults.py's app_sigkill and app_freeze.
+
+    out = run_crash_session("teleop", "app_sigkill", "sim-yam", seed=3, folder=Path("/tmp/x"))
+
+The twin: `python -m hardware.sim.process_twin --hand` (real time; Dynamixel on ptys, CAN on pty links; a
+scripted hand on each leader). The app: `factr2 teleop --rig <the twin's app rig>` in real time, recording
+(`--record`) for the collect activity: the real command line, which does not know it talks to a twin. Once
+the app has commanded every device for a seeded 1-2 s, the parent sends SIGKILL (or SIGSTOP, then SIGCONT
+after the fault's duration) and reads what the twin saw, from the same monotonic clock:
+- fallback_ms: from the signal to the moment the last motor was in its fallback (Dynamixel: its Bus Watchdog
+  latched -- the emulator's deadline; Damiao: its command timeout's damping; Piper, which has no timeout: the
+  last frame from the app, from when it holds that target);
+- leader_tau_after_nm: the largest torque any leader servo applied after that moment (must be 0);
+- follower_motion_rad: the largest joint excursion of any follower from its pose at the signal, over
+  MOTION_WINDOW_S (app_sigkill) or the freeze;
+- app_freeze: recovered (the app commanded every device again, its leaders' watchdogs re-armed, it ended by
+  Ctrl-C with exit 0 or 130 and no traceback) and the follower's peak speed in the RESUME_WINDOW_S after
+  SIGCONT against its peak speed in the same window before the freeze (a jump would be a snap to the leader).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+ACTIVE_BEFORE_S = (1.0, 2.0)  # s the app commands every device before the signal (seeded, uniform)
+MOTION_WINDOW_S = 1.5  # s after a SIGKILL over which the followers' motion is measured
+RESUME_WINDOW_S = 2.0  # s after SIGCONT (and before the freeze) over which the follower's speed is taken
+SPEED_DT_S = 0.01  # s: the follower's speed is taken over this interval
+AFTER_RESUME_S = 4.0  # s the app runs after SIGCONT before it is stopped with Ctrl-C
+START_TIMEOUT_S = 120.0  # s of wall time for the twin to serve and the app to become active
+CRASH_RIGS = ("sim-piper", "sim-yam", "sim-bimanual-piper")  # both arm families and the bimanual rig
+
+
+def _wait_for(pred, timeout_s: float, step_s: float = 0.05) -> bool:
+    t_end = time.monotonic() + timeout_s
+    while time.monotonic() < t_end:
+        if pred():
+            return True
+        time.sleep(step_s)
+    return False
+
+
+def _status(folder: Path) -> dict:
+    try:
+        return json.loads((folder / "status.json").read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def analyse(w: dict, ev: dict, t_sig: float, kind: str, t_cont: float | None = None) -> dict:
+    """The session's measures (module doc) from the twin's samples w (watch.npz) and events ev
+    (events.json); t_sig / t_cont: the signals' monotonic times [s]."""
+    t = np.asarray(w["t"], float)
+    if len(t) < 2 or t[-1] < t_sig:
+        return {"error": "the twin recorded nothing after the signal"}
+    after = t >= t_sig
+    t_end = t_cont if t_cont is not None else np.inf  # a freeze: the fallbacks during it
+    per_device: dict[str, float | None] = {}
+    deadline: dict[str, float | None] = {}  # the same from the motors' own deadlines (without the twin's lag)
+    for name, e in ev["leaders"].items():  # the servos' watchdog deadlines (rig clock = monotonic)
+        # when the emulator stopped each servo (its deadline + the twin's wake-up: what the arm felt)
+        trips = [(dl, applied) for _, dl, applied in e["watchdog_trips"] if t_sig - 1e-6 <= dl <= t_end]
+        armed = len(w["leader_latched"][0]) // max(1, len(ev["leaders"]))  # the joint servos
+        full = bool(trips) and len(trips) >= armed
+        per_device[name] = (max(a for _, a in trips) - t_sig) * 1e3 if full else None
+        deadline[name] = (max(d for d, _ in trips) - t_sig) * 1e3 if full else None
+    counts = np.asarray(w["counts"], float)
+    n_lead = len(ev["leaders"])
+    for k, (name, e) in enumerate(ev["followers"].items()):
+        if e["driver"] == "damiao":
+            first: dict[int, float] = {}  # each motor's first fallback in the window
+            for k_m, x in e["timeouts"]:
+                if t_sig - 1e-6 <= x <= t_end:
+                    first.setdefault(k_m, x)
+            per_device[name] = (max(first.values()) - t_sig) * 1e3 if len(first) == e["motors"] else None
+        else:  # no timeout: it holds the last target it got, from the last frame the app sent before t_end
+            c = counts[:, n_lead + k]
+            changed = np.nonzero((np.diff(c) != 0) & (t[1:] <= t_end))[0]
+            last = t[changed[-1] + 1] if len(changed) else t[0]
+            per_device[name] = max(0.0, (last - t_sig) * 1e3)
+        deadline[name] = per_device[name]
+    missing = [n for n, v in per_device.items() if v is None]
+    fallback_ms = None if missing else max(per_device.values())
+    out = {"fallback_ms": fallback_ms, "fallback_ms_per_device": per_device, "not_fallen_back": missing,
+           "fallback_deadline_ms": None if missing else max(deadline.values())}
+    tau = np.abs(np.asarray(w["leader_tau"], float))
+    end = t_cont if kind == "app_freeze" else np.inf
+    if fallback_ms is not None:
+        sel = (t > t_sig + fallback_ms * 1e-3 + 1e-9) & (t < end)
+        out["leader_tau_after_nm"] = float(tau[sel].max()) if sel.any() else None
+    else:
+        out["leader_tau_after_nm"] = None
+    out["leader_tau_at_signal_nm"] = float(tau[after][0].max()) if after.any() else None
+    q = np.asarray(w["follower_q"], float)
+    i0 = int(np.argmax(after))
+    win = after & (t <= (t_cont if t_cont is not None else t_sig + MOTION_WINDOW_S))
+    out["follower_motion_rad"] = float(np.abs(q[win] - q[i0]).max()) if win.any() else None
+    if t_cont is not None:
+        out["follower_speed_after_resume_rad_s"] = _peak_speed(t, q, t_cont, t_cont + RESUME_WINDOW_S)
+        out["follower_speed_before_rad_s"] = _peak_speed(t, q, t_sig - RESUME_WINDOW_S, t_sig)
+        tail = (t > t_cont + 0.5) & (t < t_cont + RESUME_WINDOW_S)
+        out["traffic_after_resume"] = bool(tail.any() and np.all(counts[tail][-1] > counts[tail][0]))
+        lat = np.asarray(w["leader_latched"], bool)
+        back = (t > t_cont) & (t < t_cont + RESUME_WINDOW_S)
+        out["watchdogs_rearmed"] = bool((~lat[back]).all(axis=1).any()) if back.any() else None
+        out["latched_during_freeze"] = bool(lat[(t > t_sig) & (t < t_cont)].all(axis=1).any()) if len(lat) \
+            else None
+    return out
+
+
+def _peak_speed(t, q, t0: float, t1: float) -> float | None:
+    """Largest joint speed [rad/s] over SPEED_DT_S intervals in [t0, t1]."""
+    sel = (t >= t0) & (t <= t1)
+    if sel.sum() < 3:
+        return None
+    ts, qs = t[sel], q[sel]
+    k = max(1, int(round(SPEED_DT_S / max(np.median(np.diff(ts)), 1e-4))))
+    if len(ts) <= k:
+        return None
+    v = np.abs(qs[k:] - qs[:-k]) / (ts[k:] - ts[:-k])[:, None]
+    return float(v.max())
+
+
+def run_crash_session(activity: str, kind: str, rig: str, seed: int, folder: Path,
+                      duration_s: float = 2.0) -> dict:
+    """One session (module doc); activity "teleop" or "collect" (teleop recording)."""
+    rng = np.random.default_rng(seed)
+    active_for = float(rng.uniform(*ACTIVE_BEFORE_S))
+    twin_dir = folder / "twin"
+    twin_dir.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    out: dict = {"rig": rig, "played": False, "error": None, "violations": 0, "safe_ms": None,
+                 "stale_ms": None, "recovered": None, "samples_lost": None, "active_before_s": active_for}
+    twin = subprocess.Popen([sys.executable, "-m", "hardware.sim.process_twin", "--rig", rig, "--out",
+                             str(twin_dir), "--seed", str(seed), "--hand"], cwd=ROOT, env=env,
+                            stdout=open(folder / "twin.log", "w"), stderr=subprocess.STDOUT)
+    app = None
+    try:
+        if not _wait_for(lambda: (twin_dir / "endpoints.json").exists() or twin.poll() is not None,
+                         START_TIMEOUT_S) or twin.poll() is not None:
+            out["error"] = "the twin did not start"
+            return out
+        secs = 600.0  # ended by the kill, or by Ctrl-C (SIGINT) AFTER_RESUME_S after the freeze
+        cmd = [sys.executable, "-m", "factr2_teleop.cli", "teleop", "--rig", str(twin_dir / "app_rig.toml"),
+               "--seconds", f"{secs:.2f}"]
+        if activity == "collect":
+            cmd += ["--record", str(folder / "rec"), "--no-cameras"]
+        app_log = open(folder / "app.log", "w")
+        app = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=app_log, stderr=subprocess.STDOUT)
+        def active() -> bool:
+            return _status(twin_dir).get("active_s", 0.0) >= active_for or app.poll() is not None
+
+        if not _wait_for(active, START_TIMEOUT_S) or app.poll() is not None:
+            out["error"] = f"the app did not become active (exit {app.poll()})"
+            return out
+        t_cont = None
+        if kind == "app_sigkill":
+            t_sig = time.monotonic()
+            os.kill(app.pid, signal.SIGKILL)
+            time.sleep(MOTION_WINDOW_S + 0.2)
+            rc = app.wait(timeout=30)
+        else:
+            t_sig = time.monotonic()
+            os.kill(app.pid, signal.SIGSTOP)
+            time.sleep(duration_s)
+            t_cont = time.monotonic()
+            os.kill(app.pid, signal.SIGCONT)
+            time.sleep(AFTER_RESUME_S)
+            os.kill(app.pid, signal.SIGINT)  # the operator stops it: Ctrl-C's path
+            try:
+                rc = app.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                app.kill()
+                rc = app.wait()
+                out["error"] = "the app did not end after the freeze"
+        out.update(played=True, exit=rc, t_signal=t_sig, t_cont=t_cont)
+    finally:
+        if app is not None and app.poll() is None:
+            app.kill()
+            app.wait()
+        if twin.poll() is None:
+            twin.send_signal(signal.SIGTERM)
+        try:
+            twin.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            twin.kill()
+            twin.wait()
+    log = (folder / "app.log").read_text(errors="replace") if (folder / "app.log").exists() else ""
+    out["traceback"] = "Traceback" in log
+    said = ("hold", "coupled", "re-arm")
+    out["messages"] = [ln for ln in log.splitlines() if any(w in ln for w in said)][:20]
+    try:
+        w = dict(np.load(twin_dir / "watch.npz"))
+        ev = json.loads((twin_dir / "events.json").read_text())
+    except (OSError, ValueError) as e:
+        out["error"] = out["error"] or f"the twin's record is missing ({e})"
+        return out
+    m = analyse(w, ev, out["t_signal"], kind, out.get("t_cont"))
+    out.update(m)
+    out["overruns"] = ev.get("overruns")
+    ok_fallback = m.get("fallback_ms") is not None and m.get("leader_tau_after_nm") == 0.0
+    if kind == "app_sigkill":
+        out["safe_end"] = bool(ok_fallback and out.get("exit") == -9)
+    else:
+        out["recovered"] = bool(out.get("exit") in (0, 130) and not out["traceback"]
+                                and m.get("traffic_after_resume") and m.get("watchdogs_rearmed"))
+        out["safe_end"] = bool(ok_fallback and m.get("latched_during_freeze") is not False)
+    if activity == "collect":
+        out["recording_opens"] = _recording_opens(folder / "rec")
+    return out
+
+
+def _recording_opens(folder: Path) -> bool | None:
+    from hardware.recording.reader import open_when_finished
+
+    files = sorted(folder.glob("*.mcap")) if folder.exists() else []
+    if not files:
+        return None
+    try:
+        open_when_finished(files[0], 15.0)
+        return True
+    except Exception:  # noqa: BLE001 -- the outcome to count
+        return False
