@@ -131,6 +131,27 @@ def _load_segments(paths, rate_hz: float, joint_names=None, say=None
     return runs, units, list(joint_names), notes
 
 
+def _to_arm_joints(runs, loaded: dict, joint_names: list, desc, joint_map, say):
+    """The logs' columns in the arm's joint order (calibration.joint_map: a common prefix/suffix or no names
+    by order with one line, --joint-map, else a one-line refusal whose fix works)."""
+    from calibration.joint_map import match_joints, reorder
+
+    want = list(desc.joint_names)
+    n = runs[0][1][0].q.shape[1] if runs and runs[0][1] else len(joint_names)
+    try:
+        order, note = match_joints(joint_names, want, joint_map, desc.name, n)
+    except ValueError as e:
+        raise ConfigError(getattr(e, "what", str(e)), where="--joint-map" if joint_map else "joint names",
+                          fix=getattr(e, "fix", "") or "LOG_NAME=ARM_NAME,... for every log joint") from None
+    if note and say is not None:
+        say(f"note: {note}")
+
+    def fix(rs):
+        return [(name, [reorder(s, order, want) for s in segs], h) for name, segs, h in rs]
+
+    return fix(runs), {k: fix(v) for k, v in loaded.items()}, want
+
+
 def _fit_prior(kind: str, arm: str | None, units: str, segments: list[Segment]):
     """The physics prior NEXT trains on top of (None: the paper's plain NEXT). "auto" = the best grey box
     available: identified when the arm description is known (with a current-per-torque scale per joint for
@@ -185,7 +206,7 @@ def _with_q_cmd(segs: list[Segment], use: bool) -> list[Segment]:
 
 def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(), arm: str | None = None,
                         cfg: TrainConfig | None = None, rate_hz: float = 100.0, observer_gain: float = 50.0,
-                        callback=None, plots: bool = True, say=None) -> dict:
+                        callback=None, plots: bool = True, say=None, joint_map: str | None = None) -> dict:
     """Train NEXT on free-motion logs (.npz or .mcap), evaluate all, write out_dir; returns report.json's
     dict. say(line): warnings about the logs (corrupt rows dropped, no q_cmd, units) as they are read."""
     cfg = cfg or TrainConfig()
@@ -214,9 +235,7 @@ def calibrate_from_logs(train_paths, out_dir, eval_paths=(), unlabeled_paths=(),
         from hardware.arms import load_arm
 
         desc = load_arm(arm)
-        if list(desc.joint_names) != joint_names:
-            raise ConfigError(f"arm {arm} has joints {list(desc.joint_names)}, logs have {joint_names}",
-                              where=arm, fix="pass the --arm the logs were recorded on")
+        runs, loaded, joint_names = _to_arm_joints(runs, loaded, joint_names, desc, joint_map, say)
         pin_model = desc.pinocchio_model()
     out.mkdir(parents=True, exist_ok=True)
     segments = _with_q_cmd(free_parts([s for _, segs, _ in runs for s in segs]), has_cmd)

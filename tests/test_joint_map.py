@@ -62,7 +62,7 @@ def _log(path, names, order=None):
     tau += 0.01 * np.random.default_rng(0).standard_normal(tau.shape)
     o = list(range(6)) if order is None else order
     kw = {} if names is None else {"joint_names": np.array(names)}
-    np.savez(path, t=t, q=q[:, o], qd=qd[:, o], tau_m=tau[:, o], **kw)
+    np.savez(path, t=t, q=q[:, o], qd=qd[:, o], q_cmd=q[:, o], tau_m=tau[:, o], **kw)
     return str(path)
 
 
@@ -98,3 +98,25 @@ def test_cli_refuses_a_permutation_and_its_fix_works(tmp_path, capsys):
     plain = json.loads((base / "report.json").read_text())
     # reordered back: the same per-joint fit as the log written in the arm's order
     assert np.allclose(rep["after"]["heldout_l1"], plain["after"]["heldout_l1"], rtol=1e-6)
+
+
+def test_calibrate_from_logs_maps_suffixed_names_and_its_refusal_fix_works(tmp_path, capsys):
+    """`factr2 calibrate --from-logs`: the issue's case (a log whose names differ from the arm's by a
+    suffix) trains with one line; a permuted log is refused with a --joint-map that then trains."""
+    suffixed = _log(tmp_path / "suffixed.npz", [f"joint{k}_joint" for k in range(1, 7)])
+    tiny = ["--arm", "piper", "--arch", "mlp", "--history", "10", "--hidden", "16", "--max-epochs", "1",
+            "--max-seconds", "5", "--prior", "description", "--no-plots"]
+    assert main(["calibrate", "--from-logs", suffixed, "--out", str(tmp_path / "c1"), *tiny]) == 0
+    err = capsys.readouterr().err
+    assert sum("mapped by order" in x for x in err.splitlines()) == 1
+    order = [1, 0, 2, 3, 4, 5]
+    swapped = _log(tmp_path / "swapped.npz", [f"joint{k + 1}" for k in order], order)
+    assert main(["calibrate", "--from-logs", swapped, "--out", str(tmp_path / "c2"), *tiny]) == 2
+    err = capsys.readouterr().err
+    errors = [x for x in err.splitlines() if "error" in x]
+    assert len(errors) == 1 and "another order" in errors[0]
+    fix = re.search(r"--joint-map (\S+)", err).group(1)
+    assert main(["calibrate", "--from-logs", swapped, "--out", str(tmp_path / "c2"), *tiny,
+                 "--joint-map", fix]) == 0
+    rep = json.loads((tmp_path / "c2" / "report.json").read_text())
+    assert rep["joint_names"] == [f"joint{k}" for k in range(1, 7)]

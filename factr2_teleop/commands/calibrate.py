@@ -31,6 +31,9 @@ def add_arguments(p) -> None:
                    help="held-out logs with unknown contact (estimates and plots only, no scores)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder (checkpoint, report, plots)")
     p.add_argument("--arm", help="arm the logs come from (hardware/arms name): enables FILIC, observer")
+    p.add_argument("--joint-map", metavar="LOG=ARM,...",
+                   help="with --from-logs: which arm joint each log joint is, when the names differ by more "
+                        "than a common prefix/suffix or come in another order")
     p.add_argument("--rig", help="record free motion on this rig (name or TOML; sim-* rigs run the twin)")
     p.add_argument("--follower", help="follower of the rig to calibrate (default: the first)")
     p.add_argument("--minutes", type=float, default=10.0, help="length of the recorded free motion [min]")
@@ -168,7 +171,8 @@ def run(args) -> int:
     try:
         report = calibrate_from_logs(train_paths, args.out, eval_paths, unlabeled, arm=args.arm, cfg=cfg,
                                      rate_hz=args.rate_hz, observer_gain=args.observer_gain,
-                                     plots=not args.no_plots, say=lambda s: print(s, file=sys.stderr))
+                                     plots=not args.no_plots, say=lambda s: print(s, file=sys.stderr),
+                                     joint_map=args.joint_map)
     except ValueError as e:  # too little data for one window, etc.
         raise UserError(str(e), where="factr2 calibrate", fix="give longer free-motion logs") from None
     _print_summary(report, Path(args.out))
