@@ -96,7 +96,7 @@ def rotvec_exp(w) -> np.ndarray:
         return np.eye(3)
     k = w / a
     K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * K @ K
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K  # np's sin: the operator's IK path, as before
 
 
 def rotvec_log(R) -> np.ndarray:
