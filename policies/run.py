@@ -9,6 +9,7 @@ import warnings
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from calibration.next.ident import format_ids
@@ -119,8 +120,17 @@ def _thresholds(o: RunOptions, next_model, episodes, arms):
     """The contact thresholds, or None for episodes without any force-like signal (a LeRobotDataset
     without effort / current / tau_ext) and no --next: their samples are all free, and a method that needs
     a force input or FIRST's re-sampling is refused here with the reason."""
-    if next_model is not None or any(
-            S.tau_ext_topic(arms.followers[0]) in ep.recording.topics for ep in episodes):
+    if next_model is not None:
+        field = "current" if next_model.ck.units == "A" else "tau_m"  # what NEXT runs on (its units)
+        if not any(np.isfinite(ep.topic(S.joint_state_topic(a)).fields[field]).any()
+                   for ep in episodes for a in arms.followers):
+            raise UserError(
+                f"--next runs NEXT over the logged motor {'current' if field == 'current' else 'torque'}, "
+                "and these episodes have none (GELLO saves, LeRobot data without effort)",
+                where=", ".join(map(str, o.inputs)),
+                fix="train a base method (--method base) without --next (docs/bringing_data.md)")
+        return resolve_thresholds(o.thresholds, next_model, episodes, arms)
+    if any(S.tau_ext_topic(arms.followers[0]) in ep.recording.topics for ep in episodes):
         return resolve_thresholds(o.thresholds, next_model, episodes, arms)
     m = METHODS[o.method]
     if m.force or len(set(o.ratio)) > 1:

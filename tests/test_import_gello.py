@@ -127,3 +127,23 @@ def test_stem_times():
     assert stem_time("2026-11-30T14-00-00-020000") == (pytest.approx(T0.timestamp() + 0.02), "wall")
     assert stem_time("1764511200000000000") == (pytest.approx(1764511200.0), "ns")
     assert stem_time("17") == (17.0, "index") and stem_time("junk") == (None, "")
+
+
+def test_imported_gello_trains_base_only(tmp_path, capsys):
+    from tests.test_next_official import _official_run
+    from tests.test_policies_inputs import FAST, _one_line_error
+
+    write_gello_pickles(tmp_path / "gello" / "a", n=60)
+    write_gello_pickles(tmp_path / "gello" / "b", n=60, start=T0 + dt.timedelta(60))
+    rc, _, err = _cli(capsys, "episodes", "import", "gello", tmp_path / "gello", "--out", tmp_path / "g.mcap")
+    assert rc == 0, err
+    rc, _, err = _cli(capsys, "train", tmp_path / "g.mcap", "--out", tmp_path / "r1", "--method", "first",
+                      *FAST)
+    _one_line_error(rc, err, "no force-like signal", "--method base")
+    _official_run(tmp_path / "next")  # a NEXT checkpoint for 6 joints: nothing to run it on
+    rc, _, err = _cli(capsys, "train", tmp_path / "g.mcap", "--out", tmp_path / "r2", "--method", "base",
+                      "--next", tmp_path / "next", *FAST)
+    _one_line_error(rc, err, "--next runs NEXT over the logged motor torque", "have none")
+    rc, out, err = _cli(capsys, "train", tmp_path / "g.mcap", "--out", tmp_path / "r3", "--method", "base",
+                        *FAST)
+    assert rc == 0 and "cameras wrist" in out, err

@@ -1,0 +1,72 @@
+"""Round trip of docs/bringing_data.md: our recordings -> `factr2 export lerobot` -> the samples `factr2
+train` makes of that dataset, against the samples it makes of the recordings themselves: counts and a SHA-256
+of the first batch (every tensor the model gets). Both go through policies.run.prepare, `factr2 train`'s own
+data path, with the same flags.
+
+    python bench/bring_data_round_trip.py [RECORDING_OR_DIR] [-- TRAIN FLAGS]
+
+Default input: a synthetic state-only twin-style recording (tests/policy_helpers.py); flags default to
+`--obs state --thresholds 1:3` (a twin task recording without cameras: `factr2 collect --no-cameras`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from factr2_teleop.cli import build_parser, main  # noqa: E402
+from policies.run import prepare  # noqa: E402
+from policies.run_config import from_args  # noqa: E402
+from policies.train import setup_distributed  # noqa: E402
+
+
+def digest(data, n: int = 64) -> str:
+    b = data.batch(np.arange(min(n, len(data))))
+    h = hashlib.sha256()
+    for k in sorted(b):
+        h.update(k.encode())
+        h.update(b[k].numpy().tobytes())
+    return h.hexdigest()[:16]
+
+
+def samples(inputs, out: Path, flags: list[str]):
+    ns = build_parser().parse_args(["train", str(inputs), "--out", str(out), *flags])
+    data, *_ = prepare(from_args(ns).resolved(), setup_distributed())
+    return data
+
+
+def main_(argv: list[str]) -> int:
+    src, flags = (argv[:1], argv[2:]) if argv and argv[0] != "--" else ([], argv[1:])
+    flags = flags or ["--obs", "state", "--thresholds", "1:3"]
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        os.environ.setdefault("FACTR2_CACHE", str(tmp / "cache"))
+        if src:
+            rec = Path(src[0])
+        else:
+            from tests.policy_helpers import write_recording
+
+            rec = write_recording(tmp / "rec.mcap", episodes=4, seconds=6.0, cameras=(), objects=3)
+        th = [f for f in flags if f.startswith("--thresholds")] and flags[flags.index("--thresholds"):][:2]
+        assert main(["export", "lerobot", str(rec), "--out", str(tmp / "ds"), *th]) == 0
+        a = samples(rec, tmp / "r1", flags)
+        b = samples(tmp / "ds", tmp / "r2", flags)
+        tr_a, tr_b = a.split()[0], b.split()[0]
+        print(f"recordings: {len(a)} samples ({len(tr_a)} train), first batch sha256 {digest(a)}")
+        print(f"LeRobot   : {len(b)} samples ({len(tr_b)} train), first batch sha256 {digest(b)}")
+        same = all(np.array_equal(getattr(a, k), getattr(b, k))
+                   for k in ("state", "force", "action", "mask", "phase"))
+        print("every sample's state, force, action chunk, mask and phase equal:", same)
+        return 0 if same and digest(a) == digest(b) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main_(sys.argv[1:]))
