@@ -22,6 +22,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--seconds", type=float, default=None,
                         help="stop after this many seconds instead of waiting for Ctrl-C")
     parser.add_argument("--list", action="store_true", help="list the built-in rigs and exit")
+    parser.add_argument("--watch", default=None, metavar="DIR",
+                        help="serve CAN on pty links too (other processes can open them), write "
+                        "DIR/app_rig.toml (the rig as a real rig reaching this twin) and at Ctrl-C / SIGTERM "
+                        "what the motors did (DIR/watch.npz, DIR/events.json: hardware/sim/process_twin.py)")
+    parser.add_argument("--hand", action="store_true", help="with --watch: a scripted hand moves the leaders")
 
 
 def run(args) -> int:
@@ -34,6 +39,14 @@ def run(args) -> int:
             r = load_rig(name)
             print(f"{name:22s} {'sim ' if r.simulated else 'real'}  {r.description}")
         return 0
+    if args.watch:
+        from pathlib import Path
+
+        from hardware.sim.process_twin import serve
+
+        print(f"twin of rig {args.rig} in real time (SIMULATED hardware); its app rig: "
+              f"{args.watch}/app_rig.toml", flush=True)
+        return serve(args.rig, Path(args.watch), args.seed, args.hand)
     server = serve_twin(args.rig, effect=args.twin_effect, seed=args.seed)
     try:
         rig = server.rig
