@@ -17,7 +17,8 @@ of `none` drops the role):
     current   observation.current    current [A]
     tau_ext   observation.tau_ext, observation.force    external joint torque [N*m] (factr2's own export)
     images    observation.images.*   camera frames (video or image features)
-    objects   observation.state.objects  PRIVILEGED twin task-object state (factr2's export of twin tasks)
+    objects   observation.state.objects, observation.perceived.objects   a twin export's PRIVILEGED object
+              state and SIMULATED detector report (factr2's export of twin tasks), back on their topics
 
 plus `angles=deg` when the dataset's joint angles are in degrees (LeRobot's SO-100/101 default), and
 `gripper=none` when no state element is a gripper. A force-like feature must have one value per joint (a
@@ -43,7 +44,7 @@ import numpy as np
 
 from hardware.errors import UserError
 from hardware.importers.write import ImportedEpisode, write_episodes
-from hardware.recording.schemas import TASK_OBJECTS_FEATURE as OBJECTS
+from hardware.recording.schemas import OBJECT_TOPICS
 
 ROLES = ("state", "action", "velocity", "effort", "current", "tau_ext")
 MAP_DEFAULT: dict[str, tuple[str, ...]] = {
@@ -55,7 +56,7 @@ MAP_DEFAULT: dict[str, tuple[str, ...]] = {
     "tau_ext": ("observation.tau_ext", "observation.force"),
 }
 IMAGES = "observation.images."
-CONVERTER_VERSION = 2  # bump when the conversion changes: cached conversions are made again
+CONVERTER_VERSION = 3  # bump when the conversion changes: cached conversions are made again
 FIX_MAP = "name the features with --lerobot-map ROLE=KEY,... (docs/bringing_data.md)"
 
 
@@ -155,7 +156,8 @@ class Mapping:
                 del self.keys[role]
         self.cameras = sorted(k for k, f in feats.items()
                               if k.startswith(IMAGES) and f.get("dtype") in ("video", "image"))
-        self.objects = _names(feats[OBJECTS]) if OBJECTS in feats else None
+        self.objects = {k: _names(feats[k]) or [f"v{i}" for i in range(_width(feats[k]))]
+                        for k in OBJECT_TOPICS if k in feats}
         self.force = next((r for r in ("tau_ext", "effort", "current") if r in self.keys), "none")
 
     def cols(self, a: np.ndarray, n_state: int) -> np.ndarray:
@@ -247,7 +249,7 @@ def read_episodes(root: Path, m: Mapping, info: dict) -> list[ImportedEpisode]:
         metas = []
     meta_by_ep = {int(d["episode_index"]): d for d in metas if "episode_index" in d}
     fps = float(info["fps"])
-    need = ["episode_index", "timestamp", *(m.keys[r] for r in m.keys), *([OBJECTS] if m.objects else [])]
+    need = ["episode_index", "timestamp", *(m.keys[r] for r in m.keys), *m.objects]
     missing = [k for k in need if k not in data.column_names]
     if missing:
         raise _bad(root, f"data rows lack column(s) {', '.join(missing)}")
@@ -256,7 +258,7 @@ def read_episodes(root: Path, m: Mapping, info: dict) -> list[ImportedEpisode]:
     frame_idx = np.asarray(_column(data, "frame_index"), int) if "frame_index" in data.column_names else None
     cols = {r: _column(data, k) for r, k in m.keys.items()}
     n_state = cols["state"].shape[1]
-    objects = _column(data, OBJECTS) if m.objects else None
+    objects = {k: _column(data, k) for k in m.objects}
     scale = np.pi / 180.0 if m.deg else 1.0
     out = []
     for e in sorted(set(eps.tolist())):
@@ -279,8 +281,7 @@ def read_episodes(root: Path, m: Mapping, info: dict) -> list[ImportedEpisode]:
         force = {"tau_ext": "tau_ext", "effort": "effort", "current": "current"}.get(m.force)
         if force:
             ep.tau_ext = m.cols(cols[force][rows], n_state)
-        if m.objects:
-            ep.objects, ep.object_names = objects[rows], m.objects
+        ep.objects = {k: (v[rows], m.objects[k]) for k, v in objects.items()}
         meta = meta_by_ep.get(e, {})
         tasks = meta.get("tasks") or []
         ep.task = str(tasks[0]) if len(tasks) else ""

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from hardware.errors import UserError
+from hardware.recording import schemas as S
 from hardware.types import STATUS_ENABLED, JointState
 
 HOLD_TAIL = 0.5  # of a row period [1]: the last row's hold (module docstring)
@@ -42,8 +43,9 @@ class ImportedEpisode:
     current: np.ndarray | None = None
     tau_ext: np.ndarray | None = None
     frames: dict = field(default_factory=dict)
-    objects: np.ndarray | None = None  # (N, O) PRIVILEGED task-object vector (a twin's export), or None
-    object_names: list[str] = field(default_factory=list)
+    # a twin's exported object vectors by feature (hardware.recording.schemas.OBJECT_TOPICS: the PRIVILEGED
+    # state, the SIMULATED detector's report): feature -> ((N, O) values, O element names)
+    objects: dict = field(default_factory=dict)
     task: str = ""
     outcome: str | None = "success"
 
@@ -102,8 +104,9 @@ def write_episodes(path: Path, episodes: list[ImportedEpisode], joint_names: lis
                     rec.log_image(cam, offset + ft, np.ascontiguousarray(rgb))
                     fi += 1
                 _log_row(rec, tk, k, nj, q, qd, cols, grip, agrip)
-                if ep.objects is not None:
-                    rec.log_task_objects(tk, np.asarray(ep.objects[k], float), ep.object_names)
+                for feature, (vals, names) in ep.objects.items():
+                    log = rec.log_task_objects if feature == S.TASK_OBJECTS_FEATURE else rec.log_perceived
+                    log(tk, np.asarray(vals[k], float), names)
             dt = float(t[-1] - t[-2])
             t_hold = offset + t[-1] + HOLD_TAIL * dt
             _log_row(rec, t_hold, n - 1, nj, q, qd, cols, grip, agrip)
