@@ -39,6 +39,7 @@ SPEED_DT_S = 0.01  # s: the follower's speed is taken over this interval
 AFTER_RESUME_S = 4.0  # s the app runs after SIGCONT before it is stopped with Ctrl-C
 START_TIMEOUT_S = 120.0  # s of wall time for the twin to serve and the app to become active
 CRASH_RIGS = ("sim-piper", "sim-yam", "sim-bimanual-piper")  # both arm families and the bimanual rig
+START_TRIES = 3  # a session whose app does not start is started again (module doc of run_crash_session)
 
 
 def _wait_for(pred, timeout_s: float, step_s: float = 0.05) -> bool:
@@ -133,7 +134,20 @@ def _peak_speed(t, q, t0: float, t1: float) -> float | None:
 
 def run_crash_session(activity: str, kind: str, rig: str, seed: int, folder: Path,
                       duration_s: float = 2.0) -> dict:
-    """One session (module doc); activity "teleop" or "collect" (teleop recording)."""
+    """One session (module doc); activity "teleop" or "collect" (teleop recording). A session whose app
+    did not start (before any signal: a connect that timed out on a loaded machine, a refused start) is
+    started again, START_TRIES times in all; start_failures says how often and why."""
+    failures = []
+    for k in range(START_TRIES):
+        out = _session(activity, kind, rig, seed, folder / f"try{k}", duration_s)
+        if out.get("played") or not out.get("error"):
+            break
+        failures.append(out["error"])
+    out["start_failures"] = failures
+    return out
+
+
+def _session(activity: str, kind: str, rig: str, seed: int, folder: Path, duration_s: float) -> dict:
     rng = np.random.default_rng(seed)
     active_for = float(rng.uniform(*ACTIVE_BEFORE_S))
     twin_dir = folder / "twin"
@@ -161,7 +175,8 @@ def run_crash_session(activity: str, kind: str, rig: str, seed: int, folder: Pat
             return _status(twin_dir).get("active_s", 0.0) >= active_for or app.poll() is not None
 
         if not _wait_for(active, START_TIMEOUT_S) or app.poll() is not None:
-            out["error"] = f"the app did not become active (exit {app.poll()})"
+            tail = (folder / "app.log").read_text(errors="replace").strip().splitlines()[-1:]
+            out["error"] = f"the app did not become active (exit {app.poll()}): {' '.join(tail)[:200]}"
             return out
         t_cont = None
         if kind == "app_sigkill":
