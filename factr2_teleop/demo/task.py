@@ -169,6 +169,7 @@ class DemoResult:
     loop_cpu_share: float = float("nan")  # loop_cpu_ms_per_tick over the period (target <= 0.25 at 500 Hz)
     loop_twin_cpu_ms_per_tick: float = float("nan")  # the twin's work on the loop's thread (hardware/sim_cpu)
     next_worker_cpu_ms_per_tick: float = float("nan")  # NEXT's own process, if used (calibration/next/worker)
+    target_hz: float = float("nan")  # the loop's rate at the end (lower: it degraded, teleop/degrade.py)
     holds: int = 0  # times the follower went on hold
     hold_s: float = 0.0  # time spent on hold [s]
     refused_resumes: int = 0  # resumes refused (leader too far from the follower), once per refusal
@@ -376,7 +377,8 @@ class DemoRun:
             loop_cpu_ms_per_tick=st.cpu_mean_ms, loop_cpu_share=st.cpu_share,
             loop_twin_cpu_ms_per_tick=st.sim_cpu_mean_ms,
             next_worker_cpu_ms_per_tick=1e3 * getattr(self.pair.estimator, "cpu_s", np.nan) / (st.ticks or 1),
-            holds=self.pair.holds, hold_s=self.pair.hold_s, refused_resumes=self.pair.resume_refusals,
+            target_hz=st.target_hz, holds=self.pair.holds, hold_s=self.pair.hold_s,
+            refused_resumes=self.pair.resume_refusals,
             hand_push_n=float(wipe.get("force_n", float("nan"))),
             hand_tau_l1_wipe_nm=float(wipe.get("tau_l1_nm", float("nan"))),
             peak_contact_force_n=float(np.max(fw)) if fw.size else float("nan"),

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from factr2_teleop.teleop.degrade import RateGovernor
 from factr2_teleop.teleop.pair import COUPLED, FAULT, HOLD, IDLE, SOFT_START, STOPPED, ArmPair, PairHold
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.timing import LoopTiming, TimingStats
@@ -82,6 +83,7 @@ class TeleopLoop:
         self.pairs, self.clock, self.rate_hz = pairs, clock, float(rate_hz)
         self.period_s = 1.0 / self.rate_hz
         self.recorder = recorder
+        self.degrade = True  # real time: a rate the machine cannot hold drops to one it can (degrade.py)
         self.idle: list[Callable[[], None]] = []
         self.timing = LoopTiming(self.rate_hz)
         self.error: BaseException | None = None
@@ -148,6 +150,7 @@ class TeleopLoop:
             self.clock.sleep_until(self.clock.now())
             t0 = self.clock.now()
             next_t, ticks = t0, 0
+            governor = RateGovernor(self.rate_hz) if self.clock.realtime and self.degrade else None
             while not self._stop.is_set():
                 t_start, cpu0, sim0 = self.clock.now(), time.thread_time(), sim_cpu.charged()
                 self._late_s = t_start - next_t  # this tick's start after its deadline (the records carry it)
@@ -158,6 +161,10 @@ class TeleopLoop:
                 with self._lock:  # the loop's own CPU: what a twin did on this thread is kept apart (sim_cpu)
                     self.timing.record(t_start, self._busy_s, cpu - sim, sim)
                 self._publish(t_start)
+                if governor is not None:
+                    verdict = governor.tick(t_start, self._busy_s)
+                    if verdict is not None and verdict.new_rate_hz is not None:
+                        self._set_rate(verdict.new_rate_hz, verdict.line)
                 if (max_ticks is not None and ticks >= max_ticks) or \
                         (duration_s is not None and t_start - t0 + 1.5 * self.period_s >= duration_s):
                     break
@@ -280,6 +287,17 @@ class TeleopLoop:
     def _message(self, t: float, who: str, text: str) -> None:
         with self._lock:
             self._messages.append((t, who, text))
+
+    def _set_rate(self, rate_hz: float, line: str) -> None:
+        """Run at rate_hz from the next tick on (degrade.py): the schedule, the timing's target (the rate
+        recorded: TimingStats.target_hz, the timing line, the demo's JSON), every pair's period and gains."""
+        self.rate_hz, self.period_s = float(rate_hz), 1.0 / float(rate_hz)
+        with self._lock:
+            self.timing.target_hz = self.rate_hz
+        for p in self.pairs:
+            p.set_rate(self.rate_hz)
+        log.warning("loop: %s", line)
+        self._message(self.clock.now(), "loop", line)
 
     def _make_safe(self, reason: Reason, phase: str) -> None:
         for p in self.pairs:

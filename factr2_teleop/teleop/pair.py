@@ -48,6 +48,10 @@ _ERROR_BITS = np.uint32(STATUS_MOTOR_ERROR)
 _ERROR_NAMES = ((STATUS_OVERCURRENT, "over-current"), (STATUS_OVERTEMP, "over-temperature"),
                 (STATUS_DRIVER_ERROR, "driver/encoder error"))
 DEFAULT_STALE_S = 0.02  # s: a leader/follower sample older than this puts the follower on hold (< 50 ms)
+# reads in a row without a new complete sample before old data holds: a loop that was itself late (a stall on
+# a slow core) and missed one read does not hold while data keeps arriving; silence still holds within
+# DEFAULT_STALE_S (10 reads at 500 Hz)
+STALE_MIN_MISSES = 2
 
 
 class PairHold(Enum):
@@ -159,6 +163,7 @@ class ArmPair:
         self.last: TickRecord | None = None
         self.sent: SafeFollowerCommand | None = None  # what reached the follower this tick
         self._t_ok = {"leader": -np.inf, "follower": -np.inf}  # time of the last complete sample [s]
+        self._misses = {"leader": 0, "follower": 0}  # reads in a row without a new complete sample
         self._leader_ok = False
         self._refused = False  # a resume is refused (mismatch): said once, not every tick
         # holds entered, time spent in them [s], resumes refused (once per refusal): the demo's summary
@@ -211,6 +216,17 @@ class ArmPair:
         errors = make_safe([self.leader], [self.follower], reason)
         if errors:
             log.error("%s: could not make an arm safe: %s", self.cfg.name, errors)
+
+    def set_rate(self, rate_hz: float) -> None:
+        """Run at a new loop rate (the loop degraded, teleop/degrade.py): the period, the soft start's step,
+        and the feedback gains scaled with the rate (a sampled force-feedback loop's stable gain falls with
+        its period)."""
+        ratio = float(rate_hz) * self.dt_s  # new rate / old rate
+        self.dt_s = 1.0 / float(rate_hz)
+        self.law.feedback.gain = self.law.feedback.gain * ratio
+        self.soft = SoftStart(self.cfg.soft_start, self.follower.n_joints, self.dt_s)
+        if self.phase == SOFT_START:  # go on from the target it reached
+            self.soft.reset(self.q_target if self.q_target is not None else self.follower.last_state.q)
 
     @property
     def resume_refused(self) -> bool:
@@ -343,7 +359,10 @@ class ArmPair:
         finite = bool(np.isfinite(st.q).all())
         if finite and math.isfinite(st.t) and now - st.t <= max_age and _complete(st):
             self._t_ok[who] = st.t
-        return finite and now - self._t_ok[who] <= max_age
+            self._misses[who] = 0
+        else:
+            self._misses[who] += 1
+        return finite and (now - self._t_ok[who] <= max_age or self._misses[who] < STALE_MIN_MISSES)
 
     def _tick_estimator(self, now: float, fs: JointState, q_leader_f: np.ndarray) -> None:
         est = self.estimator
