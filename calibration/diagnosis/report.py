@@ -236,6 +236,10 @@ def write(dg: Diagnosis, out: Path, meta: dict, plots: bool = True) -> dict:
     lines += finals or ["- none"]
     if rep["found_in_words"]:
         lines += ["", "In words: " + "; ".join(rep["found_in_words"]) + "."]
+    if rep.get("payload"):
+        lines += ["", "## Payload", "", f"{rep['payload']['words']}."]
+    if rep.get("springs"):
+        lines += ["", "## Springs", ""] + [f"- joint {s['joint']}: {s['words']}." for s in rep["springs"]]
     if rep["evidence_of_something_else"]:
         lines += ["", "## Evidence of something else", "",
                   "Friction fitted with a sign that feeds energy in was rejected as friction; what it points "
