@@ -130,7 +130,9 @@ class DynamixelEmulator:
         self._last_rx = time.monotonic()  # pty thread only (a real-time transport): partial-packet timeout
         self._tick_clock = clock or time.monotonic
         self._wd_armed = False  # some servo has Bus Watchdog(98) > 0 and torque on (_watchdog_* below)
-        # (servo id, its deadline, when the emulator stopped it [s of the clock]: later by its thread's wake-up)
+        self._wd_due = math.inf  # the earliest deadline [s of the clock]: nothing can expire before it
+        self._wd_min_period = math.inf  # the shortest armed period [s]
+        # (servo id, its deadline, when the emulator stopped it [s of the clock]: later by the thread's wake)
         self.watchdog_trips: list[tuple[int, float, float]] = []
         self._refresh()  # power-on: latch each servo's turn base
         self._thread: threading.Thread | None = None
@@ -238,7 +240,7 @@ class DynamixelEmulator:
         while not self._stop.is_set():
             wait = 0.02
             if self._wd_armed:  # wake at the next watchdog deadline: the servo stops on time
-                wait = min(wait, max(0.0, self._watchdog_deadline() - self._tick_clock()))
+                wait = min(wait, max(0.0, self._wd_due - self._tick_clock()))
             try:
                 ready, _, _ = select.select([self._master], [], [], wait)
             except (OSError, ValueError):
@@ -527,9 +529,14 @@ class DynamixelEmulator:
         if not self._wd_armed or (self._thread is not None and threading.get_ident() != self._thread.ident):
             return
         now = self._tick_clock()
+        if now > self._wd_due:
+            self._watchdog_expire(now)
+
+    def _watchdog_expire(self, now: float) -> None:
         for s in self.servos:  # (the serving thread, or the in-process caller's: never both)
             if s.watchdog.expire(now, s.table[wd.ADDR[0]], s.torque_on):
                 self._watchdog_trip(s)
+        self._wd_due = self._watchdog_deadline()
 
     def _watchdog_deadline(self) -> float:
         return min((s.watchdog.deadline(s.table[wd.ADDR[0]], s.torque_on) for s in self.servos),
@@ -539,12 +546,15 @@ class DynamixelEmulator:
         """An instruction packet reached the servos: expire what ran out before it, then restart the timers
         of the servos that heard it (a silent servo, cable out, hears nothing)."""
         now = self._tick_clock()
-        silent, deaf = self.silent_ids, self.silent
+        if now > self._wd_due:
+            self._watchdog_expire(now)
+        if self.silent:
+            return
+        silent = self.silent_ids
         for s in self.servos:
-            if s.watchdog.expire(now, s.table[wd.ADDR[0]], s.torque_on):
-                self._watchdog_trip(s)
-            if not deaf and s.id not in silent:
+            if s.id not in silent:
                 s.watchdog.last_rx_s = now
+        self._wd_due = self._watchdog_deadline() if silent else now + self._wd_min_period
 
     def _watchdog_trip(self, s: ServoTable) -> None:
         """The servo stops: Bus Watchdog(98) reads -1; current mode outputs 0 A, position modes hold the
@@ -573,8 +583,11 @@ class DynamixelEmulator:
 
     def _watchdog_rearm_state(self) -> None:
         a = wd.ADDR[0]
-        self._wd_armed = any(0 < s.table[a] <= wd.MAX_UNITS and s.torque_on and not s.watchdog.latched
-                             for s in self.servos)
+        periods = [s.table[a] * wd.UNIT_S for s in self.servos
+                   if 0 < s.table[a] <= wd.MAX_UNITS and s.torque_on and not s.watchdog.latched]
+        self._wd_armed = bool(periods)
+        self._wd_min_period = min(periods, default=math.inf)
+        self._wd_due = self._watchdog_deadline()
 
 
 def _rint(x: float) -> int:
