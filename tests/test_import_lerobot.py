@@ -5,7 +5,6 @@ training samples as the recordings it came from."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -15,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bench.bring_data_round_trip import digest as first_batch_digest
 from factr2_teleop.cli import main
 from hardware.importers.lerobot import lerobot_recordings
 from hardware.recording.reader import Recording
@@ -38,16 +38,6 @@ def _cli(capsys, *args):
     rc = main([*map(str, args)])
     cap = capsys.readouterr()
     return rc, cap.out, cap.err
-
-
-def first_batch_digest(data, n: int = 64) -> str:
-    """SHA-256 (16 hex) of the first n samples' batch as the model gets it (every tensor, sorted by name)."""
-    b = data.batch(np.arange(min(n, len(data))))
-    h = hashlib.sha256()
-    for k in sorted(b):
-        h.update(k.encode())
-        h.update(b[k].numpy().tobytes())
-    return h.hexdigest()[:16]
 
 
 def _samples(path):

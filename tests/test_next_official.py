@@ -16,24 +16,12 @@ from calibration.next.checkpoint import load_checkpoint
 from calibration.next.estimator import NextEstimator, batch_tau_f
 from calibration.next.logs import read_logs
 from calibration.next.official import load_official, write_official
-from factr2_teleop.cli import main
 from hardware.errors import ConfigError
 from tests.next_h5_helpers import RATE_HZ, free_motion, write_next_h5
+from tests.test_import_lerobot import _cli
+from tests.test_policies_inputs import _one_line_error
 
 pytest.importorskip("h5py")
-
-
-def _cli(capsys, *args):
-    rc = main([*map(str, args)])
-    cap = capsys.readouterr()
-    return rc, cap.out, cap.err
-
-
-def _one_line(rc, err, *words):
-    lines = [ln for ln in err.strip().splitlines() if ln.startswith("factr2 ")]
-    assert rc == 2 and len(lines) == 1 and "Traceback" not in err, err
-    for w in words:
-        assert w in lines[0], (w, lines[0])
 
 
 def test_h5_keys_units_unequal_episodes_and_ns_timestamps(tmp_path):
@@ -72,11 +60,11 @@ def test_h5_missing_and_short_keys(tmp_path):
     (lambda p: write_next_h5(p, lengths=()), ["no ep_NNNN episode groups"]),
     (lambda p: write_next_h5(p, arms=("left", "right")), ["holds arms left, right", "a.h5::left"]),
 ])
-def test_h5_not_the_schema_is_one_line(tmp_path, capsys, make, words):
+def test_h5_not_the_schema_is_one_line_error(tmp_path, capsys, make, words):
     p = tmp_path / "a.h5"
     make(p)
     rc, _, err = _cli(capsys, "calibrate", "--from-logs", p, "--out", tmp_path / "cal")
-    _one_line(rc, err, *words)
+    _one_line_error(rc, err, *words)
     rc, _, err = _cli(capsys, "calibrate", "--from-logs", f"{p}::middle", "--out", tmp_path / "cal")
     assert rc == 2 and "Traceback" not in err
 
@@ -114,7 +102,7 @@ def test_h5_calibrate_official_layout_round_trip(tmp_path, capsys):
     assert rc == 0, err
     rc, _, err = _cli(capsys, "export", "next-official", tmp_path / "cal2" / "next.json", "--out",
                       tmp_path / "off2")
-    _one_line(rc, err, "no official layout", "physics prior", "--prior none")
+    _one_line_error(rc, err, "no official layout", "physics prior", "--prior none")
 
 
 class _OfficialLstm(nn.Module):
@@ -167,7 +155,7 @@ def test_official_checkpoint_is_an_estimator(tmp_path):
     np.testing.assert_allclose(e.tau_ext, tau[119] - ref[-1], atol=1e-4)
 
 
-def test_official_checkpoint_that_does_not_fit_is_one_line(tmp_path):
+def test_official_checkpoint_that_does_not_fit_is_one_line_error(tmp_path):
     _official_run(tmp_path / "run")
     (tmp_path / "run" / "model.pt").write_bytes(b"garbage")
     with pytest.raises(ConfigError, match="model.pt"):
