@@ -1,0 +1,92 @@
+"""Run a command on a slowed core (issue #53 item 2): a CPU bandwidth limit through a cgroup, so the timing
+benchmarks can be run on this machine as on one whose core is FACTOR times slower.
+
+    python bench/slow_core.py [--factor 2.8] [--period-us 1000] -- factr2 demo --headless --json OUT
+    python bench/slow_core.py --factor 2.8 -- python -m pytest tests/test_teleop_twin_cli.py -q
+
+The command and every process it starts run in a fresh cgroup that may use each CPU for 1 / FACTOR of every
+period: the CFS quota (normal threads) and, on cgroup v1 with RT group scheduling, the real-time budget
+(the loop's SCHED_FIFO threads, which a CFS quota does not limit). A 1 ms period makes the limit bite within
+a tick, as a slower core does: a tick that needs 0.3 ms of CPU then takes ~0.84 ms of wall time at factor 2.8.
+What it does not reproduce: the thread's CPU time per tick (time.thread_time) stays this core's, so the
+loop's "CPU per tick" must be multiplied by FACTOR to compare with a slower core's; its wall-clock numbers
+(rate, period p99, busy time in a tick) are the slowed core's. Root (or a delegated cgroup) is needed; where
+none is writable it says so and exits 2. cgroup v2 (cpu.max) has no real-time budget: the command then runs
+with FACTR2_NO_RT=1 so that the limit applies to every thread.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+V1 = Path("/sys/fs/cgroup/cpu")
+V2 = Path("/sys/fs/cgroup")
+
+
+def _write(path: Path, value: str) -> None:
+    path.write_text(value)
+
+
+def make_group(name: str, factor: float, period_us: int, n_cpus: int) -> tuple[Path, dict[str, str]]:
+    """A cgroup limited to 1/factor of each CPU; returns (its folder, extra environment for the command)."""
+    share = 1.0 / factor
+    if (V1 / "cpu.cfs_quota_us").exists():
+        g = V1 / name
+        g.mkdir(exist_ok=True)
+        _write(g / "cpu.cfs_period_us", str(period_us))
+        _write(g / "cpu.cfs_quota_us", str(max(1000, int(period_us * share * n_cpus))))
+        env = {}
+        if (g / "cpu.rt_runtime_us").exists():  # per CPU: the loop's FIFO thread gets 1/factor of its core
+            _write(g / "cpu.rt_period_us", str(period_us))
+            _write(g / "cpu.rt_runtime_us", str(int(period_us * share)))
+        else:
+            env["FACTR2_NO_RT"] = "1"
+        return g, env
+    if "cpu" in (V2 / "cgroup.controllers").read_text().split():
+        g = V2 / name
+        g.mkdir(exist_ok=True)
+        _write(g / "cpu.max", f"{max(1000, int(period_us * share * n_cpus))} {period_us}")
+        return g, {"FACTR2_NO_RT": "1"}
+    raise PermissionError("no cgroup cpu controller here")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--factor", type=float, default=2.8, help="how many times slower the core is (> 1)")
+    ap.add_argument("--period-us", type=int, default=1000, help="bandwidth period [us] (1000: within a tick)")
+    ap.add_argument("cmd", nargs=argparse.REMAINDER)
+    a = ap.parse_args()
+    cmd = a.cmd[1:] if a.cmd[:1] == ["--"] else a.cmd
+    if not cmd or not a.factor > 1.0 or a.period_us < 1000:
+        print("slow_core: give --factor > 1, --period-us >= 1000 and a command after --", file=sys.stderr)
+        return 2
+    name = f"factr2-slow-{os.getpid()}"
+    try:
+        group, env = make_group(name, a.factor, a.period_us, len(os.sched_getaffinity(0)))
+    except OSError as e:
+        print(f"slow_core: cannot make a CPU-limited cgroup ({e}); run as root or in a delegated cgroup",
+              file=sys.stderr)
+        return 2
+    print(f"slow_core: {group} limits each CPU to 1/{a.factor:g} of every {a.period_us} us"
+          + (" (FACTR2_NO_RT=1: the limit must reach every thread)" if env else ""), file=sys.stderr)
+    procs = group / "cgroup.procs"
+    try:
+        proc = subprocess.Popen(cmd, env={**os.environ, **env},
+                                preexec_fn=lambda: procs.write_text(str(os.getpid())))
+        return proc.wait()
+    except KeyboardInterrupt:
+        proc.wait()
+        return 130
+    finally:
+        try:
+            group.rmdir()
+        except OSError:
+            pass  # a process of the command still lives in it; it goes with the next reboot
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
