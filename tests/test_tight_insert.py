@@ -16,7 +16,8 @@ from hardware.sim.tasks import tight_insert as TI
 from hardware.sim.tasks.tight_check import lower_held_pin, slide_held_pin
 
 HOLE = np.array([0.3, 0.1, 0.0])
-HALF_SIDE_CLEARANCE_M = TI.CLEARANCE_M / 4  # the stated bound on task-contact interpenetration (0.1 mm)
+HALF_SIDE_CLEARANCE_M = TI.CLEARANCE_M / 4  # stated bound in the bore (0.1 mm, docs/tasks.md)
+SIDE_CLEARANCE_M = TI.CLEARANCE_M / 2  # stated bound on the rim's edges, pushed with ~11 N (0.2 mm)
 
 
 def _tilt_x(a):
@@ -83,12 +84,13 @@ def test_pin_within_reach_goes_in_and_seats(offset_m):
 def test_pin_beyond_reach_stays_on_top(offset_m):
     r = lower_held_pin(offset_m)
     assert not r["stages"][1] and r["tip_z_m"] > TI.DEPTH_M - 0.0005
-    assert r["pen_fixture_m"] < HALF_SIDE_CLEARANCE_M
+    assert r["pen_fixture_m"] < SIDE_CLEARANCE_M and r["jitter_m"] < 1e-5
 
 
 def test_pin_slid_across_the_mouth_drops_in():
     r = slide_held_pin(from_m=0.004, speed_m_s=S.SEARCH_SPEED_M_S)
     assert r["stages"][2] and r["tip_z_m"] < TI.DEPTH_M - 0.002
+    assert r["pen_fixture_m"] < SIDE_CLEARANCE_M and r["jitter_m"] < 1e-5  # no chatter in the bore
 
 
 def test_search_spiral_covers_its_disc():
@@ -114,3 +116,63 @@ def test_sight_counts_each_frame_once_and_skips_stale():
     assert sight.frames("pin") == 2 and np.allclose(sight.pos("pin"), [2.0, 0.0, 0.0])
     sight.forget("pin")
     assert sight.pos("pin") is None and sight.pos("hole") is None
+
+
+class _Truth(dict):
+    """The twin's truth handed to the script where it could reach it: any read fails the test."""
+
+    def _no(self, *a, **k):
+        raise AssertionError(f"the tight-insert script read the truth ({a[:1]})")
+
+    __getitem__ = get = keys = items = values = __contains__ = __iter__ = _no
+
+
+def test_script_finds_an_offset_bore_by_feel_without_reading_the_truth():
+    """A kinematic stand-in for the twin (the arm goes where it is aimed unless the pin meets the fixture
+    top, felt in proportion to how far it is pushed): the bore is seen 3.6 mm off, the pin goes in only within
+    CAPTURE_M of the true axis. The script sees op.p.seen only (obs and params raise when read)."""
+    from factr2_teleop.tasks import kinematics as K
+    from factr2_teleop.tasks.operator import Operator, Percept
+    from hardware.arms.dynamics import ArmDynamics
+
+    arm = load_arm("piper")
+    dyn, lim = ArmDynamics(arm), arm.limits
+    op = Operator(dyn.fk, dyn.jacobian, lim.q_min, lim.q_max, lambda q: q, 0.002, np.array(arm.q_home))
+    hole, pin0 = np.array([0.29, 0.11, 0.0]), np.array([0.27, -0.12, 0.0])
+    seen_hole = Seen(hole + [0.003, -0.002, 0.001], np.eye(3), 0.05, True)
+    state = {"held": False, "tip": pin0.copy(), "q": op.q_des.copy(), "seated": False}
+
+    def world(t):
+        T = dyn.fk(op.q_des)
+        tip = T[:3, 3] - [0, 0, S.TIP_BELOW_EE_M]
+        felt, q = 0.03, op.q_des.copy()
+        if not state["held"] and op.grip > 0.9 and np.linalg.norm(T[:2, 3] - pin0[:2]) < 0.01:
+            state["held"] = True
+        if state["held"] and op.grip < 0.5:
+            state["held"] = False
+        if state["held"]:
+            inside = np.hypot(*(tip[:2] - hole[:2])) <= TI.CAPTURE_M
+            floor = 0.0 if inside else TI.DEPTH_M
+            if tip[2] < floor:  # pushed into the surface: the arm stops there, the push is felt
+                felt += 25.0 * (floor - tip[2])
+                q, _ = K.solve_ik(dyn.fk, dyn.jacobian, op.q_des, K.pose(T[:3, :3], [*T[:2, 3], floor
+                                  + S.TIP_BELOW_EE_M]), lim.q_min, lim.q_max, iters=8)
+                tip[2] = floor
+            state["tip"] = tip
+            state["seated"] = bool(inside and tip[2] <= 0.0005)
+        pin_seen = Seen(state["tip"], np.eye(3), 0.0, not state["held"] and tip[2] > 0.05 or t < 1.0)
+        return Percept(t=t, q_leader=q, qd_leader=np.zeros(6), trigger=op.grip, q_follower=q, felt_nm=felt,
+                       T_ee=dyn.fk(q), obs=_Truth(), seen={"pin": pin_seen, "hole": seen_hole})
+
+    op.p = world(0.0)
+    script = S.tight_insert(op, _Truth(), np.random.default_rng(3))
+    for k in range(1, 9000):
+        try:
+            next(script)
+        except StopIteration as stop:
+            out = stop.value
+            break
+        op.p = world(k * 0.01)
+    else:
+        raise AssertionError("the script did not finish")
+    assert out["result"] == "seated" and out["spirals"] == 1 and state["seated"]

@@ -2,13 +2,13 @@
 
 The operator sees the pin and the fixture ONLY through the simulated pose detector (op.p.seen: name ->
 hardware.sim.perception.Seen: calibration bias, noise, latency, occlusion near the gripper), knows
-where its own arm is (the follower's reported joints through FK, and its gripper stroke), and feels the
+where its own arm is (the follower's reported joints through FK), and feels the
 leader's force feedback (op.p.felt_nm). It never reads the twin's truth (op.p.obs): the bore's 0.2 mm per side
 clearance is far below the detector's millimetres, so what sight gives is only where to start looking.
 
 1. Look (Sight averages the detections frame by frame: the noise averages out, the bias does not), grasp the
-   pin's head from above; a grasp is checked by the stroke at which the fingers stopped (something between
-   them) and by the pin no longer being seen where it stood once the hand has lifted.
+   pin's head from above; the grasp is checked by sight: once the hand has lifted, a pin still seen standing
+   where it stood was not taken (a held one is hidden by the hand).
 2. Carry it over the bore as seen; lower slowly until the touch is felt (or until it is felt far below the
    fixture's seen top: the pin went straight in).
 3. Search: press lightly (the felt push regulated to a target, like wipe.py's strokes: the lean on the joint
@@ -25,21 +25,22 @@ from __future__ import annotations
 import numpy as np
 
 from factr2_teleop.tasks import kinematics as K
-from factr2_teleop.tasks.scripts import DECIDE_DT_S, FELT_NM, best_down_yaw, grip, move, wait, yaw_of
+from factr2_teleop.tasks.scripts import DECIDE_DT_S, best_down_yaw, grip, move, wait, yaw_of
 from hardware.sim.tasks import tight_insert as TI
 
 LOOK_S = 0.5  # s: how long it looks before it moves (some 15 camera frames)
 GRASP_BELOW_M = 0.010  # m: ee site this far below the head's top (fingertips 4 mm above the head's underside)
 PIN_LEN_M = TI.SHAFT_L_M + 2 * TI.HEAD_HALF[2]
 TIP_BELOW_EE_M = PIN_LEN_M - GRASP_BELOW_M  # m: the tip under the ee site when held as grasped
-HELD_STROKE_M = 0.008  # m: fingers that stop at least this far apart hold something (the head is 18 mm)
 GRASP_TRIES = 3
 LIFT_M = 0.075
 APPROACH_ABOVE_M = 0.012  # m: tip this far above the fixture's seen top before the touch-down
 TOUCH_SPEED_M_S = 0.008
 TOUCH_MAX_M = 0.045  # m: the longest touch-down (past the seen top: straight in)
 STRAIGHT_IN_M = 0.010  # m: a touch felt this far below the seen top means the pin went in on its own
-PUSH_FELT_NM = (0.18, 0.28)  # N*m: the felt push a demonstration searches with (drawn per episode)
+TOUCH_FELT_NM = 0.09  # N*m: felt this much, the pin has touched (free motion feels 0.02-0.06 N*m; scripts'
+# FELT_NM of 0.15 is ~7 N on the pin here, more than a careful search pushes)
+PUSH_FELT_NM = (0.11, 0.15)  # N*m: the felt push a demonstration searches with (drawn per episode; ~3-6 N)
 DEPTH_KI = 0.05  # m per (N*m * s): how fast the aimed depth follows the felt push error (wipe.py's)
 DEPTH_RANGE_M = (-0.003, 0.03)  # m: aimed depth below the touch, bounds
 SEARCH_PITCH_M = 0.0015  # m: spiral pitch (the pin drops when its tip is within 1.2 mm of the axis)
@@ -90,11 +91,6 @@ def hand_pose(op) -> np.ndarray:
     """Where the gripper is, from the follower's reported joints (FK): the operator's own arm, not the twin's
     truth."""
     return op.fk(op.p.q_follower)
-
-
-def stroke_m(op) -> float:
-    s = getattr(op.p, "stroke_m", float("nan"))
-    return float(s) if s is not None else float("nan")
 
 
 def spiral_xy(s_m: float, pitch_m: float) -> np.ndarray:
@@ -169,12 +165,11 @@ def _grasp_pin(op, sight: Sight, rng, dur):
     yield from wait(op, 0.4)
     yield from grip(op, 1.0, dur(0.5))
     yield from wait(op, 0.5)
-    closed_on = stroke_m(op)
     sight.forget("pin")  # from here on, a detection of the pin is a new look
     yield from move(op, _down(yaw, grasp_p + [0, 0, LIFT_M]), dur(0.9))
     yield from wait(op, 0.4)  # a pin left standing comes back into view (latency, frames)
     left = sight.pos("pin")
-    in_hand = not (closed_on < HELD_STROKE_M) and not (left is not None and left[2] < 0.02)
+    in_hand = not (left is not None and left[2] < 0.02)  # seen standing where it was: not in the hand
     if not in_hand:
         yield from grip(op, 0.0, dur(0.4))
         yield from wait(op, 0.6)
@@ -228,7 +223,7 @@ def _touch_down(op, yaw, above, out):
         z -= TOUCH_SPEED_M_S * DECIDE_DT_S
         op.aim(_down(yaw, [*above[:2], z]))
         yield
-        if op.p.felt_nm > FELT_NM:
+        if op.p.felt_nm > TOUCH_FELT_NM:
             zt = float(hand_pose(op)[2, 3])
             out["felt"].append({"t": round(op.p.t, 2), "by": "feedback", "what": "touch",
                                 "height_mm": round(zt * 1e3, 1)})
@@ -273,7 +268,7 @@ def _push_home(op, yaw, z_touch, felt_target):
         yield
         z = float(hand_pose(op)[2, 3])
         zs.append(z)
-        still = len(zs) > window and abs(zs[-window] - z) < STILL_M and op.p.felt_nm > FELT_NM
+        still = len(zs) > window and abs(zs[-window] - z) < STILL_M and op.p.felt_nm > TOUCH_FELT_NM
         if still:
             if z_touch - z > HOME_M:
                 return "seated"

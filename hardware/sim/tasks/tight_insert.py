@@ -24,18 +24,22 @@ from hardware.sim.tasks import base as B
 SHAFT_R_M = 0.006  # m: 12 mm pin
 SHAFT_L_M = 0.026  # m: shaft length below the head (longer than the bore: the pin bottoms on the table)
 HEAD_HALF = (0.009, 0.009, 0.012)  # m: 18 x 18 x 24 mm square head (the fingers hold it)
-PIN_MASS_KG = 0.03
+PIN_MASS_KG = 0.085  # a steel pin of this size (shaft 23 g, head 62 g)
 CLEARANCE_M = 0.0004  # m: bore diameter - pin diameter (0.2 mm per side)
 BORE_R_M = SHAFT_R_M + CLEARANCE_M / 2  # m: distance of the bore's flats from its axis
 CHAMFER_M = 0.001  # m: 45 deg lead-in at the mouth (what catches a pin this close to the axis)
 CAPTURE_M = CLEARANCE_M / 2 + CHAMFER_M  # m: a pin tip this close to the axis slides in when pushed
 DEPTH_M = 0.020  # m: fixture height = bore depth (through: the table is its floor)
 FIXTURE_R_M = 0.024  # m: outer radius of the ring
-N_SIDES = 16  # wall segments of the bore
+N_SIDES = 32  # wall segments of the bore (16 made the shaft chatter between two flats when pushed sideways)
 CORNER_GAP_M = BORE_R_M * (1 / np.cos(np.pi / N_SIDES) - 1)  # m: a corner's extra room over a flat (0.12 mm)
 RAMP_THICK_M = 0.003  # m: thickness of each chamfer slab
-PIN_FRICTION = 0.3  # against the fixture (MuJoCo takes the larger of two geoms' values: the fingers' 1.0
-FIXTURE_FRICTION = 0.3  # still hold the head); lubricated steel on steel, so the search slides, not sticks
+SHAFT_FRICTION = 0.3  # shaft and fixture: lubricated steel on steel, so the search slides, not sticks
+FIXTURE_FRICTION = 0.3  # (MuJoCo takes the larger of two geoms' values)
+HEAD_FRICTION = 2.0  # knurled head: MuJoCo's soft friction creeps, and at the fingers' 1.0 a 3-5 N push (the
+# search's) slid the pin up in the grasp at ~2 mm/s
+IMPRATIO = 10.0  # the task scene's friction-to-normal impedance ratio (MuJoCo's advice for grasping with
+# elliptic cones: it makes friction harder, so a held object creeps less); the default 1 let the pin creep
 FINGERS = ("gripper_body", "gripper_mirror_body")
 LIFT_M = 0.01  # grasp: tip this far above the table, held by both fingers
 ALIGN_ABOVE_M = 0.003  # align: tip within CAPTURE_M of the axis and at most this far above the fixture top
@@ -99,6 +103,8 @@ class TightInsert(B.Task):
     stages = ("grasp", "align", "engage", "seat")
     arms = ("piper",)
     episode_s = 60.0
+    operator_perception = True  # its demonstrator is built to see through the detector (factr2_teleop/tasks/
+    # tight.py reads only op.p.seen, never the truth); `factr2 collect` uses the detector by default
 
     def add_objects(self, spec, arm) -> None:
         import mujoco
@@ -108,12 +114,13 @@ class TightInsert(B.Task):
         orange = (0.95, 0.55, 0.1, 1)
         shaft = pin.add_geom(name="pin_shaft", type=mujoco.mjtGeom.mjGEOM_CYLINDER,
                              size=[SHAFT_R_M, SHAFT_L_M / 2, 0], pos=[0, 0, SHAFT_L_M / 2], rgba=list(orange),
-                             friction=[PIN_FRICTION, 0.005, 0.0001], solref=list(B.SOLREF),
-                             solimp=list(B.SOLIMP), margin=B.CONTACT_MARGIN_M, mass=PIN_MASS_KG * 0.3)
+                             friction=[SHAFT_FRICTION, 0.005, 0.0001], solref=list(B.SOLREF),
+                             solimp=list(B.SOLIMP), margin=B.CONTACT_MARGIN_M, mass=PIN_MASS_KG * 0.27)
         shaft.contype, shaft.conaffinity = B.OBJECT_CONTYPE, B.OBJECT_CONAFFINITY
         B.add_box(pin, "pin_head", HEAD_HALF, pos=(0, 0, SHAFT_L_M + HEAD_HALF[2]), rgba=orange,
-                  mass=PIN_MASS_KG * 0.7, friction=(PIN_FRICTION, 0.005, 0.0001))
+                  mass=PIN_MASS_KG * 0.73, friction=(HEAD_FRICTION, 0.005, 0.0001))
         add_fixture(spec)
+        spec.option.impratio = IMPRATIO
         B.add_cameras(self, spec, look_at=(0.28, 0.0, 0.02))
 
     def reset(self, model, data, rng) -> dict:
