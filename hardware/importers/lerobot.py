@@ -313,8 +313,8 @@ def force_line(root: Path, m: Mapping) -> str:
         return (f"{root.name}: no force-like feature (effort, current, tau_ext): base methods only "
                 "(--method base)")
     unit = "N*m" if m.force == "effort" else "A"
-    return (f"{root.name}: FIRST labels and the force input from raw {m.keys[m.force]} [{unit}], not NEXT "
-            "(pass --next CKPT, a NEXT calibration of this arm, to label with NEXT)")
+    return (f"{root.name}: FIRST labels and the force input from raw {m.keys[m.force]} [{unit}], not NEXT, "
+            "unless --next CKPT (a NEXT calibration of this arm) runs NEXT on the joint states")
 
 
 def lerobot_recordings(root: Path, map_text: str | None = None, say=None) -> list[Path]:
