@@ -158,3 +158,17 @@ def test_lerobot_writer_output_reads_like_the_fixtures(tmp_path):
         a, b = Recording(new).topic("/follower/joint_state"), Recording(old).topic("/follower/joint_state")
         np.testing.assert_array_equal(a.fields["q"], b.fields["q"])
         np.testing.assert_array_equal(a.fields["tau_m"], b.fields["tau_m"])
+
+
+def test_next_labels_the_effort_dataset(tmp_path, capsys):
+    """With a NEXT checkpoint for the arm (here an official run folder), labels come from NEXT run offline
+    over the joint states and the effort, not from the raw effort."""
+    from tests.test_next_official import _official_run
+
+    _official_run(tmp_path / "next")
+    run = tmp_path / "run"
+    rc, out, err = _cli(capsys, "train", DATA / "effort_video", "--out", run, "--method", "first",
+                        "--next", tmp_path / "next", *FAST)
+    assert rc == 0, err
+    meta = C.read_meta(C.last_checkpoint(run))
+    assert meta["tau_ext_source"] == "offline" and meta["next_checkpoint"].startswith(str(tmp_path / "next"))
