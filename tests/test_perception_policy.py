@@ -116,3 +116,18 @@ def test_collect_train_rollout_on_the_perceived_observation(tmp_path):
     (rep,) = rrec.episodes
     _, live = rep.signals()[S.PERCEIVED_FEATURE]
     assert live.shape[1] == 11 and np.isfinite(live).all() and (live[:, 9] == 1).any()
+
+
+def test_collect_flag_and_task_default():
+    import argparse
+
+    from factr2_teleop.commands.collect import add_arguments
+    from hardware.sim.tasks import get_task
+
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    base = ["--task", "peg-insert", "--out", "x"]
+    assert ap.parse_args(base).perception is None  # the task's choice
+    assert ap.parse_args([*base, "--perception"]).perception is True
+    assert ap.parse_args([*base, "--no-perception"]).perception is False
+    assert not any(get_task(n).operator_perception for n in ("peg-insert", "press-fit", "wipe"))
