@@ -170,7 +170,10 @@ def _session(activity: str, kind: str, rig: str, seed: int, folder: Path, durati
         if activity == "collect":
             cmd += ["--record", str(folder / "rec"), "--no-cameras"]
         app_log = open(folder / "app.log", "w")
-        app = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=app_log, stderr=subprocess.STDOUT)
+        # Ctrl-C must reach it as the operator's would, even when this campaign runs in the background (a
+        # shell's background job ignores SIGINT, and Python keeps an ignored SIGINT ignored)
+        app = subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=app_log, stderr=subprocess.STDOUT,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         def active() -> bool:
             return _status(twin_dir).get("active_s", 0.0) >= active_for or app.poll() is not None
 
