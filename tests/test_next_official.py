@@ -15,7 +15,7 @@ from torch import nn
 from calibration.next.checkpoint import load_checkpoint
 from calibration.next.estimator import NextEstimator, batch_tau_f
 from calibration.next.logs import read_logs
-from calibration.next.official import load_official, write_official
+from calibration.next.official import write_official
 from hardware.errors import ConfigError
 from tests.next_h5_helpers import RATE_HZ, free_motion, write_next_h5
 from tests.test_import_lerobot import _cli
@@ -159,11 +159,11 @@ def test_official_checkpoint_that_does_not_fit_is_one_line_error(tmp_path):
     _official_run(tmp_path / "run")
     (tmp_path / "run" / "model.pt").write_bytes(b"garbage")
     with pytest.raises(ConfigError, match="model.pt"):
-        load_official(tmp_path / "run")
+        load_checkpoint(tmp_path / "run")
     d = tmp_path / "gru"
     _official_run(d)
     sd = torch.load(d / "model.pt", weights_only=True)
     sd["model"]["type"] = "gru"
     torch.save(sd, d / "model.pt")
     with pytest.raises(ConfigError, match="only the official LSTM"):
-        load_official(d)
+        load_checkpoint(d)

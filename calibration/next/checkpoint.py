@@ -72,9 +72,9 @@ def load_checkpoint(path: str | Path, arm: str | None = None, joint_names: list[
     the official stack's layout (model.pt, normalization.npz: calibration.next.official) loads too; it names
     no joints unless written here, so only their number is checked then."""
     if Path(path).is_dir():
-        from calibration.next.official import load_official
+        from calibration.next.official import read_official
 
-        ck = load_official(path)
+        ck = NextCheckpoint(**read_official(path))
         if joint_names is not None and len(joint_names) != len(ck.joint_names):
             raise UserError(f"official NEXT checkpoint for {len(ck.joint_names)} joints, this arm has "
                             f"{len(joint_names)}", where=str(path), fix="use the checkpoint of this arm")

@@ -26,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.next.logs import LogRead, log_from_arrays
 from hardware.errors import ConfigError
 
 SCHEMA = "factr2_next_h5_v1"
@@ -69,8 +68,8 @@ def _read_key(group, key: str, path) -> tuple[np.ndarray, np.ndarray]:
     return data, ts.astype(np.int64)
 
 
-def _episode(path, group, prefix: str, joint_names, rate_hz: float) -> tuple[LogRead | None, str]:
-    """One episode as a LogRead, or None and why it was skipped."""
+def _episode(path, group, prefix: str, joint_names) -> tuple[tuple | None, str]:
+    """One episode as (run name, plain-log arrays, notes), or None and why it was skipped."""
     keys = set(group.keys())
     found = {k: f"{prefix}_{k}" if prefix else k for k in KEYS}
     found = {k: v for k, v in found.items() if v in keys}
@@ -98,14 +97,14 @@ def _episode(path, group, prefix: str, joint_names, rate_hz: float) -> tuple[Log
     arrays["t"] = (ts - ts[0]).astype(np.float64) * 1e-9
     if joint_names is not None and len(joint_names) == q.shape[1]:
         arrays["joint_names"] = np.asarray(joint_names)
-    r = log_from_arrays(path, arrays, rate_hz)
-    r.name = f"{Path(path).stem}_{group.name.strip('/')}" + (f"_{prefix}" if prefix else "")
-    r.notes = notes + r.notes
-    return r, ""
+    name = f"{Path(path).stem}_{group.name.strip('/')}" + (f"_{prefix}" if prefix else "")
+    return (name, arrays, notes), ""
 
 
-def read_h5(path: str | Path, rate_hz: float = 100.0, arm: str | None = None) -> list[LogRead]:
-    """Every episode of one arm of an official NEXT H5 file, one LogRead each (module docstring)."""
+def read_h5(path: str | Path, arm: str | None = None) -> list[tuple[str, dict, list[str]]]:
+    """Every episode of one arm of an official NEXT H5 file as (run name, plain-log arrays: t [s], q [rad],
+    qd [rad/s], q_cmd [rad], tau_m [N*m] or current [A], notes) -- calibration.next.logs makes the runs of
+    them (module docstring)."""
     try:
         import h5py
     except ModuleNotFoundError:
@@ -140,13 +139,12 @@ def read_h5(path: str | Path, rate_hz: float = 100.0, arm: str | None = None) ->
         names = None if names is None else [n.decode() if isinstance(n, bytes) else str(n) for n in names]
         out, skipped = [], []
         for e in eps:
-            r, why = _episode(path, f[e], prefix, names, rate_hz)
+            r, why = _episode(path, f[e], prefix, names)
             (out.append(r) if r is not None else skipped.append(why))
-    if schema is None:
-        for r in out[:1]:
-            r.notes.insert(0, f"no root attribute schema: read as {SCHEMA}")
     if not out:
         raise _bad(path, "no usable episode: " + "; ".join(skipped[:3]))
+    if schema is None:
+        out[0][2].insert(0, f"no root attribute schema: read as {SCHEMA}")
     if skipped:
-        out[0].notes.insert(0, f"skipped {len(skipped)} episode(s): " + "; ".join(skipped[:3]))
+        out[0][2].insert(0, f"skipped {len(skipped)} episode(s): " + "; ".join(skipped[:3]))
     return out

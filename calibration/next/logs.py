@@ -240,7 +240,12 @@ def read_logs(path: str | Path, rate_hz: float = 100.0, arm: str = "follower") -
     if h5.suffix.lower() in H5_SUFFIXES:
         if not h5.is_file():
             raise _bad(h5, "file not found", "check the path")
-        return read_h5(h5, rate_hz, h5_arm)
+        runs = []
+        for name, arrays, notes in read_h5(h5, h5_arm):
+            r = log_from_arrays(h5, arrays, rate_hz)
+            r.name, r.notes = name, notes + r.notes
+            runs.append(r)
+        return runs
     path = Path(path)
     if not path.is_file():
         raise _bad(path, "file not found", "check the path")

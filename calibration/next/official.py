@@ -26,14 +26,17 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
 
-from calibration.next.checkpoint import NextCheckpoint
 from calibration.next.data import Normalizer
 from calibration.next.model import ModelConfig, NextModel
 from hardware.errors import ConfigError
+
+if TYPE_CHECKING:  # checkpoint.load_checkpoint reads official folders through read_official
+    from calibration.next.checkpoint import NextCheckpoint
 
 OFFICIAL_RATE_HZ = 50.0  # [Hz] the official recorder's target_hz: what its checkpoints were trained at
 FILES = ("model.pt", "normalization.npz")
@@ -68,8 +71,9 @@ def _read_config(d: Path) -> dict:
         return {}
 
 
-def load_official(path: str | Path) -> NextCheckpoint:
-    """The official run folder as a factr2 NEXT checkpoint (module docstring), or one ConfigError why not."""
+def read_official(path: str | Path) -> dict:
+    """The official run folder as the fields of a factr2 NextCheckpoint (module docstring; load_checkpoint
+    builds it), or one ConfigError why not."""
     d = Path(path)
     missing = [f for f in FILES if not (d / f).is_file()]
     if missing:
@@ -114,7 +118,7 @@ def load_official(path: str | Path) -> NextCheckpoint:
     model.eval()
     own = cfg_file.get("factr2") or {}
     metrics = _read_metrics(d)
-    return NextCheckpoint(
+    return dict(
         model=model, normalizer=norm, arm=str(own.get("arm", "")),
         joint_names=list(own.get("joint_names") or [f"joint{i + 1}" for i in range(n_out)]),
         units=str(own.get("units", "N*m")), inputs="q,qd,dq",
