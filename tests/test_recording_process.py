@@ -48,22 +48,35 @@ def test_realtime_teleop_counts_frames_from_capture_start(tmp_path):
         assert s.cameras and all(isinstance(c, TwinCamera) for c in s.cameras.values())  # the rig's scene
         ts = TeleopSession(s, TeleopOptions(mode="dob"))
         rec = ts.record(tmp_path)
-        ts.loop.start(duration_s=5.0)  # the renderer may take 2.5 s to open on a loaded 2-CPU machine
+        ts.loop.start()
+        t_call = s.clock.now()
         problems = ts.start_cameras()  # one line per camera that could not start (never raises)
         if problems:
             ts.loop.stop(timeout_s=2.0)
             ts.close_recording()
             pytest.skip(f"no offscreen rendering: {problems}")
         rec.start_episode("frames")
-        while ts.loop.alive:
+        # the renderer takes as long to open as this machine needs (2.5 s on a loaded 2-CPU VM, more on a
+        # slower core, #53): wait for its first frame, then record 3 s of frames
+        deadline = time.monotonic() + 120.0
+        while ts.cameras.stats()["scene"].captured == 0 and time.monotonic() < deadline and ts.loop.alive:
             time.sleep(0.05)
+        time.sleep(3.0)
+        t_ready = ts.cameras._t_start["scene"]  # when its capture began (the renderer open) [rig clock]
         ts.loop.stop(timeout_s=2.0)
         st = ts.close_recording("done")
+        t_stop = s.clock.now()
         stats = rec.camera_stats["scene"]
+        fps = s.cameras["scene"].config.fps
     assert st.error is None and st.dropped_samples == 0
-    assert stats.failed == 0 and stats.expected >= 20 and stats.ratio >= 0.9, stats
+    assert stats.failed == 0 and stats.captured > 0, stats
+    # due from when capture starts (after the renderer opened), not from the call that began opening it;
+    # every due frame was taken or counted as dropped. How many the renderer takes is this machine's speed
+    # (all of them on the quiet dev VM: ratio >= 0.9; a third at load 20 on 2 vCPUs)
+    assert t_ready > t_call and stats.expected <= fps * (t_stop - t_ready) + 1, (stats, t_ready - t_call)
+    assert abs(stats.captured + stats.dropped - stats.expected) <= 1, stats
     frames = Recording(rec.path).episodes[0].frames("scene")
-    assert len(frames) >= 0.9 * (stats.expected - 1) and np.all(np.diff(frames.t) > 0)
+    assert len(frames) >= stats.captured - 1 and np.all(np.diff(frames.t) > 0)
     # the loop's sampled timing is measured, not written as zeros: time inside the previous tick, lateness
     tm = Recording(rec.path).topic("/loop/timing").fields
     busy, late = tm["busy_s"], tm["late_s"]

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 from factr2_teleop.cli import main
 from factr2_teleop.session.pairs import rig_tables
 from hardware.rigs.rig import load_rig
@@ -26,18 +28,26 @@ def test_teleop_ground_truth_on_real_rig_is_refused(capsys):
 
 def test_teleop_record_no_cameras_records_no_frames(tmp_path, capsys):
     """`--record DIR --no-cameras`: the samples, no camera frame (the rig has a scene camera); with the
-    cameras, frames (the episode starts once they are open: a second or so of the 3 s)."""
+    cameras, the frames the camera captured (the episode starts once they are open: a second or so of the
+    3 s here, longer on a slow or busy machine). Counted against what this machine did (#53): the ticks the
+    loop ran, the frames the camera captured -- not a number of a fast core."""
     from hardware.recording.reader import Recording
 
-    counts = {}
+    counts, ticks, captured = {}, {}, {}
     for name, extra in (("without", ["--no-cameras"]), ("with", [])):
         out = tmp_path / name
         assert main(["teleop", "--rig", "sim-piper", "--seconds", "3", "--mode", "dob", "--record",
                      str(out), *extra]) == 0
+        printed = capsys.readouterr()
+        ticks[name] = int(re.search(r"/ (\d+) ticks", printed.out).group(1))
+        cam = re.search(r"camera scene: (\d+) / \d+ frames", printed.err)
+        captured[name] = int(cam.group(1)) if cam else 0
         (path,) = out.glob("*.mcap")
         rec = Recording(path, use_cache=False, write_cache=False)
         n_frames = sum(len(rec.frames(c)) for c in rec.cameras)
-        counts[name] = (len(rec.topic("/follower/joint_state").t), n_frames)
-    capsys.readouterr()
-    assert counts["without"][0] > 1000 and counts["without"][1] == 0, counts
-    assert counts["with"][1] > 0, counts
+        n_samples = len(rec.topic("/follower/joint_state").t) if "/follower/joint_state" in rec.topics else 0
+        counts[name] = (n_samples, n_frames)
+    assert ticks["without"] > 100, ticks
+    assert counts["without"][0] >= 0.98 * ticks["without"] and counts["without"][1] == 0, (counts, ticks)
+    assert captured["without"] == 0
+    assert counts["with"][1] == captured["with"], (counts, captured)  # every captured frame is in the file
