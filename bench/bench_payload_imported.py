@@ -144,7 +144,7 @@ def in_current(prior, calib, plain_held, train, held, mass: float, com) -> dict:
     basis, tr, ho = fixed_basis(load_segments(paths["train"]), load_segments(paths["held"]), predict,
                                 "identified-current prior", load_arm("ur5").pinocchio_model(), scale)
     dg = run(basis, tr, ho)
-    rep = to_json(dg, {"units": "A", "payload_scale": scale, "next_checkpoint": "prior"})
+    rep = to_json(dg, {"units": "A", "payload_scale": scale, "prior_only": True})
     r = first_payload(dg)
     p = rep.get("payload")
     if p:

@@ -18,8 +18,9 @@ runs with the payload, held out: three other trajectories with it -- with the pa
 each case allows:
   known       the true scale (as vendor torque constants would give it, `--kt`): mass in kg
   referenced  the prior's fitted scales, referenced to the description's masses: mass in kg
-  known mass  the prior's scales times alpha from a reference run with a known 1.0 kg payload (another
-              position) on Movement_No4_Acc: mass in kg (`--known-mass`)
+  known mass  the prior's scales times alpha from reference runs with a known 1.0 kg payload at another
+              position (the five training trajectories run again with it, as a user would re-run the
+              calibration trajectory with a known weight): mass in kg (`--known-mass`)
   unknown     the prior's scales with no reference for their common factor (`--mass-reference none`): the
               mass "cannot be stated in kg", the centre of mass can
 Mass and centre of mass found against the truth with their 95 % moving-block bootstrap interval, the
@@ -47,7 +48,7 @@ UR5 = Path(os.environ.get("FACTR2_SHARED", ROOT.parent / "shared")) / "data" / "
 TRAIN = ["Movement_No1", "Movement_No3_Acc", "Movement_No4_Acc", "Movement_No6_Acc_slow_Verify_Model",
          "Movement_No7_Acc_slow_Verify_Model_short"]
 HELD = ["Movement_No2", "Movement_No5_Acc_slow_no_disturbance", "TEST"]
-REFERENCE_RUN, REFERENCE_KG, REFERENCE_COM = "Movement_No4_Acc", 1.0, (0.0, 0.0, 0.05)
+REFERENCE_KG, REFERENCE_COM = 1.0, (0.0, 0.0, 0.05)
 
 
 def controller_scale(runs: list[dict]) -> np.ndarray:
@@ -109,9 +110,9 @@ def main() -> int:
     folder = tmp / "logs"
     folder.mkdir()
     paths = {r: save(folder, r, loaded(a, inj[r])) for r, a in raw.items()}
-    ref_raw = raw[REFERENCE_RUN]
-    ref_path = save(folder, "reference_known_mass",
-                    loaded(ref_raw, payload_current(kin, ref_raw, REFERENCE_KG, REFERENCE_COM, s_true)))
+    ref_paths = [save(folder, f"reference_{r}",
+                      loaded(raw[r], payload_current(kin, raw[r], REFERENCE_KG, REFERENCE_COM, s_true)))
+                 for r in TRAIN]
     # the calibration's own prior, on the unloaded training runs (kept between runs: 3 min to fit)
     cache = Path(args.prior_cache)
     if cache.exists() and json.loads(cache.read_text()).get("train") == TRAIN:
@@ -126,13 +127,20 @@ def main() -> int:
     def predict(segs):
         return _predictions(None, None, 1, "", 100.0, segs, prior)
 
+    # the floor: the prior on the held-out runs WITHOUT the payload (what a perfect payload model reaches)
+    from calibration.diagnosis.greybox import errors
+
+    segs_u, preds_u = predict([s for r in HELD for s in load_segments(UR5 / f"{r}.npz")])
+    floor = errors(np.concatenate([s.tau for s in segs_u]),
+                   np.concatenate([preds_u[id(s)] for s in segs_u]))[0].tolist()
+    print(f"held-out L1 of the prior without payload (floor): {np.round(floor, 3).tolist()}", flush=True)
     train = [s for r in TRAIN for s in load_segments(paths[r])]
     held = [s for r in HELD for s in load_segments(paths[r])]
-    ref_segs = load_segments(ref_path)
+    ref_segs = [s for p in ref_paths for s in load_segments(p)]
     names = list(load_arm("ur5").joint_names)
     out = {"truth": truth, "prior_scale_A_per_Nm": prior.scale.tolist(), "train": TRAIN, "heldout": HELD,
-           "reference_run": {"run": REFERENCE_RUN, "mass_kg": REFERENCE_KG, "com_m": list(REFERENCE_COM)},
-           "joints": names, "cases": {}}
+           "reference_runs": {"runs": TRAIN, "mass_kg": REFERENCE_KG, "com_m": list(REFERENCE_COM)},
+           "joints": names, "heldout_l1_unloaded_floor": floor, "cases": {}}
     cases = {"known": CurrentScale(s_true, "torque constants", "the controller's current_cmd / torque_cmd"),
              "referenced": choose_scale("A", prior_scale=prior.scale),
              "known mass": None, "unknown": choose_scale("A", prior_scale=prior.scale, referenced=False)}
@@ -145,7 +153,7 @@ def main() -> int:
             basis.current_scale = scale.scale
         dg = diagnose(basis, tr, ho)
         rep = to_json(dg, {"units": "A", "joint_names": names, "payload_scale": scale,
-                           "next_checkpoint": "prior"})
+                           "prior_only": True})
         k = next((i for i, e in enumerate(dg.model.effects) if e.family == "payload"), None)
         row = {"first": dg.steps[1].added["effect"] if len(dg.steps) > 1 else None,
                "found": [(e.family, e.joint) for e in dg.model.effects], "headline": rep["headline"],

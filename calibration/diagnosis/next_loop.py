@@ -176,8 +176,8 @@ def diagnose_next(ckpt: str, train: list[Segment], heldout: list[Segment], cfg, 
         log(f"known mass {known_mass[0]:g} kg on {runs}: alpha {alpha:.4g}")
     dg = diagnose(basis, tr, ho, cfg, log=log)
     return dg, {"basis": basis.describe(), "title": f"{what} + grey-box terms on its residual",
-                "next_checkpoint": str(ckpt), "payload_scale": None if scale is None or kinematics is None
-                else scale}
+                "next_checkpoint": str(ckpt), "prior_only": prior_only,
+                "payload_scale": None if scale is None or kinematics is None else scale}
 
 
 def train_next(segments: list[Segment], seconds: float, residual_of=None, seed: int = 0,

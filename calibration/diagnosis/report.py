@@ -84,7 +84,8 @@ def headline(dg: Diagnosis, names: list, meta: dict) -> str:
     """One sentence: the first effect found, in words, and how much of the held-out residual it explains
     (its joint's held-out L1 before -> after adding it; arm-wide effects: summed over joints)."""
     u = meta.get("units", "")
-    of = "the model's" if not meta.get("next_checkpoint") else "NEXT's"
+    of = ("the prior's" if meta.get("prior_only") else "NEXT's" if meta.get("next_checkpoint")
+          else "the model's")
     found = dg.found() if hasattr(dg, "found") else dg.model.effects
     def key(family, joint, hyper):
         return family, joint, tuple(sorted(hyper.items()))
