@@ -87,10 +87,7 @@ def _episode_rows(ep, arms, cams, fps, th, next_model, objects):
     js0 = ep.topic(S.joint_state_topic(arms.followers[0]))
     starts = [js0.t[0]] + [ep.recording.frames(c).t[0] for c in cams if len(ep.recording.frames(c))]
     obs = {f: ep.topic(S.OBJECT_TOPICS[f]) for f in objects or ()}
-    for ob in obs.values():
-        if len(ob):
-            starts.append(ob.t[0])  # from the first object vector on: LeRobot rows have no missing values
-    t0 = max(starts)
+    t0 = max(starts)  # the training grid's (policies.dataset): a dataset read back trains on the same ticks
     n = int(np.floor((js0.t[-1] - t0) * fps + 1e-9)) + 1
     grid = t0 + np.arange(max(n, 0)) / fps
     state, action = [], []
@@ -111,9 +108,11 @@ def _episode_rows(ep, arms, cams, fps, th, next_model, objects):
     held = np.concatenate([rows[f] for f in obs], axis=1) if obs else None
     ok = valid_samples(rows["observation.state"], rows["action"], held,
                        np.stack([frame_idx[c] for c in cams], axis=1) if cams else None)
-    # LeRobot needs timestamps on the fps grid from 0: keep the longest valid run from the start
-    first_bad = int(np.argmin(ok)) if not ok.all() else len(ok)
-    keep = slice(0, first_bad)
+    # LeRobot needs timestamps on the fps grid from 0: keep the longest valid run from the first valid row
+    # (rows before the first object vector have none: LeRobot rows have no missing values)
+    first = int(np.argmax(ok)) if ok.any() else len(ok)
+    rest = ok[first:]
+    keep = slice(first, first + (int(np.argmin(rest)) if not rest.all() else len(rest)))
     return {k: v[keep] for k, v in rows.items()}, {c: v[keep] for c, v in frame_idx.items()}
 
 
