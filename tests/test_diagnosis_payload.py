@@ -154,8 +154,8 @@ def test_cli_prior_only_on_current_logs_states_kg_and_refuses_a_lone_known_mass(
     data = model.createData()
     s = np.array([0.2, 0.2, 0.2, 0.5, 0.5, 0.5])
     paths = []
-    for seed in range(3):
-        t, q = trajectory(20.0, 100.0, 6, seed)
+    for seed in range(2):
+        t, q = trajectory(15.0, 100.0, 6, seed)
         q = 0.5 * q + np.array([0.0, 1.2, -1.2, 0.0, 0.0, 0.0])
         qd = differentiate(t, q, 1)
         qdd = differentiate(t, qd, 1)
@@ -176,7 +176,7 @@ def test_cli_prior_only_on_current_logs_states_kg_and_refuses_a_lone_known_mass(
     ckpt = save_checkpoint(ck, tmp_path / "next")
     out = tmp_path / "diag"
     assert main(["diagnose", *paths, "--model", str(ckpt), "--prior-only", "--out", str(out), "--no-plots",
-                 "--max-effects", "3"]) == 0
+                 "--max-effects", "1"]) == 0
     rep = json.loads((out / "report.json").read_text())
     assert rep["steps"][1]["added"]["effect"] == "payload"
     assert rep["payload"]["reference"] == "description masses" and rep["payload"]["in_kg"]
