@@ -252,3 +252,21 @@ def test_real_ur5_current_with_an_added_payload(tmp_path, monkeypatch):
     assert other["payload"]["mass_kg"] is None and "cannot be stated in kg" in other["payload"]["words"]
     assert other["payload"]["mass"] == pytest.approx(rep["payload"]["mass_kg"] / 1.25, rel=0.02)
     assert np.allclose(other["payload"]["com_m"], rep["payload"]["com_m"], atol=0.002)
+
+
+def test_pruning_drops_an_effect_whose_refit_became_impossible(arm):
+    """A payload of negative mass (the model over-predicts the load) lowers the held-out error but is not a
+    payload: the backward pass drops it and says why."""
+    from calibration.diagnosis.effects import Effect
+    from calibration.diagnosis.greybox import Design, GreyBox
+    from calibration.diagnosis.loop import LoopConfig, _eval, _prune
+
+    train, held = [_run(arm, 0, mass=-0.4)], [_run(arm, 2, mass=-0.4)]
+    basis, tr, ho = fixed_basis(train, held, _predict(arm), "exact arm", arm,
+                                CurrentScale(S_TRUE, "torque constants"))
+    dtr, dho = Design(basis, tr), Design(basis, ho)
+    model = GreyBox(basis, [Effect("payload", 5, {"dynamics": "full"})]).fit(dtr)
+    assert model.effects[0].implausible()
+    l1, rms, _ = _eval(model, dtr, dho)
+    kept, pruned = _prune(model, dtr, dho, l1, 0.005 * rms, LoopConfig(), lambda s: None)
+    assert kept.effects == [] and "not positive" in pruned[0]["implausible"]

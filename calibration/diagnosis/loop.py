@@ -307,19 +307,23 @@ def _simpler(model: GreyBox, accepted, train: Design, held: Design, before, floo
 def _prune(model: GreyBox, train: Design, held: Design, l1, floor, cfg: LoopConfig, log):
     """Backward pass: greedy forward selection can add an effect early that a later one makes redundant
     (with shared rigid parameters a scale error on one joint first leaks into the others). Drop every effect
-    whose removal does not raise its joint's held-out error by more than the acceptance threshold."""
+    whose removal does not raise its joint's held-out error by more than the acceptance threshold, and every
+    effect whose refitted parameters became impossible for its family (a payload of negative mass after
+    later effects took its torque: seen on the twin with the rigid part held to the description)."""
     pruned = []
     for e in list(model.effects):  # declared effects too: one the data does not need is reported as pruned
-        if len(model.effects) <= 1:
+        why = e.implausible()
+        if len(model.effects) <= 1 and not why:
             break
         # copies: a trial fit must not overwrite the coefficients of the effects the kept model shares
         trial = GreyBox(model.basis, [copy.copy(x) for x in model.effects if x is not e]).fit(train)
         t_l1, _, _ = _eval(trial, train, held)
         harmless = t_l1.mean() <= l1.mean() * (1 + cfg.rel_gain)
-        if _l1_of(e, t_l1) - _l1_of(e, l1) <= _need(e, l1, floor, cfg) and harmless:
+        if (_l1_of(e, t_l1) - _l1_of(e, l1) <= _need(e, l1, floor, cfg) and harmless) or why:
             pruned.append({**e.to_json(), "heldout_l1_joint_with": _l1_of(e, l1),
-                           "heldout_l1_joint_without": _l1_of(e, t_l1)})
+                           "heldout_l1_joint_without": _l1_of(e, t_l1),
+                           **({"implausible": why} if why else {})})
             log(f"pruned {e.family} on {_where(e)}: held-out L1 {_l1_of(e, l1):.4f} -> {_l1_of(e, t_l1):.4f} "
-                "without it")
+                "without it" + (f" ({why})" if why else ""))
             model, l1 = trial, t_l1
     return model, pruned
