@@ -28,7 +28,6 @@ from factr2_teleop.teleop.virtual_operator import (
     OperatorScript,
     Segment,
     VirtualOperator,
-    felt_joints,
     make_task_script,
 )
 from hardware import sim_cpu
@@ -265,9 +264,15 @@ class DemoRun:
 
     def _on_tick(self, rec: TickRecord) -> None:
         with sim_cpu.simulated():  # the simulated hand and the metrics' ground truth: not the app's CPU
-            q_l, qd_l = felt_joints(self.leader.last_state, self._hand_bank)
-            tau_hand = self.operator.torque(rec.t, q_l, qd_l, self._operator_goal(rec))
-            self.session.twin.apply_leader_hand_torque(tau_hand)
+            # the hand is an impedance the twin applies at its firmware rate from the true joints (a torque
+            # held through a late tick flung the light wrist on a slow core, #53); the log keeps the torque it
+            # pushes now, for the metrics
+            goal = self._operator_goal(rec)
+            op = self.operator
+            q_ref, qd_ref, _ = op.reference(rec.t, goal)
+            self.session.twin.apply_leader_hand_impedance(q_ref, qd_ref, op.k, op.d, op.tau_max)
+            q_l, qd_l = (a[: op.n] for a in self._hand_bank.true_state())
+            op.torque(rec.t, q_l, qd_l, goal)
             self._tick_n += 1
             if self._tick_n % self._truth_every == 0:
                 gt = self._gt_world.ground_truth(self._truth_every / self.cfg.rate_hz)[self._gt_bank]

@@ -43,8 +43,8 @@ from hardware.types import (
 log = logging.getLogger("factr2.teleop")
 
 SOFT_START, COUPLED, HOLD, FAULT, STOPPED, IDLE = "soft_start", "coupled", "hold", "fault", "stopped", "idle"
-_STALE_BITS = np.uint32(STATUS_STALE | STATUS_COMM_LOST)
-_ERROR_BITS = np.uint32(STATUS_MOTOR_ERROR)
+_STALE_BITS = int(STATUS_STALE | STATUS_COMM_LOST)
+_ERROR_BITS = int(STATUS_MOTOR_ERROR)
 _ERROR_NAMES = ((STATUS_OVERCURRENT, "over-current"), (STATUS_OVERTEMP, "over-temperature"),
                 (STATUS_DRIVER_ERROR, "driver/encoder error"))
 DEFAULT_STALE_S = 0.02  # s: a leader/follower sample older than this puts the follower on hold (< 50 ms)
@@ -119,23 +119,24 @@ def _fresh(st: JointState, now: float, max_age: float, since: float = -math.inf)
     return bool(np.isfinite(st.q).all()) and math.isfinite(st.t) and now - st.t <= max_age and st.t >= since
 
 
+def status_bits(st: JointState) -> int:
+    """Every status bit any joint of the sample has (one reduction; the per-tick checks test bits of it)."""
+    status = getattr(st, "status", None)
+    return 0 if status is None else int(np.bitwise_or.reduce(np.asarray(status, dtype=np.uint32)))
+
+
 def motor_errors(st: JointState) -> str:
     """The motor errors a sample reports ("j2 over-current, j3 over-temperature"), "" when none."""
-    status = getattr(st, "status", None)
-    if status is None:
+    if not status_bits(st) & _ERROR_BITS:
         return ""
-    status = np.asarray(status, dtype=np.uint32)
-    if not bool((status & _ERROR_BITS).any()):
-        return ""
-    return ", ".join(f"j{j + 1} {name}" for j, s in enumerate(status.tolist()) for bit, name in _ERROR_NAMES
-                     if s & bit)
+    return ", ".join(f"j{j + 1} {name}" for j, s in enumerate(np.asarray(st.status).tolist())
+                     for bit, name in _ERROR_NAMES if s & bit)
 
 
 def _complete(st: JointState) -> bool:
     """A sample in which every joint is new: drivers re-stamp a partial/failed read with the read time and
     flag the joints that kept old values (STATUS_STALE / STATUS_COMM_LOST), so age alone cannot tell."""
-    status = getattr(st, "status", None)
-    return status is None or not bool((np.asarray(status, dtype=np.uint32) & _STALE_BITS).any())
+    return not status_bits(st) & _STALE_BITS
 
 
 class ArmPair:

@@ -155,18 +155,20 @@ class VirtualOperator:
             self.t0 += float(t) - self._paused_at
             self._paused_at = None
 
+    def reference(self, t: float, goal: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, str]:
+        """Where the hand wants the leader at t [s]: q_ref [rad], qd_ref [rad/s], phase (see torque)."""
+        if goal is not None:
+            return np.asarray(goal, dtype=float), np.zeros(self.n), "return"
+        if self._paused_at is not None:
+            return _position(self._paused_at - self.t0, self.script)[0], np.zeros(self.n), "hold"
+        return scripted_target(t - self.t0, self.script)
+
     def torque(self, t: float, q: np.ndarray, q_dot: np.ndarray, goal: np.ndarray | None = None
                ) -> np.ndarray:
         """The hand's torque [N*m] at t [s] on the leader at q [rad], q_dot [rad/s]. Paused: toward where the
         task stopped, or toward `goal` [rad, leader joints] when given (phase "return": after a refused
         resume a person brings the leader back to the held follower's pose)."""
-        if goal is not None:
-            q_ref, qd_ref, phase = np.asarray(goal, dtype=float), np.zeros(self.n), "return"
-        elif self._paused_at is not None:
-            q_ref, phase = _position(self._paused_at - self.t0, self.script)[0], "hold"
-            qd_ref = np.zeros(self.n)
-        else:
-            q_ref, qd_ref, phase = scripted_target(t - self.t0, self.script)
+        q_ref, qd_ref, phase = self.reference(t, goal)
         tau = hand_torque(q, q_dot, q_ref, qd_ref, self.k, self.d, self.tau_max)
         force = float("nan")
         if self.jacobian_fn is not None and self.normal is not None and not self.defer_force:

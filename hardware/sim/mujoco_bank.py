@@ -108,6 +108,7 @@ class MujocoBank:
         self._fric = (np.zeros(self.n), np.zeros(self.n))
         self.tau_e, self.kd_eff = np.zeros(self.n), np.zeros(self.n)  # firmware torque split (see _apply)
         self.tau_hand = np.zeros(self.n)  # operator's hand on the joints (external) [N*m]
+        self._hand_imp: tuple | None = None  # the hand as an impedance (set_hand_impedance), else None
         self.vel_scale = np.ones(self.n)  # firmware speed setting (0..1] scaling pos_vel_max
         # per-step constants (the hot loop avoids fancy indexing and recomputation)
         self.qsl, self.dsl = _as_slice(self.qadr), _as_slice(self.dadr)
@@ -256,7 +257,18 @@ class MujocoBank:
     def set_hand_torque(self, tau, n: int | None = None) -> None:
         """An operator's hand on the first n joints [N*m] (external to the motors; held until changed)."""
         with self.world.lock:
+            self._hand_imp = None
             self.tau_hand[: self.n if n is None else n] = tau
+
+    def set_hand_impedance(self, q_ref, qd_ref, k, d, tau_max, n: int) -> None:
+        """An operator's hand as an impedance on the first n joints: tau = clip(k (q_ref - q) + d (qd_ref -
+        q_dot), +-tau_max) [N*m], computed at every firmware step from the true joints (held references
+        until changed). A hand is not sampled by the teleop loop: a torque computed per loop tick and held
+        through a late tick (tens of ms on a slow core while the twin catches up) flung the light GELLO
+        wrist (issue #53)."""
+        with self.world.lock:
+            self._hand_imp = (np.array(q_ref, float), np.array(qd_ref, float), np.asarray(k, float),
+                              np.asarray(d, float), np.asarray(tau_max, float), int(n))
 
     def set_control_dt(self, dt: float) -> None:
         """Period of the firmware law [s] (= the physics step unless the twin decimates control)."""
@@ -338,6 +350,11 @@ class MujocoBank:
         self.tau_e, self.kd_eff = tau_e, kd
         ks = self._kt_scale
         net = ks * tau_e
+        if self._hand_imp is not None:
+            qr, qdr, kh, dh, tmax, nh = self._hand_imp
+            th = kh * (qr - q[:nh]) + dh * (qdr - v[:nh])
+            np.clip(th, -tmax, tmax, out=th)
+            self.tau_hand[:nh] = th
         net += self.tau_hand
         if ef.ripple and self._has_ripple:
             r = p.ripple_cycles * q

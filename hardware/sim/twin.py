@@ -353,6 +353,12 @@ class Twin:
         d = self.devices[leader or self.rig.leaders[0].name]
         d.bank.set_hand_torque(np.asarray(tau, dtype=float).reshape(d.n_arm), d.n_arm)
 
+    def apply_leader_hand_impedance(self, q_ref, qd_ref, k, d, tau_max, leader: str | None = None) -> None:
+        """A virtual operator's hand on a leader's arm joints as an impedance toward q_ref [rad], qd_ref
+        [rad/s] (MujocoBank.set_hand_impedance: computed at the firmware rate from the true joints)."""
+        dv = self.devices[leader or self.rig.leaders[0].name]
+        dv.bank.set_hand_impedance(q_ref, qd_ref, k, d, tau_max, dv.n_arm)
+
     def push(self, link: str, force, duration_s: float, follower: str | None = None) -> None:
         """Push a follower's body `link` with a world-frame force [N] at its centre of mass for duration_s."""
         d = self.devices[follower or self.rig.followers[0].name]
