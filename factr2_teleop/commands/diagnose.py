@@ -4,6 +4,11 @@
     factr2 diagnose runs/*.npz --heldout other.npz --arm piper --out diag/  # pinocchio regressor of the arm
     factr2 diagnose runs/*.npz --arm none --out diag/                       # data-only basis in any case
     factr2 diagnose runs/*.npz --model next.ckpt --out diag/                # around a trained NEXT model
+    factr2 diagnose loaded/*.npz --model next.json --prior-only --out diag/ # around its physics prior alone
+
+A payload in current goes through the arm's kinematics with the checkpoint's identified-current scales
+(the description's masses as reference), --kt, or --known-mass KG --known-mass-run RUN; the report says
+which (calibration/diagnosis/payload.py). Joint names: calibration/joint_map.py (--joint-map).
 
 Logs written by this app name their arm (plain logs: `arm`, `arm_sha256`, `joint_names`; recordings: the
 session metadata's `arms`), so no --arm is needed; --arm overrides, --arm none forces the data-only basis.
