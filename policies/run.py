@@ -117,20 +117,24 @@ NO_FORCE_PHASES = {"source": "none: no force-like signal in the recordings, ever
 
 
 def _thresholds(o: RunOptions, next_model, episodes, arms):
-    """The contact thresholds, or None for episodes without any force-like signal (a LeRobotDataset
-    without effort / current / tau_ext) and no --next: their samples are all free, and a method that needs
-    a force input or FIRST's re-sampling is refused here with the reason."""
+    """The contact thresholds, or None for episodes without any force-like signal (no tau_ext, motor torque
+    or current: a LeRobotDataset without them, GELLO saves) and no --next: their samples are all free, and a
+    method that needs a force input or FIRST's re-sampling is refused here with the reason."""
+    def logged(field: str) -> bool:
+        return any(np.isfinite(ep.topic(S.joint_state_topic(a)).fields[field]).any()
+                   for ep in episodes for a in arms.followers)
+
     if next_model is not None:
         field = "current" if next_model.ck.units == "A" else "tau_m"  # what NEXT runs on (its units)
-        if not any(np.isfinite(ep.topic(S.joint_state_topic(a)).fields[field]).any()
-                   for ep in episodes for a in arms.followers):
+        if not logged(field):
             raise UserError(
                 f"--next runs NEXT over the logged motor {'current' if field == 'current' else 'torque'}, "
                 "and these episodes have none (GELLO saves, LeRobot data without effort)",
                 where=", ".join(map(str, o.inputs)),
                 fix="train a base method (--method base) without --next (docs/bringing_data.md)")
         return resolve_thresholds(o.thresholds, next_model, episodes, arms)
-    if any(S.tau_ext_topic(arms.followers[0]) in ep.recording.topics for ep in episodes):
+    if any(S.tau_ext_topic(arms.followers[0]) in ep.recording.topics for ep in episodes) or logged(
+            "tau_m") or logged("current"):  # the labels' own line asks for --next where tau_ext is missing
         return resolve_thresholds(o.thresholds, next_model, episodes, arms)
     m = METHODS[o.method]
     if m.force or len(set(o.ratio)) > 1:
