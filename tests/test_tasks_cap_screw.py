@@ -128,3 +128,40 @@ def test_thread_pitch_seat_and_self_locking():
     after = t > t[0] + 0.3
     assert clamp[after].min() > 0.9 * clamp[after].max() > 0
     assert turn[after].max() - turn[after].min() < 0.01
+
+
+class _Poisoned(dict):
+    """Episode params / truth the demonstrator must never read."""
+
+    def __getitem__(self, k):
+        raise AssertionError(f"the cap-screw script read {k!r}")
+
+    get = items = keys = values = __iter__ = __getitem__
+
+
+def test_script_reads_neither_truth_nor_params():
+    from factr2_teleop.tasks.operator import Operator, Percept
+    from factr2_teleop.tasks.screw import cap_screw
+    from hardware.arms.dynamics import ArmDynamics
+    from hardware.sim.perception import Seen
+
+    dyn = ArmDynamics(load_arm("piper"))
+    lo = np.array([-2.6, 0.0, -2.96, -1.74, -1.22, -2.09])  # the Piper's joint limits [rad]
+    hi = np.array([2.6, 3.14, 0.0, 1.74, 1.22, 2.09])
+    op = Operator(dyn.fk, dyn.jacobian, lo, hi, lambda q: q, 0.002, np.array([0.0, 1.2, -1.0, 0.0, 0.6, 0.0]))
+    seen = {"cap": Seen(np.array([0.3, 0.02, 0.055]), np.eye(3), 0.1, True),
+            "jar": Seen(np.array([0.3, 0.02, 0.0]), np.eye(3), 0.1, True)}
+
+    def percept(t):  # the arm where the reference is; a lid that resists once the wrist has turned a lot
+        T = dyn.fk(op.q_des)
+        tau = np.zeros(6)
+        tau[5] = -0.04 if op.grip > 0.5 else 0.0
+        return Percept(t=t, q_leader=op.q_des, qd_leader=np.zeros(6), trigger=op.grip, q_follower=op.q_des,
+                       felt_nm=0.0, T_ee=T, obs=_Poisoned(), seen=seen, tau_ext=tau)
+
+    op.p = percept(0.0)
+    script = cap_screw(op, _Poisoned(), np.random.default_rng(0))
+    for k in range(1500):  # 15 s of decisions: look, reach, probe twice, the first strokes
+        op.p = percept(0.01 * k)
+        next(script)
+    assert op.log["strokes"] >= 1 and op.log["centred_mm"] == [0.0, 0.0]

@@ -25,14 +25,17 @@ from factr2_teleop.tasks.scripts import DECIDE_DT_S, grip, move, wait
 from hardware.sim.tasks import cap_screw as C
 
 WRIST = 5  # the wrist roll, the last joint (q6 up: the gripper turns counter-clockwise from above)
-STROKE_FROM_RAD, STROKE_TO_RAD = 1.5, -1.5  # rad of q6: one clockwise twist (172 deg) of the wrist
+STROKE_FROM_RAD, STROKE_TO_RAD = 1.85, -1.85  # rad of q6: one clockwise twist (212 deg) of the wrist
+JOINT_RAD_S = 1.5  # rad/s: the fastest a joint of the reference moves (peak)
 TURN_RAD_S = 0.5  # rad/s: one steady pace per stroke (the wrist estimate's bias moves with the pace)
-TARGET_RISE_NM = 0.09  # N*m above the running torque felt: where the operator stops
+TARGET_RISE_NM = 0.10  # N*m above the running torque felt: where the operator stops
 SLOW_RISE_NM = 0.03  # N*m above the running torque: no longer running torque (the lid has met the jar)
 EMA_S = 0.05  # s: how the operator's sense of torque smooths the estimate
 BASE_MIN = 10  # decisions of running torque that make a stroke's own baseline
 RUNNING_SKIP_RAD = 0.4  # rad into a stroke before its torque counts toward the running torque
-GRASP_ABOVE_JAR_M = 0.006  # m: fingertips this far above the jar's top when grasping
+GRASP_ABOVE_JAR_M = 0.007  # m: fingertips this far above the jar's top (as seen) when grasping
+GUARD_NM = 2.0  # N*m: a jump of the shoulder + elbow estimates while lowering that means a touch
+LIFT_ON_TOUCH_M = 0.003  # m: back up after such a touch
 TIP_M = 0.01  # m: fingertips beyond the ee site
 MAX_STROKES = 7
 PROBE_SETTLE_S = 0.5  # s: holding still over the lid before a probe closes the fingers
@@ -68,13 +71,18 @@ def look(op, seconds: float = LOOK_S):
 
 
 def _wrist_pose(op, T_goal, q6: float) -> np.ndarray:
-    """Joints for a top-down gripper at T_goal's position with the wrist roll at q6 (any yaw suits a round
-    lid: the yaw follows from q6)."""
+    """Joints for a top-down gripper at T_goal's position with the wrist roll at q6: the roll turns the
+    gripper about its own approach axis, on which the ee site lies, so any q6 keeps the position (a round lid
+    suits any yaw)."""
     q, _ = K.solve_ik(op.fk, op.jac, op.q_des, T_goal, op.q_min, op.q_max, iters=60)
-    yaw = float(np.arctan2(T_goal[1, 0], T_goal[0, 0])) + (q6 - q[WRIST])
-    T = K.pose(K.down_rotation(yaw), T_goal[:3, 3])
-    q, _ = K.solve_ik(op.fk, op.jac, q, T, op.q_min, op.q_max, iters=60)
+    q[WRIST] = q6
     return q
+
+
+def _duration(op, q_to, seconds: float) -> float:
+    """At least `seconds`, and slow enough that no joint's min-jerk peak exceeds JOINT_RAD_S (a hand that
+    whips the leader's wrist round makes its encoder jump: the pair holds the follower)."""
+    return max(seconds, 1.875 * float(np.max(np.abs(np.asarray(q_to) - op.q_des))) / JOINT_RAD_S)
 
 
 def _go_joints(op, q_to, seconds: float):
@@ -82,10 +90,33 @@ def _go_joints(op, q_to, seconds: float):
     from factr2_teleop.tasks.operator import min_jerk
 
     q0 = op.q_des.copy()
-    n = max(1, round(seconds / DECIDE_DT_S))
+    n = max(1, round(_duration(op, q_to, seconds) / DECIDE_DT_S))
     for k in range(1, n + 1):
         op.q_des = q0 + min_jerk(k / n) * (np.asarray(q_to) - q0)
         yield
+
+
+def _descend(op, q_to, seconds: float):
+    """Lower the hand to q_to (joint space, min-jerk); stops where a touch is felt (the arm's shoulder and
+    elbow estimates jump by GUARD_NM: a fingertip on the jar, the camera's height was off) and comes back up
+    LIFT_ON_TOUCH_M. Returns the height change [m] the operator now adds to its grasp height (0: none)."""
+    from factr2_teleop.tasks.operator import min_jerk
+
+    def load():
+        return float(np.sum(np.abs(op.p.tau_ext[1:3]))) if op.p.tau_ext.size >= 3 else 0.0
+
+    q0, base = op.q_des.copy(), load()
+    n = max(1, round(_duration(op, q_to, seconds) / DECIDE_DT_S))
+    for k in range(1, n + 1):
+        op.q_des = q0 + min_jerk(k / n) * (np.asarray(q_to) - q0)
+        yield
+        if np.isfinite(base) and load() - base > GUARD_NM:
+            T = op.fk(op.q_des)
+            up = T[2, 3] - op.fk(np.asarray(q_to))[2, 3] + LIFT_ON_TOUCH_M
+            op.q_des = _wrist_pose(op, K.pose(T[:3, :3], T[:3, 3] + [0, 0, LIFT_ON_TOUCH_M]), q_to[WRIST])
+            yield from wait(op, 0.3)
+            return up
+    return 0.0
 
 
 def _probe(op, axis, z_grasp: float, q6: float):
@@ -93,7 +124,7 @@ def _probe(op, axis, z_grasp: float, q6: float):
     pushed (the first finger to touch pushes the arm until the other one touches too); returns the believed
     axis moved by that push (world x, y) [m]. One probe finds the offset along the fingers' closing line."""
     T = K.pose(op.fk(op.q_des)[:3, :3], [*axis, z_grasp])
-    yield from _go_joints(op, _wrist_pose(op, T, q6), 0.6)
+    z_grasp += yield from _descend(op, _wrist_pose(op, T, q6), 0.8)
     yield from wait(op, PROBE_SETTLE_S)  # the lean brings the follower onto the reference
     before = op.p.T_ee[:3, 3].copy()
     op.servo_on = False  # let the hand be pushed
@@ -103,7 +134,7 @@ def _probe(op, axis, z_grasp: float, q6: float):
     yield from grip(op, 0.0, 0.3)
     yield from wait(op, 0.2)
     op.servo_on = True
-    return np.asarray(axis, float) + push[:2]
+    return np.asarray(axis, float) + push[:2], z_grasp
 
 
 def cap_screw(op, params, rng: np.random.Generator):
@@ -119,13 +150,10 @@ def cap_screw(op, params, rng: np.random.Generator):
     z_grasp = jar_p[2] + C.JAR_H_M + GRASP_ABOVE_JAR_M + TIP_M  # ee site height when grasping [m]
     T_over = K.pose(K.down_rotation(0.0), [*axis, z_grasp + 0.06])
     q_over = _wrist_pose(op, T_over, STROKE_FROM_RAD)
-    bump = np.array([rng.uniform(-0.02, 0.02), rng.uniform(-0.02, 0.02), rng.uniform(0.0, 0.04)])
-    T_start = op.fk(q_over)
-    yield from move(op, T_start, 2.0 * speed, bump=bump)
-    op.q_des = q_over.copy()
+    yield from _go_joints(op, q_over, 2.0 * speed)
     yield from wait(op, 0.3)
     for q6 in (STROKE_FROM_RAD, STROKE_FROM_RAD - np.pi / 2):  # across the fingers, then along them
-        axis = yield from _probe(op, axis, z_grasp, q6)
+        axis, z_grasp = yield from _probe(op, axis, z_grasp, q6)
     out["centred_mm"] = np.round((axis - cap_p[:2]) * 1e3, 1).tolist()
     running: list[float] = []  # the last stroke's running torque felt [N*m]
     felt = 0.0
@@ -135,7 +163,7 @@ def cap_screw(op, params, rng: np.random.Generator):
         # down to the lid with the wrist at the stroke's start, fingers open
         T_down = K.pose(op.fk(op.q_des)[:3, :3], [*axis, z_grasp])
         q_down = _wrist_pose(op, T_down, STROKE_FROM_RAD)
-        yield from _go_joints(op, q_down, 0.8 * speed)
+        z_grasp += yield from _descend(op, q_down, 0.8 * speed)
         yield from wait(op, 0.2)
         yield from grip(op, 1.0, 0.4 * speed)
         yield from wait(op, 0.4)

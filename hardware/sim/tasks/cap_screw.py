@@ -31,11 +31,12 @@ CAP_R_M = 0.022  # m: a 44 mm lid
 CAP_H_M = 0.016
 CAP_MASS_KG = 0.02
 CAP_FRICTION = (1.2, 0.01, 0.0001)  # knurled rim against the fingers (MuJoCo takes the larger of two geoms')
-JAR_R_M = 0.034
+JAR_R_M = 0.026  # m: narrower than the open fingers (35 mm from the axis), as a jar with a shoulder
 JAR_H_M = 0.05  # m: the shoulder (where the lid's rim seats) is the jar's top face
 NECK_R_M = 0.018  # visual only: the thread is the joint equality
 GASKET_R_M = 0.019  # m: radius of the ring of three nubs under the lid
 GASKET_BALL_M = 0.0015  # m: nub radius
+SHOULDER_HALF_M = 0.021  # m: the (invisible) seat under the nubs, inside the jar's top face
 GASKET_MU = 0.5
 # kg: reflected inertia on the lid's axial motion. MuJoCo's soft constraints are stiff in acceleration, so
 # their force per metre scales with the effective mass; a bare 20 g lid let the gasket and the thread give way
@@ -125,8 +126,8 @@ class CapScrew(B.Task):
         # the shoulder the gasket seats on: its own mocap body, placed with the jar (MuJoCo filters contacts
         # between a body and its parent, and the lid's parent is the jar)
         shoulder = spec.worldbody.add_body(name="jar_shoulder", pos=[0.29, 0.0, 0.0], mocap=True)
-        shoulder.add_geom(name="jar_shoulder", type=box, size=[JAR_R_M * 0.65, JAR_R_M * 0.65, 0.001],
-                          pos=[0, 0, JAR_H_M - 0.001], rgba=glass, **gasket)
+        shoulder.add_geom(name="jar_shoulder", type=box, size=[SHOULDER_HALF_M, SHOULDER_HALF_M, 0.001],
+                          pos=[0, 0, JAR_H_M - 0.001], rgba=[0, 0, 0, 0], **gasket)
         spec.add_equality(name="cap_thread", type=mujoco.mjtEq.mjEQ_JOINT, name1="cap_drop", name2="cap_turn",
                           data=[0.0, LEAD_M_PER_RAD] + [0.0] * 10,
                           solref=[0.002, 1.0], solimp=[0.99, 0.999, 0.001, 0.5, 2.0])
