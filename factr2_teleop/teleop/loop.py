@@ -296,8 +296,7 @@ class TeleopLoop:
             self.timing.target_hz = self.rate_hz
         for p in self.pairs:
             p.set_rate(self.rate_hz)
-        log.warning("loop: %s", line)
-        self._message(self.clock.now(), "loop", line)
+        self._message(self.clock.now(), "loop", line)  # said once: the CLI and the app show the messages
 
     def _make_safe(self, reason: Reason, phase: str) -> None:
         for p in self.pairs:
