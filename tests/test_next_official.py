@@ -16,6 +16,7 @@ from calibration.next.checkpoint import load_checkpoint
 from calibration.next.estimator import NextEstimator, batch_tau_f
 from calibration.next.logs import read_logs
 from calibration.next.official import write_official
+from factr2_teleop.session.pairs import load_next
 from hardware.errors import ConfigError
 from tests.next_h5_helpers import RATE_HZ, free_motion, write_next_h5
 from tests.test_import_lerobot import _cli
@@ -149,7 +150,8 @@ def test_official_checkpoint_is_an_estimator(tmp_path):
     ref = ref * norm["y_std"] + norm["y_mean"]
     got = batch_tau_f(ck, q, qd, q_cmd, tau=tau)
     np.testing.assert_allclose(got[19:], ref, atol=1e-5)
-    est = NextEstimator(ck)  # the control loop's streaming estimator on it
+    est = load_next(tmp_path / "run", "follower")  # teleop's streaming estimator (--checkpoint RUN_DIR)
+    assert isinstance(est, NextEstimator)
     for k in range(120):
         e = est.update(q[k], qd[k], q_cmd[k], tau[k])
     np.testing.assert_allclose(e.tau_ext, tau[119] - ref[-1], atol=1e-4)

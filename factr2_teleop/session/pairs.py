@@ -99,8 +99,8 @@ def load_next(path: str | Path, arm: str):
     from calibration.next.checkpoint import load_checkpoint
     from calibration.next.estimator import NextEstimator
 
-    p = Path(path).with_suffix(".json")
-    if not p.is_file():
+    p = Path(path) if Path(path).is_dir() else Path(path).with_suffix(".json")  # a folder: official layout
+    if not p.exists():
         raise UserError(f"NEXT checkpoint {p} not found", where="NEXT checkpoint",
                         fix="run `factr2 calibrate` (or the Calibration screen) first, or pick another mode")
     return NextEstimator(load_checkpoint(p, arm=arm), defer=True, source=(str(p), arm))
