@@ -369,3 +369,22 @@ def test_leader_back_after_short_silence_recouples_directly_when_close():
     i_hold = seen.index(HOLD)
     assert SOFT_START not in seen[i_hold:] and seen[-1] == COUPLED
     assert "re-coupled after hold" in [m for _, _, m in loop.snapshot().messages]
+
+
+def test_a_stopped_app_recouples_through_the_soft_start():
+    rig = Rig()
+    pair = rig.pair()  # default resume_direct_rad: a short hold close to the leader would re-couple at once
+    loop = TeleopLoop([pair], rig.clock)
+    seen = []
+
+    def rec(r):
+        seen.append(r.phase)
+        if len(seen) == 250:
+            rig.clock.sleep(2.0)  # the whole app stops for 2 s (SIGSTOP): its next tick comes 2 s late
+
+    loop.recorder = rec
+    loop.run(duration_s=4.0)
+    msgs = [m for _, _, m in loop.snapshot().messages]
+    assert any(m.startswith("follower on hold: the loop did not run for 2") for m in msgs), msgs
+    assert "re-coupled after hold" not in msgs
+    assert msgs.count("coupled: follower tracks the leader") == 2 and seen[-1] == COUPLED

@@ -43,6 +43,9 @@ from hardware.types import (
 log = logging.getLogger("factr2.teleop")
 
 SOFT_START, COUPLED, HOLD, FAULT, STOPPED, IDLE = "soft_start", "coupled", "hold", "fault", "stopped", "idle"
+LOOP_GAP_SOFT_S = 1.0  # s: a tick this late means the app itself stopped (its motors fell back by themselves
+# meanwhile, docs/safety.md): the pair holds and re-couples through the soft start; shorter holds (a bus-off,
+# a lost read) re-couple directly when close (SoftStartConfig.resume_direct_rad)
 _STALE_BITS = int(STATUS_STALE | STATUS_COMM_LOST)
 _ERROR_BITS = int(STATUS_MOTOR_ERROR)
 _ERROR_NAMES = ((STATUS_OVERCURRENT, "over-current"), (STATUS_OVERTEMP, "over-temperature"),
@@ -64,10 +67,13 @@ class PairHold(Enum):
     LOOP_FAULT = "teleop fault"
     LOOP_STOPPED = "teleop stopped"
     LOOP_NOT_ANSWERING = "teleop stop (loop thread not answering)"
+    LOOP_GAP = "loop gap"  # detail: gap_ms (the app itself did not run: SIGSTOP, a sleeping host)
 
 
 messages({
     PairHold.DATA_STALE: "{who} data stale ({age_ms:.0f} ms old)",
+    PairHold.LOOP_GAP: "the loop did not run for {gap_ms:.0f} ms (the app was stopped); re-coupling "
+                       "through the soft start",
     PairHold.MOTOR_ERROR: "{who} motor error: {what}",
     PairHold.NO_DATA_AT_START: "no data at start",
     PairHold.START_MISMATCH: "start refused: leader/follower mismatch",
@@ -167,6 +173,7 @@ class ArmPair:
         self._misses = {"leader": 0, "follower": 0}  # reads in a row without a new complete sample
         self._leader_ok = False
         self._refused = False  # a resume is refused (mismatch): said once, not every tick
+        self._after_gap = False  # the loop itself stopped (LOOP_GAP_SOFT_S): the next resume soft-starts
         # holds entered, time spent in them [s], resumes refused (once per refusal): the demo's summary
         self.holds, self.hold_s, self.resume_refusals = 0, 0.0, 0
         self._jumps = {"leader": 0, "follower": 0}  # implausible jumps already said (safety.jumps_rejected)
@@ -202,7 +209,8 @@ class ArmPair:
         self._refused = False
         self.law.feedback.reset()
         direct = self.cfg.soft_start.resume_direct_rad
-        if resume and direct > 0 and bool(np.all(np.abs(goal - fs.q) <= direct)):
+        after_gap, self._after_gap = self._after_gap, False
+        if resume and direct > 0 and not after_gap and bool(np.all(np.abs(goal - fs.q) <= direct)):
             self.q_target = np.asarray(fs.q, dtype=float).copy()  # rate_limit() closes the gap from here
             self.phase = COUPLED
             self._say("re-coupled after hold", logging.INFO)
@@ -275,6 +283,13 @@ class ArmPair:
         """One control period. Returns the record of this tick (also kept as self.last)."""
         if self.phase == HOLD and math.isfinite(self._t_prev):
             self.hold_s += now - self._t_prev  # the time since the last tick was spent on hold
+        gap = now - self._t_prev if math.isfinite(self._t_prev) else 0.0
+        if gap > LOOP_GAP_SOFT_S and self.phase in (COUPLED, SOFT_START, HOLD):
+            # the app was stopped: the motors fell back by themselves (docs/safety.md) and the operator's arm
+            # went on; hold, then come back at the soft start's speed, not the coupled rate limit's
+            self._after_gap = True
+            if self.phase != HOLD:
+                self._enter_hold(Reason.of(PairHold.LOOP_GAP, gap_ms=gap * 1e3), leader_ok=True)
         dt, ls, fs, leader_ok, follower_ok = self._read_both(now)
         errors = self._check_samples(ls, fs)
         if errors:

@@ -86,6 +86,9 @@ class Watch:
         self._last_counts = None
         self.t_active_from = None  # since when every device has been commanded without a gap [s]
         self._t_last_all = -math.inf
+        # each follower motor's fallback deadlines on the rig clock, converted when seen (a twin that fell
+        # behind skips ahead: its offset to sim time changes, so a later conversion would misplace them)
+        self.timeouts = {d.spec.name: [] for d in self.followers}
 
     def _counts(self) -> tuple:
         return tuple(d.emulator.instructions for d in self.leaders) + tuple(
@@ -94,6 +97,11 @@ class Watch:
     def __call__(self, t: float) -> None:
         if self.hand:
             self._hand(t)
+        off = t - self.twin.t
+        for d in self.followers:
+            log, seen = getattr(d.emulator, "timeout_log", ()), self.timeouts[d.spec.name]
+            if len(log) > len(seen):
+                seen += [(k, x + off) for k, x in log[len(seen):]]
         if t < self._t_next:
             return
         self._t_next = t + SAMPLE_EVERY_S
@@ -150,8 +158,7 @@ class Watch:
                                         "watchdog": [int(s.table[98]) for s in d.emulator.servos]}
                           for d in self.leaders},
               "followers": {d.spec.name: {"driver": d.spec.driver,
-                                          "timeouts": [(k, x + tw._t_offset) for k, x in
-                                                       getattr(d.emulator, "timeout_log", [])],
+                                          "timeouts": self.timeouts[d.spec.name],
                                           "motors": int(d.bank.n),
                                           "tx_dropped": int(getattr(d.bus, "tx_dropped", 0))}
                             for d in self.followers},
