@@ -26,7 +26,7 @@ from tests.policy_helpers import write_recording
 from tests.test_policies_inputs import FAST, _one_line_error
 
 DATA = Path(__file__).parent / "data" / "lerobot"
-LEROBOT_PYTHON = Path(os.environ.get("FACTR2_LEROBOT_PYTHON", "/work/lerobot312/bin/python"))
+LEROBOT_PYTHON = Path(os.environ.get("LEROBOT_PYTHON", "/work/lerobot312/bin/python"))
 
 
 @pytest.fixture(autouse=True)
@@ -146,7 +146,7 @@ def test_bad_mapping_is_one_line(capsys):
     _one_line_error(rc, err, "bad entry")
 
 
-@pytest.mark.skipif(not LEROBOT_PYTHON.exists(), reason="no LeRobot environment (FACTR2_LEROBOT_PYTHON)")
+@pytest.mark.skipif(not LEROBOT_PYTHON.exists(), reason="no LeRobot environment (LEROBOT_PYTHON)")
 def test_lerobot_writer_output_reads_like_the_fixtures(tmp_path):
     """LeRobot's own writer, run now: its datasets convert to the same joint data as the committed ones."""
     script = Path(__file__).parent / "lerobot" / "write_datasets.py"
