@@ -94,7 +94,7 @@ def test_pin_slid_across_the_mouth_drops_in():
 
 
 def test_search_spiral_covers_its_disc():
-    s = np.arange(0, 0.2, 0.0002)
+    s = np.arange(0, np.pi * S.SEARCH_R_M ** 2 / S.SEARCH_PITCH_M + 0.01, 0.0002)
     pts = np.array([S.spiral_xy(x, S.SEARCH_PITCH_M) for x in s])
     pts = pts[np.hypot(*pts.T) <= S.SEARCH_R_M]
     assert np.allclose(np.hypot(*S.spiral_xy(0.0, 0.001)), 0.0)
