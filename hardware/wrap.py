@@ -7,11 +7,13 @@ between two reads it got (a silent chain, a stall). The same physical pose then 
 and the plausibility filter and the resume check see a jump of a turn where nothing moved (the demo's "j6
 6.25-6.28 rad" refusals). `unwrap_reading` puts such a reading back on its turn before they see it.
 
-The rule: of the turns q + k * period, the one inside the joint's limits [q_min, q_max] (or the least far
-outside them) and, among those, the one nearest the last accepted value. A joint whose range is narrower
+The rule: of the turns q + k * period, the one nearest the last accepted value among those inside the
+joint's limits [q_min, q_max] widened by LIMIT_SLACK_RAD (a leader can be pushed a little past its software
+limits); when no turn lies there, the one nearest the last accepted value. A joint whose range is narrower
 than a turn (every arm here) has one turn inside its limits, so its reading is right whatever happened
 since the last accepted sample -- a restart in another turn reads the same pose. A joint whose range spans
-a turn or more (a continuous wrist) takes the turn nearest the last accepted value.
+a turn or more (a continuous wrist), or one held far past its limits, takes the turn nearest the last
+accepted value.
 """
 
 from __future__ import annotations
@@ -21,14 +23,15 @@ import math
 import numpy as np
 
 FULL_TURN_RAD = 2.0 * math.pi  # rad: the period of a single-turn encoder's reading
-_TIE_RAD = 1e-9  # rad: two turns equally far outside the limits (both inside: 0) are a tie
+LIMIT_SLACK_RAD = 0.5  # rad: a reading this far past a limit still counts as inside it (a hand overpowers
+# the leader's barrier a little); further out, only the nearness to the last accepted value decides
 
 
 def unwrap_reading(q: np.ndarray, q_ref: np.ndarray | None, period_rad, q_min, q_max) -> np.ndarray:
     """Per joint: q [rad] moved by a whole number of periods (period_rad, scalar or per joint; inf, 0 or NaN:
-    that joint does not wrap) onto the turn inside [q_min, q_max] [rad] (least far outside, when none is)
-    and, among equals, nearest q_ref [rad] (the last accepted value; None or NaN: the middle of the limits,
-    or q itself when the limits are infinite). Non-finite q is returned as it is. A new array."""
+    that joint does not wrap) onto the turn nearest q_ref [rad] (the last accepted value; None or NaN: the
+    middle of the limits, or q itself when the limits are infinite) among those inside [q_min, q_max] [rad]
+    widened by LIMIT_SLACK_RAD, or among all when none is. Non-finite q is returned as it is. A new array."""
     q = np.array(q, dtype=float)
     per = np.broadcast_to(np.asarray(period_rad, dtype=float), q.shape)
     lo = np.broadcast_to(np.asarray(q_min, dtype=float), q.shape)
@@ -46,10 +49,9 @@ def unwrap_reading(q: np.ndarray, q_ref: np.ndarray | None, period_rad, q_min, q
     k_mid = np.where(np.isfinite(mid), np.round((np.nan_to_num(mid) - q) / p), k_ref)
     ks = np.stack([k_ref - 1.0, k_ref, k_ref + 1.0, k_mid])  # the limits' turn is k_mid's when ref is far
     cand = q + ks * p
-    outside = np.maximum(lo - cand, 0.0) + np.maximum(cand - hi, 0.0)
+    inside = (cand >= lo - LIMIT_SLACK_RAD) & (cand <= hi + LIMIT_SLACK_RAD)
     near = np.abs(cand - ref)
-    best = outside <= outside.min(axis=0) + _TIE_RAD
-    pick = np.argmin(np.where(best, near, np.inf), axis=0)
+    pick = np.argmin(np.where(inside | ~inside.any(axis=0), near, np.inf), axis=0)
     out = np.take_along_axis(cand, pick[None], axis=0)[0]
     return np.where(wraps, out, q)
 

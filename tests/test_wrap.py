@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from hardware.clock import LockstepClock
 from hardware.safety import PLAUSIBLE_JUMP_RAD
 from hardware.sim.motors import IdealMotorBank
-from hardware.wrap import FULL_TURN_RAD, unwrap_reading
+from hardware.wrap import FULL_TURN_RAD, LIMIT_SLACK_RAD, unwrap_reading
 from tests.teleop_fakes import BankLeader, limits
 
 TURN = FULL_TURN_RAD
@@ -36,11 +36,17 @@ def test_a_joint_without_limits_takes_the_turn_nearest_the_last_accepted_value(q
 
 
 @settings(max_examples=200, deadline=None)
-@given(q=st.floats(-3.0, 3.0), ref=st.floats(-3.0, 3.0))
-def test_a_reading_outside_the_limits_keeps_the_turn_least_far_outside(q, ref):
-    """A leader pushed past its software limit is still read where it is (not a turn away)."""
+@given(q=st.floats(LO - LIMIT_SLACK_RAD, HI + LIMIT_SLACK_RAD), ref=st.floats(-3.0, 3.0))
+def test_a_reading_a_little_past_the_limits_keeps_its_turn(q, ref):
+    """A leader pushed a little past its software limit is still read where it is (not a turn away)."""
     out = unwrap_reading(np.array([q]), np.array([ref]), TURN, LO, HI)[0]
     assert abs(out - q) < 1e-9
+
+
+def test_far_past_the_limits_the_turn_nearest_the_last_accepted_value_decides():
+    """A wrist turned 1.4 rad past its limit during a gap (-2.0 -> -3.5) is not read a turn away (2.78)."""
+    out = unwrap_reading(np.array([-3.5]), np.array([-2.0]), TURN, LO, HI)[0]
+    assert abs(out - (-3.5)) < 1e-9
 
 
 def test_non_wrapping_and_non_finite_joints_are_left_as_they_are():
