@@ -70,10 +70,12 @@ def test_a_loop_that_cannot_hold_500_hz_runs_at_a_rate_it_holds_without_a_hold()
     loop = TeleopLoop([pair], clock, rate_hz=500.0)
     phases: list[str] = []
     loop.recorder = lambda rec: phases.append(rec.phase)
+    noted: list[str] = []
+    loop.on_rate_change.append(lambda t, line: noted.append(line))  # what a recording notes
     loop.run(duration_s=7.0)
     said = [m[2] for m in loop.snapshot().messages if "cannot hold" in m[2]]
     assert said and "cannot hold 500 Hz" in said[0]
-    assert len(said) == len(set(said))  # each step said once
+    assert len(said) == len(set(said)) and noted == said  # each step said once, and noted
     assert MIN_RATE_HZ <= loop.rate_hz <= 250.0
     assert loop.timing.target_hz == loop.rate_hz  # the rate is recorded
     np.testing.assert_allclose(pair.law.feedback.gain, 0.04 * loop.rate_hz / 500.0)

@@ -43,6 +43,7 @@ class TeleopSession:
         self._next_paths = dict(next_paths or {})
         self.loop = TeleopLoop(self.pairs, clock or session.clock, self.rate_hz, recorder=self._on_tick)
         self.loop.idle.append(self._idle)
+        self.loop.on_rate_change.append(self._rate_changed)
         self._idle_ticks = 0
         self._recording_error_said = False
 
@@ -153,6 +154,13 @@ class TeleopSession:
                 self.loop.say("cameras", text, t)  # when the camera was asked (its thread may lag)
                 if rec is not None:
                     rec.recorder.note(t, text)
+
+    def _rate_changed(self, t: float, line: str) -> None:
+        """The loop runs at a lower rate from now on (teleop/degrade.py): the recording notes when and why
+        (its /loop/timing periods show the new rate)."""
+        rec = self.recording
+        if rec is not None:
+            rec.recorder.note(t, line)
 
     def _on_tick(self, r: TickRecord) -> None:
         for h in self.hooks:

@@ -84,6 +84,7 @@ class TeleopLoop:
         self.period_s = 1.0 / self.rate_hz
         self.recorder = recorder
         self.degrade = True  # real time: a rate the machine cannot hold drops to one it can (degrade.py)
+        self.on_rate_change: list[Callable[[float, str], None]] = []  # fn(t [s], line) then (loop thread)
         self.idle: list[Callable[[], None]] = []
         self.timing = LoopTiming(self.rate_hz)
         self.error: BaseException | None = None
@@ -296,7 +297,10 @@ class TeleopLoop:
             self.timing.target_hz = self.rate_hz
         for p in self.pairs:
             p.set_rate(self.rate_hz)
-        self._message(self.clock.now(), "loop", line)  # said once: the CLI and the app show the messages
+        t = self.clock.now()
+        self._message(t, "loop", line)  # said once: the CLI and the app show the messages
+        for fn in self.on_rate_change:  # e.g. a recording notes it (session/teleop.py)
+            fn(t, line)
 
     def _make_safe(self, reason: Reason, phase: str) -> None:
         for p in self.pairs:
