@@ -13,9 +13,8 @@ clearance is far below the detector's millimetres, so what sight gives is only w
    fixture's seen top: the pin went straight in).
 3. Search: press lightly (the felt push regulated to a target, like wipe.py's strokes: the lean on the joint
    error is off, the push comes from the hand's compliance) while the hand traces an Archimedean spiral around
-   the seen bore (aiming ahead by the lag it sees in its own arm); the pin drops when its tip crosses the
-   chamfer: the hand is felt to sink DROP_M below where it touched. A spiral that reaches SEARCH_R_M
-   without a drop: lift, look again, search again.
+   the seen bore; the pin drops when its tip crosses the chamfer: the hand is felt to sink DROP_M below
+   where it touched. A spiral that reaches SEARCH_R_M without a drop: lift, look again, search again.
 4. Push it home on the same felt push; seated when the hand has stopped sinking for STILL_S deep in the
    bore (stop on force); a stop short of that depth is a jam: lift a little and push again.
 5. Let go, lift.
@@ -48,9 +47,10 @@ SEARCH_PITCH_M = 0.0018  # m: spiral pitch (the pin drops when its tip is within
 SEARCH_SPEED_M_S = 0.012  # m/s along the spiral
 SEARCH_R_M = 0.013  # m: the widest spiral (the seen bore is off by 2.8-3.6 mm std per axis, relative, and
 # the arm's own kinematics add to it: a pin 11.9 mm off was measured)
-TRACK_KP = 0.8  # the hand's lag behind the spiral (compliance against the sliding friction, the lean off):
-TRACK_KI = 0.5  # 1/s  the operator, watching its own arm, aims ahead by this much of it (and its integral);
-TRACK_MAX_M = 0.006  # m  without it the pin traced a spiral a few mm smaller than the one aimed at
+# The hand lags the spiral (its compliance against the sliding friction, the lean off): the pin traces a
+# spiral a few mm smaller than the one aimed at; the wider spiral covers that. Aiming ahead by the lag seen
+# in the arm (0.8 x the lag + 0.5 /s of its integral) made the hand jump 7 mm at a time (a loop through the
+# follower's delay): 4 of 9 episodes failed that way (docs/tasks.md).
 SEARCHES = 2  # spirals before giving up
 DROP_M = 0.0025  # m: the hand sinking this far below where it touched means the pin dropped into the bore
 HOME_M = TI.DEPTH_M - 0.004  # m: sunk this far below the touch: deep in the bore
@@ -247,17 +247,13 @@ def _spiral(op, yaw, centre, z_touch, felt_target, rng):
     s = 0.0
     phase = rng.uniform(0, 2 * np.pi)
     c, sn = np.cos(phase), np.sin(phase)
-    lag_i = np.zeros(2)
     while True:
         xy = spiral_xy(s, SEARCH_PITCH_M)
         if np.hypot(*xy) > SEARCH_R_M:
             return "none"
         goal = centre + np.array([c * xy[0] - sn * xy[1], sn * xy[0] + c * xy[1]])
-        lag = goal - hand_pose(op)[:2, 3]
-        lag_i = np.clip(lag_i + TRACK_KI * DECIDE_DT_S * lag, -TRACK_MAX_M, TRACK_MAX_M)
-        lead = np.clip(TRACK_KP * lag + lag_i, -TRACK_MAX_M, TRACK_MAX_M)
         depth = _regulate(op, depth, felt_target)
-        op.aim(_down(yaw, [*(goal + lead), z_touch - depth]))
+        op.aim(_down(yaw, [*goal, z_touch - depth]))
         yield
         if hand_pose(op)[2, 3] < z_touch - DROP_M:
             return "dropped"
