@@ -3,7 +3,7 @@
 
     out = run_crash_session("teleop", "app_sigkill", "sim-yam", seed=3, folder=Path("/tmp/x"))
 
-The twin: `python -m hardware.sim.process_twin --hand` (real time; Dynamixel on ptys, CAN on pty links; a
+The twin: `python -m hardware.process_twin --hand` (real time; Dynamixel on ptys, CAN on pty links; a
 scripted hand on each leader). The app: `factr2 teleop --rig <the twin's app rig>` in real time, recording
 (`--record`) for the collect activity: the real command line, which does not know it talks to a twin. Once
 the app has commanded every device for a seeded 1-2 s, the parent sends SIGKILL (or SIGSTOP, then SIGCONT
@@ -155,7 +155,7 @@ def _session(activity: str, kind: str, rig: str, seed: int, folder: Path, durati
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
     out: dict = {"rig": rig, "played": False, "error": None, "violations": 0, "safe_ms": None,
                  "stale_ms": None, "recovered": None, "samples_lost": None, "active_before_s": active_for}
-    twin = subprocess.Popen([sys.executable, "-m", "hardware.sim.process_twin", "--rig", rig, "--out",
+    twin = subprocess.Popen([sys.executable, "-m", "hardware.process_twin", "--rig", rig, "--out",
                              str(twin_dir), "--seed", str(seed), "--hand"], cwd=ROOT, env=env,
                             stdout=open(folder / "twin.log", "w"), stderr=subprocess.STDOUT)
     app = None

@@ -1,7 +1,7 @@
 """A CAN bus between processes on a pseudo-terminal: python-can interface "pty" (SIMULATED wire).
 
 python-can's "virtual" channels live inside one process, so a twin served by another process (`factr2 twin
---can-pty`, hardware/sim/process_twin.py) cannot reach a driver through one. A pty can: the twin holds the
+--can-pty`, hardware/process_twin.py) cannot reach a driver through one. A pty can: the twin holds the
 master side (`PtyCanBus.serve()`), a driver opens the slave path as a rig's channel with interface = "pty"
 (hardware.can_bus.open_bus). Both ends carry fixed 17-byte records, one per frame:
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from hardware.can_bus import open_bus
 from hardware.can_pty import PtyCanBus, decode, encode
-from hardware.sim.process_twin import app_rig_text
+from hardware.process_twin import app_rig_text
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from crash_sessions import analyse  # noqa: E402

@@ -25,7 +25,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--watch", default=None, metavar="DIR",
                         help="serve CAN on pty links too (other processes can open them), write "
                         "DIR/app_rig.toml (the rig as a real rig reaching this twin) and at Ctrl-C / SIGTERM "
-                        "what the motors did (DIR/watch.npz, DIR/events.json: hardware/sim/process_twin.py)")
+                        "what the motors did (DIR/watch.npz, DIR/events.json: hardware/process_twin.py)")
     parser.add_argument("--hand", action="store_true", help="with --watch: a scripted hand moves the leaders")
 
 
@@ -42,7 +42,7 @@ def run(args) -> int:
     if args.watch:
         from pathlib import Path
 
-        from hardware.sim.process_twin import serve
+        from hardware.process_twin import serve
 
         print(f"twin of rig {args.rig} in real time (SIMULATED hardware); its app rig: "
               f"{args.watch}/app_rig.toml", flush=True)

@@ -114,7 +114,7 @@ def signal_app(sig: int) -> str:
 def freeze_app(seconds: float) -> str:
     """SIGSTOP this process for seconds [s] of wall time, then SIGCONT (a laptop lid, a debugger, a stalled
     host): a helper shell outside the process sends the SIGCONT. Everything of the process stops, an
-    in-process twin too: only a twin in a process of its own (hardware/sim/process_twin.py) sees the motors
+    in-process twin too: only a twin in a process of its own (hardware/process_twin.py) sees the motors
     fall back meanwhile."""
     import subprocess
 

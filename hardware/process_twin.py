@@ -1,6 +1,6 @@
 """A rig's twin in a process of its own, watched (SIMULATED): what the motors do when the app beside it dies.
 
-    python -m hardware.sim.process_twin --rig sim-piper --out DIR [--seed S] [--hand]
+    python -m hardware.process_twin --rig sim-piper --out DIR [--seed S] [--hand]
 
 serves the twin in real time: Dynamixel leaders on ptys, CAN followers on pty CAN links (hardware/can_pty.py,
 python-can's virtual channels do not cross processes). It writes DIR/app_rig.toml, the rig as a real rig
