@@ -19,6 +19,8 @@ HELD_FRACTION = 0.95  # a window that ran fewer than this share of its due ticks
 BUSY_FRACTION = 0.8  # ... nor one whose median tick took more than this share of the period (no margin)
 MIN_RATE_HZ = 100.0  # Hz: never below this (a 10 ms loop still holds the pair within its stale windows)
 STEP = 0.5  # each degradation halves the rate (500 -> 250 -> 125 Hz)
+BAD_WINDOWS = 2  # windows in a row that did not hold the rate before it drops: a 2 s burst of another
+# process's load is not a machine that cannot hold the rate (the rate does not come back up)
 
 
 @dataclass(frozen=True)
@@ -52,14 +54,15 @@ def judge_window(rate_hz: float, ticks: int, wall_s: float, busy_median_s: float
 
 
 class RateGovernor:
-    """Feed it every tick (start time, time inside the tick); it returns a Verdict with a new rate when a
-    whole window could not hold the current one."""
+    """Feed it every tick (start time, time inside the tick); it returns a Verdict with a new rate when
+    BAD_WINDOWS whole windows in a row could not hold the current one."""
 
     def __init__(self, rate_hz: float, window_s: float = WINDOW_S):
         self.rate_hz, self.window_s = float(rate_hz), float(window_s)
         self._t0: float | None = None
         self._busy: list[float] = []
         self._warm = False  # the first window is warm-up (first calls, caches): not judged
+        self._bad = 0  # windows in a row that did not hold the rate
 
     def tick(self, t_start: float, busy_s: float) -> Verdict | None:
         if self._t0 is None:
@@ -75,7 +78,12 @@ class RateGovernor:
         if not self._warm:
             self._warm = True
             return None
-        if v.new_rate_hz is not None:
-            self.rate_hz = v.new_rate_hz
-            self._warm = False  # the next window settles at the new rate
+        if v.new_rate_hz is None:
+            self._bad = 0
+            return v
+        self._bad += 1
+        if self._bad < BAD_WINDOWS:
+            return Verdict(None, v.held, v.busy_ms)
+        self.rate_hz, self._bad = v.new_rate_hz, 0
+        self._warm = False  # the next window settles at the new rate
         return v
