@@ -47,10 +47,10 @@ SEARCH_PITCH_M = 0.0018  # m: spiral pitch (the pin drops when its tip is within
 SEARCH_SPEED_M_S = 0.012  # m/s along the spiral
 SEARCH_R_M = 0.013  # m: the widest spiral (the seen bore is off by 2.8-3.6 mm std per axis, relative, and
 # the arm's own kinematics add to it: a pin 11.9 mm off was measured)
-# The hand lags the spiral (its compliance against the sliding friction, the lean off): the pin traces a
-# spiral a few mm smaller than the one aimed at; the wider spiral covers that. Aiming ahead by the lag seen
-# in the arm (0.8 x the lag + 0.5 /s of its integral) made the hand jump 7 mm at a time (a loop through the
-# follower's delay): 4 of 9 episodes failed that way (docs/tasks.md).
+# The pin does not trace the spiral aimed at (the hand's compliance against the sliding friction with the
+# lean off, the pin tilting in the fingers, stick-slip); aiming ahead by the lag seen in the arm (0.8 x the
+# lag + 0.5 /s of its integral) did not help: 4 of 11 episodes still never brought the tip within the
+# chamfer's reach, and in the one traced the hand jumped 7 mm at a time (docs/tasks.md).
 SEARCHES = 2  # spirals before giving up
 DROP_M = 0.0025  # m: the hand sinking this far below where it touched means the pin dropped into the bore
 HOME_M = TI.DEPTH_M - 0.004  # m: sunk this far below the touch: deep in the bore
