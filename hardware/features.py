@@ -34,6 +34,9 @@ from hardware.recording.schemas import ACTION
 IMAGES = "observation.images."
 # the policy's input and output groups (LeRobot's keys): a checkpoint's "features", the dataset, the export
 OBS_STATE, OBS_FORCE, OBS_IMAGES = "observation.state", "observation.force", "observation.images"
+# a LeRobot export's FIRST phase column (0 free, 1 pre-contact, 2 contact), and the key in its info.json
+# feature that marks it as factr2's own labels (the value: the thresholds that made them, Thresholds.to_dict)
+PHASE_FEATURE, FACTR2_PHASES = "phase", "factr2/phases"
 JOINT_POS, GRIPPER_POS = "joint.pos", "gripper.pos"
 POLICY_STATE = (JOINT_POS, GRIPPER_POS)  # per follower arm: what a policy observes of it, and acts on
 FORCE_FEATURE = {"tau_ext": "joint.tau_ext", "current": "joint.current"}  # policy force input -> feature

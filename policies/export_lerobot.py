@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from hardware.errors import UserError
-from hardware.features import OBS_FORCE, action_of
+from hardware.features import FACTR2_PHASES, OBS_FORCE, PHASE_FEATURE, action_of
 from hardware.recording import schemas as S
 from hardware.recording.reader import interp_linear
 from hardware.timeseries import hold_previous
@@ -100,7 +100,7 @@ def _episode_rows(ep, arms, cams, fps, th, next_model, objects):
         "observation.state": np.concatenate(state, 1),
         "action": np.concatenate(action, 1),
         OBS_FORCE: np.nan_to_num(interp_linear(lab.t, lab.tau_ext, grid)),
-        "phase": lab.at(grid).astype(np.int64),
+        PHASE_FEATURE: lab.at(grid).astype(np.int64),
     }
     for f, ob in obs.items():  # the latest vector at or before each row, as a live policy has it
         rows[f] = hold_previous(ob.t, ob.fields["objects"], grid)
@@ -246,11 +246,12 @@ def export_lerobot(
                 "SIMULATED: the twin task objects as a simulated camera pose detector reports them "
                 "(hardware/sim/perception.py, docs/perception.md): per object position [m], rotation's first "
                 "two columns, visible 0/1, age [s]; a real robot's camera pose estimator gives the like")
-        features["phase"] = {
+        features[PHASE_FEATURE] = {
             "dtype": "int64",
             "shape": [1],
             "names": None,
             "description": ", ".join(f"{i}: {p}" for i, p in enumerate(PHASE_NAMES)),
+            FACTR2_PHASES: th.to_dict(),  # factr2's own labels: an import trains on them (importers.lerobot)
         }
         for v in videos:
             features[v.key] = v.feature()

@@ -13,6 +13,7 @@ the raw estimate, and so does live force feedback (teleop never labels).
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from enum import Enum
 from pathlib import Path
@@ -21,6 +22,7 @@ import numpy as np
 
 from calibration.next.ident import NextId, json_path
 from hardware.errors import UserError
+from hardware.importers import lerobot as LR
 from hardware.reasons import Reason, messages
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
@@ -58,6 +60,7 @@ class ThresholdSource(Enum):
     GIVEN = "given"  # the operator's LOW:HIGH
     RECORDING = "recording"  # the episodes' own scores (detail: tared, episodes, samples)
     NEXT = "next"  # the NEXT checkpoint's free-motion noise (detail: next_id, val_l1_sum [N*m])
+    DATASET = "dataset"  # a factr2 LeRobot export's own labels, imported (thresholds: those that made them)
 
 
 def _recording_source(tared: bool, episodes: int, samples: int) -> str:
@@ -69,6 +72,7 @@ messages({
     ThresholdSource.GIVEN: "given",
     ThresholdSource.RECORDING: _recording_source,
     ThresholdSource.NEXT: "NEXT {next_id.short} (val_l1 sum {val_l1_sum:.4g})",
+    ThresholdSource.DATASET: "dataset: " + LR.PHASES_LINE,
 })
 
 
@@ -140,7 +144,11 @@ def resolve_thresholds(
     tare = TARE_DEFAULT if tare is None else tare
     if tare not in T.TARE_METHODS:
         raise UserError(f"unknown tare method {tare!r}", fix=f"one of {', '.join(T.TARE_METHODS)}")
-    if given == "recording":
+    carried = [dataset_phases(ep) for ep in episodes]
+    if given == "recording" and next_model is None and carried and all(c is not None for c in carried):
+        made = carried[0][1]  # a factr2 export's labels: trained on as they are (label_episode)
+        th = Thresholds(made["t_low"], made["t_high"], Reason.of(ThresholdSource.DATASET))
+    elif given == "recording":
         th = _recording_thresholds(episodes, arms, next_model, tare)
     elif given is None or given == "next":
         th = _checkpoint_thresholds(next_model, episodes, arms)
@@ -148,6 +156,16 @@ def resolve_thresholds(
         th = Thresholds.given(given[0], given[1])
     th.tare = tare
     return th
+
+
+def dataset_phases(ep: Episode) -> tuple[list, dict, float] | None:
+    """(label changes [[row, label], ...], the thresholds that made them, fps [Hz]) of an episode imported
+    from a factr2 LeRobot export (hardware.importers.lerobot.IMPORT_PHASES), else None."""
+    text = ep.recording.session.get(LR.IMPORT_PHASES)
+    if not text:
+        return None
+    d = json.loads(text)
+    return d["episodes"][ep.index], d["thresholds"], float(d["fps"])
 
 
 def _recording_thresholds(episodes, arms, next_model, tare: str) -> Thresholds:
@@ -308,7 +326,12 @@ def label_episode(
     score, raw, held, note = episode_scores(ep, arms, th.tare, next_model)
     if th.tare != "off":
         source += f"; tare {th.tare}" + (f" ({note})" if note else "")
-    phases = P.label_phases(t, P.contact_runs(score, th.t_low, th.t_high))
+    if th.source.key == ThresholdSource.DATASET.value:  # the dataset's rows, at the force samples' times
+        changes, _, fps = dataset_phases(ep)
+        phases = LR.labels_at(changes, (t - ep.t_start) * fps)
+        source += "; labels: the dataset's phase column"
+    else:
+        phases = P.label_phases(t, P.contact_runs(score, th.t_low, th.t_high))
     return EpisodeLabels(episode_id(ep), t, tau, score, phases, source, raw, held, th.tare)
 
 

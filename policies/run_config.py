@@ -313,7 +313,7 @@ class RunOptions:
         ph = meta.get("phases", {})
         kind = source_kind(ph)  # typed (policies.labelling.ThresholdSource), never the message parsed
         given = ((ph["t_low"], ph["t_high"]) if kind is ThresholdSource.GIVEN
-                 else "recording" if kind is ThresholdSource.RECORDING else None)
+                 else "recording" if kind in (ThresholdSource.RECORDING, ThresholdSource.DATASET) else None)
         opts = cls(inputs=list(inputs), out=Path(out), policy=pol["policy"], method=meta["method"],
                    ratio=tuple(meta["ratio"]), preset=name, force=meta["force"],
                    source_weights=tuple(meta.get("source_weights", DEFAULT_SOURCE_WEIGHTS)),

@@ -16,7 +16,7 @@ import pytest
 
 from bench.bring_data_round_trip import digest as first_batch_digest
 from factr2_teleop.cli import main
-from hardware.importers.lerobot import lerobot_recordings
+from hardware.importers.lerobot import labels_at, lerobot_recordings, phase_changes
 from hardware.recording.reader import Recording
 from policies import checkpoint as C
 from policies.dataset import build_dataset
@@ -40,21 +40,37 @@ def _cli(capsys, *args):
     return rc, cap.out, cap.err
 
 
-def _samples(path):
+def _samples(path, given=(1.0, 3.0)):
     eps, arms = load_episodes([path])
-    th = resolve_thresholds((1.0, 3.0), None, eps, arms)
-    return build_dataset(eps, arms, th=th, observation="state", rate_hz=30.0, chunk=10)
+    th = resolve_thresholds(given, None, eps, arms)
+    return build_dataset(eps, arms, th=th, observation="state", rate_hz=30.0, chunk=10), th
 
 
-def test_round_trip_recordings_export_train_same_samples(tmp_path, capsys):
+@pytest.mark.parametrize("flags, given", [(["--thresholds", "1:3"], (1.0, 3.0)), ([], "recording")])
+def test_round_trip_recordings_export_train_same_samples(tmp_path, capsys, flags, given):
+    """With the default thresholds ("recording") the dataset's own phase column is trained on (labels made
+    again from its 30 Hz force differ); given thresholds label both alike."""
     rec = write_recording(tmp_path / "a.mcap", episodes=3, seconds=4.0, cameras=(), objects=3)
-    rc, _, err = _cli(capsys, "export", "lerobot", rec, "--out", tmp_path / "ds", "--thresholds", "1:3")
+    rc, _, err = _cli(capsys, "export", "lerobot", rec, "--out", tmp_path / "ds", *flags)
     assert rc == 0, err
-    a, b = _samples(rec), _samples(tmp_path / "ds")
+    (a, th_a), (b, th_b) = _samples(rec, given), _samples(tmp_path / "ds", given)
     assert len(a) == len(b) == 360
     for k in ("state", "force", "action", "mask", "phase", "objects"):
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)
     assert first_batch_digest(a) == first_batch_digest(b)
+    assert np.bincount(b.phase, minlength=3).min() > 0  # every phase present: the labels are not trivial
+    assert th_b.source.key == ("dataset" if given == "recording" else "given")
+    assert (th_b.t_low, th_b.t_high) == (th_a.t_low, th_a.t_high)  # the thresholds that made the labels
+
+
+def test_phase_changes_and_labels_at():
+    ph = np.array([0, 0, 1, 1, 2, 2, 2, 0])
+    ch = phase_changes(ph)
+    assert ch == [[0, 0], [2, 1], [4, 2], [7, 0]]
+    np.testing.assert_array_equal(labels_at(ch, np.arange(8)), ph)
+    # float rows (force samples' times x fps) go to the nearest row; before the first, the first label
+    np.testing.assert_array_equal(labels_at(ch, [-0.3, 1.6, 3.9999999, 7.5, 20.0]), [0, 1, 2, 0, 0])
+    assert phase_changes(np.zeros(0, int)) == []
 
 
 def test_effort_video_first_labels_and_trains(tmp_path, capsys):

@@ -28,6 +28,11 @@ FIRST labels need tau_ext: a dataset without tau_ext gets its raw effort (else r
 tau_ext, said in one line (the paper's raw-signal comparison); `--next CKPT` runs NEXT on the joint states
 instead. A dataset with none of them has no tau_ext topic: base methods only (policies.run refuses first).
 
+A dataset written by `factr2 export lerobot` carries FIRST's labels (its `phase` feature, marked
+hardware.features.FACTR2_PHASES): they go into the recording's session metadata (IMPORT_PHASES: per
+episode the rows where the label changes, and the fps), and policies.labelling trains on them instead of
+labelling the 30 Hz force again. Other datasets' `phase` columns are not read.
+
 Converted recordings are cached under cache_home()/lerobot/<key>, the key a hash of the dataset's meta and
 data files (size, mtime) and the mapping: a changed dataset or mapping converts again.
 """
@@ -43,6 +48,7 @@ from pathlib import Path
 import numpy as np
 
 from hardware.errors import UserError
+from hardware.features import FACTR2_PHASES, PHASE_FEATURE
 from hardware.importers.write import ImportedEpisode, write_episodes
 from hardware.recording.schemas import OBJECT_TOPICS
 
@@ -56,7 +62,8 @@ MAP_DEFAULT: dict[str, tuple[str, ...]] = {
     "tau_ext": ("observation.tau_ext", "observation.force"),
 }
 IMAGES = "observation.images."
-CONVERTER_VERSION = 3  # bump when the conversion changes: cached conversions are made again
+IMPORT_PHASES = "import_phases"  # session metadata: a factr2 export's labels (phase_changes, per episode)
+CONVERTER_VERSION = 4  # bump when the conversion changes: cached conversions are made again
 FIX_MAP = "name the features with --lerobot-map ROLE=KEY,... (docs/bringing_data.md)"
 
 
@@ -159,6 +166,8 @@ class Mapping:
         self.objects = {k: _names(feats[k]) or [f"v{i}" for i in range(_width(feats[k]))]
                         for k in OBJECT_TOPICS if k in feats}
         self.force = next((r for r in ("tau_ext", "effort", "current") if r in self.keys), "none")
+        # factr2's own labels (a factr2 export): the thresholds that made them, else None
+        self.phases = (feats.get(PHASE_FEATURE) or {}).get(FACTR2_PHASES) if self.force != "none" else None
 
     def cols(self, a: np.ndarray, n_state: int) -> np.ndarray:
         """The joint columns of a (N, n_state) or (N, J) array."""
@@ -249,7 +258,8 @@ def read_episodes(root: Path, m: Mapping, info: dict) -> list[ImportedEpisode]:
         metas = []
     meta_by_ep = {int(d["episode_index"]): d for d in metas if "episode_index" in d}
     fps = float(info["fps"])
-    need = ["episode_index", "timestamp", *(m.keys[r] for r in m.keys), *m.objects]
+    need = ["episode_index", "timestamp", *(m.keys[r] for r in m.keys), *m.objects,
+            *([PHASE_FEATURE] if m.phases is not None else [])]
     missing = [k for k in need if k not in data.column_names]
     if missing:
         raise _bad(root, f"data rows lack column(s) {', '.join(missing)}")
@@ -259,6 +269,7 @@ def read_episodes(root: Path, m: Mapping, info: dict) -> list[ImportedEpisode]:
     cols = {r: _column(data, k) for r, k in m.keys.items()}
     n_state = cols["state"].shape[1]
     objects = {k: _column(data, k) for k in m.objects}
+    phase = np.asarray(_column(data, PHASE_FEATURE), int).reshape(-1) if m.phases is not None else None
     scale = np.pi / 180.0 if m.deg else 1.0
     out = []
     for e in sorted(set(eps.tolist())):
@@ -282,6 +293,7 @@ def read_episodes(root: Path, m: Mapping, info: dict) -> list[ImportedEpisode]:
         if force:
             ep.tau_ext = m.cols(cols[force][rows], n_state)
         ep.objects = {k: (v[rows], m.objects[k]) for k, v in objects.items()}
+        ep.phase = phase[rows] if phase is not None else None
         meta = meta_by_ep.get(e, {})
         tasks = meta.get("tasks") or []
         ep.task = str(tasks[0]) if len(tasks) else ""
@@ -303,6 +315,24 @@ def _dataset_key(root: Path, given: dict) -> str:
         st = f.stat()
         h.update(f"{f.relative_to(root)}:{st.st_size}:{st.st_mtime_ns}".encode())
     return h.hexdigest()[:20]
+
+
+def phase_changes(phase: np.ndarray) -> list[list[int]]:
+    """Per-row labels (N,) -> [[row, label], ...] at the first row and wherever the label changes."""
+    phase = np.asarray(phase, int).reshape(-1)
+    rows = np.flatnonzero(np.r_[True, phase[1:] != phase[:-1]]) if len(phase) else np.zeros(0, int)
+    return [[int(r), int(phase[r])] for r in rows]
+
+
+def labels_at(changes: list, rows: np.ndarray) -> np.ndarray:
+    """The label of each row index (float rows rounded to the nearest) from phase_changes' list; rows
+    before the first change take the first label."""
+    ch = np.asarray(changes, int).reshape(-1, 2)
+    i = np.searchsorted(ch[:, 0], np.rint(np.asarray(rows, float)), side="right") - 1
+    return ch[np.clip(i, 0, None), 1].astype(np.int8)
+
+
+PHASES_LINE = "FIRST labels from the dataset's phase column (factr2 export), not re-made from its force"
 
 
 def force_line(root: Path, m: Mapping) -> str:
@@ -331,6 +361,8 @@ def lerobot_recordings(root: Path, map_text: str | None = None, say=None) -> lis
     for n in m.notes:
         say(f"{root.name}: {n}")
     say(force_line(root, m))
+    if m.phases is not None:
+        say(f"{root.name}: {PHASES_LINE} (--thresholds LOW:HIGH or next, or --next CKPT, labels it again)")
     if out.is_file():
         return [out]
     episodes = read_episodes(root, m, info)
@@ -339,5 +371,8 @@ def lerobot_recordings(root: Path, map_text: str | None = None, say=None) -> lis
     meta = {"task": episodes[0].task, "import_format": "lerobot", "import_source": str(root.resolve()),
             "import_mapping": json.dumps(m.to_dict()), "robot_type": str(info.get("robot_type", "")),
             "tau_ext_source": m.force}
+    if m.phases is not None:
+        meta[IMPORT_PHASES] = json.dumps({"fps": float(info["fps"]), "thresholds": m.phases,
+                                          "episodes": [phase_changes(ep.phase) for ep in episodes]})
     say(f"{root.name}: converting {len(episodes)} episodes to a recording ({out})")
     return [write_episodes(out, episodes, m.joint_names, meta)]
