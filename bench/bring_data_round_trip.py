@@ -6,7 +6,8 @@ data path, with the same flags.
     python bench/bring_data_round_trip.py [RECORDING_OR_DIR] [-- TRAIN FLAGS]
 
 Default input: a synthetic state-only twin-style recording (tests/policy_helpers.py); flags default to
-`--obs state --thresholds 1:3` (a twin task recording without cameras: `factr2 collect --no-cameras`).
+`--obs state` (a twin task recording without cameras: `factr2 collect --no-cameras`; default thresholds: the
+dataset's own phase column is trained on). Given --thresholds are passed to the export as well.
 """
 
 from __future__ import annotations
@@ -44,8 +45,11 @@ def samples(inputs, out: Path, flags: list[str]):
 
 
 def main_(argv: list[str]) -> int:
+    if argv[:1] in (["-h"], ["--help"]):
+        print(__doc__)
+        return 0
     src, flags = (argv[:1], argv[2:]) if argv and argv[0] != "--" else ([], argv[1:])
-    flags = flags or ["--obs", "state", "--thresholds", "1:3"]
+    flags = flags or ["--obs", "state"]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         os.environ.setdefault("FACTR2_CACHE", str(tmp / "cache"))
