@@ -2,18 +2,17 @@
 strokes with regrasps, and stop on the torque felt at the wrist.
 
 What the script uses, and nothing else: the lid's and the jar's poses as the simulated camera reports them
-(op.p.seen: bias, noise, latency, frozen while the hand hides them), the follower's own pose and joints, the
-follower's gripper opening, and the wrist roll's external-torque estimate (op.p.tau_ext[5], NEXT or the
-disturbance observer: what the leader's feedback is made from). Never the twin's truth, never the episode's
-params (thread friction, gasket, strip torque and where the thread catches are hidden from it).
+(op.p.seen: bias, noise, latency, frozen while the hand hides them), the follower's own pose and joints, and
+the external-torque estimate (op.p.tau_ext: the wrist roll's to stop, the shoulder's and elbow's to feel a
+touch; NEXT or the disturbance observer, what the leader's feedback is made from). Never the twin's truth,
+never the episode's params (thread friction, gasket, strip torque and where the thread catches are hidden).
 
 How a person does it: look at the lid for a moment, come down over it with the fingers open, close them
 (centring by feel: where the first finger to touch pushes the hand tells where the lid really is; once
 across the fingers, once along them), twist the wrist clockwise as far as it goes, open, twist back, grasp
-again. The torque felt
-while the lid runs down the thread is its running friction (unknown, learnt each episode by feel); once the
-lid seats the torque climbs, and the operator slows down and stops when it has climbed TARGET_RISE_NM above
-the running torque, holds a moment, lets go.
+again. The torque felt while the lid runs down the thread is its running friction (unknown, learnt each
+stroke by feel); once the lid seats the torque climbs, and the operator stops when it has climbed
+TARGET_RISE_NM above the running torque, holds a moment, lets go.
 """
 
 from __future__ import annotations
@@ -34,6 +33,9 @@ EMA_S = 0.05  # s: how the operator's sense of torque smooths the estimate
 BASE_MIN = 10  # decisions of running torque that make a stroke's own baseline
 RUNNING_SKIP_RAD = 0.4  # rad into a stroke before its torque counts toward the running torque
 GRASP_ABOVE_JAR_M = 0.007  # m: fingertips this far above the jar's top (as seen) when grasping
+GRASP_BELOW_TOP_M = 0.011  # m: fingertips this far below the lid's top (as felt) when grasping: the lid is
+# 16 mm tall and sinks up to 4 mm as it is screwed on
+TOUCH_FROM_M, TOUCH_TO_M, TOUCH_M_S = 0.015, 0.012, 0.012  # m above / below the seen top, m/s: the touch
 GUARD_NM = 2.0  # N*m: a jump of the shoulder + elbow estimates while lowering that means a touch
 LIFT_ON_TOUCH_M = 0.003  # m: back up after such a touch
 TIP_M = 0.01  # m: fingertips beyond the ee site
@@ -119,6 +121,23 @@ def _descend(op, q_to, seconds: float):
     return 0.0
 
 
+def _find_top(op, axis, top_seen: float):
+    """Close the fingers over the lid and lower them onto its top until the touch is felt: the lid's height
+    by feel (the camera's is off by its bias, up to ~7 mm, enough to close the fingers on the jar below).
+    Returns the lid top's height [m] (the seen one if nothing was felt)."""
+    q6 = float(op.q_des[WRIST])
+    R = op.fk(op.q_des)[:3, :3]
+    yield from grip(op, 1.0, 0.3)
+    yield from _go_joints(op, _wrist_pose(op, K.pose(R, [*axis, top_seen + TIP_M + TOUCH_FROM_M]), q6), 0.6)
+    yield from wait(op, 0.3)
+    q_to = _wrist_pose(op, K.pose(R, [*axis, top_seen + TIP_M - TOUCH_TO_M]), q6)
+    up = yield from _descend(op, q_to, (TOUCH_FROM_M + TOUCH_TO_M) / TOUCH_M_S)
+    top = (float(op.fk(q_to)[2, 3]) + up - LIFT_ON_TOUCH_M - TIP_M) if up > 0 else top_seen
+    yield from grip(op, 0.0, 0.3)
+    yield from _go_joints(op, _wrist_pose(op, K.pose(R, [*axis, top + TIP_M + 0.01]), q6), 0.4)
+    return top
+
+
 def _probe(op, axis, z_grasp: float, q6: float):
     """Feel where the lid is across the fingers: close on it where it is believed to be and let the hand be
     pushed (the first finger to touch pushes the arm until the other one touches too); returns the believed
@@ -151,6 +170,10 @@ def cap_screw(op, params, rng: np.random.Generator):
     T_over = K.pose(K.down_rotation(0.0), [*axis, z_grasp + 0.06])
     q_over = _wrist_pose(op, T_over, STROKE_FROM_RAD)
     yield from _go_joints(op, q_over, 2.0 * speed)
+    top = yield from _find_top(op, axis, cap_p[2] + C.CAP_H_M)
+    out["top_felt_mm"] = round((top - cap_p[2] - C.CAP_H_M) * 1e3, 1)  # felt minus seen
+    # fingertips GRASP_BELOW_TOP_M under the lid's top as felt, and never below the jar's top as seen + 2 mm
+    z_grasp = max(top - GRASP_BELOW_TOP_M, jar_p[2] + C.JAR_H_M + 0.002) + TIP_M
     yield from wait(op, 0.3)
     for q6 in (STROKE_FROM_RAD, STROKE_FROM_RAD - np.pi / 2):  # across the fingers, then along them
         axis, z_grasp = yield from _probe(op, axis, z_grasp, q6)
