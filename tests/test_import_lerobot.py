@@ -16,7 +16,7 @@ import pytest
 
 from bench.bring_data_round_trip import digest as first_batch_digest
 from factr2_teleop.cli import main
-from hardware.importers.lerobot import labels_at, lerobot_recordings, phase_changes
+from hardware.importers.lerobot import PHASES_LINE, labels_at, lerobot_recordings, phase_changes
 from hardware.recording.reader import Recording
 from policies import checkpoint as C
 from policies.dataset import build_dataset
@@ -54,6 +54,8 @@ def test_round_trip_recordings_export_train_same_samples(tmp_path, capsys, flags
     rc, _, err = _cli(capsys, "export", "lerobot", rec, "--out", tmp_path / "ds", *flags)
     assert rc == 0, err
     (a, th_a), (b, th_b) = _samples(rec, given), _samples(tmp_path / "ds", given)
+    said = [ln for ln in capsys.readouterr().err.splitlines() if PHASES_LINE in ln]
+    assert len(said) == 1 and "unless --thresholds" in said[0]  # the dataset says so, whatever the flags
     assert len(a) == len(b) == 360
     for k in ("state", "force", "action", "mask", "phase", "objects"):
         np.testing.assert_array_equal(getattr(a, k), getattr(b, k), err_msg=k)

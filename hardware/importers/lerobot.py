@@ -362,7 +362,7 @@ def lerobot_recordings(root: Path, map_text: str | None = None, say=None) -> lis
         say(f"{root.name}: {n}")
     say(force_line(root, m))
     if m.phases is not None:
-        say(f"{root.name}: {PHASES_LINE} (--thresholds LOW:HIGH or next, or --next CKPT, labels it again)")
+        say(f"{root.name}: {PHASES_LINE}, unless --thresholds LOW:HIGH|next or --next CKPT labels it again")
     if out.is_file():
         return [out]
     episodes = read_episodes(root, m, info)
