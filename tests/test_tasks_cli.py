@@ -25,7 +25,8 @@ def test_unknown_task(tmp_path, capsys):
     assert _collect(tmp_path, "--task", "juggle") == 2
     line = _one_line(capsys)
     assert "unknown task" in line and not any(tmp_path.iterdir())
-    assert "use one of cap-screw, peg-insert, press-fit, tight-insert, wipe (" in line and "['" not in line  # names, not a list repr
+    names = "use one of cap-screw, peg-insert, press-fit, tight-insert, wipe ("
+    assert names in line and "['" not in line  # names, not a list repr
 
 
 def test_task_on_a_rig_that_cannot_hold_it(tmp_path, capsys):
