@@ -76,7 +76,7 @@ def test_the_same_frame_gives_the_same_tensor_in_training_and_at_rollout(recorde
     rec_dir, sent, run = recorded
     runner = PolicyRunner(run)
     episodes, arms = load_episodes([rec_dir])
-    data = build_dataset(episodes, arms, th=Thresholds(1.0, 3.0, "given"), chunk=runner.cfg.chunk,
+    data = build_dataset(episodes, arms, th=Thresholds.given(1.0, 3.0), chunk=runner.cfg.chunk,
                          image_size=runner.cfg.image_size, val_fraction=0.0)
     cams = data.names.cameras
     assert cams == ["top", "wrist"] and runner.cameras == cams and len(data) > 20
