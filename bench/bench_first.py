@@ -55,7 +55,8 @@ CURVE_SEED = 4  # rollout seed of the learning curve (bench/first_curve.py): nev
 # the paper's comparison; the second table: base and the ratio ablation (PC = the first cell)
 HEADLINE_CELLS = {"base-torque": ("base-torque", None), "first": ("first", (1, 5, 1))}
 SECOND_CELLS = {"base": ("base", None), "C": ("first", (1, 1, 5)), "PC+C": ("first", (1, 3, 3))}
-TABLES = ("headline", "second", "all")  # which cells a run trains: each one fits a working session
+FORCE_CELLS = {"base": ("base", None), **HEADLINE_CELLS}  # does force help, does FIRST: on every task
+TABLES = ("headline", "second", "all", "force")  # which cells a run trains: each one fits a working session
 RIG = "sim-piper"
 OBS_LABELS = {"state": " (PRIVILEGED twin object state, no images)",
               "perceived": " (SIMULATED camera pose detector's object poses, no images; docs/perception.md)"}
@@ -97,6 +98,8 @@ class BenchConfig:
     labels: str = LABEL_RULE
 
     def cells(self, task: str) -> dict:
+        if self.table == "force":
+            return dict(FORCE_CELLS)
         out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
         if self.table in ("second", "all") and task == (self.ablation_task or self.tasks[0]):
             out.update(SECOND_CELLS)
@@ -142,12 +145,14 @@ def collect_demos(cfg: BenchConfig, task: str, checkpoint: str) -> dict:
     """The task's demonstrations (factr2 collect's function), kept in OUT/TASK/demos, or those the run was
     given (--demos-from)."""
     from factr2_teleop.tasks.run import CollectConfig, collect, output_paths
+    from hardware.sim.tasks import get_task
 
     if task in cfg.demos_from:
         return recorded_summary(task, demo_folders(cfg, task))
     folder = Path(cfg.out) / task / "demos"
-    cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(folder), seed=DEMO_SEED, mode="next",
-                       checkpoint=checkpoint, cameras=cfg.obs == "images")
+    mode = get_task(task).operator_feedback or "next"  # the task's demonstrator's feedback (docs/tasks.md)
+    cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(folder), seed=DEMO_SEED, mode=mode,
+                       checkpoint=checkpoint if mode == "next" else None, cameras=cfg.obs == "images")
     mcap, summary = output_paths(cc, RIG)
     if summary.is_file():
         return json.loads(summary.read_text())
@@ -428,7 +433,8 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     ap.add_argument("--preset", default="", help="policy preset (default: the observation's: state / small)")
     ap.add_argument("--table", choices=TABLES, default="all",
                     help="headline: base-torque and first on every task; second: base and the ablation C, "
-                    "PC+C on --ablation-task (PC = first); all: both (each fits a session on 2 cores)")
+                    "PC+C on --ablation-task (PC = first); all: both (each fits a session on 2 cores); "
+                    "force: base, base-torque and first on every task (issue #51)")
     ap.add_argument("--include-failed", action="store_true", help="train on failed demonstrations too")
     ap.add_argument("--actions", choices=("absolute", "relative"), default="absolute",
                     help="the frame the policy learns its joint targets in (factr2 train --actions)")

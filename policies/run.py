@@ -201,6 +201,9 @@ def prepare(o: RunOptions, d: Dist):
         "phases": th.to_dict() if th is not None else NO_FORCE_PHASES,
         "next_checkpoint": str(next_model.id) if next_model is not None else format_ids(named_next),
         "tau_ext_source": "offline" if next_model is not None else "recorded",
+        # the estimator behind a recorded tau_ext (the session's feedback mode: next, dob, ...): rollout feeds
+        # the policy the same one (factr2_teleop/session/rollout.py)
+        "tau_ext_estimator": "next" if next_model is not None else _recorded_estimator(episodes),
         "data_hash": data_hash(episodes),
         "episodes": data.episode_ids,
         "val_episodes": [data.episode_ids[i] for i in data.val_episodes],
@@ -247,6 +250,13 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
     with data:  # the data's crop threads end with the run
         return train(data, pcfg, o.train, METHODS[o.method], o.ratio, Path(o.out), meta, d, resume_from,
                      o.progress, stop_at, on_progress, stop, source_weights=o.source_weights)
+
+
+def _recorded_estimator(episodes) -> str:
+    """The feedback mode(s) of the episodes' sessions (next, dob; "dob,next" when mixed; "" none)."""
+    named = (str(ep.recording.session.get("feedback_mode", "")) for ep in episodes)
+    modes = {m for text in named for m in text.split(",") if m}
+    return ",".join(sorted(modes))
 
 
 def _tasks(episodes) -> dict:

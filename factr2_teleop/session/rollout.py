@@ -204,6 +204,21 @@ def check_options(opts: RolloutOptions, runner):
     return rig, task
 
 
+def estimator_mode(next_path, asked: str | None, trained: str, uses_force: bool) -> str | None:
+    """The feedback estimator a rollout runs: NEXT when the policy names its checkpoint; the estimator a
+    policy's recorded tau_ext came from (meta "tau_ext_estimator", e.g. dob) when it reads force, so that it
+    is fed what it was trained on; else --mode (None: the rig's). UserError when --mode asks for another."""
+    if next_path is not None:
+        return "next"
+    if uses_force and trained and "," not in trained and trained != "next":
+        if asked not in (None, trained):
+            raise UserError(f"the policy was trained on the {trained} estimator's tau_ext; --mode {asked} "
+                            "would feed it another estimate", where="--mode",
+                            fix=f"leave --mode out or pass {trained}")
+        return trained
+    return asked
+
+
 def run_rollout(opts: RolloutOptions) -> RolloutResult:
     """Roll the policy out (blocking); its RolloutResult (see the module doc and docs/rollout.md). Ctrl-C
     holds every follower, leaves every leader at zero torque and returns what was done (interrupted)."""
@@ -221,7 +236,8 @@ def run_rollout(opts: RolloutOptions) -> RolloutResult:
         realtime or opts.operator is not None)
     lean = not realtime and not takeover and (opts.lean if opts.lean is not None else
                              opts.record is None and opts.on_start is None)
-    mode = "next" if next_path is not None else opts.mode
+    mode = estimator_mode(next_path, opts.mode, str(runner.meta.get("tau_ext_estimator", "")),
+                          bool(runner.force_names))
     if lean and not runner.force_names:
         mode = "none"  # the estimate is an input of the policy and a recorded topic only: nobody reads it
     plan = RolloutPlan(next_path=next_path, note=note, mode=mode, lean=lean, realtime=realtime,

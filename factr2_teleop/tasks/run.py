@@ -41,11 +41,13 @@ def output_paths(cfg: CollectConfig, rig_name: str) -> tuple[Path, Path]:
     return Path(cfg.out) / f"{stem}.mcap", Path(cfg.out) / f"{stem}.json"
 
 
-def _mode_and_checkpoint(cfg: CollectConfig, rig_name: str) -> tuple[str, str | None]:
+def _mode_and_checkpoint(cfg: CollectConfig, rig_name: str, task) -> tuple[str, str | None]:
+    """(feedback mode, NEXT checkpoint or None): --mode, else the task's operator_feedback, else the rig's."""
     from factr2_teleop.session.next_cache import find_checkpoint
 
-    if cfg.mode not in (None, "next"):
-        return cfg.mode, None
+    mode = cfg.mode if cfg.mode is not None else task.operator_feedback
+    if mode not in (None, "next"):
+        return mode, None
     ck = find_checkpoint(rig_name, cfg.checkpoint)
     if ck is None and cfg.mode == "next":
         raise UserError("no NEXT checkpoint for feedback mode next", where="--mode next",
@@ -70,7 +72,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
         if p.exists():
             raise UserError("output file already exists", where=str(p),
                             fix="choose another --out or --seed (recordings are never overwritten)")
-    mode, ck = _mode_and_checkpoint(cfg, rig.name)
+    mode, ck = _mode_and_checkpoint(cfg, rig.name, task)
     sees = bool(task.operator_perception if cfg.perception is None else cfg.perception)
     bar = None
     if progress:
@@ -108,9 +110,9 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
         messages = list(ts.loop.snapshot().messages)
         faults = list(s.twin.faults.log) if s.twin is not None and s.twin.faults is not None else []
     wall = time.perf_counter() - t_wall
-    # the labels training will use, from the file just written (a NEXT session records tau_ext)
-    shares, thresholds, label_note = (recorded_phase_shares(mcap) if ck is not None and mcap.exists()
-                                      else (None, None, "no NEXT estimate recorded"))
+    # the labels training will use, from the file just written (the session's estimator records tau_ext)
+    shares, thresholds, label_note = (recorded_phase_shares(mcap) if mode != "none" and mcap.exists()
+                                      else (None, None, "no tau_ext estimate recorded"))
     res = [asdict(r) for r in ep.results]
     ok = [r["outcome"] == "success" for r in res]
     lengths = [r["duration_s"] for r in res]

@@ -91,6 +91,10 @@ class Task:
     # whether `factr2 collect` lets the scripted operator see through the detector by default (--perception
     # / --no-perception decide otherwise); False: it sees the twin's truth
     operator_perception: bool = False
+    # the feedback estimator `factr2 collect` gives the scripted operator by default (--mode decides
+    # otherwise): None: the rig's (NEXT with a checkpoint, else the disturbance observer); "dob" where the
+    # task's band is finer than the NEXT checkpoint resolves (cap-screw, docs/tasks.md)
+    operator_feedback: str | None = None
 
     def add_objects(self, spec: mujoco.MjSpec, arm) -> None:
         raise NotImplementedError
