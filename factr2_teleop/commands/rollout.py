@@ -58,6 +58,9 @@ def add_arguments(parser) -> None:
                         "real time and on real rigs, off for a lockstep twin). With --task on a twin, the "
                         "scripted operator steps in when the policy stalls (SIMULATED)")
     parser.add_argument("--json", type=Path, default=None, help="write the summary JSON here")
+    parser.add_argument("--force-input", choices=("live", "zero", "shuffle"), default="live",
+                        help="the policy's force input: live (default), or ablated to measure its worth: "
+                        "zero (0 N*m always), shuffle (drawn from the episode's own earlier forces)")
     add_twin_fault_argument(parser)
 
 
@@ -154,7 +157,7 @@ def run(args) -> int:
                           realtime=args.realtime, mode=args.mode, schedule=args.schedule,
                           ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks, force=args.force,
                           takeover=args.takeover, faults=twin_faults(args),
-                          record_cameras=not args.no_cameras)
+                          record_cameras=not args.no_cameras, force_input=args.force_input)
     if args.force and args.task:
         from factr2_teleop.session.task_check import task_mismatch
         from policies.checkpoint import read_meta

@@ -91,6 +91,7 @@ class RolloutOptions:
     operator: object = None
     takeover_keys: object = field(default_factory=queue.SimpleQueue)  # TOGGLE_KEY presses (any thread)
     faults: list | None = None  # hardware.sim.faults.FaultSpec the twin plays (None: the rig's [twin] faults)
+    force_input: str = "live"  # the policy's force input: live, or ablated (zero, shuffle; policies/rollout)
 
 
 # -- the NEXT checkpoint the policy was trained with -----------------------------------------------------
@@ -225,7 +226,7 @@ def run_rollout(opts: RolloutOptions) -> RolloutResult:
     from hardware.threads import limit_threads
     from policies.rollout.runner import PolicyRunner
 
-    runner = PolicyRunner(opts.policy, seed=opts.seed, ema=opts.ema)
+    runner = PolicyRunner(opts.policy, seed=opts.seed, ema=opts.ema, force_input=opts.force_input)
     rig, task = check_options(opts, runner)
     next_path, note = resolve_next(runner.meta, opts.next)
     if next_path is not None and opts.mode not in (None, "next"):
@@ -393,7 +394,8 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
         policy_kind=runner.policy, method=runner.meta.get("method"), schedule=plan.schedule,
         k_exec=plan.k_exec if plan.schedule == RECEDING else None,
         ensemble_m=opts.ensemble_m if plan.schedule == ENSEMBLE else None, seed=opts.seed,
-        feedback_mode=feedback, next=str(plan.next_path) if plan.next_path else None, note=render(plan.note),
+        feedback_mode=feedback, force_input=opts.force_input,
+        next=str(plan.next_path) if plan.next_path else None, note=render(plan.note),
         lean=plan.lean, interrupted=interrupted, wall_s=time.perf_counter() - t_wall,
         episodes=[{k: v for k, v in asdict(r).items() if k in EPISODE_KEYS} for r in res],
         success_rate=float(np.mean([r.outcome == "success" for r in res])) if res else 0.0,

@@ -102,6 +102,7 @@ class RolloutResult:
     takeover: dict = field(default_factory=dict)  # session/rollout_takeover.py takeover_summary ({}: off)
     messages: list = field(default_factory=list)  # the loop's (t [s], who, text): holds, faults, recoveries
     faults: list = field(default_factory=list)  # the twin's log of what it injected (sim/faults.py)
+    force_input: str = "live"  # the policy's force input: live or an ablation (policies/rollout/runner.py)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -17,6 +17,11 @@ observation.state = the listed follower features concatenated ([rad], [m]), obse
 (hardware/sim/perception.py; the rollout runs the detector live), observation.images.<cam> = the camera's
 latest raw RGB frame, JPEG-encoded as the recording encoded that camera and decoded as training decoded it
 (the same RGB gives the same input).
+
+force_input (issue #51's ablation, test time only): "live" the estimate as it comes; "zero" tau_ext = 0 N*m
+(the policy feels nothing, ever); "shuffle" each chunk's force replaced by one drawn from the forces this
+episode has fed so far (its marginal kept, its link to the moment broken). The drop in success from live
+to an ablation is what the policy's force input is worth to it.
 """
 
 from __future__ import annotations
@@ -42,13 +47,35 @@ def flat_values(obs: dict, names: list[str]) -> np.ndarray:
     return np.concatenate([np.atleast_1d(np.asarray(obs[n], dtype=np.float32)) for n in names])
 
 
+FORCE_INPUTS = ("live", "zero", "shuffle")
+
+
+def ablate_force(force: np.ndarray, how: str, seen: list, rng: np.random.Generator) -> np.ndarray:
+    """The force input (raw units, (1, D)) a rollout feeds under ablation `how` (FORCE_INPUTS); seen: the
+    live forces of this episode so far (appended to here), rng: the episode's draw for "shuffle"."""
+    if how == "live":
+        return force
+    if how == "zero":
+        return np.zeros_like(force)
+    if how == "shuffle":
+        seen.append(force.copy())
+        return seen[int(rng.integers(len(seen)))]
+    raise ValueError(f"force input {how!r}: one of {', '.join(FORCE_INPUTS)}")
+
+
 # how a rollout seeds the flow sampler's noise (recorded by the benchmark, whose results of the earlier way,
 # one generator running on across the episodes, are not mixed with these): each episode from its own seed
 SAMPLER_SEEDING = "per-episode"
 
 
 class PolicyRunner:
-    def __init__(self, path: str | Path, seed: int = 0, ema: bool = True):
+    def __init__(self, path: str | Path, seed: int = 0, ema: bool = True, force_input: str = "live"):
+        if force_input not in FORCE_INPUTS:
+            raise UserError(f"force input {force_input!r} unknown", where="--force-input",
+                            fix=f"one of {', '.join(FORCE_INPUTS)}")
+        self.force_input = force_input
+        self._force_seen: list = []
+        self._force_rng = np.random.default_rng(seed)
         self.model, self.meta, self.pre = load_policy(path, ema=ema)
         self.path = Path(self.meta["_path"])
         self.cfg = self.model.cfg
@@ -145,6 +172,7 @@ class PolicyRunner:
         draws then do not depend on how long the episodes before it ran). A new generator, not a reseed in
         place: an inference still running on the worker thread keeps the one it started with."""
         self._gen = torch.Generator().manual_seed(int(seed))
+        self._force_seen, self._force_rng = [], np.random.default_rng(int(seed))
 
     # -- one chunk ---------------------------------------------------------------------------------------
     def batch(self, obs: dict) -> dict:
@@ -155,8 +183,9 @@ class PolicyRunner:
         objects = np.asarray(obs[self.object_feature], np.float32)[None] if self.object_names else None
         images = (np.stack([self.pre.image.live(c, obs[IMAGES + c]) for c in self.cameras])[None]
                   if self.cameras else None)
-        return self.pre.inputs(cat(self.state_names), cat(self.force_names) if self.force_names else None,
-                               objects, images)
+        force = (ablate_force(cat(self.force_names), self.force_input, self._force_seen, self._force_rng)
+                 if self.force_names else None)
+        return self.pre.inputs(cat(self.state_names), force, objects, images)
 
     def infer(self, obs: dict, t_obs: float, seq: int = 0) -> Chunk:
         """Predict one chunk (raw units) for an observation taken at t_obs [s]."""
