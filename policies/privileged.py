@@ -31,7 +31,10 @@ from hardware.recording import schemas as S
 # estimator could give (SIMULATED, not privileged: the twin's simulated detector, hardware/sim/perception.py,
 # recorded live on /perceived/objects: per object its pose, visible flag and detection age), in place of the
 # privileged "state"; the model takes either as its `objects` input.
-OBSERVATIONS = ("images", "state", "images+state", "perceived", "images+perceived")
+# "joints": nothing besides the joints and the force (no frames, no objects): a blind policy, which runs on
+# any rig -- the crash campaign rolls one out against a twin in another process, which has no cameras and
+# no task world (bench/crash_sessions.py); it cannot see a task, so it is for the machinery, not a task.
+OBSERVATIONS = ("images", "state", "images+state", "perceived", "images+perceived", "joints")
 OBJECT_INPUTS = {"state": S.TASK_OBJECTS_FEATURE, "perceived": S.PERCEIVED_FEATURE}  # part -> feature
 
 
@@ -50,8 +53,9 @@ def uses_objects(observation: str) -> bool:
 
 
 def low_dimensional(observation: str) -> bool:
-    """No camera frames: an object vector only (the `state` preset's input)."""
-    return uses_objects(observation) and not uses_images(observation)
+    """No camera frames: an object vector, or nothing besides the joints and force (the `state` preset's
+    input)."""
+    return not uses_images(observation)
 
 
 def _entries(obs: dict, params: dict) -> list[tuple[str, np.ndarray]]:

@@ -245,7 +245,7 @@ class RunOptions:
         "--obs", "what the policy sees besides joints and force: camera frames (default), or `state`: the "
         "twin task objects' poses, PRIVILEGED and SIMULATED (recorded by `factr2 collect`; no frames read), "
         "or `perceived`: those poses as a simulated camera pose detector reports them (bias, noise, latency, "
-        "occlusion; SIMULATED, docs/perception.md)",
+        "occlusion; SIMULATED, docs/perception.md), or `joints`: nothing besides (a blind policy, any rig)",
         choices=OBSERVATIONS))
     actions: str = option("absolute", resume="actions", flag=Flag(
         "--actions", "the frame the policy learns its joint targets in: absolute (default) or relative to "
