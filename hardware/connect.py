@@ -125,6 +125,20 @@ class RigSession:
         """SIMULATED ground truth per device (None on real hardware); average_s: see Twin.ground_truth."""
         return self.twin.ground_truth(average_s) if self.twin else None
 
+    def disconnect_arms(self) -> None:
+        """Every follower, then every leader, through its driver's disconnect (a follower held or disabled as
+        its driver does, a leader at zero torque and torque off). An app calls it as soon as its loop has
+        stopped, before slower closing work (a recording's): a motor left without commands that long falls
+        back by its own timeout (a leader's Bus Watchdog latches, a Damiao motor drops to damping) instead of
+        being put down. close() does it too; a device already disconnected is passed over."""
+        if self.watchdog is not None:
+            self.watchdog.stop()
+        for d in list(self.followers.values()) + list(self.leaders.values()):
+            try:
+                d.disconnect()
+            except Exception:  # closing must reach every device and the twin
+                pass
+
     def close(self) -> None:
         if self.watchdog is not None:
             self.watchdog.stop()
@@ -133,11 +147,7 @@ class RigSession:
                 cam.disconnect()
             except Exception:  # closing must reach every device and the twin
                 pass
-        for d in list(self.followers.values()) + list(self.leaders.values()):
-            try:
-                d.disconnect()
-            except Exception:  # closing must reach every device and the twin
-                pass
+        self.disconnect_arms()
         if self.twin is not None:
             self.twin.close()
 

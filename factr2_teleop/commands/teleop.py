@@ -9,11 +9,11 @@ rig's cameras. Ctrl-C stops: every leader at zero torque, every follower holding
 from __future__ import annotations
 
 import sys
-import time
 
 from factr2_teleop.commands._twin_fault import add_twin_fault_argument, twin_faults
 from hardware.errors import UserError
 
+STATUS_EVERY_S = 0.5  # s between status lines (the loop's end is seen at once)
 HELP = "bilateral force-feedback teleop on a rig (Ctrl-C stops: leader zero torque, follower holds)"
 
 
@@ -65,15 +65,19 @@ def _execute(args) -> dict:
         for line in ts.describe():
             print(line, file=sys.stderr)
         rec = ts.record(args.record, cameras=not args.no_cameras) if args.record else None
-        ts.loop.start(duration_s=args.seconds)  # at once: a twin's unheld leader sinks until the loop runs
+        thread = ts.loop.start(duration_s=args.seconds)  # at once: a twin's unheld leader sinks until it runs
         if rec is not None:
             for line in ts.start_cameras() if not args.no_cameras else []:  # a second or so to open
                 print(f"recording without it: {line}", file=sys.stderr)
             rec.start_episode("teleop")
-        _watch(ts.loop)
+        _watch(ts.loop, thread)
     finally:
         if ts is not None:
             ts.loop.stop(timeout_s=2.0)  # leaders zero torque, followers hold (also after Ctrl-C)
+        # the arms put down at once, before the recording's close (a second or so): a leader left that long
+        # without a packet latches its Bus Watchdog, a Damiao motor drops to damping (docs/safety.md)
+        session.disconnect_arms()
+        if ts is not None:
             rec = ts.recording
             st = ts.close_recording("teleop stopped")
             if st is not None:
@@ -107,13 +111,14 @@ def _camera_lines(stats: dict) -> None:
               f"{s.dropped} dropped{extra}", file=sys.stderr)
 
 
-def _watch(loop) -> None:
-    """Status line until the loop ends or Ctrl-C (which the finally in run() turns into a safe stop)."""
+def _watch(loop, thread) -> None:
+    """Status line until the loop ends or Ctrl-C (which the finally in run() turns into a safe stop); thread:
+    the loop's, joined (not slept on) so that its end is seen at once."""
     seen = 0
     tty = sys.stderr.isatty()
     try:
         while loop.alive:
-            time.sleep(0.5)
+            thread.join(STATUS_EVERY_S)
             s = loop.snapshot()
             for _t, who, text in s.messages[seen:]:
                 print(("\n" if tty else "") + f"{who}: {text}", file=sys.stderr)

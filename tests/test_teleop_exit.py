@@ -1,0 +1,57 @@
+"""`factr2 teleop` ending normally (--seconds elapsed; q and Ctrl-C take the same path) puts the arms down
+through their drivers at once, before the recording closes: on the twin (SIMULATED, real time) no motor
+is left without commands long enough to fall back by its own timeout after the loop's last tick (a slow
+start-up may trip a Bus Watchdog before the first: the driver re-arms it, docs/safety.md), every leader
+servo ends torque off at 0 A, and a Damiao follower ends disabled by its driver."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from hardware.dynamixel import protocol as p
+
+CLOSE_EXTRA_S = 0.4  # s added to the recording's close: longer than a leader's Bus Watchdog (0.1 s)
+
+
+@pytest.mark.parametrize("rig", ["sim-piper", "sim-yam"])
+def test_teleop_end_puts_the_arms_down_before_the_recording_closes(rig, tmp_path, monkeypatch):
+    import hardware.connect as connect
+    from factr2_teleop.cli import build_parser
+    from factr2_teleop.commands.teleop import execute
+    from factr2_teleop.session.teleop import TeleopSession
+
+    got = {}
+    real_open, real_close = connect.open_rig, TeleopSession.close_recording
+
+    def open_rig(*a, **k):
+        got["session"] = connect_session = real_open(*a, **k)
+        return connect_session
+
+    def slow_close(self, *a, **k):  # a recording that takes its time to finish (a loaded machine, a camera)
+        got.setdefault("t_end", self.loop.snapshot().t)  # the loop's last tick [s, rig clock]
+        time.sleep(CLOSE_EXTRA_S)
+        return real_close(self, *a, **k)
+
+    monkeypatch.setattr(connect, "open_rig", open_rig)
+    monkeypatch.setattr(TeleopSession, "close_recording", slow_close)
+    args = build_parser().parse_args(["teleop", "--rig", rig, "--seconds", "1.0", "--record", str(tmp_path),
+                                      "--no-cameras"])
+    out = execute(args)
+    assert out["recording"] is not None and out["status"].error is None
+    s, t_end = got["session"], got["t_end"]
+    off = s.twin.rig_time() - s.twin.t  # rig clock - twin clock [s]
+    for name in s.leaders:
+        emu = s.twin.devices[name].emulator
+        late = [deadline for _id, deadline, _t in emu.watchdog_trips if deadline > t_end]
+        assert late == [], f"{name}: a servo's Bus Watchdog fired after the loop: the app left it waiting"
+        for servo in emu.servos:
+            assert servo.get(p.ADDR_TORQUE_ENABLE) == 0, f"{name}: servo {servo.id} left torque on"
+            assert servo.get(p.ADDR_GOAL_CURRENT, signed=True) == 0, f"{name}: servo {servo.id} not at 0 A"
+    for name, spec in ((f.name, f) for f in s.rig.followers):
+        emu = s.twin.devices[name].emulator
+        if spec.driver == "damiao":
+            late = [x + off for _k, x in emu.timeout_log if x + off > t_end]
+            assert late == [], f"{name}: a motor fell back to damping before the driver disabled it"
+            assert not emu.enabled.any(), f"{name}: the driver's close leaves every motor disabled"
