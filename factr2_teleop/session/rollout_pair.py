@@ -15,12 +15,13 @@ interpolated target out); its owner (session/rollout.py) moves it between phases
 from __future__ import annotations
 
 import logging
+import math
 from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
 
-from factr2_teleop.teleop.pair import COUPLED, HOLD, ArmPair, PairHold, _fresh
+from factr2_teleop.teleop.pair import COUPLED, HOLD, LOOP_GAP_SOFT_S, ArmPair, PairHold, _fresh
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.soft_start import rate_limit
 from hardware.errors import DeviceError
@@ -50,6 +51,7 @@ class RolloutPair(ArmPair):
     layer); the follower's law never reads the leader, so this changes no follower command."""
 
     serve_leader = True
+    slow_resume = False  # after a loop gap the follower comes back slowly (_note_loop_gap)
 
     @staticmethod
     def target_fn(now: float, fs):  # follow() attaches the rollout's PolicyTarget
@@ -92,7 +94,31 @@ class RolloutPair(ArmPair):
         self._zero_tau = np.zeros(self.leader.n_joints)  # one per pair: every tick's record shares it
         self._zero_tau.flags.writeable = False
 
+    def _note_loop_gap(self, now: float) -> None:
+        """Before a tick's reads: a tick more than LOOP_GAP_SOFT_S after the last means the app itself was
+        stopped (SIGSTOP, a sleeping host) and its motors fell back by themselves meanwhile (docs/safety.md:
+        a YAM sinks on its damping). As teleop's pair does, the follower then comes back at the soft start's
+        speed (SoftStartConfig.v_max_rad_s), from where it is, not at the coupled rate limit from its old
+        target, until its target reaches the one it is given (_rate_now, _caught_up)."""
+        gap = now - self._t_prev if math.isfinite(self._t_prev) else 0.0
+        if gap > LOOP_GAP_SOFT_S:
+            self.slow_resume = True
+            self.q_target = None  # from where the arm is now (it may have sunk), not from the old target
+            self._say(f"the loop did not run for {gap * 1e3:.0f} ms (the app was stopped); the follower "
+                      f"comes back at the soft start's {float(self.soft.v.max()):.1f} rad/s")
+
+    def _rate_now(self) -> np.ndarray:
+        """The follower target's rate limit [rad/s] this tick."""
+        return self.soft.v if self.slow_resume else self.soft.rate
+
+    def _caught_up(self, q_goal) -> None:
+        """The slow return after a loop gap ends once the target is within done_tol_rad of q_goal [rad]."""
+        if self.slow_resume and np.all(np.abs(self.q_target - np.asarray(q_goal, float))
+                                       <= self.soft.cfg.done_tol_rad):
+            self.slow_resume = False
+
     def tick(self, now: float) -> TickRecord:
+        self._note_loop_gap(now)
         service = self.serve_leader and now >= self._t_leader  # its turn (LEADER_SERVICE_PERIOD_S)
         if service:
             self._t_leader = now + LEADER_SERVICE_PERIOD_S - 0.5 * self.dt_s  # half a tick: no drift to n+1
@@ -124,7 +150,8 @@ class RolloutPair(ArmPair):
             self.q_target = None
         else:
             prev = self.q_target if self.q_target is not None else np.asarray(fs.q, dtype=float)
-            self.q_target = rate_limit(np.asarray(q, dtype=float), prev, self.soft.rate, dt)
+            self.q_target = rate_limit(np.asarray(q, dtype=float), prev, self._rate_now(), dt)
+            self._caught_up(q)
             self.sent = self.follower.command(FollowerCommand(q=self.q_target, gripper=grip))
             self._hold_why = None
             if self.phase != COUPLED:

@@ -260,6 +260,7 @@ class TakeoverPair(RolloutPair):
         tk = self.takeover
         if tk is None:
             return super().tick(now)
+        self._note_loop_gap(now)
         dt, ls, fs, leader_ok, follower_ok = self._read_both(now)
         errors = self._check_samples(ls, fs)
         leader_ok = leader_ok and "leader" not in errors
@@ -342,7 +343,8 @@ class TakeoverPair(RolloutPair):
             # to the operator, the gripper keeps the policy's command until the trigger picks it up
             self._g_pick = (self._g_cmd, None) if src == OPERATOR and self._g_cmd is not None else None
         w = blend_weight(now - self._t_sw, self.cfg.takeover.blend_s)
-        self.q_target = handover_target(q, self._offset, w, prev, self.soft.rate, dt)
+        self.q_target = handover_target(q, self._offset, w, prev, self._rate_now(), dt)
+        self._caught_up(q)
         if self._g_pick is not None:
             held, g_lead = self._g_pick[0], grip
             grip, picked, pick = gripper_pickup(held, g_lead, self._g_pick[1])
