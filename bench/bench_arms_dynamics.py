@@ -3,23 +3,19 @@
 Each helper reuses one pinocchio Data; batches loop in Python over pinocchio's C++ calls. Also times
 MuJoCo's mj_step on the arm's table scene (1 kHz physics) for comparison with the twin's budget.
 
-    python bench/bench_arms_dynamics.py --arm piper --samples 5000
+    python -m bench.bench_arms_dynamics --arm piper --samples 5000
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from hardware.arms import load_arm  # noqa: E402
-from hardware.arms.dynamics import ArmDynamics  # noqa: E402
+from bench import harness
+from hardware.arms import load_arm
+from hardware.arms.dynamics import ArmDynamics
 
 
 def _time(fn, reps: int) -> float:
@@ -32,14 +28,17 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--arm", default="piper")
     ap.add_argument("--samples", type=int, default=5000)
+    harness.add_quick(ap, "50 samples, 100 MuJoCo steps")
     args = ap.parse_args()
+    if args.quick:
+        args.samples = 50
     arm = load_arm(args.arm)
     dyn = ArmDynamics(arm)
     T, n = args.samples, dyn.n
     rng = np.random.default_rng(0)
     Q = rng.uniform(arm.limits.q_min, arm.limits.q_max, size=(T, n))
     QD, QDD = rng.normal(size=(T, n)), rng.normal(size=(T, n))
-    print(f"# {arm.name} (n={n}), {T} samples, python {platform.python_version()}, {platform.machine()}; "
+    print(f"# {arm.name} (n={n}), {T} samples; {harness.machine_line()}; "
           "timings on a shared machine are noisy")
     rows = {
         "gravity (single)": lambda: [dyn.gravity(q) for q in Q],
@@ -61,7 +60,7 @@ def main() -> int:
         m = mujoco.MjModel.from_xml_path(str(arm.scene_path()))
         d = mujoco.MjData(m)
         mujoco.mj_resetDataKeyframe(m, d, 0)
-        steps = 2000
+        steps = 100 if args.quick else 2000
         us = _time(lambda: [mujoco.mj_step(m, d) for _ in range(steps)], steps)
         print(f"{'mj_step (table scene)':28s} {us:8.2f} us/step")
     return 0

@@ -1,7 +1,7 @@
 """CAN follower benchmarks: codec frames/s (Piper, Damiao) and end-to-end driver <-> emulator over
 python-can's in-process virtual bus, in lockstep with IdealMotorBank (SIMULATED arms).
 
-    python bench/bench_can.py [--seconds 2.0] [--quick]
+    python -m bench.bench_can [--seconds 2.0] [--quick]
 
 Codec numbers are single-core Python frames/s. End-to-end: a follower loop (Piper at 1 kHz, Damiao at
 250 Hz: command, clock.sleep -> emulator.poll, bank.advance, emulator.emit, read) for `seconds` of simulated
@@ -13,44 +13,25 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import os
-import platform
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hardware.can_bus import open_bus  # noqa: E402
-from hardware.clock import LockstepClock  # noqa: E402
-from hardware.damiao import protocol as D  # noqa: E402
-from hardware.damiao.config import DamiaoFollowerConfig  # noqa: E402
-from hardware.damiao.emulator import DamiaoEmulator  # noqa: E402
-from hardware.damiao.follower import DamiaoFollower  # noqa: E402
-from hardware.piper import protocol as P  # noqa: E402
-from hardware.piper.config import PiperFollowerConfig  # noqa: E402
-from hardware.piper.emulator import PiperEmulator  # noqa: E402
-from hardware.piper.follower import PiperFollower  # noqa: E402
-from hardware.sim.motors import IdealMotorBank  # noqa: E402
-from hardware.types import FollowerCommand  # noqa: E402
+from bench import harness
+from hardware.can_bus import open_bus
+from hardware.clock import LockstepClock
+from hardware.damiao import protocol as D
+from hardware.damiao.config import DamiaoFollowerConfig
+from hardware.damiao.emulator import DamiaoEmulator
+from hardware.damiao.follower import DamiaoFollower
+from hardware.piper import protocol as P
+from hardware.piper.config import PiperFollowerConfig
+from hardware.piper.emulator import PiperEmulator
+from hardware.piper.follower import PiperFollower
+from hardware.sim.motors import IdealMotorBank
+from hardware.types import FollowerCommand
 
 _chan = itertools.count()
-
-
-def machine_info() -> str:
-    cpu = platform.processor() or ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import can
-    return (f"{platform.platform()} | {cpu} | {os.cpu_count()} CPUs | Python {platform.python_version()} | "
-            f"numpy {np.__version__} | python-can {can.__version__}")
 
 
 def rate(fn, frames_per_call: int, seconds: float) -> float:
@@ -160,7 +141,9 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="short runs (checks the script works)")
     a = ap.parse_args(argv)
     codec_s, sim_s = (0.1, 0.3) if a.quick else (0.5, a.seconds)
-    print(machine_info())
+    import can
+
+    print(f"{harness.machine_line()}, python-can {can.__version__}")
     print("timings on a shared machine are noisy; SIMULATED arms (emulators + IdealMotorBank)")
     bench_codecs(codec_s)
     print("\nend to end, lockstep over the in-process virtual bus (FastVirtualBus)")

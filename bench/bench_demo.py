@@ -2,7 +2,7 @@
 the wipe task (the analogue of the paper's user study: how hard the virtual operator pushes into the table,
 and the peak contact force the follower puts on it).
 
-    python bench/bench_demo.py [--seconds 60] [--out bench/out/demo] [--table-seconds 24] [--skip-table]
+    python -m bench.bench_demo [--seconds 60] [--out bench/out/demo] [--table-seconds 24] [--skip-table]
 
 Writes OUT/demo.json (the demo's metrics) and OUT/wipe_modes.md (+ .json). The 60 s run uses a real-time
 clock (timing numbers are this machine's; on a shared machine they are noisy -- say so when quoting). The
@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import harness
 from calibration.estimators import FEEDBACK_MODES
 
 TABLE_MODES = FEEDBACK_MODES
@@ -87,7 +88,10 @@ def main() -> int:
     ap.add_argument("--skip-demo", action="store_true")
     ap.add_argument("--rig", default="sim-piper", help="simulated rig (e.g. a copy with description_error = "
                     "false: the twin simulates the description exactly)")
+    harness.add_quick(ap, "a 2 s demo, no table")
     a = ap.parse_args()
+    if a.quick:
+        a.seconds, a.skip_table = 2.0, True
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     if not a.skip_demo:
@@ -100,7 +104,7 @@ def main() -> int:
             print(f"{'PASS' if v else 'FAIL'}  {k}")
     if not a.skip_table:
         rows = wipe_table(a.table_seconds, out, a.rig)
-        (out / "wipe_modes.json").write_text(json.dumps(rows, indent=1))
+        harness.write(out / "wipe_modes.json", harness.record("demo_wipe_modes", rows, simulated=True))
         md = table_md(rows, a.table_seconds)
         (out / "wipe_modes.md").write_text(md)
         print(md)

@@ -13,8 +13,8 @@ Methods, all scored on the same held-out samples (100 Hz grid, after NEXT's firs
 - plain NEXT: calibration.next on (q, qd, q_cmd - q), history 50, early stopping, capped at --next-seconds.
 - grey-box prior + NEXT: NEXT trained on what the grey box leaves (y - grey-box); time = loop + NEXT.
 
-    python bench/bench_diagnosis.py                              # 1 and 10 minutes, NEXT capped at 240 s
-    python bench/bench_diagnosis.py --minutes 1 --next-seconds 30     # quick check
+    python -m bench.bench_diagnosis                              # 1 and 10 minutes, NEXT capped at 240 s
+    python -m bench.bench_diagnosis --minutes 1 --next-seconds 30     # quick check
 
 Writes bench/out/bench_diagnosis.json; timings on a shared machine are noisy (the load is printed).
 """
@@ -25,19 +25,16 @@ import argparse
 import json
 import os
 import platform
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from calibration.diagnosis.data import load_segment, resample  # noqa: E402
-from calibration.diagnosis.greybox import Design, errors  # noqa: E402
-from calibration.diagnosis.loop import diagnose  # noqa: E402
-from calibration.diagnosis.next_loop import prepare, train_next  # noqa: E402
-from calibration.diagnosis.twin_data import TWIN_CASES, TWIN_DEFAULTS, piper_basis, record  # noqa: E402
+from calibration.diagnosis.data import load_segment, resample
+from calibration.diagnosis.greybox import Design, errors
+from calibration.diagnosis.loop import diagnose
+from calibration.diagnosis.next_loop import prepare, train_next
+from calibration.diagnosis.twin_data import TWIN_CASES, TWIN_DEFAULTS, piper_basis, record
 
 HISTORY = 50
 TRAIN_SEEDS = {1: 0, 10: 10}  # minutes -> coverage-trajectory seed

@@ -3,25 +3,22 @@
 SIMULATED chain on the in-process port (hardware/dynamixel/inprocess.py), so one read's CPU is the driver
 (dynamixel-sdk + decode) plus the emulator answering; the emulator's share is timed separately.
 
-    python bench/bench_dxl_fast_read.py --reads 2000
+    python -m bench.bench_dxl_fast_read --reads 2000
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from hardware.dynamixel.config import DynamixelLeaderConfig  # noqa: E402
-from hardware.dynamixel.emulator import DynamixelEmulator  # noqa: E402
-from hardware.dynamixel.leader import DynamixelLeader  # noqa: E402
-from hardware.sim.motors import IdealMotorBank  # noqa: E402
-from hardware.types import JointLimits  # noqa: E402
+from bench import harness
+from hardware.dynamixel.config import DynamixelLeaderConfig
+from hardware.dynamixel.emulator import DynamixelEmulator
+from hardware.dynamixel.leader import DynamixelLeader
+from hardware.sim.motors import IdealMotorBank
+from hardware.types import JointLimits
 
 N_JOINTS = 6
 
@@ -61,7 +58,11 @@ def run(fast: bool, reads: int) -> tuple[float, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reads", type=int, default=2000)
+    harness.add_quick(ap, "50 reads")
     a = ap.parse_args()
+    if a.quick:
+        a.reads = 50
+    print(harness.machine_line())
     for fast in (False, True, False, True):  # twice each: the second pair shows the spread
         per, emu = run(fast, a.reads)
         print(f"{'fast ' if fast else 'plain'} sync read: {per:6.1f} us CPU per leader.read() "

@@ -5,7 +5,7 @@ SIMULATED servo chain (hardware.dynamixel.emulator on an IdealMotorBank). By def
 of this process, as in the MuJoCo twin; --separate-process runs it in its own process, as real servos are
 separate hardware (on a loaded 2-core machine the cross-process wake-ups cost more). Target: >= 1000/s.
 
-    python bench/bench_dynamixel.py --seconds 5
+    python -m bench.bench_dynamixel --seconds 5
 """
 
 from __future__ import annotations
@@ -13,21 +13,18 @@ from __future__ import annotations
 import argparse
 import logging
 import multiprocessing as mp
-import os
-import platform
 import resource
 import sys
 import time
 
 import numpy as np
 
-sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-
-from hardware.dynamixel.config import DynamixelLeaderConfig  # noqa: E402
-from hardware.dynamixel.emulator import DynamixelEmulator  # noqa: E402
-from hardware.dynamixel.leader import DynamixelLeader  # noqa: E402
-from hardware.sim.motors import IdealMotorBank  # noqa: E402
-from hardware.types import JointLimits  # noqa: E402
+from bench import harness
+from hardware.dynamixel.config import DynamixelLeaderConfig
+from hardware.dynamixel.emulator import DynamixelEmulator
+from hardware.dynamixel.leader import DynamixelLeader
+from hardware.sim.motors import IdealMotorBank
+from hardware.types import JointLimits
 
 N_SERVOS = 7
 IDS = list(range(1, N_SERVOS + 1))
@@ -43,19 +40,6 @@ def _serve(conn, stop) -> None:
     conn.send(emu.port_path)
     stop.wait()
     emu.close()
-
-
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
-    except OSError:
-        pass
-    return (
-        f"{platform.node()} | {cpu} | {os.cpu_count()} CPUs | load {os.getloadavg()[0]:.2f} | "
-        f"Python {platform.python_version()}"
-    )
 
 
 def run(seconds: float, in_process: bool) -> dict:
@@ -120,7 +104,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=5.0, help="how long to run [s]")
     ap.add_argument("--separate-process", action="store_true", help="run the emulator in its own process")
+    harness.add_quick(ap, "0.5 s")
     a = ap.parse_args(argv)
+    if a.quick:
+        a.seconds = 0.5
     logging.getLogger("factr2.dynamixel").setLevel(logging.ERROR)  # start-up warnings are printed below
     c0 = _child_cpu_s()
     in_process = not a.separate_process
@@ -143,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     for w in r["warnings"]:
         print(f"note (leader start-up check): {w}")
-    print(f"machine: {machine()}")
+    print(f"machine: {harness.machine_line()}")
     print(f"target >= 1000/s: {'met' if r['round_trips_per_s'] >= 1000 else 'NOT met'}")
     return 0
 

@@ -8,10 +8,10 @@ ablation C (1:1:5) and PC+C (1:3:3); PC (1:5:1) is the `first` runs themselves (
 success and task progress (mean and spread over the training seeds) per task, and each run's validation
 loss per phase F / PC / C.
 
-    python bench/bench_first.py --quick --out /tmp/fb                 # a few-minute smoke run
-    python bench/bench_first.py --out /tmp/fb_full --jobs 2            # the CPU configuration (--obs state)
-    python bench/bench_first.py --obs images --out DIR                 # the same code path on camera frames
-    python bench/bench_first.py --out /tmp/fb_full --write-docs        # table + chart into docs/first.md
+    python -m bench.bench_first --quick --out /tmp/fb                 # a few-minute smoke run
+    python -m bench.bench_first --out /tmp/fb_full --jobs 2            # the CPU configuration (--obs state)
+    python -m bench.bench_first --obs images --out DIR                 # the same code path on camera frames
+    python -m bench.bench_first --out /tmp/fb_full --write-docs        # table + chart into docs/first.md
 
 `--obs state` (default) trains on the PRIVILEGED object state of the twin (policies/privileged.py), not on
 images: labelled so everywhere; `--obs perceived` on those poses as the simulated camera pose detector
@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import sys
 import time
@@ -34,20 +33,18 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.first_ledger import (  # noqa: E402
-    SETTING_BEFORE,
+from bench.first_ledger import (
     demos_fingerprint,
     export_cells,
     finished_cells,
     import_cells,
     next_weights_digest,
 )
-from bench.first_report import aggregate, write_docs, write_report  # noqa: E402
-from policies.phases import LABEL_RULE  # noqa: E402
-from policies.rollout.runner import SAMPLER_SEEDING  # noqa: E402
-from policies.rollout.schedule import LIMIT_TOL_FRACTION  # noqa: E402
+from bench.first_report import aggregate, write_docs, write_report
+from bench.harness import commit, machine
+from policies.phases import LABEL_RULE
+from policies.rollout.runner import SAMPLER_SEEDING
+from policies.rollout.schedule import LIMIT_TOL_FRACTION
 
 DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, session/task_episodes.py)
 EVAL_SEED = 2  # rollout seed: range B, disjoint from A (checked on the episodes' recorded seeds)
@@ -88,11 +85,11 @@ class BenchConfig:
     eval_seed: int = EVAL_SEED  # rollout seed (range B): a run may pre-register a fresh one
     ledger: str = ""  # finished cells kept in the repository across sessions (bench/first_ledger.py)
     # the rollouts' rule for chunks beyond a joint limit (policies/rollout/schedule.py), recorded: results of
-    # the earlier rule (a fixed 0.15 rad refused, before the eighteenth session) are not mixed with these
+    # the earlier rule (a fixed 0.15 rad refused: results/first_cells_refuse015.json) are not mixed with these
     limit_tol_fraction: float = LIMIT_TOL_FRACTION
     sampler_seeding: str = SAMPLER_SEEDING  # the flow noise seeded per episode (policies/rollout/runner.py)
-    # the training's matmuls (factr2 train --precision): auto, as the ledger's cells were trained since the
-    # twenty-third session (docs/first_cells_fp32_hysteresis.json: fp32 and the earlier labels)
+    # the training's matmuls (factr2 train --precision): auto, as the current ledger's cells were trained
+    # (results/first_cells_fp32_hysteresis.json: fp32 and the earlier labels)
     precision: str = "auto"
     # the contact labeller (policies.phases.LABEL_RULE): cells labelled by an earlier rule are not mixed in
     labels: str = LABEL_RULE
@@ -277,7 +274,7 @@ def check_resume(cfg: BenchConfig, out: Path) -> None:
     if not old_path.is_file():
         return
     old, new = json.loads(old_path.read_text()), json.loads(json.dumps(asdict(cfg)))
-    diff = [k for k in SAME_ON_RESUME if old.get(k, SETTING_BEFORE.get(k)) != new.get(k)]
+    diff = [k for k in SAME_ON_RESUME if old.get(k) != new.get(k)]
     if diff:
         was = ", ".join(f"{k} {old.get(k)}" for k in diff)
         raise SystemExit(f"{out}: its kept results were made with other settings ({was}); "
@@ -396,12 +393,12 @@ def run_bench(cfg: BenchConfig, report_only: bool = False) -> dict:
                    "rollout_cpu_s": sum(r["cpu_s"] for r in rolls),
                    "cells_wall_s": sum(r["wall_s"] for r in trains + rolls)})
     results = {
-        "simulated": True, "command": " ".join(["python", "bench/bench_first.py", *sys.argv[1:]]),
+        "simulated": True, "command": " ".join(["python", "-m", "bench.bench_first", *sys.argv[1:]]),
         "observation": cfg.obs + OBS_LABELS.get(cfg.obs, ""),
         "config": asdict(cfg), "next_checkpoint": ck, "next_weights_sha256": next_weights_digest(ck),
         "seeds": check_disjoint_seeds(demos, rolls),
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
-                    "python": platform.python_version(), "loadavg_end": os.getloadavg()},
+        # harness.machine() (CPU model, versions, commit beside) and the keys the report reads
+        "machine": {**machine(), "cpus": os.cpu_count(), "loadavg_end": os.getloadavg()}, "commit": commit(),
         "timing": timing,
         "demos": {k: {x: v[x] for x in ("episodes", "success_rate", "progress_mean", "phase_shares",
                                         "phase_thresholds_nm", "sim_s", "wall_s", "cpu_s", "folders",
@@ -448,7 +445,7 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
                     help=f"rollout seed (default {EVAL_SEED}); never one a choice was made on")
     ap.add_argument("--precision", choices=("fp32", "bf16", "auto"), default="auto",
                     help="the trainings' matmuls (factr2 train --precision; default auto, as the ledger "
-                         "docs/first_cells.json: bf16 where the CPU or GPU has it natively)")
+                         "results/first_cells.json: bf16 where the CPU or GPU has it natively)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2: both cores here)")
     ap.add_argument("--threads", type=int, default=0,
                     help="torch threads per training run (default: cores / jobs)")
@@ -456,7 +453,7 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     ap.add_argument("--quick", action="store_true", help="a few-minute smoke configuration: " + str(QUICK))
     ap.add_argument("--ledger", default="", metavar="FILE",
                     help="finished cells kept across sessions: taken from FILE, each new one added to it "
-                    "(docs/first_cells.json; bench/first_ledger.py)")
+                    "(results/first_cells.json; bench/first_ledger.py)")
     ap.add_argument("--report", action="store_true",
                     help="run nothing: report the finished cells (a partial table) into OUT")
     ap.add_argument("--write-docs", action="store_true",

@@ -15,7 +15,7 @@
    (default: the paper's plain NEXT, then NEXT on the identified physics prior), score held-out free motion
    and the pushed contact replay against the disturbance observer and FILIC (ratios printed).
 
-    python bench/bench_next.py [--threads 2] [--max-seconds 600] [--skip-train] [--checkpoint DIR/next.json]
+    python -m bench.bench_next [--threads 2] [--max-seconds 600] [--skip-train] [--checkpoint DIR/next.json]
                                [--twin-data DIR]
                                [--twin-priors none,identified]
 Writes bench/out/next.json.

@@ -1,6 +1,6 @@
 """Diagnosis in physical units on the twin of an IMPORTED arm (issue 34 item 5). SIMULATED.
 
-    python bench/bench_payload_imported.py [--mass 2.0] [--com 0,0,0.1] [--train-s 60] [--heldout-s 30]
+    python -m bench.bench_payload_imported [--mass 2.0] [--com 0,0,0.1] [--train-s 60] [--heldout-s 30]
                                            [--seed 0]
 
 1. `factr2 arm import hardware/arms/ur5.urdf --name ur5` into a temporary $FACTR2_ARMS (not a built-in arm).
@@ -42,7 +42,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 S_CURRENT = np.array([0.12, 0.08, 0.12, 0.5, 0.5, 0.5])  # A per N*m: the "drive" of the current logs
 CLEAN = {k: False for k in ("friction", "stribeck", "backlash", "ripple", "thermal", "kt_temperature")}

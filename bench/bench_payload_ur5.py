@@ -42,7 +42,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 UR5 = Path(os.environ.get("FACTR2_SHARED", ROOT.parent / "shared")) / "data" / "ur5_kufieta2014"
 TRAIN = ["Movement_No1", "Movement_No3_Acc", "Movement_No4_Acc", "Movement_No6_Acc_slow_Verify_Model",

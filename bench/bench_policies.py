@@ -8,7 +8,7 @@ latency    one action chunk on one core, small preset, 2 cameras (flow: encode o
 phases     validation action loss per phase F / PC / C, `base-torque` vs `first`, same steps and seed
            (needs recordings with contact: --recordings DIR, e.g. from `factr2 collect --task wipe`)
 
-  python bench/bench_policies.py [--only loader,train,latency] [--presets small]
+  python -m bench.bench_policies [--only loader,train,latency] [--presets small]
                                  [--recordings DIR --steps 400]
 """
 
@@ -24,13 +24,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from policies.config import preset  # noqa: E402
-from policies.dataset import build_dataset  # noqa: E402
-from policies.labelling import Thresholds  # noqa: E402
-from policies.policy import make_policy  # noqa: E402
-from policies.recordings import load_episodes  # noqa: E402
+from policies.config import preset
+from policies.dataset import build_dataset
+from policies.labelling import Thresholds
+from policies.policy import make_policy
+from policies.recordings import load_episodes
 
 
 def _synthetic(folder: Path, seconds: float = 20.0) -> Path:

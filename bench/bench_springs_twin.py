@@ -1,6 +1,6 @@
 """A position spring's stiffness on the twin, per joint, stiffness and sign (issue 57 item 4). SIMULATED.
 
-    python bench/bench_springs_twin.py [--data /tmp/factr2_springs] [--out bench/out/springs_twin.json]
+    python -m bench.bench_springs_twin [--data /tmp/factr2_springs] [--out bench/out/springs_twin.json]
 
 sim-piper in lockstep through the Piper driver, its true body differing from the description (the shipped
 rig's default), the twin's mechanical effects off (calibration/diagnosis/twin_data.py), one spring
@@ -14,12 +14,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 CASES = [(0, -1.5, 0.4), (1, 2.0, 1.0), (1, -1.0, 1.0), (2, -1.0, -1.0), (2, 1.5, -1.0), (3, 0.5, 0.2),
          (4, -0.5, 0.0)]  # (joint, stiffness N*m/rad, rest position rad)

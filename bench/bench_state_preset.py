@@ -4,24 +4,20 @@ one thread (thread_time: another process on the other core cannot inflate it), a
 21, action 7, chunk 30). Candidates: `small` (the image preset's DiT, the old state default), the `state`
 preset (MLP flow head) and its neighbours in width and depth.
 
-    python bench/bench_state_preset.py [--steps 40] [--json OUT]
+    python -m bench.bench_state_preset [--steps 40] [--json OUT]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from policies.config import preset  # noqa: E402
-from policies.policy import make_policy  # noqa: E402
+from bench import harness
+from policies.config import preset
+from policies.policy import make_policy
 
 DIMS = dict(observation="state", state_dim=7, force_dim=6, objects_dim=21, action_dim=7)
 CANDIDATES = [
@@ -63,20 +59,24 @@ def measure(cfg, batch: int, steps: int) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=40)
-    ap.add_argument("--json", default=None)
+    ap.add_argument("--json", default=None, help="write the rows here (a bench/harness.py record)")
+    harness.add_quick(ap, "the default MLP, 2 steps")
     a = ap.parse_args(argv)
+    if a.quick:
+        a.steps = 2
     torch.set_num_threads(1)
     rows = []
     print("| preset | params [M] | samples / CPU s, batch 64 | batch 256 | one chunk [ms CPU] |\n"
           "|---|---|---|---|---|")
-    for label, name, kw in CANDIDATES:
+    for label, name, kw in CANDIDATES[1:2] if a.quick else CANDIDATES:  # quick: the default MLP
         cfg = replace(preset(name), **DIMS, **kw)
-        r64, r256 = measure(cfg, 64, a.steps), measure(cfg, 256, max(10, a.steps // 4))
+        steps256 = max(a.steps if a.quick else 10, a.steps // 4)
+        r64, r256 = measure(cfg, 64, a.steps), measure(cfg, 256, steps256)
         rows.append({"preset": label, "b64": r64, "b256": r256})
         print(f"| {label} | {r64['params_M']:.2f} | {r64['samples_per_cpu_s']:.0f} | "
               f"{r256['samples_per_cpu_s']:.0f} | {r64['chunk_cpu_ms']:.1f} |", flush=True)
     if a.json:
-        Path(a.json).write_text(json.dumps(rows, indent=1))
+        harness.write(a.json, harness.record("state_preset_speed", rows, simulated=False))
     return 0
 
 

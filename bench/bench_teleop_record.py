@@ -2,9 +2,9 @@
 CPU, frames recorded vs expected, dropped samples, stale holds, and whether the recording reads back with
 images lined up with the joint states.
 
-    python bench/bench_teleop_record.py [--seconds 30] [--beside none|spin|train:DEMOS] [--json out.json]
-    python bench/bench_teleop_record.py --table --seconds 30 --train-demos DEMOS [--json out.json]
-    python bench/bench_teleop_record.py --starts 20 [--seconds 2] [--no-record]   # stale holds at start
+    python -m bench.bench_teleop_record [--seconds 30] [--beside none|spin|train:DEMOS] [--json out.json]
+    python -m bench.bench_teleop_record --table --seconds 30 --train-demos DEMOS [--json out.json]
+    python -m bench.bench_teleop_record --starts 20 [--seconds 2] [--no-record]   # stale holds at start
 
 --beside runs one other process during the measurement: `spin` is `python -c "while True: pass"`, `train:DIR`
 is `factr2 train DIR --obs state` (a training of the previous batch while the operator collects the next).
@@ -31,7 +31,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 TARGETS = {"loop >= 500 Hz": lambda r: r["loop_hz"] >= 499.5,
            "p99 <= 3 ms": lambda r: r["period_p99_ms"] <= 3.0,
            "loop CPU <= 20 %": lambda r: r["loop_cpu_share"] <= 0.20,

@@ -1,6 +1,6 @@
 """Speed of the MuJoCo twin (SIMULATED rig sim-piper): lockstep throughput and real-time rate holding.
 
-    python bench/bench_twin.py [--seconds 2] [--repeats 5] [--rig sim-piper] [--loops 500,200] [--json F]
+    python -m bench.bench_twin [--seconds 2] [--repeats 5] [--rig sim-piper] [--loops 500,200] [--json F]
 
 Reports simulated seconds per wall second (x real time) and per CPU second of this process
 (time.process_time: what a quiet machine approaches when other processes load this one) for:
@@ -38,11 +38,10 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hardware.connect import open_rig, serve_twin  # noqa: E402
-from hardware.rigs import Rig, load_rig  # noqa: E402
-from hardware.types import FollowerCommand  # noqa: E402
+from bench import harness
+from hardware.connect import open_rig, serve_twin
+from hardware.rigs import Rig, load_rig
+from hardware.types import FollowerCommand
 
 
 def _timed(fn) -> tuple[float, float]:
@@ -216,15 +215,17 @@ def main(argv=None) -> int:
     ap.add_argument("--control-hz", type=float, default=None,
                     help="override the rig's twin control_hz (physics stays at physics_hz)")
     ap.add_argument("--no-realtime", action="store_true")
-    ap.add_argument("--json", default=None, help="also write the results here")
+    ap.add_argument("--json", default=None, help="also write the results here (a bench/harness.py record)")
+    harness.add_quick(ap, "0.2 s lockstep at 500 Hz, once, no real-time run")
     a = ap.parse_args(argv)
+    if a.quick:
+        a.seconds, a.loops, a.repeats, a.no_realtime = 0.2, "500", 1, True
     rig = load_rig(a.rig)
     if a.control_hz:
         rig = dataclasses.replace(rig, twin=dataclasses.replace(rig.twin, control_hz=a.control_hz))
     loops = [float(x) for x in a.loops.split(",") if x]
     res = {"rig": a.rig, "simulated": True, "physics_hz": rig.twin.physics_hz,
-           "control_hz": rig.twin.control_hz,
-           "cpus": os.cpu_count(), "load_avg_1min": round(os.getloadavg()[0], 2)}
+           "control_hz": rig.twin.control_hz, "load_avg_1min": round(os.getloadavg()[0], 2)}
     res["lockstep"] = bench_lockstep(rig, a.seconds, loops, max(1, a.repeats))
     if not a.no_realtime:
         res["realtime"] = bench_realtime(rig, a.seconds)
@@ -232,7 +233,7 @@ def main(argv=None) -> int:
     print(json.dumps(res, indent=2))
     if a.json:
         Path(a.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json).write_text(json.dumps(res, indent=2))
+        harness.write(a.json, harness.record("twin_speed", res, simulated=True))
     return 0
 
 

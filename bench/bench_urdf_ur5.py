@@ -24,11 +24,9 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
+from bench.bench_next_ur5 import EVAL_RUNS, TRAIN_RUNS
 
-from bench_next_ur5 import EVAL_RUNS, TRAIN_RUNS  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 # the shared data folder: $FACTR2_SHARED (as tests/conftest.py), else ../shared beside the checkout
 UR5 = Path(os.environ.get("FACTR2_SHARED", ROOT.parent / "shared")) / "data" / "ur5_kufieta2014"

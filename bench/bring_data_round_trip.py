@@ -3,7 +3,7 @@ train` makes of that dataset, against the samples it makes of the recordings the
 of the first batch (every tensor the model gets). Both go through policies.run.prepare, `factr2 train`'s own
 data path, with the same flags.
 
-    python bench/bring_data_round_trip.py [RECORDING_OR_DIR] [-- TRAIN FLAGS]
+    python -m bench.bring_data_round_trip [RECORDING_OR_DIR] [-- TRAIN FLAGS]
 
 Default input: a synthetic state-only twin-style recording (tests/policy_helpers.py); flags default to
 `--obs state` (a twin task recording without cameras: `factr2 collect --no-cameras`; default thresholds: the
@@ -20,13 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from factr2_teleop.cli import build_parser, main
+from policies.run import prepare
+from policies.run_config import from_args
+from policies.train import setup_distributed
 
-from factr2_teleop.cli import build_parser, main  # noqa: E402
-from policies.run import prepare  # noqa: E402
-from policies.run_config import from_args  # noqa: E402
-from policies.train import setup_distributed  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def digest(data, n: int = 64) -> str:

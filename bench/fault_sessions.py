@@ -7,7 +7,7 @@ session of teleop, collect or rollout on the sim-piper twin with one fault, meas
 teleop: the demo task's operator drives the leader through TeleopSession (factr2_teleop/demo/fault_run.py),
 recorded. collect: `factr2 collect`'s collect() on peg-insert (feedback dob), one episode cut TAIL_S after the
 fault. rollout: run_rollout with a tiny policy trained once (tests/rollout_helpers.py), recorded. The signal
-kinds kill the process: they run in a child (`python bench/fault_sessions.py --child ...`) and the parent
+kinds kill the process: they run in a child (`python -m bench.fault_sessions --child ...`) and the parent
 checks its exit and its recording.
 """
 
@@ -22,8 +22,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 TAIL_S = 1.2  # s of twin time a session runs after its fault ends (to see the recovery)
 NEXT_TAIL_S = 10.0  # s (real time) after a NEXT worker's kill: a new worker starts, loads torch, warms up

@@ -1,8 +1,8 @@
 """The fault campaign on the twin (SIMULATED, lockstep, seeded): per activity and fault kind, N sessions with
 one fault each at a random time, and what happened (docs/safety.md "Fault campaign").
 
-    python bench/faults.py --seed 0 --per-kind 3 --json /tmp/faults.json
-    python bench/faults.py --seed 0 --per-kind 20 --kinds can_busoff,dxl_unplug --activities teleop,collect \\
+    python -m bench.faults --seed 0 --per-kind 3 --json /tmp/faults.json
+    python -m bench.faults --seed 0 --per-kind 20 --kinds can_busoff,dxl_unplug --activities teleop,collect \\
         --json OUT
 
 Sessions (bench/fault_sessions.py): teleop (the demo's operator through the teleop session, recorded),
@@ -36,16 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import harness
+from bench.crash_sessions import CRASH_RIGS, run_crash_session
+from bench.fault_sessions import run_session
+from hardware.errors import ConfigError
+from hardware.sim.faults import KINDS, random_schedule
+
 ROOT = Path(__file__).resolve().parents[1]
-for p in (ROOT, ROOT / "bench"):
-    if str(p) not in sys.path:
-        sys.path.insert(0, str(p))
-
-from crash_sessions import CRASH_RIGS, run_crash_session  # noqa: E402
-from fault_sessions import run_session  # noqa: E402
-
-from hardware.errors import ConfigError  # noqa: E402
-from hardware.sim.faults import KINDS, random_schedule  # noqa: E402
 
 LEADER_KINDS = ("dxl_unplug", "dxl_overload", "dxl_corrupt", "spike_leader")
 # next_killed: the NEXT worker exists only on a real-time clock: its teleop sessions run in real time (mode
@@ -169,8 +166,12 @@ def main(argv=None) -> int:
                     "activity")
     ap.add_argument("--kinds", default="", help="comma-separated fault kinds (default: all)")
     ap.add_argument("--activities", default="teleop,collect,rollout", help="comma-separated")
-    ap.add_argument("--json", required=True, metavar="OUT", help="write the results here")
+    ap.add_argument("--json", required=True, metavar="OUT",
+                    help="write the results here (a bench/harness.py record named after OUT)")
+    harness.add_quick(ap, "one spike_leader session in teleop")
     args = ap.parse_args(argv)
+    if args.quick:
+        args.per_kind, args.kinds, args.activities = 1, "spike_leader", "teleop"
     try:
         plan = _plan(args)
     except ConfigError as e:
@@ -237,7 +238,7 @@ def main(argv=None) -> int:
         row["activities"] = {a: aggregate([r for r in mine if r["activity"] == a])
                              for a in acts if any(r["activity"] == a for r in mine)}
         result["kinds"][kind] = row
-    out.write_text(json.dumps(result, indent=1))
+    harness.write(out, harness.record(out.stem, result, simulated=True))
     for kind, row in result["kinds"].items():
         s = row["safe_ms"]
         p99 = "-" if s["p99"] is None else f"{s['p99']:.0f}"

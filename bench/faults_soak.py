@@ -3,8 +3,8 @@ for minutes, seeded random faults, one CPU-bound process beside it. Reports the 
 outside the faults (from the recording: one follower sample per tick), RSS at start and end, and whether
 every recorded file opens.
 
-    python bench/faults_soak.py --minutes 30 --seed 0 --out /tmp/soak --json /tmp/soak.json
-    python bench/faults_soak.py --minutes 1 --out /tmp/soak1 --json /tmp/soak1.json     # a quick check
+    python -m bench.faults_soak --minutes 30 --seed 0 --out /tmp/soak --json /tmp/soak.json
+    python -m bench.faults_soak --minutes 1 --out /tmp/soak1 --json /tmp/soak1.json     # a quick check
 
 Faults: the device, camera and wall-clock kinds (disk_full needs a small filesystem, next_killed mode next,
 the signal kinds end the run: the campaign and the tests play those), FAULTS_PER_MIN a minute, at least GAP_S
@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import harness
+
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 SOAK_KINDS = ("can_loss", "can_busoff", "motor_overcurrent", "motor_overtemp", "motor_encoder", "dxl_unplug",
               "dxl_overload", "dxl_corrupt", "spike_leader", "spike_follower", "camera_freeze", "camera_gone",
@@ -123,7 +123,7 @@ def main(argv=None) -> int:
                    rate_hz_outside=float(1.0 / dt.mean()) if len(dt) else None,
                    period_p99_ms_outside=float(np.percentile(dt, 99) * 1e3) if len(dt) else None,
                    period_max_ms_outside=float(dt.max() * 1e3) if len(dt) else None)
-    Path(a.json).write_text(json.dumps(res, indent=1, default=str))
+    harness.write(a.json, harness.record(Path(a.json).stem, res, simulated=True))
     print(json.dumps({k: v for k, v in res.items() if k != "rss_mib"}, indent=1, default=str))
     return 0
 

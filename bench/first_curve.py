@@ -6,7 +6,7 @@ average of the weights (EMA, what rollouts use) and with the trained weights, on
 conditions that neither a demonstration nor the benchmark's evaluation uses. The benchmark's default step
 count is read off this curve; nothing here is chosen on the evaluation seed.
 
-    python bench/first_curve.py --bench-out /work/fb/state --task peg-insert --out /work/fb/curve \\
+    python -m bench.first_curve --bench-out /work/fb/state --task peg-insert --out /work/fb/curve \\
         --steps 8000 --at 500,1000,2000,4000,8000 --rollouts 20 --jobs 2
 
 Resumable: a finished training or rollout set leaves its JSON and is skipped. Writes OUT/curve.json and
@@ -18,15 +18,12 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
-import sys
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.bench_first import RIG, _json  # noqa: E402
-from bench.first_report import wilson  # noqa: E402
+from bench.bench_first import RIG, _json
+from bench.first_report import wilson
 
 CURVE_SEED = 4  # rollout seed range of the curve: disjoint from demonstrations (1) and evaluation (2)
 

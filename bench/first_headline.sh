@@ -3,11 +3,11 @@
 # rollouts on evaluation seed 15 (pre-registered), SIMULATED, PRIVILEGED state. From nothing (collections
 # included) it ran in one session on two cores with bf16 training (--precision auto, the default; measured
 # in docs/first.md). A run stopped part-way resumes: every finished cell goes to the ledger
-# docs/first_cells.json (commit it), and a new session re-collects the same demonstrations (deterministic:
+# results/first_cells.json (commit it), and a new session re-collects the same demonstrations (deterministic:
 # the same seeds and the committed NEXT checkpoint) and skips the ledger's cells.
 #
 #   bash bench/first_headline.sh [WORK]       # WORK: scratch folder (default /tmp/first_headline)
-#   python bench/bench_first.py --report ... # the same options: the table of the finished cells
+#   python -m bench.bench_first --report ... # the same options: the table of the finished cells
 set -euo pipefail
 cd "$(dirname "$0")/.."
 W=${1:-/tmp/first_headline}
@@ -27,7 +27,7 @@ wait
 for d in peg1 peg9 press1 press9 wipe1; do  # a collection that failed is not trained on
   [ -f "$W/$d/done" ] || { echo "collection $W/$d did not finish: see $W/$d.log, then run again" >&2; exit 1; }
 done
-python bench/bench_first.py --out "$W/out" --table headline --eval-seed 15 --next "$CK" \
-  --ledger docs/first_cells.json --jobs 2 \
+python -m bench.bench_first --out "$W/out" --table headline --eval-seed 15 --next "$CK" \
+  --ledger results/first_cells.json --jobs 2 \
   --demos-from "peg-insert=$W/peg1+$W/peg9" --demos-from "press-fit=$W/press1+$W/press9" \
   --demos-from "wipe=$W/wipe1" "${@:2}"

@@ -20,8 +20,8 @@ machine (one GPU, 16 CPU cores, a few minutes):
 5. results.json in bench_first's shape, table.md / first_results.json / first_bench.png from
    bench/first_report.py, and timings per stage.
 
-    python bench/first_images_gpu.py --out /tmp/fig --toy          # the local end-to-end check (CPU, minutes)
-    python bench/first_images_gpu.py --out $OUT/run                # the GPU machine's configuration
+    python -m bench.first_images_gpu --out /tmp/fig --toy          # the local end-to-end check (CPU, minutes)
+    python -m bench.first_images_gpu --out $OUT/run                # the GPU machine's configuration
 
 See bench/first_images_gpu.sh for the device command (packages, EGL).
 """
@@ -31,7 +31,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import sys
 import threading
 import time
@@ -39,9 +38,8 @@ from concurrent.futures import CancelledError, ProcessPoolExecutor
 from dataclasses import asdict
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from bench.bench_first import (  # noqa: E402
+from bench import harness
+from bench.bench_first import (
     EVAL_SEED,
     HEADLINE_CELLS,
     RIG,
@@ -49,7 +47,7 @@ from bench.bench_first import (  # noqa: E402
     _json,
     check_disjoint_seeds,
 )
-from bench.first_report import aggregate, wilson, write_report  # noqa: E402
+from bench.first_report import aggregate, wilson, write_report
 
 FORBIDDEN_COLLECT_SEEDS = (1, 2, 3, 4)  # 1: bench demos, 2: evaluation, 3: spare, 4: learning curve
 
@@ -239,8 +237,7 @@ def partial(stages: dict, **kw) -> None:
 def machine() -> dict:
     import torch
 
-    m = {"platform": platform.platform(), "cpus": os.cpu_count(), "python": platform.python_version(),
-         "torch": torch.__version__, "loadavg_end": os.getloadavg(),
+    m = {**harness.machine(), "cpus": os.cpu_count(), "loadavg_end": os.getloadavg(),
          "gpu": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
          "mujoco_gl": os.environ.get("MUJOCO_GL", "")}
     if m["gpu"]:
@@ -409,7 +406,7 @@ def main(argv=None) -> int:
     m = machine()
     m["label"] = a.label
     results = {
-        "simulated": True, "command": " ".join(["python", "bench/first_images_gpu.py", *sys.argv[1:]]),
+        "simulated": True, "command": " ".join(["python", "-m", "bench.first_images_gpu", *sys.argv[1:]]),
         "observation": "images (both twin cameras, 96 px, small preset)", "config": asdict(cfg),
         "next_checkpoint": ck, "seeds": check_disjoint_seeds(demos, rolls), "machine": m, "timing": timing,
         "demos": {k: {x: v for x, v in d.items() if x != "results"} for k, d in demos.items()},

@@ -43,7 +43,7 @@ EOF
 stamp "checks done"
 RUN=/tmp/first_images_run
 export FIRST_IMAGES_PARTIAL=$OUT/partial.json
-python3 bench/first_images_gpu.py --out $RUN --next .whl/next/next.json "$@" 2>&1 | grep -v "follower on hold" | tee "$OUT/log.txt"
+python3 -m bench.first_images_gpu --out $RUN --next .whl/next/next.json "$@" 2>&1 | grep -v "follower on hold" | tee "$OUT/log.txt"
 rc=${PIPESTATUS[0]}
 for f in results.json table.md first_results.json first_bench.png; do [ -f $RUN/$f ] && cp $RUN/$f "$OUT/"; done
 stamp "done (rc $rc)"

@@ -1,11 +1,11 @@
-"""Finished FIRST benchmark cells, carried across working sessions (issue #31).
+"""Finished FIRST benchmark cells, carried across runs (issue #31).
 
 A cell -- (task, cell, training seed) -- is finished when its training and its rollouts are; their results
-are small JSON files in OUT/TASK/CELL/seedN (bench/bench_first.py). A table takes longer than one session on
-two cores, and the scratch folder does not outlive a session: the repository does. So:
+are small JSON files in OUT/TASK/CELL/seedN (bench/bench_first.py). A table takes longer than one sitting on
+two cores, and the scratch folder does not outlive the machine: the repository does. So:
 
 - `export_cells(out, ledger, ...)` merges the finished cells of OUT into a ledger file in the repository
-  (docs/first_cells.json), each with the fingerprint of the demonstrations and the NEXT checkpoint it was
+  (results/first_cells.json), each with the fingerprint of the demonstrations and the NEXT checkpoint it was
   trained on;
 - `import_cells(out, ledger, ...)` writes a ledger's cells back into a new OUT, so its queue skips them, when
   the settings that shape a result are the same and the demonstrations are the same (re-collected with the
@@ -30,14 +30,11 @@ LEDGER_VERSION = 1
 SAME_SETTINGS = ("obs", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds", "preset",
                  "include_failed", "actions", "eval_seed", "limit_tol_fraction",
                  "sampler_seeding", "precision", "labels")
-# what a setting was before it was recorded: a ledger or a results folder from then compares as this (labels:
-# the causal hysteresis at Otsu : 1.5 Otsu, before the twenty-third session's contact runs)
-SETTING_BEFORE = {"precision": "fp32", "labels": "hysteresis; recording band 1:3/2 of Otsu"}
 
 
 def environment() -> dict:
     """The versions a cell's numbers depend on beyond the code: the twin's physics engine above all (MuJoCo
-    4.0.0 and 3.17.0 collect other demonstrations from the same seeds: docs/first.md, 2026-11-29)."""
+    4.0.0 and 3.17.0 collect other demonstrations from the same seeds: docs/first.md)."""
     import mujoco
     import numpy
     import torch
@@ -104,7 +101,9 @@ def read_ledger(ledger: Path) -> dict:
 
 
 def _settings(config: dict) -> dict:
-    return {k: config.get(k, SETTING_BEFORE.get(k)) for k in SAME_SETTINGS}
+    """The settings a ledger's cells depend on; one a ledger or run does not record is None, and matches
+    nothing recorded (every committed ledger records all of them: tests/test_first_ledger.py)."""
+    return {k: config.get(k) for k in SAME_SETTINGS}
 
 
 def export_cells(out: Path, ledger: Path, fingerprints: dict, config: dict, session: str = "") -> int:
@@ -152,7 +151,7 @@ def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict,
     it): a cell trained on another collection of the same seeds comes in too when every needed cell of its
     task and training seed is in the ledger on that same collection -- the seed's paired comparison is
     whole on its own demonstrations. Re-collections are not bit-identical across machines or MuJoCo
-    versions (measured 2026-11-29: docs/first.md), so a table spread over sessions pairs methods within a
+    versions (measured: docs/first.md), so a table spread over several runs pairs methods within a
     seed on one collection, and its seeds may come from different collections of the same seeds (said
     per cell). A cell the run does not train comes in only on the run's own demonstrations (shown beside
     its table), and is not listed otherwise."""

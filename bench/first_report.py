@@ -4,10 +4,13 @@ bar chart, and the block of docs/first.md between the markers below."""
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
 import numpy as np
+
+from bench import harness
 
 PHASES = ("F", "PC", "C")
 DOCS_BEGIN = "<!-- bench_first:begin (written by bench/bench_first.py --write-docs) -->"
@@ -80,8 +83,8 @@ def _outcomes(roll: dict) -> list[int]:
 
 
 def raw_results(results: dict) -> dict:
-    """docs/first_results.json: {task: {method: {"seeds": [{"seed", "success": [0/1], "progress": [...]}]}},
-    "config": {...}}: every rollout, so anyone can re-plot or re-test."""
+    """The payload of results/first_headline.json: {task: {method: {"seeds": [{"seed", "success": [0/1],
+    "progress": [...]}]}}, "config": {...}}: every rollout, so anyone can re-plot or re-test."""
     out: dict = {}
     for r in sorted(results["rollout"], key=lambda r: (r["task"], r["cell"], r["seed"])):
         eps = [e for e in r.get("episodes") or [] if isinstance(e, dict)]
@@ -203,7 +206,8 @@ def table(results: dict) -> str:
         d = results["demos"].get(task, {})
         lo, hi, sh = _labels(results, task)
         shares = " / ".join(f"{100 * sh.get(k, np.nan):.0f}" for k in ("free", "pre_contact", "contact"))
-        given = f" from {', '.join(d['folders'])}" if d.get("folders") else ""
+        # folder names only: a published table names no machine's paths
+        given = f" from {', '.join(Path(f).name for f in d['folders'])}" if d.get("folders") else ""
         lines += [f"**{task}** (demonstrations: {d.get('episodes', '?')} episodes{given}, scripted success "
                   f"{100 * d.get('success_rate', np.nan):.0f} %; FIRST labels at {lo:.2f} / {hi:.2f} N*m: "
                   f"free / pre-contact / contact {shares} % of the training samples)", "", HEADER]
@@ -272,15 +276,14 @@ def chart(results: dict, path: Path) -> None:
 
 
 def write_report(results: dict, out: Path) -> None:
-    import json
-
     (out / "table.md").write_text(table(results))
     (out / "first_results.json").write_text(json.dumps(raw_results(results), indent=1, default=float))
     chart(results, out / "first_bench.png")
 
 
 def write_docs(results: dict, out: Path, docs: Path) -> None:
-    """Replace docs/first.md's block between DOCS_BEGIN and DOCS_END with OUT's table; copy the chart."""
+    """Replace docs/first.md's block between DOCS_BEGIN and DOCS_END with OUT's table; copy the chart, and
+    the raw per-rollout results as results/first_headline.json (a bench/harness.py record)."""
     page = docs / "first.md"
     text = page.read_text()
     if DOCS_BEGIN not in text or DOCS_END not in text:
@@ -290,4 +293,6 @@ def write_docs(results: dict, out: Path, docs: Path) -> None:
     block = f"{DOCS_BEGIN}\n{table(results)}\n![FIRST benchmark](first_bench.png)\n{DOCS_END}"
     page.write_text(head + block + tail)
     shutil.copyfile(out / "first_bench.png", docs / "first_bench.png")
-    shutil.copyfile(out / "first_results.json", docs / "first_results.json")
+    raw = json.loads((out / "first_results.json").read_text())
+    harness.write(docs.parent / "results" / "first_headline.json",
+                  harness.record("first_headline", raw, simulated=True, cmd=results.get("command")))

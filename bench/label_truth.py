@@ -1,6 +1,6 @@
 """FIRST's contact labels against the twin's truth, with and without the held-load tare (SIMULATED).
 
-    python bench/label_truth.py DIR [DIR...] [--tare off,bias,payload] [--add-payload KG] [--json OUT]
+    python -m bench.label_truth DIR [DIR...] [--tare off,bias,payload] [--add-payload KG] [--json OUT]
 
 Each DIR is one episode set (a task's recordings, as `factr2 collect` writes them). Per set and tare method:
 the recording thresholds (Otsu on the set's own, tared, scores), then every episode labelled as `factr2
@@ -30,23 +30,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from hardware.reasons import Reason  # noqa: E402
-from hardware.recording import schemas as S  # noqa: E402
-from hardware.recording.reader import interp_linear  # noqa: E402
-from policies import labelling as L  # noqa: E402
-from policies import phases as P  # noqa: E402
-from policies import tare as T  # noqa: E402
-from policies import tare_recording as TR  # noqa: E402
-from policies.recordings import load_episodes  # noqa: E402
+from hardware.reasons import Reason
+from hardware.recording import schemas as S
+from hardware.recording.reader import interp_linear
+from policies import labelling as L
+from policies import phases as P
+from policies import tare as T
+from policies import tare_recording as TR
+from policies.recordings import load_episodes
 
 TRUE_ON_NM, TRUE_OFF_NM = 0.5, 0.3  # truth hysteresis on ||tau_ext_true||_1 [N*m] (docs/first.md)
 ONSET_TOL_S = 0.5  # a true onset is found when a labelled onset lies within this [s]

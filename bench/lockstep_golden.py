@@ -1,7 +1,7 @@
 """Lockstep outputs of the policy path, dumped as arrays for a bit-for-bit comparison across a refactor (#36).
 
-    python bench/lockstep_golden.py run OUT_DIR          # demo, collect, train, rollout (twin: SIMULATED)
-    python bench/lockstep_golden.py compare A.npz B.npz  # every array equal, bit for bit
+    python -m bench.lockstep_golden run OUT_DIR          # demo, collect, train, rollout (twin: SIMULATED)
+    python -m bench.lockstep_golden compare A.npz B.npz  # every array equal, bit for bit
 
 What is compared: every numeric field and timestamp of every topic in the demo's, the collection's and the
 rollout's recordings (the wire commands are the /*/command topics), and every logged training metric at

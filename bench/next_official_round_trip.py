@@ -2,7 +2,7 @@
 --from-logs` -> our checkpoint -> `factr2 export next-official` -> loaded back: the largest difference of the
 offline estimates on the file's last episode, without and with a gate (folded into the official head).
 
-    python bench/next_official_round_trip.py [FILE.h5::ARM]
+    python -m bench.next_official_round_trip [FILE.h5::ARM]
 
 Default input: an H5 file written to the published schema (tests/next_h5_helpers.py: 3 episodes of 30, 24
 and 18 s at 50 Hz, arms left and right); its last episode is the one scored.
@@ -16,14 +16,13 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from calibration.next.checkpoint import load_checkpoint
+from calibration.next.estimator import batch_tau_f
+from calibration.next.logs import read_logs
+from calibration.next.official import write_official
+from factr2_teleop.cli import main
 
-from calibration.next.checkpoint import load_checkpoint  # noqa: E402
-from calibration.next.estimator import batch_tau_f  # noqa: E402
-from calibration.next.logs import read_logs  # noqa: E402
-from calibration.next.official import write_official  # noqa: E402
-from factr2_teleop.cli import main  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def max_diff(a_ck, b_ck, log) -> tuple[float, int]:

@@ -30,11 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
+from bench.bench_next_ur5 import EVAL_RUNS, TRAIN_RUNS, UR5
 
-from bench_next_ur5 import EVAL_RUNS, TRAIN_RUNS, UR5  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 SEEDS = 3  # seeds of the SEEDED variants (seed spread and the ensemble)
 # name (its --variants key: the part before the first space) -> TrainConfig fields

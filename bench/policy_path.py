@@ -5,7 +5,7 @@ functions run, and their lines, in each stage of the policy path on the twin (SI
     train    recording -> labels -> training samples -> checkpoint (`factr2 train --obs state`, 20 steps)
     rollout  checkpoint -> observation -> chunk -> follower command at the wire (`factr2 rollout`, 1 episode)
 
-    python bench/policy_path.py --out DIR [--json FILE]
+    python -m bench.policy_path --out DIR [--json FILE]
 
 A module counts when one of its functions is called (sys.setprofile on every thread, the child processes
 of the recorder and the cameras not included); "hops" = modules per stage, "lines" = their lines in total.

@@ -4,8 +4,8 @@ by owner -- the twin's physics (follower and leader worlds apart), its CAN and D
 follower's driver and CAN wire, the leader's driver and Dynamixel wire, NEXT, the policy (observation,
 inference), the chunk schedule, the task's episode bookkeeping and the loop's own shell. SIMULATED.
 
-    python bench/profile_rollout.py --policy RUN --task wipe [--episodes 1] [--max-seconds 10]
-    python bench/profile_rollout.py ... --root TREE       # another checkout (before / after)
+    python -m bench.profile_rollout --policy RUN --task wipe [--episodes 1] [--max-seconds 10]
+    python -m bench.profile_rollout ... --root TREE       # another checkout (before / after)
 
 Exclusive CPU time (time.thread_time) of wrapped methods, per loop tick [us] (every tick of the loop: homing,
 settling and the policy's run); a method called inside another is counted to its own owner only. "loop
@@ -23,8 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from profile_tick import Split  # noqa: E402  (exclusive thread CPU per owner, shared)
+from bench.profile_tick import Split  # exclusive thread CPU per owner, shared
 
 LOOP = "loop rest (timing, clock, glue)"
 # (module, class, method, owner); owner may be a callable(self) -> str. Missing ones are skipped.

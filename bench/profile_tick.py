@@ -3,8 +3,8 @@ tick's thread CPU split by owner -- the app's loop (law, estimator, safety, book
 and Dynamixel wire (dynamixel-sdk), the follower's driver and CAN wire, the in-process Dynamixel emulator,
 the twin's physics and CAN emulator, and the demo's simulated operator and ground truth. SIMULATED.
 
-    python bench/profile_tick.py [--seconds 10] [--root TREE]   # TREE: another checkout (before / after)
-    python bench/profile_tick.py --clock realtime --mode next    # as `factr2 demo` runs (NEXT from the cache)
+    python -m bench.profile_tick [--seconds 10] [--root TREE]   # TREE: another checkout (before / after)
+    python -m bench.profile_tick --clock realtime --mode next    # as `factr2 demo` runs (NEXT from the cache)
 
 Exclusive CPU time (time.thread_time) of wrapped methods, per tick [us]; a method called inside another is
 counted to its own owner only. Lockstep (default): the loop's thread runs everything, so every owner is on one
@@ -89,7 +89,10 @@ def main() -> int:
     ap.add_argument("--clock", choices=("lockstep", "realtime"), default="lockstep")
     ap.add_argument("--mode", choices=("dob", "next"), default="dob",
                     help="feedback estimator (next: the demo's cached NEXT checkpoint, as `factr2 demo`)")
+    ap.add_argument("--quick", action="store_true", help="0.5 s (a smoke run; its numbers mean nothing)")
     args = ap.parse_args()
+    if args.quick:
+        args.seconds = 0.5
     sys.path.insert(0, args.root)
     split = Split.of(TARGETS)
     from factr2_teleop.demo.task import DemoConfig, DemoRun

@@ -2,7 +2,7 @@
 following, command violations, the leader's tracking error, and the takeover latency (hand torque over the
 threshold -> the switch -> the follower's target on the leader).
 
-    python bench/takeover_twin.py --policy RUN [--task wipe] [--seconds 8] [--grab-at 3] [--smooth]
+    python -m bench.takeover_twin --policy RUN [--task wipe] [--seconds 8] [--grab-at 3] [--smooth]
                                   [--json OUT]
 
 A scripted hand grabs the leader at --grab-at s into the episode (pulls joint 1 by 0.3 rad), holds it still
@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -36,7 +35,6 @@ def main() -> int:
     ap.add_argument("--baseline", action="store_true", help="the same rollout without takeover (no hand)")
     a = ap.parse_args()
     if a.smooth:
-        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
         from tests.rollout_helpers import install_smooth_policy
 
         install_smooth_policy(call_real=True)

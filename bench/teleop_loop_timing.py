@@ -4,7 +4,7 @@ Devices are IdealMotorBank-backed fakes from tests/teleop_fakes.py (no wire, no 
 the teleop code itself (read/law/map/safety/command), not a driver or the twin. Timings on a shared
 machine are noisy: rerun on a quiet one before quoting.
 
-    python bench/teleop_loop_timing.py [--seconds 3] [--rate 500] [--pairs 1]
+    python -m bench.teleop_loop_timing [--seconds 3] [--rate 500] [--pairs 1]
 """
 
 from __future__ import annotations
@@ -12,20 +12,17 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-from teleop_fakes import BankFollower, BankLeader, Rig  # noqa: E402
-
-from calibration.estimators import PositionPositionEstimator  # noqa: E402
-from factr2_teleop.teleop.leader_law import arm_model_fns  # noqa: E402
-from factr2_teleop.teleop.loop import TeleopLoop  # noqa: E402
-from factr2_teleop.teleop.pair import ArmPair, PairConfig  # noqa: E402
-from hardware.clock import Clock  # noqa: E402
-from hardware.sim.motors import IdealMotorBank  # noqa: E402
+from bench import harness
+from calibration.estimators import PositionPositionEstimator
+from factr2_teleop.teleop.leader_law import arm_model_fns
+from factr2_teleop.teleop.loop import TeleopLoop
+from factr2_teleop.teleop.pair import ArmPair, PairConfig
+from hardware.clock import Clock
+from hardware.sim.motors import IdealMotorBank
+from tests.teleop_fakes import BankFollower, BankLeader, Rig
 
 N = 6
 
@@ -85,9 +82,14 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=3.0)
     ap.add_argument("--rate", type=float, default=500.0)
     ap.add_argument("--pairs", type=int, default=1)
+    harness.add_quick(ap, "200 ticks, 0.3 s real time")
     a = ap.parse_args()
+    if a.quick:
+        a.seconds = 0.3
     np.seterr(all="ignore")
-    print(f"tick cost (1 pair, full law, lockstep, plant excluded): {tick_cost():.0f} us")
+    print(harness.machine_line())
+    us = tick_cost(200 if a.quick else 3000)
+    print(f"tick cost (1 pair, full law, lockstep, plant excluded): {us:.0f} us")
     print(f"real time, {a.pairs} pair(s), {a.seconds:.0f} s: {realtime(a.seconds, a.rate, a.pairs)}")
     return 0
 

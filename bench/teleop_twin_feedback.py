@@ -5,7 +5,7 @@ Per mode: where the leader's shoulder (joint 2) ends up vs the follower's, the f
 the hand's applied joint torque per phase (the paper's user-study measure). Also shows the wiring the CLI
 needs: open_rig -> ArmPair(gravity from the leader description, estimator) -> TeleopLoop.
 
-    python bench/teleop_twin_feedback.py [--modes none ground_truth pp dob] [--seconds-scale 1.0]
+    python -m bench.teleop_twin_feedback [--modes none ground_truth pp dob] [--seconds-scale 1.0]
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from bench import harness
 from calibration.estimators import make_estimator
 from factr2_teleop.teleop.leader_law import arm_model_fns
 from factr2_teleop.teleop.loop import TeleopLoop
@@ -73,7 +74,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--modes", nargs="+", default=["none", "ground_truth"])
     ap.add_argument("--seconds-scale", type=float, default=1.0, help="stretch every phase of the script")
+    harness.add_quick(ap, "mode none, the script at a tenth of its length")
     a = ap.parse_args()
+    if a.quick:
+        a.modes, a.seconds_scale = ["none"], 0.1
+    print(harness.machine_line())
     print("SIMULATED (sim-piper twin). Means over the wipe phase; hand = ||tau_hand||_1 [N*m].")
     print(f"{'mode':14s} {'leader j2':>9s} {'follower j2':>11s} {'fb j2':>7s} {'hand wipe':>9s} "
           f"{'hand free':>9s} {'wall s':>7s}")

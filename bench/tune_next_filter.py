@@ -9,7 +9,7 @@ the twin). Rule: among the filters whose free-motion L1 is no worse than the fix
 (`ACCEL_CUTOFF_HZ`, `FILTER_ORDER`) on the same runs, those within 1 % of the smallest contact L1 (closer
 is run-to-run noise); of these, the one with the smallest free-motion L1.
 
-    python bench/tune_next_filter.py --checkpoint cal/next.json [--seeds 2 3] [--seconds 120]
+    python -m bench.tune_next_filter --checkpoint cal/next.json [--seeds 2 3] [--seconds 120]
 
 Writes bench/out/tune_next_filter.json. L1 in N*m, mean over the 6 joints.
 """
@@ -27,13 +27,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from calibration.next.checkpoint import load_checkpoint
+from calibration.next.data import resample_log
+from calibration.next.prior import ACCEL_CUTOFF_HZ, FILTER_ORDER, prior_torque
+from hardware.recording.plain_log import load_plain_log, save_plain_log
 
-from calibration.next.checkpoint import load_checkpoint  # noqa: E402
-from calibration.next.data import resample_log  # noqa: E402
-from calibration.next.prior import ACCEL_CUTOFF_HZ, FILTER_ORDER, prior_torque  # noqa: E402
-from hardware.recording.plain_log import load_plain_log, save_plain_log  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 GRID_MIN_HZ = (5.0, 8.0, 10.0, 12.0)
 GRID_BETA = (1.0, 2.0, 4.0, 6.0)  # Hz per N*m/s

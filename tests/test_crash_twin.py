@@ -3,18 +3,15 @@ write), the app rig written for a twin in another process, and the measures of a
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import can
 import numpy as np
 
+from bench.crash_sessions import analyse
 from hardware.can_bus import open_bus
 from hardware.can_pty import PtyCanBus, decode, encode
 from hardware.process_twin import app_rig_text
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from crash_sessions import analyse  # noqa: E402
 
 
 def test_records_survive_garbage_and_cut_writes():

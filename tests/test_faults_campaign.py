@@ -4,13 +4,8 @@ does not run a finished session again (a line cut by a kill is run again)."""
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "bench"))
-
-import faults as campaign  # noqa: E402
+from bench import faults as campaign
 
 
 def test_campaign_row_and_resume(tmp_path, capsys):
@@ -18,7 +13,7 @@ def test_campaign_row_and_resume(tmp_path, capsys):
     args = ["--seed", "1", "--per-kind", "2", "--kinds", "spike_leader", "--activities", "teleop", "--json",
             str(out)]
     assert campaign.main(args) == 0
-    row = json.loads(out.read_text())["kinds"]["spike_leader"]
+    row = json.loads(out.read_text())["payload"]["kinds"]["spike_leader"]
     assert row["injected"] == row["sessions"] == row["sessions_safe"] == 2
     assert row["violations"] == 0 and row["samples_lost"] == 0 and row["errors"] == 0
     assert row["recoveries"] == row["recovery_owed"] == 2
@@ -29,7 +24,7 @@ def test_campaign_row_and_resume(tmp_path, capsys):
     capsys.readouterr()
     assert campaign.main(args) == 0
     assert "2 sessions, 1 done before, 1 to run" in capsys.readouterr().err
-    assert json.loads(out.read_text())["kinds"]["spike_leader"]["sessions"] == 2
+    assert json.loads(out.read_text())["payload"]["kinds"]["spike_leader"]["sessions"] == 2
 
 
 def test_bad_activity_is_one_line(capsys):

@@ -2,10 +2,12 @@
 back into a new OUT only when the settings and the demonstrations are the same."""
 
 import json
+from pathlib import Path
 
 import pytest
 
 from bench.first_ledger import (
+    SAME_SETTINGS,
     demos_fingerprint,
     export_cells,
     finished_cells,
@@ -141,13 +143,22 @@ def test_cells_the_run_does_not_train_are_not_listed_as_running_again(tmp_path):
     assert n == 1 and skipped == []
 
 
-def test_a_ledger_from_before_precision_was_recorded_is_fp32(tmp_path):
+def test_an_unrecorded_setting_matches_nothing_recorded(tmp_path):
     out, ledger = tmp_path / "a", tmp_path / "cells.json"
     _cell(out, "wipe", "first", 0, [1])
-    export_cells(out, ledger, {"wipe": "f1"}, CONFIG)  # CONFIG has no precision: a ledger from before
-    assert import_cells(tmp_path / "b", ledger, {"wipe": "f1"}, {**CONFIG, "precision": "fp32"})[0] == 1
-    n, why = import_cells(tmp_path / "c", ledger, {"wipe": "f1"}, {**CONFIG, "precision": "bf16"})
-    assert n == 0 and "other settings" in why[0]
+    export_cells(out, ledger, {"wipe": "f1"}, CONFIG)  # CONFIG has no precision: no default is assumed
+    for p in ("fp32", "bf16"):
+        n, why = import_cells(tmp_path / p, ledger, {"wipe": "f1"}, {**CONFIG, "precision": p})
+        assert n == 0 and "other settings" in why[0]
+
+
+def test_every_committed_ledger_records_every_setting():
+    """So a ledger means what it says, with no default for a setting it lacks (results/README.md)."""
+    ledgers = sorted((Path(__file__).resolve().parents[1] / "results").glob("first_cells*.json"))
+    assert ledgers
+    for p in ledgers:
+        settings = json.loads(p.read_text())["settings"]
+        assert set(SAME_SETTINGS) <= set(settings), p.name  # null: not recorded then, matches no run
 
 
 def test_cells_labelled_by_the_earlier_rule_are_not_mixed_with_contact_runs(tmp_path):
