@@ -2,10 +2,16 @@
 (SIMULATED; docs/safety.md "The app killed or frozen"). For bench/faults.py's app_sigkill and app_freeze.
 
     out = run_crash_session("teleop", "app_sigkill", "sim-yam", seed=3, folder=Path("/tmp/x"))
+    out = run_crash_session("rollout", "app_freeze", "sim-piper", 4, Path("/tmp/y"), policies=Path("/tmp/p"))
 
 The twin: `python -m hardware.process_twin --hand` (real time; Dynamixel on ptys, CAN on pty links; a
 scripted hand on each leader). The app: `factr2 teleop --rig <the twin's app rig>` in real time, recording
-(`--record`) for the collect activity: the real command line, which does not know it talks to a twin. Once
+(`--record`) for the collect activity, or `factr2 rollout --rig <app rig> --policy RUN` for the rollout
+activity (real time, takeover on as on a real rig: the leader follows the follower, the hand may take over):
+the real command line, which does not know it talks to a twin. The rollout's policy (crash_policy, trained
+once per rig into `policies`) sees the joints and force only (`--obs joints`): the twin in its own process
+serves no cameras and no task world, so a policy that looks or observes objects has nothing to run on
+here; it has to run, not to succeed. Once
 the app has commanded every device for a seeded 1-2 s, the parent sends SIGKILL (or SIGSTOP, then SIGCONT
 after the fault's duration) and reads what the twin saw, from the same monotonic clock:
 - fallback_ms: from the signal to the moment the last motor was in its fallback (Dynamixel: its Bus Watchdog
@@ -40,6 +46,8 @@ AFTER_RESUME_S = 4.0  # s the app runs after SIGCONT before it is stopped with C
 START_TIMEOUT_S = 120.0  # s of wall time for the twin to serve and the app to become active
 CRASH_RIGS = ("sim-piper", "sim-yam", "sim-bimanual-piper")  # both arm families and the bimanual rig
 START_TRIES = 3  # a session whose app does not start is started again (module doc of run_crash_session)
+POLICY_RECORD_S = 4.0  # s of teleop recorded against a rig's process twin for its rollout policy
+POLICY_STEPS = 25  # training steps of that policy (it has to run, not succeed)
 
 
 def _wait_for(pred, timeout_s: float, step_s: float = 0.05) -> bool:
@@ -133,13 +141,19 @@ def _peak_speed(t, q, t0: float, t1: float) -> float | None:
 
 
 def run_crash_session(activity: str, kind: str, rig: str, seed: int, folder: Path,
-                      duration_s: float = 2.0) -> dict:
-    """One session (module doc); activity "teleop" or "collect" (teleop recording). A session whose app
-    did not start (before any signal: a connect that timed out on a loaded machine, a refused start) is
-    started again, START_TRIES times in all; start_failures says how often and why."""
+                      duration_s: float = 2.0, policies: Path | None = None) -> dict:
+    """One session (module doc); activity "teleop", "collect" (teleop recording) or "rollout" (the policy
+    crash_policy trains once per rig into the folder `policies`). A session whose app did not start (before
+    any signal: a connect that timed out on a loaded machine, a refused start) is started again,
+    START_TRIES times in all; start_failures says how often and why."""
+    if activity not in ("teleop", "collect", "rollout"):
+        raise ValueError(f"activity {activity!r}: teleop, collect or rollout")
+    if activity == "rollout" and policies is None:
+        raise ValueError("the rollout activity needs a folder for its policies")
+    policy = crash_policy(rig, policies) if activity == "rollout" else None
     failures = []
     for k in range(START_TRIES):
-        out = _session(activity, kind, rig, seed, folder / f"try{k}", duration_s)
+        out = _session(activity, kind, rig, seed, folder / f"try{k}", duration_s, policy)
         if out.get("played") or not out.get("error"):
             break
         failures.append(out["error"])
@@ -147,28 +161,101 @@ def run_crash_session(activity: str, kind: str, rig: str, seed: int, folder: Pat
     return out
 
 
-def _session(activity: str, kind: str, rig: str, seed: int, folder: Path, duration_s: float) -> dict:
-    rng = np.random.default_rng(seed)
-    active_for = float(rng.uniform(*ACTIVE_BEFORE_S))
+def _env() -> dict:
+    return dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+
+
+def _start_twin(rig: str, seed: int, folder: Path) -> tuple[subprocess.Popen, Path]:
+    """The rig's twin in a process of its own, with its scripted hand (module doc): (process, its folder)."""
     twin_dir = folder / "twin"
     twin_dir.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    twin = subprocess.Popen([sys.executable, "-m", "hardware.process_twin", "--rig", rig, "--out",
+                             str(twin_dir), "--seed", str(seed), "--hand"], cwd=ROOT, env=_env(),
+                            stdout=open(folder / "twin.log", "w"), stderr=subprocess.STDOUT)
+    return twin, twin_dir
+
+
+def _twin_serves(twin: subprocess.Popen, twin_dir: Path) -> bool:
+    return _wait_for(lambda: (twin_dir / "endpoints.json").exists() or twin.poll() is not None,
+                     START_TIMEOUT_S) and twin.poll() is None
+
+
+def _stop_twin(twin: subprocess.Popen) -> None:
+    """SIGTERM: it writes its record and exits."""
+    if twin.poll() is None:
+        twin.send_signal(signal.SIGTERM)
+    try:
+        twin.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        twin.kill()
+        twin.wait()
+
+
+def crash_policy(rig: str, folder: Path) -> Path:
+    """The rollout activity's policy for a rig, trained once into folder/<rig>/run (reused while its "done"
+    marker is there): `factr2 teleop --record --no-cameras` for POLICY_RECORD_S against the rig's process twin
+    (the scripted hand moves the leader), then `factr2 train --obs joints` (joints and force only, the tiny
+    sizes of tests/rollout_helpers.py) for POLICY_STEPS steps. RuntimeError when a step fails."""
+    from tests.rollout_helpers import TINY
+
+    base = folder / rig
+    run = base / "run"
+    if (run / "done").exists():
+        return run
+    base.mkdir(parents=True, exist_ok=True)
+    print(f"training the rollout policy of {rig} (once)...", file=sys.stderr, flush=True)
+    twin, twin_dir = _start_twin(rig, 0, base)
+    try:
+        if not _twin_serves(twin, twin_dir):
+            raise RuntimeError(f"{rig}'s twin did not start: {base / 'twin.log'}")
+        rec = subprocess.run([sys.executable, "-m", "factr2_teleop.cli", "teleop", "--rig",
+                              str(twin_dir / "app_rig.toml"), "--record", str(base / "rec"), "--no-cameras",
+                              "--seconds", f"{POLICY_RECORD_S:g}"], cwd=ROOT, env=_env(),
+                             capture_output=True, text=True, timeout=START_TIMEOUT_S + 60)
+    finally:
+        _stop_twin(twin)
+    if rec.returncode != 0:
+        raise RuntimeError(f"recording {rig}'s policy data failed: {rec.stderr.strip()[-300:]}")
+    sets = [f"{k}={v}" for k, v in TINY.items() if k not in ("backbone", "image_size")]
+    cmd = [sys.executable, "-m", "factr2_teleop.cli", "train", str(base / "rec"), "--out", str(run),
+           "--obs", "joints", "--policy", "act", "--method", "base", "--steps", str(POLICY_STEPS), "--batch",
+           "8", "--include-failed", "--no-progress", "--threads", "1"]
+    for s in sets:
+        cmd += ["--set", s]
+    tr = subprocess.run(cmd, cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=600)
+    if tr.returncode != 0:
+        raise RuntimeError(f"training {rig}'s policy failed: {(tr.stderr or tr.stdout).strip()[-300:]}")
+    (run / "done").write_text("ok")
+    return run
+
+
+def _app_command(activity: str, app_rig: Path, folder: Path, policy: Path | None, seed: int) -> list[str]:
+    """The app's command line: ended by the kill, or by Ctrl-C (SIGINT) AFTER_RESUME_S after the freeze."""
+    cli = [sys.executable, "-m", "factr2_teleop.cli"]
+    if activity == "rollout":  # one operator-marked episode (no key comes: it runs until stopped)
+        return cli + ["rollout", "--rig", str(app_rig), "--policy", str(policy), "--episodes", "1",
+                      "--max-seconds", "600", "--seed", str(seed)]
+    cmd = cli + ["teleop", "--rig", str(app_rig), "--seconds", "600"]
+    if activity == "collect":
+        cmd += ["--record", str(folder / "rec"), "--no-cameras"]
+    return cmd
+
+
+def _session(activity: str, kind: str, rig: str, seed: int, folder: Path, duration_s: float,
+             policy: Path | None = None) -> dict:
+    rng = np.random.default_rng(seed)
+    active_for = float(rng.uniform(*ACTIVE_BEFORE_S))
+    folder.mkdir(parents=True, exist_ok=True)
+    env = _env()
     out: dict = {"rig": rig, "played": False, "error": None, "violations": 0, "safe_ms": None,
                  "stale_ms": None, "recovered": None, "samples_lost": None, "active_before_s": active_for}
-    twin = subprocess.Popen([sys.executable, "-m", "hardware.process_twin", "--rig", rig, "--out",
-                             str(twin_dir), "--seed", str(seed), "--hand"], cwd=ROOT, env=env,
-                            stdout=open(folder / "twin.log", "w"), stderr=subprocess.STDOUT)
+    twin, twin_dir = _start_twin(rig, seed, folder)
     app = None
     try:
-        if not _wait_for(lambda: (twin_dir / "endpoints.json").exists() or twin.poll() is not None,
-                         START_TIMEOUT_S) or twin.poll() is not None:
+        if not _twin_serves(twin, twin_dir):
             out["error"] = "the twin did not start"
             return out
-        secs = 600.0  # ended by the kill, or by Ctrl-C (SIGINT) AFTER_RESUME_S after the freeze
-        cmd = [sys.executable, "-m", "factr2_teleop.cli", "teleop", "--rig", str(twin_dir / "app_rig.toml"),
-               "--seconds", f"{secs:.2f}"]
-        if activity == "collect":
-            cmd += ["--record", str(folder / "rec"), "--no-cameras"]
+        cmd = _app_command(activity, twin_dir / "app_rig.toml", folder, policy, seed)
         app_log = open(folder / "app.log", "w")
         # Ctrl-C must reach it as the operator's would, even when this campaign runs in the background (a
         # shell's background job ignores SIGINT, and Python keeps an ignored SIGINT ignored)
@@ -206,13 +293,7 @@ def _session(activity: str, kind: str, rig: str, seed: int, folder: Path, durati
         if app is not None and app.poll() is None:
             app.kill()
             app.wait()
-        if twin.poll() is None:
-            twin.send_signal(signal.SIGTERM)
-        try:
-            twin.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            twin.kill()
-            twin.wait()
+        _stop_twin(twin)
     log = (folder / "app.log").read_text(errors="replace") if (folder / "app.log").exists() else ""
     out["traceback"] = "Traceback" in log
     said = ("hold", "coupled", "re-arm")

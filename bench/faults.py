@@ -9,7 +9,9 @@ Sessions (bench/fault_sessions.py): teleop (the demo's operator through the tele
 collect (`factr2 collect`'s collect(), one peg-insert episode), rollout (run_rollout of a tiny policy trained
 once into OUT.state/). next_killed: teleop only, in real time with NEXT feedback (recovered: feedback back
 on). app_sigkill / app_freeze: the app beside a twin in a process of its own (bench/crash_sessions.py: teleop
-and collect as `factr2 teleop`, recording for collect, over sim-piper, sim-yam and sim-bimanual-piper in turn;
+and collect as `factr2 teleop`, recording for collect, rollout as `factr2 rollout` of a policy that sees the
+joints and force only, trained once per rig into OUT.state/crash_policies/; over sim-piper, sim-yam and
+sim-bimanual-piper in turn;
 per kind fallback_ms {p50, p99, max}, leader_tau_after_nm_max, follower_motion_rad, and for the freeze
 recovered_after_freeze and jumps). Each other session is cut TAIL_S after its fault. Resumable: every finished
 session is a line of OUT.sessions.jsonl; a run that was killed continues where it stopped (same arguments).
@@ -50,16 +52,14 @@ LEADER_KINDS = ("dxl_unplug", "dxl_overload", "dxl_corrupt", "spike_leader")
 NOT_IN_CAMPAIGN = {"next_killed": "collect and rollout: lockstep sessions keep NEXT inline (no worker "
                                   "process); teleop plays it in real time"}
 # the app killed / frozen beside a twin in a process of its own (bench/crash_sessions.py): teleop and
-# collect are `factr2 teleop` (recording for collect) on the twin's app rig, across CRASH_RIGS
+# collect are `factr2 teleop` (recording for collect), rollout is `factr2 rollout`, on the twin's app rig,
+# across CRASH_RIGS
 CRASH_KINDS = ("app_sigkill", "app_freeze")
-CRASH_NOT_IN = {"rollout": "rollout needs its task's world and cameras from an in-process twin; against a "
-                           "twin in another process it has neither (app_sigkill / app_freeze)"}
 ACTIVITY_KINDS = {
     "teleop": tuple(KINDS),
     "collect": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN),
     # a rollout's leader is passive (zero torque, not read by the policy): leader faults do not concern it
-    "rollout": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN and k not in LEADER_KINDS
-                     and k not in CRASH_KINDS),
+    "rollout": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN and k not in LEADER_KINDS),
 }
 FAULT_WINDOW_S = (0.6, 1.4)  # s of twin time: when a session's fault starts (after the soft start)
 # a NEXT worker loads for ~2-5 s after the session starts: its kills span loading and answering
@@ -191,7 +191,7 @@ def main(argv=None) -> int:
                 done[(r["activity"], r["kind"], r["i"])] = r
     todo = [p for p in plan if p not in done]
     print(f"{len(plan)} sessions, {len(plan) - len(todo)} done before, {len(todo)} to run", file=sys.stderr)
-    policy = _policy(state) if any(a == "rollout" for a, _, _ in todo) else None
+    policy = _policy(state) if any(a == "rollout" and k not in CRASH_KINDS for a, k, _ in todo) else None
     t0 = time.perf_counter()
     with journal.open("a") as jf, tempfile.TemporaryDirectory(prefix="factr2-faults-") as tmp:
         for n, (act, kind, i) in enumerate(todo, 1):
@@ -200,7 +200,7 @@ def main(argv=None) -> int:
                 text = f"{kind}@active+1..2s" + (f":{KINDS[kind][1]:g}" if KINDS[kind][1] else "") + f" {rig}"
                 t_s = time.perf_counter()
                 r = run_crash_session(act, kind, rig, args.seed * 1000 + i, Path(tmp) / f"{act}-{kind}-{i}",
-                                      KINDS[kind][1])
+                                      KINDS[kind][1], policies=state / "crash_policies")
                 r["wall_s"] = time.perf_counter() - t_s
             else:
                 lo, hi = WINDOW_S_BY_KIND.get(kind, FAULT_WINDOW_S)
@@ -224,11 +224,8 @@ def main(argv=None) -> int:
                   f"({r['wall_s']:.1f} s; ETA {el / n * (len(todo) - n):.0f} s)", file=sys.stderr, flush=True)
     rows = [done[p] for p in plan]
     acts = sorted({a for a, _, _ in plan})
-    nic = dict(NOT_IN_CAMPAIGN)
-    if any(k in CRASH_KINDS for _, k, _ in plan):
-        nic.update({f"{k} ({a})": why for k in CRASH_KINDS for a, why in CRASH_NOT_IN.items()})
     result = {"seed": args.seed, "per_kind": args.per_kind, "activities": acts, "simulated": True,
-              "not_in_campaign": nic, "kinds": {},
+              "not_in_campaign": dict(NOT_IN_CAMPAIGN), "kinds": {},
               "cost_s_per_injection": {a: float(np.mean([r["wall_s"] for r in rows if r["activity"] == a]))
                                        for a in acts},
               "wall_s_this_run": time.perf_counter() - t0}
