@@ -52,6 +52,7 @@ class RolloutPair(ArmPair):
 
     serve_leader = True
     slow_resume = False  # after a loop gap the follower comes back slowly (_note_loop_gap)
+    _gap_t = None  # [s] the tick that ended a loop gap, until a follower sample from then on arrives
 
     @staticmethod
     def target_fn(now: float, fs):  # follow() attaches the rollout's PolicyTarget
@@ -102,10 +103,21 @@ class RolloutPair(ArmPair):
         target, until its target reaches the one it is given (_rate_now, _caught_up)."""
         gap = now - self._t_prev if math.isfinite(self._t_prev) else 0.0
         if gap > LOOP_GAP_SOFT_S:
-            self.slow_resume = True
+            self.slow_resume, self._gap_t = True, now
             self.q_target = None  # from where the arm is now (it may have sunk), not from the old target
             self._say(f"the loop did not run for {gap * 1e3:.0f} ms (the app was stopped); the follower "
                       f"comes back at the soft start's {float(self.soft.v.max()):.1f} rad/s")
+
+    def _fresh_since_gap(self, fs) -> bool:
+        """After a loop gap only a follower sample taken since counts: the last one from before shows the arm
+        where it was before it sank (a Damiao motor answers commands only: none came during the gap), and a
+        target from there would pull it back at once. False (the follower holds) until one arrives."""
+        if self._gap_t is None:
+            return True
+        if fs.t >= self._gap_t:
+            self._gap_t = None
+            return True
+        return False
 
     def _rate_now(self) -> np.ndarray:
         """The follower target's rate limit [rad/s] this tick."""
@@ -124,7 +136,7 @@ class RolloutPair(ArmPair):
             self._t_leader = now + LEADER_SERVICE_PERIOD_S - 0.5 * self.dt_s  # half a tick: no drift to n+1
         dt, ls, fs, leader_ok, follower_ok = self._read_both(now, read_leader=service)
         motor = self._check_samples(ls, fs).get("follower")  # (the passive leader's errors do not matter)
-        follower_ok = follower_ok and not motor
+        follower_ok = follower_ok and not motor and self._fresh_since_gap(fs)
         q_ref = self.q_target if self.q_target is not None else fs.q
         if follower_ok:
             self._tick_estimator(now, fs, q_ref)

@@ -264,7 +264,7 @@ class TakeoverPair(RolloutPair):
         dt, ls, fs, leader_ok, follower_ok = self._read_both(now)
         errors = self._check_samples(ls, fs)
         leader_ok = leader_ok and "leader" not in errors
-        follower_ok = follower_ok and "follower" not in errors
+        follower_ok = follower_ok and "follower" not in errors and self._fresh_since_gap(fs)
         goal = leader_goal(self.map.backward(fs.q), ls.q)
         qd_goal = self.map.backward_velocity(fs.q_dot)
         ok = leader_ok and follower_ok
