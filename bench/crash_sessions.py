@@ -296,7 +296,7 @@ def _session(activity: str, kind: str, rig: str, seed: int, folder: Path, durati
         _stop_twin(twin)
     log = (folder / "app.log").read_text(errors="replace") if (folder / "app.log").exists() else ""
     out["traceback"] = "Traceback" in log
-    said = ("hold", "coupled", "re-arm")
+    said = ("hold", "coupled", "re-arm", "comes back")
     out["messages"] = [ln for ln in log.splitlines() if any(w in ln for w in said)][:20]
     try:
         w = dict(np.load(twin_dir / "watch.npz"))
