@@ -67,7 +67,7 @@ class BenchConfig:
     demos: int = 50
     seeds: int = 3
     rollouts: int = 32  # per policy: 3 seeds x 32 = 96 per cell, a 95 % Wilson interval within +-10 points
-    steps: int = 8000  # optimiser steps per training run: from the learning curve (docs/first.md)
+    steps: int = 8000  # optimiser steps per training run: from the learning curve (docs/first_training.md)
     batch: int = 256
     policy: str = "flow"
     preset: str = ""  # "": the observation's default (state: the MLP flow head; images: small)

@@ -5,7 +5,7 @@
 Each DIR is one episode set (a task's recordings, as `factr2 collect` writes them). Per set and tare method:
 the recording thresholds (Otsu on the set's own, tared, scores), then every episode labelled as `factr2
 episodes phases` does, against the truth of the recorded /follower/ground_truth: contact while the true
-external torque's ||tau_ext_true||_1 passes TRUE_ON_NM, until it falls to TRUE_OFF_NM (docs/first.md).
+external torque's ||tau_ext_true||_1 passes TRUE_ON_NM, until it falls to TRUE_OFF_NM (docs/first_labels.md).
 
     recall   share of true-contact samples labelled contact
     FP       share of true-free samples labelled contact

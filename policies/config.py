@@ -79,7 +79,7 @@ def preset(name: str, policy: str = "flow") -> PolicyConfig:
     `state`: for low-dimensional observations (`--obs state`), no images: the flow policy's velocity field is
     a residual MLP over the flattened chunk (policies.flow_mlp), 128-wide observation tokens, a 512-wide
     stream, 3 FiLM blocks, no dropout (EMA weights smooth instead): 1500 samples/s on one core at batch 64,
-    3800 at batch 256, against 180 for `small`'s DiT on the same input (docs/first.md, "State preset")."""
+    3800 at batch 256, against 180 for `small`'s DiT on the same input (docs/first_training.md)."""
     if name not in PRESETS:
         raise ValueError(f"preset {name!r}: one of {', '.join(PRESETS)}")
     cfg = PolicyConfig(policy=policy)  # an unregistered policy is refused by policies.policy.make_policy

@@ -1,6 +1,6 @@
 """Flow-matching policy with a residual-MLP velocity field: the `state` preset's head, for low-dimensional
 observations (joints + gripper, force, the PRIVILEGED object vector), where a transformer over the chunk's
-30 tokens costs ~10x more per sample for nothing it can use (docs/first.md, "State preset": measured).
+30 tokens costs ~10x more per sample for nothing it can use (measured: docs/first_training.md).
 
 Same objective and sampling as policies.flow.FlowPolicy (x_a = (1 - a) x0 + a x1, a ~ Beta(1, 1.5), loss
 ||v - (x1 - x0)||^2 on the valid chunk steps, 10 Euler steps at inference, the same `draw_noise`), so the

@@ -118,7 +118,7 @@ def phases_identity(phases: dict) -> dict:
 
 
 THRESHOLD_SOURCES = ("recording", "next")  # --thresholds words; or LOW:HIGH [N*m]
-TARE_DEFAULT = "payload"  # measured against the twin's truth (docs/first.md, bench/label_truth.py)
+TARE_DEFAULT = "payload"  # measured against the twin's truth (docs/first_labels.md, bench/label_truth.py)
 
 
 @dataclass(frozen=True)

@@ -12,13 +12,13 @@ Default thresholds come from the recordings themselves (`recording_thresholds`):
 scores, so the score distribution of an episode set is free-motion noise plus a contact part above it.
 With o = Otsu's threshold of log f over every sample of the set (the split into two classes with the largest
 between-class variance, i.e. the valley between the noise and the contact): T_low = OTSU_LOW_X * o, T_high =
-OTSU_HIGH_X * o, a band around the valley (measured against the twin's truth, docs/first.md: T_low = o
+OTSU_HIGH_X * o, a band around the valley (measured against the twin's truth, docs/first_labels.md: T_low = o
 itself cut a contact's weak start and end, recall 79-83 % on peg-insert and press-fit).
 Nothing in it is fitted to data; it assumes the set has contact (a set without any is split inside its free
 motion: check the figures, or pass thresholds). The former source remains: the NEXT checkpoint's measured
 free-motion noise, its validation L1 per joint (metrics["val_l1"]): with s = sum_j val_l1_j (the mean
 free-motion score on the calibration replay), T_low = LOW_X * s and T_high = HIGH_X * s; on teleop motion,
-far from the replay, it sits well below the free-motion scores (docs/first.md). Both are overridable.
+far from the replay, it sits well below the free-motion scores (docs/first_labels.md). Both are overridable.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ PHASE_SHORT = ("F", "PC", "C")
 PRE_CONTACT_S = 1.0  # the paper's pre-contact window before each onset [s]
 LOW_X, HIGH_X = 2.0, 3.0  # checkpoint source: thresholds as multiples of the mean free-motion score
 # the recording source's band around Otsu's valley o: off at 2/3 o, on at 5/4 o (chosen on the seed-1
-# collections against the twin's truth, checked on the seed-9 ones: docs/first.md "Contact runs")
+# collections against the twin's truth, checked on the seed-9 ones: docs/first_labels.md "Contact runs")
 OTSU_LOW_X, OTSU_HIGH_X = 2.0 / 3.0, 1.25
 LABEL_RULE = "runs; recording band 2/3:5/4 of Otsu"  # what a run's meta and the benchmark's ledger compare
 OTSU_BINS = 256  # histogram of log f for Otsu's threshold

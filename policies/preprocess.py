@@ -211,7 +211,7 @@ class Preprocess:
     normalised per value over the training samples. "relative": each chunk's joint targets minus the joints
     observed at its tick (grippers absolute), normalised per chunk step and value, so the first steps' small
     corrections are on the same scale as the chunk's end: a millimetre of alignment at 0.4 m reach is 0.0025
-    rad, under 1 % of the absolute targets' spread but a whole unit of the early steps' (docs/first.md)."""
+    rad, <1 % of the absolute targets' spread, a whole unit of the early steps' (docs/first_training.md)."""
 
     norm: Normalizer
     image: ImagePath

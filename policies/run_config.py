@@ -29,8 +29,9 @@ from policies.preprocess import ACTION_FRAMES
 from policies.privileged import OBSERVATIONS, low_dimensional
 from policies.sampler import DEFAULT_SOURCE_WEIGHTS, parse_ratio, parse_source_weights
 
-STATE_EPOCHS, STATE_BATCH = 80.0, 256  # the state preset's defaults: the learning curve (docs/first.md) still
+# the state preset's defaults: the learning curve (docs/first_training.md) still
 # rose at 8000 steps x 256 on 47 peg-insert demonstrations (~82 passes); images keep 20 passes at 128
+STATE_EPOCHS, STATE_BATCH = 80.0, 256
 
 
 def default_length(observation: str) -> tuple[float, int]:

@@ -116,7 +116,7 @@ def test_state_run_trains_saves_ema_and_rolls_in(state_recordings, tmp_path):
 def test_default_length_comes_from_the_learning_curve_for_state():
     from policies.run_config import default_length
 
-    assert default_length("state") == (80.0, 256)  # docs/first.md: success still rose at 8000 x 256
+    assert default_length("state") == (80.0, 256)  # docs/first_training.md: success still rose at 8000 x 256
     assert default_length("images") == (20.0, 128)  # the paper's 20 epochs
     import argparse
 
