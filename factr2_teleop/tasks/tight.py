@@ -6,17 +6,23 @@ where its own arm is (the follower's reported joints through FK), and feels the
 leader's force feedback (op.p.felt_nm). It never reads the twin's truth (op.p.obs): the bore's 0.2 mm per side
 clearance is far below the detector's millimetres, so what sight gives is only where to start looking.
 
+0. Brings the arm over the pin in joint space (from the session's stretched start pose the Cartesian aim
+   stalls on the joint limits).
 1. Look (Sight averages the detections frame by frame: the noise averages out, the bias does not), grasp the
-   pin's head from above; the grasp is checked by sight: once the hand has lifted, a pin still seen standing
-   where it stood was not taken (a held one is hidden by the hand).
-2. Carry it over the bore as seen; lower slowly until the touch is felt (or until it is felt far below the
-   fixture's seen top: the pin went straight in).
-3. Search: press lightly (the felt push regulated to a target, like wipe.py's strokes: the lean on the joint
-   error is off, the push comes from the hand's compliance) while the hand traces an Archimedean spiral around
-   the seen bore; the pin drops when its tip crosses the chamfer: the hand is felt to sink DROP_M below
-   where it touched. A spiral that reaches SEARCH_R_M without a drop: lift, look again, search again.
-4. Push it home on the same felt push; seated when the hand has stopped sinking for STILL_S deep in the
-   bore (stop on force); a stop short of that depth is a jam: lift a little and push again.
+   pin's head from above, low enough that the fingers cover the head whatever the seen height's bias; the
+   grasp is checked by sight: once the hand has lifted, a pin still seen standing where it stood was not
+   taken (a held one is hidden by the hand).
+2. Carry it over the bore as seen, feel the carried weight held still (the baseline a touch is felt
+   against), lower slowly until the touch is felt (or until it is felt far below the fixture's seen top:
+   the pin went straight in).
+3. Search by pecks: lift the tip clear, move over the next point of a hexagonal grid around the touch
+   (nearest first), press a few mm below the touch height with the hand's compliance (the lean on the joint
+   error off) and rest; a hand that rests DROP_M lower than it rested on the fixture top has dropped into the
+   bore (the chamfer leads a tip in from CAPTURE_M off the axis). A grid without a drop: lift, look again,
+   search again.
+4. Push it home on a felt push (over the baseline, like wipe.py's strokes); seated when the hand has stopped
+   sinking for STILL_S deep in the bore (stop on force); a stop short of that depth is a jam: lift a little
+   and push again.
 5. Let go, lift.
 """
 
@@ -25,39 +31,52 @@ from __future__ import annotations
 import numpy as np
 
 from factr2_teleop.tasks import kinematics as K
+from factr2_teleop.tasks.screw import _go_joints
 from factr2_teleop.tasks.scripts import DECIDE_DT_S, best_down_yaw, grip, move, wait, yaw_of
 from hardware.sim.tasks import tight_insert as TI
 
 LOOK_S = 0.5  # s: how long it looks before it moves (some 15 camera frames)
-GRASP_BELOW_M = 0.010  # m: ee site this far below the head's top (fingertips 4 mm above the head's underside)
+GRASP_BELOW_M = 0.016  # m: ee site this far below the head's top as seen: the fingertips (10 mm below the ee
+# site) 2 mm below the head's underside, so the 60 mm pads cover the whole 24 mm head unless the pin's seen
+# height is 2 mm low, and 20 mm of it with the height seen 4 mm high (the detector's height bias is mm)
 PIN_LEN_M = TI.SHAFT_L_M + 2 * TI.HEAD_HALF[2]
 TIP_BELOW_EE_M = PIN_LEN_M - GRASP_BELOW_M  # m: the tip under the ee site when held as grasped
 GRASP_TRIES = 3
 LIFT_M = 0.075
+READY_ABOVE_M = 0.05  # m: the hand first goes this far above its grasp in joint space (a session starts with
+# the arm stretched at q = 0, from where the Cartesian aim ran into the joint limits and missed the pin)
 APPROACH_ABOVE_M = 0.012  # m: tip this far above the fixture's seen top before the touch-down
 TOUCH_SPEED_M_S = 0.008
 TOUCH_MAX_M = 0.045  # m: the longest touch-down (past the seen top: straight in)
 STRAIGHT_IN_M = 0.010  # m: a touch felt this far below the seen top means the pin went in on its own
-TOUCH_FELT_NM = 0.09  # N*m: felt this much, the pin has touched (free motion feels 0.02-0.06 N*m; scripts'
-# FELT_NM of 0.15 is ~7 N on the pin here, more than a careful search pushes)
-PUSH_FELT_NM = (0.11, 0.15)  # N*m: the felt push a demonstration searches with (drawn per episode; ~3-6 N)
+TOUCH_FELT_NM = 0.08  # N*m: felt this much MORE than while carrying the pin in the air, it has touched (the
+# held pin's weight is itself felt, 0.15-0.2 N*m at the leader: a person feels a change, not a level)
+BASE_S = 0.4  # s: how long the carried weight is felt, held still, before the touch-down
+PUSH_FELT_NM = (0.11, 0.15)  # N*m over the carried weight: the push home (drawn per episode; ~3-6 N)
 DEPTH_KI = 0.05  # m per (N*m * s): how fast the aimed depth follows the felt push error (wipe.py's)
 DEPTH_RANGE_M = (-0.003, 0.03)  # m: aimed depth below the touch, bounds
-SEARCH_PITCH_M = 0.0018  # m: spiral pitch (the pin drops when its tip is within 1.2 mm of the axis)
-SEARCH_SPEED_M_S = 0.012  # m/s along the spiral
-SEARCH_R_M = 0.013  # m: the widest spiral (the seen bore is off by 2.8-3.6 mm std per axis, relative, and
-# the arm's own kinematics add to it: a pin 11.9 mm off was measured)
-# The pin does not trace the spiral aimed at (the hand's compliance against the sliding friction with the
-# lean off, the pin tilting in the fingers, stick-slip); aiming ahead by the lag seen in the arm (0.8 x the
-# lag + 0.5 /s of its integral) did not help: 4 of 11 episodes still never brought the tip within the
-# chamfer's reach, and in the one traced the hand jumped 7 mm at a time (docs/tasks.md).
-SEARCHES = 2  # spirals before giving up
-DROP_M = 0.0025  # m: the hand sinking this far below where it touched means the pin dropped into the bore
+# The search pecks: lift the tip clear, move over the next point of a hexagonal grid around the seen bore
+# (nearest first), press down, and see whether the hand sinks. A spiral slid on the fixture top did not
+# work: the follower's own compliance against the sliding friction (1-2 N at a 3-6 N push) held the hand
+# within ~2 mm while the leader traced +-5 mm (measured, dev seed 51), so the tip never crossed the chamfer.
+PECK_SPACING_M = 0.0032  # m: hexagonal grid pitch (every point of the disc within 1.85 mm of a grid point,
+# inside the chamfer's CAPTURE_M of 2.2 mm, 0.35 mm left for the hand's placing error)
+PECK_R_M = 0.0115  # m: the widest point searched (the seen bore is off by 2.8-3.6 mm std per axis)
+PECK_ABOVE_M = 0.005  # m: the hand aimed this far above its touch height while moving between points (the
+# touch is felt with the hand already pressing, the follower lags a fast lift: 3.5 mm did not lift the tip)
+PECK_PRESS_M = 0.005  # m: aimed this far below the touch height on each peck
+PECK_LIFT_S, PECK_MOVE_S, PECK_DOWN_S, PECK_HOLD_S = 0.3, 0.3, 0.35, 0.3  # s: lift (and let the follower
+# catch up: it lags the leader by ~0.2 s), move over the next point, press, rest
+DROP_M = 0.002  # m: resting this much lower than on the fixture top (the last pecks' rests): it is in
+DROP_FIRST_M = 0.003  # m: the first peck, with no rest on the top to compare: this far below the touch height
+# (pressed on the top it rests 0.5-2 mm below it, measured)
+PECK_REF_N = 5  # pecks: the rests on the top a peck is compared with (their median)
 HOME_M = TI.DEPTH_M - 0.004  # m: sunk this far below the touch: deep in the bore
 STILL_S = 0.5  # s: no sinking (< STILL_M) for this long while pushed: it has stopped
 STILL_M = 0.0003
 PUSH_S = 6.0  # s: the longest push home
 JAM_TRIES = 3
+SEARCHES = 2  # grids before giving up
 
 
 class Sight:
@@ -98,12 +117,16 @@ def hand_pose(op) -> np.ndarray:
     return op.fk(op.p.q_follower)
 
 
-def spiral_xy(s_m: float, pitch_m: float) -> np.ndarray:
-    """Point [m] of an Archimedean spiral (r = pitch * theta / 2 pi) after arc length s_m [m] from its centre
-    (pure; the arc length approximated by pitch * theta^2 / 4 pi, exact enough past the first turn)."""
-    th = np.sqrt(4 * np.pi * max(s_m, 0.0) / pitch_m)
-    r = pitch_m * th / (2 * np.pi)
-    return np.array([r * np.cos(th), r * np.sin(th)])
+def peck_grid(spacing_m: float, radius_m: float) -> np.ndarray:
+    """Points [m] (N, 2) of a hexagonal grid of pitch spacing_m within radius_m of the origin, nearest first
+    (then by angle); the origin first. Every point of the disc is within spacing_m / sqrt(3) of one (pure)."""
+    n = int(np.ceil(radius_m / spacing_m)) + 1
+    i, j = np.meshgrid(np.arange(-2 * n, 2 * n + 1), np.arange(-n, n + 1))
+    pts = np.column_stack([(i + 0.5 * j).ravel() * spacing_m, (j * np.sqrt(3) / 2).ravel() * spacing_m])
+    r = np.hypot(*pts.T)
+    pts, r = pts[r <= radius_m + 1e-12], r[r <= radius_m + 1e-12]
+    order = np.lexsort((np.arctan2(pts[:, 1], pts[:, 0]), np.round(r, 9)))
+    return pts[order]
 
 
 def tight_insert(op, params, rng: np.random.Generator, held: bool = False):
@@ -129,7 +152,7 @@ def _script(op, rng, sight: Sight):
     def dur(s):
         return s * speed * rng.uniform(0.85, 1.15)
 
-    out = op.log = {"gave_up": False, "retries": 0, "felt": [], "grasps": 0, "spirals": 0, "jams": 0}
+    out = op.log = {"gave_up": False, "retries": 0, "felt": [], "grasps": 0, "pecks": 0, "jams": 0}
     yield
     yield from wait(op, LOOK_S)
     if sight.pos("pin") is None or sight.pos("hole") is None:
@@ -137,6 +160,7 @@ def _script(op, rng, sight: Sight):
     if sight.pos("pin") is None or sight.pos("hole") is None:  # no detector behind op.p.seen: blind
         out["gave_up"], out["result"] = True, "nothing seen"
         return out
+    yield from _ready(op, sight.pos("pin"), dur)
     for _grasp in range(GRASP_TRIES):
         out["grasps"] += 1
         ok, yaw = yield from _grasp_pin(op, sight, rng, dur)
@@ -154,6 +178,15 @@ def _script(op, rng, sight: Sight):
     T = hand_pose(op)
     yield from move(op, _down(yaw, T[:3, 3] + [0, 0, 0.06]), dur(0.9), T_from=T)
     return out
+
+
+def _ready(op, pin, dur):
+    """Bring the arm over the pin in joint space, from an IK solved from the middle of the joint ranges (the
+    elbow up): from the stretched start pose the Cartesian aim stalls on the joint limits."""
+    T = _down(0.0, np.asarray(pin, float) + [0, 0, TIP_BELOW_EE_M + READY_ABOVE_M])
+    q, e = K.solve_ik(op.fk, op.jac, (op.q_min + op.q_max) / 2, T, op.q_min, op.q_max, iters=80)
+    if np.linalg.norm(e[:3]) < 0.005:
+        yield from _go_joints(op, q, dur(1.5))
 
 
 def _grasp_pin(op, sight: Sight, rng, dur):
@@ -190,24 +223,25 @@ def _find_and_insert(op, sight: Sight, rng, dur, yaw: float, out: dict):
         centre = hole[:2].copy()
         above = np.array([*centre, top_z + APPROACH_ABOVE_M + TIP_BELOW_EE_M])
         bump = np.array([rng.uniform(-0.02, 0.02), 0.0, rng.uniform(0.0, 0.04)]) if search == 0 else None
+        op.servo_on = True
         yield from move(op, _down(yaw, above), dur(2.0), bump=bump)
         yield from wait(op, 0.3)
-        z_touch = yield from _touch_down(op, yaw, above, out)
+        base = yield from _felt_base(op)
+        z_touch = yield from _touch_down(op, yaw, above, base, out)
         if z_touch is None:
             return "lost"
-        op.servo_on = False  # from here the push is regulated by feel (wipe.py)
+        op.servo_on = False  # from here the push comes from the hand's compliance (wipe.py)
         if z_touch < above[2] - APPROACH_ABOVE_M - STRAIGHT_IN_M:
             status = "dropped"  # felt far below the top: it went in on the way down
             z_touch = above[2] - APPROACH_ABOVE_M  # the hand's height with the tip at the top, as seen
         else:
-            out["spirals"] += 1
             t0 = op.p.t
-            status = yield from _spiral(op, yaw, centre, z_touch, felt_target, rng)
+            status = yield from _pecks(op, yaw, hand_pose(op)[:2, 3].copy(), z_touch, out)
             out["search_s"] = round(out.get("search_s", 0.0) + op.p.t - t0, 2)
         if status == "dropped":
             for _jam in range(JAM_TRIES):
                 t0 = op.p.t
-                status = yield from _push_home(op, yaw, z_touch, felt_target)
+                status = yield from _push_home(op, yaw, z_touch, base, felt_target)
                 out["push_s"] = round(out.get("push_s", 0.0) + op.p.t - t0, 2)
                 if status == "seated":
                     return status
@@ -221,46 +255,70 @@ def _find_and_insert(op, sight: Sight, rng, dur, yaw: float, out: dict):
     return "lost"
 
 
-def _touch_down(op, yaw, above, out):
+def _felt_base(op):
+    """The feedback felt holding the pin still in the air [N*m] (its weight, the pose's own estimate error):
+    what a touch is felt against."""
+    vals = []
+    for _ in range(round(BASE_S / DECIDE_DT_S)):
+        yield
+        vals.append(op.p.felt_nm)
+    return float(np.median(vals))
+
+
+def _touch_down(op, yaw, above, base, out):
     """Lower slowly until contact is felt; the hand's height then [m] (None: nothing felt)."""
     z = above[2]
     for _ in range(round(TOUCH_MAX_M / TOUCH_SPEED_M_S / DECIDE_DT_S)):
         z -= TOUCH_SPEED_M_S * DECIDE_DT_S
         op.aim(_down(yaw, [*above[:2], z]))
         yield
-        if op.p.felt_nm > TOUCH_FELT_NM:
+        if op.p.felt_nm - base > TOUCH_FELT_NM:
             zt = float(hand_pose(op)[2, 3])
             out["felt"].append({"t": round(op.p.t, 2), "by": "feedback", "what": "touch",
-                                "height_mm": round(zt * 1e3, 1)})
+                                "height_mm": round(zt * 1e3, 1), "base_nm": round(base, 3)})
             return zt
     return None
 
 
-def _regulate(op, depth: float, felt_target: float) -> float:
-    return float(np.clip(depth + DEPTH_KI * (felt_target - op.p.felt_nm) * DECIDE_DT_S, *DEPTH_RANGE_M))
+def _regulate(op, depth: float, base: float, felt_target: float) -> float:
+    return float(np.clip(depth + DEPTH_KI * (felt_target - (op.p.felt_nm - base)) * DECIDE_DT_S,
+                         *DEPTH_RANGE_M))
 
 
-def _spiral(op, yaw, centre, z_touch, felt_target, rng):
-    """Trace the spiral around centre pressing with the felt push; 'dropped' when the hand sinks DROP_M
-    below the touch, 'none' when the spiral is done."""
-    depth = 0.0
-    s = 0.0
-    phase = rng.uniform(0, 2 * np.pi)
-    c, sn = np.cos(phase), np.sin(phase)
-    while True:
-        xy = spiral_xy(s, SEARCH_PITCH_M)
-        if np.hypot(*xy) > SEARCH_R_M:
-            return "none"
-        goal = centre + np.array([c * xy[0] - sn * xy[1], sn * xy[0] + c * xy[1]])
-        depth = _regulate(op, depth, felt_target)
-        op.aim(_down(yaw, [*goal, z_touch - depth]))
+def _aim_for(op, yaw, T_from, p_to, seconds: float):
+    """Move the hand in a straight line to p_to over `seconds` (linear: the pecks are short)."""
+    n = max(1, round(seconds / DECIDE_DT_S))
+    for k in range(1, n + 1):
+        op.aim(_down(yaw, T_from + (np.asarray(p_to) - T_from) * k / n))
         yield
-        if hand_pose(op)[2, 3] < z_touch - DROP_M:
+
+
+def _pecks(op, yaw, centre, z_touch, out):
+    """Peck the grid around centre (where the touch was felt): lift clear, move over the next point, press
+    PECK_PRESS_M below the touch and rest; 'dropped' when the hand rests DROP_M lower than it rests on the
+    fixture top (the median of the last pecks' rests: the pin may creep up in the fingers; the first peck,
+    where the touch was, against the touch height itself), 'none' when the grid is done."""
+    z_up, z_press = z_touch + PECK_ABOVE_M, z_touch - PECK_PRESS_M
+    rests: list[float] = []
+    aim = np.array([*centre, z_touch])
+    for xy in centre + peck_grid(PECK_SPACING_M, PECK_R_M):
+        out["pecks"] += 1
+        yield from _aim_for(op, yaw, aim, [*aim[:2], z_up], PECK_LIFT_S)
+        yield from _aim_for(op, yaw, [*aim[:2], z_up], [*xy, z_up], PECK_MOVE_S)
+        aim = np.array([*xy, z_press])
+        yield from _aim_for(op, yaw, [*xy, z_up], aim, PECK_DOWN_S)
+        yield from wait(op, PECK_HOLD_S)
+        rest = float(hand_pose(op)[2, 3])
+        top = float(np.median(rests[-PECK_REF_N:])) if rests else z_touch - DROP_FIRST_M + DROP_M
+        if rest < top - DROP_M:
+            out["felt"].append({"t": round(op.p.t, 2), "by": "own arm", "what": "drop",
+                                "sunk_mm": round((top - rest) * 1e3, 1), "peck": len(rests) + 1})
             return "dropped"
-        s += SEARCH_SPEED_M_S * DECIDE_DT_S
+        rests.append(rest)
+    return "none"
 
 
-def _push_home(op, yaw, z_touch, felt_target):
+def _push_home(op, yaw, z_touch, base, felt_target):
     """Hold where the pin dropped and push on the felt push until the hand stops sinking: 'seated' deep in
     the bore, 'jammed' (after lifting a little) when it stopped short."""
     xy = hand_pose(op)[:2, 3].copy()
@@ -268,12 +326,12 @@ def _push_home(op, yaw, z_touch, felt_target):
     window = round(STILL_S / DECIDE_DT_S)
     zs: list[float] = []
     for _ in range(round(PUSH_S / DECIDE_DT_S)):
-        depth = _regulate(op, depth, felt_target * 1.3)
+        depth = _regulate(op, depth, base, felt_target * 1.3)
         op.aim(_down(yaw, [*xy, z_touch - depth]))
         yield
         z = float(hand_pose(op)[2, 3])
         zs.append(z)
-        still = len(zs) > window and abs(zs[-window] - z) < STILL_M and op.p.felt_nm > TOUCH_FELT_NM
+        still = len(zs) > window and abs(zs[-window] - z) < STILL_M and op.p.felt_nm - base > TOUCH_FELT_NM
         if still:
             if z_touch - z > HOME_M:
                 return "seated"

@@ -68,10 +68,11 @@ def lower_held_pin(offset_m: float = 0.0, tilt_rad: float = 0.0, seconds: float 
     return _run(m, d, ctrl, seconds, fixture, table)
 
 
-def slide_held_pin(from_m: float = 0.004, speed_m_s: float = 0.01, press_m: float = 0.003,
+def slide_held_pin(from_m: float = 0.004, speed_m_s: float = 0.01, press_m: float = TI.CHAMFER_M + 0.002,
                    seconds: float = 2.0) -> dict:
     """Press the held pin onto the fixture top from_m [m] beside the axis (the hand's target press_m below
-    the top: ~1.5 N) and drag it across the bore at speed_m_s [m/s] toward and past the axis."""
+    the top, 2 mm below the chamfer's lower edge: ~2 N on the top) and drag it across the bore at speed_m_s
+    [m/s] toward and past the axis."""
     m, d, p0, fixture, table = _setup()
     z_press = HOLE[2] + TI.DEPTH_M - press_m
 
