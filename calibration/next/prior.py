@@ -20,7 +20,7 @@ Filtering, the same everywhere (fit, offline evaluation, the control loop's Prio
 the backward difference of q_dot, so every other signal is taken at the same half-sample midpoint, where
 tau_m - prior is an estimate of the external torque's mean over the last sample period. Filtering only the
 acceleration (as FILIC does) leaves M(q) (qdd - qdd_filtered) -- the filter's lag times the jerk -- in the
-residual; so the filter acts on the residual r = tau_m - prior itself (docs/next.md):
+residual; so the filter acts on the residual r = tau_m - prior itself (docs/next_twin.md):
 
 - the fit weighs the residual through a fixed low-pass (`FILTER_ORDER` first-order sections at
   `ACCEL_CUTOFF_HZ`, linear, so the least-squares design is filtered column by column);
