@@ -66,7 +66,7 @@ def faults_campaign() -> str:
     return "\n".join(rows)
 
 
-# -- docs/diagnosis.md: a payload on the real UR5, springs on the twin ------------------------------------
+# -- docs/diagnosis_payload.md: a payload on the real UR5, springs on the twin ----------------------------
 UR5_CASES = {"known": "scale known (`torque constants`: the controller's ratio)",
              "referenced": "referenced (`description masses`: the prior's scales)",
              "known mass": "known mass (`known mass`: {ref} kg on the reference runs)",
@@ -154,10 +154,10 @@ def springs_twin() -> str:
 # page, name -> (results files it reads, renderer)
 TABLES = {
     ("safety.md", "faults_campaign"): (("faults_campaign", "faults_crash"), faults_campaign),
-    ("diagnosis.md", "payload_ur5_cases"): (("diagnosis_payload_ur5",), payload_ur5_cases),
-    ("diagnosis.md", "payload_ur5_l1"): (("diagnosis_payload_ur5",), payload_ur5_l1),
-    ("diagnosis.md", "payload_ur5_current"): (("diagnosis_payload_ur5",), payload_ur5_current),
-    ("diagnosis.md", "springs_twin"): (("diagnosis_springs_twin",), springs_twin),
+    ("diagnosis_payload.md", "payload_ur5_cases"): (("diagnosis_payload_ur5",), payload_ur5_cases),
+    ("diagnosis_payload.md", "payload_ur5_l1"): (("diagnosis_payload_ur5",), payload_ur5_l1),
+    ("diagnosis_payload.md", "payload_ur5_current"): (("diagnosis_payload_ur5",), payload_ur5_current),
+    ("diagnosis_payload.md", "springs_twin"): (("diagnosis_springs_twin",), springs_twin),
 }
 
 
