@@ -27,8 +27,9 @@ under `payload`. A run writes to `bench/out/` (scratch); a result is published b
 citing it from a page of docs/. Tables in docs/ that come from these files are written by
 `python -m bench.docs_tables` and checked by `tests/test_docs_tables.py`.
 
-Files recorded before the harness existed carry the commit that published them (`commit_note`) and the
-machine as the run described it (the shared 2-vCPU dev VM, `lscpu`: AMD EPYC, unless said).
+Files recorded before the harness existed carry the commit that published them (`commit_note`), the
+machine as the run described it (the shared 2-vCPU dev VM, `lscpu`: AMD EPYC, unless said), and where the
+command has changed form, `command_as_run` beside `command` (today's form, SCRATCH for a scratch folder).
 
 This index is written by `python -m bench.results_index` (CI checks it is current).
 
