@@ -19,7 +19,7 @@ import sys
 import numpy as np
 
 from bench import harness
-from bench.first_report import DOCS_BEGIN, DOCS_END, wilson
+from bench.first_report import DOCS_BEGIN, DOCS_END, mcnemar_p, wilson
 
 DOCS = harness.ROOT / "docs"
 
@@ -151,9 +151,67 @@ def springs_twin() -> str:
     return "\n".join(out)
 
 
+# -- docs/first.md: the headline in one table per results file ---------------------------------------------
+def _pooled(seeds: list[dict]) -> tuple[int, int]:
+    return sum(sum(x["success"]) for x in seeds), sum(len(x["success"]) for x in seeds)
+
+
+def _p(p: float) -> str:
+    return f"{p:.2f}" if p >= 0.1 else f"{p:.2g}"
+
+
+def _stages(seeds: list[dict]) -> dict[str, float]:
+    """Share of all episodes that reached each stage (the seeds' stage_rates, weighted by episodes)."""
+    n = sum(len(x["success"]) for x in seeds)
+    out: dict[str, float] = {}
+    for x in seeds:
+        for k, v in (x.get("stage_rates") or {}).items():
+            out[k] = out.get(k, 0.0) + v * len(x["success"]) / n
+    return out
+
+
+def _rate_cell(k: int, n: int, best: float) -> str:
+    """A pooled success rate with its 95 % Wilson interval, bold when it is the task's best."""
+    lo, hi = wilson(k, n)
+    pct = f"{100 * k / n:.0f} %"
+    return f"{f'**{pct}**' if k / n == best else pct} [{100 * lo:.0f}, {100 * hi:.0f}]"
+
+
+def headline(name: str, stage_column: bool) -> str:
+    """first against base-torque per task: pooled success [95 % Wilson], per seed, the paired episodes."""
+    raw = _payload(name)
+    head = ("| task | base-torque [95 % Wilson] | first | per seed bt / first [%] | paired: only first / "
+            "only bt, McNemar p |")
+    rows = [head + (" stage that fails |" if stage_column else ""), "|---" * (6 if stage_column else 5) + "|"]
+    for task in (t for t in raw if t != "config"):
+        bt = sorted(raw[task]["base-torque"]["seeds"], key=lambda x: x["seed"])
+        fi = sorted(raw[task]["first"]["seeds"], key=lambda x: x["seed"])
+        rates = {m: _pooled(v) for m, v in (("bt", bt), ("first", fi))}
+        best = max(k / n for k, n in rates.values())
+        per = " / ".join(" ".join(f"{100 * np.mean(x['success']):.0f}" for x in v) for v in (bt, fi))
+        only_f = sum(a > b for x, y in zip(fi, bt) for a, b in zip(x["success"], y["success"]))
+        only_b = sum(b > a for x, y in zip(fi, bt) for a, b in zip(x["success"], y["success"]))
+        row = (f"| {task} | {_rate_cell(*rates['bt'], best)} | {_rate_cell(*rates['first'], best)} | {per} | "
+               f"{only_f} / {only_b}, "
+               f"p = {_p(mcnemar_p(only_f, only_b))} |")
+        if stage_column:
+            sb, sf = _stages(bt), _stages(fi)
+            names = list(sb)
+            if min(k / n for k, n in rates.values()) >= 0.95 or len(names) < 2:  # no stage fails
+                row += " -- |"
+            else:
+                lo, hi = sorted((100 * sb[names[-2]], 100 * sf[names[-2]]))
+                row += f" {names[-1]} ({names[-2]} {lo:.0f}-{hi:.0f} %) |"
+        rows.append(row)
+    return "\n".join(rows)
+
+
 # page, name -> (results files it reads, renderer)
 TABLES = {
     ("safety.md", "faults_campaign"): (("faults_campaign", "faults_crash"), faults_campaign),
+    ("first.md", "headline"): (("first_headline",), lambda: headline("first_headline", True)),
+    ("first.md", "headline_fp32_hysteresis"): (("first_headline_fp32_hysteresis",),
+                                               lambda: headline("first_headline_fp32_hysteresis", False)),
     ("diagnosis_payload.md", "payload_ur5_cases"): (("diagnosis_payload_ur5",), payload_ur5_cases),
     ("diagnosis_payload.md", "payload_ur5_l1"): (("diagnosis_payload_ur5",), payload_ur5_l1),
     ("diagnosis_payload.md", "payload_ur5_current"): (("diagnosis_payload_ur5",), payload_ur5_current),
