@@ -157,7 +157,8 @@ def _pooled(seeds: list[dict]) -> tuple[int, int]:
 
 
 def _p(p: float) -> str:
-    return f"{p:.2f}" if p >= 0.1 else f"{p:.2g}"
+    """A p-value as the pages write it: 0.50, 0.071, 0.003."""
+    return f"{p:.2f}" if p >= 0.1 else f"{p:.2g}" if p >= 0.01 else f"{p:.1g}"
 
 
 def _stages(seeds: list[dict]) -> dict[str, float]:
@@ -206,10 +207,41 @@ def headline(name: str, stage_column: bool) -> str:
     return "\n".join(rows)
 
 
+ABLATION = (("base", "base (no force input)", "1:1:1"), ("C", "C", "1:1:5"), ("first", "PC = first", "1:5:1"),
+            ("PC+C", "PC+C", "1:3:3"))
+
+
+def ablation(name: str = "first_ablation", task: str = "peg-insert") -> str:
+    """The re-sampling ratio on one task: each cell's pooled success, per seed, stages, paired with first."""
+    raw = _payload(name)[task]
+    cells = {m: sorted(raw[m]["seeds"], key=lambda x: x["seed"]) for m, _, _ in ABLATION}
+    rates = {m: _pooled(v) for m, v in cells.items()}
+    best = max(k / n for k, n in rates.values())
+    rows = ["| method | w_F:w_PC:w_C | success [95 % Wilson] | per seed [%] | stages: "
+            + " / ".join(_stages(cells["first"])) + " [%] | paired against first: only this / only first, "
+            "McNemar p |", "|---|---|---|---|---|---|"]
+    for m, label, ratio in ABLATION:
+        per = " / ".join(f"{100 * np.mean(x['success']):.0f}" for x in cells[m])
+        stages = " / ".join(f"{100 * v:.0f}" for v in _stages(cells[m]).values())
+        if m == "first":
+            paired = "--"
+        else:
+            pairs = [(a, b) for x, y in zip(cells[m], cells["first"])
+                     for a, b in zip(x["success"], y["success"])]
+            only_m, only_f = sum(a > b for a, b in pairs), sum(b > a for a, b in pairs)
+            p = mcnemar_p(only_m, only_f)
+            paired = f"{only_m} / {only_f}, " + (f"**p = {_p(p)}**" if p < 0.05 else f"p = {_p(p)}")
+        rows.append(f"| {label} | {ratio} | {_rate_cell(*rates[m], best)} | {per} | {stages} | {paired} |")
+    return "\n".join(rows)
+
+
 # page, name -> (results files it reads, renderer)
 TABLES = {
     ("safety.md", "faults_campaign"): (("faults_campaign", "faults_crash"), faults_campaign),
     ("first.md", "headline"): (("first_headline",), lambda: headline("first_headline", True)),
+    ("first.md", "ablation"): (("first_ablation",), ablation),
+    ("first.md", "ablation_fp32_hysteresis"): (("first_ablation_fp32_hysteresis",),
+                                               lambda: ablation("first_ablation_fp32_hysteresis")),
     ("first.md", "headline_fp32_hysteresis"): (("first_headline_fp32_hysteresis",),
                                                lambda: headline("first_headline_fp32_hysteresis", False)),
     ("diagnosis_payload.md", "payload_ur5_cases"): (("diagnosis_payload_ur5",), payload_ur5_cases),
