@@ -6,6 +6,9 @@ servo ends torque off at 0 A, and a Damiao follower ends disabled by its driver.
 
 from __future__ import annotations
 
+import os
+import signal
+import threading
 import time
 
 import pytest
@@ -15,11 +18,11 @@ from hardware.dynamixel import protocol as p
 CLOSE_EXTRA_S = 0.4  # s added to the recording's close: longer than a leader's Bus Watchdog (0.1 s)
 
 
-@pytest.mark.parametrize("rig", ["sim-piper", "sim-yam"])
-def test_teleop_end_puts_the_arms_down_before_the_recording_closes(rig, tmp_path, monkeypatch):
+@pytest.mark.parametrize("rig,end", [("sim-piper", "seconds"), ("sim-yam", "seconds"), ("sim-yam", "ctrl-c")])
+def test_teleop_end_puts_the_arms_down_before_the_recording_closes(rig, end, tmp_path, monkeypatch):
     import hardware.connect as connect
     from factr2_teleop.cli import build_parser
-    from factr2_teleop.commands.teleop import execute
+    from factr2_teleop.commands import teleop
     from factr2_teleop.session.teleop import TeleopSession
 
     got = {}
@@ -36,9 +39,20 @@ def test_teleop_end_puts_the_arms_down_before_the_recording_closes(rig, tmp_path
 
     monkeypatch.setattr(connect, "open_rig", open_rig)
     monkeypatch.setattr(TeleopSession, "close_recording", slow_close)
-    args = build_parser().parse_args(["teleop", "--rig", rig, "--seconds", "1.0", "--record", str(tmp_path),
+    if end == "ctrl-c":  # the operator's Ctrl-C while the status line runs (the main thread's SIGINT)
+        real_watch = teleop._watch
+
+        def watch(loop):
+            threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT)).start()
+            real_watch(loop)
+
+        monkeypatch.setattr(teleop, "_watch", watch)
+    secs = "1.0" if end == "seconds" else "30"
+    args = build_parser().parse_args(["teleop", "--rig", rig, "--seconds", secs, "--record", str(tmp_path),
                                       "--no-cameras"])
-    out = execute(args)
+    t0 = time.monotonic()
+    out = teleop.execute(args)
+    assert time.monotonic() - t0 < 20.0  # (Ctrl-C ended it, not the 30 s)
     assert out["recording"] is not None and out["status"].error is None
     s, t_end = got["session"], got["t_end"]
     off = s.twin.rig_time() - s.twin.t  # rig clock - twin clock [s]

@@ -9,11 +9,16 @@ rig's cameras. Ctrl-C stops: every leader at zero torque, every follower holding
 from __future__ import annotations
 
 import sys
+import time
 
 from factr2_teleop.commands._twin_fault import add_twin_fault_argument, twin_faults
 from hardware.errors import UserError
 
-STATUS_EVERY_S = 0.5  # s between status lines (the loop's end is seen at once)
+STATUS_EVERY_S = 0.5  # s between status lines
+# s: how often the watcher looks whether the loop ended (slept, not a join on the loop's thread: a join that
+# Ctrl-C interrupts marks a running thread stopped on CPython 3.11, bpo-45274, and the arms were then
+# disconnected under a loop still ticking)
+WATCH_POLL_S = 0.02
 HELP = "bilateral force-feedback teleop on a rig (Ctrl-C stops: leader zero torque, follower holds)"
 
 
@@ -65,18 +70,19 @@ def _execute(args) -> dict:
         for line in ts.describe():
             print(line, file=sys.stderr)
         rec = ts.record(args.record, cameras=not args.no_cameras) if args.record else None
-        thread = ts.loop.start(duration_s=args.seconds)  # at once: a twin's unheld leader sinks until it runs
+        ts.loop.start(duration_s=args.seconds)  # at once: a twin's unheld leader sinks until the loop runs
         if rec is not None:
             for line in ts.start_cameras() if not args.no_cameras else []:  # a second or so to open
                 print(f"recording without it: {line}", file=sys.stderr)
             rec.start_episode("teleop")
-        _watch(ts.loop, thread)
+        _watch(ts.loop)
     finally:
         if ts is not None:
             ts.loop.stop(timeout_s=2.0)  # leaders zero torque, followers hold (also after Ctrl-C)
-        # the arms put down at once, before the recording's close (a second or so): a leader left that long
-        # without a packet latches its Bus Watchdog, a Damiao motor drops to damping (docs/safety.md)
-        session.disconnect_arms()
+        if ts is None or not ts.loop.alive:  # (a loop stuck in a driver call: session.close() below)
+            # the arms put down at once, before the recording's close (a second or so): a leader left that
+            # long without a packet latches its Bus Watchdog, a Damiao motor drops to damping
+            session.disconnect_arms()
         if ts is not None:
             rec = ts.recording
             st = ts.close_recording("teleop stopped")
@@ -111,14 +117,18 @@ def _camera_lines(stats: dict) -> None:
               f"{s.dropped} dropped{extra}", file=sys.stderr)
 
 
-def _watch(loop, thread) -> None:
-    """Status line until the loop ends or Ctrl-C (which the finally in run() turns into a safe stop); thread:
-    the loop's, joined (not slept on) so that its end is seen at once."""
+def _watch(loop) -> None:
+    """Status line until the loop ends (seen within WATCH_POLL_S) or Ctrl-C (which the finally in run()
+    turns into a safe stop)."""
     seen = 0
     tty = sys.stderr.isatty()
+    t_next = time.monotonic() + STATUS_EVERY_S
     try:
         while loop.alive:
-            thread.join(STATUS_EVERY_S)
+            time.sleep(WATCH_POLL_S)
+            if time.monotonic() < t_next and loop.alive:
+                continue
+            t_next += STATUS_EVERY_S
             s = loop.snapshot()
             for _t, who, text in s.messages[seen:]:
                 print(("\n" if tty else "") + f"{who}: {text}", file=sys.stderr)
