@@ -25,6 +25,7 @@ import numpy as np
 from calibration.baselines import momentum_observer_step
 from calibration.estimate import FLAG_OK, FLAG_UNCONVERGED, Estimate
 from hardware.params import PerJoint, per_joint
+from hardware.small_vec import all_finite
 from hardware.types import JointState
 
 FEEDBACK_MODES = ("none", "dob", "pp", "next", "ground_truth")
@@ -100,7 +101,7 @@ def refresh_with(tau_f: np.ndarray | None, follower: JointState) -> Estimate | N
     """tau_ext = the follower's measured torque now - tau_f, the newest predicted free torque [N*m] (NEXT
     between its samples; NextAdapter and the worker's NextWorker); None without a usable tau_f or tau_m."""
     tau_m = np.asarray(follower.tau_m, dtype=float)
-    if tau_f is None or tau_m.shape != tau_f.shape or not np.isfinite(tau_m).all():
+    if tau_f is None or tau_m.shape != tau_f.shape or not all_finite(tau_m):
         return None
     return Estimate(tau_ext=tau_m - tau_f, t=follower.t, tau_f=tau_f)
 
@@ -200,7 +201,7 @@ class MomentumObserver(Estimator):
     def update(self, inp: EstimatorInput) -> Estimate | None:
         st = inp.follower
         q, qd, tau_m = st.q, st.q_dot, st.tau_m
-        if not (np.isfinite(q).all() and np.isfinite(qd).all() and np.isfinite(tau_m).all()):
+        if not (all_finite(q) and all_finite(qd) and all_finite(tau_m)):
             return None
         if self._p0 is None:
             self._p0, self._t_prev = self.mass(q) @ qd, st.t

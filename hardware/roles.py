@@ -29,6 +29,7 @@ from hardware.safety import (
     SafetyLayer,
     implausible_jump,
 )
+from hardware.small_vec import all_within
 from hardware.types import STATUS_IMPLAUSIBLE, STATUS_STALE, FollowerCommand, JointLimits, JointState
 from hardware.wrap import unwrap_reading
 
@@ -112,7 +113,7 @@ class Device(abc.ABC):
             return st
         # the common case first, at a third of the CPU: no joint moved more than a glitch-free step can in no
         # time at all (NaN fails the test and goes the full way, where it is never implausible)
-        if (abs(q - self._q_ok) <= PLAUSIBLE_JUMP_RAD).all():
+        if all_within(q - self._q_ok, PLAUSIBLE_JUMP_RAD):
             np.copyto(self._q_ok, q)
             self._t_q_ok.fill(st.t)
             return st

@@ -16,6 +16,7 @@ from enum import Enum
 import numpy as np
 
 from hardware.reasons import Reason, messages
+from hardware.small_vec import all_finite, count_changed
 from hardware.types import FollowerCommand, JointLimits
 
 DEFAULT_WATCHDOG_S = 0.05  # s: commands or feedback older than this put the device in its safe state
@@ -54,14 +55,13 @@ def limit_position_target(q_target: np.ndarray, q_prev: np.ndarray, dt_s: float,
     Returns (safe target, number of joints that were changed).
     """
     raw = np.asarray(q_target, dtype=float)
-    finite = np.isfinite(raw)
-    q = raw if finite.all() else np.where(finite, raw, q_prev)
+    q = raw if all_finite(raw) else np.where(np.isfinite(raw), raw, q_prev)
     step = lim.v_max * _rate_dt(dt_s)
     # q_prev is inside the limits, so lo <= hi on every joint
     lo = np.maximum(q_prev - step, lim.q_min)
     hi = np.minimum(q_prev + step, lim.q_max)
     out = np.minimum(np.maximum(q, lo), hi)
-    return out, int(np.count_nonzero(out != raw))
+    return out, count_changed(out, raw)
 
 
 def implausible_jump(q: np.ndarray, q_prev: np.ndarray, dt_s) -> np.ndarray:
@@ -85,13 +85,12 @@ def limit_torque(tau: np.ndarray, tau_prev: np.ndarray, dt_s: float,
     Returns (safe torque, number of joints changed).
     """
     raw = np.asarray(tau, dtype=float)
-    finite = np.isfinite(raw)
-    t = raw if finite.all() else np.where(finite, raw, 0.0)
+    t = raw if all_finite(raw) else np.where(np.isfinite(raw), raw, 0.0)
     r = lim.tau_rate_max * _rate_dt(dt_s)
     lo = np.maximum(np.minimum(tau_prev - r, np.minimum(tau_prev, 0.0)), -lim.tau_max)
     hi = np.minimum(np.maximum(tau_prev + r, np.maximum(tau_prev, 0.0)), lim.tau_max)
     out = np.minimum(np.maximum(t, lo), hi)
-    return out, int(np.count_nonzero(out != raw))
+    return out, count_changed(out, raw)
 
 
 def limit_gains(kp: np.ndarray, kd: np.ndarray, lim: JointLimits) -> tuple[np.ndarray, np.ndarray, int]:
@@ -263,4 +262,4 @@ def _vec(x, n: int, fill: float = np.nan) -> np.ndarray:
 
 def _n_bad(a: np.ndarray) -> int:
     """Number of non-finite entries."""
-    return 0 if np.isfinite(a).all() else int(np.count_nonzero(~np.isfinite(a)))
+    return 0 if all_finite(a) else int(np.count_nonzero(~np.isfinite(a)))

@@ -24,6 +24,7 @@ from factr2_teleop.teleop.feedback import FeedbackConfig, FeedbackGate
 from factr2_teleop.teleop.mapping import JointMap
 from hardware.errors import ConfigError
 from hardware.params import PerJoint, clamp, per_joint
+from hardware.small_vec import all_finite, count_changed
 from hardware.types import JointLimits
 
 FRICTION_MODES = ("off", "dither", "coulomb")
@@ -125,7 +126,7 @@ def joint_limit_barrier(q: np.ndarray, q_dot: np.ndarray, q_min: np.ndarray, q_m
     """Spring-damper pushing back inside [q_min + margin, q_max - margin]; zero inside."""
     lo, hi = q_min + margin, q_max - margin
     below, above = q < lo, q > hi
-    if not (below.any() or above.any()):
+    if not (any(below.tolist()) or any(above.tolist())):
         return np.zeros_like(q)
     edge = np.where(below, lo, hi)
     return np.where(below | above, -kp * (q - edge) - kd * q_dot, 0.0)
@@ -150,7 +151,7 @@ def damping_term(q_dot: np.ndarray, kd: np.ndarray) -> np.ndarray:
 def cap_total(tau: np.ndarray, cap: np.ndarray) -> tuple[np.ndarray, int]:
     """Per-joint clip of the summed torque; returns (capped, number of joints clipped)."""
     out = clamp(tau, -cap, cap)
-    return out, int(np.count_nonzero(out != tau))
+    return out, count_changed(out, tau)
 
 
 # -- the stateful wrapper the loop calls ------------------------------------------------------------
@@ -252,7 +253,7 @@ class LeaderLaw:
         n, cfg = self.n, self.cfg
         q = np.asarray(inp.q, dtype=float)
         qd = np.asarray(inp.q_dot, dtype=float)
-        if not np.isfinite(qd).all():
+        if not all_finite(qd):
             qd = np.where(np.isfinite(qd), qd, 0.0)
         terms: dict[str, np.ndarray] = {}
         g = self.gravity(q) if cfg.gravity.enabled else np.zeros(n)
@@ -279,7 +280,7 @@ class LeaderLaw:
         total = np.zeros(n)
         for v in terms.values():
             total += v
-        if not np.isfinite(total).all():  # a NaN model output never reaches the leader
+        if not all_finite(total):  # a NaN model output never reaches the leader
             total = np.where(np.isfinite(total), total, 0.0)
         tau, capped = cap_total(total, self.cap)
         return LeaderOutput(tau=tau, terms=terms, gate=fb.gate, contact=fb.contact, fresh=fb.fresh,

@@ -29,6 +29,7 @@ from hardware.errors import ConfigError, DeviceError
 from hardware.reasons import Reason, messages
 from hardware.roles import Follower, Leader, make_safe
 from hardware.safety import SafeFollowerCommand
+from hardware.small_vec import all_finite, bits_or
 from hardware.types import (
     STATUS_COMM_LOST,
     STATUS_DRIVER_ERROR,
@@ -128,7 +129,11 @@ def _fresh(st: JointState, now: float, max_age: float, since: float = -math.inf)
 def status_bits(st: JointState) -> int:
     """Every status bit any joint of the sample has (one reduction; the per-tick checks test bits of it)."""
     status = getattr(st, "status", None)
-    return 0 if status is None else int(np.bitwise_or.reduce(np.asarray(status, dtype=np.uint32)))
+    if status is None:
+        return 0
+    if type(status) is np.ndarray and status.ndim == 1 and status.dtype.kind == "u":
+        return bits_or(status)  # the drivers' uint32 vector: no numpy reduction on the hot path
+    return int(np.bitwise_or.reduce(np.asarray(status, dtype=np.uint32)))
 
 
 def motor_errors(st: JointState) -> str:
@@ -372,7 +377,7 @@ class ArmPair:
     def _ok(self, who: str, st: JointState, now: float, max_age: float) -> bool:
         """Fresh: finite, and a complete sample within max_age (a lost read now and then is tolerated,
         silence is not: it holds the follower within max_age + one tick)."""
-        finite = bool(np.isfinite(st.q).all())
+        finite = all_finite(st.q)
         if finite and math.isfinite(st.t) and now - st.t <= max_age and _complete(st):
             self._t_ok[who] = st.t
             self._misses[who] = 0

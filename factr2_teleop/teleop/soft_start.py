@@ -13,6 +13,7 @@ import ruckig
 
 from hardware.errors import UserError
 from hardware.params import PerJoint, clamp, per_joint
+from hardware.small_vec import all_finite
 
 DEFAULT_MAX_MISMATCH_RAD = 1.0
 
@@ -58,7 +59,7 @@ def mismatch_error(q_follower: np.ndarray, q_goal: np.ndarray, max_rad: np.ndarr
 def rate_limit(q_target: np.ndarray, q_prev: np.ndarray, v_max: np.ndarray, dt_s: float) -> np.ndarray:
     """q_target moved at most v_max*dt from q_prev [rad]; non-finite targets keep q_prev."""
     q = np.asarray(q_target, dtype=float)
-    if not np.isfinite(q).all():
+    if not all_finite(q):
         q = np.where(np.isfinite(q), q, q_prev)
     step = v_max * max(float(dt_s), 0.0)
     return clamp(q, q_prev - step, q_prev + step)
