@@ -33,13 +33,18 @@ from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
-from bench.first_ledger import (
-    demos_fingerprint,
-    export_cells,
-    finished_cells,
-    import_cells,
-    next_weights_digest,
-)
+try:
+    from bench.first_ledger import (
+        demos_fingerprint,
+        export_cells,
+        finished_cells,
+        import_cells,
+        next_weights_digest,
+    )
+except ModuleNotFoundError as e:  # `python bench/bench_first.py`: bench/ is a package now
+    if e.name != "bench":
+        raise
+    raise SystemExit("run it from the repository root as: python -m bench.bench_first ...") from None
 from bench.first_report import aggregate, write_docs, write_report
 from bench.harness import commit, machine
 from policies.phases import LABEL_RULE
