@@ -44,7 +44,8 @@ try:
 except ModuleNotFoundError as e:  # `python bench/bench_first.py`: bench/ is a package now
     if e.name != "bench":
         raise
-    raise SystemExit("run it from the repository root as: python -m bench.bench_first ...") from None
+    print("run it from the repository root as: python -m bench.bench_first ...", file=sys.stderr)
+    raise SystemExit(2) from None
 from bench.first_report import aggregate, write_docs, write_report
 from bench.harness import commit, machine
 from policies.phases import LABEL_RULE
