@@ -52,6 +52,9 @@ class JointMap:
         self.index = np.asarray(idx, dtype=int)
         self.k = sign * scale
         self.offset = per_joint(cfg.offset_rad, n_b, f"{where}.offset_rad")
+        # joint j -> joint j for every joint (the usual rig): the same products without the fancy index and
+        # the scatter (500 Hz, three maps a tick); sign, scale and offset still apply
+        self._in_order = n_a == n_b and idx == list(range(n_b))
 
     @classmethod
     def identity(cls, n: int) -> JointMap:
@@ -59,6 +62,8 @@ class JointMap:
 
     def forward(self, q_a: np.ndarray) -> np.ndarray:
         """Positions a -> b [rad]."""
+        if self._in_order:
+            return self.k * np.asarray(q_a, dtype=float) + self.offset
         return self.k * np.asarray(q_a, dtype=float)[self.index] + self.offset
 
     def forward_velocity(self, qd_a: np.ndarray) -> np.ndarray:
@@ -79,6 +84,8 @@ class JointMap:
 
     def torque_back(self, tau_b: np.ndarray) -> np.ndarray:
         """Torques b -> a [N*m] by virtual work; unmapped a joints get 0."""
+        if self._in_order:
+            return self.k * np.asarray(tau_b, dtype=float)
         tau_a = np.zeros(self.n_a)
         tau_a[self.index] = self.k * np.asarray(tau_b, dtype=float)
         return tau_a
