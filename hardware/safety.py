@@ -55,7 +55,13 @@ def limit_position_target(q_target: np.ndarray, q_prev: np.ndarray, dt_s: float,
     Returns (safe target, number of joints that were changed).
     """
     raw = np.asarray(q_target, dtype=float)
-    q = raw if all_finite(raw) else np.where(np.isfinite(raw), raw, q_prev)
+    return _limit_position_target(raw, all_finite(raw), q_prev, dt_s, lim)
+
+
+def _limit_position_target(raw: np.ndarray, finite: bool, q_prev: np.ndarray, dt_s: float,
+                           lim: JointLimits) -> tuple[np.ndarray, int]:
+    """limit_position_target of a float array whose finiteness the caller knows."""
+    q = raw if finite else np.where(np.isfinite(raw), raw, q_prev)
     step = lim.v_max * _rate_dt(dt_s)
     # q_prev is inside the limits, so lo <= hi on every joint
     lo = np.maximum(q_prev - step, lim.q_min)
@@ -85,7 +91,13 @@ def limit_torque(tau: np.ndarray, tau_prev: np.ndarray, dt_s: float,
     Returns (safe torque, number of joints changed).
     """
     raw = np.asarray(tau, dtype=float)
-    t = raw if all_finite(raw) else np.where(np.isfinite(raw), raw, 0.0)
+    return _limit_torque(raw, all_finite(raw), tau_prev, dt_s, lim)
+
+
+def _limit_torque(raw: np.ndarray, finite: bool, tau_prev: np.ndarray, dt_s: float,
+                  lim: JointLimits) -> tuple[np.ndarray, int]:
+    """limit_torque of a float array whose finiteness the caller knows."""
+    t = raw if finite else np.where(np.isfinite(raw), raw, 0.0)
     r = lim.tau_rate_max * _rate_dt(dt_s)
     lo = np.maximum(np.minimum(tau_prev - r, np.minimum(tau_prev, 0.0)), -lim.tau_max)
     hi = np.minimum(np.maximum(tau_prev + r, np.maximum(tau_prev, 0.0)), lim.tau_max)
@@ -194,8 +206,9 @@ class SafetyLayer:
             self._q_prev = safe_start_target(q_meas, lim)
         dt = self._dt(now)
         qv = _vec(cmd.q, n)
-        q, c1 = limit_position_target(qv, self._q_prev, dt, lim)
-        bad = _n_bad(qv)
+        finite = all_finite(qv)  # once for both: the count of bad values and the limit's fast path
+        q, c1 = _limit_position_target(qv, finite, self._q_prev, dt, lim)
+        bad = 0 if finite else _n_bad(qv)
         if cmd.tau_ff is None:  # no feed-forward: zero passes every torque limit unchanged (falling is free)
             tau, c2 = np.zeros(n), 0
         else:
@@ -232,8 +245,10 @@ class SafetyLayer:
         """Limit leader joint torques [N*m]."""
         dt = self._dt(now)
         tv = _vec(tau, self.limits.n, 0.0)
-        self.rejected += _n_bad(tv)
-        out, c = limit_torque(tv, self._tau_prev, dt, self.limits)
+        finite = all_finite(tv)  # once for both: the count of bad values and the limit's fast path
+        if not finite:
+            self.rejected += _n_bad(tv)
+        out, c = _limit_torque(tv, finite, self._tau_prev, dt, self.limits)
         self.clipped += c
         self._tau_prev = out
         self.watchdog.feed_command(now)
