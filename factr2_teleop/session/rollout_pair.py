@@ -28,7 +28,7 @@ from hardware.errors import DeviceError
 from hardware.features import IMAGES, follower_values
 from hardware.reasons import Reason
 from hardware.recording.schemas import TASK_OBJECTS_FEATURE
-from hardware.types import FollowerCommand
+from hardware.types import STATUS_IMPLAUSIBLE, STATUS_STALE, FollowerCommand
 from policies.rollout.schedule import ChunkSchedule, PolicyHold
 
 HOME, SETTLE, RUN, IDLE = "home", "settle", "run", "idle"
@@ -109,13 +109,18 @@ class RolloutPair(ArmPair):
                       f"comes back at the soft start's {float(self.soft.v.max()):.1f} rad/s")
 
     def _fresh_since_gap(self, fs) -> bool:
-        """After a loop gap only a follower sample taken since counts: the last one from before shows the arm
-        where it was before it sank (a Damiao motor answers commands only: none came during the gap), and a
-        target from there would pull it back at once. False (the follower holds) until one arrives."""
+        """After a loop gap only a follower sample taken since, on every joint, counts: the last one from
+        before shows the arm where it was before it sank (a Damiao motor answers commands only: none came
+        during the gap; a joint whose first answer the encoder check held back is flagged), and a target
+        from there would pull it back at once. False (the follower holds) until one arrives."""
         if self._gap_t is None:
             return True
-        if fs.t >= self._gap_t:
+        flagged = np.bitwise_and(np.asarray(fs.status, np.int64), STATUS_STALE | STATUS_IMPLAUSIBLE).any()
+        if fs.t >= self._gap_t and not flagged:
             self._gap_t = None
+            # the safety layer's rate limit starts from where the arm is now, not from the hold the stale
+            # sample set (a target pulled from there snapped a sunk YAM back up at its rate)
+            self.follower.hold("after the loop gap: from the measured position")
             return True
         return False
 
