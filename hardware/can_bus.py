@@ -351,6 +351,7 @@ class CanLink:
         self._send_fresh = getattr(bus, "send_fresh", None)  # FastVirtualBus shortcuts
         self._take_pending = getattr(bus, "take_pending", None)
         self._take_raw = getattr(bus, "take_pending_raw", None)
+        self._send_batch = getattr(bus, "send_batch", None)  # a twin's channel: a command's frames at once
         if hasattr(bus, "set_clock"):  # a virtual bus stamps frames with the driver's clock, not wall time
             bus.set_clock(clock.now)
 
@@ -368,6 +369,27 @@ class CanLink:
             self.tx_errors += 1
             return False
         self.tx_frames += 1
+        return True
+
+    def send_all(self, frames: list[tuple[int, bytes]]) -> bool:
+        """send() each (arb_id, data) of frames, in order; False if any failed. A bus that takes a batch (a
+        twin's virtual or pty channel) gets them in one call, stamped with one clock reading (the 500 Hz
+        loop's command is 4-5 frames: one call instead of one per frame and receiver); a real bus gets one
+        send per frame as before."""
+        if self._send_batch is None:
+            ok = True
+            for arb_id, data in frames:
+                ok = self.send(arb_id, data) and ok
+            return ok
+        try:
+            self._send_batch(frames)
+        except (can.CanError, OSError) as e:
+            if send_error_is_fatal(e):
+                raise DeviceError(f"CAN send failed ({e})", where=self.where,
+                                  fix=link_up_fix(self.channel, self.bitrate)) from None
+            self.tx_errors += len(frames)
+            return False
+        self.tx_frames += len(frames)
         return True
 
     def drain(self, push, push_raw=None) -> int:

@@ -218,26 +218,26 @@ class PiperFollower(Follower):
         if self.link is None:
             raise DeviceError("Piper follower is not connected", where=f"follower {self.name}",
                               fix="call connect() first")
-        send = self.link.send
+        # the command's frames in order, handed to the link at once (CanLink.send_all)
         if safe.hold or self.config.mode == "position":
-            send(P.ID_MODE, self._mode_pos)
-            for i, d in zip(P.ID_JOINT_TARGET, P.encode_joint_targets(safe.q), strict=True):
-                send(i, d)
+            frames = [(P.ID_MODE, self._mode_pos),
+                      *zip(P.ID_JOINT_TARGET, P.encode_joint_targets(safe.q), strict=True)]
         else:
-            send(P.ID_MODE, self._mode_mit)
+            frames = [(P.ID_MODE, self._mode_mit)]
             kp = self._mit_kp if safe.kp is None else safe.kp
             kd = self._mit_kd if safe.kd is None else safe.kd
             gain = self.config.mit_torque_gain
             for j in range(6):
-                send(P.ID_MIT[j], P.encode_mit(float(safe.q[j]), 0.0, float(kp[j]), float(kd[j]),
-                                               float(safe.tau_ff[j]) / gain))
+                frames.append((P.ID_MIT[j], P.encode_mit(float(safe.q[j]), 0.0, float(kp[j]), float(kd[j]),
+                                                         float(safe.tau_ff[j]) / gain)))
         if safe.gripper is not None:  # sent when it changes, else as a keep-alive (saves bus load)
             stroke = min(max(float(safe.gripper), 0.0), self.config.gripper_stroke_max_m)
             now = self.clock.now()
             if stroke != self._grip_sent or not now - self._t_grip_sent < GRIPPER_RESEND_S:
                 effort = self.config.gripper_effort_nm
-                send(P.ID_GRIPPER_CMD, P.encode_gripper(stroke, effort, P.GRIPPER_ENABLE))
+                frames.append((P.ID_GRIPPER_CMD, P.encode_gripper(stroke, effort, P.GRIPPER_ENABLE)))
                 self._grip_sent, self._t_grip_sent = stroke, now
+        self.link.send_all(frames)
         self._q_cmd = np.array(safe.q, dtype=float)
         if safe.hold:
             self._hold, self._t_hold_sent = safe, self.clock.now()
