@@ -276,7 +276,7 @@ def _inputs(data) -> str:
         perceived = data.names.objects_feature == S.PERCEIVED_FEATURE
         what = "perceived objects (simulated camera detector" if perceived else "PRIVILEGED object state ("
         parts.append(f"{what}, {data.objects.shape[1]} values, SIMULATED)")
-    return ", ".join(parts)
+    return ", ".join(parts) or "joints and force only"
 
 
 def _sources(data, weights) -> str:

@@ -382,6 +382,9 @@ def _rollout(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan) -> Roll
             interrupted = True
         finally:
             runner.stop()
+            # the arms put down at once (a leader at zero torque, a follower held or disabled as its driver
+            # does), before the recording's slower close: else their own timeouts fall back meanwhile
+            s.disconnect_arms()
             ts.close_recording("rollout interrupted" if interrupted else "")
         holds = sum((p.holds for p in ts.pairs), Counter())
         clipped = sum(int(p.follower.safety.clipped) for p in ts.pairs)
