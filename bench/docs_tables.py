@@ -235,6 +235,19 @@ def ablation(name: str = "first_ablation", task: str = "peg-insert") -> str:
     return "\n".join(rows)
 
 
+# -- docs/force.md: what force buys a policy (issue #51) ----------------------------------------------------
+def force_table(name: str) -> str:
+    from bench.first_force import render
+
+    return render(_payload(name))
+
+
+def history_table(name: str) -> str:
+    from bench.force_history import table
+
+    return table(_payload(name)["rows"])
+
+
 # page, name -> (results files it reads, renderer)
 TABLES = {
     ("safety.md", "faults_campaign"): (("faults_campaign", "faults_crash"), faults_campaign),
@@ -248,6 +261,9 @@ TABLES = {
     ("diagnosis_payload.md", "payload_ur5_l1"): (("diagnosis_payload_ur5",), payload_ur5_l1),
     ("diagnosis_payload.md", "payload_ur5_current"): (("diagnosis_payload_ur5",), payload_ur5_current),
     ("diagnosis_payload.md", "springs_twin"): (("diagnosis_springs_twin",), springs_twin),
+    ("force.md", "force_perceived"): (("force_perceived",), lambda: force_table("force_perceived")),
+    ("force.md", "force_history"): (("force_history_perceived",),
+                                    lambda: history_table("force_history_perceived")),
 }
 
 

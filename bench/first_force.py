@@ -126,47 +126,65 @@ def paired(runs: dict, task: str, a: tuple[str, str], b: tuple[str, str]) -> dic
             "progress_diff": float(d.mean()), "progress_ci": (float(d.mean() - half), float(d.mean() + half))}
 
 
-def report(out: Path) -> tuple[str, dict]:
-    """The force table (markdown) and its data from every finished rollout set in OUT."""
+def summarize(out: Path) -> dict:
+    """The force table's data from every finished rollout set in OUT: per task, each cell's summary
+    (cell_summary), each comparison (paired), and every rollout (raw: episode seed, success, progress), so
+    that the table can be re-made and re-tested from the results file alone."""
     runs = load_runs(out)
     cfg = json.loads((out / "config.json").read_text()) if (out / "config.json").is_file() else {}
     data: dict = {"simulated": True, "observation": cfg.get("obs"), "eval_seed": cfg.get("eval_seed"),
-                  "config": cfg, "tasks": {}}
-    lines = [f"SIMULATED, observation `{cfg.get('obs', '?')}`, evaluation seed {cfg.get('eval_seed', '?')}; "
-             "success pooled over training seeds [95 % Wilson], progress = mean share of stages completed.",
-             "",
-             "| task | method | seeds | success [95 % Wilson] | per seed | progress | stage that fails |",
-             "|---|---|---|---|---|---|---|"]
-    comps = ["", "| task | comparison | paired episodes | only A / only B | McNemar p | success diff | "
-             "progress diff [95 % CI] |", "|---|---|---|---|---|---|---|"]
+                  "bench": {k: cfg.get(k) for k in ("tasks", "demos", "seeds", "rollouts", "steps", "batch",
+                                                    "policy", "precision", "next_checkpoint", "table")},
+                  "tasks": {}}
     for task in sorted({k[0] for k in runs}):
-        d = data["tasks"][task] = {"cells": {}, "pairs": {}}
+        d = data["tasks"][task] = {"cells": {}, "pairs": {}, "raw": {}}
         for cell in CELLS:
             for how in ("live",) + (ABLATIONS if cell in FORCE_CELLS else ()):
                 s = cell_summary(runs, task, cell, how)
-                if s is None:
-                    continue
-                name = cell if how == "live" else f"{cell}, force {how}"
-                d["cells"][name] = s
-                lo, hi = s["wilson"]
-                lines.append(f"| {task} | {name} | {len(s['seeds'])} | {s['k']} / {s['n']} = "
-                             f"{100 * s['success']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] | "
-                             f"{' '.join(f'{100 * x:.0f}' for x in s['per_seed'])} | {s['progress']:.2f} | "
-                             f"{s['failing_stage']} |")
+                if s is not None:
+                    d["cells"][cell if how == "live" else f"{cell}, force {how}"] = s
         pairs = [((a, "live"), (b, "live")) for a, b in PAIRS]
         pairs += [((c, "live"), (c, h)) for c in FORCE_CELLS for h in ABLATIONS]
         for a, b in pairs:
             p = paired(runs, task, a, b)
-            if p is None:
-                continue
-            name = f"{a[0]} vs {b[0]}" if a[1] == b[1] else f"{a[0]}: live vs force {b[1]}"
-            d["pairs"][name] = p
+            if p is not None:
+                d["pairs"][f"{a[0]} vs {b[0]}" if a[1] == b[1] else f"{a[0]}: live vs force {b[1]}"] = p
+        for (t, c, sd, how), r in sorted(runs.items()):
+            if t == task:
+                d["raw"].setdefault(f"{c}/{how}", {})[str(sd)] = sorted(
+                    [k, *v] for k, v in _episodes(r).items())
+    return data
+
+
+def render(data: dict) -> str:
+    """The force table (markdown) of summarize()'s data."""
+    lines = [f"SIMULATED, observation `{data.get('observation', '?')}`, evaluation seed "
+             f"{data.get('eval_seed', '?')}; success pooled over training seeds [95 % Wilson], progress = "
+             "mean share of stages completed.", "",
+             "| task | method | seeds | success [95 % Wilson] | per seed [%] | progress | stage that fails |",
+             "|---|---|---|---|---|---|---|"]
+    comps = ["", "| task | comparison (A vs B) | paired episodes | only A / only B | McNemar p | "
+             "success diff | progress diff [95 % CI] |", "|---|---|---|---|---|---|---|"]
+    for task, d in data["tasks"].items():
+        for name, s in d["cells"].items():
+            lo, hi = s["wilson"]
+            lines.append(f"| {task} | {name} | {len(s['seeds'])} | {s['k']} / {s['n']} = "
+                         f"{100 * s['success']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] | "
+                         f"{' '.join(f'{100 * x:.0f}' for x in s['per_seed'])} | {s['progress']:.2f} | "
+                         f"{s['failing_stage']} |")
+        for name, p in d["pairs"].items():
             lo, hi = p["progress_ci"]
             comps.append(f"| {task} | {name} | {p['pairs']} (seeds {','.join(map(str, p['seeds']))}) | "
                          f"{p['only_a']} / {p['only_b']} | {p['mcnemar_p']:.3f} | "
                          f"{100 * p['success_diff']:+.1f} pts | "
                          f"{p['progress_diff']:+.3f} [{lo:+.3f}, {hi:+.3f}] |")
-    return "\n".join(lines + comps) + "\n", data
+    return "\n".join(lines + comps)
+
+
+def report(out: Path) -> tuple[str, dict]:
+    """The force table (markdown) and its data from every finished rollout set in OUT."""
+    data = summarize(out)
+    return render(data) + "\n", data
 
 
 def run_ablation(out: Path, hows: list[str], jobs: int) -> None:
@@ -193,6 +211,9 @@ def main(argv=None) -> int:
     ap.add_argument("--ablate", default="", help="comma-separated: zero, shuffle")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--report", action="store_true", help="write OUT/force_table.md and force_results.json")
+    ap.add_argument("--results", default="", metavar="NAME",
+                    help="with --report: also publish the data as results/NAME.json (a harness record; "
+                    "docs/force.md's table is written from it by python -m bench.docs_tables)")
     a = ap.parse_args(argv)
     out = Path(a.out)
     if not (out / "config.json").is_file():
@@ -206,6 +227,12 @@ def main(argv=None) -> int:
         md, data = report(out)
         (out / "force_table.md").write_text(md)
         (out / "force_results.json").write_text(json.dumps(data, indent=1, default=float))
+        if a.results:
+            from bench import harness
+
+            print(harness.write(harness.RESULTS / f"{a.results}.json",
+                                harness.record(a.results, data, simulated=True,  # OUT: a scratch folder
+                                               cmd=harness.command().replace(str(a.out), "OUT"))))
         print(md)
     return 0
 

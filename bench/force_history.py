@@ -137,6 +137,8 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", default="1,3,10,30", help="history lengths H in policy steps")
     ap.add_argument("--rate-hz", type=float, default=30.0, help="the policy's rate [Hz]")
     ap.add_argument("--json", type=Path, default=None, help="write the rows here")
+    ap.add_argument("--results", default="", metavar="NAME",
+                    help="also publish the rows as results/NAME.json (a harness record: docs/force.md)")
     a = ap.parse_args(argv)
     try:
         steps = sorted({int(s) for s in a.steps.split(",") if s.strip()})
@@ -152,6 +154,16 @@ def main(argv=None) -> int:
     if a.json:
         a.json.write_text(json.dumps({"simulated": True, "command": "python -m bench.force_history "
                                       + " ".join(map(str, argv or [])), "rows": rows}, indent=1))
+    if a.results:
+        from bench import harness
+
+        cmd = harness.command()
+        for r in rows:  # the folders are scratch: the set's last two names say what it was
+            d = Path(r["dir"])
+            cmd = cmd.replace(str(d), f"SCRATCH/{d.parent.name}/{d.name}")
+            r["dir"] = f"{d.parent.name}/{d.name}"
+        rec = harness.record(a.results, {"rows": rows, "rate_hz": a.rate_hz}, simulated=True, cmd=cmd)
+        harness.write(harness.RESULTS / f"{a.results}.json", rec)
     return 0
 
 

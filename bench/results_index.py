@@ -34,10 +34,7 @@ command has changed form, `command_as_run` beside `command` (today's form, SCRAT
 This index is written by `python -m bench.results_index` (CI checks it is current).
 
 """
-TAIL = """
-Not here yet: `docs/first_cells_perceived.json`, the ledger of the perceived-observation benchmark, which a
-running benchmark writes; it moves to results/ when that run has finished.
-"""
+TAIL = ""
 
 
 def _cell(x) -> str:
