@@ -19,7 +19,7 @@ CLOSE_EXTRA_S = 0.4  # s added to the recording's close: longer than a leader's 
 
 
 @pytest.mark.parametrize("rig,end", [("sim-piper", "seconds"), ("sim-yam", "seconds"), ("sim-yam", "ctrl-c")])
-def test_teleop_end_puts_the_arms_down_before_the_recording_closes(rig, end, tmp_path, monkeypatch):
+def test_teleop_end_puts_the_arms_down_before_the_recording_closes(rig, end, tmp_path, monkeypatch, request):
     import hardware.connect as connect
     from factr2_teleop.cli import build_parser
     from factr2_teleop.commands import teleop
@@ -41,6 +41,9 @@ def test_teleop_end_puts_the_arms_down_before_the_recording_closes(rig, end, tmp
     monkeypatch.setattr(TeleopSession, "close_recording", slow_close)
     if end == "ctrl-c":  # the operator's Ctrl-C while the status line runs (the main thread's SIGINT)
         real_watch = teleop._watch
+        # Python's own Ctrl-C handler, whatever an earlier test of the run left installed (restored after)
+        prev = signal.signal(signal.SIGINT, signal.default_int_handler)
+        request.addfinalizer(lambda: signal.signal(signal.SIGINT, prev))
 
         def watch(loop):
             threading.Timer(1.0, os.kill, (os.getpid(), signal.SIGINT)).start()
