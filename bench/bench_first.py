@@ -148,14 +148,13 @@ def collect_demos(cfg: BenchConfig, task: str, checkpoint: str) -> dict:
     """The task's demonstrations (factr2 collect's function), kept in OUT/TASK/demos, or those the run was
     given (--demos-from)."""
     from factr2_teleop.tasks.run import CollectConfig, collect, output_paths
-    from hardware.sim.tasks import get_task
 
     if task in cfg.demos_from:
         return recorded_summary(task, demo_folders(cfg, task))
     folder = Path(cfg.out) / task / "demos"
-    mode = get_task(task).operator_feedback or "next"  # the task's demonstrator's feedback (docs/tasks.md)
-    cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(folder), seed=DEMO_SEED, mode=mode,
-                       checkpoint=checkpoint if mode == "next" else None, cameras=cfg.obs == "images")
+    # mode None: the task's demonstrator feedback (Task.operator_feedback), else NEXT from `checkpoint`
+    cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(folder), seed=DEMO_SEED, mode=None,
+                       checkpoint=checkpoint, cameras=cfg.obs == "images")
     mcap, summary = output_paths(cc, RIG)
     if summary.is_file():
         return json.loads(summary.read_text())
