@@ -187,10 +187,12 @@ def report(out: Path) -> tuple[str, dict]:
     return render(data) + "\n", data
 
 
-def run_ablation(out: Path, hows: list[str], jobs: int) -> None:
+def run_ablation(out: Path, hows: list[str], jobs: int, tasks: tuple[str, ...] = ()) -> None:
+    """Every trained force policy's ablation sets (`hows`) not yet written; only `tasks` when given."""
     cfg = json.loads((out / "config.json").read_text())
     todo = [(str(p.parent), p.parts[-4], how, cfg["rollouts"], cfg["eval_seed"])
             for p in sorted(out.glob("*/*/seed*/train.json")) if p.parts[-3] in FORCE_CELLS
+            and (not tasks or p.parts[-4] in tasks)
             for how in hows if not rollout_file(p.parent, how).is_file()]
     print(f"{len(todo)} ablation rollout set(s) on {jobs} worker(s)", flush=True)
     if jobs <= 1:
@@ -210,6 +212,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", required=True, help="a bench_first results folder")
     ap.add_argument("--ablate", default="", help="comma-separated: zero, shuffle")
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--tasks", default="", help="with --ablate: only these tasks (comma-separated)")
     ap.add_argument("--report", action="store_true", help="write OUT/force_table.md and force_results.json")
     ap.add_argument("--results", default="", metavar="NAME",
                     help="with --report: also publish the data as results/NAME.json (a harness record; "
@@ -222,7 +225,7 @@ def main(argv=None) -> int:
     if any(h not in ABLATIONS for h in hows):
         ap.error(f"--ablate {a.ablate!r}: a comma-separated subset of {', '.join(ABLATIONS)}")
     if hows:
-        run_ablation(out, hows, max(1, a.jobs))
+        run_ablation(out, hows, max(1, a.jobs), tuple(t.strip() for t in a.tasks.split(",") if t.strip()))
     if a.report or not hows:
         md, data = report(out)
         (out / "force_table.md").write_text(md)
