@@ -99,15 +99,17 @@ class BenchConfig:
     precision: str = "auto"
     # the contact labeller (policies.phases.LABEL_RULE): cells labelled by an earlier rule are not mixed in
     labels: str = LABEL_RULE
+    only_cells: list = field(default_factory=list)  # a subset of the table's cells ([] = all of them)
 
     def cells(self, task: str) -> dict:
         if self.table == "force":
-            return dict(FORCE_CELLS)
-        out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
-        if self.table in ("second", "all") and task == (self.ablation_task or self.tasks[0]):
-            out.update(SECOND_CELLS)
-            out["first"] = HEADLINE_CELLS["first"]  # PC (1:5:1) of the ablation
-        return out
+            out = dict(FORCE_CELLS)
+        else:
+            out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
+            if self.table in ("second", "all") and task == (self.ablation_task or self.tasks[0]):
+                out.update(SECOND_CELLS)
+                out["first"] = HEADLINE_CELLS["first"]  # PC (1:5:1) of the ablation
+        return {k: v for k, v in out.items() if not self.only_cells or k in self.only_cells}
 
 
 QUICK = {"tasks": ["wipe"], "demos": 4, "seeds": 1, "rollouts": 2, "steps": 40, "batch": 32}
@@ -437,6 +439,9 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
                     help="headline: base-torque and first on every task; second: base and the ablation C, "
                     "PC+C on --ablation-task (PC = first); all: both (each fits a session on 2 cores); "
                     "force: base, base-torque and first on every task (issue #51)")
+    ap.add_argument("--cells", default="", metavar="CELL[,CELL...]",
+                    help="only these cells of the table (e.g. base: one observation against another on the "
+                    "same demonstrations)")
     ap.add_argument("--include-failed", action="store_true", help="train on failed demonstrations too")
     ap.add_argument("--actions", choices=("absolute", "relative"), default="absolute",
                     help="the frame the policy learns its joint targets in (factr2 train --actions)")
@@ -484,6 +489,9 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
             setattr(cfg, k, getattr(a, k))
     if a.tasks:
         cfg.tasks = [t.strip() for t in a.tasks.split(",") if t.strip()]
+    cfg.only_cells = [c.strip() for c in a.cells.split(",") if c.strip()]
+    if any(c not in CELL_ORDER for c in cfg.only_cells):
+        ap.error(f"--cells {a.cells!r}: a comma-separated subset of {', '.join(CELL_ORDER)}")
     cfg.thresholds = a.thresholds
     if a.thresholds not in ("recording", "next"):
         try:
