@@ -20,12 +20,12 @@ from __future__ import annotations
 import numpy as np
 
 from factr2_teleop.tasks import kinematics as K
-from factr2_teleop.tasks.scripts import DECIDE_DT_S, grip, move, wait
+from factr2_teleop.tasks.operator import min_jerk
+from factr2_teleop.tasks.scripts import DECIDE_DT_S, go_joints, grip, joint_move_s, move, wait
 from hardware.sim.tasks import cap_screw as C
 
 WRIST = 5  # the wrist roll, the last joint (q6 up: the gripper turns counter-clockwise from above)
 STROKE_FROM_RAD, STROKE_TO_RAD = 1.85, -1.85  # rad of q6: one clockwise twist (212 deg) of the wrist
-JOINT_RAD_S = 1.5  # rad/s: the fastest a joint of the reference moves (peak)
 TURN_RAD_S = 0.5  # rad/s: one steady pace per stroke (the wrist estimate's bias moves with the pace)
 TARGET_RISE_NM = 0.10  # N*m above the running torque felt: where the operator stops
 SLOW_RISE_NM = 0.03  # N*m above the running torque: no longer running torque (the lid has met the jar)
@@ -81,34 +81,15 @@ def _wrist_pose(op, T_goal, q6: float) -> np.ndarray:
     return q
 
 
-def _duration(op, q_to, seconds: float) -> float:
-    """At least `seconds`, and slow enough that no joint's min-jerk peak exceeds JOINT_RAD_S (a hand that
-    whips the leader's wrist round makes its encoder jump: the pair holds the follower)."""
-    return max(seconds, 1.875 * float(np.max(np.abs(np.asarray(q_to) - op.q_des))) / JOINT_RAD_S)
-
-
-def _go_joints(op, q_to, seconds: float):
-    """Move the reference in joint space (min-jerk) to q_to."""
-    from factr2_teleop.tasks.operator import min_jerk
-
-    q0 = op.q_des.copy()
-    n = max(1, round(_duration(op, q_to, seconds) / DECIDE_DT_S))
-    for k in range(1, n + 1):
-        op.q_des = q0 + min_jerk(k / n) * (np.asarray(q_to) - q0)
-        yield
-
-
 def _descend(op, q_to, seconds: float):
     """Lower the hand to q_to (joint space, min-jerk); stops where a touch is felt (the arm's shoulder and
     elbow estimates jump by GUARD_NM: a fingertip on the jar, the camera's height was off) and comes back up
     LIFT_ON_TOUCH_M. Returns the height change [m] the operator now adds to its grasp height (0: none)."""
-    from factr2_teleop.tasks.operator import min_jerk
-
     def load():
         return float(np.sum(np.abs(op.p.tau_ext[1:3]))) if op.p.tau_ext.size >= 3 else 0.0
 
     q0, base = op.q_des.copy(), load()
-    n = max(1, round(_duration(op, q_to, seconds) / DECIDE_DT_S))
+    n = max(1, round(joint_move_s(op, q_to, seconds) / DECIDE_DT_S))
     for k in range(1, n + 1):
         op.q_des = q0 + min_jerk(k / n) * (np.asarray(q_to) - q0)
         yield
@@ -128,13 +109,13 @@ def _find_top(op, axis, top_seen: float):
     q6 = float(op.q_des[WRIST])
     R = op.fk(op.q_des)[:3, :3]
     yield from grip(op, 1.0, 0.3)
-    yield from _go_joints(op, _wrist_pose(op, K.pose(R, [*axis, top_seen + TIP_M + TOUCH_FROM_M]), q6), 0.6)
+    yield from go_joints(op, _wrist_pose(op, K.pose(R, [*axis, top_seen + TIP_M + TOUCH_FROM_M]), q6), 0.6)
     yield from wait(op, 0.3)
     q_to = _wrist_pose(op, K.pose(R, [*axis, top_seen + TIP_M - TOUCH_TO_M]), q6)
     up = yield from _descend(op, q_to, (TOUCH_FROM_M + TOUCH_TO_M) / TOUCH_M_S)
     top = (float(op.fk(q_to)[2, 3]) + up - LIFT_ON_TOUCH_M - TIP_M) if up > 0 else top_seen
     yield from grip(op, 0.0, 0.3)
-    yield from _go_joints(op, _wrist_pose(op, K.pose(R, [*axis, top + TIP_M + 0.01]), q6), 0.4)
+    yield from go_joints(op, _wrist_pose(op, K.pose(R, [*axis, top + TIP_M + 0.01]), q6), 0.4)
     return top
 
 
@@ -169,7 +150,7 @@ def cap_screw(op, params, rng: np.random.Generator):
     z_grasp = jar_p[2] + C.JAR_H_M + GRASP_ABOVE_JAR_M + TIP_M  # ee site height when grasping [m]
     T_over = K.pose(K.down_rotation(0.0), [*axis, z_grasp + 0.06])
     q_over = _wrist_pose(op, T_over, STROKE_FROM_RAD)
-    yield from _go_joints(op, q_over, 2.0 * speed)
+    yield from go_joints(op, q_over, 2.0 * speed)
     top = yield from _find_top(op, axis, cap_p[2] + C.CAP_H_M)
     out["top_felt_mm"] = round((top - cap_p[2] - C.CAP_H_M) * 1e3, 1)  # felt minus seen
     # fingertips GRASP_BELOW_TOP_M under the lid's top as felt, and never below the jar's top as seen + 2 mm
@@ -224,7 +205,7 @@ def cap_screw(op, params, rng: np.random.Generator):
             break
         q_back = op.q_des.copy()
         q_back[WRIST] = STROKE_FROM_RAD
-        yield from _go_joints(op, q_back, 1.2 * speed)
+        yield from go_joints(op, q_back, 1.2 * speed)
     else:
         out["gave_up"] = True
     out["felt_nm"] = round(felt, 3)

@@ -14,13 +14,14 @@ from __future__ import annotations
 import numpy as np
 
 from factr2_teleop.tasks import kinematics as K
-from factr2_teleop.tasks.operator import DECIDE_EVERY, interp_pose
+from factr2_teleop.tasks.operator import DECIDE_EVERY, interp_pose, min_jerk
 
 DECIDE_DT_S = DECIDE_EVERY / 500.0  # s: one decision (the loop runs at 500 Hz)
 FELT_NM = 0.15  # N*m: ||feedback torque||_1 on the leader a person notices as "it hit something"
 SEE_KI = 0.8  # 1/s: how fast the operator nudges a held tool onto where they want it (visual correction)
 SEE_MAX_M = 0.01  # m: the largest such nudge
 SEE_DEADBAND_M = 0.00015  # m: an error this small is left alone
+JOINT_RAD_S = 1.5  # rad/s: the fastest a joint of a joint-space move's reference moves (peak)
 
 
 def wait(op, seconds: float):
@@ -51,6 +52,21 @@ def aim_tool(op, T, tool=None, seen=None) -> None:
     T = T.copy()
     T[:2, 3] += op.nudge
     op.aim(T if tool is None else T @ np.linalg.inv(tool()))
+
+
+def joint_move_s(op, q_to, seconds: float) -> float:
+    """At least `seconds`, and slow enough that no joint's min-jerk peak exceeds JOINT_RAD_S (a hand that
+    whips the leader's wrist round makes its encoder jump: the pair holds the follower)."""
+    return max(seconds, 1.875 * float(np.max(np.abs(np.asarray(q_to) - op.q_des))) / JOINT_RAD_S)
+
+
+def go_joints(op, q_to, seconds: float):
+    """Move the reference in joint space (min-jerk) to q_to [rad] over joint_move_s(seconds)."""
+    q0 = op.q_des.copy()
+    n = max(1, round(joint_move_s(op, q_to, seconds) / DECIDE_DT_S))
+    for k in range(1, n + 1):
+        op.q_des = q0 + min_jerk(k / n) * (np.asarray(q_to) - q0)
+        yield
 
 
 def grip(op, fraction: float, seconds: float):

@@ -31,8 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from factr2_teleop.tasks import kinematics as K
-from factr2_teleop.tasks.screw import _go_joints
-from factr2_teleop.tasks.scripts import DECIDE_DT_S, best_down_yaw, grip, move, wait, yaw_of
+from factr2_teleop.tasks.scripts import DECIDE_DT_S, best_down_yaw, go_joints, grip, move, wait, yaw_of
 from hardware.sim.tasks import tight_insert as TI
 
 LOOK_S = 0.5  # s: how long it looks before it moves (some 15 camera frames)
@@ -65,8 +64,17 @@ PECK_R_M = 0.0115  # m: the widest point searched (the seen bore is off by 2.8-3
 PECK_ABOVE_M = 0.005  # m: the hand aimed this far above its touch height while moving between points (the
 # touch is felt with the hand already pressing, the follower lags a fast lift: 3.5 mm did not lift the tip)
 PECK_PRESS_M = 0.005  # m: aimed this far below the touch height on each peck
-PECK_LIFT_S, PECK_MOVE_S, PECK_DOWN_S, PECK_HOLD_S = 0.3, 0.3, 0.35, 0.3  # s: lift (and let the follower
-# catch up: it lags the leader by ~0.2 s), move over the next point, press, rest
+PECK_LIFT_S, PECK_MOVE_S, PECK_DOWN_S, PECK_HOLD_S = 0.2, 0.25, 0.35, 0.3  # s: the aim's lift, move over
+# the next point, press, rest (the lift and the move then wait on the arm's own pose, below)
+PECK_CLEAR_M = 0.002  # m: the hand this far above its touch height (FK) before it moves: the tip clear
+PECK_AT_M = 0.0004  # m: the hand this close to the point (FK, xy) before it presses
+PECK_WAIT_S = 1.0  # s: the longest wait for either (then it goes on: a peck off its point is still a peck)
+PECK_STILL_M_S = 0.01  # m/s: the hand (FK) moving slower than this is still (the pin has stopped swinging)
+PECK_KI = 2.0  # 1/s: how fast the aim's correction takes up a standing error of the still arm
+PECK_CORR_MAX_M = 0.006  # m: the largest such correction
+PECK_COVER_M = 0.0007  # m: a grid point with a landing this close is searched, else it is tried again
+# (0.35 mm would keep the grid's guarantee, 1.85 + 0.35 = CAPTURE_M; 0.7 leaves slivers, for fewer pecks)
+PECK_TRIES = 2  # pecks aimed at one grid point at most
 DROP_M = 0.002  # m: resting this much lower than on the fixture top (the last pecks' rests): it is in
 SINK_WINDOW_S, SINK_M, SINK_WAIT_S = 0.1, 0.0003, 0.8  # s, m, s: after a peck's rest, a hand still
 # sinking more than SINK_M per SINK_WINDOW_S is waited for, at most SINK_WAIT_S
@@ -188,7 +196,7 @@ def _ready(op, pin, dur):
     T = _down(0.0, np.asarray(pin, float) + [0, 0, TIP_BELOW_EE_M + READY_ABOVE_M])
     q, e = K.solve_ik(op.fk, op.jac, (op.q_min + op.q_max) / 2, T, op.q_min, op.q_max, iters=80)
     if np.linalg.norm(e[:3]) < 0.005:
-        yield from _go_joints(op, q, dur(1.5))
+        yield from go_joints(op, q, dur(1.5))
 
 
 def _grasp_pin(op, sight: Sight, rng, dur):
@@ -295,22 +303,77 @@ def _aim_for(op, yaw, T_from, p_to, seconds: float):
         yield
 
 
+def aim_correction(corr, aimed, reached, dt: float, ki: float, limit: float) -> np.ndarray:
+    """The operator's correction of where it aims [m]: the arm's own error (aimed - reached, FK) integrated
+    at ki [1/s], bounded to +-limit (pure). Aiming at point + correction puts a lagging, sagging hand on the
+    point, as a person watching their own arm pushes until it is there."""
+    e = np.asarray(aimed, float) - np.asarray(reached, float)
+    return np.clip(np.asarray(corr, float) + ki * dt * e, -limit, limit)
+
+
+def next_peck(grid: np.ndarray, landed: list, tried: np.ndarray) -> int | None:
+    """Index of the next grid point to peck (pure): the first (nearest the touch) neither landed near (within
+    PECK_COVER_M of a peck's measured landing) nor tried PECK_TRIES times; None: the grid is done."""
+    for i, g in enumerate(grid):
+        if tried[i] >= PECK_TRIES:
+            continue
+        if landed and np.min(np.linalg.norm(np.asarray(landed) - g, axis=1)) <= PECK_COVER_M:
+            continue
+        return i
+    return None
+
+
+def _hold_over(op, yaw, target, corr, z_done, xy_done, seconds: float):
+    """Aim at target + corr until the arm's own pose (FK) shows the hand there and still (z above z_done when
+    given, xy within PECK_AT_M when xy_done), at most `seconds`. corr takes up a standing error only while the
+    hand is still (aim_correction): integrated while the follower still lags, it wound up and threw the hand
+    4 mm past the point as it caught up (dev seed 56)."""
+    prev = hand_pose(op)[:3, 3]
+    for _ in range(max(1, round(seconds / DECIDE_DT_S))):
+        op.aim(_down(yaw, target + corr))
+        yield
+        p = hand_pose(op)[:3, 3]
+        still = np.linalg.norm(p - prev) <= PECK_STILL_M_S * DECIDE_DT_S
+        prev = p
+        there = (z_done is None or p[2] >= z_done) and (
+            not xy_done or np.hypot(*(p[:2] - target[:2])) <= PECK_AT_M)
+        if there and still:
+            break
+        if still:
+            corr = aim_correction(corr, target, p, DECIDE_DT_S, PECK_KI, PECK_CORR_MAX_M)
+    return corr
+
+
 def _pecks(op, yaw, centre, z_touch, out):
-    """Peck the grid around centre (where the touch was felt): lift clear, move over the next point, press
-    PECK_PRESS_M below the touch and rest; 'dropped' when the hand rests DROP_M lower than it rests on the
-    fixture top (the median of the last pecks' rests: the pin may creep up in the fingers; the first peck,
-    where the touch was, against the touch height itself), 'none' when the grid is done."""
+    """Peck the grid around centre (where the touch was felt), each peck placed on the arm's own measured
+    pose: lift until the hand is PECK_CLEAR_M above the touch height (the tip clear of the top), move until
+    the hand is over the point, press PECK_PRESS_M below the touch and rest; where it rested (FK) counts as
+    searched. 'dropped' when the hand rests DROP_M lower than it rests on the fixture top (the median of the
+    last pecks' rests: the pin may creep up in the fingers; the first peck, where the touch was, against the
+    touch height itself), 'none' when the grid is done."""
     z_up, z_press = z_touch + PECK_ABOVE_M, z_touch - PECK_PRESS_M
     rests: list[float] = []
-    aim = np.array([*centre, z_touch])
-    for xy in centre + peck_grid(PECK_SPACING_M, PECK_R_M):
+    landed: list[np.ndarray] = []
+    grid = centre + peck_grid(PECK_SPACING_M, PECK_R_M)
+    tried = np.zeros(len(grid), int)
+    corr = np.zeros(3)
+    xy, aimed = centre, np.array([*centre, z_touch])  # the point last pecked; the hand's aim (corrected)
+    while (i := next_peck(grid, landed, tried)) is not None:
+        tried[i] += 1
         out["pecks"] += 1
-        yield from _aim_for(op, yaw, aim, [*aim[:2], z_up], PECK_LIFT_S)
-        yield from _aim_for(op, yaw, [*aim[:2], z_up], [*xy, z_up], PECK_MOVE_S)
-        aim = np.array([*xy, z_press])
-        yield from _aim_for(op, yaw, [*xy, z_up], aim, PECK_DOWN_S)
+        up = np.array([*xy, z_up])
+        yield from _aim_for(op, yaw, aimed, up + corr, PECK_LIFT_S)
+        corr = yield from _hold_over(op, yaw, up, corr, z_touch + PECK_CLEAR_M, False, PECK_WAIT_S)
+        xy = grid[i]
+        over = np.array([*xy, z_up])
+        yield from _aim_for(op, yaw, up + corr, over + corr, PECK_MOVE_S)
+        corr = yield from _hold_over(op, yaw, over, corr, z_touch + PECK_CLEAR_M, True, PECK_WAIT_S)
+        aimed = np.array([*(xy + corr[:2]), z_press])
+        yield from _aim_for(op, yaw, over + corr, aimed, PECK_DOWN_S)
         yield from wait(op, PECK_HOLD_S)
         rest = yield from _settle(op)
+        landed.append(hand_pose(op)[:2, 3].copy())
+        out.setdefault("peck_miss_mm", []).append(round(float(np.hypot(*(landed[-1] - xy))) * 1e3, 2))
         top = float(np.median(rests[-PECK_REF_N:])) if rests else z_touch - DROP_FIRST_M + DROP_M
         if rest < top - DROP_M:
             out["felt"].append({"t": round(op.p.t, 2), "by": "own arm", "what": "drop",
