@@ -5,7 +5,7 @@ Calibration screen and the demo's first-run set-up: plan -> collect -> split -> 
     traj = plan_trajectory(rig, spec, cfg)
     run = collect(session, spec, traj, cfg, progress)            # one policy for an unexpected contact
     logs = write_logs(out, run, cfg, contact_eval=None)          # one held-out policy (split_mask)
-    (calibrate_rig also records the session as MCAP: out/data/calibration.mcap, one episode per replay)
+    (calibrate_rig also records the run as MCAP: out/data/calibration.mcap, one episode per replay)
     report = train_and_report(logs, out, spec.arm, cfg)
 
 Held-out policy: every k-th block of HELDOUT_BLOCK_S seconds (k = round(1 / heldout_frac)), spread over the
@@ -154,21 +154,21 @@ def record_pushed_replay(session, spec, seconds: float, rate_hz: float, seed: in
     return collect_free_motion(session, spec.name, traj, pushes=pushes, recorder=recorder)
 
 
-RECORDING_NAME = "calibration.mcap"  # out/data/: the session's MCAP recording (docs/recording.md)
+RECORDING_NAME = "calibration.mcap"  # out/data/: the calibration run's MCAP recording (docs/recording.md)
 
 
 def open_recording(out: str | Path, session, spec):
-    """The calibration session's MCAP Recorder (hardware.recording), out/data/calibration.mcap, named like
-    teleop's recordings: the rig, its arms and whether it is a twin in the session metadata, the follower's
+    """The calibration run's MCAP Recorder (hardware.recording), out/data/calibration.mcap, named like
+    teleop's recordings: the rig, its arms and whether it is a twin in the recording metadata, the follower's
     joint states under its device name. A rerun into the same folder replaces the previous recording."""
     from hardware.arms import load_arm
-    from hardware.recording.session import describe_session
+    from hardware.recording.metadata import describe_recording
     from hardware.recording.writer import Recorder
 
     rig = session.rig
     arm = load_arm(spec.arm)
-    meta = describe_session(rig_path=rig.path, arm_files=[arm.mjcf_path], task="NEXT calibration",
-                            twin=session.twin is not None)
+    meta = describe_recording(rig_path=rig.path, arm_files=[arm.mjcf_path], task="NEXT calibration",
+                              twin=session.twin is not None)
     path = Path(out) / "data" / RECORDING_NAME
     path.parent.mkdir(parents=True, exist_ok=True)
     return Recorder(path, joint_names={spec.name: list(arm.joint_names)}, metadata=meta,

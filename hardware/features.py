@@ -138,22 +138,22 @@ def rig_arm_names(rig) -> list[tuple[str, str]]:
 
 # -- the schema a recording carries, and what a policy reads of it ------------------------------------
 def features_json(features: dict[str, Feature]) -> str:
-    """The session metadata entry "features": every feature's topic, field, shape and unit, by name."""
+    """The recording metadata entry "features": every feature's topic, field, shape and unit, by name."""
     return json.dumps({n: f.to_json() for n, f in features.items()})
 
 
-def recorded_features(session: dict[str, str], topics) -> dict[str, Feature]:
-    """The features a recording declares (its session metadata "features", written since #36). Older
+def recorded_features(meta: dict[str, str], topics) -> dict[str, Feature]:
+    """The features a recording declares (its recording metadata "features", written since #36). Older
     recordings: rebuilt from the arms their joint names list (the same pair_features the rig gives), keeping
     the followers whose joint-state topic the file holds."""
     try:
-        text = session.get("features", "")
+        text = meta.get("features", "")
         if text:
             return {n: Feature.from_json(n, d) for n, d in json.loads(text).items()}
     except (ValueError, KeyError, TypeError):
         pass  # a damaged entry: rebuilt below as for an old recording
     try:
-        joints = {str(k): list(v) for k, v in json.loads(session.get("joint_names", "") or "{}").items()}
+        joints = {str(k): list(v) for k, v in json.loads(meta.get("joint_names", "") or "{}").items()}
     except (ValueError, AttributeError, TypeError):
         joints = {}
     topics = set(topics)

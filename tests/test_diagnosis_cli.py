@@ -217,14 +217,14 @@ def test_cli_takes_the_arm_the_logs_name_and_a_flag_overrides(tmp_path, capsys):
     assert len(err) == 1 and "different arms" in err[0], err
 
 
-def test_recordings_name_their_arms_in_the_session_metadata(tmp_path):
+def test_recordings_name_their_arms_in_the_recording_metadata(tmp_path):
     from recording_helpers import record_session
 
     from calibration.diagnosis.data import load_segments
-    from hardware.recording.session import describe_session, recorded_arm
+    from hardware.recording.metadata import describe_recording, recorded_arm
     from hardware.rigs.rig import load_rig
 
-    meta = describe_session(rig_path=load_rig("sim-piper").path, twin=True)
+    meta = describe_recording(rig_path=load_rig("sim-piper").path, twin=True)
     assert recorded_arm(meta, "follower")["arm"] == "piper"
     assert recorded_arm(meta, "follower")["joint_names"][0] == "joint1"
     assert recorded_arm(meta, "leader")["arm"] == "gello_piper" and recorded_arm({}, "follower") == {}

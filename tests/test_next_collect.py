@@ -94,7 +94,7 @@ def test_rig_calibration_is_recorded_as_mcap_and_calibrates_from_it(tmp_path):
     mcap = tmp_path / "cal" / "data" / "calibration.mcap"
     assert mcap.is_file() and any("calibration.mcap" in s for s in said)
     rec = Recording(mcap)
-    assert len(rec.episodes) == 2 and rec.session["simulated"] == "true"
+    assert len(rec.episodes) == 2 and rec.info["simulated"] == "true"
     runs = read_logs(mcap)
     free = np.load(tmp_path / "cal" / "data" / "free_motion.npz")
     assert len(runs[0].log.t) == len(free["t"]) and np.allclose(runs[0].log.q, free["q"])

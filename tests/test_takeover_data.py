@@ -78,8 +78,9 @@ def test_source_weights_flag_parses_and_refuses_in_one_line():
 
 
 class _Rec:
-    def __init__(self, session, topics, driver):
-        self.session, self.topics, self._driver = session, topics, driver
+    def __init__(self, info, topics, driver):
+        self.info = self.session = info  # Recording.info, and its former name
+        self.topics, self._driver = topics, driver
 
     def topic(self, name):
         from types import SimpleNamespace

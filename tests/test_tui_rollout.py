@@ -106,4 +106,4 @@ def test_record_train_rollout_then_estop(tmp_path):
     rec = asyncio.run(go())
     r = Recording(rec)
     assert len(r.episodes) == 1 and r.episodes[0].outcome in ("success", "failure")
-    assert r.session.get("operator") == "policy"
+    assert r.info.get("operator") == "policy"

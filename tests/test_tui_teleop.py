@@ -64,7 +64,7 @@ def test_teleop_records_two_episodes_listed_by_episodes_screen(tmp_path):
         rec = Recording(path)
         assert [e.outcome for e in rec.episodes] == ["success", "failure"]
         assert rec.cameras == ["scene"] and all(len(e.frames("scene")) > 0 for e in rec.episodes)
-        assert rec.session.get("simulated") == "true" and rec.session.get("feedback_mode") == "ground_truth"
+        assert rec.info.get("simulated") == "true" and rec.info.get("feedback_mode") == "ground_truth"
         assert any(e["kind"] == "note" and e["text"] == "slow start" for e in rec.events)
 
     asyncio.run(go())

@@ -171,7 +171,7 @@ def load_segments(path: str | Path, arm: str = "follower") -> list[Segment]:
 
     if not path.exists():
         raise UserError("file not found", where=str(path), fix="give the path of a recording (.mcap)")
-    from hardware.recording.session import recorded_arm
+    from hardware.recording.metadata import recorded_arm
 
     try:
         rec = Recording(path)
@@ -179,7 +179,7 @@ def load_segments(path: str | Path, arm: str = "follower") -> list[Segment]:
     except (ValueError, KeyError, OSError) as e:
         raise UserError(f"cannot read the {arm} joint states ({str(e)[:80]})", where=str(path),
                         fix="pass a factr2 recording (teleop/demo --record) or a plain .npz log") from None
-    named = recorded_arm(rec.session, arm)  # the session metadata says which arm (describe_session)
+    named = recorded_arm(rec.info, arm)  # the recording metadata says which arm (describe_recording)
     for _, log in logs:
         log.arm, log.arm_sha256 = named.get("arm", ""), named.get("arm_sha256", "")
     segs = [seg for i, log in logs if len(log.t) >= 20 for seg in _segments_of(log, f"{path.stem}#ep{i}")]

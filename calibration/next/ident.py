@@ -4,7 +4,7 @@ A checkpoint is the pair <path>.json + <path>.safetensors (calibration.next.chec
 SHA-256 of the JSON (which names the weights file and holds the training metrics, so a retrain changes it);
 the path only says where it was. One string form, "PATH@SHA12". Two older forms still parse, so recordings
 and trained runs from before keep loading:
-- "PATH#DATAHASH" (sessions): the first 12 hex digits of the checkpoint's training-data hash;
+- "PATH#DATAHASH" (recording metadata): the first 12 hex digits of the checkpoint's training-data hash;
 - "STEM@SHA12" (offline labelling): the file's stem instead of its path (the new form with a short path).
 A checkpoint read from disk (NextId.of) carries both digests, so it compares equal to an id in either form.
 """
@@ -19,7 +19,7 @@ from pathlib import Path
 
 DIGITS = 12  # hex digits of a digest an id keeps
 _SHA_FORM = re.compile(rf"^(?P<path>.*)@(?P<sha>[0-9a-f]{{{DIGITS}}})$")
-_DATA_FORM = re.compile(r"^(?P<path>.*)#(?P<data>[0-9a-f]+)$")  # legacy sessions' "PATH#DATAHASH"
+_DATA_FORM = re.compile(r"^(?P<path>.*)#(?P<data>[0-9a-f]+)$")  # older recordings' "PATH#DATAHASH"
 
 
 def json_path(path: str | Path) -> Path:
@@ -101,7 +101,7 @@ class NextId:
 
 
 def parse_ids(text: str | None) -> tuple[NextId, ...]:
-    """The ids a session or a run names: "" for none, several comma-separated (one per arm running NEXT)."""
+    """The ids a recording or a run names: "" for none, several comma-separated (one per arm running NEXT)."""
     return tuple(NextId.parse(part) for part in str(text or "").split(",") if part.strip())
 
 

@@ -202,8 +202,8 @@ def log_from_arrays(path: Path, data: dict[str, np.ndarray], rate_hz: float = 10
 
 def _read_mcap(path: Path, arm: str, rate_hz: float) -> list[LogRead]:
     """One LogRead per episode of `arm` in a factr2 recording (hardware.recording)."""
+    from hardware.recording.metadata import recorded_arm
     from hardware.recording.reader import Recording
-    from hardware.recording.session import recorded_arm
 
     try:
         rec = Recording(path)
@@ -211,7 +211,7 @@ def _read_mcap(path: Path, arm: str, rate_hz: float) -> list[LogRead]:
     except (ValueError, KeyError, OSError) as e:
         raise _bad(path, f"cannot read the {arm} joint states ({str(e)[:80]})",
                    "pass a factr2 recording (.mcap) or a plain .npz log") from None
-    named = recorded_arm(rec.session, arm)
+    named = recorded_arm(rec.info, arm)
     out = []
     for i, log in logs:
         arrays = {k: getattr(log, k) for k in ("t", "q", "qd", "q_cmd", "temperature", "tau_ext_true",

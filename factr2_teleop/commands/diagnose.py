@@ -11,7 +11,7 @@ A payload in current goes through the arm's kinematics with the checkpoint's ide
 which (calibration/diagnosis/payload.py). Joint names: calibration/joint_map.py (--joint-map).
 
 Logs written by this app name their arm (plain logs: `arm`, `arm_sha256`, `joint_names`; recordings: the
-session metadata's `arms`), so no --arm is needed; --arm overrides, --arm none forces the data-only basis.
+recording metadata's `arms`), so no --arm is needed; --arm overrides, --arm none forces the data-only basis.
 """
 
 from __future__ import annotations

@@ -84,7 +84,7 @@ class SessionRecording:
              start_cameras=None, path: str | Path | None = None) -> SessionRecording:
         """A new recording in folder `out` (or exactly `path`). UserError when it cannot be written."""
         from hardware.arms import load_arm
-        from hardware.recording.session import describe_session
+        from hardware.recording.metadata import describe_recording
         from hardware.recording.writer import Recorder
 
         rig = session.rig
@@ -96,8 +96,8 @@ class SessionRecording:
                 arm = load_arm(rig.device(dev.name).arm)
                 names[f"{pre}{role}"] = list(arm.joint_names)
                 arms.append(arm.mjcf_path)
-        meta = describe_session(rig_path=rig.path, arm_files=arms, next_checkpoint=next_checkpoint, task=task,
-                                twin=session.twin is not None)
+        meta = describe_recording(rig_path=rig.path, arm_files=arms, next_checkpoint=next_checkpoint,
+                                  task=task, twin=session.twin is not None)
         meta["features"] = features_json(rig_features(rig))  # the one schema: what the file holds, by name
         meta.update({k: str(v) for k, v in (extra_meta or {}).items()})
         if session.cameras and start_cameras is not None:

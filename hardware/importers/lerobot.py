@@ -29,7 +29,7 @@ tau_ext, said in one line (the paper's raw-signal comparison); `--next CKPT` run
 instead. A dataset with none of them has no tau_ext topic: base methods only (policies.run refuses first).
 
 A dataset written by `factr2 export lerobot` carries FIRST's labels (its `phase` feature, marked
-hardware.features.FACTR2_PHASES): they go into the recording's session metadata (IMPORT_PHASES: per
+hardware.features.FACTR2_PHASES): they go into the recording metadata (IMPORT_PHASES: per
 episode the rows where the label changes, and the fps), and policies.labelling trains on them instead of
 labelling the 30 Hz force again. Other datasets' `phase` columns are not read.
 
@@ -62,7 +62,7 @@ MAP_DEFAULT: dict[str, tuple[str, ...]] = {
     "tau_ext": ("observation.tau_ext", "observation.force"),
 }
 IMAGES = "observation.images."
-IMPORT_PHASES = "import_phases"  # session metadata: a factr2 export's labels (phase_changes, per episode)
+IMPORT_PHASES = "import_phases"  # recording metadata: a factr2 export's labels (phase_changes, per episode)
 CONVERTER_VERSION = 4  # bump when the conversion changes: cached conversions are made again
 FIX_MAP = "name the features with --lerobot-map ROLE=KEY,... (docs/bringing_data.md)"
 

@@ -47,7 +47,7 @@ class ImportedEpisode:
     # state, the SIMULATED detector's report): feature -> ((N, O) values, O element names)
     objects: dict = field(default_factory=dict)
     # FIRST labels (N,) of a factr2 export's phase column (not written here: the importer puts them in the
-    # session metadata, hardware.importers.lerobot.IMPORT_PHASES)
+    # recording metadata, hardware.importers.lerobot.IMPORT_PHASES)
     phase: np.ndarray | None = None
     task: str = ""
     outcome: str | None = "success"

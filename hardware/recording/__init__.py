@@ -1,14 +1,16 @@
-"""Recording format, writer and readers (MCAP sessions and plain .npz logs). Lives in hardware/ so that
+"""Recording format, writer and readers (MCAP recordings and plain .npz logs). Lives in hardware/ so that
 calibration/ and policies/ can read recordings without depending on the app layer.
 
-    from hardware.recording import Recorder, Recording, describe_session
+    from hardware.recording import Recorder, Recording, describe_recording
 """
 
 from hardware.recording.mcap_scan import RecordingError
+from hardware.recording.metadata import describe_recording
 from hardware.recording.reader import Episode, Frames, Recording, hold_previous, interp_linear
-from hardware.recording.session import describe_session
 from hardware.recording.writer import Recorder, RecorderStatus
 
+describe_session = describe_recording  # the former name, for scripts that import it
+
 __all__ = ["Episode", "Frames", "Recorder", "RecorderStatus", "Recording", "RecordingError",
-           "describe_session",
+           "describe_recording", "describe_session",
            "hold_previous", "interp_linear"]

@@ -93,8 +93,8 @@ class Decoded:
     from_cache: bool = False
 
     @property
-    def session(self) -> dict[str, str]:
-        return self.metadata.get(S.SESSION_METADATA, {})
+    def info(self) -> dict[str, str]:
+        return self.metadata.get(S.RECORDING_METADATA, {})
 
 
 def cache_home() -> Path:
@@ -171,10 +171,10 @@ def decode(path: str | Path) -> Decoded:
                 metadata[name] = rec.metadata
     finally:
         close()
-    if S.SESSION_METADATA not in metadata and state.profile != S.PROFILE:
-        raise RecordingError(f"not a factr2 recording (MCAP profile {state.profile!r}, no factr2 session "
+    if S.RECORDING_METADATA not in metadata and state.profile != S.PROFILE:
+        raise RecordingError(f"not a factr2 recording (MCAP profile {state.profile!r}, no factr2 recording "
                              "metadata)", where=str(path), fix="pass a file written by factr2 record/teleop")
-    offset = float(metadata.get(S.SESSION_METADATA, {}).get("clock_offset_s", "0") or 0)
+    offset = float(metadata.get(S.RECORDING_METADATA, {}).get("clock_offset_s", "0") or 0)
     warn = list(state.warnings)
     topics: dict[str, TopicArrays] = {}
     frames: dict[str, FrameIndex] = {}

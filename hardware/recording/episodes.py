@@ -119,7 +119,7 @@ def show(path: str | Path) -> str:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         rec = Recording(path)
-    s = rec.session
+    s = rec.info
     lines = [f"{rec.path}  ({rec.path.stat().st_size / 1e6:.1f} MB){'  TRUNCATED' if rec.truncated else ''}"]
     for k in ("start_time", "time_zone", "operator", "software_version", "simulated", "next_checkpoint",
               "task",
@@ -207,7 +207,7 @@ def trim_episode(path: str | Path, index: int, start_s: float = 0.0, end_s: floa
     if t1 <= t0:
         raise UserError(f"empty trim window {start_s}..{end_s} s", where=str(path),
                         fix=f"episode {index} lasts {ep.duration_s:.2f} s")
-    offset = float(rec.session.get("clock_offset_s", 0) or 0)
+    offset = float(rec.info.get("clock_offset_s", 0) or 0)
     lo, hi = _span_ns(rec, ep)
     n0, n1 = S.log_time_ns(t0, offset), S.log_time_ns(t1, offset)
 
@@ -258,7 +258,7 @@ def merge(paths: list[str | Path], out: str | Path) -> RewriteReport:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             recs.append(Recording(f))
-    offset0 = float(recs[0].session.get("clock_offset_s", 0) or 0)
+    offset0 = float(recs[0].info.get("clock_offset_s", 0) or 0)
     report = RewriteReport(files[0], out)
     tmp = out.with_name(out.name + ".tmp-merge")
     buf0, close0 = open_buffer(files[0])
@@ -269,7 +269,7 @@ def merge(paths: list[str | Path], out: str | Path) -> RewriteReport:
         for f, rec in zip(files, recs):
             t_a, t_b = rec.time_span()
             shift = 0.0 if not np.isfinite(prev_end) or t_a > prev_end else prev_end + 1.0 - t_a
-            own = float(rec.session.get("clock_offset_s", 0) or 0)
+            own = float(rec.info.get("clock_offset_s", 0) or 0)
             delta_ns = S.offset_ns(offset0) - S.offset_ns(own) + round(shift * 1e9)
             shifts.append({"file": str(f), "shift_s": shift, "episode_offset": ep_offset})
             buf, close = open_buffer(f)

@@ -12,8 +12,8 @@ from hardware.recording.protobuf_wire import encode_compressed_image
 
 
 class McapSink:
-    """Write one session to the binary stream `f` (an open file). joint_names: {arm: [names]} for the
-    channels' metadata; metadata: the session metadata (str -> str), written first. OSError propagates:
+    """Write one recording to the binary stream `f` (an open file). joint_names: {arm: [names]} for the
+    channels' metadata; metadata: the recording metadata (str -> str), written first. OSError propagates:
     the caller decides what a full disk means."""
 
     def __init__(self, f, *, joint_names: dict[str, list[str]], metadata: dict[str, str],
@@ -30,7 +30,7 @@ class McapSink:
         self._schemas: dict[str, int] = {}
         self.messages = self.frames = 0
         self._w.start(profile=S.PROFILE, library=f"factr2-recorder {metadata.get('software_version', '')}")
-        self._w.add_metadata(S.SESSION_METADATA, metadata)
+        self._w.add_metadata(S.RECORDING_METADATA, metadata)
         self._w.flush()
 
     def _channel(self, topic: str, schema_name: str, encoding: str, schema_enc: str, data, meta) -> int:

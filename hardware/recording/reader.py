@@ -203,8 +203,11 @@ class Recording:
         return self._d.metadata
 
     @property
-    def session(self) -> dict[str, str]:
-        return self._d.session
+    def info(self) -> dict[str, str]:
+        """The recording metadata (hardware/recording/metadata.py): rig, arms, software, operator, ..."""
+        return self._d.info
+
+    session = info  # the former name, for scripts (and policies/) that read rec.session
 
     @property
     def topics(self) -> list[str]:

@@ -4,7 +4,7 @@ Numeric channels are JSON (message encoding "json", JSON-schema schemas Foxglove
 null. Camera frames are foxglove.CompressedImage in protobuf (hand-written descriptor, see protobuf_wire.py).
 Every numeric payload carries `t` [s] on the rig clock (monotonic or simulated); an MCAP log_time is
 `round(t * 1e9) + round(clock_offset_s * 1e9)` ns, with clock_offset_s (wall time minus rig time at the
-start) in the session metadata, so Foxglove shows wall-clock times. docs/recording.md lists everything here.
+start) in the recording metadata, so Foxglove shows wall-clock times. docs/recording.md lists everything here.
 """
 
 from __future__ import annotations
@@ -20,7 +20,9 @@ from hardware.recording.protobuf_wire import IMAGE_SCHEMA_NAME, compressed_image
 
 PROFILE = "factr2"
 FORMAT_VERSION = 1
-SESSION_METADATA = "factr2.session"  # MCAP metadata record name: rig, arms, software, operator ...
+# MCAP metadata record name of the recording metadata (rig, arms, software, operator ...; metadata.py). The
+# name is part of the file format: every recording written so far has it, and readers look for it.
+RECORDING_METADATA = "factr2.session"
 STATS_METADATA = "factr2.recorder_stats"  # written on a clean close only
 
 TOPIC_EVENTS = "/events"

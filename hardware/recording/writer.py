@@ -35,8 +35,8 @@ from hardware.realtime import spawn_normal
 from hardware.recording import schemas as S
 from hardware.recording import wire_records as R
 from hardware.recording import writer_process as W
+from hardware.recording.metadata import default_metadata
 from hardware.recording.ring import ByteRing, region_size
-from hardware.recording.session import session_metadata
 from hardware.recording.space import SpaceReserve
 
 SAMPLES_BUFFER_BYTES = 32 << 20  # ~50 s of a bimanual 500 Hz session if the writer stalls (a slow disk)
@@ -90,11 +90,11 @@ def _shared_file(size: int) -> int:
 
 
 class Recorder:
-    """Record one session to `path` (.mcap). Arguments:
+    """Record one run to `path` (.mcap). Arguments:
 
     joint_names: {"leader": [...], "follower": [...]} stored in the channels' metadata.
-    metadata: extra session metadata (str -> str), merged over session_metadata()'s defaults; see
-      hardware.recording.session.session_metadata for the rig/arm/NEXT/operator fields.
+    metadata: extra recording metadata (str -> str), merged over default_metadata()'s defaults; see
+      hardware.recording.metadata.describe_recording for the rig/arm/NEXT/operator fields.
     t0: rig clock time [s] now (Clock.now()); log_time = wall time of the start + (t - t0).
     jpeg_quality: 1-95 (JPEG_QUALITY). buffer_bytes / frame_buffer_bytes: the shared rings for samples and
       raw frames (what waits while the writer is behind; beyond them records are dropped and counted).
@@ -141,7 +141,7 @@ class Recorder:
             raise UserError(f"cannot create recording ({e.strerror or e})", where=str(self.path),
                             fix="check the folder exists, is writable and has free space") from None
         self._reserve = SpaceReserve(self.path)  # before the writer starts: a disk that fills meanwhile
-        meta = session_metadata(clock_offset_s=self.clock_offset_s, joint_names=self._joint_names)
+        meta = default_metadata(clock_offset_s=self.clock_offset_s, joint_names=self._joint_names)
         meta.update({k: str(v) for k, v in (metadata or {}).items()})
         self._start_writer(dict(
             path=str(self.path), joint_names=self._joint_names, metadata=meta,
