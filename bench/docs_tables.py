@@ -33,7 +33,7 @@ def _f(x, fmt: str = ".0f") -> str:
 
 
 # -- docs/safety.md: the fault campaign -------------------------------------------------------------------
-FAULT_HEAD = ("| kind | injected (teleop/collect/rollout) | sessions safe | safe_ms p50 / p99 / max | "
+FAULT_HEAD = ("| kind | injected (teleop/collect/rollout) | trials safe | safe_ms p50 / p99 / max | "
               "stale_ms p99 / max | violations | samples lost | recoveries | errors | run |\n"
               "|---|---|---|---|---|---|---|---|---|---|")
 KILLED = '"The app killed or frozen"'  # the section of docs/safety.md with the motors' side of a crash
@@ -54,15 +54,15 @@ def faults_campaign() -> str:
     by_kind = camp["sources"]["by_kind"]
     rows = [FAULT_HEAD]
     for kind, r in camp["kinds"].items():
-        safe = f"{r['sessions_safe']}/{r['sessions']}"
+        safe = f"{r['trials_safe']}/{r['trials']}"
         if r.get("safe_unobservable"):  # SIGKILL in-process: the twin dies with the app; the motors' side
             c = crash["kinds"][kind]  # is measured beside a twin in its own process
-            safe = (f"recordings {r['recordings_open']}/{r['sessions']} open; the motors: "
-                    f"{c['sessions_safe']}/{c['sessions']} safe, {KILLED}")
+            safe = (f"recordings {r['recordings_open']}/{r['trials']} open; the motors: "
+                    f"{c['trials_safe']}/{c['trials']} safe, {KILLED}")
         rows.append(_fault_row(kind, r, by_kind[kind], safe))
         for extra, c in crash["kinds"].items():
             if extra not in camp["kinds"] and kind == "app_sigkill":
-                rows.append(_fault_row(extra, c, "crash", f"{c['sessions_safe']}/{c['sessions']}, {KILLED}"))
+                rows.append(_fault_row(extra, c, "crash", f"{c['trials_safe']}/{c['trials']}, {KILLED}"))
     return "\n".join(rows)
 
 

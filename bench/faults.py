@@ -1,25 +1,25 @@
-"""The fault campaign on the twin (SIMULATED, lockstep, seeded): per activity and fault kind, N sessions with
+"""The fault campaign on the twin (SIMULATED, lockstep, seeded): per activity and fault kind, N trials with
 one fault each at a random time, and what happened (docs/safety.md "Fault campaign").
 
     python -m bench.faults --seed 0 --per-kind 3 --json /tmp/faults.json
     python -m bench.faults --seed 0 --per-kind 20 --kinds can_busoff,dxl_unplug --activities teleop,collect \\
         --json OUT
 
-Sessions (bench/fault_sessions.py): teleop (the demo's operator through the teleop session, recorded),
+Trials (bench/fault_sessions.py): teleop (the demo's operator through a TeleopSession, recorded),
 collect (`factr2 collect`'s collect(), one peg-insert episode), rollout (run_rollout of a tiny policy trained
 once into OUT.state/). next_killed: teleop only, in real time with NEXT feedback (recovered: feedback back
-on). app_sigkill / app_freeze: the app beside a twin in a process of its own (bench/crash_sessions.py: teleop
+on). app_sigkill / app_freeze: the app beside a twin in a process of its own (bench/crash_trials.py: teleop
 and collect as `factr2 teleop`, recording for collect, rollout as `factr2 rollout` of a policy that sees the
 joints and force only, trained once per rig into OUT.state/crash_policies/; over sim-piper, sim-yam and
 sim-bimanual-piper in turn;
 per kind fallback_ms {p50, p99, max}, leader_tau_after_nm_max, follower_motion_rad, and for the freeze
-recovered_after_freeze and jumps). Each other session is cut TAIL_S after its fault. Resumable: every finished
-session is a line of OUT.sessions.jsonl; a run that was killed continues where it stopped (same arguments).
-One progress line per session on stderr.
+recovered_after_freeze and jumps). Each other trial is cut TAIL_S after its fault. Resumable: every finished
+trial is a line of OUT.trials.jsonl; a run that was killed continues where it stopped (same arguments).
+One progress line per trial on stderr.
 
-JSON, per kind (over its activities, and per activity under "activities"): injected (sessions whose fault was
-played), sessions, sessions_safe (both arms safe at the end, no error), safe_unobservable (SIGKILL: the twin
-dies with the app), safe_ms {p50, p99, max} (fault start -> first follower hold on the wire, over the sessions
+JSON, per kind (over its activities, and per activity under "activities"): injected (trials whose fault was
+played), trials, trials_safe (both arms safe at the end, no error), safe_unobservable (SIGKILL: the twin
+dies with the app), safe_ms {p50, p99, max} (fault start -> first follower hold on the wire, over the trials
 that held), stale_ms {p50, p99, max} (at that hold, the age of the oldest sample the pair used: from the last
 fresh answer, the reaction a partial fault owes), violations (follower commands outside the limits),
 samples_lost (follower samples the recording lacks from before the fault, summed; null when nothing recorded),
@@ -39,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import harness
-from bench.crash_sessions import CRASH_RIGS, run_crash_session
+from bench.crash_trials import CRASH_RIGS, run_crash_trial
 from bench.fault_sessions import run_session
 from hardware.errors import ConfigError
 from hardware.sim.faults import KINDS, random_schedule
@@ -47,11 +47,11 @@ from hardware.sim.faults import KINDS, random_schedule
 ROOT = Path(__file__).resolve().parents[1]
 
 LEADER_KINDS = ("dxl_unplug", "dxl_overload", "dxl_corrupt", "spike_leader")
-# next_killed: the NEXT worker exists only on a real-time clock: its teleop sessions run in real time (mode
+# next_killed: the NEXT worker exists only on a real-time clock: its teleop trials run in real time (mode
 # next, the demo's NEXT), collect and rollout (lockstep here, NEXT inline) have no worker to kill
-NOT_IN_CAMPAIGN = {"next_killed": "collect and rollout: lockstep sessions keep NEXT inline (no worker "
+NOT_IN_CAMPAIGN = {"next_killed": "collect and rollout: lockstep runs keep NEXT inline (no worker "
                                   "process); teleop plays it in real time"}
-# the app killed / frozen beside a twin in a process of its own (bench/crash_sessions.py): teleop and
+# the app killed / frozen beside a twin in a process of its own (bench/crash_trials.py): teleop and
 # collect are `factr2 teleop` (recording for collect), rollout is `factr2 rollout`, on the twin's app rig,
 # across CRASH_RIGS
 CRASH_KINDS = ("app_sigkill", "app_freeze")
@@ -61,10 +61,10 @@ ACTIVITY_KINDS = {
     # a rollout's leader is passive (zero torque, not read by the policy): leader faults do not concern it
     "rollout": tuple(k for k in KINDS if k not in NOT_IN_CAMPAIGN and k not in LEADER_KINDS),
 }
-FAULT_WINDOW_S = (0.6, 1.4)  # s of twin time: when a session's fault starts (after the soft start)
-# a NEXT worker loads for ~2-5 s after the session starts: its kills span loading and answering
+FAULT_WINDOW_S = (0.6, 1.4)  # s of twin time: when a trial's fault starts (after the soft start)
+# a NEXT worker loads for ~2-5 s after the trial starts: its kills span loading and answering
 WINDOW_S_BY_KIND = {"next_killed": (0.6, 10.0)}
-POLICY_STEPS = 25  # training steps of the rollout sessions' tiny policy (it only has to run, not succeed)
+POLICY_STEPS = 25  # training steps of the rollout trials' tiny policy (it only has to run, not succeed)
 
 
 def percentiles(ms: list[float]) -> dict:
@@ -76,13 +76,13 @@ def percentiles(ms: list[float]) -> dict:
 
 
 def aggregate(rows: list[dict]) -> dict:
-    """One JSON row over sessions (run_session outcomes)."""
+    """One JSON row over trials (run_session outcomes)."""
     safe_ms = [r["safe_ms"] for r in rows if r.get("safe_ms") is not None]
     stale_ms = [r["stale_ms"] for r in rows if r.get("stale_ms") is not None]
     lost = [r["samples_lost"] for r in rows if r.get("samples_lost") is not None]
     owed = [r for r in rows if r.get("recovered") is not None]
-    out = {"injected": sum(bool(r.get("played")) for r in rows), "sessions": len(rows),
-            "sessions_safe": sum(bool(r.get("safe_end")) and not r.get("error") for r in rows),
+    out = {"injected": sum(bool(r.get("played")) for r in rows), "trials": len(rows),
+            "trials_safe": sum(bool(r.get("safe_end")) and not r.get("error") for r in rows),
             "safe_unobservable": sum(r.get("safe_end", False) is None for r in rows),
             "holds": len(safe_ms), "safe_ms": percentiles(safe_ms), "stale_ms": percentiles(stale_ms),
             "violations": sum(int(r.get("violations") or 0) for r in rows),
@@ -97,7 +97,7 @@ def aggregate(rows: list[dict]) -> dict:
 
 
 def crash_aggregate(rows: list[dict]) -> dict:
-    """The crash kinds' measures (bench/crash_sessions.py) over sessions."""
+    """The crash kinds' measures (bench/crash_trials.py) over trials."""
     from factr2_teleop.teleop.soft_start import SoftStartConfig
 
     def vals(key):
@@ -129,13 +129,13 @@ def crash_aggregate(rows: list[dict]) -> dict:
 
 
 def _policy(state: Path) -> Path:
-    """The rollout sessions' tiny policy, trained once (a held-still peg-insert recording, 25 steps)."""
+    """The rollout trials' tiny policy, trained once (a held-still peg-insert recording, 25 steps)."""
     run = state / "policy" / "run"
     if not (run / "done").exists():
         from tests.rollout_helpers import record_task_session, train_tiny
 
         (state / "policy").mkdir(parents=True, exist_ok=True)
-        print("training the rollout sessions' tiny policy (once)...", file=sys.stderr, flush=True)
+        print("training the rollout trials' tiny policy (once)...", file=sys.stderr, flush=True)
         train_tiny(record_task_session(state / "policy"), run, policy="act", steps=POLICY_STEPS)
         (run / "done").write_text("ok")
     return run
@@ -162,13 +162,13 @@ def _plan(args) -> list[tuple[str, str, int]]:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--per-kind", type=int, default=20, help="sessions (one injection each) per kind and "
+    ap.add_argument("--per-kind", type=int, default=20, help="trials (one injection each) per kind and "
                     "activity")
     ap.add_argument("--kinds", default="", help="comma-separated fault kinds (default: all)")
     ap.add_argument("--activities", default="teleop,collect,rollout", help="comma-separated")
     ap.add_argument("--json", required=True, metavar="OUT",
                     help="write the results here (a bench/harness.py record named after OUT)")
-    harness.add_quick(ap, "one spike_leader session in teleop")
+    harness.add_quick(ap, "one spike_leader trial in teleop")
     args = ap.parse_args(argv)
     if args.quick:
         args.per_kind, args.kinds, args.activities = 1, "spike_leader", "teleop"
@@ -178,7 +178,7 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     out = Path(args.json)
-    journal = out.with_name(out.name + ".sessions.jsonl")
+    journal = out.with_name(out.name + ".trials.jsonl")
     state = out.with_name(out.name + ".state")
     done = {}
     if journal.exists():  # resume: what a killed run finished
@@ -190,7 +190,7 @@ def main(argv=None) -> int:
             if r.get("seed") == args.seed:
                 done[(r["activity"], r["kind"], r["i"])] = r
     todo = [p for p in plan if p not in done]
-    print(f"{len(plan)} sessions, {len(plan) - len(todo)} done before, {len(todo)} to run", file=sys.stderr)
+    print(f"{len(plan)} trials, {len(plan) - len(todo)} done before, {len(todo)} to run", file=sys.stderr)
     policy = _policy(state) if any(a == "rollout" and k not in CRASH_KINDS for a, k, _ in todo) else None
     t0 = time.perf_counter()
     with journal.open("a") as jf, tempfile.TemporaryDirectory(prefix="factr2-faults-") as tmp:
@@ -199,8 +199,8 @@ def main(argv=None) -> int:
                 rig = CRASH_RIGS[i % len(CRASH_RIGS)]
                 text = f"{kind}@active+1..2s" + (f":{KINDS[kind][1]:g}" if KINDS[kind][1] else "") + f" {rig}"
                 t_s = time.perf_counter()
-                r = run_crash_session(act, kind, rig, args.seed * 1000 + i, Path(tmp) / f"{act}-{kind}-{i}",
-                                      KINDS[kind][1], policies=state / "crash_policies")
+                r = run_crash_trial(act, kind, rig, args.seed * 1000 + i, Path(tmp) / f"{act}-{kind}-{i}",
+                                    KINDS[kind][1], policies=state / "crash_policies")
                 r["wall_s"] = time.perf_counter() - t_s
             else:
                 lo, hi = WINDOW_S_BY_KIND.get(kind, FAULT_WINDOW_S)
@@ -239,7 +239,7 @@ def main(argv=None) -> int:
     for kind, row in result["kinds"].items():
         s = row["safe_ms"]
         p99 = "-" if s["p99"] is None else f"{s['p99']:.0f}"
-        print(f"{kind:18s} injected {row['injected']:3d}  safe {row['sessions_safe']}/{row['sessions']}  "
+        print(f"{kind:18s} injected {row['injected']:3d}  safe {row['trials_safe']}/{row['trials']}  "
               f"safe_ms p99 {p99:>4s}  violations {row['violations']}  lost {row['samples_lost']}  "
               f"recoveries {row['recoveries']}/{row['recovery_owed']}  errors {row['errors']}")
     return 0

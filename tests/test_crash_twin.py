@@ -1,5 +1,5 @@
 """The pieces of the crash campaign that need no real time: the pty CAN link's records (resync after a cut
-write), the app rig written for a twin in another process, and the measures of a session from its samples."""
+write), the app rig written for a twin in another process, and the measures of a trial from its samples."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 import can
 import numpy as np
 
-from bench.crash_sessions import analyse
+from bench.crash_trials import analyse
 from hardware.can_bus import open_bus
 from hardware.can_pty import PtyCanBus, decode, encode
 from hardware.process_twin import app_rig_text

@@ -1,6 +1,6 @@
 """`--obs joints`: a policy that sees the joints and force only (no frames, no objects) trains on a teleop
 recording without cameras or task objects and is accepted by a rig without cameras (the crash campaign's
-rollout against a twin in another process, bench/crash_sessions.py)."""
+rollout against a twin in another process, bench/crash_trials.py)."""
 
 import numpy as np
 import pytest

@@ -1,8 +1,8 @@
 """The app dies (or freezes) beside a twin in a process of its own: what the motors do by themselves
 (SIMULATED; docs/safety.md "The app killed or frozen"). For bench/faults.py's app_sigkill and app_freeze.
 
-    out = run_crash_session("teleop", "app_sigkill", "sim-yam", seed=3, folder=Path("/tmp/x"))
-    out = run_crash_session("rollout", "app_freeze", "sim-piper", 4, Path("/tmp/y"), policies=Path("/tmp/p"))
+    out = run_crash_trial("teleop", "app_sigkill", "sim-yam", seed=3, folder=Path("/tmp/x"))
+    out = run_crash_trial("rollout", "app_freeze", "sim-piper", 4, Path("/tmp/y"), policies=Path("/tmp/p"))
 
 The twin: `python -m hardware.process_twin --hand` (real time; Dynamixel on ptys, CAN on pty links; a
 scripted hand on each leader). The app: `factr2 teleop --rig <the twin's app rig>` in real time, recording
@@ -45,7 +45,7 @@ SPEED_DT_S = 0.01  # s: the follower's speed is taken over this interval
 AFTER_RESUME_S = 4.0  # s the app runs after SIGCONT before it is stopped with Ctrl-C
 START_TIMEOUT_S = 120.0  # s of wall time for the twin to serve and the app to become active
 CRASH_RIGS = ("sim-piper", "sim-yam", "sim-bimanual-piper")  # both arm families and the bimanual rig
-START_TRIES = 3  # a session whose app does not start is started again (module doc of run_crash_session)
+START_TRIES = 3  # a trial whose app does not start is started again (module doc of run_crash_trial)
 POLICY_RECORD_S = 4.0  # s of teleop recorded against a rig's process twin for its rollout policy
 POLICY_STEPS = 25  # training steps of that policy (it has to run, not succeed)
 
@@ -67,7 +67,7 @@ def _status(folder: Path) -> dict:
 
 
 def analyse(w: dict, ev: dict, t_sig: float, kind: str, t_cont: float | None = None) -> dict:
-    """The session's measures (module doc) from the twin's samples w (watch.npz) and events ev
+    """The trial's measures (module doc) from the twin's samples w (watch.npz) and events ev
     (events.json); t_sig / t_cont: the signals' monotonic times [s]."""
     t = np.asarray(w["t"], float)
     if len(t) < 2 or t[-1] < t_sig:
@@ -140,10 +140,10 @@ def _peak_speed(t, q, t0: float, t1: float) -> float | None:
     return float(v.max())
 
 
-def run_crash_session(activity: str, kind: str, rig: str, seed: int, folder: Path,
+def run_crash_trial(activity: str, kind: str, rig: str, seed: int, folder: Path,
                       duration_s: float = 2.0, policies: Path | None = None) -> dict:
-    """One session (module doc); activity "teleop", "collect" (teleop recording) or "rollout" (the policy
-    crash_policy trains once per rig into the folder `policies`). A session whose app did not start (before
+    """One trial (module doc); activity "teleop", "collect" (teleop recording) or "rollout" (the policy
+    crash_policy trains once per rig into the folder `policies`). A trial whose app did not start (before
     any signal: a connect that timed out on a loaded machine, a refused start) is started again,
     START_TRIES times in all; start_failures says how often and why."""
     if activity not in ("teleop", "collect", "rollout"):
@@ -153,7 +153,7 @@ def run_crash_session(activity: str, kind: str, rig: str, seed: int, folder: Pat
     policy = crash_policy(rig, policies) if activity == "rollout" else None
     failures = []
     for k in range(START_TRIES):
-        out = _session(activity, kind, rig, seed, folder / f"try{k}", duration_s, policy)
+        out = _trial(activity, kind, rig, seed, folder / f"try{k}", duration_s, policy)
         if out.get("played") or not out.get("error"):
             break
         failures.append(out["error"])
@@ -241,7 +241,7 @@ def _app_command(activity: str, app_rig: Path, folder: Path, policy: Path | None
     return cmd
 
 
-def _session(activity: str, kind: str, rig: str, seed: int, folder: Path, duration_s: float,
+def _trial(activity: str, kind: str, rig: str, seed: int, folder: Path, duration_s: float,
              policy: Path | None = None) -> dict:
     rng = np.random.default_rng(seed)
     active_for = float(rng.uniform(*ACTIVE_BEFORE_S))
