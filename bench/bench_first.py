@@ -59,7 +59,7 @@ CURVE_SEED = 4  # rollout seed of the learning curve (bench/first_curve.py): nev
 HEADLINE_CELLS = {"base-torque": ("base-torque", None), "first": ("first", (1, 5, 1))}
 SECOND_CELLS = {"base": ("base", None), "C": ("first", (1, 1, 5)), "PC+C": ("first", (1, 3, 3))}
 FORCE_CELLS = {"base": ("base", None), **HEADLINE_CELLS}  # does force help, does FIRST: on every task
-TABLES = ("headline", "second", "all", "force")  # which cells a run trains: each one fits a working session
+TABLES = ("headline", "second", "all", "force")  # which cells a run trains: each sized for 2.5 h on 2 cores
 RIG = "sim-piper"
 OBS_LABELS = {"state": " (PRIVILEGED twin object state, no images)",
               "perceived": " (SIMULATED camera pose detector's object poses, no images; docs/perception.md)"}
@@ -89,7 +89,7 @@ class BenchConfig:
     quick: bool = False  # the smoke configuration (QUICK): said in the report
     demos_from: dict = field(default_factory=dict)  # task -> recorded folders used instead of a collection
     eval_seed: int = EVAL_SEED  # rollout seed (range B): a run may pre-register a fresh one
-    ledger: str = ""  # finished cells kept in the repository across sessions (bench/first_ledger.py)
+    ledger: str = ""  # finished cells kept in the repository across runs (bench/first_ledger.py)
     # the rollouts' rule for chunks beyond a joint limit (policies/rollout/schedule.py), recorded: results of
     # the earlier rule (a fixed 0.15 rad refused: results/first_cells_refuse015.json) are not mixed with these
     limit_tol_fraction: float = LIMIT_TOL_FRACTION
@@ -380,7 +380,7 @@ def run_bench(cfg: BenchConfig, report_only: bool = False) -> dict:
                                   needed={t: list(cfg.cells(t)) for t in cfg.tasks})
         print(f"ledger {cfg.ledger}: {n} finished cell(s) taken", *skipped, sep="\n  ", flush=True)
 
-    def on_cell():  # every finished cell goes to the ledger at once: a session may end at any moment
+    def on_cell():  # every finished cell goes to the ledger at once: a run may be cut at any moment
         if cfg.ledger:
             export_cells(out, Path(cfg.ledger), fingerprints(cfg, ck), config, session=time.strftime("%F"))
 
@@ -437,8 +437,8 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     ap.add_argument("--preset", default="", help="policy preset (default: the observation's: state / small)")
     ap.add_argument("--table", choices=TABLES, default="all",
                     help="headline: base-torque and first on every task; second: base and the ablation C, "
-                    "PC+C on --ablation-task (PC = first); all: both (each fits a session on 2 cores); "
-                    "force: base, base-torque and first on every task (issue #51)")
+                    "PC+C on --ablation-task (PC = first); all: both (each sized for 2.5 h on 2 cores); "
+                    "force: base, base-torque and first on every task (docs/force.md)")
     ap.add_argument("--cells", default="", metavar="CELL[,CELL...]",
                     help="only these cells of the table (e.g. base: one observation against another on the "
                     "same demonstrations)")
@@ -462,7 +462,7 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     ap.add_argument("--next", default="", help="NEXT checkpoint (default: the demo's cache)")
     ap.add_argument("--quick", action="store_true", help="a few-minute smoke configuration: " + str(QUICK))
     ap.add_argument("--ledger", default="", metavar="FILE",
-                    help="finished cells kept across sessions: taken from FILE, each new one added to it "
+                    help="finished cells kept across runs: taken from FILE, each new one added to it "
                     "(results/first_cells.json; bench/first_ledger.py)")
     ap.add_argument("--report", action="store_true",
                     help="run nothing: report the finished cells (a partial table) into OUT")

@@ -26,7 +26,7 @@ from pathlib import Path
 
 LEDGER_VERSION = 1
 # settings a kept result depends on, compared between a ledger and a run (folders and checkpoint paths are
-# compared through the fingerprint instead: they move between sessions)
+# compared through the fingerprint instead: they move between runs and machines)
 SAME_SETTINGS = ("obs", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds", "preset",
                  "include_failed", "actions", "eval_seed", "limit_tol_fraction",
                  "sampler_seeding", "precision", "labels")

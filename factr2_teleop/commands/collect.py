@@ -14,7 +14,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--rig", default="sim-piper", help="a simulated rig (default: sim-piper)")
     parser.add_argument("--task", required=True, help="task name (factr2 tasks lists them)")
     parser.add_argument("--episodes", type=int, default=10, help="demonstrations to collect (default 10)")
-    parser.add_argument("--out", required=True, help="folder for the session's MCAP and summary JSON")
+    parser.add_argument("--out", required=True, help="folder for the run's MCAP and summary JSON")
     parser.add_argument("--seed", type=int, default=0, help="seed of the initial conditions (default 0)")
     parser.add_argument("--mode", default=None, help="feedback mode (default: next with a checkpoint, "
                         "else dob; see factr2 teleop --help)")

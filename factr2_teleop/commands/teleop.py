@@ -27,7 +27,7 @@ def add_arguments(p) -> None:
     from factr2_teleop.session.pairs import MODE_HELP
 
     p.add_argument("--rig", required=True, help="built-in rig name or path to a rig .toml")
-    p.add_argument("--record", metavar="DIR", help="record the session (MCAP, with the rig's cameras) in DIR")
+    p.add_argument("--record", metavar="DIR", help="record the run (MCAP, with the rig's cameras) in DIR")
     p.add_argument("--no-cameras", action="store_true", help="record without the rig's cameras")
     p.add_argument("--mode", choices=FEEDBACK_MODES, help=MODE_HELP)
     p.add_argument("--checkpoint", metavar="NEXT.json", help="NEXT checkpoint (mode next; all followers)")

@@ -257,7 +257,7 @@ class CalibrationRun:
         return rep
 
     def activate(self) -> str:
-        """Use the new checkpoint for this rig now (this session) and save a rig file that names it."""
+        """Use the new checkpoint for this rig now (until the app closes); save a rig file naming it."""
         import dataclasses
 
         ck = str(self.out / "next")

@@ -143,7 +143,8 @@ class CalibrationScreen(BaseScreen):
             val = [v for _, _, v in st.epoch_losses]
             live.append(f"val loss {sparkline(val, 40)} {val[-1]:.4f}")
         if st.step == "done":  # activation first: it must be visible at 80x24 without scrolling
-            live.append(f"ACTIVE for {run.spec.name} (this session; teleop mode 'next'): {st.checkpoint}")
+            live.append(f"ACTIVE for {run.spec.name} (until the app closes; teleop mode 'next'): "
+                        f"{st.checkpoint}")
             live.append(f"rig file naming it (use with --rig): {st.rig_file}")
             live += report_lines(st.report, st.diagnosis)
         self.query_one("#cal-live", Static).update("\n".join(live))

@@ -22,7 +22,7 @@ SOURCE_NAMES = ("demo", "policy", "pre", "operator")  # by code: a training samp
 
 
 def is_rollout(ep) -> bool:
-    """A policy rollout's episode (the session says operator "policy", or it has driver marks)."""
+    """A policy rollout's episode (its recording metadata says operator "policy", or it has driver marks)."""
     return ep.recording.info.get("operator") == "policy" or S.TOPIC_ROLLOUT_DRIVER in ep.topics
 
 

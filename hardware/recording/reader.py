@@ -1,6 +1,6 @@
 """Read recordings: file -> episodes -> numpy arrays per signal.
 
-    rec = Recording("session.mcap")            # decodes once, then reads its array cache
+    rec = Recording("teleop.mcap")             # decodes once, then reads its array cache
     for ep in rec.episodes:
         js = ep.topic("/follower/joint_state")  # TopicArrays: js.t [s], js.fields["q"] (N, n) [rad]
         sig = ep.signals()                       # {"follower.joint.pos": (t, values), ...} own timestamps
