@@ -1,5 +1,5 @@
 """`factr2 collect`: scripted demonstrations of a twin task through the full teleop stack (SIMULATED),
-lockstep (faster than real time), one MCAP per session (docs/tasks.md)."""
+lockstep (faster than real time), one MCAP per run (docs/tasks.md)."""
 
 from __future__ import annotations
 

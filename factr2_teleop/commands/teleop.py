@@ -2,7 +2,7 @@
 
 One loop, one thread, every leader/follower pair of the rig (bimanual rigs run both) at --rate Hz, built by
 the session layer (factr2_teleop.session) exactly as the terminal app and the demo build it. The rig's
-[teleop] table sets the pair configuration (docs/teleop.md). --record writes one MCAP per session with the
+[teleop] table sets the pair configuration (docs/teleop.md). --record writes one MCAP per run with the
 rig's cameras. Ctrl-C stops: every leader at zero torque, every follower holding.
 """
 
