@@ -165,7 +165,7 @@ def _collect(spec, seed: int, folder: Path) -> dict:
 
 
 def _rollout(spec, seed: int, folder: Path, policy: Path) -> dict:
-    from factr2_teleop.session.rollout import RolloutOptions, run_rollout
+    from factr2_teleop.session.rollout import RolloutHooks, RolloutOptions, run_rollout
 
     box, err = {}, None
 
@@ -174,8 +174,9 @@ def _rollout(spec, seed: int, folder: Path, policy: Path) -> dict:
 
     try:
         run_rollout(RolloutOptions(rig="sim-piper", policy=policy, task=COLLECT_TASK, episodes=1,
-                                   seed=1000 + seed, record=folder, progress=False, on_start=on_start,
-                                   max_seconds=spec.t_s + spec.duration_s + TAIL_S, faults=[spec]))
+                                   seed=1000 + seed, record=folder, progress=False,
+                                   max_seconds=spec.t_s + spec.duration_s + TAIL_S, faults=[spec]),
+                    RolloutHooks(on_start=on_start))
     except Exception as e:  # noqa: BLE001 -- the outcome to count
         err = f"{type(e).__name__}: {e}"
     if "w" not in box:

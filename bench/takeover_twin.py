@@ -22,7 +22,7 @@ import numpy as np
 
 
 def main() -> int:
-    from factr2_teleop.session.rollout import RolloutOptions, run_rollout
+    from factr2_teleop.session.rollout import RolloutHooks, RolloutOptions, run_rollout
     from factr2_teleop.teleop.takeover import POLICY
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -67,7 +67,7 @@ def main() -> int:
     t_wall = time.perf_counter()
     out = run_rollout(RolloutOptions(rig="sim-piper", policy=a.policy, task=a.task, episodes=1, seed=7,
                                      max_seconds=a.seconds, realtime=True, takeover=not a.baseline,
-                                     progress=False, on_start=on_start)).to_dict()
+                                     progress=False), RolloutHooks(on_start=on_start)).to_dict()
     t = out["timing"]
     res = {"simulated": True, "smooth_reference": a.smooth, "takeover_on": not a.baseline,
            "wall_s": time.perf_counter() - t_wall,

@@ -7,7 +7,7 @@ cut on and off."""
 import numpy as np
 import pytest
 
-from factr2_teleop.session.rollout import RolloutOptions, run_rollout
+from factr2_teleop.session.rollout import RolloutHooks, RolloutOptions, run_rollout
 
 pytest.importorskip("mujoco")
 TINY = {"hidden": 32, "heads": 2, "dec_layers": 1, "enc_layers": 1, "ff": 64, "chunk": 8, "dropout": 0.0}
@@ -52,8 +52,8 @@ def _rollout(run, lean: bool) -> tuple[dict, list, dict]:
         seen["steps_before"] = {n: w.steps for n, w in seen["worlds"].items()}
 
     out = run_rollout(RolloutOptions(rig="sim-piper", policy=run, task="wipe", episodes=2, seed=7,
-                                     max_seconds=0.6, mode="dob", progress=False, on_start=attach,
-                                     lean=lean)).to_dict()
+                                     max_seconds=0.6, mode="dob", progress=False, lean=lean),
+                      RolloutHooks(on_start=attach)).to_dict()
     seen["steps"] = {n: w.steps - seen["steps_before"][n] for n, w in seen.pop("worlds").items()}
     return out, sent, seen
 
@@ -91,4 +91,4 @@ def test_lean_is_the_default_only_when_nothing_records_or_watches(state_runs, tm
                  progress=False)
     assert run_rollout(RolloutOptions(**quick)).lean
     assert not run_rollout(RolloutOptions(**quick, record=tmp_path)).lean
-    assert not run_rollout(RolloutOptions(**quick, on_start=lambda *a: None)).lean
+    assert not run_rollout(RolloutOptions(**quick), RolloutHooks(on_start=lambda *a: None)).lean

@@ -10,7 +10,7 @@ what is tested is the takeover machinery, not the policy."""
 import numpy as np
 import pytest
 
-from factr2_teleop.session.rollout import RolloutOptions, run_rollout
+from factr2_teleop.session.rollout import RolloutHooks, RolloutOptions, run_rollout
 from factr2_teleop.teleop.soft_start import SoftStartConfig
 from factr2_teleop.teleop.takeover import OPERATOR, POLICY, TakeoverConfig, leader_goal
 from tests.rollout_helpers import install_smooth_policy
@@ -113,7 +113,8 @@ def test_hand_takes_over_without_a_step_and_hands_back_to_a_fresh_plan(state_run
     log = {}
     out = run_rollout(RolloutOptions(rig="sim-piper", policy=state_run, task="wipe", episodes=1, seed=7,
                                      max_seconds=5.0, mode="dob", progress=False, takeover=True,
-                                     record=tmp_path, on_start=_watch(log, hand=hand))).to_dict()
+                                     record=tmp_path),
+                      RolloutHooks(on_start=_watch(log, hand=hand))).to_dict()
     tk, ticks = log["tk"], log["ticks"]
     tko = out["takeover"]
     assert tko["takeovers"] == 1 and tko["by"] == ["hand"], tko
@@ -158,8 +159,8 @@ def test_a_fault_during_a_handover_holds_both_arms(state_run, smooth_policy, tmp
     rig.write_text(text.replace("[twin]\n", "[twin]\nfaults = [\"can_busoff@1.05:0.3\"]\n", 1))
     log = {}
     out = run_rollout(RolloutOptions(rig=str(rig), policy=state_run, task="wipe", episodes=1, seed=7,
-                                     max_seconds=1.6, mode="dob", progress=False, takeover=True,
-                                     on_start=_watch(log, key_at=1.0))).to_dict()
+                                     max_seconds=1.6, mode="dob", progress=False, takeover=True),
+                      RolloutHooks(on_start=_watch(log, key_at=1.0))).to_dict()
     tk, ticks = log["tk"], log["ticks"]
     assert tk.count == 1 and tk.marks[0]["by"] == "key"
     # the fault ended the intervention (a hand-back mark at the fault, the follower then held)
@@ -183,8 +184,8 @@ def test_the_twin_operator_steps_into_a_stalled_policy(state_run, smooth_policy,
     monkeypatch.setattr(TO, "STALL_S", 1.0)
     log = {}
     out = run_rollout(RolloutOptions(rig="sim-piper", policy=state_run, task="wipe", episodes=1, seed=7,
-                                     max_seconds=4.0, mode="dob", progress=False, takeover=True,
-                                     operator=TO.TwinTakeoverOperator, on_start=_watch(log))).to_dict()
+                                     max_seconds=4.0, mode="dob", progress=False, takeover=True),
+                      RolloutHooks(operator=TO.TwinTakeoverOperator, on_start=_watch(log))).to_dict()
     tk = log["tk"]
     assert tk.count == 1 and tk.marks[0]["by"] == "hand", tk.marks
     t0 = next(t for t, st, *_ in log["ticks"] if st == "run")

@@ -148,14 +148,14 @@ def _key_reader(marks, takeover_keys=None) -> threading.Thread | None:
 def run(args) -> int:
     import queue
 
-    from factr2_teleop.session.rollout import RolloutOptions, run_rollout
+    from factr2_teleop.session.rollout import RolloutHooks, RolloutOptions, run_rollout
     from factr2_teleop.session.rollout_takeover import TOGGLE_KEY
 
-    marks = queue.SimpleQueue()
+    hooks = RolloutHooks(marks=queue.SimpleQueue())
     opts = RolloutOptions(rig=args.rig, policy=args.policy, task=args.task, episodes=args.episodes,
                           seed=args.seed, record=args.record, max_seconds=args.max_seconds, next=args.next,
                           realtime=args.realtime, mode=args.mode, schedule=args.schedule,
-                          ensemble_m=args.ensemble_m, k_exec=args.k_exec, marks=marks, force=args.force,
+                          ensemble_m=args.ensemble_m, k_exec=args.k_exec, force=args.force,
                           takeover=args.takeover, faults=twin_faults(args),
                           record_cameras=not args.no_cameras, force_input=args.force_input)
     if args.force and args.task:
@@ -168,14 +168,14 @@ def run(args) -> int:
     if args.takeover and args.task:
         from factr2_teleop.tasks.takeover_operator import TwinTakeoverOperator
 
-        opts.operator = TwinTakeoverOperator
-    keys = opts.takeover_keys if args.takeover is not False else None
-    if (args.task is None or args.takeover) and _key_reader(marks, keys) is not None:
+        hooks.operator = TwinTakeoverOperator
+    keys = hooks.takeover_keys if args.takeover is not False else None
+    if (args.task is None or args.takeover) and _key_reader(hooks.marks, keys) is not None:
         marks_words = ("s = next stage reached, y = success, n = failure, q = stop; " if args.task is None
                        else "")
         take_words = f"{TOGGLE_KEY} = take over / hand back; " if keys is not None else ""
         print(f"keys: {marks_words}{take_words}Ctrl-C holds and stops")
-    out = run_rollout(opts)
+    out = run_rollout(opts, hooks)
     for line in summary_lines(out):
         print(line)
     if args.json is not None:

@@ -11,7 +11,7 @@ its script runs it holds the clutch (Takeover.clutch, as a person would hold a p
 pauses (lining up, waiting) do not hand back. One intervention per episode at most; the episode's time limit
 restarts at the grab (the operator needs its time).
 
-    RolloutOptions(..., takeover=True, operator=TwinTakeoverOperator)   # `factr2 rollout --task T --takeover`
+    run_rollout(RolloutOptions(..., takeover=True), RolloutHooks(operator=TwinTakeoverOperator))  # --takeover
 
 Hook on the loop's thread, after the pairs' ticks: the hand torque it sets acts in the next physics step.
 """

@@ -132,7 +132,10 @@ class RolloutRun:
     def __init__(self, opts, say=None, before=None, after=None):
         """before(): in the worker, before the rollout opens the rig (the app closes its connection);
         after(): in the worker when it has ended, however it ended."""
-        self.opts = replace(opts, progress=False, on_start=self._attach, marks=queue.SimpleQueue())
+        from factr2_teleop.session.rollout_plan import RolloutHooks
+
+        self.opts = replace(opts, progress=False)
+        self.hooks = RolloutHooks(marks=queue.SimpleQueue(), on_start=self._attach)
         self.say = say or (lambda text: None)
         self._before, self._after = before, after
         self.state = RolloutState(episodes=int(opts.episodes))
@@ -168,7 +171,7 @@ class RolloutRun:
         try:
             if self._before is not None:
                 self._before()
-            self.result = run_rollout(self.opts)
+            self.result = run_rollout(self.opts, self.hooks)
         except UserError as e:
             self._end("failed", str(e))
             return
@@ -237,7 +240,7 @@ class RolloutRun:
         if self.opts.task:
             raise UserError("the twin task judges its episodes itself", where="Rollout",
                             fix="marks are for rollouts without a task (or on a real rig)")
-        self.opts.marks.put(key)
+        self.hooks.marks.put(key)
 
     def toggle_takeover(self) -> None:
         """Take over (the leader drives) or hand back to the policy: the key's (or pedal's) press."""
