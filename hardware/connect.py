@@ -202,12 +202,13 @@ def _twin_camera(config, world, clock):
 def open_rig(rig: str | os.PathLike | Rig = "sim-piper", clock: str = "lockstep", effect=None,
              seed: int | None = None, connect: bool = True,
              dynamixel_transport: str | None = None, faults=None) -> RigSession:
-    """Build a rig's session. Simulated rigs get a Twin: clock="lockstep" (deterministic; the loop's
-    clock.sleep advances physics) or "realtime" (a thread steps physics to wall time). Real rigs need
-    clock="realtime". connect: connect every driver (leaders first). Cameras are built, not connected
-    (session.cameras[name].connect(); twin cameras need OpenGL). dynamixel_transport: how a twin serves its
-    Dynamixel leaders -- None picks "inprocess" for lockstep (same sdk bytes, no pty thread: deterministic
-    and fast) and "pty" for realtime; "pty" in lockstep exercises the pseudo-terminal path.
+    """Open a rig: a RigSession, what the session layer runs on. Simulated rigs get a Twin:
+    clock="lockstep" (deterministic; the loop's clock.sleep advances physics) or "realtime" (a thread
+    steps physics to wall time). Real rigs need clock="realtime". connect: connect every driver (leaders
+    first). Cameras are built, not connected (session.cameras[name].connect(); twin cameras need OpenGL).
+    dynamixel_transport: how a twin serves its Dynamixel leaders -- None picks "inprocess" for lockstep
+    (same sdk bytes, no pty thread: deterministic and fast) and "pty" for realtime; "pty" in lockstep
+    exercises the pseudo-terminal path.
     faults: hardware.sim.faults.FaultSpec the twin plays (None: the rig's [twin] faults; a real rig: error).
     ConfigError on bad input."""
     r = _as_rig(rig)

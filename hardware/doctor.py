@@ -99,7 +99,7 @@ def fallback_check(session) -> DeviceCheck:
 def rig_fallbacks(rig, seed: int | None = None) -> DeviceCheck:
     """Connect a rig's drivers (sim rigs: on their twin, lockstep; real rigs: torque on, motors enabled),
     take fallback_check, disconnect. Unlike the rest of the doctor this writes to the devices: it sets each
-    motor's own timeout exactly as a session's connect does."""
+    motor's own timeout exactly as open_rig's connect does."""
     from hardware.connect import open_rig
 
     session = open_rig(rig, clock="lockstep" if rig.simulated else "realtime", seed=seed)

@@ -82,7 +82,7 @@ def spawn_normal(args: list[str], **popen_kw) -> subprocess.Popen:
     """subprocess.Popen(args, **popen_kw), the child at normal priority on every CPU of the process.
 
     A new process inherits the policy and the CPU affinity of the thread that starts it. Started from the
-    control loop's thread (a NEXT worker restarted after it died, mid-session), a child ran its start-up
+    control loop's thread (a NEXT worker restarted after it died, mid-run), a child ran its start-up
     (a Python interpreter importing torch, ~1 s) at the loop's SCHED_FIFO priority on the loop's own CPU,
     where an equal-priority FIFO thread is not preempted: the loop stood still for 1.26 s (measured, the
     fault campaign's next_killed on the twin). So from such a thread the Popen runs on a short-lived thread

@@ -156,7 +156,7 @@ class RenderProcess:
         self._conn.send((i, snap.qpos, snap.qvel, snap.mocap_pos, snap.mocap_quat))
         if not self._conn.poll(RENDER_TIMEOUT_S):
             raise CameraError("the render process stopped answering", where=f"camera {self.cams[i][0]}",
-                              fix="restart the session")
+                              fix="close the rig and open it again (restart the app)")
         kind, msg = self._conn.recv()
         if kind != "ok":
             raise CameraError(f"render failed: {msg}", where=f"camera {self.cams[i][0]}",

@@ -1,6 +1,6 @@
 """A leader servo with a hardware alert (Hardware Error Status(70): overload, overheating, ...) has dropped
 its torque and stays so until rebooted. The driver reboots it once the alert has lasted REBOOT_AFTER_S, and
-turns its torque back on when it answers without the alert: the session resumes without a restart. The
+turns its torque back on when it answers without the alert: teleop resumes without a restart. The
 pair holds the follower meanwhile (STATUS_DRIVER_ERROR on that joint).
 
     reb = AlertRebooter()
@@ -14,7 +14,7 @@ from hardware.dynamixel import protocol as p
 from hardware.errors import DeviceError
 
 REBOOT_AFTER_S = 0.5  # s: an alert lasts this long before the servo is rebooted (an overload cools a little)
-REBOOT_MAX = 3  # reboots per servo and session; after that it stays off (the alert comes back: a real fault)
+REBOOT_MAX = 3  # reboots per servo while the rig is open; then it stays off (the alert is a real fault)
 
 
 def alert_names(bits: int) -> str:

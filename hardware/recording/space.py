@@ -1,6 +1,6 @@
 """Disk space for a recording that must end complete: a reserve the writer holds from the start and gives
 back when the filesystem runs low, so that everything handed over so far, the summary and the footer still
-fit (hardware/recording/writer_process.py). A disk filling mid-session then costs the rest of the session's
+fit (hardware/recording/writer_process.py). A disk filling mid-run then costs the rest of the run's
 recording, not the last flush interval before it.
 
     r = SpaceReserve(path)        # the Recorder: .NAME.reserve beside path, min(RESERVE_BYTES, free / 4)

@@ -39,7 +39,7 @@ from hardware.recording.metadata import default_metadata
 from hardware.recording.ring import ByteRing, region_size
 from hardware.recording.space import SpaceReserve
 
-SAMPLES_BUFFER_BYTES = 32 << 20  # ~50 s of a bimanual 500 Hz session if the writer stalls (a slow disk)
+SAMPLES_BUFFER_BYTES = 32 << 20  # ~50 s of a bimanual 500 Hz run if the writer stalls (a slow disk)
 JPEG_QUALITY = 85  # camera frames' JPEG quality (PIL, 4:2:0); policies read the settings back from the frames
 LOSSLESS_WAIT_S = 10.0  # s: a lossless recorder's longest wait for room in a ring (then: dropped, counted)
 LOSSLESS_POLL_S = 0.0005  # s: how often it looks
@@ -163,7 +163,7 @@ class Recorder:
         self._samples, self._frames = W.attach_rings(self._mm, cfg["samples_bytes"], cfg["frames_bytes"])
         cfg.update(shm_fd=self._shm_fd, file_fd=self._f.fileno())
         # A new interpreter (`python -m`), as the twin's render process: multiprocessing's spawn re-runs the
-        # user's __main__, a fork would copy the loop's threads. Its own session: Ctrl-C is the app's.
+        # user's __main__, a fork would copy the loop's threads. Its own POSIX session: Ctrl-C is the app's.
         self._proc = spawn_normal([sys.executable, "-m", "hardware.recording.writer_process"],
                                       stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
                                       stderr=subprocess.DEVNULL,
@@ -262,7 +262,7 @@ class Recorder:
     @_never_raises
     def log_task_objects(self, t: float, values, names) -> bool:
         """PRIVILEGED (twin only): the task objects' state vector (policies/privileged.py); `names` (one per
-        element, fixed for the session) go into the channel's metadata on first use."""
+        element, fixed for the recording) go into the channel's metadata on first use."""
         return self._named_vector(S.TASK_OBJECTS, S.TOPIC_TASK_OBJECTS, t, values, names)
 
     @_never_raises

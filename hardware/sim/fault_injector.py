@@ -2,7 +2,7 @@
 twin's emulators and to this process (process_faults.py) as sim time passes.
 
     twin = Twin(rig, faults=specs)    # builds FaultInjector(twin, specs); Twin.advance calls on_time
-    twin.faults.recording_dir = dir   # where disk_full fills (the session's recording folder)
+    twin.faults.recording_dir = dir   # where disk_full fills (the run's recording folder)
     twin.faults.log                   # what was injected and when (the campaign's ground truth)
 """
 
@@ -60,7 +60,7 @@ class FaultInjector:
     """Applies a schedule to a twin's emulators as sim time passes (Twin calls on_time after each advance).
     log: one dict per start/end: {"kind", "event": "start" | "end", "t_s" (sim time), "joint", "detail",
     "played": False when the fault found nothing to act on (detail says why: no NEXT worker, no recording)}.
-    recording_dir: the folder disk_full fills (set by the session that records; None: not played)."""
+    recording_dir: the folder disk_full fills (set by the run that records; None: not played)."""
 
     def __init__(self, twin, specs: list[FaultSpec]):
         self.specs = sorted(specs, key=lambda s: s.t_s)

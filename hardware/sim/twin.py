@@ -19,7 +19,7 @@ thread from the latest state.
 
 Each arm's world simulates its true body (hardware/arms/true_body.py: the description with a real unit's mass,
 COM, inertia and armature errors, drawn from the RIG's [twin] seed: one physical unit per rig file, whatever
-seed a session passes for its noise; TwinDevice.body_error says what was drawn) unless the rig's [twin]
+seed a run passes for its noise; TwinDevice.body_error says what was drawn) unless the rig's [twin]
 description_error is false; the drivers, the app and its models only see the description.
 
 Time: sim time t starts at 0; the rig clock reads t + offset (rig_time()). Emulators stamp frames and
@@ -180,7 +180,7 @@ class Twin:
             model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
         body_error = None
         # the twin's physics runs on the true body; the app keeps the description. The body comes from the
-        # rig's seed, not the session's: a calibration, its held-out runs and later sessions with other noise
+        # rig's seed, not the run's: a calibration, its held-out runs and later runs with other noise
         # seeds all meet the same unit, as on a real arm
         if self.description_error:
             model, body_error = true_body(model, arm, body_seed, description_errors(arm.name, arm.role))
