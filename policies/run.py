@@ -32,7 +32,7 @@ from policies.recordings import (
 )
 from policies.run_config import RESUME_KEYS, RunOptions
 from policies.sampler import format_ratio
-from policies.train import Dist, barrier, train
+from policies.train import Dist, TrainHooks, barrier, train
 
 
 def data_hash(episodes) -> str:
@@ -232,7 +232,7 @@ def prepare(o: RunOptions, d: Dist):
 
 
 def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress=None, stop=None) -> dict:
-    """on_progress / stop: policies.train.train's (an app's progress view and stop button)."""
+    """stop_at / on_progress / stop: policies.train.TrainHooks (an app's progress view and stop button)."""
     data, pcfg, o, meta, resume_from = prepare(o, d)
     if d.main:
         Path(o.out).mkdir(parents=True, exist_ok=True)
@@ -248,8 +248,7 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
             + _sources(data, o.source_weights)
         )
     with data:  # the data's crop threads end with the run
-        return train(data, pcfg, o.train, METHODS[o.method], o.ratio, Path(o.out), meta, d, resume_from,
-                     o.progress, stop_at, on_progress, stop, source_weights=o.source_weights)
+        return train(data, pcfg, o, meta, d, resume_from, TrainHooks(stop_at, on_progress, stop))
 
 
 def _recorded_estimator(episodes) -> str:

@@ -172,7 +172,7 @@ class TrainConfig:
     val_max: int = 1024  # validation samples per evaluation (evenly spaced over the validation episodes)
     seed: int = _train("seed", default=0, flag=Flag("--seed", "seed of the weights, batches and noise",
                                                     type=int))
-    # torch threads per process (0: chosen from the free cores, policies.train.pick_threads)
+    # torch threads per process (0: chosen from the free cores, policies.train_threads.pick_threads)
     threads: int = option(0, flag=Flag("--threads", "torch threads per process (default: cores / nproc)",
                                        type=int))
     ema: bool = True  # keep an exponential moving average of the weights (ema_decay): rollouts use it

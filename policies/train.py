@@ -23,16 +23,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from hardware.realtime import KeepOffLoopCpus
 from policies import checkpoint as C
 from policies.config import PolicyConfig
 from policies.curves import RunLog
 from policies.dataset import PolicyData
-from policies.methods import BLUR_SIGMA0_PX_224, Method, blur_sigma
+from policies.methods import BLUR_SIGMA0_PX_224, METHODS, blur_sigma
 from policies.phases import PHASE_SHORT
 from policies.policy import make_policy
-from policies.run_config import TrainConfig
+from policies.run_config import RunOptions, TrainConfig
 from policies.sampler import FirstSampler
+from policies.train_threads import TrainCpu
 
 
 @dataclass
@@ -88,27 +88,6 @@ def clamp_schedule(cfg: TrainConfig, total: int) -> tuple[TrainConfig, list[str]
     notes = [f"{name.replace('_', ' ')} {getattr(cfg, name)} -> {getattr(new, name)} steps (run of {total})"
              for name in ("warmup", "val_every", "ckpt_every") if getattr(new, name) != getattr(cfg, name)]
     return new, notes
-
-
-def pick_threads(requested: int, world: int) -> tuple[int, str]:
-    """(torch threads, why) for one training process of `world`: the cores this process may use, shared by
-    the processes of the run, less the cores other work keeps busy now (the 1-minute load average). Two
-    threads on two cores thrash as soon as anything else runs (measured 35 samples/s against 320 on one
-    thread: a descheduled thread stalls every barrier), so a busy machine gets fewer threads, and the
-    ThreadProbe in the loop drops to one when several turn out slower."""
-    from calibration.next.train import available_cores
-
-    if requested > 0:
-        return requested, "as asked (--threads)"
-    cores = available_cores()
-    share = max(1, cores // max(1, world))
-    try:
-        busy = os.getloadavg()[0]
-    except OSError:  # not available on this OS
-        busy = 0.0
-    free = max(1, int(cores - busy + 0.5))
-    n = max(1, min(share, free))
-    return n, f"{n} of {cores} cores (load {busy:.1f}{f', {world} processes' if world > 1 else ''})"
 
 
 class Ema:
@@ -188,17 +167,6 @@ def evaluate(
     return out
 
 
-def slow_hint(sps: float, best: float, threads: int) -> str:
-    """One line when training runs far below the speed this run already reached (other work took cores)."""
-    try:
-        load = f"load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
-    except OSError:
-        load = "other work on the cores"
-    fix = "pass --threads 1" if threads > 1 else "stop the other work or train on a GPU"
-    return (f"training runs at {sps:.0f} samples/s, {best:.0f} earlier in this run ({load}, {threads} "
-            f"thread(s)): {fix}")
-
-
 def _say(bar, text: str) -> None:
     if bar is not None:
         bar.write(text)
@@ -228,114 +196,59 @@ def _autocast(device, precision: str):
     return torch.autocast(kind, dtype=torch.bfloat16, enabled=precision == "bf16")
 
 
-def train(
-    data: PolicyData,
-    pcfg: PolicyConfig,
-    cfg: TrainConfig,
-    method: Method,
-    ratio: tuple[float, float, float],
-    run: Path,
-    meta: dict,
-    d: Dist,
-    resume_from: Path | None = None,
-    progress: bool = True,
-    stop_at: int | None = None,
-    on_progress: Callable[[dict], None] | None = None,
-    stop: threading.Event | None = None,
-    source_weights=None,
-) -> dict:
-    """Train; checkpoints and logs in `run` (rank 0 writes). Returns the final metrics. method: its FACTR blur
-    (policies.methods), ratio: the sampler's w_F : w_PC : w_C, source_weights: its weight per sample source
-    (policies/sampler.py; used where the data holds rollout samples). stop_at: leave the loop after that
-    many steps (an interruption, as a kill after a checkpoint would be).
+@dataclass
+class TrainHooks:
+    """What drives one training process from outside (the terminal app, a test, a benchmark). stop_at: leave
+    the loop after that many steps (an interruption, as a kill after a checkpoint would be); on_progress(row)
+    after every step on rank 0, row = {"step", "total", "start"} plus the logged losses / validation metrics
+    of that step; stop: when set, the loop ends after the current step and writes a checkpoint there (kept
+    for --resume)."""
 
-    For an app driving one process (the terminal UI): on_progress(row) after every step on rank 0, row =
-    {"step", "total", "start"} plus the logged losses / validation metrics of that step; stop: when set, the
-    loop ends after the current step and writes a checkpoint there (kept for --resume)."""
-    n_threads, why_threads = pick_threads(cfg.threads, d.world)
-    torch.set_num_threads(n_threads)
+    stop_at: int | None = None
+    on_progress: Callable[[dict], None] | None = None
+    stop: threading.Event | None = None
+
+
+def train(data: PolicyData, pcfg: PolicyConfig, o: RunOptions, meta: dict, d: Dist,
+          resume_from: Path | None = None, hooks: TrainHooks | None = None) -> dict:
+    """Train the run `o` (its train config, method, ratio, source weights, out folder, progress) on `data`;
+    checkpoints and logs in o.out (rank 0 writes). Returns the final validation metrics. The CPU side
+    (threads, the teleop loop's CPU, cost lines) is policies/train_threads.py's."""
+    hooks = hooks if hooks is not None else TrainHooks()
+    cpu = TrainCpu(o.train.threads, d.world)
     train_idx, val_idx = data.split()
-    src = data.source[train_idx] if data.source is not None and source_weights is not None else None
-    sampler = FirstSampler(data.phase[train_idx], ratio, cfg.seed, rank=d.rank, world=d.world, sources=src,
-                           source_weights=source_weights if src is not None else None)
-    total = total_steps(cfg, sampler)
-    asked = cfg
-    cfg, notes = clamp_schedule(cfg, total)
+    sampler = _sampler(data, train_idx, o, d)
+    total = total_steps(o.train, sampler)
+    cfg, notes = clamp_schedule(o.train, total)
     precision, why_precision = pick_precision(cfg.precision, d.device)
     meta["precision_used"] = precision
-    if d.main and progress:
-        print(f"torch threads: {why_threads}; {why_precision}" + "".join(f"; {n}" for n in notes), flush=True)
+    if d.main and o.progress:
+        print(f"torch threads: {cpu.why}; {why_precision}" + "".join(f"; {n}" for n in notes), flush=True)
     spe = sampler.steps_per_epoch(cfg.batch)
-    torch.manual_seed(cfg.seed)  # identical initial weights on every rank
-    model = make_policy(pcfg).to(d.device)
-    decay = [p for n, p in model.named_parameters() if p.ndim >= 2]
-    no_decay = [p for n, p in model.named_parameters() if p.ndim < 2]
-    opt = torch.optim.AdamW(
-        [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
-        lr=cfg.lr,
-        betas=cfg.betas,
-        # one kernel for every parameter on CPU too: 7.6 -> 1.9 ms a step for 6 x 512^2 weights, ~6 % of a
-        # state-preset step (differs from the per-tensor loop by rounding only, ~3e-8 after 60 steps)
-        fused=True,
-    )
-    start = 0
-    ema = Ema(model, cfg.ema_power, cfg.ema_max) if cfg.ema else None
-    if resume_from is not None:
-        old = C.read_meta(resume_from)
-        from safetensors.torch import load_file
-
-        model.load_state_dict(load_file(str(Path(old["_path"]).with_name(old["weights"]))))
-        if ema is not None and old.get("weights_ema"):
-            ema.model.load_state_dict(load_file(str(Path(old["_path"]).with_name(old["weights_ema"]))))
-        C.load_optimizer(opt, Path(old["_path"]))
-        start = int(old["step"])
-    probe = None
-    if n_threads > 1 and cfg.threads <= 0:
-        from calibration.next.threads import ThreadProbe
-
-        probe = ThreadProbe(n_threads)  # re-checks 1 thread against n every 400 steps, drops on a collapse
-    net = model
-    if d.world > 1:
-        from torch.nn.parallel import DistributedDataParallel as DDP
-
-        net = DDP(model, device_ids=[d.local_rank] if d.device.type == "cuda" else None)
-    log = RunLog(run, start) if d.main else None
-    meta = dict(meta, train=asked.to_dict(), total_steps=total, steps_per_epoch=spe,
-                schedule={k: getattr(cfg, k) for k in ("warmup", "val_every", "ckpt_every")})
-    bar = None
-    if d.main and progress:
-        from tqdm import tqdm
-
-        bar = tqdm(
-            total=total, initial=start, unit="step", dynamic_ncols=True, desc=f"{pcfg.policy}/{method.name}"
-        )
-    sigma0 = BLUR_SIGMA0_PX_224 * pcfg.image_size / 224.0
-    t_last, n_last, last_val = time.perf_counter(), 0, {}
-    best_sps, hinted = 0.0, False
-    from policies.cost_hint import CostHint  # CPU image runs: what a step costs and the run will take
-
-    cost = (CostHint(total - start, observation=pcfg.observation, device=d.device.type, batch=cfg.batch)
-            if d.main and progress else None)
+    model, opt, ema = _model_and_optimiser(pcfg, cfg, d)
+    start = _resume(resume_from, model, ema, opt)
+    net = _distributed(model, d)
     eval_model = ema.model if ema is not None else model
+    method = METHODS[o.method]
+    sigma0 = BLUR_SIGMA0_PX_224 * pcfg.image_size / 224.0
+    run = Path(o.out)
+    log = RunLog(run, start) if d.main else None
+    meta = dict(meta, train=o.train.to_dict(), total_steps=total, steps_per_epoch=spe,
+                schedule={k: getattr(cfg, k) for k in ("warmup", "val_every", "ckpt_every")})
+    bar = _bar(total, start, f"{pcfg.policy}/{method.name}") if d.main and o.progress else None
+    if d.main:
+        cpu.watch(start, lambda text: _say(bar, text), cost=o.progress, steps_left=total - start,
+                  observation=pcfg.observation, device=d.device.type, batch=cfg.batch)
+    t_last, n_last, last_val = time.perf_counter(), 0, {}
 
     def save(step: int, final: bool = False) -> None:  # rank 0: weights, EMA, optimiser, meta
         C.save(run / "checkpoints", step, model, opt, dict(meta, metrics=last_val), final=final,
                ema=ema.model if ema is not None else None, keep=cfg.keep_checkpoints)
+
     model.train()
-    keep_off = KeepOffLoopCpus()  # off the CPU of a teleop loop running beside (hardware/realtime.py)
-    for s in range(start, min(total, stop_at or total)):
-        keep_off.refresh(time.monotonic())
-        if probe is not None:
-            probe.before(s // 100, s % 100)
-        epoch, k = divmod(s, spe)
-        idx, pos = sampler.batch(epoch, k, cfg.batch)
-        gen = torch.Generator().manual_seed(_seed(cfg.seed, s))
-        noise = {
-            key: v[torch.from_numpy(pos)] for key, v in type(model).draw_noise(pcfg, cfg.batch, gen).items()
-        }
-        crops = data.pre.image.draw_crops(cfg.batch, gen)[torch.from_numpy(pos)]
-        batch = _to(data.batch(train_idx[idx], crops), d.device)
-        noise = _to(noise, d.device)
+    for s in range(start, min(total, hooks.stop_at or total)):
+        cpu.before_step(s)
+        batch, noise = _step_inputs(data, sampler, train_idx, type(model), pcfg, cfg, s, d)
         if method.blur:  # a step's input, as its crops: the model reads it from the batch
             batch["blur_sigma"] = blur_sigma(s, total, sigma0)
         torch.manual_seed(_seed(cfg.seed, s, d.rank))  # dropout
@@ -351,52 +264,37 @@ def train(
         opt.zero_grad(set_to_none=True)
         if ema is not None:
             ema.update(model, s)
-        if probe is not None:
-            probe.after()
-        n_last += cfg.batch
         done = s + 1
+        cpu.after_step(done, time.perf_counter())
+        n_last += cfg.batch
         if bar is not None:
             bar.update(1)
-        if cost is not None and (line := cost.tick(done - start, time.perf_counter())):
-            _say(bar, line)
-        if done % cfg.log_every == 0 or done == total:
+        logging = done % cfg.log_every == 0 or done == total
+        validating = done % cfg.val_every == 0 or done == total
+        if logging:  # every rank: the means are reduced over the ranks
             logged = _global_means(d, [loss.detach()] + [v.detach().float().mean() for v in parts.values()])
-        if d.main and (done % cfg.log_every == 0 or done == total):
+        if d.main and logging:
             now = time.perf_counter()
-            row = {
-                "train/loss": logged[0],
-                "lr": lr,
-                "train/grad_norm": float(gnorm),
-                "samples_per_s": n_last / max(now - t_last, 1e-9),
-            }
+            row = {"train/loss": logged[0], "lr": lr, "train/grad_norm": float(gnorm),
+                   "samples_per_s": n_last / max(now - t_last, 1e-9)}
             row.update({f"train/{k}": v for k, v in zip(parts, logged[1:])})
             log.log(done, row)
             t_last, n_last = now, 0
             if bar is not None:
                 bar.set_postfix(loss=f"{row['train/loss']:.4f}", sps=f"{row['samples_per_s']:.0f}")
-            best_sps = max(best_sps, row["samples_per_s"])
-            if not hinted and done - start >= 100 and row["samples_per_s"] < 0.3 * best_sps:
-                hinted = True
-                _say(bar, slow_hint(row["samples_per_s"], best_sps, torch.get_num_threads()))
-        if d.main and (done % cfg.val_every == 0 or done == total):
-            last_val = evaluate(eval_model, data, val_idx, pcfg, d.device, cfg.val_max)
-            if ema is not None and last_val:
-                raw = evaluate(model, data, val_idx, pcfg, d.device, cfg.val_max)
-                last_val.update({f"{k}_raw": v for k, v in raw.items()})
+            cpu.speed(row["samples_per_s"], done)
+        if d.main and validating:
+            last_val = _validate(eval_model, model if ema is not None else None, data, val_idx, pcfg, d, cfg)
             if last_val:
                 log.log(done, last_val)
         if d.main and (done % cfg.ckpt_every == 0 or done == total):
             save(done, final=done == total)
         if done % cfg.ckpt_every == 0:
             barrier(d)  # the others wait while rank 0 writes, so a killed run has a consistent checkpoint
-        if d.main and on_progress is not None:
-            shown = {"step": done, "total": total, "start": start}
-            if done % cfg.log_every == 0 or done == total:
-                shown.update(row)
-            if done % cfg.val_every == 0 or done == total:
-                shown.update(last_val)
-            on_progress(shown)
-        if stop is not None and stop.is_set() and done < total:
+        if d.main and hooks.on_progress is not None:
+            hooks.on_progress({"step": done, "total": total, "start": start, **(row if logging else {}),
+                               **(last_val if validating else {})})
+        if hooks.stop is not None and hooks.stop.is_set() and done < total:
             if d.main and done % cfg.ckpt_every:
                 save(done)
             break
@@ -406,3 +304,82 @@ def train(
         log.close()
     barrier(d)
     return last_val
+
+
+# -- the pieces of train(), in the order it calls them --------------------------------------------------
+def _sampler(data: PolicyData, train_idx: np.ndarray, o: RunOptions, d: Dist) -> FirstSampler:
+    """The FIRST sampler over the training samples: the phase ratio, and per source where the data holds
+    rollout samples and the run weighs them."""
+    src = data.source[train_idx] if data.source is not None and o.source_weights is not None else None
+    return FirstSampler(data.phase[train_idx], o.ratio, o.train.seed, rank=d.rank, world=d.world, sources=src,
+                        source_weights=o.source_weights if src is not None else None)
+
+
+def _model_and_optimiser(pcfg: PolicyConfig, cfg: TrainConfig, d: Dist):
+    """(model, AdamW, Ema or None): identical initial weights on every rank (seeded), weight decay on the
+    matrices only."""
+    torch.manual_seed(cfg.seed)  # identical initial weights on every rank
+    model = make_policy(pcfg).to(d.device)
+    decay = [p for n, p in model.named_parameters() if p.ndim >= 2]
+    no_decay = [p for n, p in model.named_parameters() if p.ndim < 2]
+    opt = torch.optim.AdamW(
+        [{"params": decay, "weight_decay": cfg.weight_decay}, {"params": no_decay, "weight_decay": 0.0}],
+        lr=cfg.lr,
+        betas=cfg.betas,
+        # one kernel for every parameter on CPU too: 7.6 -> 1.9 ms a step for 6 x 512^2 weights, ~6 % of a
+        # state-preset step (differs from the per-tensor loop by rounding only, ~3e-8 after 60 steps)
+        fused=True,
+    )
+    ema = Ema(model, cfg.ema_power, cfg.ema_max) if cfg.ema else None
+    return model, opt, ema
+
+
+def _resume(resume_from: Path | None, model, ema: Ema | None, opt) -> int:
+    """The step to start at: 0, or the checkpoint's after loading its weights, EMA and optimiser."""
+    if resume_from is None:
+        return 0
+    from safetensors.torch import load_file
+
+    old = C.read_meta(resume_from)
+    model.load_state_dict(load_file(str(Path(old["_path"]).with_name(old["weights"]))))
+    if ema is not None and old.get("weights_ema"):
+        ema.model.load_state_dict(load_file(str(Path(old["_path"]).with_name(old["weights_ema"]))))
+    C.load_optimizer(opt, Path(old["_path"]))
+    return int(old["step"])
+
+
+def _distributed(model, d: Dist):
+    """The module the loop calls: DDP over the ranks, the model itself in one process."""
+    if d.world <= 1:
+        return model
+    from torch.nn.parallel import DistributedDataParallel as DDP
+
+    return DDP(model, device_ids=[d.local_rank] if d.device.type == "cuda" else None)
+
+
+def _bar(total: int, start: int, desc: str):
+    from tqdm import tqdm
+
+    return tqdm(total=total, initial=start, unit="step", dynamic_ncols=True, desc=desc)
+
+
+def _step_inputs(data: PolicyData, sampler: FirstSampler, train_idx: np.ndarray, model_type,
+                 pcfg: PolicyConfig, cfg: TrainConfig, s: int, d: Dist) -> tuple[dict, dict]:
+    """Global step s's batch and noise on this rank: the sampler's global batch, the noise and the crop boxes
+    drawn for the whole global batch from a generator seeded by (seed, s), this rank keeping its positions."""
+    epoch, k = divmod(s, sampler.steps_per_epoch(cfg.batch))
+    idx, pos = sampler.batch(epoch, k, cfg.batch)
+    gen = torch.Generator().manual_seed(_seed(cfg.seed, s))
+    noise = {key: v[torch.from_numpy(pos)] for key, v in model_type.draw_noise(pcfg, cfg.batch, gen).items()}
+    crops = data.pre.image.draw_crops(cfg.batch, gen)[torch.from_numpy(pos)]
+    return _to(data.batch(train_idx[idx], crops), d.device), _to(noise, d.device)
+
+
+def _validate(eval_model, raw_model, data: PolicyData, val_idx: np.ndarray, pcfg: PolicyConfig, d: Dist,
+              cfg: TrainConfig) -> dict[str, float]:
+    """The validation metrics of the evaluated weights (EMA where kept), and of the raw ones as *_raw."""
+    out = evaluate(eval_model, data, val_idx, pcfg, d.device, cfg.val_max)
+    if raw_model is not None and out:
+        raw = evaluate(raw_model, data, val_idx, pcfg, d.device, cfg.val_max)
+        out.update({f"{k}_raw": v for k, v in raw.items()})
+    return out

@@ -13,7 +13,8 @@ from policies import checkpoint as C
 from policies.config import default_preset, preset
 from policies.flow_mlp import FlowMLPPolicy
 from policies.run import RunOptions, run_training
-from policies.train import Dist, Ema, TrainConfig, clamp_schedule, pick_threads
+from policies.train import Dist, Ema, TrainConfig, clamp_schedule
+from policies.train_threads import pick_threads
 from tests.policy_helpers import write_recording
 
 
@@ -83,7 +84,7 @@ def test_schedule_is_clamped_to_a_short_run_and_says_so():
 
 
 def test_thread_choice_leaves_busy_cores_alone(monkeypatch):
-    import policies.train as T
+    import policies.train_threads as T
 
     monkeypatch.setattr("calibration.next.train.available_cores", lambda: 2)
     monkeypatch.setattr(T.os, "getloadavg", lambda: (1.0, 1.0, 1.0))  # one other CPU-bound process
