@@ -5,7 +5,7 @@ one fault each at a random time, and what happened (docs/safety.md "Fault campai
     python -m bench.faults --seed 0 --per-kind 20 --kinds can_busoff,dxl_unplug --activities teleop,collect \\
         --json OUT
 
-Trials (bench/fault_sessions.py): teleop (the demo's operator through a TeleopSession, recorded),
+Trials (bench/fault_trials.py): teleop (the demo's operator through a TeleopSession, recorded),
 collect (`factr2 collect`'s collect(), one peg-insert episode), rollout (run_rollout of a tiny policy trained
 once into OUT.state/). next_killed: teleop only, in real time with NEXT feedback (recovered: feedback back
 on). app_sigkill / app_freeze: the app beside a twin in a process of its own (bench/crash_trials.py: teleop
@@ -40,7 +40,7 @@ import numpy as np
 
 from bench import harness
 from bench.crash_trials import CRASH_RIGS, run_crash_trial
-from bench.fault_sessions import run_session
+from bench.fault_trials import run_trial
 from hardware.errors import ConfigError
 from hardware.sim.faults import KINDS, random_schedule
 
@@ -76,7 +76,7 @@ def percentiles(ms: list[float]) -> dict:
 
 
 def aggregate(rows: list[dict]) -> dict:
-    """One JSON row over trials (run_session outcomes)."""
+    """One JSON row over trials (run_trial outcomes)."""
     safe_ms = [r["safe_ms"] for r in rows if r.get("safe_ms") is not None]
     stale_ms = [r["stale_ms"] for r in rows if r.get("stale_ms") is not None]
     lost = [r["samples_lost"] for r in rows if r.get("samples_lost") is not None]
@@ -205,7 +205,7 @@ def main(argv=None) -> int:
             else:
                 lo, hi = WINDOW_S_BY_KIND.get(kind, FAULT_WINDOW_S)
                 spec = random_schedule(args.seed * 1000 + i, [kind], 1, lo, hi + KINDS[kind][1], gap_s=0.0)[0]
-                r = run_session(act, spec, args.seed + i, Path(tmp) / f"{act}-{kind}-{i}", policy)
+                r = run_trial(act, spec, args.seed + i, Path(tmp) / f"{act}-{kind}-{i}", policy)
                 text = spec.text()
             r = {k: v for k, v in r.items() if k not in ("log", "messages")}
             r.update(activity=act, kind=kind, i=i, seed=args.seed, spec=text)

@@ -1,13 +1,13 @@
-"""One fault-campaign session per activity (SIMULATED, lockstep, seeded), for bench/faults.py: a short
-session of teleop, collect or rollout on the sim-piper twin with one fault, measured the same way.
+"""One fault-campaign trial per activity (SIMULATED, lockstep, seeded), for bench/faults.py: a short
+run of teleop, collect or rollout on the sim-piper twin with one fault, measured the same way.
 
-    out = run_session("collect", parse_fault("can_busoff@1.0:0.3"), seed=3, folder=Path("/tmp/x"))
+    out = run_trial("collect", parse_fault("can_busoff@1.0:0.3"), seed=3, folder=Path("/tmp/x"))
     out = {"played", "safe_end", "safe_ms", "violations", "samples_lost", "recovered", "error", ...}
 
 teleop: the demo task's operator drives the leader through TeleopSession (factr2_teleop/demo/fault_run.py),
 recorded. collect: `factr2 collect`'s collect() on peg-insert (feedback dob), one episode cut TAIL_S after the
 fault. rollout: run_rollout with a tiny policy trained once (tests/rollout_helpers.py), recorded. The signal
-kinds kill the process: they run in a child (`python -m bench.fault_sessions --child ...`) and the parent
+kinds kill the process: they run in a child (`python -m bench.fault_trials --child ...`) and the parent
 checks its exit and its recording.
 """
 
@@ -23,12 +23,12 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-TAIL_S = 1.2  # s of twin time a session runs after its fault ends (to see the recovery)
+TAIL_S = 1.2  # s of twin time a trial runs after its fault ends (to see the recovery)
 NEXT_TAIL_S = 10.0  # s (real time) after a NEXT worker's kill: a new worker starts, loads torch, warms up
 SIGNAL_KINDS = ("app_sigterm", "app_sigkill")
 COLLECT_TASK = "peg-insert"
 WRITER_FINISH_S = 15.0  # s: a killed app's writer process finishes the file within this (wall)
-SMALL_FS_MIB = 16  # MiB: the tmpfs a disk_full session records on (frames of a camera session fit before)
+SMALL_FS_MIB = 16  # MiB: the tmpfs a disk_full trial records on (frames of a camera trial fit before)
 
 
 class Wire:
@@ -49,7 +49,7 @@ class Wire:
 
 
 class Watch:
-    """What a session's campaign measure needs: the wire of its first pair, the ticks it recorded."""
+    """What a trial's campaign measure needs: the wire of its first pair, the ticks it recorded."""
 
     def __init__(self, ts, rig_session):
         from factr2_teleop.demo.fault_run import fresh_times
@@ -194,13 +194,13 @@ def run_in_process(activity: str, spec, seed: int, folder: Path, policy: Path | 
     return _rollout(spec, seed, folder, policy)
 
 
-def run_session(activity: str, spec, seed: int, folder: Path, policy: Path | None = None) -> dict:
-    """One session; a signal kind runs in a child process (it ends the process that plays it)."""
+def run_trial(activity: str, spec, seed: int, folder: Path, policy: Path | None = None) -> dict:
+    """One trial; a signal kind runs in a child process (it ends the process that plays it)."""
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     mounted = spec.kind == "disk_full" and _mount_small_fs(folder)  # else: not played (said in its log)
     try:
-        out = _signal_session(activity, spec, seed, folder, policy) if spec.kind in SIGNAL_KINDS else \
+        out = _signal_trial(activity, spec, seed, folder, policy) if spec.kind in SIGNAL_KINDS else \
             run_in_process(activity, spec, seed, folder, policy)
     finally:
         if mounted:
@@ -216,8 +216,8 @@ def _mount_small_fs(folder: Path) -> bool:
     return r.returncode == 0
 
 
-def _signal_session(activity, spec, seed, folder, policy) -> dict:
-    """The child runs the session and is signalled at spec.t_s (twin time): exit 143 after a safe stop
+def _signal_trial(activity, spec, seed, folder, policy) -> dict:
+    """The child runs the trial and is signalled at spec.t_s (twin time): exit 143 after a safe stop
     (SIGTERM) or killed (-9). Samples lost: the recorded follower samples against a full grid from the first
     one to the signal."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
