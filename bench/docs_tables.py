@@ -32,11 +32,11 @@ def _f(x, fmt: str = ".0f") -> str:
     return "-" if x is None else format(x, fmt)
 
 
-# -- docs/safety.md: the fault campaign -------------------------------------------------------------------
+# -- docs/faults.md: the fault campaign -------------------------------------------------------------------
 FAULT_HEAD = ("| kind | injected (teleop/collect/rollout) | trials safe | safe_ms p50 / p99 / max | "
               "stale_ms p99 / max | violations | samples lost | recoveries | errors | run |\n"
               "|---|---|---|---|---|---|---|---|---|---|")
-KILLED = '"The app killed or frozen"'  # the section of docs/safety.md with the motors' side of a crash
+KILLED = '"The app killed or frozen"'  # the section of docs/faults.md with the motors' side of a crash
 
 
 def _fault_row(kind: str, r: dict, run: str, safe: str) -> str:
@@ -250,7 +250,7 @@ def history_table(name: str) -> str:
 
 # page, name -> (results files it reads, renderer)
 TABLES = {
-    ("safety.md", "faults_campaign"): (("faults_campaign", "faults_crash"), faults_campaign),
+    ("faults.md", "faults_campaign"): (("faults_campaign", "faults_crash"), faults_campaign),
     ("first.md", "headline"): (("first_headline",), lambda: headline("first_headline", True)),
     ("first.md", "ablation"): (("first_ablation",), ablation),
     ("first.md", "ablation_fp32_hysteresis"): (("first_ablation_fp32_hysteresis",),

@@ -1,5 +1,5 @@
 """The fault campaign on the twin (SIMULATED, lockstep, seeded): per activity and fault kind, N trials with
-one fault each at a random time, and what happened (docs/safety.md "Fault campaign").
+one fault each at a random time, and what happened (docs/faults.md).
 
     python -m bench.faults --seed 0 --per-kind 3 --json /tmp/faults.json
     python -m bench.faults --seed 0 --per-kind 20 --kinds can_busoff,dxl_unplug --activities teleop,collect \\

@@ -43,7 +43,7 @@ GOAL_ADDRESSES = frozenset(  # every byte of the four Goal values
 # The leader's period. The loop runs at 500 Hz (2 ms) and its own software watchdog zeroes the torque after
 # 50 ms (hardware.safety.DEFAULT_WATCHDOG_S) while the app lives; the servo's watchdog is for when it does
 # not. 100 ms (5 units) is 50 loop periods, twice the software watchdog and 4x the longest loop period the
-# 30-minute soak measured (25.7 ms, docs/safety.md): a live loop never trips it, a dead app leaves the
+# 30-minute soak measured (25.7 ms, docs/faults.md): a live loop never trips it, a dead app leaves the
 # operator's hand under the last force-feedback current for at most 100 ms plus one 20 ms unit.
 LEADER_PERIOD_S = 0.100
 
