@@ -40,7 +40,7 @@ from hardware.types import JointState
 
 READY_TIMEOUT_S = 60.0  # s: the child imports torch and loads the checkpoint (2-5 s on a 2-vCPU VM)
 MAX_IN_FLIGHT = 25  # samples posted and not answered (0.25 s at 100 Hz): the worker cannot keep up
-RESTARTS_MAX = 3  # a worker that died is started again this many times per session (then feedback stays off)
+RESTARTS_MAX = 3  # restarts of a worker that died, while the rig is open (then feedback stays off)
 
 
 # -- wire format (pure) ------------------------------------------------------------------------------
