@@ -13,8 +13,8 @@ loss per phase F / PC / C.
     python -m bench.bench_first --obs images --out DIR                 # the same code path on camera frames
     python -m bench.bench_first --out /tmp/fb_full --write-docs        # table + chart into docs/first.md
 
-`--obs state` (default) trains on the PRIVILEGED object state of the twin (policies/privileged.py), not on
-images: labelled so everywhere; `--obs perceived` on those poses as the simulated camera pose detector
+`--obs state` (default) trains on the PRIVILEGED object state of the twin (policies/data/privileged.py), not
+on images: labelled so everywhere; `--obs perceived` on those poses as the simulated camera pose detector
 reported them during collection (SIMULATED, docs/perception.md). `--out` is resumable: finished
 demonstrations, training runs and rollouts are kept and skipped (an interrupted training run resumes from its
 last checkpoint).
@@ -48,7 +48,7 @@ except ModuleNotFoundError as e:  # `python bench/bench_first.py`: bench/ is a p
     raise SystemExit(2) from None
 from bench.first_report import aggregate, write_docs, write_report
 from bench.harness import commit, machine
-from policies.phases import LABEL_RULE
+from policies.labels.phases import LABEL_RULE
 from policies.rollout.runner import SAMPLER_SEEDING
 from policies.rollout.schedule import LIMIT_TOL_FRACTION
 
@@ -97,7 +97,8 @@ class BenchConfig:
     # the training's matmuls (factr2 train --precision): auto, as the current ledger's cells were trained
     # (results/first_cells_fp32_hysteresis.json: fp32 and the earlier labels)
     precision: str = "auto"
-    # the contact labeller (policies.phases.LABEL_RULE): cells labelled by an earlier rule are not mixed in
+    # the contact labeller (policies.labels.phases.LABEL_RULE): cells labelled by an earlier rule are not
+    # mixed in
     labels: str = LABEL_RULE
     only_cells: list = field(default_factory=list)  # a subset of the table's cells ([] = all of them)
 
@@ -165,12 +166,13 @@ def collect_demos(cfg: BenchConfig, task: str, checkpoint: str) -> dict:
 
 
 def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
-    """One training run (policies.run, as `factr2 train`), resumed from its checkpoint if interrupted."""
+    """One training run (policies.training.run, as `factr2 train`), resumed from its checkpoint if
+    interrupted."""
     import torch
 
-    from policies.checkpoint import last_checkpoint, read_meta
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
+    from policies.training.checkpoint import last_checkpoint, read_meta
+    from policies.training.run import RunOptions, run_training
+    from policies.training.train import Dist, TrainConfig
 
     run = Path(cfg.out) / task / cell / f"seed{seed}"
     done = run / "train.json"

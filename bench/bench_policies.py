@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from policies.config import preset
-from policies.dataset import build_dataset
-from policies.labelling import Thresholds
-from policies.policy import make_policy
-from policies.recordings import load_episodes
+from policies.data.dataset import build_dataset
+from policies.data.recordings import load_episodes
+from policies.labels.labelling import Thresholds
+from policies.models.config import preset
+from policies.models.policy import make_policy
 
 
 def _synthetic(folder: Path, seconds: float = 20.0) -> Path:
@@ -189,8 +189,8 @@ def bench_phases(
     backbone: str = "convnet-gn",
     batch: int = 32,
 ) -> dict:
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
+    from policies.training.run import RunOptions, run_training
+    from policies.training.train import Dist, TrainConfig
 
     res = {}
     for method in ("base-torque", "first"):

@@ -16,8 +16,8 @@ from dataclasses import replace
 import torch
 
 from bench import harness
-from policies.config import preset
-from policies.policy import make_policy
+from policies.models.config import preset
+from policies.models.policy import make_policy
 
 DIMS = dict(observation="state", state_dim=7, force_dim=6, objects_dim=21, action_dim=7)
 CANDIDATES = [

@@ -1,7 +1,7 @@
 """Round trip of docs/bringing_data.md: our recordings -> `factr2 export lerobot` -> the samples `factr2
 train` makes of that dataset, against the samples it makes of the recordings themselves: counts and a SHA-256
-of the first batch (every tensor the model gets). Both go through policies.run.prepare, `factr2 train`'s own
-data path, with the same flags.
+of the first batch (every tensor the model gets). Both go through policies.training.run.prepare,
+`factr2 train`'s own data path, with the same flags.
 
     python -m bench.bring_data_round_trip [RECORDING_OR_DIR] [-- TRAIN FLAGS]
 
@@ -21,9 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from factr2_teleop.cli import build_parser, main
-from policies.run import prepare
-from policies.run_config import from_args
-from policies.train import setup_distributed
+from policies.training.run import prepare
+from policies.training.run_config import from_args
+from policies.training.train import setup_distributed
 
 ROOT = Path(__file__).resolve().parents[1]
 

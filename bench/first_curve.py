@@ -29,9 +29,9 @@ CURVE_SEED = 4  # rollout seed range of the curve: disjoint from demonstrations 
 
 
 def train_curve(a: dict) -> dict:
-    from policies.checkpoint import last_checkpoint
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
+    from policies.training.checkpoint import last_checkpoint
+    from policies.training.run import RunOptions, run_training
+    from policies.training.train import Dist, TrainConfig
 
     run = Path(a["out"]) / "run"
     done = run / "train.json"

@@ -11,8 +11,8 @@ machine (one GPU, 16 CPU cores, a few minutes):
 2. the recordings' frame caches decoded in parallel (one process per recording), so the training runs start
    on cached frames;
 3. training of `base-torque` and `first` (1:5:1), `--obs images`, small preset, on the GPU, the runs side by
-   side as processes (policies.run.run_training, as `factr2 train`); a wall-clock guard stops a run early
-   (checkpoint kept, said in its train.json) so the command ends inside its limit;
+   side as processes (policies.training.run.run_training, as `factr2 train`); a wall-clock guard stops a run
+   early (checkpoint kept, said in its train.json) so the command ends inside its limit;
 4. rollouts of every policy on the evaluation seed (2: episodes 200006...), on the CPU cores: R episodes per
    policy split into contiguous blocks over P processes; a block starting at episode k0 uses the episode
    seeds episode_seed(2, k0 + k) (the same initial conditions as one sequential run; only the arm's state
@@ -72,8 +72,8 @@ def collect_part(out: str, task: str, seed: int, episodes: int, ck: str) -> dict
 
 def prewarm(mcap: str, size: int) -> dict:
     """The recording's episode arrays and its frame caches at `size` px (what training reads)."""
-    from policies.frame_cache import camera_frames
-    from policies.recordings import load_episodes
+    from policies.data.frame_cache import camera_frames
+    from policies.data.recordings import load_episodes
 
     t = time.perf_counter()
     episodes, _ = load_episodes([mcap])
@@ -92,9 +92,9 @@ def train_part(out: str, task: str, cell: str, seed: int, steps: int, batch: int
     import numpy as np
     import torch
 
-    from policies.checkpoint import read_meta
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
+    from policies.training.checkpoint import read_meta
+    from policies.training.run import RunOptions, run_training
+    from policies.training.train import Dist, TrainConfig
 
     run = Path(out) / ("probe" if probe else task) / cell / f"seed{seed}"
     done = run / "train.json"
@@ -295,7 +295,7 @@ def main(argv=None) -> int:
     import multiprocessing as mp
 
     from bench.bench_first import next_checkpoint
-    from policies.config import preset
+    from policies.models.config import preset
 
     cores = os.cpu_count() or 1
     ctx = mp.get_context("spawn")

@@ -24,8 +24,8 @@ import numpy as np
 from bench.label_truth import truth_contact
 from hardware.recording import schemas as S
 from hardware.recording.reader import interp_linear
-from policies import labelling as L
-from policies.recordings import load_episodes
+from policies.data.recordings import load_episodes
+from policies.labels import labelling as L
 
 
 def windows(tau: np.ndarray, steps: int) -> np.ndarray:

@@ -23,7 +23,7 @@ NEXT's free-motion noise), so the recordings barely show the held load tare is f
 recorded tau_ext, while the gripper holds, the gravity torque of a KG point mass ADD_COM_M beyond the last
 joint along its z axis (the arm description's regressor), as if the object were that heavy; the truth stays
 the recorded one (a held object's weight is not contact). The labelling then runs the library's steps on
-that tau_ext (policies.tare_recording.episode_tare, policies.phases).
+that tau_ext (policies.labels.tare_recording.episode_tare, policies.labels.phases).
 """
 
 from __future__ import annotations
@@ -39,11 +39,11 @@ import numpy as np
 from hardware.reasons import Reason
 from hardware.recording import schemas as S
 from hardware.recording.reader import interp_linear
-from policies import labelling as L
-from policies import phases as P
-from policies import tare as T
-from policies import tare_recording as TR
-from policies.recordings import load_episodes
+from policies.data.recordings import load_episodes
+from policies.labels import labelling as L
+from policies.labels import phases as P
+from policies.labels import tare as T
+from policies.labels import tare_recording as TR
 
 TRUE_ON_NM, TRUE_OFF_NM = 0.5, 0.3  # truth hysteresis on ||tau_ext_true||_1 [N*m] (docs/first.md)
 ONSET_TOL_S = 0.5  # a true onset is found when a labelled onset lies within this [s]

@@ -310,7 +310,8 @@ class LoopCpu:
 # with recording beside `factr2 train --obs state --threads 1`: loop CPU 0.52 ms a tick (26 %) once with the
 # training floating, 0.34 ms (17 %) with it kept on the other CPU (quiet: 0.27 ms; later runs floating were
 # 0.33-0.38 ms: the cost comes and goes with where the scheduler puts it). So a pinned loop claims
-# its CPU in a file, and the app's background jobs (policies.train) keep their threads off claimed CPUs.
+# its CPU in a file, and the app's background jobs (policies.training.train) keep their threads off claimed
+# CPUs.
 def _claims_dir() -> Path:
     base = os.environ.get("XDG_RUNTIME_DIR") or tempfile.gettempdir()
     return Path(base) / f"factr2-{os.getuid() if hasattr(os, 'getuid') else 0}" / "loop-cpus"

@@ -8,8 +8,8 @@ limit, held by whoever needs it and given back by close() (or the end of a `with
 - env: OPENBLAS/OMP/MKL_NUM_THREADS, for libraries loaded later in this process and its children.
 - torch: torch's intra-op threads (torch.set_num_threads).
 
-A trainer's own choice of threads (calibration/next/train.py, policies/train.py pick_threads; ThreadProbe
-switches them per batch) is not a limit and stays with the trainer.
+A trainer's own choice of threads (calibration/next/train.py, policies/training/train_threads.py pick_threads;
+ThreadProbe switches them per batch) is not a limit and stays with the trainer.
 """
 
 from __future__ import annotations

@@ -97,9 +97,9 @@ def write_recording(
 def train_tiny(demos: Path, run: Path, observation: str):
     """A 3-step training of a tiny policy on `demos` (the observation's plumbing, not learning): its
     (model, meta, preprocessing)."""
-    from policies.checkpoint import load_policy
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
+    from policies.training.checkpoint import load_policy
+    from policies.training.run import RunOptions, run_training
+    from policies.training.train import Dist, TrainConfig
 
     tiny = {"hidden": 32, "heads": 2, "dec_layers": 1, "enc_layers": 1, "ff": 64, "chunk": 8, "dropout": 0.0}
     opts = RunOptions(inputs=[demos], out=run, observation=observation, thresholds=(0.5, 1.0),

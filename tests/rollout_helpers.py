@@ -37,8 +37,8 @@ def record_rig_session(out: Path, rig, seconds: float = 1.2, task: str = "") -> 
 
 
 def train_tiny(rec: Path, out: Path, policy: str = "flow", steps: int = 4) -> Path:
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
+    from policies.training.run import RunOptions, run_training
+    from policies.training.train import Dist, TrainConfig
 
     train = TrainConfig(steps=steps, batch=8, lr=1e-3, warmup=1, log_every=1, val_every=1000, ckpt_every=1000,
                         threads=1)

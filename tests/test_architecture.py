@@ -298,7 +298,8 @@ def test_factr2_switches_are_read_in_one_place():
 # -- thread limits: one function (hardware/threads.py) ------------------------------------------------------
 THREADS_FILE = "hardware/threads.py"
 # the trainers choose their own thread counts (pick_threads, ThreadProbe per batch): a choice, not a limit
-THREAD_CHOOSERS = {"calibration/next/train.py", "calibration/next/threads.py", "policies/train_threads.py"}
+THREAD_CHOOSERS = {"calibration/next/train.py", "calibration/next/threads.py",
+                   "policies/training/train_threads.py"}
 
 
 def test_threads_are_limited_through_one_function():

@@ -1,6 +1,6 @@
-"""policies/cost_hint.py: the up-front cost line of a CPU image training run (issue #31 item 5)."""
+"""policies/training/cost_hint.py: the up-front cost line of a CPU image training run (issue #31 item 5)."""
 
-from policies.cost_hint import CostHint, cost_line, fmt_duration
+from policies.training.cost_hint import CostHint, cost_line, fmt_duration
 
 
 def _run(hint, step_s, n, t0=100.0, first=5.0):

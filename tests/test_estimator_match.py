@@ -7,7 +7,7 @@ import pytest
 
 from factr2_teleop.session.rollout import estimator_mode
 from hardware.errors import UserError
-from policies.run import _recorded_estimator
+from policies.training.run import _recorded_estimator
 
 
 def _ep(mode: str | None):

@@ -19,7 +19,7 @@ from hardware.recording import schemas as S
 from hardware.recording.reader import Recording
 from hardware.rigs.rig import load_rig
 from hardware.types import JointState
-from policies.recordings import arm_set, recording_features
+from policies.data.recordings import arm_set, recording_features
 from tests.rollout_helpers import record_rig_session
 
 pytest.importorskip("mujoco")

@@ -162,7 +162,7 @@ def test_every_committed_ledger_records_every_setting():
 
 
 def test_cells_labelled_by_the_earlier_rule_are_not_mixed_with_contact_runs(tmp_path):
-    from policies.phases import LABEL_RULE
+    from policies.labels.phases import LABEL_RULE
 
     out, ledger = tmp_path / "a", tmp_path / "cells.json"
     _cell(out, "wipe", "first", 0, [1])

@@ -24,8 +24,8 @@ def test_ablate_force_is_pure_and_keeps_the_marginal():
 
 
 def test_runner_ablates_only_the_force_and_meta_names_the_estimator(tmp_path):
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
+    from policies.training.run import RunOptions, run_training
+    from policies.training.train import Dist, TrainConfig
     from tests.policy_helpers import write_recording
 
     # a synthetic twin recording (tau_ext with contact bursts, PRIVILEGED objects) whose session felt the

@@ -18,10 +18,10 @@ from bench.bring_data_round_trip import digest as first_batch_digest
 from factr2_teleop.cli import main
 from hardware.importers.lerobot import PHASES_LINE, labels_at, lerobot_recordings, phase_changes
 from hardware.recording.reader import Recording
-from policies import checkpoint as C
-from policies.dataset import build_dataset
-from policies.labelling import resolve_thresholds
-from policies.recordings import load_episodes
+from policies.data.dataset import build_dataset
+from policies.data.recordings import load_episodes
+from policies.labels.labelling import resolve_thresholds
+from policies.training import checkpoint as C
 from tests.policy_helpers import write_recording
 from tests.test_policies_inputs import FAST, _one_line_error
 

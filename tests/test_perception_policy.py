@@ -14,7 +14,7 @@ import pytest
 from factr2_teleop.tasks.seen import OperatorView, carried, substitute
 from hardware.recording import schemas as S
 from hardware.sim.perception import NEVER, Seen
-from policies.privileged import OBSERVATIONS, low_dimensional, objects_feature, uses_images, uses_objects
+from policies.data.privileged import OBSERVATIONS, low_dimensional, objects_feature, uses_images, uses_objects
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -25,7 +25,7 @@ def test_observation_names():
     assert objects_feature("images+state") == S.TASK_OBJECTS_FEATURE and objects_feature("images") is None
     assert uses_objects("images+perceived") and uses_images("images+perceived")
     assert low_dimensional("perceived") and low_dimensional("state") and not low_dimensional("images+state")
-    from policies.config import default_preset
+    from policies.models.config import default_preset
 
     assert default_preset("perceived") == "state" and default_preset("images+perceived") == "small"
 

@@ -7,8 +7,8 @@ from __future__ import annotations
 import pytest
 
 from factr2_teleop.cli import main
-from policies import checkpoint as C
-from policies.recordings import load_episodes, skipped_line, training_episodes
+from policies.data.recordings import load_episodes, skipped_line, training_episodes
+from policies.training import checkpoint as C
 from tests.policy_helpers import write_recording
 from tests.test_policies_inputs import FAST, _one_line_error
 

@@ -154,8 +154,8 @@ def _next_checkpoint(tmp_path, n_j=6):
 def test_next_offline_labels_from_the_logged_joint_states(tmp_path, capsys):
     from calibration.next.estimator import batch_tau_f
     from calibration.next.ident import NextId
-    from policies.labelling import ThresholdSource, episode_tau_ext, load_next, resolve_thresholds
-    from policies.recordings import load_episodes
+    from policies.data.recordings import load_episodes
+    from policies.labels.labelling import ThresholdSource, episode_tau_ext, load_next, resolve_thresholds
 
     write_recording(tmp_path / "a.mcap", episodes=1, seconds=2.0, cameras=(), tau_ext=False)
     ck_path = _next_checkpoint(tmp_path)
@@ -183,8 +183,8 @@ def test_next_offline_labels_from_the_logged_joint_states(tmp_path, capsys):
 
 
 def test_thresholds_next_from_the_checkpoint_the_session_names(tmp_path):
-    from policies.labelling import resolve_thresholds
-    from policies.recordings import load_episodes
+    from policies.data.recordings import load_episodes
+    from policies.labels.labelling import resolve_thresholds
 
     ck_path = _next_checkpoint(tmp_path)
     write_recording(
@@ -200,7 +200,7 @@ def test_thresholds_next_from_the_checkpoint_the_session_names(tmp_path):
 
 
 def test_normaliser_clips_tiny_spreads_and_centres_constants():
-    from policies.normalizer import STD_MIN, Normalizer
+    from policies.data.normalizer import STD_MIN, Normalizer
 
     rng = np.random.default_rng(0)
     x = np.stack([rng.normal(0, 0.3, 500), rng.normal(0.1, 0.003, 500), np.full(500, 0.02)], 1)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from policies import phases as P
+from policies.labels import phases as P
 from tests.policy_helpers import write_recording
 
 

@@ -1,5 +1,5 @@
-"""One preprocessing pipeline (policies/preprocess.py): a camera frame recorded by the real recorder and read
-by the dataset gives exactly the tensor the rollout builds from the same raw frame, through a checkpoint
+"""One preprocessing pipeline (policies/data/preprocess.py): a camera frame recorded by the real recorder and
+read by the dataset gives exactly the tensor the rollout builds from the same raw frame, through a checkpoint
 written by training and loaded back; the pipeline round-trips through JSON; checkpoints written before it
 load with the recorder's settings; recordings encoded differently are refused in one line; the dataset and
 the export share one rule for a valid sample."""
@@ -15,8 +15,8 @@ from PIL import Image
 
 import tests.policy_helpers as H
 from hardware.errors import UserError
-from policies.dataset import valid_samples
-from policies.preprocess import ImagePath, Preprocess, decode_resized, jpeg_settings, quality_settings
+from policies.data.dataset import valid_samples
+from policies.data.preprocess import ImagePath, Preprocess, decode_resized, jpeg_settings, quality_settings
 
 SIZE = 96  # the model's input [px]; 240 x 320 frames decode at half scale (JPEG draft) before the resize
 
@@ -43,8 +43,8 @@ def _raw_frames(monkeypatch) -> dict[int, list[np.ndarray]]:
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
     """(recording folder, raw frames per camera index, a run trained on it)."""
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
+    from policies.training.run import RunOptions, run_training
+    from policies.training.train import Dist, TrainConfig
 
     mp = pytest.MonkeyPatch()
     try:
@@ -68,9 +68,9 @@ def test_the_same_frame_gives_the_same_tensor_in_training_and_at_rollout(recorde
     """Training path: raw RGB -> the recorder's JPEG (writer process) -> the dataset (frame cache, batch).
     Rollout path: the same raw RGB -> PolicyRunner.batch with the pipeline loaded from the checkpoint.
     Equal to the bit, state and force included; the old rollout path (resize the raw RGB) was not."""
-    from policies.dataset import build_dataset
-    from policies.labelling import Thresholds
-    from policies.recordings import load_episodes
+    from policies.data.dataset import build_dataset
+    from policies.data.recordings import load_episodes
+    from policies.labels.labelling import Thresholds
     from policies.rollout.runner import PolicyRunner
 
     rec_dir, sent, run = recorded
@@ -100,7 +100,7 @@ def test_the_same_frame_gives_the_same_tensor_in_training_and_at_rollout(recorde
 def test_the_checkpoint_holds_the_pipeline_and_the_recorders_settings(recorded):
     from hardware.recording.reader import Recording
     from hardware.recording.writer import JPEG_QUALITY
-    from policies.checkpoint import load_policy
+    from policies.training.checkpoint import load_policy
 
     rec_dir, _, run = recorded
     _, meta, pre = load_policy(run)
@@ -183,8 +183,8 @@ def test_one_rule_for_a_valid_sample():
 def test_relative_action_frame_round_trips_and_keeps_grippers_absolute():
     """to_frame / from_frame are inverses; only joint-position columns move with the observed state; the
     relative frame's normaliser is per chunk step (a checkpoint's preprocess gives it back)."""
-    from policies.normalizer import Normalizer
-    from policies.preprocess import ImagePath, Preprocess, from_frame, relative_columns, to_frame
+    from policies.data.normalizer import Normalizer
+    from policies.data.preprocess import ImagePath, Preprocess, from_frame, relative_columns, to_frame
 
     rel = relative_columns(["a.joint.pos", "a.gripper.pos"], {"a.joint.pos": 3, "a.gripper.pos": 1})
     assert rel == [True, True, True, False]

@@ -6,7 +6,7 @@ import pytest
 
 from hardware.errors import UserError
 from hardware.recording import schemas as S
-from policies.privileged import objects_vector, task_state_vector
+from policies.data.privileged import objects_vector, task_state_vector
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -46,9 +46,9 @@ def test_vector_order_is_observe_then_the_episode_params():
 
 
 def test_state_observation_needs_the_recorded_object_vector(tmp_path):
-    from policies.dataset import build_dataset
-    from policies.labelling import Thresholds
-    from policies.recordings import load_episodes
+    from policies.data.dataset import build_dataset
+    from policies.data.recordings import load_episodes
+    from policies.labels.labelling import Thresholds
     from tests.policy_helpers import write_recording
 
     write_recording(tmp_path / "teleop.mcap", episodes=1, seconds=1.0)  # a teleop session: no task objects

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from policies import sampler as S
+from policies.data import sampler as S
 
 
 def _phases(seed=0, n=5000):

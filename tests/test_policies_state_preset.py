@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import torch
 
-from policies import checkpoint as C
-from policies.config import default_preset, preset
-from policies.flow_mlp import FlowMLPPolicy
-from policies.run import RunOptions, run_training
-from policies.train import Dist, Ema, TrainConfig, clamp_schedule
-from policies.train_threads import pick_threads
+from policies.models.config import default_preset, preset
+from policies.models.flow_mlp import FlowMLPPolicy
+from policies.training import checkpoint as C
+from policies.training.run import RunOptions, run_training
+from policies.training.train import Dist, Ema, TrainConfig, clamp_schedule
+from policies.training.train_threads import pick_threads
 from tests.policy_helpers import write_recording
 
 
@@ -84,7 +84,7 @@ def test_schedule_is_clamped_to_a_short_run_and_says_so():
 
 
 def test_thread_choice_leaves_busy_cores_alone(monkeypatch):
-    import policies.train_threads as T
+    import policies.training.train_threads as T
 
     monkeypatch.setattr("calibration.next.train.available_cores", lambda: 2)
     monkeypatch.setattr(T.os, "getloadavg", lambda: (1.0, 1.0, 1.0))  # one other CPU-bound process
@@ -115,13 +115,13 @@ def test_state_run_trains_saves_ema_and_rolls_in(state_recordings, tmp_path):
 
 
 def test_default_length_comes_from_the_learning_curve_for_state():
-    from policies.run_config import default_length
+    from policies.training.run_config import default_length
 
     assert default_length("state") == (80.0, 256)  # docs/first_training.md: success still rose at 8000 x 256
     assert default_length("images") == (20.0, 128)  # the paper's 20 epochs
     import argparse
 
-    from policies import run_config as R
+    from policies.training import run_config as R
 
     p = argparse.ArgumentParser()
     R.add_arguments(p)
@@ -137,7 +137,7 @@ def test_relative_actions_train_and_come_back_in_joint_units(state_recordings, t
     observed joints (grippers absolute), so the same output at another observed pose moves with it."""
     from hardware.recording.schemas import TASK_OBJECTS_FEATURE
     from policies.rollout.runner import PolicyRunner
-    from policies.run_config import RESUME_KEYS
+    from policies.training.run_config import RESUME_KEYS
 
     torch.set_num_threads(1)
     run = tmp_path / "rel"

@@ -1,5 +1,5 @@
-"""Tare on grasp (policies/tare.py): held-object detection, the load fit, its checks, and the labelling that
-uses it (thresholds on the tared scores, --no-tare, the run's record)."""
+"""Tare on grasp (policies/labels/tare.py): held-object detection, the load fit, its checks, and the labelling
+that uses it (thresholds on the tared scores, --no-tare, the run's record)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import argparse
 import numpy as np
 import pytest
 
-from policies import phases as P
-from policies import tare as T
+from policies.labels import phases as P
+from policies.labels import tare as T
 
 RATE = 100.0  # Hz
 SECONDS = 20.0
@@ -26,14 +26,14 @@ NAMES = [f"joint{i + 1}" for i in range(6)]
 
 def _flange():
     """The Piper's payload regressor for (m, m*c) in its last joint's frame: makes the synthetic loads."""
-    from policies.tare_recording import payload_regressor
+    from policies.labels.tare_recording import payload_regressor
 
     return payload_regressor("piper", NAMES)
 
 
 def _regressor():
     """The tare's payload model of the Piper (about its gripper's centre point)."""
-    from policies.tare_recording import payload_model
+    from policies.labels.tare_recording import payload_model
 
     return payload_model("piper", NAMES)[0]
 
@@ -120,7 +120,7 @@ def test_no_grasp_leaves_the_score_unchanged():
 
 
 def test_a_fit_that_is_no_load_leaves_the_stretch_untared():
-    from policies.tare_recording import payload_model
+    from policies.labels.tare_recording import payload_model
 
     t, q, tau, stroke, command, _ = _episode(contact=False)
     held = T.held_mask(t, stroke, command)
@@ -173,8 +173,8 @@ def _write(path, episodes: int = 2):
 
 
 def test_labels_and_recording_thresholds_use_the_tared_scores(tmp_path):
-    from policies import labelling as L
-    from policies.recordings import load_episodes
+    from policies.data.recordings import load_episodes
+    from policies.labels import labelling as L
 
     eps, arms = load_episodes([_write(tmp_path / "carry.mcap")])
     assert arms.arm_models == ("piper",)
@@ -197,8 +197,8 @@ def test_labels_and_recording_thresholds_use_the_tared_scores(tmp_path):
 
 def test_no_tare_flag_reaches_the_thresholds_and_the_phases_command(tmp_path, capsys):
     from factr2_teleop.cli import main
-    from policies.label_flags import add_label_arguments, thresholds_arg
-    from policies.labelling import LabelChoice
+    from policies.labels.label_flags import add_label_arguments, thresholds_arg
+    from policies.labels.labelling import LabelChoice
 
     p = argparse.ArgumentParser()
     add_label_arguments(p)

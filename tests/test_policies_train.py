@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from policies import checkpoint as C
-from policies.run import RunOptions, run_training
-from policies.train import Dist, TrainConfig
+from policies.training import checkpoint as C
+from policies.training.run import RunOptions, run_training
+from policies.training.train import Dist, TrainConfig
 from tests.policy_helpers import write_recording
 
 TINY = dict(
@@ -101,7 +101,7 @@ def test_the_run_ends_the_crop_threads_it_started(recordings, tmp_path, monkeypa
     import threading
     from concurrent.futures import ThreadPoolExecutor
 
-    from policies import dataset
+    from policies.data import dataset
 
     started = []
     monkeypatch.setattr(dataset, "crop_pool", lambda: started.append(ThreadPoolExecutor(
@@ -205,7 +205,7 @@ def test_every_method_trains_through_one_code_path(recordings, tmp_path, method,
 
 
 def test_factr_blur_schedule_and_kernel():
-    from policies.methods import blur_sigma, gaussian_blur
+    from policies.training.methods import blur_sigma, gaussian_blur
 
     assert (
         blur_sigma(0, 100, 5.0) == 5.0 and blur_sigma(50, 100, 5.0) == 2.5 and blur_sigma(100, 100, 5.0) == 0
@@ -221,7 +221,7 @@ def test_factr_blur_schedule_and_kernel():
 def test_precision_auto_uses_bf16_only_where_the_hardware_has_it(monkeypatch):
     import torch
 
-    from policies.train import pick_precision
+    from policies.training.train import pick_precision
 
     cpu = torch.device("cpu")
     assert pick_precision("fp32", cpu)[0] == "fp32"

@@ -6,9 +6,9 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from policies.config import PolicyConfig, preset
-from policies.flow import FlowPolicy
-from policies.vision import ResNet18GN, load_weights_file, make_backbone
+from policies.models.config import PolicyConfig, preset
+from policies.models.flow import FlowPolicy
+from policies.models.vision import ResNet18GN, load_weights_file, make_backbone
 
 
 def test_layer3_variant_is_the_first_three_stages_and_loads_full_weights(tmp_path):

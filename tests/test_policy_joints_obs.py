@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hardware.errors import UserError
-from policies.privileged import OBSERVATIONS, low_dimensional, uses_images, uses_objects
+from policies.data.privileged import OBSERVATIONS, low_dimensional, uses_images, uses_objects
 
 
 def test_joints_observes_neither_frames_nor_objects():
@@ -39,9 +39,9 @@ def test_a_joints_policy_trains_without_frames_or_objects_and_runs(tmp_path):
 
 
 def test_state_still_refuses_a_recording_without_objects(tmp_path):
-    from policies.dataset import build_dataset
-    from policies.labelling import Thresholds
-    from policies.recordings import load_episodes
+    from policies.data.dataset import build_dataset
+    from policies.data.recordings import load_episodes
+    from policies.labels.labelling import Thresholds
     from tests.policy_helpers import write_recording
 
     write_recording(tmp_path / "teleop.mcap", episodes=1, seconds=1.0, cameras=())

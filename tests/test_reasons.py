@@ -27,7 +27,7 @@ def _import_every_kind() -> None:
     import hardware.can_bus  # noqa: F401
     import hardware.realtime  # noqa: F401
     import hardware.safety  # noqa: F401
-    import policies.labelling  # noqa: F401
+    import policies.labels.labelling  # noqa: F401
     import policies.rollout.schedule  # noqa: F401
 
 
@@ -205,7 +205,7 @@ def test_a_refused_realtime_request_is_judged_by_its_kind(monkeypatch):
 # -- contact thresholds: what a run stores, and what resuming it compares and reads back ---------------------
 def _thresholds_scenario() -> dict:
     from calibration.next.ident import NextId
-    from policies.labelling import Thresholds, ThresholdSource, phases_identity, source_kind
+    from policies.labels.labelling import Thresholds, ThresholdSource, phases_identity, source_kind
 
     runs = {"given": Thresholds.given(1.0, 3.0),
             "recording": Thresholds(0.5, 0.9, Reason.of(ThresholdSource.RECORDING, tared=True, episodes=2,
@@ -222,15 +222,15 @@ def test_threshold_sources_resume_the_same_whatever_their_messages_say(monkeypat
         assert plain[k][:2] == tr[k][:2], k  # the resume identity and the kind read back
         assert plain[k][2] != tr[k][2]  # the stored message (for people) did change
     legacy = {"t_low": 1.0, "t_high": 3.0, "source": "recording: Otsu split of ...", "pre_contact_s": 1.0}
-    from policies.labelling import ThresholdSource, source_kind
+    from policies.labels.labelling import ThresholdSource, source_kind
 
     assert source_kind(legacy) is ThresholdSource.RECORDING  # runs written before the kind was stored
 
 
 def test_a_run_from_before_the_kind_was_stored_still_resumes():
-    from policies.labelling import Thresholds, ThresholdSource
-    from policies.phases import LABEL_RULE, PRE_CONTACT_S
-    from policies.run import _compare
+    from policies.labels.labelling import Thresholds, ThresholdSource
+    from policies.labels.phases import LABEL_RULE, PRE_CONTACT_S
+    from policies.training.run import _compare
 
     new = Thresholds(0.5, 0.9, Reason.of(ThresholdSource.RECORDING, tared=True, episodes=2, samples=400),
                      "payload").to_dict()

@@ -257,7 +257,7 @@ def test_recovered_copy_is_listed_in_place_of_the_damaged_file(tmp_path, capsys)
     """`factr2 recover FILE` writes FILE.recovered.mcap beside FILE: every folder reader (episodes list,
     train, export, the app) then uses the copy alone, not both (each episode listed once)."""
     from hardware.recording.episodes import list_episodes
-    from policies.recordings import recording_files
+    from policies.data.recordings import recording_files
 
     path = tmp_path / "s.mcap"
     record_session(path, n=3000, episodes=2, flush_interval_s=0.05, chunk_size=32 * 1024).close()

@@ -126,7 +126,7 @@ def test_cached_read_speed(tmp_path):
 def test_caches_stay_out_of_the_data_folder(tmp_path):
     """The array cache and the policies' frame cache live in the user's cache folder, not beside the
     recording: a `factr2 collect` folder holds only what was recorded."""
-    from policies.frame_cache import camera_frames
+    from policies.data.frame_cache import camera_frames
 
     path = tmp_path / "data" / "s.mcap"
     path.parent.mkdir()

@@ -11,7 +11,7 @@ from hardware.errors import UserError
 from hardware.features import policy_names, rig_features
 from hardware.recording.reader import Recording
 from hardware.rigs.rig import load_rig
-from policies.checkpoint import read_meta
+from policies.training.checkpoint import read_meta
 from tests.rollout_helpers import record_rig_session, tiny_run_on
 
 pytest.importorskip("mujoco")

@@ -20,8 +20,8 @@ def state_runs(tmp_path_factory):
     import torch
 
     from factr2_teleop.tasks.run import CollectConfig, collect
-    from policies.run import RunOptions, run_training
-    from policies.train import Dist, TrainConfig
+    from policies.training.run import RunOptions, run_training
+    from policies.training.train import Dist, TrainConfig
 
     torch.set_num_threads(1)
     d = tmp_path_factory.mktemp("lean")

@@ -169,9 +169,9 @@ def test_the_runner_builds_the_input_training_saw(tiny_run):
     normaliser). The live frames here are the recorded JPEGs decoded (the twin's raw frames are not kept),
     so the rollout's encode is a second JPEG pass: near, not equal; tests/test_policies_preprocess.py sends
     the raw frame through both paths and gets the same tensor."""
-    from policies.dataset import build_dataset
-    from policies.labelling import Thresholds
-    from policies.recordings import load_episodes
+    from policies.data.dataset import build_dataset
+    from policies.data.recordings import load_episodes
+    from policies.labels.labelling import Thresholds
 
     runner = PolicyRunner(tiny_run)
     episodes, arms = load_episodes([tiny_run.parent / "held.mcap"])

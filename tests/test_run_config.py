@@ -1,5 +1,5 @@
-"""One training configuration (policies/run_config.py): the CLI flags, the torchrun relaunch's argv, the
-checkpoint meta, the resume check and the terminal app's choices are all generated from its fields; the
+"""One training configuration (policies/training/run_config.py): the CLI flags, the torchrun relaunch's argv,
+the checkpoint meta, the resume check and the terminal app's choices are all generated from its fields; the
 policy factory builds every registered policy, a new one by registration alone."""
 
 from __future__ import annotations
@@ -13,14 +13,14 @@ import pytest
 import torch
 
 from hardware.errors import UserError
-from policies import checkpoint as C
-from policies import flags as F
-from policies import policy as P
-from policies import run_config as R
-from policies.config import PolicyConfig, settable
-from policies.labelling import LabelChoice
-from policies.run import run_training
-from policies.train import Dist
+from policies.labels.labelling import LabelChoice
+from policies.models import policy as P
+from policies.models.config import PolicyConfig, settable
+from policies.training import checkpoint as C
+from policies.training import flags as F
+from policies.training import run_config as R
+from policies.training.run import run_training
+from policies.training.train import Dist
 from tests.policy_helpers import write_recording
 
 # `factr2 train`'s flags before the one config (docs and scripts use them): every one stays
@@ -94,8 +94,8 @@ def test_resume_keys_come_from_the_fields():
 
 def test_the_form_is_the_options_choices():
     from factr2_teleop.tui import train_ctl as T
-    from policies.methods import METHODS
-    from policies.privileged import OBSERVATIONS
+    from policies.data.privileged import OBSERVATIONS
+    from policies.training.methods import METHODS
 
     form = T.form()
     assert form["policy"] == P.policy_names() == ("flow", "act") and form["method"] == tuple(METHODS)
@@ -131,7 +131,7 @@ def test_meta_reads_back_to_the_run_options(state_run):
 def test_older_meta_still_reads_and_resumes_check(state_run):
     """A run's meta from before the one config (method, ratio and force in meta["train"] too, no outcome
     filter, a model config without later fields) is still read, and still the same run for --resume."""
-    from policies.run import _compare
+    from policies.training.run import _compare
 
     o, run = state_run
     meta = C.read_meta(run)
@@ -170,7 +170,7 @@ def test_factory_builds_every_registered_policy_and_a_new_one(monkeypatch):
 
 def test_blur_is_a_batch_input_not_a_model_attribute():
     """FACTR's blur reaches the model with the batch (training only); nothing is set on the model."""
-    from policies.tokens import ObservationTokens
+    from policies.models.tokens import ObservationTokens
 
     cfg = PolicyConfig(hidden=16, heads=2, backbone="convnet-gn", image_size=32, n_cameras=1, force_dim=0)
     torch.manual_seed(0)

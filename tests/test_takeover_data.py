@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 
 from hardware.recording.interventions import SOURCE_DEMO, SOURCE_OPERATOR, SOURCE_POLICY, SOURCE_PRE
-from policies.rollout.schedule import ENSEMBLE, RECEDING, Chunk, ChunkSchedule, PolicyHold
-from policies.sampler import (
+from policies.data.sampler import (
     DEFAULT_SOURCE_WEIGHTS,
     FirstSampler,
     expected_source_shares,
     parse_source_weights,
     sample_probabilities,
 )
+from policies.rollout.schedule import ENSEMBLE, RECEDING, Chunk, ChunkSchedule, PolicyHold
 
 DT = 1 / 30.0
 

@@ -68,7 +68,7 @@ def _scene():
 
 
 def test_reset_is_seeded_and_detectables_hide_the_thread():
-    from policies.privileged import objects_vector
+    from policies.data.privileged import objects_vector
 
     task, m, d = _scene()
     p1 = task.reset(m, d, np.random.default_rng(3))

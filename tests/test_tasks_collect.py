@@ -43,8 +43,8 @@ def test_collect_summary_shows_the_labels_training_makes_of_the_recording(tmp_pa
     pytest.importorskip("mujoco")
     from pathlib import Path
 
-    from policies import labelling as L
-    from policies.recordings import load_episodes
+    from policies.data.recordings import load_episodes
+    from policies.labels import labelling as L
 
     ck = Path(__file__).resolve().parents[1] / "bench/assets/next_sim_piper_first/next.json"
     out = collect(CollectConfig(task="wipe", episodes=1, out=str(tmp_path), seed=0, mode="next",

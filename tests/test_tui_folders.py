@@ -17,8 +17,8 @@ from factr2_teleop.tui import rollout_ctl as R
 from factr2_teleop.tui.train_ctl import TRYOUT_OVERRIDES, Choices, list_runs
 from factr2_teleop.tui.train_inputs import observation_problem
 from hardware.errors import UserError
-from policies.run import RunOptions, run_training
-from policies.train import Dist, TrainConfig
+from policies.training.run import RunOptions, run_training
+from policies.training.train import Dist, TrainConfig
 from tests.policy_helpers import write_recording
 
 torch.set_num_threads(1)

@@ -16,8 +16,8 @@ from factr2_teleop.tui.rollout import live_lines, status_lines
 from factr2_teleop.tui.rollout_ctl import RolloutState
 from factr2_teleop.tui.train_ctl import TRYOUT_OVERRIDES
 from hardware.recording.reader import Recording
-from policies.run import RunOptions, run_training
-from policies.train import Dist, TrainConfig
+from policies.training.run import RunOptions, run_training
+from policies.training.train import Dist, TrainConfig
 from tests.policy_helpers import write_recording
 
 torch.set_num_threads(1)

@@ -14,7 +14,7 @@ from tui_helpers import SIZE, connect, make_app, screen_text, wait_for
 from factr2_teleop.tui import train_ctl as T
 from factr2_teleop.tui.training import progress_lines
 from factr2_teleop.tui.widgets import text_plot
-from policies import checkpoint as C
+from policies.training import checkpoint as C
 
 torch.set_num_threads(1)
 

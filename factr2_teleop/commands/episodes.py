@@ -1,13 +1,13 @@
 """`factr2 episodes list|show|trim|delete|merge|phases|import`: manage recorded episodes (.mcap sessions, .npz
 logs; list and show read LeRobotDataset folders too); `phases` labels them free / pre-contact / contact for
-FIRST (policies.labelling); `import gello DIR` turns GELLO's saves into a recording."""
+FIRST (policies.labels.labelling); `import gello DIR` turns GELLO's saves into a recording."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from hardware.recording import episodes as E
-from policies.label_flags import add_label_arguments, thresholds_arg
+from policies.labels.label_flags import add_label_arguments, thresholds_arg
 
 HELP = "list, show, trim, delete, merge, phase-label or import (GELLO) recorded episodes"
 
@@ -94,9 +94,9 @@ def _import(args) -> None:
 
 
 def _phases(args) -> None:
-    from policies import labelling as L
-    from policies.phases import CONTACT, onsets
-    from policies.recordings import load_episodes
+    from policies.data.recordings import load_episodes
+    from policies.labels import labelling as L
+    from policies.labels.phases import CONTACT, onsets
 
     given = thresholds_arg(args)
     episodes, arms = load_episodes(args.path, lerobot_map=args.lerobot_map)

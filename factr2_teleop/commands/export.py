@@ -1,7 +1,7 @@
 """`factr2 export lerobot RECORDING_OR_DIR... --out DIR`: recorded episodes as a LeRobotDataset v3.0
-folder (state, tau_ext, action, images as mp4, the FIRST phase of every frame); policies/export_lerobot.py.
-`factr2 export next-official CKPT --out DIR`: a NEXT checkpoint in the official stack's layout
-(calibration/next/official.py)."""
+folder (state, tau_ext, action, images as mp4, the FIRST phase of every frame);
+policies/export/export_lerobot.py. `factr2 export next-official CKPT --out DIR`: a NEXT checkpoint in the
+official stack's layout (calibration/next/official.py)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 from hardware.errors import UserError
 from hardware.recording import schemas as S
-from policies.label_flags import add_label_arguments, thresholds_arg
+from policies.labels.label_flags import add_label_arguments, thresholds_arg
 
 HELP = "export recorded episodes (with FIRST phases) as a LeRobotDataset v3.0 folder"
 
@@ -54,9 +54,9 @@ def _next_official(args) -> int:
 def run(args) -> int:
     if args.format == "next-official":
         return _next_official(args)
-    from policies.export_lerobot import export_lerobot
-    from policies.labelling import load_next, resolve_thresholds
-    from policies.recordings import load_episodes
+    from policies.data.recordings import load_episodes
+    from policies.export.export_lerobot import export_lerobot
+    from policies.labels.labelling import load_next, resolve_thresholds
 
     given = thresholds_arg(args)
     if args.fps is not None and args.fps < 1:

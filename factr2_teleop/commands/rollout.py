@@ -160,7 +160,7 @@ def run(args) -> int:
                           record_cameras=not args.no_cameras, force_input=args.force_input)
     if args.force and args.task:
         from factr2_teleop.session.task_check import task_mismatch
-        from policies.checkpoint import read_meta
+        from policies.training.checkpoint import read_meta
 
         why = task_mismatch(read_meta(args.policy), args.task)
         if why:

@@ -16,16 +16,16 @@ HELP = "train a FIRST / ACT / flow-matching policy on recorded episodes (one or 
 
 
 def add_arguments(p) -> None:
-    from policies.run_config import add_arguments
+    from policies.training.run_config import add_arguments
 
-    add_arguments(p)  # one flag per field of policies.run_config.RunOptions
+    add_arguments(p)  # one flag per field of policies.training.run_config.RunOptions
 
 
 def _launch(opts) -> int:
     """Check what can be checked once, then run N worker processes under torchrun (standalone), each given
-    these options as flags (policies.run_config.to_argv)."""
-    from policies.run import precheck
-    from policies.run_config import to_argv
+    these options as flags (policies.training.run_config.to_argv)."""
+    from policies.training.run import precheck
+    from policies.training.run_config import to_argv
 
     precheck(opts)
     cmd = [
@@ -44,13 +44,13 @@ def _launch(opts) -> int:
 
 
 def run(args) -> int:
-    from policies.run_config import from_args
+    from policies.training.run_config import from_args
 
     opts = from_args(args)  # bad values fail here (UserError), before any process starts
     if opts.nproc > 1 and "RANK" not in os.environ:
         return _launch(opts)
-    from policies.run import run_training
-    from policies.train import setup_distributed
+    from policies.training.run import run_training
+    from policies.training.train import setup_distributed
 
     d = setup_distributed()
     try:

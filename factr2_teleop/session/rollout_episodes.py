@@ -30,11 +30,11 @@ class TwinRollout(TaskEpisodes):
 
     def objects(self):
         """The policy's object input now: the PRIVILEGED vector of the task as the twin has it
-        (policies/privileged.py), or for a policy trained on perceived objects the simulated detector's
+        (policies/data/privileged.py), or for a policy trained on perceived objects the simulated detector's
         latest report (SIMULATED; the detector runs every DETECT_EVERY ticks, its bias from the episode
         seed)."""
         from hardware.recording.schemas import PERCEIVED_FEATURE
-        from policies.privileged import task_state_vector
+        from policies.data.privileged import task_state_vector
 
         if getattr(self.target.runner, "object_feature", None) == PERCEIVED_FEATURE:
             return self.perceived_vector()

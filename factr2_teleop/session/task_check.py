@@ -3,7 +3,7 @@
 A policy trained on wipe demonstrations does not insert a peg: rolling it out on peg-insert only measures a
 failure, so the rollout refuses unless forced (`factr2 rollout --force`, the app's key f), and a forced
 rollout says so. The run's meta lists the demonstrations' tasks (`tasks`: name -> episodes, written by
-policies.run); runs from before that, and demonstrations without a twin task name (teleop of your own
+policies.training.run); runs from before that, and demonstrations without a twin task name (teleop of your own
 task), are not checked: there is nothing to compare with.
 """
 

@@ -184,10 +184,10 @@ class TaskEpisodes:
 
     def _log_objects(self, t: float, obs: dict) -> None:
         """PRIVILEGED (SIMULATED): the objects' state as one vector on /task/objects, at the script's
-        decision rate, for policies trained with `--obs state` (policies/privileged.py: order, units)."""
+        decision rate, for policies trained with `--obs state` (policies/data/privileged.py: order, units)."""
         rec = self.ts.recording
         if rec is not None and rec.recording:
-            from policies.privileged import objects_vector
+            from policies.data.privileged import objects_vector
 
             rec.recorder.log_task_objects(t, *objects_vector(obs, self.params))
 

@@ -22,7 +22,7 @@ def plot_episode(path: str | Path, out: str | Path, episode: int = 0, thresholds
     import matplotlib.pyplot as plt
 
     from hardware.recording.reader import Recording
-    from policies.phases import PHASE_NAMES, phase_shares, phases_from_torque
+    from policies.labels.phases import PHASE_NAMES, phase_shares, phases_from_torque
 
     rec = Recording(path, use_cache=False, write_cache=False)
     ep = rec.episodes[episode]
@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     thr = None
     if a.checkpoint:
-        from policies.phases import default_thresholds
+        from policies.labels.phases import default_thresholds
 
         thr = default_thresholds(json.loads(Path(a.checkpoint).read_text())["metrics"]["val_l1"])
     print(plot_episode(a.recording, a.out, a.episode, thr))

@@ -155,9 +155,9 @@ def recorded_phase_shares(mcap: Path) -> tuple[dict | None, list | None, str]:
     labelled (no tau_ext recorded, too few samples)."""
     import warnings
 
-    from policies import labelling as L
-    from policies.phases import PHASE_NAMES, phase_shares
-    from policies.recordings import load_episodes
+    from policies.data.recordings import load_episodes
+    from policies.labels import labelling as L
+    from policies.labels.phases import PHASE_NAMES, phase_shares
 
     try:
         with warnings.catch_warnings():

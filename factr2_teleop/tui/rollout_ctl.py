@@ -87,7 +87,7 @@ def rig_problems(run: Path, rig: str, task: str | None, force: bool = False) -> 
 
 def policy_summary(run: Path) -> str:
     """One line: policy/method, steps, the arm and joints it was trained on, its NEXT checkpoint."""
-    from policies import checkpoint as C
+    from policies.training import checkpoint as C
 
     m = C.read_meta(run)
     arms = m.get("arms", {})

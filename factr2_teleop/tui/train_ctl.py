@@ -1,9 +1,10 @@
 """FIRST training behind the Training screen (no Textual): which episodes, the phase-label preview, the run's
-choices, and one training run in a worker thread -- the same `policies.run.run_training` as `factr2 train`
-(no second copy), with the progress callback and stop flag of `policies.train.train`.
+choices, and one training run in a worker thread -- the same `policies.training.run.run_training` as
+`factr2 train` (no second copy), with the progress callback and stop flag of `policies.training.train.train`.
 
 Stopping (key x, the emergency stop, quitting the app) ends the run after its current step and writes a
-checkpoint there; `resume` continues it exactly (policies.train: step s alone fixes its batch and noise).
+checkpoint there; `resume` continues it exactly (policies.training.train: step s alone fixes its batch and
+noise).
 """
 
 from __future__ import annotations
@@ -20,16 +21,17 @@ from factr2_teleop.tui.stops import STOPPED
 from hardware.errors import UserError
 from hardware.reasons import Reason
 
-# which recorded episodes may train (discarded ones never do: policies.recordings leaves them out); the first
-# is the default, `factr2 train`'s: failed and incomplete episodes are skipped unless asked for
+# which recorded episodes may train (discarded ones never do: policies.data.recordings leaves them out); the
+# first is the default, `factr2 train`'s: failed and incomplete episodes are skipped unless asked for
 OUTCOME_FILTERS = {
     "success+unlabelled": ("success", "unlabelled", "session"),
     "all": ("success", "failure", "unlabelled", "incomplete", "session"),
     "success": ("success",),
 }
 DEFAULT_FILTER = next(iter(OUTCOME_FILTERS))
-STEP_CHOICES = (0, 20, 100, 500, 2000, 10000)  # optimiser steps; 0: the default length (policies.train
-# default_length: 20 epochs, the paper's; 80 on a state observation, from the learning curve)
+STEP_CHOICES = (0, 20, 100, 500, 2000, 10000)  # optimiser steps; 0: the default length
+# (policies.training.run_config default_length: 20 epochs, the paper's; 80 on a state observation, from
+# the learning curve)
 SIZE_CHOICES = ("small", "paper", "tryout")
 # "tryout": a few-second model to walk through the workflow (not a usable policy): the small preset shrunk
 TRYOUT_OVERRIDES = dict(
@@ -41,9 +43,9 @@ HISTORY = 400  # logged points kept for the charts
 
 
 def form() -> dict[str, tuple]:
-    """What each of the screen's choices cycles through: the options' own (policies.run_config.form_choices:
-    policy, method, ratio, observation) and the model size."""
-    from policies.run_config import form_choices
+    """What each of the screen's choices cycles through: the options' own
+    (policies.training.run_config.form_choices: policy, method, ratio, observation) and the model size."""
+    from policies.training.run_config import form_choices
 
     return {**form_choices(), "size": SIZE_CHOICES}
 
@@ -56,7 +58,7 @@ def usable(row, outcome_filter: str) -> bool:
 
 
 def episode_key(row) -> str:
-    """The row's episode id as policies.recordings.episode_id names it ("FILE.mcap#N")."""
+    """The row's episode id as policies.data.recordings.episode_id names it ("FILE.mcap#N")."""
     return f"{row.file.name}#{row.index}"
 
 
@@ -69,7 +71,8 @@ class Choices:
     ratio: str = "default"
     size: str = "small"
     steps: int = 0
-    observation: str = "images"  # policies.privileged.OBSERVATIONS: camera frames, or the twin's object state
+    # policies.data.privileged.OBSERVATIONS: camera frames, or the twin's object state
+    observation: str = "images"
     # [N*m] (LOW, HIGH); "recording": from the episodes' own contact scores, `factr2 train`'s default;
     # "next": from the free-motion noise of the NEXT checkpoint the recordings name
     thresholds: tuple[float, float] | str = "recording"
@@ -82,14 +85,14 @@ class Choices:
         return value
 
     def ratio_weights(self) -> tuple[float, float, float]:
-        from policies.methods import METHODS
-        from policies.sampler import RATIO_PRESETS
+        from policies.data.sampler import RATIO_PRESETS
+        from policies.training.methods import METHODS
 
         return METHODS[self.method].ratio if self.ratio == "default" else RATIO_PRESETS[self.ratio]
 
     def describe(self, epoch_steps: int | None = None) -> str:
-        from policies.run_config import default_length
-        from policies.sampler import format_ratio
+        from policies.data.sampler import format_ratio
+        from policies.training.run_config import default_length
 
         about = f" (~{epoch_steps} steps)" if epoch_steps else ""
         epochs = default_length(self.observation)[0]
@@ -114,8 +117,8 @@ class Choices:
 def epoch_steps(rows, chosen: set, choices: Choices) -> int | None:
     """Optimiser steps of 20 epochs over the chosen episodes, estimated from their durations at the policy
     rate of 30 Hz (None: nothing chosen)."""
-    from policies.dataset import STATE_RATE_HZ
-    from policies.run_config import default_length
+    from policies.data.dataset import STATE_RATE_HZ
+    from policies.training.run_config import default_length
 
     secs = sum(r.duration_s for r in rows if episode_key(r) in chosen and np.isfinite(r.duration_s))
     if secs <= 0:
@@ -127,10 +130,10 @@ def epoch_steps(rows, chosen: set, choices: Choices) -> int | None:
 
 def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Path, threads: int = 0,
                 outcomes: str = DEFAULT_FILTER):
-    """policies.run_config.RunOptions for these choices (the CLI's `factr2 train` builds the same).
+    """policies.training.run_config.RunOptions for these choices (the CLI's `factr2 train` builds the same).
     `outcomes`: the screen's filter, so that a failed or incomplete episode the user chose is not skipped."""
-    from policies.run_config import RunOptions, TrainConfig, default_length
-    from policies.sampler import RATIO_PRESETS
+    from policies.data.sampler import RATIO_PRESETS
+    from policies.training.run_config import RunOptions, TrainConfig, default_length
 
     tryout = choices.size == "tryout"
     epochs, batch = default_length(choices.observation)  # state: the learning curve's length
@@ -161,11 +164,11 @@ def run_options(choices: Choices, recordings: Path, episodes: list[str], out: Pa
 
 
 def resume_options(run: Path, recordings: Path, threads: int = 0):
-    """RunOptions that continue the run in `run`, read back from its checkpoint (policies.run_config
+    """RunOptions that continue the run in `run`, read back from its checkpoint (policies.training.run_config
     RunOptions.from_meta: policy, method, ratio, thresholds, model, train settings and episodes); the
     recordings are looked up in `recordings`."""
-    from policies import checkpoint as C
-    from policies.run_config import RunOptions
+    from policies.training import checkpoint as C
+    from policies.training.run_config import RunOptions
 
     o = RunOptions.from_meta(C.read_meta(run), [recordings], Path(run), resume=True, progress=False)
     return replace(o, train=replace(o.train, threads=threads))
@@ -187,7 +190,7 @@ class RunRow:
 def list_runs(folder: Path) -> list[RunRow]:
     """Every run folder with a checkpoint under `folder`, newest first; `folder` itself when it is one run
     (`factr2 train --out RUN` opened as the runs folder)."""
-    from policies import checkpoint as C
+    from policies.training import checkpoint as C
 
     rows = []
     if not Path(folder).is_dir():
@@ -219,9 +222,10 @@ def run_lines(rows: list[RunRow], limit: int = 4) -> list[str]:
 # -- phase-label preview ---------------------------------------------------------------------------------
 @dataclass
 class LabelPreview:
-    """FIRST labels of the chosen episodes: thresholds and, per episode id, its policies.labelling labels."""
+    """FIRST labels of the chosen episodes: thresholds and, per episode id, its policies.labels.labelling
+    labels."""
 
-    thresholds: object  # policies.labelling.Thresholds
+    thresholds: object  # policies.labels.labelling.Thresholds
     labels: dict = field(default_factory=dict)
 
 
@@ -230,8 +234,8 @@ def label_preview(recordings: Path, episodes: list[str], thresholds) -> LabelPre
     UserError when the thresholds cannot be found (no NEXT checkpoint named, none given)."""
     import warnings
 
-    from policies import labelling as L
-    from policies.recordings import episode_id, load_episodes
+    from policies.data.recordings import episode_id, load_episodes
+    from policies.labels import labelling as L
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -323,8 +327,8 @@ class TrainingRun:
     def run(self) -> None:
         import torch
 
-        from policies.run import run_training
-        from policies.train import Dist
+        from policies.training.run import run_training
+        from policies.training.train import Dist
 
         with self._lock:
             self.state.status = "preparing"

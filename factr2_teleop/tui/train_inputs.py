@@ -1,6 +1,6 @@
 """What the Train screen checks before a run: whether the chosen recordings hold the inputs the chosen
 observation needs (camera frames for images; the twin task objects' state for state), said with the key that
-changes it -- the same conditions `factr2 train` refuses in policies/dataset.py."""
+changes it -- the same conditions `factr2 train` refuses in policies/data/dataset.py."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def recording_inputs(files) -> dict:
 def observation_problem(files, inputs: dict, observation: str) -> str:
     """Why recordings `files` cannot train with this observation, in words with the key to press ("" when
     they can): images need camera frames in every recording, state the twin task objects' state."""
-    from policies.privileged import uses_images, uses_objects
+    from policies.data.privileged import uses_images, uses_objects
 
     files = sorted(set(files))
     no_cam = [f for f in files if not inputs.get(f, (True, True))[0]]

@@ -287,7 +287,7 @@ class TrainingScreen(BaseScreen):
         open_folder(self, "recordings", reopened)
 
     def action_thresholds(self) -> None:
-        from policies.phases import parse_thresholds
+        from policies.labels.phases import parse_thresholds
 
         def done(text: str | None) -> None:
             if text is None:

@@ -26,12 +26,13 @@ plus `angles=deg` when the dataset's joint angles are in degrees (LeRobot's SO-1
 
 FIRST labels need tau_ext: a dataset without tau_ext gets its raw effort (else raw current) as the recorded
 tau_ext, said in one line (the paper's raw-signal comparison); `--next CKPT` runs NEXT on the joint states
-instead. A dataset with none of them has no tau_ext topic: base methods only (policies.run refuses first).
+instead. A dataset with none of them has no tau_ext topic: base methods only (policies.training.run refuses
+first).
 
 A dataset written by `factr2 export lerobot` carries FIRST's labels (its `phase` feature, marked
 hardware.features.FACTR2_PHASES): they go into the recording metadata (IMPORT_PHASES: per
-episode the rows where the label changes, and the fps), and policies.labelling trains on them instead of
-labelling the 30 Hz force again. Other datasets' `phase` columns are not read.
+episode the rows where the label changes, and the fps), and policies.labels.labelling trains on them instead
+of labelling the 30 Hz force again. Other datasets' `phase` columns are not read.
 
 Converted recordings are cached under cache_home()/lerobot/<key>, the key a hash of the dataset's meta and
 data files (size, mtime) and the mapping: a changed dataset or mapping converts again.

@@ -27,7 +27,7 @@ STATS_METADATA = "factr2.recorder_stats"  # written on a clean close only
 
 TOPIC_EVENTS = "/events"
 TOPIC_LOOP = "/loop/timing"
-# PRIVILEGED (twins only): the task objects' state as one flat vector (policies/privileged.py builds it);
+# PRIVILEGED (twins only): the task objects' state as one flat vector (policies/data/privileged.py builds it);
 # read back as this feature name, a policy input in place of camera frames (`factr2 train --obs state`)
 TOPIC_TASK_OBJECTS = "/task/objects"
 TASK_OBJECTS_FEATURE = "observation.state.objects"
@@ -158,7 +158,7 @@ LOOP_TIMING = Schema("factr2.LoopTiming", "control-loop timing of one sampled ti
 TASK_OBJECTS = Schema(
     "factr2.TaskObjects",
     "PRIVILEGED, twin only (simulated): the task objects' state, flattened in the order the channel's "
-    "`names` metadata lists (policies/privileged.py); never available on real hardware",
+    "`names` metadata lists (policies/data/privileged.py); never available on real hardware",
     (_f("objects", "m, rad, 1 or N (per element: see names)", "float", True, "objects",
         "object poses [m] (positions), rotation-matrix entries [1], yaws [rad], finger contacts (0/1), "
         "contact force [N]"),),

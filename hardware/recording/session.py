@@ -1,5 +1,5 @@
 """The former name of hardware/recording/metadata.py, kept for callers outside hardware/ that still import it
-(policies/run.py). New code imports hardware.recording.metadata."""
+(policies/training/run.py). New code imports hardware.recording.metadata."""
 
 from hardware.recording import metadata as _m
 

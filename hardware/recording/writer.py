@@ -261,8 +261,8 @@ class Recorder:
 
     @_never_raises
     def log_task_objects(self, t: float, values, names) -> bool:
-        """PRIVILEGED (twin only): the task objects' state vector (policies/privileged.py); `names` (one per
-        element, fixed for the recording) go into the channel's metadata on first use."""
+        """PRIVILEGED (twin only): the task objects' state vector (policies/data/privileged.py); `names` (one
+        per element, fixed for the recording) go into the channel's metadata on first use."""
         return self._named_vector(S.TASK_OBJECTS, S.TOPIC_TASK_OBJECTS, t, values, names)
 
     @_never_raises

@@ -10,10 +10,10 @@ meanwhile) or on a thread of its own (real time: the control loop never waits fo
     runner.stop()
 
 The input is built by feature name from the names the checkpoint stores, through the preprocessing it
-stores (policies/preprocess.py: the training's normaliser and image path, the same batch assembly):
+stores (policies/data/preprocess.py: the training's normaliser and image path, the same batch assembly):
 observation.state = the listed follower features concatenated ([rad], [m]), observation.force = tau_ext
 [N*m] (or current [A]), observation.state.objects = the PRIVILEGED twin object vector
-(policies/privileged.py) or observation.perceived.objects = the SIMULATED detector's vector
+(policies/data/privileged.py) or observation.perceived.objects = the SIMULATED detector's vector
 (hardware/sim/perception.py; the rollout runs the detector live), observation.images.<cam> = the camera's
 latest raw RGB frame, JPEG-encoded as the recording encoded that camera and decoded as training decoded it
 (the same RGB gives the same input).
@@ -38,8 +38,8 @@ from hardware.errors import UserError
 from hardware.features import IMAGES, OBS_FORCE, OBS_IMAGES, OBS_STATE, action_of
 from hardware.features import size as feature_size
 from hardware.recording.schemas import ACTION, PERCEIVED_FEATURE, TASK_OBJECTS_FEATURE
-from policies.checkpoint import load_policy
 from policies.rollout.schedule import Chunk
+from policies.training.checkpoint import load_policy
 
 
 def flat_values(obs: dict, names: list[str]) -> np.ndarray:

@@ -15,7 +15,7 @@ PITCH_M / 2 pi) [N*m], the torque beyond the running friction that the seated ca
 Success: the cap released and tau_tight within TIGHT_BAND_NM at the end, never past the episode's strip
 torque (a latched failure: the twin keeps the thread, the verdict is the detectors'). Hidden per episode
 (never in observe() nor detectables(); kept out of the privileged vector by their leading underscore,
-policies/privileged.py): thread friction, gasket stiffness, strip torque, where the thread catches.
+policies/data/privileged.py): thread friction, gasket stiffness, strip torque, where the thread catches.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The training configuration, in one place (nanoGPT style): RunOptions, what a run learns from and how big
 its model is, with its TrainConfig, the optimiser and the schedule. Every other form of it is generated from
-these fields' metadata (policies.flags.option):
+these fields' metadata (policies.training.flags.option):
 
 - `factr2 train`'s flags, their help, choices, units and bounds (add_arguments), and the options parsed back
   (from_args);
@@ -17,17 +17,17 @@ from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 from hardware.errors import UserError
-from policies import flags as F
-from policies.config import PRESETS, PolicyConfig, default_preset, preset, settable
-from policies.dataset import FORCE_SOURCES
-from policies.flags import Flag, Switch, option
-from policies.label_flags import NEXT_HELP, add_threshold_arguments, thresholds_arg
-from policies.labelling import TARE_DEFAULT, LabelChoice, ThresholdSource, source_kind
-from policies.methods import METHODS
-from policies.policy import policy_names
-from policies.preprocess import ACTION_FRAMES
-from policies.privileged import OBSERVATIONS, low_dimensional
-from policies.sampler import DEFAULT_SOURCE_WEIGHTS, parse_ratio, parse_source_weights
+from policies.data.dataset import FORCE_SOURCES
+from policies.data.preprocess import ACTION_FRAMES
+from policies.data.privileged import OBSERVATIONS, low_dimensional
+from policies.data.sampler import DEFAULT_SOURCE_WEIGHTS, parse_ratio, parse_source_weights
+from policies.labels.label_flags import NEXT_HELP, add_threshold_arguments, thresholds_arg
+from policies.labels.labelling import TARE_DEFAULT, LabelChoice, ThresholdSource, source_kind
+from policies.models.config import PRESETS, PolicyConfig, default_preset, preset, settable
+from policies.models.policy import policy_names
+from policies.training import flags as F
+from policies.training.flags import Flag, Switch, option
+from policies.training.methods import METHODS
 
 # the state preset's defaults: the learning curve (docs/first_training.md) still
 # rose at 8000 steps x 256 on 47 peg-insert demonstrations (~82 passes); images keep 20 passes at 128
@@ -73,7 +73,7 @@ class RatioFlag(ParsedFlag):
 
 class SourceWeightsFlag(ParsedFlag):
     """--source-weights demo=1,policy=1,pre=0.25,operator=2 (any subset) -> the four weights (rollout
-    recordings with interventions: policies/sampler.py); written back in full."""
+    recordings with interventions: policies/data/sampler.py); written back in full."""
 
     example = "pre=0,operator=3"
     parse = staticmethod(parse_source_weights)
@@ -86,7 +86,7 @@ class SourceWeightsFlag(ParsedFlag):
 
 
 class ThresholdsFlag(Flag):
-    """--thresholds recording|next|LOW:HIGH and --no-tare (policies.label_flags, shared with the label
+    """--thresholds recording|next|LOW:HIGH and --no-tare (policies.labels.label_flags, shared with the label
     commands) -> a LabelChoice."""
 
     def names(self) -> list[str]:
@@ -129,7 +129,7 @@ def parse_overrides(items: list[str]) -> dict:
         key, sep, value = item.partition("=")
         if not sep or key not in types:
             raise UserError(f"--set {item!r}: not FIELD=VALUE of a settable policy config field",
-                            fix="see policies/config.py, e.g. --set hidden=128")
+                            fix="see policies/models/config.py, e.g. --set hidden=128")
         try:
             out[key] = (value.lower() in ("1", "true", "yes")) if types[key] is bool else types[key](value)
         except ValueError:
@@ -144,7 +144,7 @@ def _train(name: str, **kw):
 
 @dataclass
 class TrainConfig:
-    """The optimiser and the schedule (policies.train's loop)."""
+    """The optimiser and the schedule (policies.training.train's loop)."""
 
     steps: int = _train("steps", default=0, flag=Flag(  # 0: from epochs
         "--steps", "optimiser steps", type=int, optional=True, at_least=1, group="length"))
@@ -160,7 +160,8 @@ class TrainConfig:
     warmup: int = _train("warmup", default=500, flag=Flag(
         "--warmup", "linear warm-up of the learning rate", type=int, unit="steps"))
     grad_clip: float = _train("grad_clip", default=1.0)
-    # the matmuls' precision (policies.train.pick_precision): auto = bf16 autocast where the hardware has it
+    # the matmuls' precision (policies.training.train.pick_precision): auto = bf16 autocast where the hardware
+    # has it
     precision: str = _train("precision", default="auto", flag=Flag(
         "--precision", "bf16 autocast or fp32 (auto: bf16 on a GPU or a CPU with native bf16)",
         choices=("auto", "bf16", "fp32")))
@@ -172,7 +173,7 @@ class TrainConfig:
     val_max: int = 1024  # validation samples per evaluation (evenly spaced over the validation episodes)
     seed: int = _train("seed", default=0, flag=Flag("--seed", "seed of the weights, batches and noise",
                                                     type=int))
-    # torch threads per process (0: chosen from the free cores, policies.train_threads.pick_threads)
+    # torch threads per process (0: chosen from the free cores, policies.training.train_threads.pick_threads)
     threads: int = option(0, flag=Flag("--threads", "torch threads per process (default: cores / nproc)",
                                        type=int))
     ema: bool = True  # keep an exponential moving average of the weights (ema_decay): rollouts use it
@@ -195,13 +196,14 @@ class TrainConfig:
 
 @dataclass
 class RunOptions:
-    """One training run: its data, method, model and schedule (the `resume` of each field: policies.flags)."""
+    """One training run: its data, method, model and schedule (the `resume` of each field:
+    policies.training.flags)."""
 
     inputs: list = option(resume="data_hash", flag=Flag("inputs", type=Path, metavar="RECORDING_OR_DIR"))
     out: Path = option(flag=Flag("--out", "run folder (checkpoints, logs)", type=Path, metavar="RUN",
                                  required=True))
     policy: str = option("flow", resume="policy", flag=Flag(
-        "--policy", "the policy (policies.policy registers them)", choices=policy_names()))
+        "--policy", "the policy (policies.models.policy registers them)", choices=policy_names()))
     method: str = option("first", resume="method", flag=Flag(
         "--method", "first (default), base, base-torque, factr, tavla", choices=tuple(METHODS)))
     ratio: tuple | None = option(None, resume="ratio", flag=RatioFlag(  # None: the method's default
@@ -211,7 +213,7 @@ class RunOptions:
         "--source-weights", "rollout recordings with interventions (factr2 rollout --takeover --record): "
         "sampling weight per source, multiplied with the phase ratio (default demo=1,policy=1,pre=0.25,"
         "operator=2; pre: the seconds of policy control before each takeover)", metavar="NAME=W,..."))
-    preset: str = option("", resume="policy", flag=Flag(  # "": policies.config.default_preset(observation)
+    preset: str = option("", resume="policy", flag=Flag(  # "": models/config.py default_preset(observation)
         "--preset", "state (low-dimensional inputs, the default with --obs state), small (images on a CPU, "
         "the default otherwise) or paper (the paper's sizes)", choices=PRESETS))
     force: str = option("tau_ext", resume="force", flag=Flag(
@@ -241,7 +243,8 @@ class RunOptions:
     progress: bool = option(True, flag=Switch("--no-progress", "no progress bar"))
     train: TrainConfig = option(factory=TrainConfig, nested=TrainConfig)
     overrides: dict | None = option(None, resume="policy", flag=OverridesFlag(  # over the preset
-        "--set", "override a policy config field of the preset (policies/config.py), e.g. --set hidden=128"))
+        "--set", "override a policy config field of the preset (policies/models/config.py), e.g. "
+        "--set hidden=128"))
     observation: str = option("images", resume="observation", flag=Flag(
         "--obs", "what the policy sees besides joints and force: camera frames (default), or `state`: the "
         "twin task objects' poses, PRIVILEGED and SIMULATED (recorded by `factr2 collect`; no frames read), "
@@ -251,7 +254,7 @@ class RunOptions:
     actions: str = option("absolute", resume="actions", flag=Flag(
         "--actions", "the frame the policy learns its joint targets in: absolute (default) or relative to "
         "the "
-        "joints at each observation (grippers absolute; policies.preprocess.Preprocess)",
+        "joints at each observation (grippers absolute; policies.data.preprocess.Preprocess)",
         choices=ACTION_FRAMES))
     episodes: tuple | None = option(None, resume="data_hash")  # ids ("FILE.mcap#N"); None: every usable one
     include_failed: bool = option(False, resume="data_hash", flag=Switch(
@@ -312,7 +315,7 @@ class RunOptions:
         kinds = settable()
         ov = {k: v for k, v in pol.items() if k in kinds and k not in own and v != getattr(base, k)}
         ph = meta.get("phases", {})
-        kind = source_kind(ph)  # typed (policies.labelling.ThresholdSource), never the message parsed
+        kind = source_kind(ph)  # typed (policies.labels.labelling.ThresholdSource), never the message parsed
         given = ((ph["t_low"], ph["t_high"]) if kind is ThresholdSource.GIVEN
                  else "recording" if kind in (ThresholdSource.RECORDING, ThresholdSource.DATASET) else None)
         opts = cls(inputs=list(inputs), out=Path(out), policy=pol["policy"], method=meta["method"],
@@ -342,7 +345,7 @@ RESUME_KEYS = tuple(F.resume_keys(RunOptions))  # meta entries that must be unch
 
 
 def add_arguments(p) -> None:
-    """`factr2 train`'s flags, one per field (policies.flags)."""
+    """`factr2 train`'s flags, one per field (policies.training.flags)."""
     F.add_arguments(p, RunOptions)
 
 

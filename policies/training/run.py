@@ -17,12 +17,8 @@ from hardware.errors import UserError
 from hardware.recording import schemas as S
 from hardware.recording.cache import cache_key
 from hardware.recording.session import software_version
-from policies import checkpoint as C
-from policies.config import PolicyConfig
-from policies.dataset import build_dataset
-from policies.labelling import load_next, phases_identity, resolve_thresholds
-from policies.methods import METHODS
-from policies.recordings import (
+from policies.data.dataset import build_dataset
+from policies.data.recordings import (
     describe_rig,
     episode_id,
     load_episodes,
@@ -30,9 +26,13 @@ from policies.recordings import (
     skipped_line,
     training_episodes,
 )
-from policies.run_config import RESUME_KEYS, RunOptions
-from policies.sampler import format_ratio
-from policies.train import Dist, TrainHooks, barrier, train
+from policies.data.sampler import format_ratio
+from policies.labels.labelling import load_next, phases_identity, resolve_thresholds
+from policies.models.config import PolicyConfig
+from policies.training import checkpoint as C
+from policies.training.methods import METHODS
+from policies.training.run_config import RESUME_KEYS, RunOptions
+from policies.training.train import Dist, TrainHooks, barrier, train
 
 
 def data_hash(episodes) -> str:
@@ -61,7 +61,8 @@ def _entry(meta: dict, key: str):
 
 
 def _compare(old: dict, new: dict) -> list[str]:
-    """The RESUME_KEYS entries (policies.run_config: from the options' fields) in which two metas differ."""
+    """The RESUME_KEYS entries (policies.training.run_config: from the options' fields) in which two metas
+    differ."""
     return [k for k in RESUME_KEYS
             if json.dumps(_entry(old, k), sort_keys=True) != json.dumps(_entry(new, k), sort_keys=True)]
 
@@ -195,7 +196,7 @@ def prepare(o: RunOptions, d: Dist):
     o = replace(o, rate_hz=data.rate_hz)
     named_next = next((ids for ids in map(session_next_checkpoints, episodes) if ids), ())
     meta = {
-        **o.to_meta(pcfg),  # the configuration (policies.run_config)
+        **o.to_meta(pcfg),  # the configuration (policies.training.run_config)
         "features": data.names.to_dict(),
         "preprocess": data.pre.to_dict(),  # normaliser + image path: the rollout rebuilds exactly this
         "phases": th.to_dict() if th is not None else NO_FORCE_PHASES,
@@ -232,7 +233,8 @@ def prepare(o: RunOptions, d: Dist):
 
 
 def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress=None, stop=None) -> dict:
-    """stop_at / on_progress / stop: policies.train.TrainHooks (an app's progress view and stop button)."""
+    """stop_at / on_progress / stop: policies.training.train.TrainHooks (an app's progress view and stop
+    button)."""
     data, pcfg, o, meta, resume_from = prepare(o, d)
     if d.main:
         Path(o.out).mkdir(parents=True, exist_ok=True)
@@ -292,6 +294,6 @@ def _sources(data, weights) -> str:
 
 
 def _shares(data):
-    from policies.phases import phase_shares
+    from policies.labels.phases import phase_shares
 
     return phase_shares(data.phase[data.split()[0]])

@@ -1,13 +1,13 @@
-"""Phase labels of recorded episodes (the I/O around policies.phases).
+"""Phase labels of recorded episodes (the I/O around policies.labels.phases).
 
 tau_ext comes from the recording (/<arm>/tau_ext, what NEXT estimated live), or, with a NEXT checkpoint
 (`--next CKPT`), from that checkpoint run offline over the logged follower joint states (episodes recorded
 without an estimate, or with an older model). Bimanual rigs: the score sums every follower's joints, on the
 first follower's timeline, and so do the thresholds (one noise floor per arm).
 
-Tare on grasp (policies.tare, on by default): while a follower's gripper holds an object, the object's load,
-estimated on the free motion right after the grasp, is taken out of that arm's tau_ext before the score, for
-the labels and for the recording thresholds alike. The policy's force input (EpisodeLabels.tau_ext) stays
+Tare on grasp (policies.labels.tare, on by default): while a follower's gripper holds an object, the object's
+load, estimated on the free motion right after the grasp, is taken out of that arm's tau_ext before the score,
+for the labels and for the recording thresholds alike. The policy's force input (EpisodeLabels.tau_ext) stays
 the raw estimate, and so does live force feedback (teleop never labels).
 """
 
@@ -26,10 +26,10 @@ from hardware.importers import lerobot as LR
 from hardware.reasons import Reason, messages
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
-from policies import phases as P
-from policies import tare as T
-from policies.recordings import ArmSet, episode_id, session_next_checkpoints
-from policies.tare_recording import episode_tare
+from policies.data.recordings import ArmSet, episode_id, session_next_checkpoints
+from policies.labels import phases as P
+from policies.labels import tare as T
+from policies.labels.tare_recording import episode_tare
 
 OFFLINE_RUNS_MAX = 64  # offline NEXT passes a NextModel keeps (episodes); all dropped when full
 
@@ -81,7 +81,7 @@ class Thresholds:
     t_low: float
     t_high: float
     source: Reason  # a ThresholdSource reason
-    tare: str = "off"  # held-load tare of the scores they apply to: policies.tare.TARE_METHODS
+    tare: str = "off"  # held-load tare of the scores they apply to: policies.labels.tare.TARE_METHODS
 
     @classmethod
     def given(cls, t_low: float, t_high: float, tare: str = "off") -> Thresholds:
@@ -124,7 +124,7 @@ TARE_DEFAULT = "payload"  # measured against the twin's truth (docs/first_labels
 @dataclass(frozen=True)
 class LabelChoice:
     """What a label command asked for: the thresholds (as resolve_thresholds takes them) and the tare
-    method (policies.tare.TARE_METHODS; `--no-tare` is "off")."""
+    method (policies.labels.tare.TARE_METHODS; `--no-tare` is "off")."""
 
     thresholds: object
     tare: str = TARE_DEFAULT
@@ -134,11 +134,11 @@ def resolve_thresholds(
     given, next_model: NextModel | None, episodes: list[Episode], arms: ArmSet, tare: str | None = None
 ) -> Thresholds:
     """given: (LOW, HIGH) [N*m]; "recording": from the episodes' own scores (Otsu,
-    policies.phases.recording_thresholds; tau_ext recorded, or from --next offline), the CLI's default;
+    policies.labels.phases.recording_thresholds; tau_ext recorded, or from --next offline), the CLI's default;
     "next" or None: from the free-motion noise of the --next checkpoint, else of the checkpoint the recording
     session names (None keeps the library's former default for its callers); or a LabelChoice carrying one
-    of these and the tare. tare: policies.tare.TARE_METHODS (default TARE_DEFAULT); the recording source
-    splits the tared scores, and the labels of these thresholds are tared alike."""
+    of these and the tare. tare: policies.labels.tare.TARE_METHODS (default TARE_DEFAULT); the recording
+    source splits the tared scores, and the labels of these thresholds are tared alike."""
     if isinstance(given, LabelChoice):
         given, tare = given.thresholds, given.tare if tare is None else tare
     tare = TARE_DEFAULT if tare is None else tare
@@ -303,7 +303,7 @@ class EpisodeLabels:
     t: np.ndarray  # [s] the tau_ext samples' times
     tau_ext: np.ndarray  # (N, J) [N*m], as estimated (not tared: the policy's force input)
     score: np.ndarray  # (N,) ||tau_ext - held load||_1 [N*m]: what the labels split (raw without tare)
-    phases: np.ndarray  # (N,) int8: policies.phases.FREE / PRE_CONTACT / CONTACT
+    phases: np.ndarray  # (N,) int8: policies.labels.phases.FREE / PRE_CONTACT / CONTACT
     source: str
     raw_score: np.ndarray | None = None  # (N,) ||tau_ext||_1 before the tare (None: same as score)
     held: np.ndarray | None = None  # (N,) bool: a gripper holds an object (tared there)

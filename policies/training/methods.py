@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from policies.sampler import DEFAULT_RATIO, RATIO_PRESETS
+from policies.data.sampler import DEFAULT_RATIO, RATIO_PRESETS
 
 BLUR_SIGMA0_PX_224 = 5.0  # FACTR's starting blur [px] at 224 px; scaled with the input size
 

@@ -14,9 +14,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from policies.config import PolicyConfig
-from policies.policy import Policy, register
-from policies.tokens import ObservationTokens, masked_mean, sinusoidal
+from policies.models.config import PolicyConfig
+from policies.models.policy import Policy, register
+from policies.models.tokens import ObservationTokens, masked_mean, sinusoidal
 
 
 def _encoder(cfg: PolicyConfig, layers: int) -> nn.TransformerEncoder:

@@ -26,7 +26,7 @@ the release:
     tared     tau_ext - tau_load on the held stretch (grasp to release), tau_ext elsewhere
 
 The regressor and the check are passed in (q (K, n) [rad] -> Y (K, n, p) [N*m per unit parameter]; theta ->
-reason), so this module stays free of kinematics (policies.tare_recording builds them from the arm
+reason), so this module stays free of kinematics (policies.labels.tare_recording builds them from the arm
 description with calibration.diagnosis's payload regressor).
 """
 

@@ -1,7 +1,7 @@
 """Observation tokens shared by both policies (paper appendix): image features per camera (one token per
 feature-map cell of the shared backbone, plus a learned camera embedding), one MLP token for joints + gripper,
 one MLP token for the force input (tau_ext or current; absent for `base`). Sinusoidal positions.
-With `observation = "state"` (PRIVILEGED, twins only: policies/privileged.py) one MLP token for the task
+With `observation = "state"` (PRIVILEGED, twins only: policies/data/privileged.py) one MLP token for the task
 objects' vector replaces the image tokens (no backbone at all); "images+state" has both."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ import math
 import torch
 import torch.nn as nn
 
-from policies.config import PolicyConfig
-from policies.methods import gaussian_blur
-from policies.privileged import uses_images, uses_objects
-from policies.vision import IMAGENET_MEAN, IMAGENET_STD, make_backbone
+from policies.data.privileged import uses_images, uses_objects
+from policies.models.config import PolicyConfig
+from policies.models.vision import IMAGENET_MEAN, IMAGENET_STD, make_backbone
+from policies.training.methods import gaussian_blur
 
 
 def sinusoidal(n: int, dim: int) -> torch.Tensor:
@@ -42,8 +42,9 @@ def mlp(din: int, dout: int) -> nn.Sequential:
 class ObservationTokens(nn.Module):
     """(images (B, M, H, W, 3) uint8 or None, state (B, S), force (B, F) or None, objects (B, O) or None)
     -> tokens (B, T, hidden): [state, force?, objects?, image cells...].
-    A batch's "blur_sigma" [px], in training only: FACTR's Gaussian blur of the frames (policies.methods), a
-    step's input like its crops (the loop puts it in the batch; nothing is set on the model from outside)."""
+    A batch's "blur_sigma" [px], in training only: FACTR's Gaussian blur of the frames
+    (policies.training.methods), a step's input like its crops (the loop puts it in the batch; nothing is set
+    on the model from outside)."""
 
     def __init__(self, cfg: PolicyConfig):
         super().__init__()

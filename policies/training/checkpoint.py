@@ -14,9 +14,9 @@ import torch
 from safetensors.torch import load_file, save_file
 
 from hardware.errors import ConfigError, UserError
-from policies.config import PolicyConfig
-from policies.policy import make_policy
-from policies.preprocess import Preprocess
+from policies.data.preprocess import Preprocess
+from policies.models.config import PolicyConfig
+from policies.models.policy import make_policy
 
 FORMAT = "factr2-policy/1"
 KEEP = 2  # older periodic checkpoints beyond this many are removed (the final one always stays)

@@ -33,11 +33,11 @@ from hardware.features import FACTR2_PHASES, OBS_FORCE, PHASE_FEATURE, action_of
 from hardware.recording import schemas as S
 from hardware.recording.reader import interp_linear
 from hardware.timeseries import hold_previous
-from policies.dataset import STATE_RATE_HZ, camera_rate, latest_frame, valid_samples
-from policies.export_video import VIDEO_PATH, CameraVideo
-from policies.labelling import label_episode
-from policies.phases import PHASE_NAMES
-from policies.recordings import follower_state_action
+from policies.data.dataset import STATE_RATE_HZ, camera_rate, latest_frame, valid_samples
+from policies.data.recordings import follower_state_action
+from policies.export.export_video import VIDEO_PATH, CameraVideo
+from policies.labels.labelling import label_episode
+from policies.labels.phases import PHASE_NAMES
 
 CODEBASE_VERSION = "v3.0"
 CHUNKS_SIZE = 1000
@@ -87,7 +87,7 @@ def _episode_rows(ep, arms, cams, fps, th, next_model, objects):
     js0 = ep.topic(S.joint_state_topic(arms.followers[0]))
     starts = [js0.t[0]] + [ep.recording.frames(c).t[0] for c in cams if len(ep.recording.frames(c))]
     obs = {f: ep.topic(S.OBJECT_TOPICS[f]) for f in objects or ()}
-    t0 = max(starts)  # the training grid's (policies.dataset): a dataset read back trains on the same ticks
+    t0 = max(starts)  # the training grid's (data/dataset.py): a dataset read back trains on the same ticks
     n = int(np.floor((js0.t[-1] - t0) * fps + 1e-9)) + 1
     grid = t0 + np.arange(max(n, 0)) / fps
     state, action = [], []
@@ -239,8 +239,8 @@ def export_lerobot(
             features[k] = {"dtype": "float32", "shape": [v.shape[1]], "names": names[k]}
         if S.TASK_OBJECTS_FEATURE in objects:
             features[S.TASK_OBJECTS_FEATURE]["description"] = (
-                "PRIVILEGED, SIMULATED: the twin task objects' state (policies/privileged.py); a real robot "
-                "has no such input")
+                "PRIVILEGED, SIMULATED: the twin task objects' state (policies/data/privileged.py); a real "
+                "robot has no such input")
         if S.PERCEIVED_FEATURE in objects:
             features[S.PERCEIVED_FEATURE]["description"] = (
                 "SIMULATED: the twin task objects as a simulated camera pose detector reports them "

@@ -1,6 +1,6 @@
-"""The phase-labelling options shared by `factr2 train` (policies.run_config), `factr2 export lerobot` and
-`factr2 episodes phases` (policies.labelling does the work): --next CKPT, --thresholds recording|next|LOW:HIGH
-and --no-tare."""
+"""The phase-labelling options shared by `factr2 train` (policies.training.run_config),
+`factr2 export lerobot` and `factr2 episodes phases` (policies.labels.labelling does the work): --next CKPT,
+--thresholds recording|next|LOW:HIGH and --no-tare."""
 
 from __future__ import annotations
 
@@ -28,11 +28,11 @@ def add_threshold_arguments(p) -> None:
 
 
 def thresholds_arg(args):
-    """The parsed --thresholds and --no-tare as policies.labelling.resolve_thresholds takes them: a
+    """The parsed --thresholds and --no-tare as policies.labels.labelling.resolve_thresholds takes them: a
     LabelChoice of (LOW, HIGH), "next", or "recording" (also when absent: the commands' default) and the tare
     method ("off" with --no-tare); UserError with the fix for a bad value."""
-    from policies.labelling import TARE_DEFAULT, THRESHOLD_SOURCES, LabelChoice
-    from policies.phases import parse_thresholds
+    from policies.labels.labelling import TARE_DEFAULT, THRESHOLD_SOURCES, LabelChoice
+    from policies.labels.phases import parse_thresholds
 
     tare = "off" if getattr(args, "no_tare", False) else TARE_DEFAULT
     if args.thresholds is None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from policies.phases import PHASE_SHORT
+from policies.labels.phases import PHASE_SHORT
 
 # the paper's ablation (Sec. 5, Table "upsampling"): which phases are up-sampled, as w_F : w_PC : w_C
 RATIO_PRESETS = {

@@ -1,4 +1,4 @@
-"""The CPU side of a policy training run, beside its loop (policies/train.py calls it once a step).
+"""The CPU side of a policy training run, beside its loop (policies/training/train.py calls it once a step).
 
 A training shares its machine: with other work (two torch threads on two busy cores thrash), and with a
 teleop loop that owns a CPU (hardware/realtime.py). `TrainCpu` owns every choice about that:
@@ -6,7 +6,8 @@ teleop loop that owns a CPU (hardware/realtime.py). `TrainCpu` owns every choice
 - a `ThreadProbe` (calibration/next/threads.py) that re-checks one thread against several every 400 steps
   and drops to one on a collapse (only when the count was chosen, not asked with --threads);
 - every thread kept off the CPUs live loops claim (`KeepOffLoopCpus`);
-- on rank 0 with progress, two lines: what a CPU image run will cost (policies/cost_hint.py) and a hint when
+- on rank 0 with progress, two lines: what a CPU image run will cost (policies/training/cost_hint.py) and a
+hint when
   the run falls far below the speed it already reached.
 
     cpu = TrainCpu(cfg.threads, d.world)            # before the model is built
@@ -86,7 +87,7 @@ class TrainCpu:
               device: str, batch: int) -> None:
         """Rank 0: say a slow-down through `say`, and with `cost` what a CPU image run will cost."""
         if cost:
-            from policies.cost_hint import CostHint  # CPU image runs: what a step costs and the run will take
+            from policies.training.cost_hint import CostHint  # CPU image runs: what a step and the run cost
 
             self.cost = CostHint(steps_left, observation=observation, device=device, batch=batch)
         self.start, self.say = start, say

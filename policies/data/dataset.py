@@ -5,22 +5,22 @@ camera rate) with
     observation.state          follower joint positions [rad] + gripper [m] (per follower arm)
     observation.force          tau_ext [N*m] (NEXT: recorded or offline), or motor current [A], or nothing
     observation.state.objects  PRIVILEGED (twins only, `observation` "state" / "images+state"): the task
-                               objects' vector (policies/privileged.py) last recorded at or before the tick;
-                               "state" reads no frames at all
+                               objects' vector (policies/data/privileged.py) last recorded at or before the
+                               tick; "state" reads no frames at all
     observation.perceived.objects  SIMULATED (twins only, "perceived" / "images+perceived"), in its place:
                                the simulated pose detector's vector as recorded live (hardware/sim/
                                perception.py; what the demonstrator's camera gave), held the same way
     action                     the next `chunk` commanded joint targets [rad] + gripper [m]
                                (/follower/command) from this tick on; past the episode end the last one is
                                repeated and masked out
-    phase                      FIRST phase of the tick (policies.phases)
+    phase                      FIRST phase of the tick (policies.labels.phases)
     source                     who made the tick: a demonstration, or in a rollout recording the policy, the
                                pre-intervention window or the operator (hardware/recording/interventions.py)
 
 Validation: whole episodes, a deterministic choice per seed. Normalisation: mean/std of the training samples.
 Normalisation, frame decoding and the RandomResizedCrop augmentation (per-sample boxes from the step's
-generator) are policies.preprocess's, the pipeline a rollout rebuilds from the checkpoint; `batch` assembles
-the inputs with it as a rollout does. A tick is a sample by `valid_samples`, the export's rule too.
+generator) are policies.data.preprocess's, the pipeline a rollout rebuilds from the checkpoint; `batch`
+assembles the inputs with it as a rollout does. A tick is a sample by `valid_samples`, the export's rule too.
 """
 
 from __future__ import annotations
@@ -38,12 +38,12 @@ from hardware.recording import schemas as S
 from hardware.recording.interventions import SOURCE_DEMO, source_on_grid
 from hardware.recording.reader import Episode, interp_linear
 from hardware.timeseries import hold_previous
-from policies.frame_cache import camera_frames
-from policies.labelling import NextModel, Thresholds, label_episode
-from policies.normalizer import Normalizer
-from policies.preprocess import ImagePath, Preprocess, crop_pool, relative_columns, to_frame
-from policies.privileged import OBSERVATIONS, objects_feature, uses_images
-from policies.recordings import ArmSet, episode_id, follower_state_action, recording_features
+from policies.data.frame_cache import camera_frames
+from policies.data.normalizer import Normalizer
+from policies.data.preprocess import ImagePath, Preprocess, crop_pool, relative_columns, to_frame
+from policies.data.privileged import OBSERVATIONS, objects_feature, uses_images
+from policies.data.recordings import ArmSet, episode_id, follower_state_action, recording_features
+from policies.labels.labelling import NextModel, Thresholds, label_episode
 
 FORCE_SOURCES = ("tau_ext", "current", "none")
 STATE_RATE_HZ = 30.0  # Hz: policy rate without cameras (`--obs state` on camera-less recordings): the twin
@@ -263,7 +263,7 @@ def build_dataset(
 ) -> PolicyData:
     """observation: "images" (camera frames), "state" (the PRIVILEGED task-object vector, no frames read),
     "perceived" (the SIMULATED detector's vector instead) or either with images ("images+state",
-    policies/privileged.py); action_frame: "absolute" or "relative" (Preprocess)."""
+    policies/data/privileged.py); action_frame: "absolute" or "relative" (Preprocess)."""
     if force not in FORCE_SOURCES:
         raise ValueError(f"force {force!r}: one of {FORCE_SOURCES}")
     if observation not in OBSERVATIONS:

@@ -15,10 +15,10 @@ from importlib import import_module
 import torch
 import torch.nn as nn
 
-from policies.config import PolicyConfig
+from policies.models.config import PolicyConfig
 
 # the modules that define policies; importing one registers its classes (the first's is the default policy)
-POLICY_MODULES = ("policies.flow", "policies.flow_mlp", "policies.act")
+POLICY_MODULES = ("policies.models.flow", "policies.models.flow_mlp", "policies.models.act")
 ANY_HEAD = "*"  # a policy with one head registers under this
 
 _REGISTRY: dict[tuple[str, str], type[Policy]] = {}
@@ -85,6 +85,6 @@ class Policy(nn.Module):
 
     def action_error(self, batch: dict, noise: dict) -> torch.Tensor:
         """Per-sample L1 of the inferred chunk vs the demonstration (valid steps, normalised units) (B,)."""
-        from policies.tokens import masked_mean
+        from policies.models.tokens import masked_mean
 
         return masked_mean((self.predict(batch, noise) - batch["action"]).abs(), batch["mask"])

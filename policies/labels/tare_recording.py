@@ -1,5 +1,5 @@
-"""The tare's inputs from a recording (policies.tare does the math): each follower's joints and gripper on
-the tau_ext timeline, and the arm description's payload model (calibration.diagnosis's gravity regressor of
+"""The tare's inputs from a recording (policies.labels.tare does the math): each follower's joints and gripper
+on the tau_ext timeline, and the arm description's payload model (calibration.diagnosis's gravity regressor of
 a point mass on the last link, and its plausibility check)."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 from hardware.errors import ConfigError
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
-from policies import tare as T
-from policies.recordings import ArmSet
+from policies.data.recordings import ArmSet
+from policies.labels import tare as T
 
 
 def payload_regressor(arm_model: str, joint_names) -> T.Regressor | None:
@@ -80,8 +80,8 @@ def gripper_signals(ep: Episode, arm: str, t: np.ndarray) -> tuple[np.ndarray, n
 def episode_tare(ep: Episode, arms: ArmSet, t: np.ndarray, tau: np.ndarray, method: str
                  ) -> tuple[np.ndarray, np.ndarray, str]:
     """(load (N, J) [N*m], held (N,) bool: any follower holds, note) for episode_tau_ext's (t, tau): each
-    follower's held-object load from its own gripper and joints (policies.tare). method "payload" falls back
-    to "bias" for an arm whose description is unknown (the note says so); "off": zeros."""
+    follower's held-object load from its own gripper and joints (policies.labels.tare). method "payload" falls
+    back to "bias" for an arm whose description is unknown (the note says so); "off": zeros."""
     load, held = np.zeros_like(tau), np.zeros(len(t), bool)
     if method == "off":
         return load, held, ""

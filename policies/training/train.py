@@ -2,8 +2,8 @@
 128, linear warm-up for 500 steps then cosine decay to 0 (the paper's values). Runs alone or under torchrun
 (DDP: gloo on CPU, NCCL on CUDA; bf16 autocast on CUDA).
 
-Exactness: global step s fixes everything random in it: the sampler's global batch (policies.sampler), the
-flow noise / CVAE noise and the crop boxes (drawn for the whole global batch from a generator seeded by
+Exactness: global step s fixes everything random in it: the sampler's global batch (policies.data.sampler),
+the flow noise / CVAE noise and the crop boxes (drawn for the whole global batch from a generator seeded by
 (seed, s), each rank keeping its positions), and dropout (torch seeded by (seed, s, rank)). So `--resume`
 continues the uninterrupted run exactly, and N processes compute the gradient of the same global batch as one
 (GroupNorm and per-sample losses make the batch split irrelevant; with dropout 0 the loss curves agree to
@@ -23,16 +23,16 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from policies import checkpoint as C
-from policies.config import PolicyConfig
-from policies.curves import RunLog
-from policies.dataset import PolicyData
-from policies.methods import BLUR_SIGMA0_PX_224, METHODS, blur_sigma
-from policies.phases import PHASE_SHORT
-from policies.policy import make_policy
-from policies.run_config import RunOptions, TrainConfig
-from policies.sampler import FirstSampler
-from policies.train_threads import TrainCpu
+from policies.data.dataset import PolicyData
+from policies.data.sampler import FirstSampler
+from policies.labels.phases import PHASE_SHORT
+from policies.models.config import PolicyConfig
+from policies.models.policy import make_policy
+from policies.training import checkpoint as C
+from policies.training.curves import RunLog
+from policies.training.methods import BLUR_SIGMA0_PX_224, METHODS, blur_sigma
+from policies.training.run_config import RunOptions, TrainConfig
+from policies.training.train_threads import TrainCpu
 
 
 @dataclass
@@ -213,7 +213,7 @@ def train(data: PolicyData, pcfg: PolicyConfig, o: RunOptions, meta: dict, d: Di
           resume_from: Path | None = None, hooks: TrainHooks | None = None) -> dict:
     """Train the run `o` (its train config, method, ratio, source weights, out folder, progress) on `data`;
     checkpoints and logs in o.out (rank 0 writes). Returns the final validation metrics. The CPU side
-    (threads, the teleop loop's CPU, cost lines) is policies/train_threads.py's."""
+    (threads, the teleop loop's CPU, cost lines) is policies/training/train_threads.py's."""
     hooks = hooks if hooks is not None else TrainHooks()
     cpu = TrainCpu(o.train.threads, d.world)
     train_idx, val_idx = data.split()

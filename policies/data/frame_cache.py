@@ -3,8 +3,8 @@ folder, not beside the recording: derived_dir(RECORDING, "policy-frames")/<camer
 3) and its key (the MCAP's size, mtime and head/tail hash, as the array cache uses). Training reads it
 memory-mapped: never a JPEG decode per sample.
 
-Frames are decoded by policies.preprocess.decode_resized, the one decode a rollout's live frames go through
-too (size x size whole: the aspect ratio is not kept, the full field of view stays in the image;
+Frames are decoded by policies.data.preprocess.decode_resized, the one decode a rollout's live frames go
+through too (size x size whole: the aspect ratio is not kept, the full field of view stays in the image;
 RandomResizedCrop then works on that). Written to a temporary name and renamed: never half a cache.
 """
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from hardware.recording.cache import cache_key, derived_dir
 from hardware.recording.reader import Recording
-from policies.preprocess import decode_resized
+from policies.data.preprocess import decode_resized
 
 
 def cache_folder(path: Path) -> Path:

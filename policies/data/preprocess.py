@@ -1,5 +1,5 @@
 """One preprocessing pipeline from an observation to the model's input, and from its output back to units:
-the same code in training (policies/dataset.py, policies/frame_cache.py) and at rollout
+the same code in training (policies/data/dataset.py, policies/data/frame_cache.py) and at rollout
 (policies/rollout/runner.py), saved in the checkpoint JSON ("preprocess") and rebuilt from it.
 
     pre = Preprocess(Normalizer.fit(...), ImagePath.from_recordings(recs, cameras, size))   # training
@@ -39,7 +39,7 @@ import torch
 
 from hardware.errors import ConfigError, UserError
 from hardware.features import IMAGES
-from policies.normalizer import Normalizer
+from policies.data.normalizer import Normalizer
 
 CROP_SCALE = (0.8, 1.0)  # RandomResizedCrop: area share kept
 CROP_RATIO = (3 / 4, 4 / 3)  # and aspect ratio range

@@ -2,7 +2,8 @@
 observations (joints + gripper, force, the PRIVILEGED object vector), where a transformer over the chunk's
 30 tokens costs ~10x more per sample for nothing it can use (measured: docs/first_training.md).
 
-Same objective and sampling as policies.flow.FlowPolicy (x_a = (1 - a) x0 + a x1, a ~ Beta(1, 1.5), loss
+Same objective and sampling as policies.models.flow.FlowPolicy (x_a = (1 - a) x0 + a x1, a ~ Beta(1, 1.5),
+loss
 ||v - (x1 - x0)||^2 on the valid chunk steps, 10 Euler steps at inference, the same `draw_noise`), so the
 training loop, the checkpoints and the rollout treat both alike. The velocity field sees the whole noisy chunk
 flattened (chunk * A values); the observation tokens (ObservationTokens, one per input) are concatenated into
@@ -16,11 +17,11 @@ from __future__ import annotations
 import torch
 import torch.nn as nn
 
-from policies.config import PolicyConfig
-from policies.flow import FlowPolicy, flow_matching_loss
-from policies.policy import Policy, register
-from policies.privileged import uses_images
-from policies.tokens import ObservationTokens, timestep_embedding
+from policies.data.privileged import uses_images
+from policies.models.config import PolicyConfig
+from policies.models.flow import FlowPolicy, flow_matching_loss
+from policies.models.policy import Policy, register
+from policies.models.tokens import ObservationTokens, timestep_embedding
 
 
 class FiLMBlock(nn.Module):

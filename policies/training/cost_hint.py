@@ -50,7 +50,7 @@ class CostHint:
 
     def __init__(self, steps_left: int, *, observation: str, device: str, batch: int,
                  warmup: int = WARMUP_STEPS, timed: int = TIMED_STEPS):
-        from policies.privileged import uses_images
+        from policies.data.privileged import uses_images
 
         self.active = uses_images(observation) and device == "cpu" and steps_left > warmup + timed
         self.steps_left, self.observation, self.batch = int(steps_left), observation, int(batch)
