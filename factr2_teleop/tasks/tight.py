@@ -64,23 +64,31 @@ PECK_R_M = 0.0115  # m: the widest point searched (the seen bore is off by 2.8-3
 PECK_ABOVE_M = 0.005  # m: the hand aimed this far above its touch height while moving between points (the
 # touch is felt with the hand already pressing, the follower lags a fast lift: 3.5 mm did not lift the tip)
 PECK_PRESS_M = 0.005  # m: aimed this far below the touch height on each peck
-PECK_LIFT_S, PECK_MOVE_S, PECK_DOWN_S, PECK_HOLD_S = 0.2, 0.25, 0.35, 0.3  # s: the aim's lift, move over
-# the next point, press, rest (the lift and the move then wait on the arm's own pose, below)
+PECK_LIFT_S, PECK_MOVE_S, PECK_DOWN_S, PECK_HOLD_S = 0.2, 0.25, 0.3, 0.3  # s: the aim's lift, move over
+# the next point, down to hover over it, rest after the press (the lift and the hover then wait on the arm)
 PECK_CLEAR_M = 0.002  # m: the hand this far above its touch height (FK) before it moves: the tip clear
-PECK_AT_M = 0.0004  # m: the hand this close to the point (FK, xy) before it presses
-PECK_WAIT_S = 1.0  # s: the longest wait for either (then it goes on: a peck off its point is still a peck)
+PECK_HOVER_M = 0.0025  # m: over the point, the hand this far above its touch height, held still, then pressed
+# (1 mm: the sagging hand put the tip on the top while it still moved, dev seed 56)
+PECK_PRESS_S = 0.4  # s: the press from the hover (0.2 s: the impact slid the pin up in the fingers, the
+# hand rested 0.5 mm lower each peck and read as a drop after six, dev seed 31)
+PECK_WAIT_S = 0.8  # s: the longest wait for the tip clear, or for the hand still over the point
 PECK_STILL_M_S = 0.01  # m/s: the hand (FK) moving slower than this is still (the pin has stopped swinging)
-PECK_KI = 2.0  # 1/s: how fast the aim's correction takes up a standing error of the still arm
-PECK_CORR_MAX_M = 0.006  # m: the largest such correction
-PECK_COVER_M = 0.0007  # m: a grid point with a landing this close is searched, else it is tried again
-# (0.35 mm would keep the grid's guarantee, 1.85 + 0.35 = CAPTURE_M; 0.7 leaves slivers, for fewer pecks)
+PECK_KI = 2.0  # 1/s: how fast the aim's height correction takes up the still arm's sag (the lean is off)
+PECK_CORR_MAX_M = 0.006  # m: the largest correction of the aim (height; across: the landing's)
+PECK_LAND_GAIN = 0.6  # of a landing's miss, aimed against on the next press: the contact's feedback and the
+# leader's stiction shift the pressed hand 1-3 mm (dev seeds 56, 57), mostly the same way; an integrator on
+# the hand's position across (stick-slip) hunted 1.5-2.6 mm around the point instead (dev seed 57)
+PECK_REACH_M = 0.0019  # m: a landing searches the bore centres this close (CAPTURE_M less 0.3 mm: the tip's
+# swing in the fingers against the hand's measured pose)
 PECK_TRIES = 2  # pecks aimed at one grid point at most
+PECK_LEFT = 0.1  # a grid point is pecked (again) while this share of the disc it covers is unsearched
 DROP_M = 0.002  # m: resting this much lower than on the fixture top (the last pecks' rests): it is in
 SINK_WINDOW_S, SINK_M, SINK_WAIT_S = 0.1, 0.0003, 0.8  # s, m, s: after a peck's rest, a hand still
 # sinking more than SINK_M per SINK_WINDOW_S is waited for, at most SINK_WAIT_S
 DROP_FIRST_M = 0.003  # m: the first peck, with no rest on the top to compare: this far below the touch height
 # (pressed on the top it rests 0.5-2 mm below it, measured)
-PECK_REF_N = 5  # pecks: the rests on the top a peck is compared with (their median)
+PECK_REF_N = 3  # pecks: the rests on the top a peck is compared with (their median; few: the pin may
+# creep up in the fingers, and the rests with it)
 HOME_M = TI.DEPTH_M - 0.004  # m: sunk this far below the touch: deep in the bore
 STILL_S = 0.5  # s: no sinking (< STILL_M) for this long while pushed: it has stopped
 STILL_M = 0.0003
@@ -305,29 +313,40 @@ def _aim_for(op, yaw, T_from, p_to, seconds: float):
 
 def aim_correction(corr, aimed, reached, dt: float, ki: float, limit: float) -> np.ndarray:
     """The operator's correction of where it aims [m]: the arm's own error (aimed - reached, FK) integrated
-    at ki [1/s], bounded to +-limit (pure). Aiming at point + correction puts a lagging, sagging hand on the
-    point, as a person watching their own arm pushes until it is there."""
+    at ki [1/s], bounded to +-limit (pure). Aiming at point + correction puts a sagging hand on the point, as
+    a person watching their own arm pushes until it is there."""
     e = np.asarray(aimed, float) - np.asarray(reached, float)
     return np.clip(np.asarray(corr, float) + ki * dt * e, -limit, limit)
 
 
-def next_peck(grid: np.ndarray, landed: list, tried: np.ndarray) -> int | None:
-    """Index of the next grid point to peck (pure): the first (nearest the touch) neither landed near (within
-    PECK_COVER_M of a peck's measured landing) nor tried PECK_TRIES times; None: the grid is done."""
-    for i, g in enumerate(grid):
+def disc_points(radius_m: float, pitch_m: float = 0.0004) -> np.ndarray:
+    """Where the bore's centre may be [m] (N, 2): a fine grid over the searched disc (pure)."""
+    return peck_grid(pitch_m, radius_m)
+
+
+def next_peck(grid: np.ndarray, cand: np.ndarray, landed: list, tried: np.ndarray) -> int | None:
+    """Index of the next grid point to peck (pure): the first (nearest the touch) not tried PECK_TRIES times
+    whose own share of the disc (the candidate centres cand nearer to it than to any other point, within
+    pitch / sqrt(3)) is still more than PECK_LEFT unsearched, a candidate being searched once a peck landed
+    (measured) within PECK_REACH_M of it. A peck that lands off its point searches what it landed near; the
+    point is pecked again only if what it stands for is left. None: the disc is searched."""
+    left = np.ones(len(cand), bool)
+    for p in landed:
+        left &= np.hypot(*(cand - p).T) > PECK_REACH_M
+    d = np.linalg.norm(cand[:, None, :] - grid[None], axis=2)
+    owner = np.where(d.min(axis=1) <= PECK_SPACING_M / np.sqrt(3) + 1e-9, np.argmin(d, axis=1), -1)
+    for i in range(len(grid)):
         if tried[i] >= PECK_TRIES:
             continue
-        if landed and np.min(np.linalg.norm(np.asarray(landed) - g, axis=1)) <= PECK_COVER_M:
-            continue
-        return i
+        mine = owner == i
+        if mine.any() and left[mine].mean() > PECK_LEFT:
+            return i
     return None
 
 
-def _hold_over(op, yaw, target, corr, z_done, xy_done, seconds: float):
-    """Aim at target + corr until the arm's own pose (FK) shows the hand there and still (z above z_done when
-    given, xy within PECK_AT_M when xy_done), at most `seconds`. corr takes up a standing error only while the
-    hand is still (aim_correction): integrated while the follower still lags, it wound up and threw the hand
-    4 mm past the point as it caught up (dev seed 56)."""
+def _hold(op, yaw, target, corr, z_done, seconds: float):
+    """Aim at target + corr until the arm's own pose (FK) shows the hand still (and above z_done when given),
+    at most `seconds`; the height correction takes up the still arm's sag (aim_correction)."""
     prev = hand_pose(op)[:3, 3]
     for _ in range(max(1, round(seconds / DECIDE_DT_S))):
         op.aim(_down(yaw, target + corr))
@@ -335,45 +354,50 @@ def _hold_over(op, yaw, target, corr, z_done, xy_done, seconds: float):
         p = hand_pose(op)[:3, 3]
         still = np.linalg.norm(p - prev) <= PECK_STILL_M_S * DECIDE_DT_S
         prev = p
-        there = (z_done is None or p[2] >= z_done) and (
-            not xy_done or np.hypot(*(p[:2] - target[:2])) <= PECK_AT_M)
-        if there and still:
+        if still and (z_done is None or p[2] >= z_done):
             break
         if still:
-            corr = aim_correction(corr, target, p, DECIDE_DT_S, PECK_KI, PECK_CORR_MAX_M)
+            corr = aim_correction(corr, target * [0, 0, 1], p * [0, 0, 1], DECIDE_DT_S, PECK_KI,
+                                  PECK_CORR_MAX_M)
     return corr
 
 
 def _pecks(op, yaw, centre, z_touch, out):
-    """Peck the grid around centre (where the touch was felt), each peck placed on the arm's own measured
-    pose: lift until the hand is PECK_CLEAR_M above the touch height (the tip clear of the top), move until
-    the hand is over the point, press PECK_PRESS_M below the touch and rest; where it rested (FK) counts as
-    searched. 'dropped' when the hand rests DROP_M lower than it rests on the fixture top (the median of the
-    last pecks' rests: the pin may creep up in the fingers; the first peck, where the touch was, against the
-    touch height itself), 'none' when the grid is done."""
+    """Peck around centre (where the touch was felt), each peck checked on the arm's own measured pose: lift
+    until the hand is PECK_CLEAR_M above the touch height (the tip clear of the top), move over the next
+    point, hover until still, press PECK_PRESS_M below the touch and rest. Where it rested (FK) is what it
+    searched (next_peck), and its miss is aimed against on the next press. 'dropped' when the hand rests
+    DROP_M lower than it rests on the fixture top (the median of the last pecks' rests: the pin may creep
+    up in the fingers; the first peck, where the touch was, against the touch height itself), 'none' when
+    the disc is searched."""
     z_up, z_press = z_touch + PECK_ABOVE_M, z_touch - PECK_PRESS_M
     rests: list[float] = []
     landed: list[np.ndarray] = []
     grid = centre + peck_grid(PECK_SPACING_M, PECK_R_M)
+    cand = centre + disc_points(PECK_R_M)
     tried = np.zeros(len(grid), int)
-    corr = np.zeros(3)
-    xy, aimed = centre, np.array([*centre, z_touch])  # the point last pecked; the hand's aim (corrected)
-    while (i := next_peck(grid, landed, tried)) is not None:
+    corr, land = np.zeros(3), np.zeros(2)  # m: the aim's height correction, and the landing's (across)
+    aimed = np.array([*centre, z_touch])  # the hand's last aim
+    while (i := next_peck(grid, cand, landed, tried)) is not None:
         tried[i] += 1
         out["pecks"] += 1
-        up = np.array([*xy, z_up])
+        up = np.array([*aimed[:2], z_up])
         yield from _aim_for(op, yaw, aimed, up + corr, PECK_LIFT_S)
-        corr = yield from _hold_over(op, yaw, up, corr, z_touch + PECK_CLEAR_M, False, PECK_WAIT_S)
+        corr = yield from _hold(op, yaw, up, corr, z_touch + PECK_CLEAR_M, PECK_WAIT_S)
         xy = grid[i]
-        over = np.array([*xy, z_up])
+        over = np.array([*(xy + land), z_up])
         yield from _aim_for(op, yaw, up + corr, over + corr, PECK_MOVE_S)
-        corr = yield from _hold_over(op, yaw, over, corr, z_touch + PECK_CLEAR_M, True, PECK_WAIT_S)
-        aimed = np.array([*(xy + corr[:2]), z_press])
-        yield from _aim_for(op, yaw, over + corr, aimed, PECK_DOWN_S)
+        hover = np.array([*over[:2], z_touch + PECK_HOVER_M])
+        yield from _aim_for(op, yaw, over + corr, hover + corr, PECK_DOWN_S)
+        corr = yield from _hold(op, yaw, hover, corr, None, PECK_WAIT_S)
+        aimed = np.array([*over[:2], z_press])
+        yield from _aim_for(op, yaw, hover + corr, aimed, PECK_PRESS_S)
         yield from wait(op, PECK_HOLD_S)
         rest = yield from _settle(op)
         landed.append(hand_pose(op)[:2, 3].copy())
         out.setdefault("peck_miss_mm", []).append(round(float(np.hypot(*(landed[-1] - xy))) * 1e3, 2))
+        land = np.clip(land + PECK_LAND_GAIN * (xy - landed[-1]), -PECK_CORR_MAX_M, PECK_CORR_MAX_M)
+        _trace(op, "land", xy, corr, land)
         top = float(np.median(rests[-PECK_REF_N:])) if rests else z_touch - DROP_FIRST_M + DROP_M
         if rest < top - DROP_M:
             out["felt"].append({"t": round(op.p.t, 2), "by": "own arm", "what": "drop",
@@ -381,6 +405,15 @@ def _pecks(op, yaw, centre, z_touch, out):
             return "dropped"
         rests.append(rest)
     return "none"
+
+
+def _trace(op, what, *a):
+    import os
+    path = os.environ.get("TIGHT_TRACE")
+    if path:
+        with open(path, "a") as f:
+            f.write(f"{op.p.t:.2f} {what} hand={np.round(hand_pose(op)[:3, 3] * 1e3, 2).tolist()} "
+                    + " ".join(str(np.round(np.asarray(x) * 1e3, 2).tolist()) for x in a) + "\n")
 
 
 def _settle(op):
