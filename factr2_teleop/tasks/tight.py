@@ -81,7 +81,9 @@ PECK_LAND_GAIN = 0.6  # of a landing's miss, aimed against on the next press: th
 PECK_REACH_M = 0.0019  # m: a landing searches the bore centres this close (CAPTURE_M less 0.3 mm: the tip's
 # swing in the fingers against the hand's measured pose)
 PECK_TRIES = 2  # pecks aimed at one grid point at most
-PECK_LEFT = 0.1  # a grid point is pecked (again) while this share of the disc it covers is unsearched
+PECK_LEFT = 0.3  # a grid point is pecked (again) while this share of the disc it stands for is unsearched
+# (0.1: more pecks again at the same point; Monte Carlo of next_peck with 1.1 mm landing scatter: 90 % found
+# within 19 pecks at 0.3, 23 at 0.1)
 DROP_M = 0.002  # m: resting this much lower than on the fixture top (the last pecks' rests): it is in
 SINK_WINDOW_S, SINK_M, SINK_WAIT_S = 0.1, 0.0003, 0.8  # s, m, s: after a peck's rest, a hand still
 # sinking more than SINK_M per SINK_WINDOW_S is waited for, at most SINK_WAIT_S
@@ -397,7 +399,6 @@ def _pecks(op, yaw, centre, z_touch, out):
         landed.append(hand_pose(op)[:2, 3].copy())
         out.setdefault("peck_miss_mm", []).append(round(float(np.hypot(*(landed[-1] - xy))) * 1e3, 2))
         land = np.clip(land + PECK_LAND_GAIN * (xy - landed[-1]), -PECK_CORR_MAX_M, PECK_CORR_MAX_M)
-        _trace(op, "land", xy, corr, land)
         top = float(np.median(rests[-PECK_REF_N:])) if rests else z_touch - DROP_FIRST_M + DROP_M
         if rest < top - DROP_M:
             out["felt"].append({"t": round(op.p.t, 2), "by": "own arm", "what": "drop",
@@ -405,15 +406,6 @@ def _pecks(op, yaw, centre, z_touch, out):
             return "dropped"
         rests.append(rest)
     return "none"
-
-
-def _trace(op, what, *a):
-    import os
-    path = os.environ.get("TIGHT_TRACE")
-    if path:
-        with open(path, "a") as f:
-            f.write(f"{op.p.t:.2f} {what} hand={np.round(hand_pose(op)[:3, 3] * 1e3, 2).tolist()} "
-                    + " ".join(str(np.round(np.asarray(x) * 1e3, 2).tolist()) for x in a) + "\n")
 
 
 def _settle(op):
