@@ -64,14 +64,30 @@ def _episodes(roll: dict) -> dict[int, tuple[int, float]]:
             for e in roll.get("episodes") or [] if isinstance(e, dict) and "seed" in e}
 
 
-def load_runs(out: Path) -> dict:
-    """{(task, cell, seed, how): rollout set} of every finished rollout set in OUT."""
+def load_runs(out: Path, live_as: str = "live") -> dict:
+    """{(task, cell, seed, how): rollout set} of every finished rollout set in OUT (its live sets keyed
+    `live_as`: another observation's run, compared on the same episodes, is keyed by its observation)."""
     runs = {}
     for path in sorted(out.glob("*/*/seed*/rollout*.json")):
         task, cell, seed = path.parts[-4], path.parts[-3], int(path.parts[-2][4:])
-        how = "live" if path.name == "rollout.json" else path.stem.split("-", 1)[1]
-        runs[(task, cell, seed, how)] = json.loads(path.read_text())
+        how = live_as if path.name == "rollout.json" else path.stem.split("-", 1)[1]
+        if live_as == "live" or how == live_as:
+            runs[(task, cell, seed, how)] = json.loads(path.read_text())
     return runs
+
+
+def against_runs(out: Path, other: Path) -> tuple[str, dict]:
+    """The live rollout sets of OTHER, a bench_first run with another observation on the same demonstrations
+    and evaluation episodes, keyed by its observation; SystemExit in one line when they are not comparable."""
+    mine, theirs = (json.loads((d / "config.json").read_text()) for d in (out, other))
+    if mine.get("eval_seed") != theirs.get("eval_seed") or mine.get("rollouts") != theirs.get("rollouts"):
+        raise SystemExit(f"--against {other}: evaluation seed / rollouts {theirs.get('eval_seed')} / "
+                         f"{theirs.get('rollouts')} differ from OUT's {mine.get('eval_seed')} / "
+                         f"{mine.get('rollouts')}: the episodes would not pair")
+    obs = theirs.get("obs")
+    if not obs or obs == mine.get("obs"):
+        raise SystemExit(f"--against {other}: observation {obs!r}, the same as OUT's: nothing to compare")
+    return obs, load_runs(other, live_as=obs)
 
 
 def cell_summary(runs: dict, task: str, cell: str, how: str = "live") -> dict | None:
@@ -126,11 +142,16 @@ def paired(runs: dict, task: str, a: tuple[str, str], b: tuple[str, str]) -> dic
             "progress_diff": float(d.mean()), "progress_ci": (float(d.mean() - half), float(d.mean() + half))}
 
 
-def summarize(out: Path) -> dict:
+def summarize(out: Path, against: Path | None = None) -> dict:
     """The force table's data from every finished rollout set in OUT: per task, each cell's summary
     (cell_summary), each comparison (paired), and every rollout (raw: episode seed, success, progress), so
-    that the table can be re-made and re-tested from the results file alone."""
+    that the table can be re-made and re-tested from the results file alone. `against`: a run with another
+    observation on the same demonstrations (its cells as "CELL, OBS observation", paired with OUT's)."""
     runs = load_runs(out)
+    other = None
+    if against is not None:
+        other, more = against_runs(out, against)
+        runs.update(more)
     cfg = json.loads((out / "config.json").read_text()) if (out / "config.json").is_file() else {}
     data: dict = {"simulated": True, "observation": cfg.get("obs"), "eval_seed": cfg.get("eval_seed"),
                   "bench": {k: cfg.get(k) for k in ("tasks", "demos", "seeds", "rollouts", "steps", "batch",
@@ -139,21 +160,40 @@ def summarize(out: Path) -> dict:
     for task in sorted({k[0] for k in runs}):
         d = data["tasks"][task] = {"cells": {}, "pairs": {}, "raw": {}}
         for cell in CELLS:
-            for how in ("live",) + (ABLATIONS if cell in FORCE_CELLS else ()):
+            for how in ("live",) + (ABLATIONS if cell in FORCE_CELLS else ()) + ((other,) if other else ()):
                 s = cell_summary(runs, task, cell, how)
                 if s is not None:
-                    d["cells"][cell if how == "live" else f"{cell}, force {how}"] = s
+                    d["cells"][_cell_name(cell, how)] = s
         pairs = [((a, "live"), (b, "live")) for a, b in PAIRS]
         pairs += [((c, "live"), (c, h)) for c in FORCE_CELLS for h in ABLATIONS]
+        pairs += [((c, "live"), (c, other)) for c in CELLS if other]
         for a, b in pairs:
             p = paired(runs, task, a, b)
             if p is not None:
-                d["pairs"][f"{a[0]} vs {b[0]}" if a[1] == b[1] else f"{a[0]}: live vs force {b[1]}"] = p
+                d["pairs"][_pair_name(a, b, data["observation"])] = p
         for (t, c, sd, how), r in sorted(runs.items()):
             if t == task:
                 d["raw"].setdefault(f"{c}/{how}", {})[str(sd)] = sorted(
                     [k, *v] for k, v in _episodes(r).items())
     return data
+
+
+def _cell_name(cell: str, how: str) -> str:
+    if how == "live":
+        return cell
+    return f"{cell}, force {how}" if how in ABLATIONS else f"{cell}, {_obs_name(how)} observation"
+
+
+def _obs_name(obs: str) -> str:
+    return "PRIVILEGED state" if obs == "state" else obs
+
+
+def _pair_name(a: tuple[str, str], b: tuple[str, str], obs: str | None) -> str:
+    if a[1] == b[1]:
+        return f"{a[0]} vs {b[0]}"
+    if b[1] in ABLATIONS:
+        return f"{a[0]}: live vs force {b[1]}"
+    return f"{a[0]}: {obs} vs {_obs_name(b[1])} observation"
 
 
 def render(data: dict) -> str:
@@ -181,9 +221,9 @@ def render(data: dict) -> str:
     return "\n".join(lines + comps)
 
 
-def report(out: Path) -> tuple[str, dict]:
-    """The force table (markdown) and its data from every finished rollout set in OUT."""
-    data = summarize(out)
+def report(out: Path, against: Path | None = None) -> tuple[str, dict]:
+    """The force table (markdown) and its data from every finished rollout set in OUT (and AGAINST)."""
+    data = summarize(out, against)
     return render(data) + "\n", data
 
 
@@ -214,6 +254,9 @@ def main(argv=None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--tasks", default="", help="with --ablate: only these tasks (comma-separated)")
     ap.add_argument("--report", action="store_true", help="write OUT/force_table.md and force_results.json")
+    ap.add_argument("--against", default="", metavar="DIR",
+                    help="with --report: a bench_first run with another observation (e.g. state) on the same "
+                    "demonstrations and evaluation episodes (--demos-from OUT's), paired cell by cell")
     ap.add_argument("--results", default="", metavar="NAME",
                     help="with --report: also publish the data as results/NAME.json (a harness record; "
                     "docs/force.md's table is written from it by python -m bench.docs_tables)")
@@ -227,7 +270,10 @@ def main(argv=None) -> int:
     if hows:
         run_ablation(out, hows, max(1, a.jobs), tuple(t.strip() for t in a.tasks.split(",") if t.strip()))
     if a.report or not hows:
-        md, data = report(out)
+        against = Path(a.against) if a.against else None
+        if against is not None and not (against / "config.json").is_file():
+            ap.error(f"--against {against}: no config.json (not a bench_first results folder)")
+        md, data = report(out, against)
         (out / "force_table.md").write_text(md)
         (out / "force_results.json").write_text(json.dumps(data, indent=1, default=float))
         if a.results:
@@ -235,7 +281,8 @@ def main(argv=None) -> int:
 
             print(harness.write(harness.RESULTS / f"{a.results}.json",
                                 harness.record(a.results, data, simulated=True,  # OUT: a scratch folder
-                                               cmd=harness.command().replace(str(a.out), "OUT"))))
+                                               cmd=harness.command().replace(str(a.out), "OUT")
+                                               .replace(a.against or "\0", "OUT_STATE"))))
         print(md)
     return 0
 

@@ -53,3 +53,22 @@ def test_cli_refuses_a_folder_that_is_not_a_run(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["--out", str(_folder(tmp_path)), "--ablate", "noise"])
     assert main(["--out", str(tmp_path), "--report"]) == 0 and (tmp_path / "force_table.md").is_file()
+
+
+def test_against_pairs_another_observation_on_the_same_episodes(tmp_path):
+    (tmp_path / "perceived").mkdir()
+    out = _folder(tmp_path / "perceived")
+    other = tmp_path / "state"
+    other.mkdir()
+    (other / "config.json").write_text(json.dumps({"obs": "state", "eval_seed": 31, "rollouts": 4}))
+    st = {"grasp": 1.0, "engage": 1.0, "seat": 1.0, "tight": 1.0}
+    _roll(other / "cap-screw" / "base" / "seed0" / "rollout.json", [1, 1, 0, 1], [1, 1, 0.75, 1], st)
+    md, data = report(out, other)
+    d = data["tasks"]["cap-screw"]
+    assert (d["cells"]["base, PRIVILEGED state observation"]["k"], d["cells"]["base"]["k"]) == (3, 2)
+    p = d["pairs"]["base: perceived vs PRIVILEGED state observation"]
+    assert (p["pairs"], p["only_a"], p["only_b"], p["seeds"]) == (4, 0, 2, [0])  # seed 1 has no state run
+    assert "base, PRIVILEGED state observation" in md
+    (other / "config.json").write_text(json.dumps({"obs": "state", "eval_seed": 32, "rollouts": 4}))
+    with pytest.raises(SystemExit, match="would not pair"):
+        report(out, other)
