@@ -135,7 +135,7 @@ def table(sets, args, wall) -> str:
            "through the Piper driver, "
            + ("simulating the description exactly (--exact-description)" if args.exact_description else
               "its arm a true body that differs from the description (hardware/arms/true_body.py, drawn "
-              "from each run's twin seed)") + "; train "
+              "from the rig file's twin seed: one unit for every run)") + "; train "
            f"{args.train_s:.0f} s coverage trajectory (seed 0), held out a different {args.heldout_s:.0f} s "
            "trajectory (seed 100); the no-injection check uses fresh trajectories (seeds 1 / 101). "
            "Rigid part: pinocchio regressor of the Piper description (`--arm piper` basis; pulled toward the "

@@ -4,8 +4,8 @@ Per joint j, tau_j ~ columns_j(q, q_dot, q_ddot) @ c_j with the diagnosis's data
 (calibration.diagnosis.basis.DataBasis: sin/cos of every contiguous joint-angle sum for gravity, q_ddot and
 q_ddot_j * sin/cos of the other joints for inertia, velocity products for Coriolis) plus what a drive adds:
 a smooth and a sharp Coulomb sign (tanh(q_dot / v)), viscous q_dot and a constant offset -- the effects
-docs/diagnosis.md finds first on the real UR5. Fitted by ridge on the training split; the ridge is chosen
-per joint from RIDGE_GRID by leave-one-fold-out over contiguous folds of it (neighbouring samples are
+docs/diagnosis_cases.md finds first on the real UR5. Fitted by ridge on the training split; the ridge is
+chosen per joint from RIDGE_GRID by leave-one-fold-out over contiguous folds of it (neighbouring samples are
 nearly identical, so only contiguous folds measure extrapolation, which is what a collinear basis gets
 wrong). Linear in its columns, so the same filtering as the identified prior applies
 (calibration.next.prior_base: midpoint backward-difference acceleration, fit through the fixed low-pass on
