@@ -11,7 +11,7 @@ loss per phase F / PC / C.
     python -m bench.bench_first --quick --out /tmp/fb                 # a few-minute smoke run
     python -m bench.bench_first --out /tmp/fb_full --jobs 2            # the CPU configuration (--obs state)
     python -m bench.bench_first --obs images --out DIR                 # the same code path on camera frames
-    python -m bench.bench_first --out /tmp/fb_full --write-docs        # table + chart into docs/first.md
+    python -m bench.bench_first --out OUT --write-docs                 # table + chart into docs/first.md
 
 `--obs state` (default) trains on the PRIVILEGED object state of the twin (policies/data/privileged.py), not
 on images: labelled so everywhere; `--obs perceived` on those poses as the simulated camera pose detector

@@ -253,10 +253,10 @@ TABLES = {
     ("faults.md", "faults_campaign"): (("faults_campaign", "faults_crash"), faults_campaign),
     ("first.md", "headline"): (("first_headline",), lambda: headline("first_headline", True)),
     ("first.md", "ablation"): (("first_ablation",), ablation),
-    ("first.md", "ablation_fp32_hysteresis"): (("first_ablation_fp32_hysteresis",),
-                                               lambda: ablation("first_ablation_fp32_hysteresis")),
-    ("first.md", "headline_fp32_hysteresis"): (("first_headline_fp32_hysteresis",),
-                                               lambda: headline("first_headline_fp32_hysteresis", False)),
+    ("first_runs.md", "ablation_fp32_hysteresis"): (
+        ("first_ablation_fp32_hysteresis",), lambda: ablation("first_ablation_fp32_hysteresis")),
+    ("first_runs.md", "headline_fp32_hysteresis"): (
+        ("first_headline_fp32_hysteresis",), lambda: headline("first_headline_fp32_hysteresis", False)),
     ("diagnosis_payload.md", "payload_ur5_cases"): (("diagnosis_payload_ur5",), payload_ur5_cases),
     ("diagnosis_payload.md", "payload_ur5_l1"): (("diagnosis_payload_ur5",), payload_ur5_l1),
     ("diagnosis_payload.md", "payload_ur5_current"): (("diagnosis_payload_ur5",), payload_ur5_current),

@@ -45,7 +45,7 @@ from policies.labels import phases as P
 from policies.labels import tare as T
 from policies.labels import tare_recording as TR
 
-TRUE_ON_NM, TRUE_OFF_NM = 0.5, 0.3  # truth hysteresis on ||tau_ext_true||_1 [N*m] (docs/first.md)
+TRUE_ON_NM, TRUE_OFF_NM = 0.5, 0.3  # truth hysteresis on ||tau_ext_true||_1 [N*m] (docs/first_labels.md)
 ONSET_TOL_S = 0.5  # a true onset is found when a labelled onset lies within this [s]
 ADD_COM_M = 0.15  # --add-payload: the added mass's centre beyond the last joint along its z (fingers) [m]
 
