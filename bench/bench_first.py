@@ -8,8 +8,8 @@ ablation C (1:1:5) and PC+C (1:3:3); PC (1:5:1) is the `first` runs themselves (
 success and task progress (mean and spread over the training seeds) per task, and each run's validation
 loss per phase F / PC / C.
 
-    python -m bench.bench_first --quick --out /tmp/fb                 # a few-minute smoke run
-    python -m bench.bench_first --out /tmp/fb_full --jobs 2            # the CPU configuration (--obs state)
+    python -m bench.bench_first --quick --out OUT                      # a few-minute smoke run
+    python -m bench.bench_first --out OUT --jobs 2                     # the CPU configuration (--obs state)
     python -m bench.bench_first --obs images --out DIR                 # the same code path on camera frames
     python -m bench.bench_first --out OUT --write-docs                 # table + chart into docs/first.md
 
