@@ -1,6 +1,6 @@
 """The twin takeover operator with the object already in the hand (factr2_teleop/tasks/takeover_operator.py,
 place.py): it carries the object on -- over the target, line up, push -- and never opens the gripper or lifts
-away to grasp again (the start-over corrections that taught a DAgger round "start over", docs/rollout.md)."""
+away to grasp again (the start-over corrections that taught a DAgger round "start over", docs/takeover.md)."""
 
 import numpy as np
 

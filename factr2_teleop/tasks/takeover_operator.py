@@ -48,7 +48,7 @@ def finish_script(task_name: str):
     """A script that finishes the task from wherever the arm is. An object already in the hand is carried
     on from where it is (the pick-and-place scripts from their approach: line up and push, as a person
     correcting the policy would; before, the whole demonstration ran again -- lift 7 cm, grasp again -- and
-    those corrections taught "start over" where the demonstrations push, docs/rollout.md). Otherwise the
+    those corrections taught "start over" where the demonstrations push, docs/takeover.md). Otherwise the
     demonstration script, after opening and lifting a gripper that holds nothing."""
     demo = script_for(task_name)
 

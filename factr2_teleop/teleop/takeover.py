@@ -18,7 +18,7 @@ What the spring holds against is the hand, and two things that are not one:
   that decays over follow_lag_hold_s once the follower slows (lag_allowance).
   hand_torque_nm = max_j (|s_j - baseline_j| - allowance_j), s = kp (q_goal - q) [N*m], the spring's torque
   before its cap. With the velocity-only allowance and no baseline, a peg-insert policy on the twin
-  "took over" every few seconds with no hand on the leader (docs/rollout.md, "Sensing the hand").
+  "took over" every few seconds with no hand on the leader (docs/takeover.md, "Sensing the hand").
 
 Takeover (detect_step): the hand torque at or above grab_nm for grab_min_s (hysteresis: the timer keeps
 running while it stays above release_nm, and restarts below it); hand-back: the hand torque at most release_nm
