@@ -14,9 +14,15 @@ FENCE = re.compile(r"^(```|~~~).*?^\1", re.S | re.M)
 
 
 def anchor(heading: str) -> str:
-    """GitHub's anchor of a heading: lower case, punctuation dropped, spaces to hyphens."""
-    text = re.sub(r"[`*_]", "", heading.strip().lower())
-    return re.sub(r"[^\w\- ]", "", text).replace(" ", "-")
+    """GitHub's anchor of a heading: lower case, punctuation dropped except hyphens and underscores
+    (`snake_case` keeps its underscore), each space to a hyphen."""
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_anchor_rule():
+    assert anchor("The `lean` rollout: CPU (s)") == "the-lean-rollout-cpu-s"
+    assert anchor("`grab_nm` and `rest_s`") == "grab_nm-and-rest_s"
+    assert anchor("A -- B") == "a----b"
 
 
 def anchors(page: Path) -> set[str]:
