@@ -3,7 +3,7 @@
 A GELLO-style leader is 3D-printed: its printed links, servo horns, screws and handle never weigh what the
 description says, so the leader law's g(q) (hardware/arms description, pinocchio) leaves a residual at rest
 that the operator feels as a joint that sags or floats (i2rt corrects the YAM with per-joint factors 1.0-1.2,
-docs/twin.md). Here the leader holds each pose under a PD on its own joints (current mode), approached
+docs/twin_model.md). Here the leader holds each pose under a PD on its own joints (current mode), approached
 once from below and once from above so that static friction cancels in the mean, and the torque that holds
 it is gravity. Gravity is linear in each link's mass and first moment (m, m c_x, m c_y, m c_z):
 g(q) = Y_g(q) p, so p is a least-squares fit, pulled toward the description's values (a Gaussian prior,

@@ -63,7 +63,7 @@ def run(args) -> int:
                       "hardware.connect.open_rig)", flush=True)
         for d in rig.leaders + rig.followers:
             err = server.twin.devices[d.name].body_error
-            if err is not None:  # docs/twin.md "The true body"
+            if err is not None:  # docs/twin_model.md "The true body"
                 r = err.mass_true / err.mass_desc
                 print(f"  {d.name}: true body, link masses x{r.min():.2f}-{r.max():.2f} of the description "
                       f"'{err.arm}' (seed {err.seed}; [twin] description_error = false: exact)", flush=True)

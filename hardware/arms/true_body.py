@@ -1,6 +1,6 @@
 """The twin's true body: an arm description with the errors a real unit has against its published model.
 
-A real arm never matches its vendor's description (docs/twin.md "The true body" cites each magnitude). The
+A real arm never matches its vendor's description (docs/twin_model.md "The true body": each magnitude). The
 twin simulates a perturbed copy of the description's MuJoCo model, drawn per twin seed; the app, the
 baselines, NEXT's prior and the leader's gravity compensation keep loading the published MJCF
 (hardware.arms.load_arm), which this module never changes.
@@ -36,7 +36,7 @@ class BodyErrorMagnitudes:
     width of the COM shift per axis [m]; inertia_frac: half width of the relative error per principal moment;
     armature_frac: half width of the relative armature error; horn_kg / handle_kg: (min, max) extra masses of
     a leader's servo horns (each joint) and handle [kg]; source: where the numbers come from
-    (docs/twin.md)."""
+    (docs/twin_model.md)."""
 
     mass_range: tuple[float, float] = (0.85, 1.15)
     com_m: float = 0.01
@@ -47,7 +47,7 @@ class BodyErrorMagnitudes:
     source: str = "engineering estimate"
 
 
-# One source for the per-arm magnitudes (docs/twin.md "The true body" gives the reasoning and citations).
+# One source for the per-arm magnitudes (docs/twin_model.md "The true body": the reasoning and citations).
 DESCRIPTION_ERRORS: dict[str, BodyErrorMagnitudes] = {
     # FACTR 2 (appendix, Piper free space): with the manufacturer's URDF FILIC errs 0.435 N*m and the observer
     # 0.248 N*m mean L1 vs NEXT 0.018; the vendor URDF's CAD masses sum to 1.15 kg against the 4.2 kg spec

@@ -12,7 +12,7 @@ The twin's motor model (hardware/sim/mujoco_bank.py calls these once per physics
 so in a static pose the reported torque is gravity + ripple + hook, in slow motion it adds friction, and
 none of these loads is external torque. Backlash is a play operator between link and motor-side encoder.
 Every effect is switchable (ActuatorParams.effects); numbers per arm are in hardware/sim/presets.py and
-docs/twin.md. Units: rad, rad/s, N*m, A, degC, s.
+docs/twin_model.md. Units: rad, rad/s, N*m, A, degC, s.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Representative actuator parameters per motor type (one source for the twin's numbers).
 
-Sources and reasoning are in docs/twin.md. Torque constants, current limits and reporting units come from
+Sources and reasoning: docs/twin_model.md. Torque constants, current limits and reporting units come from
 the vendors' data (hardware-protocols.md). Armature, Coulomb and viscous friction are NOT set here: the bank
 takes them from the arm's MJCF (hardware/arms/specs.py is their single source). Stribeck, backlash, ripple,
 thermal, noise and firmware loop gains are typical values for low-cost drives of that size, not identified
