@@ -1,5 +1,5 @@
 """The app dies (or freezes) beside a twin in a process of its own: what the motors do by themselves
-(SIMULATED; docs/faults.md "The app killed or frozen"). For bench/faults.py's app_sigkill and app_freeze.
+(SIMULATED; docs/faults_crash.md). For bench/faults.py's app_sigkill and app_freeze.
 
     out = run_crash_trial("teleop", "app_sigkill", "sim-yam", seed=3, folder=Path("/tmp/x"))
     out = run_crash_trial("rollout", "app_freeze", "sim-piper", 4, Path("/tmp/y"), policies=Path("/tmp/p"))

@@ -36,7 +36,7 @@ def _f(x, fmt: str = ".0f") -> str:
 FAULT_HEAD = ("| kind | injected (teleop/collect/rollout) | trials safe | safe_ms p50 / p99 / max | "
               "stale_ms p99 / max | violations | samples lost | recoveries | errors | run |\n"
               "|---|---|---|---|---|---|---|---|---|---|")
-KILLED = '"The app killed or frozen"'  # the section of docs/faults.md with the motors' side of a crash
+KILLED = "faults_crash.md"  # the page with the motors' side of a crash
 
 
 def _fault_row(kind: str, r: dict, run: str, safe: str) -> str:
