@@ -4,7 +4,7 @@ not a thread: a writer thread in the control process holds the GIL while it enco
 waits for it; here the control thread only packs a record into shared memory, and the file survives the
 app's death. It runs at normal priority (niced by WRITER_NICE), not as a real-time helper: a real-time
 process on the other CPU starved the kernel's normal-priority workers there and the loop waited for its
-leader (p99 period 5.1-5.8 ms against 2.1-3.5 ms beside a busy process; docs/recording.md, issue #37).
+leader (p99 period 5.1-5.8 ms against 2.1-3.5 ms beside a busy process; docs/recording_performance.md).
 
 Shared block (STATUS_BYTES at the start of the mapping): little-endian u64 words, see the offsets below;
 the error and warning texts follow. The rings come after it. The parent (hardware/recording/writer.py)
