@@ -17,7 +17,7 @@
 4. The same logs in motor current, i = s * tau with s [A per N*m] per joint (UR5-like 0.12 / 0.08 / 0.5):
    (a) known torque constant: i / s_known back to N*m; (b) no torque constant: s identified on the
    no-payload calibration run by the current-scaled prior (calibration/next/scaled_prior.py), which the CAD
-   masses anchor (the "one known mass" of docs/arms.md), then i / s_fitted. Each diagnosed as in 3.
+   masses anchor (the "one known mass" of docs/arms_import.md), then i / s_fitted. Each diagnosed as in 3.
 
    (c) in current, around the calibration's own prior (issue 57): the identified-current prior fitted on the
    no-payload calibration run IN CURRENT is the base model (as `factr2 diagnose --model next.json

@@ -30,7 +30,8 @@ def test_scale_per_joint_recovered_and_unseen_current_predicted():
     p = fit_scaled_prior("piper", [(t, q, qd, cur)])
     # the description is the truth here (no payload): the CAD masses pin the common factor at 1. The wrist
     # roll (J6) carries almost no rigid-body torque (no gravity, 3 g*m^2 of inertia): its current is friction,
-    # which fits at any scale, so its scale is not identifiable (docs/arms.md) -- only its prediction counts
+    # which fits at any scale, so its scale is not identifiable (docs/arms_import.md): only its prediction
+    # counts
     np.testing.assert_allclose(p.scale[:5], S_TRUE[:5], rtol=0.03)
     t2, q2, qd2, cur2 = _current(30.0, 5)  # other motion
     err = np.abs(cur2 - p.torque(t2, q2, qd2, cur2))[20:].mean(0)

@@ -12,7 +12,7 @@ decides what the fitted m means:
 - "known mass": s of the prior times alpha, alpha = m_found / m_known on a reference run with a payload of
   known mass (`--known-mass KG`): m in kg, as right as that mass.
 - "none": per-joint ratios without a reference for their common factor (s_j / s_k are identifiable, the
-  common factor is not: docs/arms.md): m is m_kg times an unknown factor and "cannot be stated in kg";
+  common factor is not: docs/arms_import.md): m is m_kg times an unknown factor and "cannot be stated in kg";
   the centre of mass c = (m c) / m does not depend on that factor and is stated in m.
 
 Interval: a moving-block bootstrap of the final fit (`bootstrap`): the training samples cut into contiguous
@@ -63,7 +63,7 @@ def identified(scale) -> np.ndarray:
     """(n,) bool: which of the identified-current prior's scales are identified. A joint whose current
     carries almost no rigid-body torque (a wrist roll) gets a scale that friction absorbs at any value --
     on the real UR5 wrist 2 0.008 and wrist 3 -0.072 A per N*m against the controller's 0.09 / 0.12
-    (docs/arms.md) -- and its payload columns would be scaled by that: such joints are left out of the
+    (docs/arms_import.md) -- and its payload columns would be scaled by that: such joints are left out of the
     payload's fit (columns zero) and named."""
     s = np.asarray(scale, float)
     pos = s[s > 0]

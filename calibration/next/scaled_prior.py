@@ -1,5 +1,5 @@
 """The identified prior for logs in motor current: an arm description corrected on the data, with a
-current-per-torque scale per joint fitted together with the inertial corrections (issue 34, docs/arms.md).
+current-per-torque scale per joint fitted together with the inertial corrections (docs/arms_import.md).
 
 Model, per joint j: i_j = s_j * tau_j(q, q_dot, q_ddot; theta_0 + d_theta, friction) [A], where tau is the
 identified prior of calibration.next.prior (RNEA of the description with its inertial correction d_theta,
@@ -8,7 +8,7 @@ product is bilinear, so it is fitted by alternation: s from a least-squares fit 
 description's torque (+ friction), then the identified prior on i / s, then s on that prior's torque,
 SCALE_ITERATIONS times.
 
-What is identifiable (docs/arms.md): one common factor stays free. (s alpha, theta / alpha, friction /
+What is identifiable (docs/arms_import.md): one common factor stays free. (s alpha, theta / alpha, friction /
 alpha) predicts the same currents for every alpha > 0 -- the link masses of the distal links appear in every
 proximal joint's torque, so the ratios s_j / s_k are identified, the overall scale is not. The fit pins it
 by pulling d_theta toward the description (the CAD masses set the scale): a payload or link mass in kg, or a

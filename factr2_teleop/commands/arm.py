@@ -1,5 +1,6 @@
 """`factr2 arm import FILE.urdf --name NAME [--total-mass KG]`: an arm this project has never seen, from its
-vendor URDF (hardware/arms/urdf.py, urdf_import.py; docs/arms.md). `factr2 arm list`: built-in and imported.
+vendor URDF (hardware/arms/urdf.py, urdf_import.py; docs/arms_import.md). `factr2 arm list`: built-in and
+imported.
 
 The import reads the URDF with pinocchio and with MuJoCo's compiler, checks it (positive masses, physical
 inertias, limits, pinocchio and MuJoCo agreeing on gravity and inverse dynamics, the CAD masses against a

@@ -111,7 +111,7 @@ def list_arms() -> list[str]:
 
 
 def user_arms() -> list[str]:
-    """Names of the arms imported into the user's arm folder (`factr2 arm import`; docs/arms.md)."""
+    """Names of the arms imported into the user's arm folder (`factr2 arm import`; docs/arms_import.md)."""
     from hardware.switches import switches
 
     return sorted(p.stem for p in switches().arms.glob("*.xml"))

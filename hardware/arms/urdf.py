@@ -1,4 +1,4 @@
-"""A vendor URDF as an arm description: read, check, convert (`factr2 arm import`, docs/arms.md).
+"""A vendor URDF as an arm description: read, check, convert (`factr2 arm import`, docs/arms_import.md).
 
 read_urdf(path) -> UrdfArm: the serial chain of a URDF (xml.etree, no meshes needed). Defects that make the
 file unusable raise UrdfError (one line: what, where, how to fix): a moving link without <inertial>, a

@@ -1,4 +1,4 @@
-"""`factr2 arm import`: a checked URDF -> an arm description in the user's arm folder (docs/arms.md).
+"""`factr2 arm import`: a checked URDF -> an arm description in the user's arm folder (docs/arms_import.md).
 
     findings = check(arm, total_mass_kg)          # [(level, text)], level "error" | "warning" | "ok"
     spec = to_spec(arm, "ur5")                    # hardware.arms.specs.ArmSpec (the built-in arms' tables)
