@@ -11,11 +11,11 @@ from policies.training.run import _recorded_estimator
 
 
 def _ep(mode: str | None):
-    session = {} if mode is None else {"feedback_mode": mode}
-    return SimpleNamespace(recording=SimpleNamespace(session=session))
+    info = {} if mode is None else {"feedback_mode": mode}
+    return SimpleNamespace(recording=SimpleNamespace(info=info))
 
 
-def test_recorded_estimator_names_the_sessions_modes():
+def test_recorded_estimator_names_the_recordings_modes():
     assert _recorded_estimator([_ep("dob"), _ep("dob")]) == "dob"
     assert _recorded_estimator([_ep("next"), _ep("dob")]) == "dob,next"
     assert _recorded_estimator([_ep(None)]) == ""

@@ -1,12 +1,13 @@
 """The recording metadata (hardware/recording/metadata.py) keeps its on-disk record name, so files written
-before and after the rename read the same way; the former Python names stay as aliases."""
+before and after the rename read the same way; a file without episode events reads as one UNMARKED episode."""
 
 from __future__ import annotations
 
 from mcap.reader import make_reader
 
-from hardware.recording import Recording, describe_recording, describe_session
+from hardware.recording import Recording, describe_recording
 from hardware.recording import schemas as S
+from hardware.recording.reader import UNMARKED
 from tests.recording_helpers import record_session
 
 
@@ -19,13 +20,16 @@ def test_the_record_keeps_its_name_and_reads_as_info(tmp_path):
     assert S.RECORDING_METADATA == "factr2.session" and S.RECORDING_METADATA in names
     rec = Recording(path, use_cache=False)
     assert rec.info["task"] == "wipe" and rec.info["operator"] == "ada" and rec.info["simulated"] == "true"
-    assert rec.session == rec.info  # the former name
-    assert describe_session is describe_recording
 
 
-def test_the_former_module_still_imports():
-    from hardware.recording import metadata
-    from hardware.recording.session import describe_session as old
-    from hardware.recording.session import software_version
+def test_a_recording_without_episode_events_is_one_unmarked_episode(tmp_path):
+    from hardware.recording import Recorder
+    from tests.recording_helpers import NAMES, joint_state
 
-    assert old is metadata.describe_recording and software_version is metadata.software_version
+    path = tmp_path / "plain.mcap"
+    rec = Recorder(path, joint_names={"follower": NAMES}, t0=0.0)
+    for k in range(20):
+        rec.log_joint_state("follower", k * 1e-3, joint_state(k, 1e-3))
+    rec.close()
+    eps = Recording(path, use_cache=False).episodes
+    assert [(e.index, e.outcome) for e in eps] == [(0, UNMARKED)] and UNMARKED == "unmarked"

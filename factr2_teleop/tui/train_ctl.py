@@ -20,12 +20,13 @@ import numpy as np
 from factr2_teleop.tui.stops import STOPPED
 from hardware.errors import UserError
 from hardware.reasons import Reason
+from hardware.recording.reader import UNMARKED
 
 # which recorded episodes may train (discarded ones never do: policies.data.recordings leaves them out); the
 # first is the default, `factr2 train`'s: failed and incomplete episodes are skipped unless asked for
 OUTCOME_FILTERS = {
-    "success+unlabelled": ("success", "unlabelled", "session"),
-    "all": ("success", "failure", "unlabelled", "incomplete", "session"),
+    "success+unlabelled": ("success", "unlabelled", UNMARKED),
+    "all": ("success", "failure", "unlabelled", "incomplete", UNMARKED),
     "success": ("success",),
 }
 DEFAULT_FILTER = next(iter(OUTCOME_FILTERS))

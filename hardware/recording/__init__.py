@@ -9,8 +9,6 @@ from hardware.recording.metadata import describe_recording
 from hardware.recording.reader import Episode, Frames, Recording, hold_previous, interp_linear
 from hardware.recording.writer import Recorder, RecorderStatus
 
-describe_session = describe_recording  # the former name, for scripts that import it
-
 __all__ = ["Episode", "Frames", "Recorder", "RecorderStatus", "Recording", "RecordingError",
-           "describe_recording", "describe_session",
+           "describe_recording",
            "hold_previous", "interp_linear"]

@@ -19,7 +19,7 @@ from hardware.errors import UserError
 from hardware.recording import schemas as S
 from hardware.recording.mcap_scan import ScanState, open_buffer, read_header
 from hardware.recording.protobuf_wire import decode_compressed_image, encode_compressed_image
-from hardware.recording.reader import Recording
+from hardware.recording.reader import UNMARKED, Recording
 from hardware.recording.recover import RewriteReport, _Out, rewrite
 
 
@@ -162,9 +162,9 @@ def _check_not_recording(path: Path) -> None:
 
 def _episode(rec: Recording, index: int):
     for ep in rec.episodes:
-        if ep.index == index and ep.outcome != "session":
+        if ep.index == index and ep.outcome != UNMARKED:
             return ep
-    have = [e.index for e in rec.episodes if e.outcome != "session"]
+    have = [e.index for e in rec.episodes if e.outcome != UNMARKED]
     raise UserError(f"no episode {index}", where=str(rec.path),
                     fix=f"episodes in this file: {have}" if have else "this file has no episode events")
 
@@ -278,7 +278,7 @@ def merge(paths: list[str | Path], out: str | Path) -> RewriteReport:
             finally:
                 close()
             prev_end = t_b + shift
-            ep_offset += max([e.index for e in rec.episodes if e.outcome != "session"], default=-1) + 1
+            ep_offset += max([e.index for e in rec.episodes if e.outcome != UNMARKED], default=-1) + 1
         writer.w.add_metadata("factr2.merge", {"sources": json.dumps(shifts)})
         writer.finish()
         tmp.rename(out)

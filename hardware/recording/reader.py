@@ -36,10 +36,13 @@ def _slice(ta: TopicArrays, t0: float, t1: float) -> TopicArrays:
     return TopicArrays(ta.topic, ta.schema, ta.t[a:b], sliced, ta.meta)
 
 
+UNMARKED = "unmarked"  # the outcome of a recording without episode events: the whole file is one episode
+
+
 @dataclass
 class Episode:
     """One episode: [t_start, t_stop] on the rig clock [s]. outcome: "success", "failure", "discard",
-    "unlabelled" (stopped, no verdict), "incomplete" (no stop: recorder killed) or "session" (a file without
+    "unlabelled" (stopped, no verdict), "incomplete" (no stop: recorder killed) or UNMARKED (a file without
     episode events: the whole file)."""
 
     recording: Recording
@@ -207,8 +210,6 @@ class Recording:
         """The recording metadata (hardware/recording/metadata.py): rig, arms, software, operator, ..."""
         return self._d.info
 
-    session = info  # the former name, for scripts (and policies/) that read rec.session
-
     @property
     def topics(self) -> list[str]:
         return sorted(self._d.topics)
@@ -257,7 +258,7 @@ class Recording:
         evs = self._d.events
         starts = [e for e in evs if e["kind"] == "start"]
         if not starts:
-            return [Episode(self, 0, t_first, t_last, "session", "", list(evs))]
+            return [Episode(self, 0, t_first, t_last, UNMARKED, "", list(evs))]
         eps = []
         for s in starts:
             idx = s["episode"]

@@ -33,7 +33,7 @@ from hardware.recording import schemas as S
 # privileged "state"; the model takes either as its `objects` input.
 # "joints": nothing besides the joints and the force (no frames, no objects): a blind policy, which runs on
 # any rig -- the crash campaign rolls one out against a twin in another process, which has no cameras and
-# no task world (bench/crash_sessions.py); it cannot see a task, so it is for the machinery, not a task.
+# no task world (bench/crash_trials.py); it cannot see a task, so it is for the machinery, not a task.
 OBSERVATIONS = ("images", "state", "images+state", "perceived", "images+perceived", "joints")
 OBJECT_INPUTS = {"state": S.TASK_OBJECTS_FEATURE, "perceived": S.PERCEIVED_FEATURE}  # part -> feature
 

@@ -20,7 +20,7 @@ from calibration.next.ident import NextId, parse_ids
 from hardware.errors import UserError
 from hardware.features import POLICY_STATE, Feature, action_of, follower_arms, recorded_features
 from hardware.recording import schemas as S
-from hardware.recording.reader import Episode, Recording, interp_linear
+from hardware.recording.reader import UNMARKED, Episode, Recording, interp_linear
 from hardware.recording.recover import drop_superseded
 
 
@@ -70,8 +70,8 @@ def recording_files(paths, lerobot_map: str | None = None) -> list[Path]:
 
 
 def _rig_arm_models(rec: Recording, followers: list[str]) -> list[str]:
-    """Each follower's arm model from the session's rig TOML ("" when absent or unreadable)."""
-    text = rec.session.get("rig_toml", "")
+    """Each follower's arm model from the recording's rig TOML ("" when absent or unreadable)."""
+    text = rec.info.get("rig_toml", "")
     models = {}
     if text:
         try:
@@ -89,7 +89,7 @@ def _rig_arm_models(rec: Recording, followers: list[str]) -> list[str]:
 
 def recording_features(rec: Recording) -> dict[str, Feature]:
     """The features a recording holds, by flat name (hardware.features: the schema its rig declared)."""
-    return recorded_features(rec.session, rec.topics)
+    return recorded_features(rec.info, rec.topics)
 
 
 def arm_set(rec: Recording) -> ArmSet:
@@ -168,7 +168,7 @@ def load_episodes(paths, *, keep_discarded: bool = False, lerobot_map: str | Non
 
 def incomplete(ep: Episode) -> bool:
     """The episode was cut off: no stop (recorder killed), or a file without episodes that is truncated."""
-    return ep.outcome == "incomplete" or (ep.outcome == "session" and bool(ep.recording.truncated))
+    return ep.outcome == "incomplete" or (ep.outcome == UNMARKED and bool(ep.recording.truncated))
 
 
 def training_episodes(episodes, *, include_failed: bool = False, keep_incomplete: bool = False):
@@ -208,14 +208,14 @@ def episode_id(ep: Episode) -> str:
     return f"{ep.recording.path.name}#{ep.index}"
 
 
-def session_next_checkpoints(ep: Episode) -> tuple[NextId, ...]:
-    """The NEXT checkpoints the recording's session names (calibration.next.ident; () when none)."""
-    return parse_ids(ep.recording.session.get("next_checkpoint"))
+def recorded_next_checkpoints(ep: Episode) -> tuple[NextId, ...]:
+    """The NEXT checkpoints the recording's metadata names (calibration.next.ident; () when none)."""
+    return parse_ids(ep.recording.info.get("next_checkpoint"))
 
 
 def describe_rig(ep: Episode) -> dict:
-    """Rig file and simulated flag of an episode's session (for checkpoints and exports)."""
-    s = ep.recording.session
+    """Rig file and simulated flag of an episode's recording (for checkpoints and exports)."""
+    s = ep.recording.info
     return {
         "rig_file": s.get("rig_file", ""),
         "simulated": s.get("simulated", "unknown"),

@@ -46,8 +46,8 @@ EPISODES_PATH = "meta/episodes/chunk-000/file-000.parquet"
 
 
 def _rig_camera_fps(rec, cam: str) -> float | None:
-    """The camera's nominal rate [Hz] from the rig file the recording's session holds (None: not said)."""
-    text = rec.session.get("rig_toml", "")
+    """The camera's nominal rate [Hz] from the rig file the recording's metadata holds (None: not said)."""
+    text = rec.info.get("rig_toml", "")
     if not text:
         return None
     try:
@@ -189,7 +189,7 @@ def export_lerobot(
             n = len(rows["phase"])
             if n == 0:
                 continue
-            task = ep.task or ep.recording.session.get("task", "") or "factr2 teleop"
+            task = ep.task or ep.recording.info.get("task", "") or "factr2 teleop"
             t_idx = tasks.setdefault(task, len(tasks))
             for v in videos:  # each video holds every exported frame, episodes back to back
                 v.add(ep.recording.frames(v.cam), fidx[v.cam], index)

@@ -26,7 +26,7 @@ from hardware.importers import lerobot as LR
 from hardware.reasons import Reason, messages
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
-from policies.data.recordings import ArmSet, episode_id, session_next_checkpoints
+from policies.data.recordings import ArmSet, episode_id, recorded_next_checkpoints
 from policies.labels import phases as P
 from policies.labels import tare as T
 from policies.labels.tare_recording import episode_tare
@@ -136,7 +136,7 @@ def resolve_thresholds(
     """given: (LOW, HIGH) [N*m]; "recording": from the episodes' own scores (Otsu,
     policies.labels.phases.recording_thresholds; tau_ext recorded, or from --next offline), the CLI's default;
     "next" or None: from the free-motion noise of the --next checkpoint, else of the checkpoint the recording
-    session names (None keeps the library's former default for its callers); or a LabelChoice carrying one
+    names (None keeps the library's former default for its callers); or a LabelChoice carrying one
     of these and the tare. tare: policies.labels.tare.TARE_METHODS (default TARE_DEFAULT); the recording
     source splits the tared scores, and the labels of these thresholds are tared alike."""
     if isinstance(given, LabelChoice):
@@ -161,7 +161,7 @@ def resolve_thresholds(
 def dataset_phases(ep: Episode) -> tuple[list, dict, float] | None:
     """(label changes [[row, label], ...], the thresholds that made them, fps [Hz]) of an episode imported
     from a factr2 LeRobot export (hardware.importers.lerobot.IMPORT_PHASES), else None."""
-    text = ep.recording.session.get(LR.IMPORT_PHASES)
+    text = ep.recording.info.get(LR.IMPORT_PHASES)
     if not text:
         return None
     d = json.loads(text)
@@ -187,7 +187,7 @@ def _recording_thresholds(episodes, arms, next_model, tare: str) -> Thresholds:
 def _checkpoint_thresholds(next_model, episodes, arms) -> Thresholds:
     model = next_model
     if model is None:
-        named = next((ids for ids in map(session_next_checkpoints, episodes) if ids), ())
+        named = next((ids for ids in map(recorded_next_checkpoints, episodes) if ids), ())
         if named and json_path(named[0].path).exists():
             model = load_next(named[0].path)
     if model is None:

@@ -34,7 +34,8 @@ STALL_S = 0.2  # s: a chunk this late (after it was due) holds the follower
 # measured 0.15-0.43 rad past joint 3's 0 (range 2.97 rad) in the FIRST headline's rollouts. The fixed
 # 0.15 rad used before refused those chunks; a refused chunk empties the schedule and holds the arm, and from
 # the held pose the policy asks for the same again: on the curve seed, 3 of 8 peg-insert episodes of one
-# policy stood held 11-16 s and never grasped, none with clamping (docs/first.md, "Earlier runs").
+# policy stood held 11-16 s and never grasped, none with clamping (docs/first_runs.md, "What earlier runs
+# taught").
 LIMIT_TOL_FRACTION = 0.25
 
 

@@ -16,13 +16,13 @@ from calibration.next.ident import format_ids
 from hardware.errors import UserError
 from hardware.recording import schemas as S
 from hardware.recording.cache import cache_key
-from hardware.recording.session import software_version
+from hardware.recording.metadata import software_version
 from policies.data.dataset import build_dataset
 from policies.data.recordings import (
     describe_rig,
     episode_id,
     load_episodes,
-    session_next_checkpoints,
+    recorded_next_checkpoints,
     skipped_line,
     training_episodes,
 )
@@ -194,7 +194,7 @@ def prepare(o: RunOptions, d: Dist):
                    action_dim=data.action.shape[2], force_dim=data.force.shape[1],
                    objects_dim=data.objects.shape[1] if data.objects is not None else 0)
     o = replace(o, rate_hz=data.rate_hz)
-    named_next = next((ids for ids in map(session_next_checkpoints, episodes) if ids), ())
+    named_next = next((ids for ids in map(recorded_next_checkpoints, episodes) if ids), ())
     meta = {
         **o.to_meta(pcfg),  # the configuration (policies.training.run_config)
         "features": data.names.to_dict(),
@@ -202,7 +202,7 @@ def prepare(o: RunOptions, d: Dist):
         "phases": th.to_dict() if th is not None else NO_FORCE_PHASES,
         "next_checkpoint": str(next_model.id) if next_model is not None else format_ids(named_next),
         "tau_ext_source": "offline" if next_model is not None else "recorded",
-        # the estimator behind a recorded tau_ext (the session's feedback mode: next, dob, ...): rollout feeds
+        # the estimator behind a recorded tau_ext (its recording's feedback mode: next, dob): rollout feeds
         # the policy the same one (factr2_teleop/session/rollout.py)
         "tau_ext_estimator": "next" if next_model is not None else _recorded_estimator(episodes),
         "data_hash": data_hash(episodes),
@@ -254,17 +254,17 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
 
 
 def _recorded_estimator(episodes) -> str:
-    """The feedback mode(s) of the episodes' sessions (next, dob; "dob,next" when mixed; "" none)."""
-    named = (str(ep.recording.session.get("feedback_mode", "")) for ep in episodes)
+    """The feedback mode(s) of the episodes' recordings (next, dob; "dob,next" when mixed; "" none)."""
+    named = (str(ep.recording.info.get("feedback_mode", "")) for ep in episodes)
     modes = {m for text in named for m in text.split(",") if m}
     return ",".join(sorted(modes))
 
 
 def _tasks(episodes) -> dict:
-    """Task name -> number of training episodes (the episode's task, else its session's; unnamed left out)."""
+    """Task name -> number of training episodes (the episode's, else its recording's; unnamed left out)."""
     out: dict = {}
     for ep in episodes:
-        name = ep.task or ep.recording.session.get("task", "")
+        name = ep.task or ep.recording.info.get("task", "")
         if name:
             out[name] = out.get(name, 0) + 1
     return out
