@@ -46,6 +46,7 @@ except ModuleNotFoundError as e:  # `python bench/bench_first.py`: bench/ is a p
         raise
     print("run it from the repository root as: python -m bench.bench_first ...", file=sys.stderr)
     raise SystemExit(2) from None
+from bench import harness
 from bench.first_report import aggregate, write_docs, write_report
 from bench.harness import commit, machine
 from policies.labels.phases import LABEL_RULE
@@ -490,8 +491,8 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
         if getattr(a, k) is not None:
             setattr(cfg, k, getattr(a, k))
     if a.tasks:
-        cfg.tasks = [t.strip() for t in a.tasks.split(",") if t.strip()]
-    cfg.only_cells = [c.strip() for c in a.cells.split(",") if c.strip()]
+        cfg.tasks = harness.names(a.tasks)
+    cfg.only_cells = harness.names(a.cells)
     if any(c not in CELL_ORDER for c in cfg.only_cells):
         ap.error(f"--cells {a.cells!r}: a comma-separated subset of {', '.join(CELL_ORDER)}")
     cfg.thresholds = a.thresholds

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import harness
 from bench.first_report import mcnemar_p, wilson
 
 FORCE_CELLS = ("base-torque", "first")  # the cells with a force input
@@ -264,11 +265,11 @@ def main(argv=None) -> int:
     out = Path(a.out)
     if not (out / "config.json").is_file():
         ap.error(f"--out {out}: no config.json (not a bench_first results folder)")
-    hows = [h.strip() for h in a.ablate.split(",") if h.strip()]
+    hows = harness.names(a.ablate)
     if any(h not in ABLATIONS for h in hows):
         ap.error(f"--ablate {a.ablate!r}: a comma-separated subset of {', '.join(ABLATIONS)}")
     if hows:
-        run_ablation(out, hows, max(1, a.jobs), tuple(t.strip() for t in a.tasks.split(",") if t.strip()))
+        run_ablation(out, hows, max(1, a.jobs), tuple(harness.names(a.tasks)))
     if a.report or not hows:
         against = Path(a.against) if a.against else None
         if against is not None and not (against / "config.json").is_file():
@@ -277,8 +278,6 @@ def main(argv=None) -> int:
         (out / "force_table.md").write_text(md)
         (out / "force_results.json").write_text(json.dumps(data, indent=1, default=float))
         if a.results:
-            from bench import harness
-
             print(harness.write(harness.RESULTS / f"{a.results}.json",
                                 harness.record(a.results, data, simulated=True,  # OUT: a scratch folder
                                                cmd=harness.command().replace(str(a.out), "OUT")

@@ -88,6 +88,11 @@ def command(argv: list[str] | None = None, module: str | None = None) -> str:
     return shlex.join(["python", "-m", name if name.startswith("bench.") else f"bench.{name}", *argv[1:]])
 
 
+def names(text: str) -> list[str]:
+    """A comma-separated option's names, blanks dropped ("a, b,," -> ["a", "b"])."""
+    return [x.strip() for x in text.split(",") if x.strip()]
+
+
 def now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z")
 
