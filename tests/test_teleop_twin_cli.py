@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import re
 
+import numpy as np
+
 from factr2_teleop.cli import main
 from factr2_teleop.session.pairs import rig_tables
 from hardware.rigs.rig import load_rig
@@ -26,13 +28,24 @@ def test_teleop_ground_truth_on_real_rig_is_refused(capsys):
     assert len(err) == 1 and "only on simulated rigs" in err[0]
 
 
-def test_teleop_record_no_cameras_records_no_frames(tmp_path, capsys):
+def test_teleop_record_no_cameras_records_no_frames(tmp_path, capsys, monkeypatch):
     """`--record DIR --no-cameras`: the samples, no camera frame (the rig has a scene camera); with the
-    cameras, the frames the camera captured (the episode starts once they are open: a second or so of the
-    3 s here, longer on a slow or busy machine). Counted against what this machine did (#53): the ticks the
-    loop ran, the frames the camera captured -- not a number of a fast core."""
+    cameras, every frame the camera captured, including one delivered the moment capture starts (the episode
+    opens before the cameras; opened after them, such a frame was counted and not written). Counted against
+    what this machine did (#53): the ticks the loop ran, the frames the camera captured -- not a number of a
+    fast core."""
+    from hardware.cameras.stream import CameraStream
     from hardware.recording.reader import Recording
 
+    start = CameraStream.start
+
+    def start_with_a_frame_at_once(self):
+        start(self)
+        name, cam = next(iter(self.cameras.items()))
+        t = self.clock.now()
+        self._deliver(name, t, np.zeros((cam.config.height, cam.config.width, 3), np.uint8), t)
+
+    monkeypatch.setattr(CameraStream, "start", start_with_a_frame_at_once)
     counts, ticks, captured = {}, {}, {}
     for name, extra in (("without", ["--no-cameras"]), ("with", [])):
         out = tmp_path / name

@@ -72,9 +72,10 @@ def _execute(args) -> dict:
         rec = ts.record(args.record, cameras=not args.no_cameras) if args.record else None
         ts.loop.start(duration_s=args.seconds)  # at once: a twin's unheld leader sinks until the loop runs
         if rec is not None:
-            for line in ts.start_cameras() if not args.no_cameras else []:  # a second or so to open
-                print(f"recording without it: {line}", file=sys.stderr)
+            # the episode opens, then the cameras (a second or so): every frame they capture lies in it
             rec.start_episode("teleop")
+            for line in ts.start_cameras() if not args.no_cameras else []:  # (they run: their failures)
+                print(f"recording without it: {line}", file=sys.stderr)
         _watch(ts.loop)
     finally:
         if ts is not None:

@@ -2,7 +2,7 @@
 the rig's cameras at their rate, the twin's ground truth (SIMULATED, labelled) and the loop's timing.
 
     rec = SessionRecording.open(out_dir, session, pairs, extra_meta={"feedback_mode": "next"})
-    rec.start_episode(task="wipe")      # starts the cameras (start_cameras) on first use unless running
+    rec.start_episode(task="wipe")      # then starts the cameras (start_cameras) unless running
     loop = TeleopLoop(pairs, clock, rate, recorder=rec.on_tick)   # or call rec.on_tick from another hook
     rec.stop_episode("success"); rec.close()  -> RecorderStatus (+ rec.camera_stats)
 """
@@ -50,7 +50,7 @@ def session_path(out_dir: str | Path, stem: str) -> Path:
 
 class SessionRecording:
     def __init__(self, recorder, session, pairs, rate_hz: float, start_cameras=None):
-        """start_cameras: called before the first episode (the session's camera stream; frames come back
+        """start_cameras: called as the first episode opens (the session's camera stream; frames come back
         through frame()), or None to record no frames."""
         self.recorder, self.session, self.rate_hz = recorder, session, float(rate_hz)
         n = len(pairs)
@@ -116,12 +116,15 @@ class SessionRecording:
 
     # -- episodes ----------------------------------------------------------------------------------------
     def start_episode(self, task: str = "") -> int:
-        if self._start_cameras is not None:
-            self._start_cameras()  # no-op once running
+        """Open an episode at now, then start the cameras if they are not running: a frame they capture as
+        they start is stamped after the episode's start and written (started first, the frames captured
+        between the two were counted by the stream and not written)."""
         t = self.session.clock.now()
         ep = self.recorder.start_episode(t, task)
         self._spans.append([t, float("inf")])
         self.recording = True
+        if self._start_cameras is not None:
+            self._start_cameras()  # no-op once running
         return ep
 
     def stop_episode(self, outcome: str | None = None, text: str = "") -> None:

@@ -5,8 +5,7 @@ The CLI (`factr2 teleop`), the terminal app's Teleop screen, the demo and task c
     ts.hooks.append(fn)                         # fn(TickRecord) each tick, e.g. a virtual operator's hand
     rec = ts.record("recordings")               # optional: SessionRecording (cameras, truth, timing)
     ts.loop.start()
-    ts.start_cameras()                          # optional: else the first episode starts them
-    rec.start_episode("wipe")
+    rec.start_episode("wipe")                   # opens the episode, then starts the cameras unless running
     ...; ts.loop.stop()
     ts.close_recording()                        # stops the cameras too; ts.camera_stats()
 """
@@ -108,9 +107,11 @@ class TeleopSession:
     def start_cameras(self) -> list[str]:
         """Capture the rig's cameras beside the loop (a second or so to open: call it from a worker, or
         after the loop started); frames go to the recording while an episode records. Returns one line per
-        camera that could not start (teleop goes on without it). No-op if running."""
-        if self.cameras is not None or not self.session.cameras:
+        camera that could not start (teleop goes on without it). If running: only those lines."""
+        if not self.session.cameras:
             return []
+        if self.cameras is not None:
+            return self.cameras.problems()
         from hardware.cameras.stream import CameraStream
 
         self.cameras = CameraStream(self.session.cameras, self.session.clock, sink=self._frame,
