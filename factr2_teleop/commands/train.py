@@ -67,4 +67,8 @@ def run(args) -> int:
             f"TensorBoard {opts.out}/tensorboard"
             + (f"; {shown}" if shown else "")
         )
+        from policies.training.advice import run_advice
+
+        for line in run_advice(opts.out):  # what more data or training would buy, from the run's own curve
+            print(line)
     return 0

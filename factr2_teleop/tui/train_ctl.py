@@ -270,6 +270,7 @@ class TrainState:
     val: dict = field(default_factory=dict)  # "val/loss", "val/loss_F", ... -> values per evaluation
     line: str = ""
     run_dir: str = ""
+    advice: list = field(default_factory=list)  # a finished run's lines (policies/training/advice.py)
 
 
 class TrainingRun:
@@ -346,6 +347,11 @@ class TrainingRun:
         if self.stop_event.is_set() and self.state.step < self.state.total:
             self._end("stopped", f"stopped at step {self.state.step}: checkpoint kept in {self.opts.out}")
         else:
+            from policies.training.advice import run_advice
+
+            advice = run_advice(self.opts.out)
+            with self._lock:
+                self.state.advice = advice
             self._end("done", f"{self.opts.out}/checkpoints (last), curves.png beside")
 
     def _end(self, status: str, line: str) -> None:

@@ -68,7 +68,7 @@ def progress_lines(st) -> list[str]:
         v = st.val.get(key)
         if v:
             out.append(f"val {name:<3}    {sparkline(v, 40)} {v[-1]:.4f}")
-    return out
+    return out + list(st.advice)  # a finished run: what more data or training would buy (wrapped)
 
 
 class ThresholdDialog(ModalScreen[str | None]):

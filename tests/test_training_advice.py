@@ -1,0 +1,114 @@
+"""The advice a run gives from its own validation curve (policies/training/advice.py): the rule on synthetic
+curves, `factr2 train` printing it after a tiny run, the Train screen showing it after a tiny run."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+import torch
+
+from policies.training import advice as A
+from tests.policy_helpers import write_recording
+
+torch.set_num_threads(1)
+
+
+def _rows(values, every=500, noise=0.0, seed=0, train_rows=True):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for k, v in enumerate(values):
+        step = (k + 1) * every
+        if train_rows:  # training-loss rows between the evaluations: ignored by the rule
+            rows.append({"step": step - 1, "train/loss": 0.1})
+        rows.append({"step": step, "val/loss": float(v) * (1.0 + noise * rng.standard_normal())})
+    return rows
+
+
+def test_a_curve_that_turned_up_says_the_data_limits_and_when():
+    v = np.r_[np.linspace(1.0, 0.3, 6), np.linspace(0.31, 0.45, 11)]  # bottom at the 6th evaluation
+    lines = A.training_advice(_rows(v, noise=0.01), 47, ["press-fit"])
+    assert "turned up after 3.0 k of 8.5 k steps at 47 demonstrations" in lines[0]
+    assert "the data, not the training length" in lines[0] and "--steps 3000" in lines[0]
+    assert lines[1].startswith("no measured data curve for press-fit: no basis")
+    peg = A.training_advice(_rows(v), 47, ["peg-insert"])[1]
+    assert "45 -> 115 demonstrations" in peg and "docs/first_training.md" in peg
+
+
+def test_a_curve_still_falling_says_train_longer():
+    c = A.read_curve(_rows(np.exp(-np.linspace(0, 3, 12)), noise=0.005))
+    assert c.kind == "falling" and c.step_end == 6000
+    line = A.training_advice(_rows(np.exp(-np.linspace(0, 3, 12))), 20)[0]
+    assert "still falling" in line and "train longer" in line
+
+
+def test_a_flat_end_within_noise_is_flat_not_a_turn():
+    v = np.r_[np.linspace(1.0, 0.3, 5), np.full(10, 0.3)]
+    for seed in range(20):  # 2 % noise: neither a turn nor a fall, whatever the draw
+        assert A.read_curve(_rows(v, noise=0.02, seed=seed)).kind == "flat", seed
+    assert "flat" in A.training_advice(_rows(v), 30)[0]
+
+
+def test_one_outlier_evaluation_makes_no_turn():
+    v = np.r_[np.linspace(1.0, 0.3, 8), [0.3, 0.3, 0.9, 0.3, 0.3]]  # one bad evaluation near the end
+    assert A.read_curve(_rows(v)).kind == "flat"
+
+
+def test_no_validation_or_too_few_points_gives_no_basis():
+    assert A.training_advice([{"step": 10, "train/loss": 0.2}], 1) == [
+        "advice: no validation split: no basis for advice (record at least 2 episodes and keep "
+        "--val-fraction above 0)"]
+    line = A.training_advice(_rows([1.0, 0.5, 0.4, 0.6]), 10)[0]
+    assert "4 validation points, 5 needed" in line and "no basis" in line
+    nan = [{"step": 5 * k, "val/loss": float("nan")} for k in range(1, 9)]
+    assert "no validation split" in A.training_advice(nan, 3)[0]
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rec")
+    write_recording(d / "a.mcap", episodes=3, seconds=3.0)
+    return d
+
+
+def test_factr2_train_prints_the_advice_of_its_own_curve(recordings, tmp_path, capsys):
+    from factr2_teleop.cli import main
+    from policies.training.curves import RunLog
+    from tests.test_policies_train import _cli_args
+
+    out = tmp_path / "run"
+    args = _cli_args(recordings, out, ["--val-every", "2", "--ckpt-every", "100"])
+    args[args.index("--steps") + 1] = "12"
+    assert main(args) == 0
+    printed = capsys.readouterr().out.splitlines()
+    got = [line for line in printed if line.startswith("advice:") or line.startswith("no measured")]
+    rows = RunLog.read(out)
+    assert sum("val/loss" in r for r in rows) == 6
+    assert got == A.training_advice(rows, 3, ["push"]) and got[0].startswith("advice: validation loss")
+
+
+def test_the_train_screen_shows_the_advice_after_a_run(tmp_path):
+    from tui_helpers import SIZE, make_app, screen_text, wait_for
+
+    write_recording(tmp_path / "recordings" / "a.mcap", episodes=3, seconds=3.0)
+
+    async def go():
+        app = make_app(tmp_path, train_threads=1)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("5")
+            assert await wait_for(pilot, lambda: "3 of 3 usable episodes chosen" in screen_text(app))
+            await pilot.press("h", *"1:3", "enter")
+            await pilot.press("z", "z", *["left_square_bracket"] * 5)  # tryout, 20 steps
+            await pilot.press("g")
+            assert await wait_for(pilot, lambda: app.training.snapshot().status in ("done", "failed"), 120)
+            assert app.training.snapshot().status == "done", app.training.snapshot().line
+            assert await wait_for(pilot, lambda: "advice:" in screen_text(app))
+            text = screen_text(app)
+            await pilot.press("q")
+        return app.training.snapshot().advice, text
+
+    advice, text = asyncio.run(go())
+    # 20 steps validate every 5: four points, too few to read a curve, and the screen says so
+    assert advice == ["advice: 4 validation points, 5 needed to read the curve: no basis for advice"]
+    assert "4 validation points" in text
