@@ -10,9 +10,13 @@ period: the CFS quota (normal threads) and, on cgroup v1 with RT group schedulin
 a tick, as a slower core does: a tick that needs 0.3 ms of CPU then takes ~0.84 ms of wall time at factor 2.8.
 What it does not reproduce: the thread's CPU time per tick (time.thread_time) stays this core's, so the
 loop's "CPU per tick" must be multiplied by FACTOR to compare with a slower core's; its wall-clock numbers
-(rate, period p99, busy time in a tick) are the slowed core's. Root (or a delegated cgroup) is needed; where
-none is writable it says so and exits 2. cgroup v2 (cpu.max) has no real-time budget: the command then runs
-with FACTR2_NO_RT=1 so that the limit applies to every thread.
+(rate, period p99, busy time in a tick) are the slowed core's. The CFS quota is over all the CPUs the
+command may use: on 2 CPUs one busy thread may take 2/FACTOR of a CPU, so a single-threaded workload is slowed
+FACTOR/2 only; pinned to one CPU (`taskset -c 1 python -m bench.slow_core ...`) every thread shares 1/FACTOR
+of it. The kernel's smallest quota is 1 ms: the period grows where FACTOR would ask less (bandwidth()).
+Root (or a delegated cgroup) is needed; where none is writable it says so and exits 2. cgroup v2 (cpu.max)
+has no real-time budget: the command then runs with FACTR2_NO_RT=1 so that the limit applies to every
+thread.
 """
 
 from __future__ import annotations
@@ -25,6 +29,17 @@ from pathlib import Path
 
 V1 = Path("/sys/fs/cgroup/cpu")
 V2 = Path("/sys/fs/cgroup")
+QUOTA_MIN_US = 1000  # the kernel's smallest CFS quota (cfs_quota_us, cpu.max) [us]
+
+
+def bandwidth(factor: float, period_us: int, n_cpus: int) -> tuple[int, int]:
+    """(period, quota) [us] giving n_cpus / factor CPUs. The period grows where the quota would fall under the
+    kernel's 1 ms minimum: clamped instead, factor 2.8 on 2 CPUs at 1 ms asked 714 us and got 1000, a whole
+    CPU, and a single thread ran at full speed."""
+    quota = period_us * n_cpus / factor
+    if quota < QUOTA_MIN_US:
+        return int(-(-QUOTA_MIN_US * factor // n_cpus)), QUOTA_MIN_US
+    return period_us, int(quota)
 
 
 def _write(path: Path, value: str) -> None:
@@ -37,8 +52,9 @@ def make_group(name: str, factor: float, period_us: int, n_cpus: int) -> tuple[P
     if (V1 / "cpu.cfs_quota_us").exists():
         g = V1 / name
         g.mkdir(exist_ok=True)
-        _write(g / "cpu.cfs_period_us", str(period_us))
-        _write(g / "cpu.cfs_quota_us", str(max(1000, int(period_us * share * n_cpus))))
+        cfs_period, quota = bandwidth(factor, period_us, n_cpus)
+        _write(g / "cpu.cfs_period_us", str(cfs_period))
+        _write(g / "cpu.cfs_quota_us", str(quota))
         env = {}
         if (g / "cpu.rt_runtime_us").exists():  # per CPU: the loop's FIFO thread gets 1/factor of its core
             _write(g / "cpu.rt_period_us", str(period_us))
@@ -49,7 +65,8 @@ def make_group(name: str, factor: float, period_us: int, n_cpus: int) -> tuple[P
     if "cpu" in (V2 / "cgroup.controllers").read_text().split():
         g = V2 / name
         g.mkdir(exist_ok=True)
-        _write(g / "cpu.max", f"{max(1000, int(period_us * share * n_cpus))} {period_us}")
+        cfs_period, quota = bandwidth(factor, period_us, n_cpus)
+        _write(g / "cpu.max", f"{quota} {cfs_period}")
         return g, {"FACTR2_NO_RT": "1"}
     raise PermissionError("no cgroup cpu controller here")
 
@@ -64,14 +81,16 @@ def main() -> int:
     if not cmd or not a.factor > 1.0 or a.period_us < 1000:
         print("slow_core: give --factor > 1, --period-us >= 1000 and a command after --", file=sys.stderr)
         return 2
-    name = f"factr2-slow-{os.getpid()}"
+    name, n = f"factr2-slow-{os.getpid()}", len(os.sched_getaffinity(0))
     try:
-        group, env = make_group(name, a.factor, a.period_us, len(os.sched_getaffinity(0)))
+        group, env = make_group(name, a.factor, a.period_us, n)
     except OSError as e:
         print(f"slow_core: cannot make a CPU-limited cgroup ({e}); run as root or in a delegated cgroup",
               file=sys.stderr)
         return 2
-    print(f"slow_core: {group} limits each CPU to 1/{a.factor:g} of every {a.period_us} us"
+    period, quota = bandwidth(a.factor, a.period_us, n)
+    print(f"slow_core: {group} limits its threads to {quota} us of CPU time every {period} us ({n} CPU(s) / "
+          f"{a.factor:g}; the loop's real-time threads to 1/{a.factor:g} of each CPU)"
           + (" (FACTR2_NO_RT=1: the limit must reach every thread)" if env else ""), file=sys.stderr)
     procs = group / "cgroup.procs"
     try:

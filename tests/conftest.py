@@ -27,3 +27,17 @@ def ur5_dir() -> Path:
     if not (UR5_DIR / "TEST.npz").exists():
         pytest.skip(f"real UR5 logs not found at {UR5_DIR}")
     return UR5_DIR
+
+
+def pytest_report_header(config):
+    from machine_speed import slowdown
+
+    return f"machine slowdown against the dev VM: {slowdown():.2f} (tests/machine_speed.py scales budgets)"
+
+
+@pytest.fixture(scope="session")
+def machine_slowdown() -> float:
+    """This machine's slowdown against the dev VM the time budgets were sized on (tests/machine_speed.py)."""
+    from machine_speed import slowdown
+
+    return slowdown()

@@ -53,9 +53,9 @@ def test_teleop_end_puts_the_arms_down_before_the_recording_closes(rig, end, tmp
     secs = "1.0" if end == "seconds" else "30"
     args = build_parser().parse_args(["teleop", "--rig", rig, "--seconds", secs, "--record", str(tmp_path),
                                       "--no-cameras"])
-    t0 = time.monotonic()
     out = teleop.execute(args)
-    assert time.monotonic() - t0 < 20.0  # (Ctrl-C ended it, not the 30 s)
+    run = out["timing"]  # Ctrl-C ended it, not the 30 s: the loop's own time (its ticks x mean period), which
+    assert run.ticks / run.rate_hz < 15.0  # a slow machine's start-up and close do not add to (#53)
     assert out["recording"] is not None and out["status"].error is None
     s, t_end = got["session"], got["t_end"]
     off = s.twin.rig_time() - s.twin.t  # rig clock - twin clock [s]

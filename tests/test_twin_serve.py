@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import pytest
+from machine_speed import slowdown
 
 from factr2_teleop.cli import main as cli_main
 from hardware.arms.dynamics import gravity
@@ -50,8 +51,8 @@ def test_serve_twin_runs_in_real_time_and_stops():
         t0, s0 = time.monotonic(), server.sim_time
         time.sleep(0.5)
         ran = server.sim_time - s0
-        # never ahead of wall time; behind only on a starved CPU (bench/bench_twin.py measures the rate)
-        assert 0.1 < ran <= time.monotonic() - t0 + 0.01
+        # never ahead of wall time; behind only on a starved or slow CPU (bench/bench_twin.py: the rate)
+        assert 0.1 / slowdown() < ran <= time.monotonic() - t0 + 0.01
         gt = server.ground_truth()
         assert set(gt) == {"leader", "follower"}
         np.testing.assert_allclose(gt["follower"].tau_load - server.twin.bank("follower").tau_ripple,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+from machine_speed import budget
 from textual.widgets import Static
 
 from factr2_teleop.tui.app import Factr2App
@@ -24,7 +25,8 @@ def screen_text(app) -> str:
 
 
 async def wait_for(pilot, cond, timeout_s: float = 20.0, step_s: float = 0.1) -> bool:
-    t_end = time.monotonic() + timeout_s
+    """Whether cond() came true within timeout_s [s, sized on the dev VM; scaled to this machine, #53]."""
+    t_end = time.monotonic() + budget(timeout_s)
     while time.monotonic() < t_end:
         if cond():
             return True
