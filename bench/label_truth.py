@@ -1,10 +1,12 @@
 """FIRST's contact labels against the twin's truth, with and without the held-load tare (SIMULATED).
 
-    python -m bench.label_truth DIR [DIR...] [--tare off,bias,payload] [--add-payload KG] [--json OUT]
+    python -m bench.label_truth DIR [DIR...] [--tare off,bias,payload] [--score l1,motion] [--add-payload KG]
+                                [--json OUT]
 
 Each DIR is one episode set (a task's recordings, as `factr2 collect` writes them). Per set and tare method:
-the recording thresholds (Otsu on the set's own, tared, scores), then every episode labelled as `factr2
-episodes phases` does, against the truth of the recorded /follower/ground_truth: contact while the true
+the recording thresholds (Otsu on the set's own, tared, scores: ||tau_ext||_1, or with --score motion the
+motion residual of policies.labels.motion_residual), then every episode labelled as `factr2 episodes phases`
+does, against the truth of the recorded /follower/ground_truth: contact while the true
 external torque's ||tau_ext_true||_1 passes TRUE_ON_NM, until it falls to TRUE_OFF_NM (docs/first_labels.md).
 
     recall   share of true-contact samples labelled contact
@@ -36,11 +38,13 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.harness import names
 from hardware.reasons import Reason
 from hardware.recording import schemas as S
 from hardware.recording.reader import interp_linear
 from policies.data.recordings import load_episodes
 from policies.labels import labelling as L
+from policies.labels import motion_residual as M
 from policies.labels import phases as P
 from policies.labels import tare as T
 from policies.labels import tare_recording as TR
@@ -92,15 +96,17 @@ def _with_payload(episodes, arms, tare: str, kg: float) -> tuple[object, list]:
     return th, [(t, P.label_phases(t, P.contact_runs(s, lo, hi)), h, s) for t, s, h in per]
 
 
-def measure(directory: Path, tare: str, add_kg: float = 0.0) -> dict:
+def measure(directory: Path, tare: str, add_kg: float = 0.0, score_kind: str = "l1") -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         episodes, arms = load_episodes([directory])
     t0 = time.perf_counter()
     if add_kg > 0:
+        if score_kind != "l1":
+            raise SystemExit("--add-payload is measured with the l1 score only")
         th, labelled = _with_payload(episodes, arms, tare, add_kg)
     else:  # exactly what `factr2 episodes phases` does
-        th = L.resolve_thresholds("recording", None, episodes, arms, tare=tare)
+        th = L.resolve_thresholds(L.LabelChoice("recording", tare, score_kind), None, episodes, arms)
         labs = [L.label_episode(ep, arms, th) for ep in episodes]
         labelled = [(lab.t, lab.phases, lab.held, lab.score) for lab in labs]
     tot: dict = {}
@@ -116,11 +122,14 @@ def measure(directory: Path, tare: str, add_kg: float = 0.0) -> dict:
         carry.append(score[held & ~truth & np.isfinite(true_score) & np.isfinite(score)])
     n = tot["pos"] + tot["neg"]
     return {
-        "set": episodes[0].task or directory.name, "dir": str(directory), "tare": tare, "added_kg": add_kg,
+        "set": episodes[0].task or directory.name, "dir": str(directory), "tare": tare, "score": score_kind,
+        "added_kg": add_kg,
         "episodes": len(episodes), "samples": n, "t_low": th.t_low, "t_high": th.t_high,
         "truth_contact": tot["pos"] / max(n, 1),
         "recall": tot["tp"] / max(tot["pos"], 1), "fp": tot["fp"] / max(tot["neg"], 1),
-        "floor": tot["pos_above"] / max(tot["pos"], 1), "fp_at_start": tot["fp_start"] / max(tot["fp"], 1),
+        # the floor compares the TRUE score [N*m] with T_low: only in the l1 score's unit
+        "floor": tot["pos_above"] / max(tot["pos"], 1) if score_kind == "l1" else float("nan"),
+        "fp_at_start": tot["fp_start"] / max(tot["fp"], 1),
         "shares": (np.asarray(tot["phase_n"]) / max(n, 1)).tolist(), "held": held_n / max(n, 1),
         "onsets_true": tot["onsets_true"], "onsets_found": tot["onsets_found"],
         "onsets_labelled": tot["onsets_labelled"], "seconds": time.perf_counter() - t0,
@@ -129,7 +138,7 @@ def measure(directory: Path, tare: str, add_kg: float = 0.0) -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    head = (f"{'set':<14} {'+kg':>4} {'eps':>4} {'truth C':>8} {'tare':<8} {'T_low:T_high':>13} "
+    head = (f"{'set':<14} {'+kg':>4} {'eps':>4} {'truth C':>8} {'tare':<8} {'score':<6} {'T_low:T_high':>13} "
             f"{'recall':>7} {'FP':>6} {'free':>6} {'pre':>6} {'contact':>7} {'held':>6} {'floor':>6} "
             f"{'FP@0.5s':>7} {'carry95':>7} {'onsets (true, found)':>21}")
     out = [head, "-" * len(head)]
@@ -137,7 +146,8 @@ def table(rows: list[dict]) -> str:
         sh = r["shares"]
         out.append(
             f"{r['set']:<14} {r['added_kg']:4.2g} {r['episodes']:>4} {r['truth_contact']:8.1%} "
-            f"{r['tare']:<8} {r['t_low']:6.3g}:{r['t_high']:<6.3g} {r['recall']:7.1%} {r['fp']:6.1%} "
+            f"{r['tare']:<8} {r.get('score', 'l1'):<6} {r['t_low']:6.3g}:{r['t_high']:<6.3g} "
+            f"{r['recall']:7.1%} {r['fp']:6.1%} "
             f"{sh[0]:6.1%} {sh[1]:6.1%} {sh[2]:7.1%} {r['held']:6.1%} {r['floor']:6.1%} "
             f"{r['fp_at_start']:7.0%} {r['carry_p95']:7.3g} "
             f"{r['onsets_labelled']:>6} ({r['onsets_true']}, {r['onsets_found']})")
@@ -148,14 +158,17 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("dirs", type=Path, nargs="+", help="one folder of recordings per task")
     ap.add_argument("--tare", default="off,bias,payload", help="comma-separated tare methods to compare")
+    ap.add_argument("--score", default="l1", help="comma-separated contact scores to compare: l1, motion")
     ap.add_argument("--add-payload", type=float, default=0.0, metavar="KG",
                     help="semi-synthetic: add a held KG point mass to the recorded tau_ext (module doc)")
     ap.add_argument("--json", type=Path, default=None, help="write the rows here")
     args = ap.parse_args(argv)
-    methods = [m.strip() for m in args.tare.split(",") if m.strip()]
-    if not set(methods) <= set(T.TARE_METHODS) or args.add_payload < 0:
-        ap.error(f"--tare takes {', '.join(T.TARE_METHODS)}; --add-payload a mass >= 0 kg")
-    rows = [measure(d, m, args.add_payload) for d in args.dirs for m in methods]
+    methods, scores = names(args.tare), names(args.score)
+    known = set(methods) <= set(T.TARE_METHODS) and set(scores) <= set(M.CONTACT_SCORES)
+    if not known or args.add_payload < 0:
+        ap.error(f"--tare takes {', '.join(T.TARE_METHODS)}; --score {', '.join(M.CONTACT_SCORES)}; "
+                 "--add-payload a mass >= 0 kg")
+    rows = [measure(d, m, args.add_payload, sc) for d in args.dirs for m in methods for sc in scores]
     print(table(rows))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)

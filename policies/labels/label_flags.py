@@ -1,12 +1,13 @@
 """The phase-labelling options shared by `factr2 train` (policies.training.run_config),
 `factr2 export lerobot` and `factr2 episodes phases` (policies.labels.labelling does the work): --next CKPT,
---thresholds recording|next|LOW:HIGH and --no-tare."""
+--thresholds recording|next|LOW:HIGH, --no-tare and --contact-score l1|motion."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from hardware.errors import UserError
+from policies.labels.motion_residual import CONTACT_SCORES
 
 NEXT_HELP = "NEXT checkpoint: estimate tau_ext offline from the logged joint states"
 
@@ -17,7 +18,7 @@ def add_label_arguments(p) -> None:
 
 
 def add_threshold_arguments(p) -> None:
-    """--thresholds and --no-tare (read back by thresholds_arg)."""
+    """--thresholds, --no-tare and --contact-score (read back by thresholds_arg)."""
     p.add_argument("--thresholds", default=None, metavar="recording|next|LOW:HIGH",
                    help="contact hysteresis on ||tau_ext||_1 [N*m]: LOW:HIGH, or derived: `recording` "
                         "(default: Otsu's split of the recordings' own scores) or `next` (the NEXT "
@@ -25,6 +26,12 @@ def add_threshold_arguments(p) -> None:
     p.add_argument("--no-tare", action="store_true",
                    help="score the raw tau_ext: no tare of a held object's load (by default the load, "
                         "estimated on the free motion right after each grasp, is removed until the release)")
+    p.add_argument("--contact-score", choices=CONTACT_SCORES, default="l1",
+                   help="what the contact labels split: `l1` ||tau_ext||_1 (the paper's, default) or "
+                        "`motion`: "
+                        "the part of tau_ext the joint velocities do not explain, fitted on the recordings "
+                        "themselves (for an estimator whose free-motion error follows the motion; "
+                        "docs/first_labels.md); needs --thresholds recording")
 
 
 def thresholds_arg(args):
@@ -35,12 +42,13 @@ def thresholds_arg(args):
     from policies.labels.phases import parse_thresholds
 
     tare = "off" if getattr(args, "no_tare", False) else TARE_DEFAULT
+    score = getattr(args, "contact_score", None) or "l1"
     if args.thresholds is None:
-        return LabelChoice("recording", tare)
+        return LabelChoice("recording", tare, score)
     if args.thresholds in THRESHOLD_SOURCES:
-        return LabelChoice(args.thresholds, tare)
+        return LabelChoice(args.thresholds, tare, score)
     try:
-        return LabelChoice(parse_thresholds(args.thresholds), tare)
+        return LabelChoice(parse_thresholds(args.thresholds), tare, score)
     except ValueError as e:
         raise UserError(str(e), where="--thresholds",
                         fix="give LOW:HIGH in N*m (e.g. 1.5:2.5), `recording` or `next`") from None

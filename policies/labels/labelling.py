@@ -27,6 +27,8 @@ from hardware.reasons import Reason, messages
 from hardware.recording import schemas as S
 from hardware.recording.reader import Episode, interp_linear
 from policies.data.recordings import ArmSet, episode_id, recorded_next_checkpoints
+from policies.labels import motion_recording as MR
+from policies.labels import motion_residual as M
 from policies.labels import phases as P
 from policies.labels import tare as T
 from policies.labels.tare_recording import episode_tare
@@ -63,9 +65,10 @@ class ThresholdSource(Enum):
     DATASET = "dataset"  # a factr2 LeRobot export's own labels, imported (thresholds: those that made them)
 
 
-def _recording_source(tared: bool, episodes: int, samples: int) -> str:
+def _recording_source(tared: bool, episodes: int, samples: int, motion: bool = False) -> str:
     eps = f"{episodes} episode{'s' if episodes != 1 else ''}"
-    return f"recording: Otsu split of log ||tau_ext||_1{', tared' if tared else ''}, {eps}, {samples} samples"
+    score = "the motion residual of tau_ext" if motion else "||tau_ext||_1"
+    return f"recording: Otsu split of log {score}{', tared' if tared else ''}, {eps}, {samples} samples"
 
 
 messages({
@@ -82,6 +85,7 @@ class Thresholds:
     t_high: float
     source: Reason  # a ThresholdSource reason
     tare: str = "off"  # held-load tare of the scores they apply to: policies.labels.tare.TARE_METHODS
+    motion: M.MotionResidual | None = None  # --contact-score motion: the score's fitted motion part
 
     @classmethod
     def given(cls, t_low: float, t_high: float, tare: str = "off") -> Thresholds:
@@ -94,6 +98,8 @@ class Thresholds:
         and so resumes)."""
         d = {"t_low": self.t_low, "t_high": self.t_high, "source": str(self.source),
              "source_kind": self.source.key, "pre_contact_s": P.PRE_CONTACT_S, "rule": P.LABEL_RULE}
+        if self.motion is not None:  # the default score writes nothing new: runs from before it resume
+            d |= {"score": "motion", "motion": self.motion.to_dict(), "rule": P.LABEL_RULE + MOTION_RULE}
         return d | ({"tare": self.tare} if self.tare != "off" else {})
 
 
@@ -119,6 +125,7 @@ def phases_identity(phases: dict) -> dict:
 
 THRESHOLD_SOURCES = ("recording", "next")  # --thresholds words; or LOW:HIGH [N*m]
 TARE_DEFAULT = "payload"  # measured against the twin's truth (docs/first_labels.md, bench/label_truth.py)
+MOTION_RULE = f"; score: motion residual (keep {M.KEEP_FRACTION:g}, {M.PASSES} passes)"
 
 
 @dataclass(frozen=True)
@@ -128,6 +135,7 @@ class LabelChoice:
 
     thresholds: object
     tare: str = TARE_DEFAULT
+    score: str = "l1"  # policies.labels.motion_residual.CONTACT_SCORES
 
 
 def resolve_thresholds(
@@ -139,17 +147,23 @@ def resolve_thresholds(
     names (None keeps the library's former default for its callers); or a LabelChoice carrying one
     of these and the tare. tare: policies.labels.tare.TARE_METHODS (default TARE_DEFAULT); the recording
     source splits the tared scores, and the labels of these thresholds are tared alike."""
+    score = "l1"
     if isinstance(given, LabelChoice):
-        given, tare = given.thresholds, given.tare if tare is None else tare
+        given, tare, score = given.thresholds, given.tare if tare is None else tare, given.score
     tare = TARE_DEFAULT if tare is None else tare
     if tare not in T.TARE_METHODS:
         raise UserError(f"unknown tare method {tare!r}", fix=f"one of {', '.join(T.TARE_METHODS)}")
+    if score not in M.CONTACT_SCORES:
+        raise UserError(f"unknown contact score {score!r}", fix=f"one of {', '.join(M.CONTACT_SCORES)}")
+    if score == "motion" and given != "recording":
+        raise UserError("--contact-score motion has no thresholds in N*m: it is split by the recording's own "
+                        "scores", where="--thresholds", fix="use --thresholds recording (the default)")
     carried = [dataset_phases(ep) for ep in episodes]
     if given == "recording" and next_model is None and carried and all(c is not None for c in carried):
         made = carried[0][1]  # a factr2 export's labels: trained on as they are (label_episode)
         th = Thresholds(made["t_low"], made["t_high"], Reason.of(ThresholdSource.DATASET))
     elif given == "recording":
-        th = _recording_thresholds(episodes, arms, next_model, tare)
+        th = _recording_thresholds(episodes, arms, next_model, tare, score)
     elif given is None or given == "next":
         th = _checkpoint_thresholds(next_model, episodes, arms)
     else:
@@ -168,8 +182,9 @@ def dataset_phases(ep: Episode) -> tuple[list, dict, float] | None:
     return d["episodes"][ep.index], d["thresholds"], float(d["fps"])
 
 
-def _recording_thresholds(episodes, arms, next_model, tare: str) -> Thresholds:
-    scores = [episode_scores(ep, arms, tare, next_model)[0] for ep in episodes]
+def _recording_thresholds(episodes, arms, next_model, tare: str, score_kind: str = "l1") -> Thresholds:
+    motion = _fit_motion(episodes, arms, next_model, tare) if score_kind == "motion" else None
+    scores = [episode_scores(ep, arms, tare, next_model, motion)[0] for ep in episodes]
     score = np.concatenate(scores) if scores else np.zeros(0)
     try:
         lo, hi = P.recording_thresholds(score)
@@ -180,8 +195,23 @@ def _recording_thresholds(episodes, arms, next_model, tare: str) -> Thresholds:
             fix="pass --thresholds LOW:HIGH [N*m] (or --thresholds next: from the NEXT checkpoint)",
         ) from None
     n = int(np.sum(np.isfinite(score)))
-    src = Reason.of(ThresholdSource.RECORDING, tared=tare != "off", episodes=len(episodes), samples=n)
-    return Thresholds(lo, hi, src)
+    src = Reason.of(ThresholdSource.RECORDING, tared=tare != "off", episodes=len(episodes), samples=n,
+                    **({"motion": True} if motion is not None else {}))
+    return Thresholds(lo, hi, src, motion=motion)
+
+
+def _fit_motion(episodes, arms, next_model, tare: str) -> M.MotionResidual:
+    """--contact-score motion: the fit over the set's (tared) tau_ext and joint velocities."""
+    taus, qds = [], []
+    for ep in episodes:
+        t, tau, _ = episode_tau_ext(ep, arms, next_model)
+        taus.append(_tared(ep, arms, t, tau, tare))
+        qds.append(MR.episode_q_dot(ep, arms, t))
+    try:
+        return M.fit_motion_residual(np.concatenate(taus), np.concatenate(qds))
+    except ValueError as e:
+        raise UserError(f"--contact-score motion: {e}", where=str(episodes[0].recording.path),
+                        fix="record more episodes, or use the default score") from None
 
 
 def _checkpoint_thresholds(next_model, episodes, arms) -> Thresholds:
@@ -285,16 +315,27 @@ def _episode_tau_ext(ep: Episode, arms: ArmSet, next_model: NextModel | None):
     return t, tau, ("recorded" if next_model is None else f"NEXT {next_model.id.short} offline")
 
 
-def episode_scores(ep: Episode, arms: ArmSet, tare: str, next_model: NextModel | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+def _tared(ep, arms, t, tau, tare: str) -> np.ndarray:
+    return tau if tare == "off" else T.tared(tau, episode_tare(ep, arms, t, tau, tare)[0])
+
+
+def episode_scores(ep: Episode, arms: ArmSet, tare: str, next_model: NextModel | None = None,
+                   motion: M.MotionResidual | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """(score (N,) of the tared tau_ext, raw score (N,), held (N,) bool, tare note) [N*m] on the times of
-    episode_tau_ext (tare "off": the raw score twice)."""
+    episode_tau_ext (tare "off": the raw score twice). With `motion` the score is its residual score of the
+    tared tau_ext (dimensionless, policies.labels.motion_residual); the raw one stays ||tau_ext||_1."""
     t, tau, _ = episode_tau_ext(ep, arms, next_model)
     raw = P.contact_score(tau)
     if tare == "off":
-        return raw, raw, np.zeros(len(t), bool), ""
-    load, held, note = episode_tare(ep, arms, t, tau, tare)
-    return P.contact_score(T.tared(tau, load)), raw, held, note
+        load, held, note = None, np.zeros(len(t), bool), ""
+        tared = tau
+    else:
+        load, held, note = episode_tare(ep, arms, t, tau, tare)
+        tared = T.tared(tau, load)
+    if motion is not None:
+        f = M.residual_score(motion, tared, MR.episode_q_dot(ep, arms, t))
+        return M.smooth_score(t, f), raw, held, note
+    return (raw if load is None else P.contact_score(tared)), raw, held, note
 
 
 @dataclass
@@ -323,7 +364,7 @@ def label_episode(
 ) -> EpisodeLabels:
     """Phases of one episode with th's thresholds on the score th.tare asks for (raw or tared)."""
     t, tau, source = episode_tau_ext(ep, arms, next_model)
-    score, raw, held, note = episode_scores(ep, arms, th.tare, next_model)
+    score, raw, held, note = episode_scores(ep, arms, th.tare, next_model, th.motion)
     if th.tare != "off":
         source += f"; tare {th.tare}" + (f" ({note})" if note else "")
     if th.source.key == ThresholdSource.DATASET.value:  # the dataset's rows, at the force samples' times

@@ -90,7 +90,7 @@ class ThresholdsFlag(Flag):
     commands) -> a LabelChoice."""
 
     def names(self) -> list[str]:
-        return ["--thresholds", "--no-tare"]
+        return ["--thresholds", "--no-tare", "--contact-score"]
 
     def add(self, p, dest: str, default) -> None:
         add_threshold_arguments(p)
@@ -99,10 +99,12 @@ class ThresholdsFlag(Flag):
         return thresholds_arg(ns)
 
     def argv(self, value, default) -> list[str]:
-        th, tare = (value.thresholds, value.tare) if isinstance(value, LabelChoice) else (value, TARE_DEFAULT)
+        th, tare, score = ((value.thresholds, value.tare, value.score) if isinstance(value, LabelChoice)
+                           else (value, TARE_DEFAULT, "l1"))
         # None: resolve_thresholds' "next" (its library default)
         text = "next" if th is None else th if isinstance(th, str) else ":".join(str(float(x)) for x in th)
-        return ["--thresholds", text] + (["--no-tare"] if tare == "off" else [])
+        return (["--thresholds", text] + (["--no-tare"] if tare == "off" else [])
+                + (["--contact-score", score] if score != "l1" else []))
 
 
 class OverridesFlag(Flag):
@@ -321,7 +323,8 @@ class RunOptions:
         opts = cls(inputs=list(inputs), out=Path(out), policy=pol["policy"], method=meta["method"],
                    ratio=tuple(meta["ratio"]), preset=name, force=meta["force"],
                    source_weights=tuple(meta.get("source_weights", DEFAULT_SOURCE_WEIGHTS)),
-                   thresholds=LabelChoice(given, ph.get("tare", "off")), rate_hz=meta.get("rate_hz"),
+                   thresholds=LabelChoice(given, ph.get("tare", "off"), ph.get("score", "l1")),
+                   rate_hz=meta.get("rate_hz"),
                    train=TrainConfig.from_dict(meta["train"]), overrides=ov or None, observation=observation,
                    actions=meta.get("actions", "absolute"),
                    episodes=tuple(meta["episodes"]) if "episodes" in meta else None,
