@@ -42,6 +42,7 @@ SKIP = {
                    "(tests/test_bench_first_inputs.py and tests/test_first_report.py cover its parts)",
     "first_curve": "needs a bench_first OUT folder with demonstrations, then trains",
     "first_force": "needs a `bench_first --table force` OUT folder; its ablations roll policies out",
+    "first_label_dev": "needs a `bench_first` OUT folder; trains a policy and rolls three out",
     "force_history": "needs recorded demonstrations per task (`factr2 collect`)",
     "first_images_gpu": "needs a GPU (camera frames at the benchmark's size)",
     "bench_next": "trains NEXT for minutes on the real UR5 logs (absent from a fresh clone)",
