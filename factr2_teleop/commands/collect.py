@@ -28,15 +28,25 @@ def add_arguments(parser) -> None:
                      "(default: the task's choice; peg-insert, press-fit and wipe see the truth)")
     see.add_argument("--no-perception", dest="perception", action="store_false",
                      help="the operator sees the twin's truth")
+    from factr2_teleop.teleop.perturb import PerturbConfig
+
+    defaults = ", ".join(f"{k}={v:g}" for k, v in PerturbConfig().to_dict().items() if k != "joints")
+    parser.add_argument("--perturb", nargs="?", const="on", default=None, metavar="KEY=VALUE,...",
+                        help="teach recovery (DART-style): small smooth offsets on the follower's target in "
+                        "windows drawn per episode, which the operator corrects; marked in the recording "
+                        f"(factr2 train --perturbed). Settings over the defaults: {defaults}, joints=0+1+2 "
+                        "(default all; docs/tasks.md)")
     add_twin_fault_argument(parser)
 
 
 def run(args) -> int:
     from factr2_teleop.tasks.run import CollectConfig, collect, summary_lines
+    from factr2_teleop.teleop.perturb import parse_perturb
 
     cfg = CollectConfig(rig=args.rig, task=args.task, episodes=args.episodes, out=args.out, seed=args.seed,
                         mode=args.mode, checkpoint=args.checkpoint, cameras=not args.no_cameras,
-                        faults=twin_faults(args), perception=args.perception)
+                        faults=twin_faults(args), perception=args.perception,
+                        perturb=parse_perturb(args.perturb) if args.perturb is not None else None)
     result = collect(cfg, progress=sys.stderr.isatty() or True)
     for line in summary_lines(result):
         print(line)

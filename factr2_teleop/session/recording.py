@@ -182,7 +182,7 @@ class SessionRecording:
                 record_arm_tick(rec, pre, r.t, leader=r.leader, follower=r.follower, tau_ext=r.tau_ext,
                                 contact=r.contact, leader_tau_cmd=r.leader_tau_cmd, gate=r.gate,
                                 action_q=r.action_q, action_gripper=r.action_gripper,
-                                action_hold=r.action_hold)
+                                action_hold=r.action_hold, perturb_q=r.perturb_q)
                 if gt is not None:  # SIMULATED ground truth: hardware has none to record
                     rec.log_ground_truth(f"{pre}follower", r.t, gt.tau_ext[:n], gt.contact)
                 if timing:

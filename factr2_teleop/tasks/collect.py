@@ -36,9 +36,10 @@ class EpisodeDriver(TaskEpisodes):
     """The per-tick hook: operator + script + detectors + episode bookkeeping (see the module doc)."""
 
     def __init__(self, ts, task: Task, episodes: int, seed: int = 0, on_episode=None,
-                 perception: bool = False):
+                 perception: bool = False, perturb=None):
         """perception: the operator sees the objects through the simulated pose detector (the perceived
-        poses, seen.py), not the twin's truth."""
+        poses, seen.py), not the twin's truth. perturb: a teleop.perturb.PerturbConfig, the follower's
+        target offset in windows drawn from each episode's seed while it runs (None: no perturbation)."""
         from hardware.arms.dynamics import ArmDynamics
 
         super().__init__(ts, task, episodes, seed, on_episode)
@@ -52,6 +53,7 @@ class EpisodeDriver(TaskEpisodes):
         self._op_args = (dyn.fk, dyn.jacobian, lim.q_min, lim.q_max, self.pair.map.backward,
                          self.pair.dt_s)
         self.op: Operator | None = None
+        self.perturb = perturb
 
     # -- the hook ----------------------------------------------------------------------------------------
     def on_tick(self, r) -> None:
@@ -77,6 +79,7 @@ class EpisodeDriver(TaskEpisodes):
                 if r.t - self._t_state >= SETTLE_S:
                     self._state = "run"
                     self.rec_start()
+                    self._start_perturbation(r.t)
             else:
                 op.p = p  # what the script sees at this decision
                 self._log_objects(r.t, self._obs_true)
@@ -94,6 +97,19 @@ class EpisodeDriver(TaskEpisodes):
         self._apply_hand(r)
 
     # -- pieces ------------------------------------------------------------------------------------------
+    def _start_perturbation(self, t: float) -> None:
+        """The episode's perturbation from its seed, from t [s] on; the pair adds it before the safety layer
+        (the operator then corrects it: it servoes on the follower's joints, operator.py servo_update)."""
+        if self.perturb is not None:
+            from factr2_teleop.teleop.perturb import Perturbation
+
+            self.pair.perturb = Perturbation(self.perturb, self._ep_seed, self.pair.follower.n_joints, t,
+                                             self.task.episode_s + 1.0)
+
+    def _end_episode(self, r, info: dict) -> None:
+        self.pair.perturb = None  # between episodes the follower tracks the leader as it is
+        super()._end_episode(r, info)
+
     def _hold(self, r) -> None:
         """Before coupling: the hand keeps the leader where it is (gravity compensation does the rest)."""
         self.twin.bank(self.lname).set_hand_torque(np.zeros(self.pair.leader.n_joints + 1))

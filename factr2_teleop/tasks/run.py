@@ -34,6 +34,7 @@ class CollectConfig:
     on_session: object = None  # callable(TeleopSession, rig session) before the loop runs (bench/faults.py)
     perception: bool | None = None  # the operator sees through the simulated pose detector (None: the
     # task's Task.operator_perception); the perceived channel is recorded either way
+    perturb: object = None  # teleop.perturb.PerturbConfig: DART-style offsets on the follower's target
 
 
 def output_paths(cfg: CollectConfig, rig_name: str) -> tuple[Path, Path]:
@@ -73,6 +74,10 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
             raise UserError("output file already exists", where=str(p),
                             fix="choose another --out or --seed (recordings are never overwritten)")
     mode, ck = _mode_and_checkpoint(cfg, rig.name, task)
+    perturb_meta = {}
+    if cfg.perturb is not None:
+        cfg.perturb.validate(rig.device(rig.pairs[0][1]).limits().n)
+        perturb_meta = {"perturb": json.dumps(cfg.perturb.to_dict())}
     sees = bool(task.operator_perception if cfg.perception is None else cfg.perception)
     bar = None
     if progress:
@@ -84,7 +89,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
         ts = TeleopSession(s, TeleopOptions(mode=mode, checkpoint=ck))
         ts.record(cfg.out, path=mcap, task=task.name, cameras=cfg.cameras,
                   extra_meta={"simulated": "true", "collect_seed": cfg.seed, "operator": "scripted",
-                              "operator_sees": "perceived" if sees else "truth"})
+                              "operator_sees": "perceived" if sees else "truth", **perturb_meta})
         first_tick = FirstTick()
 
         def done(res):
@@ -92,7 +97,8 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
                 bar.update(1)
                 bar.set_postfix(ok=sum(r.outcome == "success" for r in ep.results))
 
-        ep = EpisodeDriver(ts, task, cfg.episodes, seed=cfg.seed, on_episode=done, perception=sees)
+        ep = EpisodeDriver(ts, task, cfg.episodes, seed=cfg.seed, on_episode=done, perception=sees,
+                           perturb=cfg.perturb)
         ts.hooks.append(ep.on_tick)
         ts.hooks.append(lambda r: first_tick.add(r, ep))
         srec = ts.recording
@@ -118,6 +124,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
     lengths = [r["duration_s"] for r in res]
     out = {"simulated": True, "task": task.name, "rig": rig.name, "seed": cfg.seed, "mode": mode,
            "checkpoint": ck, "operator_sees": "perceived" if sees else "truth",
+           "perturb": cfg.perturb.to_dict() if cfg.perturb is not None else None,
            "episodes": len(res), "success_rate": float(np.mean(ok)) if ok else 0.0,
            "progress_mean": float(np.mean([r["progress"] for r in res])) if res else 0.0,
            "episode_s_mean": float(np.mean(lengths)) if lengths else 0.0,

@@ -174,6 +174,10 @@ class ArmPair:
         self._estimator_down = False  # feedback off after an estimator error, until a valid estimate again
         self.last: TickRecord | None = None
         self.sent: SafeFollowerCommand | None = None  # what reached the follower this tick
+        # DART-style collection (teleop/perturb.py): t [s] -> offset [rad] added to the coupled target
+        # before the follower's safety layer; None: none
+        self.perturb: Callable[[float], np.ndarray] | None = None
+        self._offset: np.ndarray | None = None  # this tick's offset asked [rad] (recorded)
         self._t_ok = {"leader": -np.inf, "follower": -np.inf}  # time of the last complete sample [s]
         self._misses = {"leader": 0, "follower": 0}  # reads in a row without a new complete sample
         self._leader_ok = False
@@ -323,6 +327,7 @@ class ArmPair:
         else:
             tau_sent = np.zeros(self.leader.n_joints)
         self.sent = None
+        offset = None if self.perturb is None else np.zeros(self.follower.n_joints)
         if self.phase == SOFT_START:
             self.q_target, done = self.soft.step(q_leader_f)
             self.sent = self.follower.command(FollowerCommand(q=self.q_target))
@@ -333,7 +338,12 @@ class ArmPair:
             prev = self.q_target if self.q_target is not None else fs.q
             self.q_target = rate_limit(q_leader_f, prev, self.soft.rate, dt)
             grip = self.map.gripper_forward(ls.gripper_pos)
-            self.sent = self.follower.command(FollowerCommand(q=self.q_target, gripper=grip))
+            q_cmd = self.q_target  # the operator's target; a perturbation offsets what is sent, not it
+            if offset is not None:
+                offset = np.asarray(self.perturb(now), dtype=float)
+                q_cmd = q_cmd + offset
+            self.sent = self.follower.command(FollowerCommand(q=q_cmd, gripper=grip))  # the safety layer
+        self._offset = offset
         self.last = self._record(now, ls, fs, tau_sent, out)
         return self.last
 
@@ -414,7 +424,10 @@ class ArmPair:
                 self._say("feedback back on: the estimator answers again", logging.INFO)
 
     def _input(self, now: float, fs: JointState, q_leader_f: np.ndarray) -> EstimatorInput:
-        return EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f, q_target_f=self.q_target)
+        sent = self.q_target
+        if self._offset is not None and sent is not None:  # what was sent: the perturbed target
+            sent = sent + self._offset
+        return EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f, q_target_f=sent)
 
     def _leader_inputs(self, now: float, ls: JointState, fs: JointState) -> LeaderInputs:
         est = self.estimate
@@ -438,4 +451,5 @@ class ArmPair:
             action_hold=bool(sent.hold) if sent is not None else self.phase in (HOLD, FAULT, STOPPED),
             leader_tau_terms=dict(out.terms) if out is not None else {},
             gate=out.gate if out else 0.0, contact=bool(out.contact) if out else False,
-            fresh=bool(out.fresh) if out else False, leader_gripper_tau_fb=out.gripper_tau if out else 0.0)
+            fresh=bool(out.fresh) if out else False, leader_gripper_tau_fb=out.gripper_tau if out else 0.0,
+            perturb_q=self._offset)

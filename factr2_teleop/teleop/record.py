@@ -45,6 +45,8 @@ class TickRecord:
     loop_overruns: int = 0
     loop_busy_s: float = float("nan")
     loop_late_s: float = float("nan")
+    perturb_q: np.ndarray | None = None  # the perturbation offset added to the target this tick [rad]
+    # (teleop/perturb.py; zeros outside its windows; None: no perturbation in this collection)
 
     def tau_term(self, name: str) -> np.ndarray | None:
         """One leader-law term [N*m] (None when the law did not run this tick)."""

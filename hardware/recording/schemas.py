@@ -60,6 +60,11 @@ def command_topic(arm: str) -> str:
     return f"/{arm}/command"
 
 
+def perturb_topic(arm: str) -> str:
+    """A perturbed collection's offsets on the follower's target (PERTURBATION)."""
+    return f"/{arm}/perturb"
+
+
 def ground_truth_topic(arm: str) -> str:
     return f"/{arm}/ground_truth"
 
@@ -176,10 +181,15 @@ ROLLOUT_DRIVER = Schema("factr2.RolloutDriver", "who drives the follower in a ro
     _f("driver", "", "int", False, "driver", "0 = the policy, 1 = the operator through the leader"),
     _f("hand_nm", "N*m", "float", False, "hand_torque", "the hand's torque on the leader at the change"),
 ))
+PERTURBATION = Schema("factr2.Perturbation", "a perturbed collection (DART-style, `factr2 collect "
+                      "--perturb`): the offset added to the operator's follower target before the safety "
+                      "layer, every tick of an episode (zeros outside the perturbation windows)", (
+    _f("offset", "rad", "float", True, "joint.perturb", "offset added to the joint target"),
+))
 NUMERIC_SCHEMAS: dict[str, Schema] = {s.name: s for s in (JOINT_STATE, EXTERNAL_TORQUE, TORQUE_COMMAND,
                                                            FOLLOWER_COMMAND, GROUND_TRUTH, LOOP_TIMING,
                                                            TASK_OBJECTS, ROLLOUT_DRIVER,
-                                                           PERCEIVED_OBJECTS)}
+                                                           PERCEIVED_OBJECTS, PERTURBATION)}
 EVENT_SCHEMA_NAME = "factr2.Event"
 ACTION = "action"  # the arm prefix of the follower's command: the policy's action (hardware/features.py)
 

@@ -12,7 +12,8 @@ camera rate) with
                                perception.py; what the demonstrator's camera gave), held the same way
     action                     the next `chunk` commanded joint targets [rad] + gripper [m]
                                (/follower/command) from this tick on; past the episode end the last one is
-                               repeated and masked out
+                               repeated and masked out; a perturbed collection's ticks: the operator's
+                               target (the offset taken off) or masked out (policies/data/perturbed.py)
     phase                      FIRST phase of the tick (policies.labels.phases)
     source                     who made the tick: a demonstration, or in a rollout recording the policy, the
                                pre-intervention window or the operator (hardware/recording/interventions.py)
@@ -40,6 +41,7 @@ from hardware.recording.reader import Episode, interp_linear
 from hardware.timeseries import hold_previous
 from policies.data.frame_cache import camera_frames
 from policies.data.normalizer import Normalizer
+from policies.data.perturbed import DEFAULT_PERTURBED, offset_on_grid, perturbed_actions
 from policies.data.preprocess import ImagePath, Preprocess, crop_pool, relative_columns, to_frame
 from policies.data.privileged import OBSERVATIONS, objects_feature, uses_images
 from policies.data.recordings import ArmSet, episode_id, follower_state_action, recording_features
@@ -94,6 +96,8 @@ class PolicyData:
     objects: np.ndarray | None = None  # (N, O) float32 privileged object vector, None when not observed
     source: np.ndarray | None = None  # (N,) int8 sample source (hardware/recording/interventions.py
     # SOURCE_NAMES), None when every sample is a demonstration's
+    perturbed: np.ndarray | None = None  # (N,) bool: the tick's target was perturbed (policies/data/
+    # perturbed.py), None when no tick was
     _crop_pool: Executor | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
@@ -195,17 +199,21 @@ def _episode_samples(
     th: Thresholds,
     next_model: NextModel | None,
     objects: str | None = None,
+    perturbed: str = DEFAULT_PERTURBED,
 ) -> dict | None:
-    """One episode's samples; objects: the topic of the object vector to hold onto the ticks (None: none)."""
+    """One episode's samples; objects: the topic of the object vector to hold onto the ticks (None: none);
+    perturbed: what a perturbed collection's ticks teach (policies/data/perturbed.py)."""
     js0 = ep.topic(S.joint_state_topic(arms.followers[0]))
     t0 = max([js0.t[0]] + [rec_frames_t[c][0] for c in cams if len(rec_frames_t[c])])
     if t0 >= js0.t[-1]:
         return None
     grid = t0 + np.arange(int(np.floor((js0.t[-1] - t0) * rate)) + 1) / rate
-    state, action, force_parts = [], [], []
+    state, action, force_parts, hits = [], [], [], []
     for arm in arms.followers:
         js = ep.topic(S.joint_state_topic(arm))
         st, act = follower_state_action(ep, arm, grid, "learn")
+        act, hit = perturbed_actions(act, offset_on_grid(ep, arm, grid, act.shape[1] - 1), perturbed)
+        hits.append(hit)
         state.append(st)
         action.append(act)
         if force == "current":
@@ -230,6 +238,9 @@ def _episode_samples(
         return None
     keep = np.flatnonzero(ok)
     a, m = _chunks(action[keep], chunk)
+    hit = np.any(hits, axis=0)[keep]
+    if perturbed == "skip":  # the perturbed ticks' actions leave the loss; their states stay observations
+        m = m & ~_chunks(hit[:, None], chunk)[0][..., 0]
     fc, _ = _chunks(fvals[keep], chunk)
     return {
         "state": state[keep],
@@ -239,6 +250,7 @@ def _episode_samples(
         "force_chunk": fc,
         "phase": labels.at(grid[keep]) if labels is not None else np.zeros(len(keep), np.int8),
         "source": source_on_grid(ep, grid[keep]),
+        "perturbed": hit,
         "frame_idx": fidx[keep],
         **({"objects": ovals[keep]} if objects else {}),
     }
@@ -260,10 +272,12 @@ def build_dataset(
     progress=None,
     observation: str = "images",
     action_frame: str = "absolute",
+    perturbed: str = DEFAULT_PERTURBED,
 ) -> PolicyData:
     """observation: "images" (camera frames), "state" (the PRIVILEGED task-object vector, no frames read),
     "perceived" (the SIMULATED detector's vector instead) or either with images ("images+state",
-    policies/data/privileged.py); action_frame: "absolute" or "relative" (Preprocess)."""
+    policies/data/privileged.py); action_frame: "absolute" or "relative" (Preprocess); perturbed: "dart" or
+    "skip", what a perturbed collection's ticks teach (policies/data/perturbed.py)."""
     if force not in FORCE_SOURCES:
         raise ValueError(f"force {force!r}: one of {FORCE_SOURCES}")
     if observation not in OBSERVATIONS:
@@ -288,7 +302,7 @@ def build_dataset(
     for ep in episodes:
         ri = recs.index(ep.recording)
         got = _episode_samples(ep, arms, cams, frames_t[ri], rate, chunk, force, th, next_model,
-                               S.OBJECT_TOPICS[feature] if object_names else None)
+                               S.OBJECT_TOPICS[feature] if object_names else None, perturbed)
         if got is None:
             continue
         got["episode"] = np.full(len(got["state"]), len(ids), np.int32)
@@ -327,6 +341,7 @@ def build_dataset(
         val_episodes=val,
         objects=cat["objects"].astype(np.float32) if object_names else None,
         source=cat["source"] if bool((cat["source"] != SOURCE_DEMO).any()) else None,
+        perturbed=cat["perturbed"] if bool(cat["perturbed"].any()) else None,
     )
     train_idx, _ = data.split()
     relative = relative_columns(io["action"], {n: feature_size(features[n]) for n in io["action"]})

@@ -18,6 +18,7 @@ from hardware.recording import schemas as S
 from hardware.recording.cache import cache_key
 from hardware.recording.metadata import software_version
 from policies.data.dataset import build_dataset
+from policies.data.perturbed import DEFAULT_PERTURBED
 from policies.data.recordings import (
     describe_rig,
     episode_id,
@@ -52,6 +53,8 @@ def _entry(meta: dict, key: str):
         return (meta.get("train") or {}).get("precision", "auto")
     if key == "actions":  # runs from before the choice learned absolute targets
         return meta.get("actions", "absolute")
+    if key == "perturbed":  # runs from before the choice: the default (their data had no perturbed tick)
+        return meta.get("perturbed", DEFAULT_PERTURBED)
     if key == "phases":  # the thresholds and their kind of source; the source's message is for people
         ph = meta.get("phases")
         return phases_identity(ph) if isinstance(ph, dict) else ph
@@ -169,7 +172,7 @@ def prepare(o: RunOptions, d: Dist):
         return build_dataset(episodes, arms, th=th, chunk=pcfg.chunk, image_size=pcfg.image_size,
                              force=o.force, rate_hz=o.rate_hz, next_model=next_model,
                              val_fraction=o.val_fraction, seed=tcfg.seed, observation=o.observation,
-                             action_frame=o.actions)
+                             action_frame=o.actions, perturbed=o.perturbed)
 
     # rank 0 decodes the frame caches first, the others then read them; an input error on rank 0 still
     # reaches the barrier, and the others then meet the same error themselves (nobody waits forever)
@@ -211,7 +214,8 @@ def prepare(o: RunOptions, d: Dist):
         # left out by default (failed demonstrations, episodes cut off), and the flags that kept the others
         "skipped_episodes": skipped,
         "tasks": _tasks(episodes),  # what rollout checks its --task against (session/task_check.py)
-        "samples": {"train": int(len(train_idx)), "val": int(len(data) - len(train_idx))},
+        "samples": {"train": int(len(train_idx)), "val": int(len(data) - len(train_idx)),
+                    "perturbed": int(data.perturbed.sum()) if data.perturbed is not None else 0},
         # what the sampler re-weights: the training split's share of each phase (free, pre-contact, contact)
         "phase_shares": dict(zip(("free", "pre_contact", "contact"), map(float, _shares(data)))),
         "rig": describe_rig(episodes[0]),
@@ -248,6 +252,9 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
             f"{' / '.join(f'{x:.0%}' for x in _shares(data))}; method {o.method}, ratio "
             f"{format_ratio(o.ratio)}, force {o.force}; {d.world} process(es) on {d.device}"
             + _sources(data, o.source_weights)
+            + (f"; {meta['samples']['perturbed']} perturbed samples ({o.perturbed}: "
+               + ("the operator's target learned" if o.perturbed == "dart" else "their actions masked") + ")"
+               if meta["samples"]["perturbed"] else "")
         )
     with data:  # the data's crop threads end with the run
         return train(data, pcfg, o, meta, d, resume_from, TrainHooks(stop_at, on_progress, stop))

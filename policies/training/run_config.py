@@ -18,6 +18,7 @@ from pathlib import Path
 
 from hardware.errors import UserError
 from policies.data.dataset import FORCE_SOURCES
+from policies.data.perturbed import DEFAULT_PERTURBED, PERTURBED_MODES
 from policies.data.preprocess import ACTION_FRAMES
 from policies.data.privileged import OBSERVATIONS, low_dimensional
 from policies.data.sampler import DEFAULT_SOURCE_WEIGHTS, parse_ratio, parse_source_weights
@@ -258,6 +259,10 @@ class RunOptions:
         "the "
         "joints at each observation (grippers absolute; policies.data.preprocess.Preprocess)",
         choices=ACTION_FRAMES))
+    perturbed: str = option(DEFAULT_PERTURBED, resume="perturbed", flag=Flag(
+        "--perturbed", "a perturbed collection's ticks (factr2 collect --perturb): dart (default) learns the "
+        "operator's target, the offset taken off, from the states the perturbation led to; skip masks the "
+        "perturbed ticks' actions out of the loss (policies/data/perturbed.py)", choices=PERTURBED_MODES))
     episodes: tuple | None = option(None, resume="data_hash")  # ids ("FILE.mcap#N"); None: every usable one
     include_failed: bool = option(False, resume="data_hash", flag=Switch(
         "--include-failed",
@@ -301,7 +306,8 @@ class RunOptions:
                 "ratio": list(r.ratio), "source_weights": list(r.source_weights), "force": r.force,
                 "observation": r.observation,
                 "include_failed": r.include_failed, "keep_incomplete": r.keep_incomplete,
-                "rate_hz": r.rate_hz, "train": r.train.to_dict(), "actions": r.actions}
+                "rate_hz": r.rate_hz, "train": r.train.to_dict(), "actions": r.actions,
+                "perturbed": r.perturbed}
 
     @classmethod
     def from_meta(cls, meta: dict, inputs: list, out: Path, **kw) -> RunOptions:
@@ -327,6 +333,7 @@ class RunOptions:
                    rate_hz=meta.get("rate_hz"),
                    train=TrainConfig.from_dict(meta["train"]), overrides=ov or None, observation=observation,
                    actions=meta.get("actions", "absolute"),
+                   perturbed=meta.get("perturbed", DEFAULT_PERTURBED),
                    episodes=tuple(meta["episodes"]) if "episodes" in meta else None,
                    include_failed=bool(meta.get("include_failed", True)),
                    keep_incomplete=bool(meta.get("keep_incomplete", True)), **own)
