@@ -28,6 +28,7 @@ import numpy as np
 
 from bench import harness
 from bench.first_report import mcnemar_p, wilson
+from bench.portable import portable, portable_text
 
 FORCE_CELLS = ("base-torque", "first")  # the cells with a force input
 CELLS = ("base",) + FORCE_CELLS
@@ -277,11 +278,12 @@ def main(argv=None) -> int:
         md, data = report(out, against)
         (out / "force_table.md").write_text(md)
         (out / "force_results.json").write_text(json.dumps(data, indent=1, default=float))
-        if a.results:
+        if a.results:  # OUT and OUT_STATE are scratch folders: named, not the machine's paths
+            roots = {"OUT": out.resolve(), "OUT_STATE": against.resolve() if against else None}
+            cmd = harness.command().replace(str(a.out), "OUT").replace(a.against or "\0", "OUT_STATE")
             print(harness.write(harness.RESULTS / f"{a.results}.json",
-                                harness.record(a.results, data, simulated=True,  # OUT: a scratch folder
-                                               cmd=harness.command().replace(str(a.out), "OUT")
-                                               .replace(a.against or "\0", "OUT_STATE"))))
+                                harness.record(a.results, portable(data, roots), simulated=True,
+                                               cmd=portable_text(cmd, roots))))
         print(md)
     return 0
 

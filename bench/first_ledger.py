@@ -24,6 +24,8 @@ import json
 import os
 from pathlib import Path
 
+from bench.portable import portable
+
 LEDGER_VERSION = 1
 # settings a kept result depends on, compared between a ledger and a run (folders and checkpoint paths are
 # compared through the fingerprint instead: they move between runs and machines)
@@ -123,7 +125,7 @@ def export_cells(out: Path, ledger: Path, fingerprints: dict, config: dict, sess
         c["demos_fingerprint"] = fingerprints[k[0]]
         c["session"] = session
         c["env"] = env
-        data["cells"].append(c)
+        data["cells"].append(portable(c, {"OUT": Path(out).resolve()}))  # no machine folder in the repository
         added += 1
     data["cells"].sort(key=_key)
     tmp = Path(ledger).with_name(f".{Path(ledger).name}.tmp")
@@ -178,7 +180,8 @@ def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict,
             skipped.append(f"{task} {cell} seed {seed}: taken, its seed's pair whole on collection {fp} "
                            f"(this run's: {fingerprints.get(task)})")
         run.mkdir(parents=True, exist_ok=True)
-        for name in ("train", "rollout"):
-            (run / f"{name}.json").write_text(json.dumps(c[name], indent=1, default=float))
+        for name in ("train", "rollout"):  # the train's run folder is this OUT's (the ledger keeps OUT/...)
+            part = {**c[name], "run": str(run)} if "run" in c[name] else c[name]
+            (run / f"{name}.json").write_text(json.dumps(part, indent=1, default=float))
         n += 1
     return n, skipped

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import harness
+from bench.portable import portable, portable_text
 
 PHASES = ("F", "PC", "C")
 DOCS_BEGIN = "<!-- bench_first:begin (written by bench/bench_first.py --write-docs) -->"
@@ -92,10 +93,16 @@ def raw_results(results: dict) -> dict:
             {"seed": r["seed"], "success": _outcomes(r),
              "progress": [float(e.get("progress", 0.0)) for e in eps],
              "episode_seeds": [e.get("seed") for e in eps], "stage_rates": r.get("stage_rates")})
-    out["config"] = {"command": results.get("command"), "observation": results["observation"],
-                     "machine": results["machine"], "bench": results["config"], "simulated": True,
-                     "timing": results["timing"]}
+    out["config"] = portable({"command": results.get("command"), "observation": results["observation"],
+                              "machine": results["machine"], "bench": results["config"], "simulated": True,
+                              "timing": results["timing"]}, _roots(results))  # no machine folder in it
     return out
+
+
+def _roots(results: dict) -> dict:
+    """The folders a bench_first run names: its OUT (bench/portable.py)."""
+    out = (results.get("config") or {}).get("out")
+    return {"OUT": Path(out).resolve()} if out else {}
 
 
 def mcnemar_p(b: int, c: int) -> float:
@@ -295,4 +302,5 @@ def write_docs(results: dict, out: Path, docs: Path) -> None:
     shutil.copyfile(out / "first_bench.png", docs / "first_bench.png")
     raw = json.loads((out / "first_results.json").read_text())
     harness.write(docs.parent / "results" / "first_headline.json",
-                  harness.record("first_headline", raw, simulated=True, cmd=results.get("command")))
+                  harness.record("first_headline", raw, simulated=True,
+                                 cmd=portable_text(results.get("command") or "", _roots(results)) or None))
