@@ -165,8 +165,8 @@ class DamiaoEmulator(CanEmulatorIO):
                 if self.spike_rad is not None and k < len(self.spike_rad) and self.spike_rad[k]:
                     q[k] += float(self.spike_rad[k])  # one glitched frame, then the encoder reads true
                     self.spike_rad[k] = 0.0
-                raw = D.encode_feedback(self.ids[k], int(err), q[k], v[k], tau[k], temp[k], temp[k],
-                                        self.ranges[k])
+                raw = D.encode_feedback(self.ids[k], int(err), D.reported_position(q[k], self.ranges[k].pmax),
+                                        v[k], tau[k], temp[k], temp[k], self.ranges[k])
             self._send(self.master_ids[k], raw)
 
     # -- firmware timers ---------------------------------------------------------------------------------

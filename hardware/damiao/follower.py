@@ -73,6 +73,7 @@ class DamiaoFollower(Follower):
         self.slave_ids, self.master_ids = slaves, masters
         self.n_motors = len(slaves)
         self.ranges = [m.ranges for m in models]  # replaced by registers 21-23 at connect
+        self._set_wrap()
         self.kt = np.array([m.torque_constant for m in models])
         self.registers: list[dict[int, float | int]] = [{} for _ in slaves]
         self.decoder = D.DamiaoFeedbackDecoder(slaves, masters)
@@ -84,6 +85,11 @@ class DamiaoFollower(Follower):
         self.fallback: dict[int, float | None] = {}  # slave id -> command timeout read back at connect [s]
         self.warnings: list[str] = []
         self._t_hold_sent = float("nan")
+
+    def _set_wrap(self) -> None:
+        """A joint's reading rolls over at +-PMAX (the 16-bit field of a multi-turn count): Device.read puts
+        it back on the joint's turn, a period of 2 * PMAX (hardware/wrap.py)."""
+        self.wrap_period_rad = np.array([2.0 * r.pmax for r in self.ranges[:self.n_joints]])
 
     # -- connection --------------------------------------------------------------------------------------
     @property
@@ -112,6 +118,7 @@ class DamiaoFollower(Follower):
                 r = self.registers[k]
                 self.ranges[k] = D.MotorRanges(float(r[D.RID_PMAX]), float(r[D.RID_VMAX]),
                                                float(r[D.RID_TMAX]))
+                self._set_wrap()
                 self._set_timeout(k)
             self._say_timeout_refusals()
             t0 = self.clock.now()

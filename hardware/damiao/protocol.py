@@ -71,6 +71,12 @@ class MotorRanges:
     tmax: float
 
 
+def reported_position(q: float, pmax: float) -> float:
+    """The position [rad] a motor at multi-turn position q [rad] reports: rolled over into the 16-bit field's
+    [-PMAX, PMAX), a period of 2 * PMAX (the follower unwraps it: DamiaoFollower.wrap_period_rad)."""
+    return (q + pmax) % (2.0 * pmax) - pmax
+
+
 @dataclass(frozen=True)
 class MotorModel:
     ranges: MotorRanges  # datasheet defaults (registers 21-23 win)
