@@ -115,7 +115,7 @@ def training_advice(rows: list[dict], n_episodes: int, tasks=(), key: str = KEY)
     at = f"at {n_episodes} demonstrations"
     if c.kind == "none":
         return [f"advice: {c.why}: no basis for advice"
-                + (" (record at least 2 episodes and keep --val-fraction above 0)" if not c.step_end else "")]
+                + (" (validation holds out whole episodes: record at least 2)" if not c.step_end else "")]
     spread = f"noise {100 * c.noise:.0f} %"
     if c.kind == "up":
         return [f"advice: validation loss turned up after {_k(c.step_min)} of {_k(c.step_end)} steps {at} "
