@@ -132,3 +132,14 @@ def test_a_short_twin_collection_marks_its_perturbed_ticks_and_training_reads_th
     assert np.abs(grid_cmd).max() > 1e-3 and np.abs(grid_cmd).max() <= cfg.amplitude_rad + 1e-6
     assert np.array_equal(dart.action[~p, 0], skip.action[~p, 0])
     assert not skip.mask[p, 0].any() and dart.mask[p, 0].all()
+
+    # `factr2 train --perturbed skip` on it: the run counts its perturbed samples and names the mode
+    from factr2_teleop.cli import main
+    from policies.training import checkpoint as C
+
+    run = tmp_path / "run"
+    assert main(["train", str(out["recording"]), "--out", str(run), "--obs", "joints", "--method", "base",
+                 "--steps", "3", "--batch", "8", "--warmup", "1", "--include-failed", "--no-progress",
+                 "--threads", "1", "--perturbed", "skip"]) == 0
+    meta = C.read_meta(run)
+    assert meta["perturbed"] == "skip" and meta["samples"]["perturbed"] > 0
