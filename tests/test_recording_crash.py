@@ -23,6 +23,7 @@ from hardware.recording.recover import recover
 
 REPO = Path(__file__).resolve().parents[1]
 MIN_IMAGES = 15  # images the child hands over before it is killed (one every 33 samples)
+FLUSH_S = 0.5  # s: what a SIGKILL of both may lose: twice the writer's flush interval (Recorder's 0.25 s)
 
 CHILD = r"""
 import sys, time
@@ -42,8 +43,8 @@ while True:
     rec.log_joint_state("follower", t, s)
     if k % 33 == 0:
         rec.log_image("cam", t, frame.copy())
-    if k % 10 == 0:
-        print(repr(t), k // 33 + 1, flush=True)  # handed to the recorder so far: time, images
+    if k % 10 == 0:  # so far: time, images handed to the recorder, images its writer has written
+        print(repr(t), k // 33 + 1, rec.status().frames_written, flush=True)
     k += 1
     time.sleep(0.001)
 """
@@ -51,9 +52,10 @@ while True:
 
 def _record_then_kill(path: Path, kill_writer: bool) -> tuple[float, int, list]:
     """Run CHILD for ~1.5 s, at least MIN_IMAGES images (a slow machine runs fewer of its 1 ms steps a
-    second, #53) and until its writer has written; SIGKILL it (and its writer process when kill_writer),
-    wait until the writer is gone. Returns (the last time the child handed over [s], the writer's pid,
-    [(time, images handed)])."""
+    second, #53) and until its writer has written, an image too a flush interval ago (its JPEG encoding
+    lags on a slow core); SIGKILL it (and its writer process when kill_writer), wait until the writer is
+    gone. Returns (the last time the child handed over [s], the writer's pid, [(time, images handed,
+    images written)])."""
     env = dict(os.environ, PYTHONPATH=str(REPO))
     proc = subprocess.Popen([sys.executable, "-c", CHILD, str(path)], stdout=subprocess.PIPE, text=True,
                             env=env)
@@ -62,8 +64,8 @@ def _record_then_kill(path: Path, kill_writer: bool) -> tuple[float, int, list]:
 
     def reader():
         for line in proc.stdout:
-            t, n = line.split()
-            last.append((float(t), int(n)))
+            t, n, w = line.split()
+            last.append((float(t), int(n), int(w)))
 
     th = threading.Thread(target=reader, daemon=True)
     th.start()
@@ -75,7 +77,7 @@ def _record_then_kill(path: Path, kill_writer: bool) -> tuple[float, int, list]:
         size = path.stat().st_size if path.exists() else 0
         header = header or size or None
         ran = bool(last) and last[-1][0] - last[0][0] >= 1.5 and last[-1][1] >= MIN_IMAGES
-        if ran and header and size > header:
+        if ran and header and size > header and _count_before(last, last[-1][0] - FLUSH_S - _stall(last), 2):
             break
         time.sleep(0.05)
     assert last, "child never started recording"
@@ -89,12 +91,18 @@ def _record_then_kill(path: Path, kill_writer: bool) -> tuple[float, int, list]:
         if Path(f"/proc/{writer}/stat").read_text().split(")")[1].split()[0] == "Z":
             break
         time.sleep(0.02)
-    return max(t for t, _ in last), writer, last
+    return max(row[0] for row in last), writer, last
 
 
-def _images_before(handed: list, t: float) -> int:
-    """Images the child had handed over by time t [s]."""
-    return max((n for tn, n in handed if tn <= t), default=0)
+def _count_before(handed: list, t: float, col: int = 1) -> int:
+    """Images the child had handed over (col 1) or its writer had written (col 2) by time t [s]."""
+    return max((row[col] for row in handed if row[0] <= t), default=0)
+
+
+def _stall(handed: list) -> float:
+    """The longest this machine left the child unscheduled while it ran [s] (a busy or slow machine leaves
+    the writer so too: its flush comes that much later, #53; ~0 when quiet)."""
+    return max(0.0, float(np.max(np.diff([row[0] for row in handed]))) - 0.011) if len(handed) > 1 else 0.0
 
 
 def _independent_count(path: Path, topic: str) -> int:
@@ -117,7 +125,7 @@ def test_sigkill_of_the_app_loses_nothing_the_writer_finishes_the_file(tmp_path)
     assert t_handed - js.t[-1] <= 0.01  # all that was handed over (the last print may trail one sample)
     assert not rec.truncated
     assert rec.episodes[0].outcome == "incomplete" and rec.episodes[0].task == "crash test"
-    assert len(rec.frames("cam")) >= _images_before(handed, t_handed)  # every image handed over
+    assert len(rec.frames("cam")) >= _count_before(handed, t_handed)  # every image handed over
     assert _independent_count(path, "/follower/joint_state") == len(js)
     assert rec.metadata.get("factr2.recorder_stats", {}).get("ended") == "producer ended without closing"
 
@@ -129,14 +137,13 @@ def test_sigkill_of_app_and_writer_loses_at_most_the_flush_interval(tmp_path):
     with pytest.warns(UserWarning, match="truncated"):
         rec = Recording(path, use_cache=False)
     t_last = rec.topic("/follower/joint_state").t[-1]
-    # the flush interval (0.5 s), plus the longest this machine left the child unscheduled while it ran (a
-    # busy or slow machine leaves the writer so too: its flush comes that much later, #53; ~0 when quiet)
-    stall = max(0.0, float(np.max(np.diff([t for t, _ in handed]))) - 0.011)
+    # the flush interval, plus the longest this machine left the child unscheduled while it ran
+    stall = _stall(handed)
     print(f"SIGKILL of both lost {t_handed - t_last:.3f} s of joint states (longest stall {stall:.3f} s)")
-    assert t_handed - t_last <= 0.5 + stall, f"lost {t_handed - t_last:.3f} s"
+    assert t_handed - t_last <= FLUSH_S + stall, f"lost {t_handed - t_last:.3f} s"
     assert rec.truncated and rec.episodes[0].outcome == "incomplete" and rec.episodes[0].task == "crash test"
-    # the images handed over before the last flush interval are in the file
-    assert len(rec.frames("cam")) >= max(1, _images_before(handed, t_handed - 0.5 - stall))
+    # the images the writer had written (JPEG-encoded) before the last flush interval are in the file
+    assert len(rec.frames("cam")) >= max(1, _count_before(handed, t_handed - FLUSH_S - stall, 2))
     report = recover(path)
     out = tmp_path / "killed.recovered.mcap"
     assert report.was_truncated and out.exists()

@@ -12,6 +12,7 @@ import pytest
 from machine_speed import budget
 from recording_helpers import joint_state
 
+from factr2_teleop.session.recording import TIMING_EVERY
 from hardware.recording import Recorder, Recording
 
 
@@ -79,9 +80,12 @@ def test_realtime_teleop_counts_frames_from_capture_start(tmp_path):
     frames = Recording(rec.path).episodes[0].frames("scene")
     assert len(frames) >= stats.captured - 1 and np.all(np.diff(frames.t) > 0)
     # the loop's sampled timing is measured, not written as zeros: time inside the previous tick, lateness
+    # one every TIMING_EVERY ticks the episode recorded (as many as this machine ran, #53)
     tm = Recording(rec.path).topic("/loop/timing").fields
     busy, late = tm["busy_s"], tm["late_s"]
-    assert len(busy) >= 20 and np.all(np.isfinite(busy)) and np.all(np.isfinite(late))
+    ticks = len(Recording(rec.path).topic("/follower/joint_state"))
+    assert len(busy) >= max(2, ticks // TIMING_EVERY - 1), (len(busy), ticks)
+    assert np.all(np.isfinite(busy)) and np.all(np.isfinite(late))
     assert np.median(busy) > 1e-5 and np.all(busy < 1.0) and np.all(late > -1e-3)
 
 
