@@ -16,7 +16,7 @@ from enum import Enum
 import numpy as np
 
 from hardware.reasons import Reason, messages
-from hardware.small_vec import all_finite, count_changed
+from hardware.small_vec import all_finite
 from hardware.types import FollowerCommand, JointLimits
 
 DEFAULT_WATCHDOG_S = 0.05  # s: commands or feedback older than this put the device in its safe state
@@ -55,19 +55,9 @@ def limit_position_target(q_target: np.ndarray, q_prev: np.ndarray, dt_s: float,
     Returns (safe target, number of joints that were changed).
     """
     raw = np.asarray(q_target, dtype=float)
-    return _limit_position_target(raw, all_finite(raw), q_prev, dt_s, lim)
-
-
-def _limit_position_target(raw: np.ndarray, finite: bool, q_prev: np.ndarray, dt_s: float,
-                           lim: JointLimits) -> tuple[np.ndarray, int]:
-    """limit_position_target of a float array whose finiteness the caller knows."""
-    q = raw if finite else np.where(np.isfinite(raw), raw, q_prev)
-    step = lim.v_max * _rate_dt(dt_s)
-    # q_prev is inside the limits, so lo <= hi on every joint
-    lo = np.maximum(q_prev - step, lim.q_min)
-    hi = np.minimum(q_prev + step, lim.q_max)
-    out = np.minimum(np.maximum(q, lo), hi)
-    return out, count_changed(out, raw)
+    out, c = limit_position_floats(raw.tolist(), np.asarray(q_prev, dtype=float).tolist(), _rate_dt(dt_s),
+                                   lim.v_max.tolist(), lim.q_min.tolist(), lim.q_max.tolist())
+    return np.array(out), c
 
 
 def implausible_jump(q: np.ndarray, q_prev: np.ndarray, dt_s) -> np.ndarray:
@@ -91,18 +81,61 @@ def limit_torque(tau: np.ndarray, tau_prev: np.ndarray, dt_s: float,
     Returns (safe torque, number of joints changed).
     """
     raw = np.asarray(tau, dtype=float)
-    return _limit_torque(raw, all_finite(raw), tau_prev, dt_s, lim)
+    out, c = limit_torque_floats(raw.tolist(), np.asarray(tau_prev, dtype=float).tolist(), _rate_dt(dt_s),
+                                 lim.tau_rate_max.tolist(), lim.tau_max.tolist())
+    return np.array(out), c
 
 
-def _limit_torque(raw: np.ndarray, finite: bool, tau_prev: np.ndarray, dt_s: float,
-                  lim: JointLimits) -> tuple[np.ndarray, int]:
-    """limit_torque of a float array whose finiteness the caller knows."""
-    t = raw if finite else np.where(np.isfinite(raw), raw, 0.0)
-    r = lim.tau_rate_max * _rate_dt(dt_s)
-    lo = np.maximum(np.minimum(tau_prev - r, np.minimum(tau_prev, 0.0)), -lim.tau_max)
-    hi = np.minimum(np.maximum(tau_prev + r, np.maximum(tau_prev, 0.0)), lim.tau_max)
-    out = np.minimum(np.maximum(t, lo), hi)
-    return out, count_changed(out, raw)
+def limit_torque_floats(raw: list[float], tau_prev: list[float], r_dt: float, rate: list[float],
+                        tau_max: list[float]) -> tuple[list[float], int]:
+    """limit_torque's math on plain floats (the 500 Hz path: the ~15 numpy calls it took on 6 values cost
+    more than this loop), bit for bit the numpy form lo = max(min(prev - r, min(prev, 0)), -tau_max),
+    hi = min(max(prev + r, max(prev, 0)), tau_max), out = min(max(tau, lo), hi) (tests/test_safety_floats.py):
+    numpy's maximum/minimum written out (NaN wins, a tie gives the second operand: small_vec.np_max).
+    raw [N*m] as given (a non-finite entry becomes 0), tau_prev [N*m], r_dt: _rate_dt(dt) [s],
+    rate: tau_rate_max [N*m/s], tau_max [N*m].
+    Returns (safe torque, number of joints changed)."""
+    out: list[float] = []
+    changed = 0
+    isfinite = math.isfinite
+    for x0, p, rr, m in zip(raw, tau_prev, rate, tau_max, strict=True):
+        x = x0 if isfinite(x0) else 0.0
+        r = rr * r_dt
+        a, b = p - r, (p if (p < 0.0 or p != p) else 0.0)
+        lo = a if (a < b or a != a) else b
+        nm = -m
+        lo = lo if (lo > nm or lo != lo) else nm
+        a, b = p + r, (p if (p > 0.0 or p != p) else 0.0)
+        hi = a if (a > b or a != a) else b
+        hi = hi if (hi < m or hi != hi) else m
+        y = x if (x > lo or x != x) else lo
+        y = y if (y < hi or y != y) else hi
+        out.append(y)
+        changed += y != x0
+    return out, changed
+
+
+def limit_position_floats(raw: list[float], q_prev: list[float], r_dt: float, v_max: list[float],
+                          q_min: list[float], q_max: list[float]) -> tuple[list[float], int]:
+    """limit_position_target's math on plain floats, bit for bit the numpy form lo = max(prev - step, q_min),
+    hi = min(prev + step, q_max), out = min(max(q, lo), hi) (as limit_torque_floats): a non-finite target
+    keeps q_prev [rad] (q_prev is inside the limits, so lo <= hi); r_dt: _rate_dt(dt) [s]; v_max [rad/s].
+    Returns (safe target, joints changed)."""
+    out: list[float] = []
+    changed = 0
+    isfinite = math.isfinite
+    for x0, p, v, qa, qb in zip(raw, q_prev, v_max, q_min, q_max, strict=True):
+        x = x0 if isfinite(x0) else p
+        step = v * r_dt
+        lo = p - step
+        lo = lo if (lo > qa or lo != lo) else qa
+        hi = p + step
+        hi = hi if (hi < qb or hi != hi) else qb
+        y = x if (x > lo or x != x) else lo
+        y = y if (y < hi or y != y) else hi
+        out.append(y)
+        changed += y != x0
+    return out, changed
 
 
 def limit_gains(kp: np.ndarray, kd: np.ndarray, lim: JointLimits) -> tuple[np.ndarray, np.ndarray, int]:
@@ -193,6 +226,8 @@ class SafetyLayer:
         self.holds = 0  # times the safe state was entered
         self.jumps_rejected = 0  # joint samples held: implausible jumps (Device.read), cumulative
         self.last_fault: Reason | str | None = None  # the last safe state's reason (or a caller's note)
+        self._floats_of: JointLimits | None = None
+        self._lim_floats: tuple[list[float], ...] = ()
 
     def _dt(self, now: float) -> float:
         dt = now - self._t_prev if math.isfinite(self._t_prev) else 0.0
@@ -206,9 +241,11 @@ class SafetyLayer:
             self._q_prev = safe_start_target(q_meas, lim)
         dt = self._dt(now)
         qv = _vec(cmd.q, n)
-        finite = all_finite(qv)  # once for both: the count of bad values and the limit's fast path
-        q, c1 = _limit_position_target(qv, finite, self._q_prev, dt, lim)
-        bad = 0 if finite else _n_bad(qv)
+        raw = qv.tolist()
+        lf = self._floats()
+        q, c1 = limit_position_floats(raw, self._q_prev.tolist(), _rate_dt(dt), lf[2], lf[3], lf[4])
+        q = np.array(q)
+        bad = 0 if all(map(math.isfinite, raw)) else _n_bad(qv)
         if cmd.tau_ff is None:  # no feed-forward: zero passes every torque limit unchanged (falling is free)
             tau, c2 = np.zeros(n), 0
         else:
@@ -245,14 +282,25 @@ class SafetyLayer:
         """Limit leader joint torques [N*m]."""
         dt = self._dt(now)
         tv = _vec(tau, self.limits.n, 0.0)
-        finite = all_finite(tv)  # once for both: the count of bad values and the limit's fast path
-        if not finite:
+        raw = tv.tolist()
+        if not all(map(math.isfinite, raw)):
             self.rejected += _n_bad(tv)
-        out, c = _limit_torque(tv, finite, self._tau_prev, dt, self.limits)
+        lf = self._floats()
+        out, c = limit_torque_floats(raw, self._tau_prev.tolist(), _rate_dt(dt), lf[0], lf[1])
         self.clipped += c
-        self._tau_prev = out
+        self._tau_prev = out = np.array(out)
         self.watchdog.feed_command(now)
         return SafeLeaderTorque(tau=out, _token=_TOKEN)
+
+    def _floats(self) -> tuple[list[float], ...]:
+        """The limits as lists for the float kernels (tau_rate_max, tau_max, v_max, q_min, q_max), made once
+        per JointLimits object."""
+        lim = self.limits
+        if self._floats_of is not lim:
+            self._floats_of = lim
+            self._lim_floats = tuple(a.tolist() for a in (lim.tau_rate_max, lim.tau_max, lim.v_max, lim.q_min,
+                                                          lim.q_max))
+        return self._lim_floats
 
     def leader_zero(self, now: float, reason: Reason | str) -> SafeLeaderTorque:
         """The leader's safe state: zero torque."""

@@ -13,7 +13,8 @@ from operator import ne, or_
 
 import numpy as np
 
-__all__ = ["all_finite", "count_changed", "bits_or", "all_within", "abs_sum"]
+__all__ = ["all_finite", "count_changed", "bits_or", "all_within", "abs_sum", "np_max", "np_min",
+           "clamp_floats"]
 
 
 def all_finite(a: np.ndarray) -> bool:
@@ -43,3 +44,25 @@ def abs_sum(a: np.ndarray) -> float:
     for x in a.tolist():
         s += abs(x)
     return s
+
+
+# numpy's elementwise maximum / minimum on two floats, bit for bit: NaN in either gives NaN (the first
+# operand's when both are), and a tie (0.0 and -0.0) gives the SECOND operand (numpy 2: `a > b ? a : b`
+# with NaN propagated). Python's max()/min() differ on both. Hot loops inline these same expressions.
+def np_max(a: float, b: float) -> float:
+    """np.maximum(a, b) on floats."""
+    return a if (a > b or a != a) else b
+
+
+def np_min(a: float, b: float) -> float:
+    """np.minimum(a, b) on floats."""
+    return a if (a < b or a != a) else b
+
+
+def clamp_floats(x: list[float], lo: list[float], hi: list[float]) -> list[float]:
+    """np.minimum(np.maximum(x, lo), hi) on lists of floats (hardware.params.clamp), bit for bit."""
+    out = []
+    for v, a, b in zip(x, lo, hi, strict=True):
+        v = v if (v > a or v != v) else a
+        out.append(v if (v < b or v != v) else b)
+    return out

@@ -15,8 +15,10 @@ I/O shell. It never falls back to a fake device: a missing port, id or wrong mod
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
+import struct
 
 import numpy as np
 
@@ -50,18 +52,10 @@ def decode_feedback(data: bytes, with_current: bool) -> tuple[int, int, int]:
     return cur, p.from_le(data[k : k + 4], True), p.from_le(data[k + 4 : k + 8], True)
 
 
-_FB_DTYPES = {True: np.dtype([("cur", "<i2"), ("vel", "<i4"), ("pos", "<i4")]),
-              False: np.dtype([("vel", "<i4"), ("pos", "<i4")])}
-
-
-def decode_feedback_blocks(data: bytes, with_current: bool) -> np.ndarray:
-    """decode_feedback for servo blocks back to back: (m, 3) int64 rows (current, velocity, position)."""
-    rec = np.frombuffer(data, dtype=_FB_DTYPES[with_current])
-    out = np.zeros((rec.shape[0], 3), np.int64)
-    if with_current:
-        out[:, 0] = rec["cur"]
-    out[:, 1], out[:, 2] = rec["vel"], rec["pos"]
-    return out
+@functools.lru_cache(maxsize=8)
+def _blocks_struct(with_current: bool, m: int) -> struct.Struct:
+    """decode_feedback's fields of m servo blocks back to back, flat: (current,) velocity, position each."""
+    return struct.Struct("<" + ("hii" if with_current else "ii") * m)
 
 
 def wrap_to_offset(q_servo_rad: np.ndarray, offset_rad: np.ndarray) -> np.ndarray:
@@ -84,6 +78,23 @@ def torque_to_current_units(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_unit
     """Joint torques [N*m] -> servo goal-current units (sign applied, clipped to the Current Limit)."""
     amps = np.asarray(signs, float) * np.asarray(tau_nm, float) / np.asarray(k_nm_per_a, float)
     return p.amps_to_current_units(amps, amps_per_unit, limit_units)
+
+
+def torque_to_current_ints(tau_nm: list[float], signs: list[float], k_nm_per_a: list[float],
+                           amps_per_unit: list[float], limit_units: list[float]) -> list[int]:
+    """torque_to_current_units on plain floats, bit for bit (the 500 Hz path): sign * tau / K / amps per
+    unit, a non-finite value 0, clipped to +-limit (numpy's maximum / minimum: a NaN limit wins), rounded
+    half to even (np.rint; Python's round of a float does the same)."""
+    out = []
+    isfinite = math.isfinite
+    for t, s, k, a, lim in zip(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units, strict=True):
+        u = s * t / k / a
+        u = u if isfinite(u) else 0.0
+        lo = -lim
+        u = u if (u > lo or u != u) else lo
+        u = u if (u < lim or u != u) else lim
+        out.append(round(u))
+    return out
 
 
 def trigger_fraction(q_servo_rad: float, open_rad: float, closed_rad: float) -> float:
@@ -142,12 +153,14 @@ class DynamixelLeader(Leader):
                 fix="fix or remove torque_constant_nm_per_a",
             )
         self.signs = np.array(c.signs, float)
+        self._signs_l, self._k_l = self.signs.tolist(), self.k.tolist()  # the per-tick float paths' copies
         self._nan_n = np.full(n, np.nan)  # per-tick templates (copied: a copy is 5x cheaper than np.full)
         self._status_zero = np.zeros(n, np.uint32)
         self._status_enabled = np.full(n, STATUS_ENABLED, np.uint32)
         self.offsets = np.array(c.offsets_rad, float)
         self.amps_per_unit = np.array([m.amps_per_unit for m in self.models])
         self.limit_units = np.array([m.current_limit_units for m in self.models], float)
+        self._amps_l, self._offsets_l = self.amps_per_unit.tolist(), self.offsets.tolist()
         self.read_ids = all_ids
         self.field = (
             (p.FEEDBACK_START, p.FEEDBACK_LEN)
@@ -378,15 +391,19 @@ class DynamixelLeader(Leader):
         n, rc, ids, prev = self.n_joints, self.config.read_current, self.read_ids, self._last_state
         t = self.clock.now()
         blocks = [got[i] for i in ids]
-        rec = np.frombuffer(b"".join([b[0] for b in blocks]), dtype=_FB_DTYPES[rc])
-        ticks = rec["pos"].astype(np.int64)
-        # wrapped_tick_delta inline: & (TICKS_PER_REV - 1) is its % (a power-of-two turn, negatives too)
-        d = ((ticks - self._ticks_prev + HALF_TURN_TICKS) & _TICK_MASK) - HALF_TURN_TICKS
-        self._q_servo += d * p.RAD_PER_TICK
-        self._ticks_prev = ticks
+        vals = _blocks_struct(rc, len(ids)).unpack(b"".join([b[0] for b in blocks]))
+        w = 3 if rc else 2  # (current,) velocity, position per servo
+        tp = self._ticks_prev if type(self._ticks_prev) is list else self._ticks_prev.tolist()
+        ticks = list(vals[w - 1::w])
+        qs = self._q_servo.tolist()
+        for j, (x, x0) in enumerate(zip(ticks, tp, strict=True)):
+            # wrapped_tick_delta: & (TICKS_PER_REV - 1) is its % (a power-of-two turn, negatives too)
+            qs[j] += (((x - x0 + HALF_TURN_TICKS) & _TICK_MASK) - HALF_TURN_TICKS) * p.RAD_PER_TICK
+        self._q_servo, self._ticks_prev = np.array(qs), ticks
+        signs, vel = self._signs_l, vals[w - 2::w]
         if rc:
-            cur = self.signs * rec["cur"][:n] * self.amps_per_unit
-            tau = self.k * cur
+            cur_l = [s * c * a for s, c, a in zip(signs, vals[0:w * n:w], self._amps_l)]
+            cur, tau = np.array(cur_l), np.array([k * c for k, c in zip(self._k_l, cur_l)])
         else:
             cur, tau = prev.current.copy(), prev.tau_m.copy()
         status = (self._status_enabled if self._torque_on else self._status_zero).copy()
@@ -397,11 +414,12 @@ class DynamixelLeader(Leader):
                 status[np.array([bool(e & alert) for e in errs[:n]])] |= np.uint32(STATUS_DRIVER_ERROR)
             alerting = [i for i, e in zip(ids, errs, strict=True) if e & alert]
             self.alerts.service(self, alerting, set(ids))
-        grip_pos, grip_effort = self._trigger(int(rec["cur"][n]) if rc else 0) if len(ids) > n else (
+        grip_pos, grip_effort = self._trigger(vals[w * n] if rc else 0) if len(ids) > n else (
             prev.gripper_pos, prev.gripper_effort)
         nan = self._nan_n
-        return JointState(t=t, q=self.signs * (self._q_servo[:n] - self.offsets),
-                          q_dot=self.signs * (rec["vel"][:n] * p.RAD_S_PER_VELOCITY_UNIT), tau_m=tau,
+        r = p.RAD_S_PER_VELOCITY_UNIT
+        return JointState(t=t, q=np.array([s * (x - o) for s, x, o in zip(signs, qs, self._offsets_l)]),
+                          q_dot=np.array([s * (v * r) for s, v in zip(signs, vel)]), tau_m=tau,
                           current=cur, q_cmd=nan.copy(), temperature=nan.copy(), status=status,
                           gripper_pos=grip_pos, gripper_effort=grip_effort)
 
@@ -420,8 +438,9 @@ class DynamixelLeader(Leader):
             )
         if self._wd is not None:
             self._keep_watchdog()
-        units = torque_to_current_units(safe.tau, self.signs, self.k, self.amps_per_unit, self.limit_units)
-        if not self.bus.sync_write_ints(self._write_group, units.tolist()):
+        units = torque_to_current_ints(safe.tau.tolist(), self._signs_l, self._k_l, self._amps_l,
+                                       self.limit_units.tolist())  # the limit is read at connect
+        if not self.bus.sync_write_ints(self._write_group, units):
             self.failed_writes += 1
 
     # -- the servos' own fallback: Bus Watchdog(98) (hardware/dynamixel/watchdog.py) -------------------------
