@@ -100,6 +100,20 @@ def feedback_torque(tau_ext_leader: np.ndarray, gain: np.ndarray, gate: float,
     return clamp(-gate * gain * np.asarray(tau_ext_leader, dtype=float), -clip_nm, clip_nm)
 
 
+def feedback_torque_floats(tau_ext_leader: list[float], gain: list[float], gate: float,
+                           clip_nm: list[float]) -> list[float]:
+    """feedback_torque on plain floats, bit for bit (the 500 Hz path; numpy's maximum / minimum written
+    out as in hardware.small_vec.np_max)."""
+    m = -gate
+    out = []
+    for t, k, c in zip(tau_ext_leader, gain, clip_nm, strict=True):
+        x = m * k * t
+        lo = -c
+        x = x if (x > lo or x != x) else lo
+        out.append(x if (x < c or x != x) else c)
+    return out
+
+
 def ema(prev: float, x: float, beta: float) -> float:
     """beta * prev + (1 - beta) * x; a NaN prev restarts from x, a NaN x keeps prev."""
     if not math.isfinite(x):
@@ -128,6 +142,7 @@ class FeedbackGate:
         self.cfg, self.n = cfg, n
         self.gain = per_joint(cfg.gain, n, "feedback.gain", nonneg=True)
         self.clip = per_joint(cfg.clip_nm, n, "feedback.clip_nm", nonneg=True)
+        self._clip_floats = self.clip.tolist()
         self.reset()
 
     def reset(self) -> None:
@@ -173,5 +188,6 @@ class FeedbackGate:
             self.contact = contact_hysteresis(score_nm, self.contact, cfg.t_high_nm, cfg.t_low_nm)
         target = 1.0 if fresh and (self.contact or not cfg.gate_on_contact) else 0.0
         self.gate = ramp_toward(self.gate, target, dt, cfg.ramp_in_s, cfg.ramp_out_s)
-        tau_fb = feedback_torque(self.last_tau, self.gain, self.gate, self.clip)
+        tau_fb = np.array(feedback_torque_floats(self.last_tau.tolist(), self.gain.tolist(), self.gate,
+                                                 self._clip_floats))
         return FeedbackResult(tau_fb, self.gate, self.contact, fresh, message, gripper_tau)

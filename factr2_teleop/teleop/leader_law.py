@@ -14,6 +14,7 @@ All torques in N*m on the leader's joints, q in rad, q_dot in rad/s. Every gain 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,10 +22,17 @@ from pathlib import Path
 import numpy as np
 
 from factr2_teleop.teleop.feedback import FeedbackConfig, FeedbackGate
+from factr2_teleop.teleop.law_floats import (
+    barrier_floats,
+    friction_coulomb_floats,
+    friction_dither_floats,
+    scaled,
+    sum_cap,
+)
 from factr2_teleop.teleop.mapping import JointMap
 from hardware.errors import ConfigError
 from hardware.params import PerJoint, clamp, per_joint
-from hardware.small_vec import all_finite, count_changed
+from hardware.small_vec import count_changed
 from hardware.types import JointLimits
 
 FRICTION_MODES = ("off", "dither", "coulomb")
@@ -226,12 +234,19 @@ class LeaderLaw:
         self.cap = pj(cap, n, "leader_law.tau_total_max_nm", positive=True)
         self.feedback = FeedbackGate(cfg.feedback, n)
         self.q_ns = None if ns.q_ns is None else pj(ns.q_ns, n, "leader_law.null_space.q_ns")
-        self._dither_sign = np.ones(n)
+        self._dither_sign = [1.0] * n  # +-1 per joint, flipped every tick (friction_dither)
+        # the per-joint parameters as floats for step() (law_floats.py), made once: the arrays above are set
+        # here only; b_lo / b_hi / neg_* are the numpy terms' own intermediate values
+        self._floats = {k: np.asarray(v, dtype=float).tolist() for k, v in {
+            "g_gain": self.g_gain, "dither_gain": self.dither_gain, "dither_min": self.dither_min,
+            "v_thr": self.v_thr, "coulomb": self.coulomb, "b_lo": limits.q_min + self.b_margin,
+            "b_hi": limits.q_max - self.b_margin, "neg_b_kp": -self.b_kp, "b_kd": self.b_kd,
+            "neg_damp": -self.damp, "cap": self.cap}.items()}
 
     def reset(self, q_now: np.ndarray | None = None) -> None:
         """Before coupling: feedback off, dither restarted, null-space posture = q_now if not configured."""
         self.feedback.reset()
-        self._dither_sign = np.ones(self.n)
+        self._dither_sign = [1.0] * self.n
         if self.cfg.null_space.q_ns is None and q_now is not None:
             self.q_ns = np.asarray(q_now, dtype=float).copy()
 
@@ -250,40 +265,48 @@ class LeaderLaw:
              extra: dict[str, np.ndarray] | None = None) -> LeaderOutput:
         """One tick. feedback_on=False (soft start, holds) keeps the feedback gate closed. extra: further
         named terms [N*m] summed under the same cap (a rollout's following spring, teleop/takeover.py)."""
-        n, cfg = self.n, self.cfg
+        n, cfg, f = self.n, self.cfg, self._floats
         q = np.asarray(inp.q, dtype=float)
         qd = np.asarray(inp.q_dot, dtype=float)
-        if not all_finite(qd):
+        qdl = qd.tolist()
+        if not all(map(math.isfinite, qdl)):
             qd = np.where(np.isfinite(qd), qd, 0.0)
-        terms: dict[str, np.ndarray] = {}
-        g = self.gravity(q) if cfg.gravity.enabled else np.zeros(n)
-        terms["gravity"] = gravity_term(g, self.g_gain) if cfg.gravity.enabled else np.zeros(n)
+            qdl = qd.tolist()
+        # each term as floats (law_floats.py: bit for bit the pure numpy terms above, a tenth of the calls)
+        zeros = [0.0] * n
+        if cfg.gravity.enabled:
+            gl = self.gravity(q).tolist()
+            grav = scaled(f["g_gain"], gl)
+        else:
+            gl = grav = zeros
         if cfg.friction.mode == "dither":
-            terms["friction"], self._dither_sign = friction_dither(
-                g, qd, self.dither_gain, self.dither_min, self.v_thr, self._dither_sign)
+            fric = friction_dither_floats(gl, qdl, f["dither_gain"], f["dither_min"], f["v_thr"],
+                                          self._dither_sign)
+            self._dither_sign = [-x for x in self._dither_sign]
         elif cfg.friction.mode == "coulomb":
-            terms["friction"] = friction_coulomb(qd, self.coulomb, self.v_thr)
+            fric = friction_coulomb_floats(qdl, f["coulomb"], f["v_thr"])
         else:
-            terms["friction"] = np.zeros(n)
-        terms["barrier"] = (joint_limit_barrier(q, qd, self.limits.q_min, self.limits.q_max, self.b_margin,
-                                                self.b_kp, self.b_kd) if cfg.barrier.enabled else np.zeros(n))
+            fric = zeros
+        barrier = (barrier_floats(q.tolist(), qdl, f["b_lo"], f["b_hi"], f["neg_b_kp"], f["b_kd"])
+                   if cfg.barrier.enabled else None)
         if cfg.null_space.enabled and self.q_ns is not None:
-            terms["null_space"] = null_space_term(q, qd, self.jacobian(q), self.q_ns, self.ns_kp, self.ns_kd)
+            ns = null_space_term(q, qd, self.jacobian(q), self.q_ns, self.ns_kp, self.ns_kd).tolist()
         else:
-            terms["null_space"] = np.zeros(n)
-        terms["damping"] = damping_term(qd, self.damp)
+            ns = zeros
         fb = self.feedback.step(inp.t, inp.tau_ext_leader if feedback_on else None, inp.contact_score_nm,
                                 inp.est_t, inp.est_fresh, inp.gripper_effort)
-        terms["feedback"] = fb.tau_fb
+        damp = scaled(f["neg_damp"], qdl)
+        terms: dict[str, np.ndarray] = {
+            "gravity": np.array(grav), "friction": np.array(fric),
+            "barrier": np.zeros(n) if barrier is None else np.array(barrier), "null_space": np.array(ns),
+            "damping": np.array(damp), "feedback": fb.tau_fb}
         if extra:
             terms.update(extra)
-        total = np.zeros(n)
-        for v in terms.values():
-            total += v
-        if not all_finite(total):  # a NaN model output never reaches the leader
-            total = np.where(np.isfinite(total), total, 0.0)
-        tau, capped = cap_total(total, self.cap)
-        return LeaderOutput(tau=tau, terms=terms, gate=fb.gate, contact=fb.contact, fresh=fb.fresh,
+            lists = [np.asarray(v, dtype=float).tolist() for v in terms.values()]
+        else:
+            lists = [grav, fric, zeros if barrier is None else barrier, ns, damp, fb.tau_fb.tolist()]
+        _, tau, capped = sum_cap(lists, f["cap"])
+        return LeaderOutput(tau=np.array(tau), terms=terms, gate=fb.gate, contact=fb.contact, fresh=fb.fresh,
                             capped=capped, gripper_tau=fb.gripper_tau, message=fb.message)
 
 

@@ -6,14 +6,14 @@ GELLO refuses to start beyond 1 rad of leader-follower difference; we do the sam
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import ruckig
 
 from hardware.errors import UserError
-from hardware.params import PerJoint, clamp, per_joint
-from hardware.small_vec import all_finite
+from hardware.params import PerJoint, per_joint
 
 DEFAULT_MAX_MISMATCH_RAD = 1.0
 
@@ -58,11 +58,26 @@ def mismatch_error(q_follower: np.ndarray, q_goal: np.ndarray, max_rad: np.ndarr
 
 def rate_limit(q_target: np.ndarray, q_prev: np.ndarray, v_max: np.ndarray, dt_s: float) -> np.ndarray:
     """q_target moved at most v_max*dt from q_prev [rad]; non-finite targets keep q_prev."""
-    q = np.asarray(q_target, dtype=float)
-    if not all_finite(q):
-        q = np.where(np.isfinite(q), q, q_prev)
-    step = v_max * max(float(dt_s), 0.0)
-    return clamp(q, q_prev - step, q_prev + step)
+    q, p = np.asarray(q_target, dtype=float), np.asarray(q_prev, dtype=float)
+    v = np.asarray(v_max, dtype=float)
+    if v.shape != q.shape:  # a scalar speed
+        v = np.broadcast_to(v, q.shape)
+    return np.array(rate_limit_floats(q.tolist(), p.tolist(), v.tolist(), max(float(dt_s), 0.0)))
+
+
+def rate_limit_floats(q: list[float], q_prev: list[float], v_max: list[float], dt_s: float) -> list[float]:
+    """rate_limit's math on plain floats [rad, rad/s, s], bit for bit its numpy form
+    clip(where(isfinite(q), q, q_prev), q_prev - v_max dt, q_prev + v_max dt) (numpy's maximum / minimum
+    written out as in hardware.small_vec.np_max; tests/test_law_floats.py). dt_s >= 0 (or NaN)."""
+    out = []
+    isfinite = math.isfinite
+    for x, p, v in zip(q, q_prev, v_max, strict=True):
+        x = x if isfinite(x) else p
+        step = v * dt_s
+        lo, hi = p - step, p + step
+        x = x if (x > lo or x != x) else lo
+        out.append(x if (x < hi or x != x) else hi)
+    return out
 
 
 class SoftStart:

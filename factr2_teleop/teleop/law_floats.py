@@ -1,0 +1,81 @@
+"""The leader law's per-tick terms on plain floats: the 500 Hz path of leader_law.LeaderLaw.step.
+
+Each function is its leader_law counterpart (friction_dither, friction_coulomb, joint_limit_barrier,
+damping_term, the sum and cap_total) on lists of 6-7 floats, bit for bit: the same float64 operations in the
+same order, numpy's maximum / minimum written out (NaN wins, a tie of 0.0 and -0.0 gives the second operand:
+hardware.small_vec.np_max), np.sign's 0 for +-0 and NaN for NaN. Why: on 6 values a numpy call costs
+~0.5-1 us, a float operation ~30-50 ns, and the law took ~25 numpy calls a tick (issue #53).
+tests/test_law_floats.py checks each against the numpy form on any floats (NaN, +-inf, -0.0).
+"""
+
+from __future__ import annotations
+
+import math
+
+
+def friction_dither_floats(g: list[float], q_dot: list[float], gain: list[float], min_nm: list[float],
+                           v_thr: list[float], sign: list[float]) -> list[float]:
+    """sign * max(gain |g|, min_nm) [N*m] on joints slower than v_thr [rad/s], else 0 (friction_dither)."""
+    out = []
+    for gj, v, k, m, thr, s in zip(g, q_dot, gain, min_nm, v_thr, sign, strict=True):
+        if abs(v) < thr:
+            a = k * abs(gj)
+            out.append(s * (a if (a > m or a != a) else m))
+        else:
+            out.append(0.0)
+    return out
+
+
+def friction_coulomb_floats(q_dot: list[float], tau_c: list[float], v_thr: list[float]) -> list[float]:
+    """tau_c * sign(q_dot) [N*m] once |q_dot| >= v_thr [rad/s], else 0 (friction_coulomb)."""
+    out = []
+    for v, c, thr in zip(q_dot, tau_c, v_thr, strict=True):
+        if abs(v) >= thr:
+            out.append(c * (1.0 if v > 0.0 else -1.0 if v < 0.0 else v if v != v else 0.0))
+        else:
+            out.append(0.0)
+    return out
+
+
+def barrier_floats(q: list[float], q_dot: list[float], lo: list[float], hi: list[float],
+                   neg_kp: list[float], kd: list[float]) -> list[float] | None:
+    """joint_limit_barrier with lo = q_min + margin, hi = q_max - margin [rad] and neg_kp = -kp; None when
+    every joint is inside (the term is zero)."""
+    out = None
+    for j, (x, v, a, b, kp, k) in enumerate(zip(q, q_dot, lo, hi, neg_kp, kd, strict=True)):
+        if x < a:
+            e = a
+        elif x > b:
+            e = b
+        else:
+            continue
+        if out is None:
+            out = [0.0] * len(q)
+        out[j] = kp * (x - e) - k * v
+    return out
+
+
+def scaled(k: list[float], x: list[float]) -> list[float]:
+    """k * x elementwise (gravity_term with k the gain; damping_term with k = -kd)."""
+    return [a * b for a, b in zip(k, x, strict=True)]
+
+
+def sum_cap(terms, cap: list[float]) -> tuple[list[float], list[float], int]:
+    """(sum, capped sum, joints capped) [N*m] of the term lists in order, as LeaderLaw.step adds them: from
+    0.0, a non-finite sum becomes 0 (a NaN model output never reaches the leader), then clipped to +-cap."""
+    total = None
+    for t in terms:
+        if total is None:
+            total = [0.0 + x for x in t]
+        else:
+            total = [a + b for a, b in zip(total, t, strict=True)]
+    if not all(map(math.isfinite, total)):
+        total = [x if math.isfinite(x) else 0.0 for x in total]
+    out, capped = [], 0
+    for x, c in zip(total, cap, strict=True):
+        lo = -c
+        y = x if (x > lo or x != x) else lo
+        y = y if (y < c or y != y) else c
+        out.append(y)
+        capped += y != x
+    return total, out, capped
