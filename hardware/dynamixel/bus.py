@@ -70,6 +70,16 @@ class BufferedPortHandler(sdk.PortHandler):
         super().__init__(port_name)
         self._rx = bytearray()
         self._fd = -1
+        # the last transaction was a fast sync read that took its whole, intact reply and left nothing in the
+        # local buffer: the next read's input flush (a tcflush syscall on every tick) can go. Any other read,
+        # a short write or an error (the sdk's own transactions read through readPort) clears it, so a stale
+        # or partial reply is still flushed; bytes that come after a whole reply anyway (line noise) are
+        # dropped by the fast read's header search (sync_io.fast_sync_read).
+        self.rx_clean = False
+
+    def mark_clean(self) -> None:
+        """sync_io: the fast read just took its whole reply; clean unless bytes beyond it are buffered."""
+        self.rx_clean = not self._rx
 
     def setupPort(self, cflag_baud):  # noqa: N802 -- sdk name
         ok = super().setupPort(cflag_baud)
@@ -81,6 +91,7 @@ class BufferedPortHandler(sdk.PortHandler):
         super().closePort()
 
     def readPort(self, length):  # noqa: N802 -- sdk name
+        self.rx_clean = False
         if len(self._rx) < length:
             want = length - len(self._rx)
             # a whole reply asked for at once (sync_io: the fast reply's length) needs no in_waiting ioctl;
@@ -121,11 +132,16 @@ class BufferedPortHandler(sdk.PortHandler):
         if self._fd < 0:
             return super().writePort(packet)
         try:  # non-blocking (open() sets write_timeout 0): the bytes the OS took; a short count is a failure
-            return os.write(self._fd, packet if isinstance(packet, (bytes, bytearray)) else bytes(packet))
+            n = os.write(self._fd, packet if isinstance(packet, (bytes, bytearray)) else bytes(packet))
         except (BlockingIOError, InterruptedError):
+            self.rx_clean = False
             return 0
         except OSError as e:
+            self.rx_clean = False
             raise serial.SerialException(f"write failed: {e}") from None
+        if n != len(packet):  # half an instruction out: what answers it must be flushed
+            self.rx_clean = False
+        return n
 
     def clearPort(self):  # noqa: N802 -- sdk name
         self._rx.clear()

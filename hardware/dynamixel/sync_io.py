@@ -105,7 +105,8 @@ def write_only(port, packet: bytes) -> bool:
 def fast_sync_read(port, group: SyncReadGroup, timeout_ms: float) -> dict[int, tuple[bytes, int]]:
     """{id: (data, error byte)} from one Fast Sync Read; a reply cut short or corrupt gives the intact blocks
     before the damage, garbage gives {} (never raises)."""
-    if not _begin(port, group.fast_packet):
+    # no input flush after a whole reply (BufferedPortHandler.rx_clean: a syscall a tick on a real port)
+    if not _begin(port, group.fast_packet, flush=not getattr(port, "rx_clean", False)):
         return {}
     try:
         port.setPacketTimeoutMillis(timeout_ms)
@@ -124,6 +125,8 @@ def fast_sync_read(port, group: SyncReadGroup, timeout_ms: float) -> dict[int, t
     # the last block's CRC runs over every byte before it: one check for the usual intact reply; the block
     # by block walk (intact blocks before a damage) only when it fails
     intact = len(buf) == want and p.crc16(buf[:-2]) == buf[-2] | (buf[-1] << 8)
+    if intact and hasattr(port, "mark_clean"):
+        port.mark_clean()
     return split_fast_status(bytes(buf), group.ids, group.length, crc_checked=intact)
 
 
