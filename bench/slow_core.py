@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -58,7 +59,13 @@ def make_group(name: str, factor: float, period_us: int, n_cpus: int) -> tuple[P
         env = {}
         if (g / "cpu.rt_runtime_us").exists():  # per CPU: the loop's FIFO thread gets 1/factor of its core
             _write(g / "cpu.rt_period_us", str(period_us))
-            _write(g / "cpu.rt_runtime_us", str(int(period_us * share)))
+            try:
+                _write(g / "cpu.rt_runtime_us", str(int(period_us * share)))
+            except OSError as e:  # EINVAL: the groups' real-time budgets would exceed their parent's
+                g.rmdir()
+                raise OSError(f"{e.strerror}: the real-time budgets of the slowed groups already running "
+                              f"(factr2-slow-*, 1/{factor:g} each) would exceed the parent's; wait for "
+                              "them, or remove the empty ones a killed run left") from None
         else:
             env["FACTR2_NO_RT"] = "1"
         return g, env
@@ -93,12 +100,16 @@ def main() -> int:
           f"{a.factor:g}; the loop's real-time threads to 1/{a.factor:g} of each CPU)"
           + (" (FACTR2_NO_RT=1: the limit must reach every thread)" if env else ""), file=sys.stderr)
     procs = group / "cgroup.procs"
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # a kill ends the command and the group too
+    proc = None
     try:
         proc = subprocess.Popen(cmd, env={**os.environ, **env},
                                 preexec_fn=lambda: procs.write_text(str(os.getpid())))
         return proc.wait()
-    except KeyboardInterrupt:
-        proc.wait()
+    except KeyboardInterrupt:  # Ctrl-C reaches the command too; SIGTERM (below) only this process
+        if proc is not None:
+            proc.terminate()
+            proc.wait()
         return 130
     finally:
         try:
