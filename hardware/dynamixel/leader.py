@@ -271,6 +271,8 @@ class DynamixelLeader(Leader):
                 "(cabling, power or a second program on the port?)"
             )
         self.zero_torque("connected")  # known zero start; also starts the safety layer's rate-limit clock
+        if self._wd is not None:  # however late the loop's first tick comes, it reads the servos back
+            self._wd.check_all_next()
 
     def _check_ids_and_models(self, bus: DynamixelBus) -> None:
         c = self.config
@@ -467,7 +469,8 @@ class DynamixelLeader(Leader):
 
     def _keep_watchdog(self) -> None:
         """Before a goal write: re-arm the servos after a gap long enough for them to have latched (an app
-        freeze, a slow start, a silent chain), or after a reboot (it turns the watchdog off)."""
+        freeze, a silent chain), or after a reboot (it turns the watchdog off); and where the register reads
+        back latched (a gap only the servo saw: a slow start before the first tick), said once."""
         k, now = self._wd, self.clock.now()
         reboots = sum(self.alerts.counts.values())
         if reboots != self._wd_reboots and not self.alerts.rebooted:
@@ -475,6 +478,12 @@ class DynamixelLeader(Leader):
             k.mark_due()
         if k.rearm_if_due(self.bus, now):
             log.info("leader %s: Bus Watchdog re-armed (%d)", self.config.name, k.rearms)
+        elif found := k.check_if_due(self.bus, now):
+            said = k.found > len(found)  # once in the log as a warning; later ones at info
+            (log.info if said else self._warn)(
+                f"leader {self.config.name}: Bus Watchdog had latched on servo ids {found} (they refused "
+                "every goal current: no force feedback) -- re-armed; a host that stalls over "
+                f"{1e3 * wd.LEADER_PERIOD_S:.0f} ms trips it again")
 
     def fallback_lines(self) -> list[str]:
         """The servos' own fallback as read back at connect (doctor, start-up summary)."""

@@ -19,8 +19,10 @@ modes the present position, velocity/PWM modes no torque. The error byte carries
 Error Status(70) is not touched (the manual lists neither).
 
 Pure codec below; `BusWatchdogState` is the emulator's per-servo state machine; `arm_bus_watchdog` /
-`BusWatchdogKeeper` are the leader driver's side (set at connect, read back, re-armed after a gap in its own
-traffic long enough for the servo to have latched).
+`BusWatchdogKeeper` are the leader driver's side (set at connect, read back; re-armed after a gap in its own
+traffic long enough for the servo to have latched, and wherever the register reads back -1: at the loop's
+first goal write and one servo per CHECK_EVERY_S after, since a gap the servo saw but the app's clock did
+not -- a slow start between connect and the first tick -- leaves no trace in the app's own sends).
 """
 
 from __future__ import annotations
@@ -46,6 +48,11 @@ GOAL_ADDRESSES = frozenset(  # every byte of the four Goal values
 # 30-minute soak measured (25.7 ms, docs/faults.md): a live loop never trips it, a dead app leaves the
 # operator's hand under the last force-feedback current for at most 100 ms plus one 20 ms unit.
 LEADER_PERIOD_S = 0.100
+
+# How often the leader reads Bus Watchdog(98) back from one servo, in turn (a servo of a 6-joint leader every
+# 3 s): one read instruction per 250 ticks of the 500 Hz loop, the only word a latched servo gives (a sync
+# write has no status; the status error byte carries no bit for it).
+CHECK_EVERY_S = 0.5
 
 
 def units_for(period_s: float) -> int:
@@ -143,8 +150,7 @@ def arm_bus_watchdog(bus, ids, period: float = LEADER_PERIOD_S) -> ArmResult:
     res = ArmResult(units)
     for i in ids:
         try:
-            bus.write(i, ADDR, 0)
-            bus.write(i, ADDR, units)
+            _rearm(bus, i, units)
             got = p.to_signed(bus.read(i, ADDR), 1)
         except DeviceError as e:
             res.read_back[i] = None
@@ -165,9 +171,10 @@ def refusal_line(leader: str, res: ArmResult) -> str:
 
 
 class BusWatchdogKeeper:
-    """The driver's view of the servos' watchdog: re-arms them after a gap in its own traffic that was long
-    enough for them to latch (a freeze of the app, a slow start between connect and the loop), before the
-    next goal write -- a latched servo refuses goals."""
+    """The driver's view of the servos' watchdog, before each goal write (a latched servo refuses goals):
+    re-arms them after a gap in its own traffic long enough for them to latch (an app freeze), and reads the
+    register back -- all servos at the first goal write after check_all_next() (the loop's first tick), then
+    one per CHECK_EVERY_S in turn -- to re-arm what latched on the servo's side only."""
 
     MARGIN = 0.8  # re-arm after gaps above this share of the period (the clocks differ: re-arm early)
 
@@ -175,7 +182,11 @@ class BusWatchdogKeeper:
         self.ids, self.units = list(ids), units
         self.last_tx_s: float | None = None
         self.rearms = 0
+        self.found = 0  # servos found latched (or off) by a read-back, re-armed
         self._due = False
+        self._check_all = False
+        self._next_check_s: float | None = None
+        self._turn = 0
 
     def traffic(self, now: float) -> None:
         """The driver sent an instruction at now [s]; notes whether the gap before it may have tripped."""
@@ -188,6 +199,10 @@ class BusWatchdogKeeper:
         """Re-arm before the next goal write (a servo was rebooted: its watchdog is off again)."""
         self._due = True
 
+    def check_all_next(self) -> None:
+        """Read every servo back at the next goal write (the loop's first tick, however late it comes)."""
+        self._check_all = True
+
     def rearm_if_due(self, bus, now: float) -> bool:
         """Before a goal write: clear and set again where the servos may have latched. True when it did."""
         if not self._due or not self.units:
@@ -195,11 +210,48 @@ class BusWatchdogKeeper:
         self._due = False
         for i in self.ids:
             try:
-                bus.write(i, ADDR, 0)
-                bus.write(i, ADDR, self.units)
+                _rearm(bus, i, self.units)
             except DeviceError:
                 self._due = True  # try again next tick
                 return False
         self.rearms += 1
         self.last_tx_s = now
         return True
+
+    def check_if_due(self, bus, now: float) -> list[int]:
+        """Before a goal write: the read-back that is due now (all servos, or the next one in turn); the ids
+        found latched and re-armed."""
+        if not self.units or not self.ids:
+            return []
+        if self._check_all:
+            self._check_all, ids = False, self.ids
+        elif self._next_check_s is None or now >= self._next_check_s:
+            ids = [self.ids[self._turn % len(self.ids)]]
+            self._turn += 1
+        else:
+            return []
+        self._next_check_s = now + CHECK_EVERY_S
+        return self.check(bus, now, ids)
+
+    def check(self, bus, now: float, ids=None) -> list[int]:
+        """Read Bus Watchdog(98) back (all armed servos, or ids); re-arm each that reads -1 (latched) or
+        anything but the period (0: rebooted or power-cycled), as the e-Manual requires: 0, then the period.
+        A lost reply is checked again at its next turn. The ids re-armed."""
+        found = []
+        for i in self.ids if ids is None else ids:
+            try:
+                if p.to_signed(bus.read(i, ADDR), 1) != self.units:
+                    _rearm(bus, i, self.units)
+                    found.append(i)
+            except DeviceError:
+                continue
+        self.found += len(found)
+        if found:
+            self.last_tx_s = now
+        return found
+
+
+def _rearm(bus, dxl_id: int, units: int) -> None:
+    """Clear a latched Bus Watchdog Error (0), then set the period again."""
+    bus.write(dxl_id, ADDR, 0)
+    bus.write(dxl_id, ADDR, units)
