@@ -21,8 +21,9 @@ Error Status(70) is not touched (the manual lists neither).
 Pure codec below; `BusWatchdogState` is the emulator's per-servo state machine; `arm_bus_watchdog` /
 `BusWatchdogKeeper` are the leader driver's side (set at connect, read back; re-armed after a gap in its own
 traffic long enough for the servo to have latched, and wherever the register reads back -1: at the loop's
-first goal write and one servo per CHECK_EVERY_S after, since a gap the servo saw but the app's clock did
-not -- a slow start between connect and the first tick -- leaves no trace in the app's own sends).
+first goal write and every CHECK_EVERY_S after (one sync read), since a gap the servo saw but the app's
+clock did not -- a slow start before the first tick, packets held up in the USB adapter -- leaves no trace
+in the app's own sends).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import math
 from dataclasses import dataclass, field
 
 from hardware.dynamixel import protocol as p
+from hardware.dynamixel.fast_sync import plain_sync_read_bytes
 from hardware.errors import DeviceError
 
 ADDR = p.ADDR_BUS_WATCHDOG  # (98, 1)
@@ -49,10 +51,11 @@ GOAL_ADDRESSES = frozenset(  # every byte of the four Goal values
 # operator's hand under the last force-feedback current for at most 100 ms plus one 20 ms unit.
 LEADER_PERIOD_S = 0.100
 
-# How often the leader reads Bus Watchdog(98) back from one servo, in turn (a servo of a 6-joint leader every
-# 3 s): one read instruction per 250 ticks of the 500 Hz loop, the only word a latched servo gives (a sync
-# write has no status; the status error byte carries no bit for it).
-CHECK_EVERY_S = 0.5
+# How often the leader reads Bus Watchdog(98) back from its servos: one sync read (one round trip, 1 byte per
+# servo) per 125 ticks of the 500 Hz loop, the only word a latched servo gives (a sync write has no status;
+# the status error byte carries no bit for it). A servo latched unseen by the app (its packets delayed in
+# the USB adapter, a twin that skipped time) refuses goals for at most this long.
+CHECK_EVERY_S = 0.25
 
 
 def units_for(period_s: float) -> int:
@@ -173,8 +176,8 @@ def refusal_line(leader: str, res: ArmResult) -> str:
 class BusWatchdogKeeper:
     """The driver's view of the servos' watchdog, before each goal write (a latched servo refuses goals):
     re-arms them after a gap in its own traffic long enough for them to latch (an app freeze), and reads the
-    register back -- all servos at the first goal write after check_all_next() (the loop's first tick), then
-    one per CHECK_EVERY_S in turn -- to re-arm what latched on the servo's side only."""
+    register back -- at the first goal write after check_all_next() (the loop's first tick), then every
+    CHECK_EVERY_S -- to re-arm what latched on the servo's side only."""
 
     MARGIN = 0.8  # re-arm after gaps above this share of the period (the clocks differ: re-arm early)
 
@@ -186,7 +189,6 @@ class BusWatchdogKeeper:
         self._due = False
         self._check_all = False
         self._next_check_s: float | None = None
-        self._turn = 0
 
     def traffic(self, now: float) -> None:
         """The driver sent an instruction at now [s]; notes whether the gap before it may have tripped."""
@@ -219,32 +221,30 @@ class BusWatchdogKeeper:
         return True
 
     def check_if_due(self, bus, now: float) -> list[int]:
-        """Before a goal write: the read-back that is due now (all servos, or the next one in turn); the ids
-        found latched and re-armed."""
+        """Before a goal write: the read-back, when due (check_all_next(), or CHECK_EVERY_S since the last);
+        the ids found latched and re-armed."""
         if not self.units or not self.ids:
             return []
-        if self._check_all:
-            self._check_all, ids = False, self.ids
-        elif self._next_check_s is None or now >= self._next_check_s:
-            ids = [self.ids[self._turn % len(self.ids)]]
-            self._turn += 1
-        else:
+        if not self._check_all and self._next_check_s is not None and now < self._next_check_s:
             return []
-        self._next_check_s = now + CHECK_EVERY_S
-        return self.check(bus, now, ids)
+        self._check_all, self._next_check_s = False, now + CHECK_EVERY_S
+        return self.check(bus, now)
 
     def check(self, bus, now: float, ids=None) -> list[int]:
-        """Read Bus Watchdog(98) back (all armed servos, or ids); re-arm each that reads -1 (latched) or
-        anything but the period (0: rebooted or power-cycled), as the e-Manual requires: 0, then the period.
-        A lost reply is checked again at its next turn. The ids re-armed."""
+        """Read Bus Watchdog(98) back (one sync read: all armed servos, or ids); re-arm each that reads -1
+        (latched) or anything but the period (0: rebooted or power-cycled), as the e-Manual requires: 0, then
+        the period. A servo that did not answer is read again at the next check. The ids re-armed."""
+        ids = self.ids if ids is None else list(ids)
+        wait_ms = bus.rx_timeout_ms(plain_sync_read_bytes(len(ids), ADDR[1]), len(ids))
+        got = bus.sync_read(bus.make_sync_read(ids, ADDR), ids, wait_ms)
         found = []
-        for i in self.ids if ids is None else ids:
-            try:
-                if p.to_signed(bus.read(i, ADDR), 1) != self.units:
+        for i in ids:
+            if i in got and p.to_signed(got[i][0][0], 1) != self.units:
+                try:
                     _rearm(bus, i, self.units)
-                    found.append(i)
-            except DeviceError:
-                continue
+                except DeviceError:
+                    continue  # read again at the next check
+                found.append(i)
         self.found += len(found)
         if found:
             self.last_tx_s = now
