@@ -108,6 +108,9 @@ def test_a_short_twin_collection_marks_its_perturbed_ticks_and_training_reads_th
     out = collect(CollectConfig(task="wipe", episodes=1, out=str(tmp_path), seed=0, mode="ground_truth",
                                 cameras=False, perturb=cfg), progress=False)
     assert out["perturb"] == cfg.to_dict()
+    from factr2_teleop.tasks.run import summary_lines
+
+    assert any("perturbed  +-0.04 rad on every joint, windows of 1.6 s" in x for x in summary_lines(out))
     rec = Recording(out["recording"])
     assert rec.info["perturb"] and S.perturb_topic("follower") in rec.topics
     (ep,) = rec.episodes
@@ -143,3 +146,15 @@ def test_a_short_twin_collection_marks_its_perturbed_ticks_and_training_reads_th
                  "--threads", "1", "--perturbed", "skip"]) == 0
     meta = C.read_meta(run)
     assert meta["perturbed"] == "skip" and meta["samples"]["perturbed"] > 0
+
+
+@pytest.mark.parametrize("settings,says", [("amplitude=0.1", "bad perturbation setting"),
+                                           ("joints=9", "outside 0..5"), ("ramp_s=0", "above 0")])
+def test_bad_perturbation_settings_are_one_line_and_nothing_is_written(tmp_path, capsys, settings, says):
+    from factr2_teleop.cli import main
+
+    assert main(["collect", "--task", "wipe", "--episodes", "1", "--out", str(tmp_path), "--mode", "dob",
+                 "--perturb", settings]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0] and "--perturb" in err[0], err
+    assert not any(tmp_path.iterdir())

@@ -205,6 +205,12 @@ def summary_lines(out: dict) -> list[str]:
         lines.append(f"{'camera ' + name:>22s}  {c['captured']} / {c['expected']} frames, "
                      f"{c['dropped']} dropped, "
                      f"{c['failed']} failed")
+    if out.get("perturb"):
+        pt = out["perturb"]
+        lines.append(f"{'perturbed':>22s}  +-{pt['amplitude_rad']:g} rad on "
+                     f"{'joints ' + '+'.join(map(str, pt['joints'])) if pt['joints'] else 'every joint'}, "
+                     f"windows of {2 * pt['ramp_s'] + pt['hold_s']:g} s (marked on /follower/perturb; "
+                     "factr2 train --perturbed)")
     if out.get("recording_error"):
         lines.append(f"{'recording stopped':>22s}  {out['recording_error']}")
     from factr2_teleop.session.teleop import message_lines
