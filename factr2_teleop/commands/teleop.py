@@ -8,7 +8,10 @@ rig's cameras. Ctrl-C stops: every leader at zero torque, every follower holding
 
 from __future__ import annotations
 
+import contextlib
+import signal
 import sys
+import threading
 import time
 
 from factr2_teleop.commands._twin_fault import add_twin_fault_argument, twin_faults
@@ -78,23 +81,8 @@ def _execute(args) -> dict:
                 print(f"recording without it: {line}", file=sys.stderr)
         _watch(ts.loop)
     finally:
-        if ts is not None:
-            ts.loop.stop(timeout_s=2.0)  # leaders zero torque, followers hold (also after Ctrl-C)
-        if ts is None or not ts.loop.alive:  # (a loop stuck in a driver call: session.close() below)
-            # the arms put down at once, before the recording's close (a second or so): a leader left that
-            # long without a packet latches its Bus Watchdog, a Damiao motor drops to damping
-            session.disconnect_arms()
-        if ts is not None:
-            rec = ts.recording
-            st = ts.close_recording("teleop stopped")
-            if st is not None:
-                out.update(recording=rec.path, status=st, cameras=rec.camera_stats)
-                err = f" (error: {st.error})" if st.error else ""
-                print(f"recorded to {rec.path}{err}: {st.messages_written} messages, {st.frames_written} "
-                      f"frames, dropped {st.dropped_samples} samples / {st.dropped_frames} frames",
-                      file=sys.stderr)
-                _camera_lines(rec.camera_stats)
-        session.close()
+        with _ctrl_c_held():  # a Ctrl-C now (the loop ended by itself, or a second one) would cut the stop
+            _stop(ts, session, out)
     loop = ts.loop
     if loop.error is not None and not isinstance(loop.error, KeyboardInterrupt):
         raise UserError(f"teleop stopped: {loop.error}", where="factr2 teleop", fix="see the messages above")
@@ -104,6 +92,49 @@ def _execute(args) -> dict:
     out["faults"] = list(twin.faults.log) if twin is not None and twin.faults is not None else []
     out["twin_t_offset_s"] = twin.rig_time() - twin.t if twin is not None else None  # rig - twin clock [s]
     return out
+
+
+def _stop(ts, session, out: dict) -> None:
+    """The safe stop: the loop stopped, the arms put down, the recording closed (its status into out)."""
+    if ts is not None:
+        ts.loop.stop(timeout_s=2.0)  # leaders zero torque, followers hold (also after Ctrl-C)
+    if ts is None or not ts.loop.alive:  # (a loop stuck in a driver call: session.close() below)
+        # the arms put down at once, before the recording's close (a second or so): a leader left that
+        # long without a packet latches its Bus Watchdog, a Damiao motor drops to damping
+        session.disconnect_arms()
+    if ts is not None:
+        rec = ts.recording
+        st = ts.close_recording("teleop stopped")
+        if st is not None:
+            out.update(recording=rec.path, status=st, cameras=rec.camera_stats)
+            err = f" (error: {st.error})" if st.error else ""
+            print(f"recorded to {rec.path}{err}: {st.messages_written} messages, {st.frames_written} "
+                  f"frames, dropped {st.dropped_samples} samples / {st.dropped_frames} frames",
+                  file=sys.stderr)
+            _camera_lines(rec.camera_stats)
+    session.close()
+
+
+@contextlib.contextmanager
+def _ctrl_c_held():
+    """While the arms are put down and the recording closes, the first Ctrl-C is said, not raised (raised, it
+    would leave the recording unclosed and the rig open); a further one raises as usual (an operator who
+    insists). Main thread only: elsewhere no handler can be set, nor would one be called."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    prev = signal.getsignal(signal.SIGINT) or signal.default_int_handler  # (None: set outside Python)
+
+    def held(signum, frame):
+        print("\nCtrl-C: already stopping (arms down, recording closing); Ctrl-C again to abort",
+              file=sys.stderr)
+        signal.signal(signal.SIGINT, prev)
+
+    signal.signal(signal.SIGINT, held)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, prev)
 
 
 def run(args) -> int:
