@@ -17,7 +17,9 @@ from hardware.dynamixel.emulator import DynamixelEmulator
 from hardware.sim.motors import IdealMotorBank
 
 
-def skewed_leader():
+@pytest.fixture
+def skewed():
+    """(clock, skew, bank, emu, leader) not yet connected; disconnected and closed after the test."""
     from hardware.clock import LockstepClock
     from hardware.dynamixel.config import DynamixelLeaderConfig
     from hardware.dynamixel.leader import DynamixelLeader
@@ -31,7 +33,10 @@ def skewed_leader():
                       tau_max=np.full(2, 0.3), tau_rate_max=np.full(2, 1e4))
     cfg = DynamixelLeaderConfig(port=emu.port_path, ids=[1, 2], signs=[1, 1], offsets_rad=[0.0, 0.0],
                                 gripper_id=None, model="XL330-M288", loop_hz=10.0, rx_timeout_ms=30.0)
-    return clock, skew, bank, emu, DynamixelLeader(cfg, lim, clock=clock)
+    leader = DynamixelLeader(cfg, lim, clock=clock)
+    yield clock, skew, bank, emu, leader
+    leader.disconnect()
+    emu.close()
 
 
 def tick(clock, leader, tau=(0.2, -0.2)):
@@ -45,63 +50,51 @@ def latched_lines(leader):
 
 
 @pytest.mark.parametrize("check", [True, False])
-def test_a_servo_side_gap_before_the_first_tick_is_seen_and_re_armed(check, monkeypatch):
-    clock, skew, bank, emu, leader = skewed_leader()
+def test_a_servo_side_gap_before_the_first_tick_is_seen_and_re_armed(check, skewed, monkeypatch):
+    clock, skew, bank, emu, leader = skewed
     if not check:  # the keeper as it was: it infers a trip only from gaps in the app's own sends
         monkeypatch.setattr(wd.BusWatchdogKeeper, "check", lambda self, bus, now, ids=None: [])
     leader.connect()
-    try:
-        assert all(s.table[98] == 5 for s in emu.servos)
-        skew[0] += 0.3  # the servos hear nothing for 0.3 s; the app's clock moved 0 s (its sends: no gap)
-        for _ in range(5):
-            tick(clock, leader)
-        assert [i for i, _, _ in emu.watchdog_trips] == [1, 2]  # the gap was real: both latched
-        if not check:  # the bug: every goal current refused, no word of it
-            assert all(s.watchdog.latched for s in emu.servos) and np.all(bank.current_cmd == 0)
-            assert latched_lines(leader) == []
-            return
-        assert not any(s.watchdog.latched for s in emu.servos) and all(s.table[98] == 5 for s in emu.servos)
-        assert np.all(bank.current_cmd != 0)  # obeyed again from the first tick
-        said = latched_lines(leader)
-        assert len(said) == 1 and "ids [1, 2]" in said[0] and "re-armed" in said[0]
-    finally:
-        leader.disconnect()
-        emu.close()
-
-
-def test_a_latch_during_the_run_is_found_by_the_periodic_read_back_and_said_once():
-    clock, skew, bank, emu, leader = skewed_leader()
-    leader.connect()
-    try:
+    assert all(s.table[98] == 5 for s in emu.servos)
+    skew[0] += 0.3  # the servos hear nothing for 0.3 s; the app's clock moved 0 s (its sends: no gap)
+    for _ in range(5):
         tick(clock, leader)
-        assert np.all(bank.current_cmd != 0) and latched_lines(leader) == []
-        for _ in range(2):  # twice: the second time is logged, not warned again
-            skew[0] += 0.3
-            tick(clock, leader)
-            assert all(s.watchdog.latched for s in emu.servos) and np.all(bank.current_cmd == 0)
-            for _ in range(int(wd.CHECK_EVERY_S / 0.002) + 1):  # all read back every CHECK_EVERY_S
-                tick(clock, leader)
-            assert not any(s.watchdog.latched for s in emu.servos) and np.all(bank.current_cmd != 0)
-        assert len(latched_lines(leader)) == 1 and leader._wd.found == 4
-    finally:
-        leader.disconnect()
-        emu.close()
+    assert [i for i, _, _ in emu.watchdog_trips] == [1, 2]  # the gap was real: both latched
+    if not check:  # the bug: every goal current refused, no word of it
+        assert all(s.watchdog.latched for s in emu.servos) and np.all(bank.current_cmd == 0)
+        assert latched_lines(leader) == []
+        return
+    assert not any(s.watchdog.latched for s in emu.servos) and all(s.table[98] == 5 for s in emu.servos)
+    assert np.all(bank.current_cmd != 0)  # obeyed again from the first tick
+    said = latched_lines(leader)
+    assert len(said) == 1 and "ids [1, 2]" in said[0] and "re-armed" in said[0]
 
 
-def test_check_reads_the_register_and_re_arms_only_what_latched():
-    clock, skew, bank, emu, leader = skewed_leader()
+def test_a_latch_during_the_run_is_found_by_the_periodic_read_back_and_said_once(skewed):
+    clock, skew, bank, emu, leader = skewed
     leader.connect()
-    try:
-        k = leader._wd
-        assert k.check(leader.bus, clock.now()) == []  # both read back 5: nothing written
-        s = emu.servo(2)
-        s.table[98], s.watchdog.latched = 0xFF, True
-        assert write_goal(leader, 2, 50) == p.ERR_DATA_RANGE  # a latched servo refuses a goal, said
-        assert k.check(leader.bus, clock.now()) == [2]
-        assert not s.watchdog.latched and s.table[98] == 5 and write_goal(leader, 2, 50) == p.ERR_NONE
-    finally:
-        leader.disconnect()
-        emu.close()
+    tick(clock, leader)
+    assert np.all(bank.current_cmd != 0) and latched_lines(leader) == []
+    for _ in range(2):  # twice: the second time is logged, not warned again
+        skew[0] += 0.3
+        tick(clock, leader)
+        assert all(s.watchdog.latched for s in emu.servos) and np.all(bank.current_cmd == 0)
+        for _ in range(int(wd.CHECK_EVERY_S / 0.002) + 1):  # all read back every CHECK_EVERY_S
+            tick(clock, leader)
+        assert not any(s.watchdog.latched for s in emu.servos) and np.all(bank.current_cmd != 0)
+    assert len(latched_lines(leader)) == 1 and leader._wd.found == 4
+
+
+def test_check_reads_the_register_and_re_arms_only_what_latched(skewed):
+    clock, skew, bank, emu, leader = skewed
+    leader.connect()
+    k = leader._wd
+    assert k.check(leader.bus, clock.now()) == []  # both read back 5: nothing written
+    s = emu.servo(2)
+    s.table[98], s.watchdog.latched = 0xFF, True
+    assert write_goal(leader, 2, 50) == p.ERR_DATA_RANGE  # a latched servo refuses a goal, said
+    assert k.check(leader.bus, clock.now()) == [2]
+    assert not s.watchdog.latched and s.table[98] == 5 and write_goal(leader, 2, 50) == p.ERR_NONE
 
 
 def write_goal(leader, dxl_id, units):
