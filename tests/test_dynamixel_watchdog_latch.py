@@ -105,3 +105,18 @@ def write_goal(leader, dxl_id, units):
     except DeviceError as e:
         return p.ERR_DATA_RANGE if "range" in str(e).lower() else -1
     return p.ERR_NONE
+
+
+def test_close_gives_a_servo_latched_since_the_last_read_back_0_a(skewed):
+    clock, skew, bank, emu, leader = skewed
+    leader.connect()
+    tick(clock, leader)
+    skew[0] += 0.3
+    tick(clock, leader)  # latched; the next read-back is CHECK_EVERY_S away
+    assert all(s.watchdog.latched and s.get(p.ADDR_GOAL_CURRENT, signed=True) != 0 for s in emu.servos)
+    leader.zero_torque("stop")  # the stop's 0 A: refused by a latched servo (a sync write says nothing)
+    assert all(s.get(p.ADDR_GOAL_CURRENT, signed=True) != 0 for s in emu.servos)
+    leader.disconnect()
+    for s in emu.servos:
+        assert s.get(p.ADDR_TORQUE_ENABLE) == 0 and s.get(p.ADDR_GOAL_CURRENT, signed=True) == 0
+        assert not s.watchdog.latched

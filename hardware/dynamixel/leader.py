@@ -505,19 +505,19 @@ class DynamixelLeader(Leader):
         if bus is None:
             return
         try:
-            if self._wd is not None:  # one latched since the last read-back refused the stop's 0 A
+            for dxl_id in self.config.ids:
                 try:
+                    bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 0)
+                except DeviceError as e:
+                    log.warning("leader %s: torque off failed: %s", self.config.name, e)
+            if self._wd is not None:  # after torque off (first, at once): one latched since the last
+                try:  # read-back refused the stop's 0 A and would keep its last goal in the register
                     for dxl_id in self._wd.check(bus, self.clock.now()):
                         bus.write(dxl_id, p.ADDR_GOAL_CURRENT, 0)
                         log.warning("leader %s: servo %d's Bus Watchdog had latched: re-armed, 0 A written",
                                     self.config.name, dxl_id)
                 except DeviceError as e:
                     log.warning("leader %s: Bus Watchdog read-back at close failed: %s", self.config.name, e)
-            for dxl_id in self.config.ids:
-                try:
-                    bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 0)
-                except DeviceError as e:
-                    log.warning("leader %s: torque off failed: %s", self.config.name, e)
         finally:
             self._torque_on = False
             bus.close()
