@@ -233,18 +233,16 @@ class BusWatchdogKeeper:
     def check(self, bus, now: float, ids=None) -> list[int]:
         """Read Bus Watchdog(98) back (one sync read: all armed servos, or ids); re-arm each that reads -1
         (latched) or anything but the period (0: rebooted or power-cycled), as the e-Manual requires: 0, then
-        the period. A servo that did not answer is read again at the next check. The ids re-armed."""
+        the period, by sync write. A servo that did not answer is read again at the next check. The ids
+        re-armed."""
         ids = self.ids if ids is None else list(ids)
         wait_ms = bus.rx_timeout_ms(plain_sync_read_bytes(len(ids), ADDR[1]), len(ids))
         got = bus.sync_read(bus.make_sync_read(ids, ADDR), ids, wait_ms)
-        found = []
-        for i in ids:
-            if i in got and p.to_signed(got[i][0][0], 1) != self.units:
-                try:
-                    _rearm(bus, i, self.units)
-                except DeviceError:
-                    continue  # read again at the next check
-                found.append(i)
+        found = [i for i in ids if i in got and p.to_signed(got[i][0][0], 1) != self.units]
+        if found:  # two sync writes, no status to wait for (the loop's tick): the next check confirms them
+            group = bus.make_sync_write(found, ADDR)
+            for value in (0, self.units):
+                bus.sync_write_ints(group, [value] * len(found))
         self.found += len(found)
         if found:
             self.last_tx_s = now
