@@ -1,7 +1,7 @@
 """A change to FIRST's contact labels, before and after, on development episodes (SIMULATED).
 
     python -m bench.first_label_dev --bench OUT --task cap-screw --score motion --rollout-seed 12 --out DEV
-    python -m bench.first_label_dev --out DEV --report
+    python -m bench.first_label_dev --out DEV --report [--results NAME]   # results/NAME.json, raw episodes
 
 OUT is a `bench_first` results folder (OUT/config.json; its demonstrations and its trained policies). For
 each training seed S this trains `first` again on the same demonstrations with the same recipe (steps,
@@ -24,6 +24,7 @@ from pathlib import Path
 
 from bench import first_force as F
 from bench import harness
+from bench.portable import portable, portable_text
 
 
 def _write(path: Path, obj) -> None:
@@ -114,7 +115,9 @@ def report(dev: Path) -> dict:
     runs = F.load_runs(dev)
     cells = {c: F.cell_summary(runs, task, c) for c in [new, *cfg["cells"]]}
     pairs = {f"{new} vs {c}": F.paired(runs, task, (new, "live"), (c, "live")) for c in cfg["cells"]}
-    out = {"config": cfg, "cells": cells, "pairs": pairs}
+    raw = {c: {str(s): r.get("episodes") for (t, cc, s, h), r in runs.items() if (t, cc) == (task, c)}
+           for c in cells}  # every rollout's per-episode outcome and progress, as the benchmark keeps them
+    out = {"config": cfg, "cells": cells, "pairs": pairs, "episodes": raw}
     for c, s in cells.items():
         if s:
             print(f"{c:<14} {s['k']:>3} / {s['n']:<3} = {100 * s['success']:4.0f} % "
@@ -141,6 +144,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rollouts", type=int, default=32)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--report", action="store_true", help="only the report of what DEV holds")
+    ap.add_argument("--results", default="", help="also write results/NAME.json (raw episodes included)")
     args = ap.parse_args(argv)
     if not args.report:
         if not args.bench:
@@ -149,6 +153,12 @@ def main(argv=None) -> int:
     data = report(Path(args.out))
     _write(Path(args.out) / "report.json", data | {"cmd": harness.command(None, "bench.first_label_dev"),
                                                    "machine": harness.machine()})
+    if args.results:  # DEV and OUT are scratch folders: named, not the machine's paths
+        roots = {"DEV": Path(args.out).resolve(), "OUT": Path(data["config"]["bench"]).resolve()}
+        cmd = harness.command(None, "bench.first_label_dev").replace(args.out, "DEV")
+        print(harness.write(harness.RESULTS / f"{args.results}.json",
+                            harness.record(args.results, portable(data, roots), simulated=True,
+                                           cmd=portable_text(cmd, roots))))
     return 0
 
 
