@@ -43,6 +43,7 @@ SKIP = {
     "first_curve": "needs a bench_first OUT folder with demonstrations, then trains",
     "first_force": "needs a `bench_first --table force` OUT folder; its ablations roll policies out",
     "first_label_dev": "needs a `bench_first` OUT folder; trains a policy and rolls three out",
+    "portable": "a tool over committed result files, not a benchmark: tests/test_portable_results.py runs it",
     "force_history": "needs recorded demonstrations per task (`factr2 collect`)",
     "first_images_gpu": "needs a GPU (camera frames at the benchmark's size)",
     "bench_next": "trains NEXT for minutes on the real UR5 logs (absent from a fresh clone)",

@@ -160,7 +160,7 @@ class DynamixelLeader(Leader):
         self.offsets = np.array(c.offsets_rad, float)
         self.amps_per_unit = np.array([m.amps_per_unit for m in self.models])
         self.limit_units = np.array([m.current_limit_units for m in self.models], float)
-        self._amps_l, self._offsets_l = self.amps_per_unit.tolist(), self.offsets.tolist()
+        self._amps_l = self.amps_per_unit.tolist()
         self.read_ids = all_ids
         self.field = (
             (p.FEEDBACK_START, p.FEEDBACK_LEN)
@@ -191,6 +191,18 @@ class DynamixelLeader(Leader):
     def _warn(self, msg: str) -> None:
         self.warnings.append(msg)
         log.warning(msg)
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """Calibration offsets per servo [rad] (the servo angle at the joint's zero). Setting them (a
+        restart's stored offsets, a recalibration) also refreshes the 500 Hz decode's float copy: a stale
+        copy would read every sample a turn off."""
+        return self._offsets
+
+    @offsets.setter
+    def offsets(self, value) -> None:
+        self._offsets = np.array(value, float)
+        self._offsets_l = self._offsets.tolist()
 
     def connect(self) -> None:
         c = self.config
