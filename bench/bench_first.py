@@ -17,7 +17,12 @@ loss per phase F / PC / C.
 on images: labelled so everywhere; `--obs perceived` on those poses as the simulated camera pose detector
 reported them during collection (SIMULATED, docs/perception.md). `--out` is resumable: finished
 demonstrations, training runs and rollouts are kept and skipped (an interrupted training run resumes from its
-last checkpoint).
+last checkpoint); a resumed run may add tasks, seeds and cells (`--table force-motion` on a `force` run adds
+`first-motion`: first with `--contact-score motion` labels).
+
+This module runs the jobs and reports; the cells, tables and BenchConfig are in bench/first_config.py, the
+stages (collect, train, roll out) in bench/first_stages.py, the ledger of finished cells in
+bench/first_ledger.py.
 """
 
 from __future__ import annotations
@@ -25,12 +30,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict
 from pathlib import Path
 
 try:
@@ -47,195 +51,35 @@ except ModuleNotFoundError as e:  # `python bench/bench_first.py`: bench/ is a p
     print("run it from the repository root as: python -m bench.bench_first ...", file=sys.stderr)
     raise SystemExit(2) from None
 from bench import harness
+from bench.first_config import (  # the configuration (HEADLINE_CELLS, RIG: imported from here by callers)
+    CELL_ORDER,
+    EVAL_SEED,
+    HEADLINE_CELLS,
+    OBS_LABELS,
+    QUICK,
+    RIG,
+    TABLES,
+    BenchConfig,
+    check_resume,
+)
 from bench.first_report import aggregate, write_docs, write_report
+from bench.first_stages import (  # the three stages, each a job of a worker
+    _json,
+    collect_demos,
+    next_checkpoint,
+    recorded_summary,
+    rollout_cell,
+    task_summaries,
+    train_cell,
+)
 from bench.harness import commit, machine
-from policies.labels.phases import LABEL_RULE
-from policies.rollout.runner import SAMPLER_SEEDING
-from policies.rollout.schedule import LIMIT_TOL_FRACTION
 
-DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, session/task_episodes.py)
-EVAL_SEED = 2  # rollout seed: range B, disjoint from A (checked on the episodes' recorded seeds)
-CURVE_SEED = 4  # rollout seed of the learning curve (bench/first_curve.py): never the evaluation's
-# the paper's comparison; the second table: base and the ratio ablation (PC = the first cell)
-HEADLINE_CELLS = {"base-torque": ("base-torque", None), "first": ("first", (1, 5, 1))}
-SECOND_CELLS = {"base": ("base", None), "C": ("first", (1, 1, 5)), "PC+C": ("first", (1, 3, 3))}
-FORCE_CELLS = {"base": ("base", None), **HEADLINE_CELLS}  # does force help, does FIRST: on every task
-TABLES = ("headline", "second", "all", "force")  # which cells a run trains: each sized for 2.5 h on 2 cores
-RIG = "sim-piper"
-OBS_LABELS = {"state": " (PRIVILEGED twin object state, no images)",
-              "perceived": " (SIMULATED camera pose detector's object poses, no images; docs/perception.md)"}
-
-
-@dataclass
-class BenchConfig:
-    out: str = "bench_first"
-    obs: str = "state"
-    tasks: list = field(default_factory=lambda: ["peg-insert", "press-fit", "wipe"])
-    demos: int = 50
-    seeds: int = 3
-    rollouts: int = 32  # per policy: 3 seeds x 32 = 96 per cell, a 95 % Wilson interval within +-10 points
-    steps: int = 8000  # optimiser steps per training run: from the learning curve (docs/first_training.md)
-    batch: int = 256
-    policy: str = "flow"
-    preset: str = ""  # "": the observation's default (state: the MLP flow head; images: small)
-    table: str = "all"  # headline: base-torque and first on every task; second: base, C, PC+C on one task
-    include_failed: bool = False  # train on failed demonstrations too (the paper trains on successes)
-    actions: str = "absolute"  # the frame joint targets are learned in (factr2 train --actions)
-    ablation_task: str = ""  # "" = the first task
-    thresholds: tuple | str = "recording"  # FIRST labels: from each task's demonstrations (as `factr2 train`)
-    max_seconds: float | None = None  # rollout episode limit [s]; None = the task's own
-    jobs: int = 2  # worker processes (each training run then uses cores / jobs torch threads)
-    threads: int = 0  # torch threads per training run; 0 = cores / jobs (two runs side by side: pass 1 each)
-    next_checkpoint: str = ""  # "" = the demo's cached NEXT for sim-piper (made once when missing)
-    quick: bool = False  # the smoke configuration (QUICK): said in the report
-    demos_from: dict = field(default_factory=dict)  # task -> recorded folders used instead of a collection
-    eval_seed: int = EVAL_SEED  # rollout seed (range B): a run may pre-register a fresh one
-    ledger: str = ""  # finished cells kept in the repository across runs (bench/first_ledger.py)
-    # the rollouts' rule for chunks beyond a joint limit (policies/rollout/schedule.py), recorded: results of
-    # the earlier rule (a fixed 0.15 rad refused: results/first_cells_refuse015.json) are not mixed with these
-    limit_tol_fraction: float = LIMIT_TOL_FRACTION
-    sampler_seeding: str = SAMPLER_SEEDING  # the flow noise seeded per episode (policies/rollout/runner.py)
-    # the training's matmuls (factr2 train --precision): auto, as the current ledger's cells were trained
-    # (results/first_cells_fp32_hysteresis.json: fp32 and the earlier labels)
-    precision: str = "auto"
-    # the contact labeller (policies.labels.phases.LABEL_RULE): cells labelled by an earlier rule are not
-    # mixed in
-    labels: str = LABEL_RULE
-    only_cells: list = field(default_factory=list)  # a subset of the table's cells ([] = all of them)
-
-    def cells(self, task: str) -> dict:
-        if self.table == "force":
-            out = dict(FORCE_CELLS)
-        else:
-            out = dict(HEADLINE_CELLS) if self.table in ("headline", "all") else {}
-            if self.table in ("second", "all") and task == (self.ablation_task or self.tasks[0]):
-                out.update(SECOND_CELLS)
-                out["first"] = HEADLINE_CELLS["first"]  # PC (1:5:1) of the ablation
-        return {k: v for k, v in out.items() if not self.only_cells or k in self.only_cells}
-
-
-QUICK = {"tasks": ["wipe"], "demos": 4, "seeds": 1, "rollouts": 2, "steps": 40, "batch": 32}
-CELL_ORDER = ("base", "base-torque", "first", "C", "PC+C")
-
-
-# -- the three stages (each a job: a function of picklable arguments, its result kept as JSON) -------------
-def _json(path: Path, obj) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=float))
-    os.replace(tmp, path)  # written whole or not at all: a killed run leaves no half result
-
-
-def demo_folders(cfg: BenchConfig, task: str) -> list[Path]:
-    """Where a task's demonstrations are: the folders the run was given, or its own collection."""
-    return [Path(d) for d in cfg.demos_from.get(task, [])] or [Path(cfg.out) / task / "demos"]
-
-
-def recorded_summary(task: str, folders: list[Path]) -> dict:
-    """The collection summaries (`factr2 collect`'s JSON) of given folders, merged into one."""
-    parts = [json.loads(f.read_text()) for d in folders for f in sorted(d.glob("*.json"))]
-    parts = [p for p in parts if isinstance(p, dict) and p.get("results")]
-    if not parts or any(p.get("task") != task for p in parts):
-        raise SystemExit(f"--demos-from {task}: {', '.join(map(str, folders))} hold no {task} collection "
-                         "summary (the JSON `factr2 collect` writes beside its recording)")
-    results = [r for p in parts for r in p["results"]]
-    n = len(results)
-    return {"episodes": n, "success_rate": sum(r.get("outcome") == "success" for r in results) / n,
-            "progress_mean": sum(r.get("progress", 0.0) for r in results) / n,
-            "sim_s": sum(p.get("sim_s", 0.0) for p in parts),
-            "wall_s": sum(p.get("wall_s", 0.0) for p in parts),
-            "cpu_s": 0.0,  # not this run's work
-            "folders": [str(d) for d in folders], "collection_seeds": [p.get("seed") for p in parts],
-            "results": results}
-
-
-def collect_demos(cfg: BenchConfig, task: str, checkpoint: str) -> dict:
-    """The task's demonstrations (factr2 collect's function), kept in OUT/TASK/demos, or those the run was
-    given (--demos-from)."""
-    from factr2_teleop.tasks.run import CollectConfig, collect, output_paths
-
-    if task in cfg.demos_from:
-        return recorded_summary(task, demo_folders(cfg, task))
-    folder = Path(cfg.out) / task / "demos"
-    # mode None: the task's demonstrator feedback (Task.operator_feedback), else NEXT from `checkpoint`
-    cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(folder), seed=DEMO_SEED, mode=None,
-                       checkpoint=checkpoint, cameras=cfg.obs == "images")
-    mcap, summary = output_paths(cc, RIG)
-    if summary.is_file():
-        return json.loads(summary.read_text())
-    shutil.rmtree(folder, ignore_errors=True)  # an interrupted collection: start it again
-    return collect(cc, progress=False)
-
-
-def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
-    """One training run (policies.training.run, as `factr2 train`), resumed from its checkpoint if
-    interrupted."""
-    import torch
-
-    from policies.training.checkpoint import last_checkpoint, read_meta
-    from policies.training.run import RunOptions, run_training
-    from policies.training.train import Dist, TrainConfig
-
-    run = Path(cfg.out) / task / cell / f"seed{seed}"
-    done = run / "train.json"
-    if done.is_file():
-        return json.loads(done.read_text())
-    method, ratio = cfg.cells(task)[cell]
-    last = last_checkpoint(run)
-    if last is None:
-        shutil.rmtree(run, ignore_errors=True)
-    # the warm-up / validation / checkpoint periods: fitted to the run's length by the loop
-    tc = TrainConfig(steps=cfg.steps, batch=cfg.batch, log_every=10, seed=seed,
-                     threads=cfg.threads or max(1, (os.cpu_count() or 1) // cfg.jobs),
-                     precision=cfg.precision)
-    opts = RunOptions(inputs=demo_folders(cfg, task), out=run, policy=cfg.policy, method=method,
-                      ratio=ratio, preset=cfg.preset, thresholds=cfg.thresholds, observation=cfg.obs,
-                      progress=False, train=tc, resume=last is not None, include_failed=cfg.include_failed,
-                      actions=cfg.actions)
-    t, c = time.perf_counter(), time.process_time()
-    run_training(opts, Dist(device=torch.device("cuda" if torch.cuda.is_available() else "cpu")))
-    meta = read_meta(run)
-    out = {"task": task, "cell": cell, "method": method, "ratio": meta["ratio"], "seed": seed,
-           "val": meta.get("metrics", {}), "samples": meta["samples"], "steps": meta["step"],
-           "phases": meta["phases"], "phase_shares": meta.get("phase_shares"),
-           "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c,
-           "torch_threads": torch.get_num_threads(), "run": str(run)}
-    _json(done, out)
-    return out
-
-
-def rollout_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
-    """R rollouts of one trained policy on the evaluation seed (factr2 rollout's function)."""
-    from factr2_teleop.session.rollout import RolloutOptions, run_rollout
-
-    run = Path(cfg.out) / task / cell / f"seed{seed}"
-    done = run / "rollout.json"
-    if done.is_file():
-        return json.loads(done.read_text())
-    kw = {"rig": RIG, "policy": str(run), "task": task, "episodes": cfg.rollouts, "seed": cfg.eval_seed,
-          "record": None, "progress": False}
-    if cfg.max_seconds is not None and "max_seconds" in {f.name for f in fields(RolloutOptions)}:
-        kw["max_seconds"] = cfg.max_seconds
-    t, c = time.perf_counter(), time.process_time()
-    res = run_rollout(RolloutOptions(**kw)).to_dict()
-    out = {"task": task, "cell": cell, "seed": seed, "success_rate": res["success_rate"],
-           "mean_progress": res["mean_progress"], "stage_rates": res.get("stage_rates"),
-           "episodes": res.get("episodes"), "timing": res.get("timing"),
-           "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}
-    _json(done, out)
-    return out
+# what callers import from here (the configuration and stages live in bench/first_config.py, first_stages.py)
+__all__ = ["BenchConfig", "EVAL_SEED", "HEADLINE_CELLS", "RIG", "_json", "check_disjoint_seeds", "main",
+           "next_checkpoint", "parse_args", "recorded_summary", "run_bench", "run_pipeline"]
 
 
 # -- orchestration ------------------------------------------------------------------------------------------
-def next_checkpoint(cfg: BenchConfig) -> str:
-    """The NEXT checkpoint the demonstrations' feedback and labels use (the demo's cache, made if missing)."""
-    from factr2_teleop.session.next_cache import create_checkpoint, find_checkpoint
-
-    ck = find_checkpoint(RIG, cfg.next_checkpoint or None)
-    if ck is None:
-        ck = create_checkpoint(RIG, say=print)
-    return str(ck)
-
-
 def _done(label: str, args: tuple, t0: float) -> None:
     what = " ".join(str(a) for a in args if not str(a).endswith(".json"))
     print(f"  {label} {what}: done ({time.perf_counter() - t0:.0f} s)", flush=True)
@@ -270,25 +114,6 @@ class _Elapsed:
         finally:  # an interrupted invocation's time counts too (main turns SIGTERM into SystemExit)
             self.totals[stage] = self.totals.get(stage, 0.0) + time.perf_counter() - t
             _json(self.path, self.totals)
-
-
-# what the kept results depend on (tasks and seeds may be added)
-SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thresholds", "max_seconds",
-                  "next_checkpoint", "preset", "include_failed", "demos_from", "eval_seed",
-                  "limit_tol_fraction", "sampler_seeding", "precision", "labels")
-
-
-def check_resume(cfg: BenchConfig, out: Path) -> None:
-    """A resumed OUT must have been started with the same settings (its kept results were made with them)."""
-    old_path = out / "config.json"
-    if not old_path.is_file():
-        return
-    old, new = json.loads(old_path.read_text()), json.loads(json.dumps(asdict(cfg)))
-    diff = [k for k in SAME_ON_RESUME if old.get(k) != new.get(k)]
-    if diff:
-        was = ", ".join(f"{k} {old.get(k)}" for k in diff)
-        raise SystemExit(f"{out}: its kept results were made with other settings ({was}); "
-                         "use another --out or the same options")
 
 
 def run_pipeline(cfg: BenchConfig, ck: str, on_cell=lambda: None) -> tuple[dict, list[dict], list[dict]]:
@@ -346,23 +171,6 @@ def run_pipeline(cfg: BenchConfig, ck: str, on_cell=lambda: None) -> tuple[dict,
                     rolls[args] = res
                     on_cell()
     return {t: demos[t] for t in cfg.tasks}, [trains[c] for c in cells], [rolls[c] for c in cells]
-
-
-def task_summaries(cfg: BenchConfig) -> dict:
-    """The collection summary of every task whose demonstrations are there (given or collected earlier)."""
-    from factr2_teleop.tasks.run import CollectConfig, output_paths
-
-    out = {}
-    for task in cfg.tasks:
-        if task in cfg.demos_from:
-            out[task] = recorded_summary(task, demo_folders(cfg, task))
-            continue
-        cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(Path(cfg.out) / task / "demos"),
-                           seed=DEMO_SEED)
-        summary = output_paths(cc, RIG)[1]
-        if summary.is_file():
-            out[task] = json.loads(summary.read_text())
-    return out
 
 
 def fingerprints(cfg: BenchConfig, ck: str) -> dict:
@@ -441,7 +249,8 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     ap.add_argument("--table", choices=TABLES, default="all",
                     help="headline: base-torque and first on every task; second: base and the ablation C, "
                     "PC+C on --ablation-task (PC = first); all: both (each sized for 2.5 h on 2 cores); "
-                    "force: base, base-torque and first on every task (docs/force.md)")
+                    "force: base, base-torque and first on every task (docs/force.md); force-motion: "
+                    "those and first-motion, first with --contact-score motion labels (docs/first_labels.md)")
     ap.add_argument("--cells", default="", metavar="CELL[,CELL...]",
                     help="only these cells of the table (e.g. base: one observation against another on the "
                     "same demonstrations)")
@@ -493,8 +302,11 @@ def parse_args(argv=None) -> tuple[BenchConfig, str]:
     if a.tasks:
         cfg.tasks = harness.names(a.tasks)
     cfg.only_cells = harness.names(a.cells)
-    if any(c not in CELL_ORDER for c in cfg.only_cells):
-        ap.error(f"--cells {a.cells!r}: a comma-separated subset of {', '.join(CELL_ORDER)}")
+    table = [c for c in CELL_ORDER if any(c in cfg.table_cells(t) for t in cfg.tasks)]
+    if any(c not in table for c in cfg.only_cells):  # a cell of another table would train nothing, silently
+        more = " (first-motion: --table force-motion)" if "first-motion" in cfg.only_cells else ""
+        ap.error(f"--cells {a.cells!r}: a comma-separated subset of --table {cfg.table}'s cells, "
+                 f"{', '.join(table)}{more}")
     cfg.thresholds = a.thresholds
     if a.thresholds not in ("recording", "next"):
         try:

@@ -22,10 +22,10 @@ import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from pathlib import Path
 
-from bench.bench_first import RIG, _json
+# CURVE_SEED: the curve's rollout seed range, disjoint from demonstrations (1) and evaluation (2)
+from bench.first_config import CURVE_SEED, RIG
 from bench.first_report import wilson
-
-CURVE_SEED = 4  # rollout seed range of the curve: disjoint from demonstrations (1) and evaluation (2)
+from bench.first_stages import _json
 
 
 def train_curve(a: dict) -> dict:

@@ -5,11 +5,13 @@ the test-time ablation of its force-conditioned policies.
     python -m bench.first_force --out OUT --report                  # OUT/force_table.md + force_results.json
 
 OUT is a `bench_first` results folder (OUT/config.json, OUT/TASK/CELL/seedS/{train,rollout}.json). The
-ablation rolls every trained base-torque and first policy out again on the SAME evaluation episodes (the
-run's --eval-seed and rollout count) with its force input zeroed (0 N*m) or shuffled (each chunk fed a force
-the episode had earlier: policies/rollout/runner.py), written beside the live set as rollout-zero.json /
-rollout-shuffle.json. The report pairs by training seed and episode: base-torque and first against base (is a
-force-conditioned policy better?), first against base-torque (does FIRST's sampling add to it?), and each
+ablation rolls every trained base-torque, first and first-motion policy out again on the SAME evaluation
+episodes (the run's --eval-seed and rollout count) with its force input zeroed (0 N*m) or shuffled (each chunk
+fed a force the episode had earlier: policies/rollout/runner.py), written beside the live set as
+rollout-zero.json / rollout-shuffle.json. The report pairs by training seed and episode: base-torque and first
+against base (is a force-conditioned policy better?), first against base-torque (does FIRST's sampling add to
+it?), first-motion -- when the run has it (`bench_first --table force-motion`: first trained on
+`--contact-score motion` labels) -- against base, base-torque and first (do the labels change it?), and each
 force policy live against its ablations (does it use the input?): success with pooled 95 % Wilson intervals,
 exact McNemar p on the discordant episodes, task progress (the share of stages completed, the paper's
 measure) with the paired mean difference and its 95 % interval, and the stage where the failures stop.
@@ -30,10 +32,13 @@ from bench import harness
 from bench.first_report import mcnemar_p, wilson
 from bench.portable import portable, portable_text
 
-FORCE_CELLS = ("base-torque", "first")  # the cells with a force input
+# the cells with a force input; first-motion (first on the motion-discounted labels, `--table force-motion`)
+# is reported when the run has it, paired against base, base-torque and first
+FORCE_CELLS = ("base-torque", "first", "first-motion")
 CELLS = ("base",) + FORCE_CELLS
 ABLATIONS = ("zero", "shuffle")
-PAIRS = (("base-torque", "base"), ("first", "base"), ("first", "base-torque"))
+PAIRS = (("base-torque", "base"), ("first", "base"), ("first", "base-torque"),
+         ("first-motion", "base"), ("first-motion", "base-torque"), ("first-motion", "first"))
 
 
 def rollout_file(run: Path, how: str = "live") -> Path:

@@ -104,7 +104,7 @@ def train_part(out: str, task: str, cell: str, seed: int, steps: int, batch: int
         import shutil
 
         shutil.rmtree(run, ignore_errors=True)
-    method, ratio = HEADLINE_CELLS[cell]
+    method, ratio = HEADLINE_CELLS[cell].method, HEADLINE_CELLS[cell].ratio  # the default (l1) labels
     dev = torch.device("cuda" if device == "auto" and torch.cuda.is_available() else
                        ("cpu" if device == "auto" else device))
     tc = TrainConfig(steps=steps, batch=batch, log_every=10, seed=seed, threads=threads)

@@ -37,23 +37,19 @@ def train_relabelled(bench: str, task: str, seed: int, score: str, dev: str) -> 
     """first on OUT's demonstrations with OUT's recipe and the labels' score changed; resumes."""
     import torch
 
-    from bench.bench_first import BenchConfig, demo_folders
-    from policies.labels.labelling import LabelChoice
+    from bench.first_config import CELLS, BenchConfig
+    from bench.first_stages import training_options
     from policies.training.checkpoint import last_checkpoint
-    from policies.training.run import RunOptions, run_training
-    from policies.training.train import Dist, TrainConfig
+    from policies.training.run import run_training
+    from policies.training.train import Dist
 
     cfg = BenchConfig(**json.loads((Path(bench) / "config.json").read_text()))
     run = Path(dev) / task / f"first-{score}" / f"seed{seed}"
     if (run / "train.json").is_file():
         return str(run)
-    method, ratio = cfg.cells(task)["first"]
-    tc = TrainConfig(steps=cfg.steps, batch=cfg.batch, log_every=10, seed=seed, precision=cfg.precision,
-                     threads=cfg.threads or 1)
-    opts = RunOptions(inputs=demo_folders(cfg, task), out=run, policy=cfg.policy, method=method,
-                      ratio=ratio, preset=cfg.preset, thresholds=LabelChoice("recording", score=score),
-                      observation=cfg.obs, progress=False, train=tc, resume=last_checkpoint(run) is not None,
-                      include_failed=cfg.include_failed, actions=cfg.actions)
+    cell = CELLS["first"]._replace(score=score)  # the benchmark's first, only the labels changed
+    opts = training_options(cfg, task, cell, run, seed, cfg.threads or 1,
+                            resume=last_checkpoint(run) is not None)
     t = time.perf_counter()
     run_training(opts, Dist(device=torch.device("cpu")))
     _write(run / "train.json", {"task": task, "seed": seed, "score": score,

@@ -1,8 +1,11 @@
 """Finished FIRST benchmark cells, carried across runs (issue #31).
 
-A cell -- (task, cell, training seed) -- is finished when its training and its rollouts are; their results
-are small JSON files in OUT/TASK/CELL/seedN (bench/bench_first.py). A table takes longer than one sitting on
-two cores, and the scratch folder does not outlive the machine: the repository does. So:
+A cell -- (task, cell, training seed, and the contact score its labels split) -- is finished when its
+training and its rollouts are; their results are small JSON files in OUT/TASK/CELL/seedN
+(bench/bench_first.py). The score is read from what the training recorded: a cell whose score is not the one
+its name trains with (bench/first_config.py CELLS: first l1, first-motion motion) is never exported or
+taken. A table takes longer than one sitting on two cores, and the scratch folder does not outlive the
+machine: the repository does. So:
 
 - `export_cells(out, ledger, ...)` merges the finished cells of OUT into a ledger file in the repository
   (results/first_cells.json), each with the fingerprint of the demonstrations and the NEXT checkpoint it was
@@ -24,6 +27,7 @@ import json
 import os
 from pathlib import Path
 
+from bench.first_config import CELLS, trained_score
 from bench.portable import portable
 
 LEDGER_VERSION = 1
@@ -90,7 +94,21 @@ def finished_cells(out: Path) -> list[dict]:
 
 
 def _key(c: dict) -> tuple:
-    return c["rollout"]["task"], c["rollout"]["cell"], int(c["rollout"]["seed"])
+    """(task, cell, training seed, contact score): the score is the one the training recorded, so a cell
+    trained on other labels (first-motion) is never taken for one of the same name on the default labels."""
+    return c["rollout"]["task"], c["rollout"]["cell"], int(c["rollout"]["seed"]), trained_score(c["train"])
+
+
+def _not_its_cell(c: dict) -> str:
+    """Why a finished cell is not the benchmark's cell of its name ('' when it is): an unknown name, or a
+    contact score other than the one that name trains with (bench/first_config.py CELLS)."""
+    task, cell, seed, score = _key(c)
+    if cell not in CELLS:
+        return f"{task} {cell} seed {seed}: no such cell (the benchmark's: {', '.join(CELLS)})"
+    if score != CELLS[cell].score:
+        return (f"{task} {cell} seed {seed}: trained with contact score {score}, the cell's is "
+                f"{CELLS[cell].score}")
+    return ""
 
 
 def read_ledger(ledger: Path) -> dict:
@@ -122,6 +140,8 @@ def export_cells(out: Path, ledger: Path, fingerprints: dict, config: dict, sess
         k = _key(c)
         if k in have or k[0] not in fingerprints:
             continue
+        if _not_its_cell(c):  # train_cell refuses to make one: a folder put into OUT by hand
+            raise SystemExit(f"{out}: {_not_its_cell(c)}; not exported to {ledger}")
         c["demos_fingerprint"] = fingerprints[k[0]]
         c["session"] = session
         c["env"] = env
@@ -139,8 +159,9 @@ def _whole_seed_groups(cells: list[dict], needed: dict) -> set:
     trained on one collection: a paired comparison complete on its own demonstrations."""
     have: dict = {}
     for c in cells:
-        task, cell, seed = _key(c)
-        have.setdefault((task, seed, c.get("demos_fingerprint")), set()).add(cell)
+        task, cell, seed, _ = _key(c)
+        if not _not_its_cell(c):
+            have.setdefault((task, seed, c.get("demos_fingerprint")), set()).add(cell)
     return {k for k, got in have.items() if needed.get(k[0]) and set(needed[k[0]]) <= got}
 
 
@@ -165,9 +186,12 @@ def import_cells(out: Path, ledger: Path, fingerprints: dict, config: dict,
     whole = _whole_seed_groups(data["cells"], needed or {})
     n, skipped, env = 0, [], environment()
     for c in data["cells"]:
-        task, cell, seed = _key(c)
+        task, cell, seed, _ = _key(c)
         run = Path(out) / task / cell / f"seed{seed}"
         if (run / "rollout.json").is_file():
+            continue
+        if _not_its_cell(c):
+            skipped.append(f"{_not_its_cell(c)}: not taken")
             continue
         fp = c.get("demos_fingerprint")
         if fingerprints.get(task) != fp and needed is not None and cell not in needed.get(task, ()):

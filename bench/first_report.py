@@ -17,6 +17,7 @@ PHASES = ("F", "PC", "C")
 DOCS_BEGIN = "<!-- bench_first:begin (written by bench/bench_first.py --write-docs) -->"
 DOCS_END = "<!-- bench_first:end -->"
 METHOD_ORDER = ("base", "base-torque", "first")
+TABLE_ORDER = METHOD_ORDER + ("first-motion",)  # the table's rows: first on the motion labels when run
 ABLATION_ORDER = ("C", "first", "PC+C")  # the `first` cell is PC (1:5:1)
 ABLATION_LABEL = {"C": "C (1:1:5)", "first": "PC (1:5:1) = first", "PC+C": "PC+C (1:3:3)"}
 
@@ -218,7 +219,7 @@ def table(results: dict) -> str:
         lines += [f"**{task}** (demonstrations: {d.get('episodes', '?')} episodes{given}, scripted success "
                   f"{100 * d.get('success_rate', np.nan):.0f} %; FIRST labels at {lo:.2f} / {hi:.2f} N*m: "
                   f"free / pre-contact / contact {shares} % of the training samples)", "", HEADER]
-        lines += [_row(m, cells[m]) for m in METHOD_ORDER if m in cells]
+        lines += [_row(m, cells[m]) for m in TABLE_ORDER if m in cells]
         lines += ["", _paired_line(paired(results, task)), ""]
         if "C" in cells:
             lines += [f"**{task}, ablation** (the re-sampling ratio, method `first`)", "", HEADER]

@@ -1,5 +1,6 @@
-"""bench_first's --demos-from and --eval-seed: recorded collections merged into one summary, bad folders
-said in one line (bench/bench_first.py)."""
+"""bench_first's --demos-from, --eval-seed, --table and --cells: recorded collections merged into one summary,
+bad folders said in one line, a cell's contact score reaching its training run (bench/bench_first.py,
+bench/first_config.py, bench/first_stages.py)."""
 
 import json
 
@@ -45,3 +46,29 @@ def test_cli_options(tmp_path, capsys):
     with pytest.raises(SystemExit):
         parse_args(["--demos-from", f"wipe={tmp_path / 'missing'}"])
     assert "TASK=DIR" in capsys.readouterr().err
+
+
+def test_first_motion_is_asked_for_by_its_table(capsys):
+    cfg, _ = parse_args(["--table", "force-motion", "--cells", "first,first-motion", "--tasks", "cap-screw"])
+    assert list(cfg.cells("cap-screw")) == ["first", "first-motion"]
+    with pytest.raises(SystemExit) as e:  # not a cell of the force table: it would train nothing
+        parse_args(["--table", "force", "--cells", "first-motion", "--tasks", "cap-screw"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "base, base-torque, first" in err and "--table force-motion" in err
+
+
+def test_a_cells_score_reaches_its_training_run(tmp_path):
+    from bench.first_config import CELLS, BenchConfig
+    from bench.first_stages import training_options
+    from policies.labels.labelling import TARE_DEFAULT, LabelChoice
+    from policies.training.run_config import to_argv
+
+    cfg = BenchConfig(out=str(tmp_path), obs="perceived", steps=40, batch=8)
+    kw = {"task": "cap-screw", "run": tmp_path / "r", "seed": 1, "threads": 1, "resume": False}
+    first = training_options(cfg, cell=CELLS["first"], **kw)
+    assert first.thresholds == "recording" and "--contact-score" not in to_argv(first)  # as before
+    motion = training_options(cfg, cell=CELLS["first-motion"], **kw)
+    assert motion.thresholds == LabelChoice("recording", TARE_DEFAULT, "motion")
+    assert (motion.method, motion.ratio) == (first.method, first.ratio) == ("first", (1, 5, 1))
+    argv = to_argv(motion)
+    assert argv[argv.index("--contact-score") + 1] == "motion"

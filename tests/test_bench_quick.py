@@ -70,7 +70,8 @@ SKIP = {
     "app_cpu_per_tick": "issue #53's tool, owned there; its small run is --ticks 50",
 }
 # modules of bench/ that are not scripts (used by the ones above)
-LIBRARIES = {"__init__", "harness", "first_ledger", "first_report", "crash_trials", "fault_trials"}
+LIBRARIES = {"__init__", "harness", "first_config", "first_ledger", "first_report", "first_stages",
+             "crash_trials", "fault_trials"}
 
 
 def scripts() -> set[str]:

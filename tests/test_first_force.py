@@ -5,6 +5,7 @@ import json
 import pytest
 
 from bench.first_force import failing_stage, main, report
+from bench.first_report import mcnemar_p, wilson
 
 
 def _roll(path, outcomes, progress, stages):
@@ -72,3 +73,35 @@ def test_against_pairs_another_observation_on_the_same_episodes(tmp_path):
     (other / "config.json").write_text(json.dumps({"obs": "state", "eval_seed": 32, "rollouts": 4}))
     with pytest.raises(SystemExit, match="would not pair"):
         report(out, other)
+
+
+def test_first_motion_is_its_own_row_paired_against_base_torque_and_first(tmp_path):
+    out = _folder(tmp_path)
+    _, without = report(out)
+    assert not any("first-motion" in k for t in without["tasks"].values() for k in [*t["cells"], *t["pairs"]])
+    st = {"grasp": 1.0, "engage": 1.0, "seat": 0.5, "tight": 0.5}
+    for seed in (0, 1):  # seed 0 and 1 alike: 2 of 4 succeed, episodes 3100093 and 3100095
+        _roll(out / "cap-screw" / "first-motion" / f"seed{seed}" / "rollout.json", [1, 0, 1, 0],
+              [1, 0.5, 1, 0.75], st)
+    md, data = report(out)
+    d = data["tasks"]["cap-screw"]
+    fm = d["cells"]["first-motion"]
+    assert (fm["k"], fm["n"], fm["seeds"], fm["per_seed"]) == (4, 8, [0, 1], [0.5, 0.5])
+    assert fm["wilson"] == pytest.approx(wilson(4, 8)) and fm["progress"] == pytest.approx(0.8125)
+    assert fm["failing_stage"].startswith("seat")
+    bt = d["pairs"]["first-motion vs base-torque"]  # base-torque: 1 1 0 1, progress 1 1 0.75 1
+    assert (bt["pairs"], bt["only_a"], bt["only_b"]) == (8, 2, 4)
+    assert bt["mcnemar_p"] == pytest.approx(mcnemar_p(2, 4))
+    assert bt["progress_diff"] == pytest.approx((0 - 0.5 + 0.25 - 0.25) / 4)
+    lo, hi = bt["progress_ci"]
+    assert lo < bt["progress_diff"] < hi
+    first = d["pairs"]["first-motion vs first"]  # first: 1 1 1 1
+    assert (first["only_a"], first["only_b"], first["success_diff"]) == (0, 4, -0.5)
+    assert "first-motion vs base" in d["pairs"]
+    # every row and comparison of the table without first-motion is there unchanged, in its order
+    before = without["tasks"]["cap-screw"]
+    assert {k: v for k, v in d["cells"].items() if k != "first-motion"} == before["cells"]
+    assert list(d["cells"]) == [*before["cells"], "first-motion"]
+    assert {k: v for k, v in d["pairs"].items() if "first-motion" not in k} == before["pairs"]
+    assert "| cap-screw | first-motion | 2 | 4 / 8 = 50 %" in md
+    assert "| cap-screw | first-motion vs first | 8 (seeds 0,1) | 0 / 4 |" in md

@@ -2,12 +2,15 @@
 back into a new OUT only when the settings and the demonstrations are the same."""
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
 
+from bench.first_config import CELLS
 from bench.first_ledger import (
     SAME_SETTINGS,
+    _key,
     demos_fingerprint,
     export_cells,
     finished_cells,
@@ -15,16 +18,20 @@ from bench.first_ledger import (
     next_weights_digest,
 )
 
+RESULTS = Path(__file__).resolve().parents[1] / "results"
 CONFIG = {"obs": "state", "rollouts": 4, "steps": 100, "batch": 8, "policy": "flow",
           "thresholds": "recording", "max_seconds": None, "preset": "", "include_failed": False,
           "actions": "absolute", "eval_seed": 15,
           "demos_from": {"wipe": ["/somewhere"]}}
 
 
-def _cell(out, task, cell, seed, success, rollout=True):
+def _cell(out, task, cell, seed, success, rollout=True, score="l1"):
     run = out / task / cell / f"seed{seed}"
     run.mkdir(parents=True)
-    (run / "train.json").write_text(json.dumps({"task": task, "cell": cell, "seed": seed, "cpu_s": 1.0}))
+    train = {"task": task, "cell": cell, "seed": seed, "cpu_s": 1.0}
+    if score != "l1":  # the training's phases record a score other than the default (labelling.py)
+        train["phases"] = {"t_low": 0.5, "t_high": 0.9, "score": score}
+    (run / "train.json").write_text(json.dumps(train))
     if rollout:
         eps = [{"seed": 1500000 + i, "outcome": "success" if s else "failure"} for i, s in enumerate(success)]
         (run / "rollout.json").write_text(json.dumps({"task": task, "cell": cell, "seed": seed,
@@ -171,3 +178,63 @@ def test_cells_labelled_by_the_earlier_rule_are_not_mixed_with_contact_runs(tmp_
     assert n == 0 and "other settings" in why[0]
     with pytest.raises(SystemExit, match="another ledger"):
         export_cells(out, ledger, {"wipe": "f1"}, {**CONFIG, "labels": LABEL_RULE})
+
+
+def test_first_motion_is_its_own_cell_beside_first(tmp_path):
+    out, ledger = tmp_path / "a", tmp_path / "cells.json"
+    _cell(out, "cap-screw", "first", 0, [1, 0])
+    _cell(out, "cap-screw", "first-motion", 0, [0, 0, 1], score="motion")
+    assert export_cells(out, ledger, {"cap-screw": "f1"}, CONFIG) == 2
+    keys = {(c["rollout"]["cell"], _key(c)[3]) for c in json.loads(ledger.read_text())["cells"]}
+    assert keys == {("first", "l1"), ("first-motion", "motion")}
+    new = tmp_path / "b"
+    n, skipped = import_cells(new, ledger, {"cap-screw": "f1"}, CONFIG,
+                              needed={"cap-screw": ["base-torque", "first", "first-motion"]})
+    assert n == 2 and not skipped
+    got = {c: len(json.loads((new / "cap-screw" / c / "seed0" / "rollout.json").read_text())["episodes"])
+           for c in ("first", "first-motion")}
+    assert got == {"first": 2, "first-motion": 3}
+    # a motion-labelled cell is never a first cell, a first cell never a first-motion one
+    _cell(tmp_path / "c", "cap-screw", "first", 1, [1], score="motion")
+    with pytest.raises(SystemExit, match="contact score motion, the cell's is l1"):
+        export_cells(tmp_path / "c", ledger, {"cap-screw": "f1"}, CONFIG)
+
+
+def test_a_ledger_cell_whose_score_is_not_its_names_is_not_taken(tmp_path):
+    out, ledger = tmp_path / "a", tmp_path / "cells.json"
+    _cell(out, "cap-screw", "first", 0, [1])
+    _cell(out, "cap-screw", "base-torque", 0, [1])
+    export_cells(out, ledger, {"cap-screw": "f1"}, CONFIG)
+    data = json.loads(ledger.read_text())
+    data["cells"][1]["train"]["phases"] = {"score": "motion"}  # first, as if trained on the motion labels
+    ledger.write_text(json.dumps(data))
+    needed = {"cap-screw": ["base-torque", "first"]}
+    n, skipped = import_cells(tmp_path / "b", ledger, {"cap-screw": "f1"}, CONFIG, needed=needed)
+    assert n == 1 and skipped == ["cap-screw first seed 0: trained with contact score motion, the cell's "
+                                  "is l1: not taken"]
+    # nor does it make its seed's pair whole on another collection
+    n, skipped = import_cells(tmp_path / "c", ledger, {"cap-screw": "f2"}, CONFIG, needed=needed)
+    assert n == 0 and sum("runs again" in s for s in skipped) == 1
+
+
+@pytest.mark.parametrize("name", [p.name for p in sorted(RESULTS.glob("first_cells*.json"))])
+def test_committed_ledgers_load_their_cells_as_before(tmp_path, name):
+    """Every cell of every committed ledger (a copy: the running benchmark writes them) comes back into a
+    new OUT on its own demonstrations, keyed with the default score, and a ledger written back is the same."""
+    ledger = tmp_path / name
+    shutil.copy(RESULTS / name, ledger)
+    data = json.loads(ledger.read_text())
+    groups: dict = {}
+    for c in data["cells"]:
+        assert _key(c)[3] == "l1" and c["rollout"]["cell"] in CELLS
+        groups.setdefault((c["rollout"]["task"], c["demos_fingerprint"]), []).append(c)
+    for i, ((task, fp), cells) in enumerate(sorted(groups.items())):
+        out = tmp_path / f"out{i}"
+        n, skipped = import_cells(out, ledger, {task: fp}, data["settings"], needed={task: []})
+        assert n == len(cells), skipped
+        for c in cells:
+            run = out / task / c["rollout"]["cell"] / f"seed{c['rollout']['seed']}"
+            assert json.loads((run / "rollout.json").read_text()) == c["rollout"]
+        before = ledger.read_bytes()
+        assert export_cells(out, ledger, {task: fp}, data["settings"]) == 0
+        assert json.loads(ledger.read_bytes()) == json.loads(before)

@@ -52,6 +52,14 @@ def test_tables_choose_their_cells():
     assert set(cfg.cells("peg-insert")) == {"base", "C", "PC+C", "first"} and cfg.cells("wipe") == {}
     cfg.table = "all"
     assert set(cfg.cells("peg-insert")) == {"base", "base-torque", "first", "C", "PC+C"}
+    cfg.table = "force"  # as it trained before cells carried their contact score
+    assert cfg.cells("wipe") == {"base": ("base", None, "l1"), "base-torque": ("base-torque", None, "l1"),
+                                 "first": ("first", (1, 5, 1), "l1")}
+    cfg.table = "force-motion"  # the force table and first on the motion-discounted labels
+    assert list(cfg.cells("wipe")) == ["base", "base-torque", "first", "first-motion"]
+    assert cfg.cells("wipe")["first-motion"] == ("first", (1, 5, 1), "motion")
+    cfg.only_cells = ["first-motion"]
+    assert list(cfg.cells("peg-insert")) == ["first-motion"]
 
 
 def test_stages_pool_over_the_episodes_of_every_seed():
