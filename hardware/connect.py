@@ -232,7 +232,8 @@ def open_rig(rig: str | os.PathLike | Rig = "sim-piper", clock: str = "lockstep"
         if twin is not None:
             if clock == "lockstep":
                 twin.attach(clk)
-            else:
+            else:  # held as a person holds it until the app's loop has it (Twin.hold_leaders_at_start)
+                twin.hold_leaders_at_start()
                 twin.start_realtime()
         for spec in r.leaders:
             session.leaders[spec.name] = make_driver(spec, clk, twin)

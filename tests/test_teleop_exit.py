@@ -57,7 +57,40 @@ def test_teleop_end_puts_the_arms_down_before_the_recording_closes(rig, end, tmp
     run = out["timing"]  # Ctrl-C ended it, not the 30 s: the loop's own time (its ticks x mean period), which
     assert run.ticks / run.rate_hz < 15.0  # a slow machine's start-up and close do not add to (#53)
     assert out["recording"] is not None and out["status"].error is None
-    s, t_end = got["session"], got["t_end"]
+    _assert_put_down_after(got["session"], got["t_end"])
+
+
+def test_teleop_end_puts_the_arms_down_from_the_loops_thread(tmp_path, monkeypatch):
+    """The loop ends by itself (--seconds) and the main thread notices it late (a slowed core: the loop's
+    restores and the hand-off to the main thread took over 100 ms, issue #53; 0.3 s here): the loop's own
+    thread put the arms down as it ended, so no leader servo's Bus Watchdog and no Damiao motor's timeout
+    fell back before torque off."""
+    import hardware.connect as connect
+    from factr2_teleop.cli import build_parser
+    from factr2_teleop.commands import teleop
+
+    got = {}
+    real_open, real_watch = connect.open_rig, teleop._watch
+
+    def open_rig(*a, **k):
+        got["session"] = connect_session = real_open(*a, **k)
+        return connect_session
+
+    def late_watch(loop):
+        real_watch(loop)
+        got["t_end"] = loop.snapshot().t  # the loop's end [s, rig clock]
+        time.sleep(3 * CLOSE_EXTRA_S / 4)  # the main thread comes back late (> 100 ms)
+
+    monkeypatch.setattr(connect, "open_rig", open_rig)
+    monkeypatch.setattr(teleop, "_watch", late_watch)
+    args = build_parser().parse_args(["teleop", "--rig", "sim-yam", "--seconds", "1.0"])
+    teleop.execute(args)
+    _assert_put_down_after(got["session"], got["t_end"])
+
+
+def _assert_put_down_after(s, t_end: float) -> None:
+    """No motor of the rig session s fell back by its own timeout after t_end [s, rig clock]; every leader
+    servo torque off at 0 A, every Damiao follower disabled."""
     off = s.twin.rig_time() - s.twin.t  # rig clock - twin clock [s]
     for name in s.leaders:
         emu = s.twin.devices[name].emulator

@@ -73,6 +73,9 @@ def _execute(args) -> dict:
         for line in ts.describe():
             print(line, file=sys.stderr)
         rec = ts.record(args.record, cameras=not args.no_cameras) if args.record else None
+        # the arms put down by the loop's own thread as it ends (not after this thread notices: on a slowed
+        # core that took over a leader's 100 ms Bus Watchdog, issue #53); _stop below passes over them then
+        ts.loop.on_end.append(session.disconnect_arms)
         ts.loop.start(duration_s=args.seconds)  # at once: a twin's unheld leader sinks until the loop runs
         if rec is not None:
             # the episode opens, then the cameras (a second or so): every frame they capture lies in it

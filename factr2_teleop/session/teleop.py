@@ -43,6 +43,8 @@ class TeleopSession:
         self.loop = TeleopLoop(self.pairs, clock or session.clock, self.rate_hz, recorder=self._on_tick)
         self.loop.idle.append(self._idle)
         self.loop.on_rate_change.append(self._rate_changed)
+        if session.twin is not None:  # SIMULATED: the hand that held a real-time twin's leaders lets go
+            self.loop.on_begin.append(session.twin.release_start_hold)  # (hardware.sim.twin)
         self._idle_ticks = 0
         self._recording_error_said = False
 

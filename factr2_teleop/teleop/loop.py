@@ -86,6 +86,10 @@ class TeleopLoop:
         self.degrade = True  # real time: a rate the machine cannot hold drops to one it can (degrade.py)
         self.on_rate_change: list[Callable[[float, str], None]] = []  # fn(t [s], line) then (loop thread)
         self.idle: list[Callable[[], None]] = []
+        self.on_begin: list[Callable[[], None]] = []  # fn() once every pair has begun (loop thread)
+        # fn() on the loop's thread when it ends, right after its arms were made safe: an app that ends with
+        # its loop puts the arms down here (session.disconnect_arms), not after a hand-off to another thread
+        self.on_end: list[Callable[[], None]] = []
         self.timing = LoopTiming(self.rate_hz)
         self.error: BaseException | None = None
         self.recorder_errors = 0
@@ -145,6 +149,8 @@ class TeleopLoop:
         try:
             for p in self.pairs:
                 p.begin(self.clock)
+            for fn in self.on_begin:
+                fn()
             self._note_messages()
             # a clock that drives a simulation between ticks (demo.task.TwinDrivenClock) brings it up to now
             # here, so the first tick does not see samples as old as the start-up; no-op on other clocks
@@ -184,6 +190,18 @@ class TeleopLoop:
             self._message(self.clock.now(), "loop", f"stopped by {type(e).__name__}: {e}")
             raise
         finally:
+            # the arms first, right after the last tick, then the thread's own settings: on a slowed core
+            # (bench/slow_core.py) the restores and the hand-off to the thread that stops the rig took over
+            # 100 ms, and a leader's Bus Watchdog latched before the stop reached it (issue #53)
+            self._running = False
+            fault = isinstance(self.error, Exception)
+            self._make_safe(Reason.of(PairHold.LOOP_FAULT if fault else PairHold.LOOP_STOPPED),
+                            FAULT if fault else STOPPED)
+            for fn in self.on_end:
+                try:
+                    fn()
+                except Exception as e:  # noqa: BLE001 -- the thread's settings are restored whatever it did
+                    self._message(self.clock.now(), "loop", f"end hook failed ({type(e).__name__}: {e})")
             blas.close()
             sys.setswitchinterval(switch)
             if self.clock.realtime:
@@ -193,10 +211,6 @@ class TeleopLoop:
                 gc.unfreeze()  # a long-lived app (the terminal app) runs many sessions: collect theirs again
                 if wake is not None:
                     wake.close()
-            self._running = False
-            fault = isinstance(self.error, Exception)
-            self._make_safe(Reason.of(PairHold.LOOP_FAULT if fault else PairHold.LOOP_STOPPED),
-                            FAULT if fault else STOPPED)
             self._publish(self.clock.now())
 
     def start(self, duration_s: float | None = None) -> threading.Thread:

@@ -62,6 +62,12 @@ if TYPE_CHECKING:  # the rig loader uses this package (actuator names); the twin
 LEADER_CONTROL_HZ = 500.0
 REALTIME_SLEEP_S = 0.0005  # s: the real-time thread's nap between catch-ups
 REALTIME_MAX_LAG_S = 0.1  # s: a real-time twin further behind than this skips ahead (counted in .overruns)
+# The simulated operator's hand that holds a real-time twin's leaders at their start pose until the app's loop
+# has them (Twin.hold_leaders_at_start): a relaxed hand, as the terminal app's (2-5 N*m/rad), far stronger
+# than a GELLO joint's gravity load (0.13 N*m at most on the YAM GELLO's wrist: it sags 0.04 rad)
+START_HAND_K_NM_RAD = 3.0
+START_HAND_D_NMS_RAD = 0.1
+START_HAND_TAU_MAX_NM = 2.0
 # s: a twin driven by the caller's thread (TwinDrivenClock) further behind wall time than this skips ahead
 # (a stall: swap, suspend) rather than spiral (counted in .overruns)
 DRIVEN_MAX_LAG_S = 0.05
@@ -137,6 +143,7 @@ class Twin:
         self.leader_every = max(1, int(chz // leader_control_hz)) if leader_control_hz else 1
         self._every: list[int] = []  # per world: twin ticks per world control tick
         self._idle: set[int] = set()  # indices of worlds not stepped (set_idle)
+        self._start_held: set[str] = set()  # leaders the start hand holds (hold_leaders_at_start)
         self.substeps = max(1, round(rig.twin.physics_hz / rig.twin.control_hz))
         self.dt = self.substeps / rig.twin.physics_hz  # control tick [s]: emulators and firmware laws run
         self.devices: dict[str, TwinDevice] = {}
@@ -348,14 +355,41 @@ class Twin:
             self._rt_thread = None
 
     # -- the virtual world ---------------------------------------------------------------------------------
+    def hold_leaders_at_start(self) -> None:
+        """SIMULATED: an operator's hand holds every leader at its start pose (an impedance at the firmware
+        rate, START_HAND_*) until release_start_hold(), or until another hand is set. Why: a real-time twin's
+        physics runs from its start, and the app's loop takes the leader (gravity compensation) only a few
+        hundred ms later. Unheld, the YAM GELLO's wrist (j4) swung down from 0 to -1.75 rad (past its stop)
+        in 0.3 s and settled at -1.55, while the follower's wrist was held at -0.72 by its driver: the
+        loop's start check saw 0.41-1.03 rad, depending on where the swing was, and refused above its 1 rad
+        in about 1 of 3 runs (issue #53). A person holds the leader when starting; so does this hand."""
+        for spec in self.rig.leaders:
+            dv = self.devices[spec.name]
+            n = dv.n_arm
+            with dv.world.lock:
+                q = dv.world.data.qpos[dv.bank.qadr[:n]].copy()
+            dv.bank.set_hand_impedance(q, np.zeros(n), np.full(n, START_HAND_K_NM_RAD),
+                                       np.full(n, START_HAND_D_NMS_RAD), np.full(n, START_HAND_TAU_MAX_NM), n)
+            self._start_held.add(spec.name)
+
+    def release_start_hold(self) -> None:
+        """Let go of the leaders the start hand still holds (the app's loop has them now); a hand set since
+        (apply_leader_hand_*: the demo's or the terminal app's operator) is left as it is."""
+        for name in sorted(self._start_held):
+            dv = self.devices[name]
+            dv.bank.set_hand_torque(np.zeros(dv.n_arm), dv.n_arm)
+        self._start_held.clear()
+
     def apply_leader_hand_torque(self, tau: np.ndarray, leader: str | None = None) -> None:
         """A virtual operator's hand on a leader's arm joints [N*m] (held until changed)."""
+        self._start_held.discard(leader or self.rig.leaders[0].name)
         d = self.devices[leader or self.rig.leaders[0].name]
         d.bank.set_hand_torque(np.asarray(tau, dtype=float).reshape(d.n_arm), d.n_arm)
 
     def apply_leader_hand_impedance(self, q_ref, qd_ref, k, d, tau_max, leader: str | None = None) -> None:
         """A virtual operator's hand on a leader's arm joints as an impedance toward q_ref [rad], qd_ref
         [rad/s] (MujocoBank.set_hand_impedance: computed at the firmware rate from the true joints)."""
+        self._start_held.discard(leader or self.rig.leaders[0].name)
         dv = self.devices[leader or self.rig.leaders[0].name]
         dv.bank.set_hand_impedance(q_ref, qd_ref, k, d, tau_max, dv.n_arm)
 
