@@ -57,7 +57,9 @@ def test_every_flag_is_a_field_and_keeps_its_name_and_default():
 def test_bad_values_are_one_line_errors():
     for argv, why in [(["--steps", "0"], "--steps must be >= 1, got 0"), (["--ratio", "1:2"], "--ratio"),
                       (["--epochs", "0"], "--epochs must be > 0"), (["--nproc", "0"], "--nproc must be >= 1"),
-                      ]:
+                      (["--episodes", "a.mcap#3-1"], "--episodes: 'a.mcap#3-1': the range ends before"),
+                      (["--episodes", "a.mcap#x"], "not FILE.mcap#N or FILE.mcap#N-M"),
+                      (["--episodes", "#2"], "not FILE.mcap#N")]:
         with pytest.raises(UserError, match=why):
             _parse(["rec", "--out", "run", *argv])
     # one list of what the run fills itself (PolicyConfig's FILLED fields): --set refuses them all
@@ -74,12 +76,22 @@ def test_bad_values_are_one_line_errors():
     "--set kl_weight=2.5 --rate 15 --include-failed --keep-incomplete --resume --next ck.json --preset state",
     "rec --out run --epochs 3.5 --backbone convnet-gn --image-size 32 --dropout 0 --thresholds next "
     "--force current --method base --val-every 7 --nproc 2",
+    "rec --out run --episodes a.mcap#0-2,b.mcap#5",
 ])
 def test_argv_parses_back_to_the_same_options(argv):
     """The torchrun relaunch: options -> argv -> parse -> the same options (less --nproc, the launcher's)."""
     o = _parse(argv.split())
     assert _parse(R.to_argv(o)) == replace(o, nproc=1)
     assert "--nproc" not in R.to_argv(o)
+
+
+def test_episodes_names_ids_and_ranges():
+    from policies.data.recordings import parse_episode_ids
+
+    assert _parse(["rec", "--out", "run"]).episodes is None
+    assert _parse(["rec", "--out", "run", "--episodes", "a.mcap#0-2, b.c.mcap#7,a.mcap#1"]).episodes == (
+        "a.mcap#0", "a.mcap#1", "a.mcap#2", "b.c.mcap#7")
+    assert parse_episode_ids("x#y.mcap#4") == ("x#y.mcap#4",)  # the last '#' splits
 
 
 def test_resume_keys_come_from_the_fields():
@@ -113,6 +125,15 @@ def state_run(tmp_path_factory):
                 "--ratio", "C"])
     run_training(o, Dist())
     return o, d / "run"
+
+
+def test_episodes_trains_on_those_only_and_refuses_an_unknown_one(state_run, tmp_path):
+    o, _ = state_run
+    o = replace(o, out=tmp_path / "two", episodes=("a.mcap#0", "a.mcap#2"))
+    run_training(o, Dist())
+    assert json.loads(C.last_checkpoint(o.out).read_text())["episodes"] == ["a.mcap#0", "a.mcap#2"]
+    with pytest.raises(UserError, match="1 chosen episode.s. not in the recordings, e.g. a.mcap#9"):
+        run_training(replace(o, out=tmp_path / "typo", episodes=("a.mcap#0", "a.mcap#9")), Dist())
 
 
 def test_meta_reads_back_to_the_run_options(state_run):

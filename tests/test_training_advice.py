@@ -1,5 +1,6 @@
 """The advice a run gives from its own validation curve (policies/training/advice.py): the rule on synthetic
-curves, `factr2 train` printing it after a tiny run, the Train screen showing it after a tiny run."""
+curves, `factr2 train` printing it after a tiny run (and `factr2 train-advice` for the finished run), the
+Train screen showing it after a tiny run and for a run it lists."""
 
 from __future__ import annotations
 
@@ -74,20 +75,69 @@ def recordings(tmp_path_factory):
     return d
 
 
-def test_factr2_train_prints_the_advice_of_its_own_curve(recordings, tmp_path, capsys):
+@pytest.fixture(scope="module")
+def cli_run(recordings, tmp_path_factory):
+    """A 12-step `factr2 train` run validating every 2 steps: (its folder, what it printed)."""
+    import contextlib
+    import io
+
     from factr2_teleop.cli import main
-    from policies.training.curves import RunLog
     from tests.test_policies_train import _cli_args
 
-    out = tmp_path / "run"
+    out = tmp_path_factory.mktemp("runs") / "run"
     args = _cli_args(recordings, out, ["--val-every", "2", "--ckpt-every", "100"])
     args[args.index("--steps") + 1] = "12"
-    assert main(args) == 0
-    printed = capsys.readouterr().out.splitlines()
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(args) == 0
+    return out, printed.getvalue().splitlines()
+
+
+def test_factr2_train_prints_the_advice_of_its_own_curve(cli_run, tmp_path, capsys):
+    from factr2_teleop.cli import main
+    from policies.training.curves import RunLog
+
+    out, printed = cli_run
     got = [line for line in printed if line.startswith("advice:") or line.startswith("no measured")]
     rows = RunLog.read(out)
     assert sum("val/loss" in r for r in rows) == 6
     assert got == A.training_advice(rows, 3, ["push"]) and got[0].startswith("advice: validation loss")
+
+    # a finished run's advice again, without training: the same lines
+    assert main(["train-advice", str(out)]) == 0
+    assert capsys.readouterr().out.splitlines() == got
+    # not a run, or a damaged one: one line, exit 2
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(out, bad)
+    (bad / "metrics.jsonl").write_text('{"step": 1, "val/lo')
+    for folder, why in ((tmp_path, "not a training run"), (bad, "unreadable run")):
+        assert main(["train-advice", str(folder)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and why in err[0] and "fix:" in err[0]
+
+
+def test_the_train_screen_shows_the_advice_of_the_run_it_lists_first(cli_run, tmp_path):
+    """`factr2 tui --runs RUN` on a `factr2 train` run: the Train screen shows its advice before training."""
+    from tui_helpers import SIZE, make_app, screen_text, wait_for
+
+    out, _ = cli_run
+    lines = A.run_advice(out)
+
+    async def go():
+        app = make_app(tmp_path, runs_dir=out, train_threads=1)
+        async with app.run_test(size=SIZE) as pilot:
+            await pilot.press("5")
+            shown = await wait_for(pilot, lambda: "advice of run, the first run listed:" in screen_text(app))
+            text = screen_text(app)
+            await pilot.press("q")
+        return shown, text
+
+    shown, text = asyncio.run(go())
+    assert shown and lines[0].startswith("advice: validation loss")
+    flat = " ".join(text.split())
+    assert all(" ".join(line.split()) in flat for line in lines)  # wrapped at the screen's width
 
 
 def test_the_train_screen_shows_the_advice_after_a_run(tmp_path):

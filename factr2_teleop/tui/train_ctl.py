@@ -211,6 +211,20 @@ def list_runs(folder: Path) -> list[RunRow]:
     return rows
 
 
+def listed_advice(rows: list[RunRow]) -> list[str]:
+    """The advice of the run listed first when it is finished (policies/training/advice.py; a `factr2 train
+    --out` run opened with --runs, or the newest here): the Train screen's lines before it trains another."""
+    from policies.training.advice import run_advice
+
+    if not rows or not rows[0].final:
+        return []
+    try:
+        lines = run_advice(rows[0].path)
+    except ValueError as e:  # a damaged metrics.jsonl: said, not hidden
+        return [f"advice of {rows[0].path.name}: unreadable run ({e})"]
+    return [f"advice of {rows[0].path.name}, the first run listed:", *lines] if lines else []
+
+
 def run_lines(rows: list[RunRow], limit: int = 4) -> list[str]:
     out = []
     for r in rows[:limit]:

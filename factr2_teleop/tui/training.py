@@ -121,6 +121,7 @@ class TrainingScreen(BaseScreen):
         self._preview_key = None
         self._run_status = ""
         self.runs: list = []
+        self.runs_advice: list[str] = []  # the first listed run's advice (T.listed_advice)
         self.inputs: dict = {}  # recording file -> (camera frames?, twin object state?)
         with VerticalScroll(id="body"):
             yield Static(markup=False, id="tr-head")
@@ -170,7 +171,8 @@ class TrainingScreen(BaseScreen):
                 self.action_reload()  # the run's folder joins the list of runs
         self.query_one("#tr-progress", Static).update(
             "\n".join(progress_lines(run.snapshot()) + ["runs:"] + T.run_lines(self.runs, 3))
-            if run is not None else "runs (g trains a new one):\n" + "\n".join(T.run_lines(self.runs, 3))
+            if run is not None else "\n".join(["runs (g trains a new one):", *T.run_lines(self.runs, 3),
+                                                *self.runs_advice])
         )
         self.query_one("#tr-phases", Static).update("\n".join(self._phase_view()))
         self._maybe_preview()
@@ -221,10 +223,11 @@ class TrainingScreen(BaseScreen):
         def load():
             rows = list_episodes(folder) if folder.exists() else []
             inputs = recording_inputs(r.file for r in rows if not r.error and r.file.suffix == ".mcap")
-            return rows, T.list_runs(runs), inputs
+            listed = T.list_runs(runs)
+            return rows, listed, T.listed_advice(listed), inputs
 
         def done(result) -> None:
-            rows, self.runs, self.inputs = result
+            rows, self.runs, self.runs_advice, self.inputs = result
             known = {T.episode_key(r) for r in self.rows}
             self.rows = rows
             for r in rows:  # new usable episodes start chosen; the user's exclusions stay

@@ -208,6 +208,21 @@ def episode_id(ep: Episode) -> str:
     return f"{ep.recording.path.name}#{ep.index}"
 
 
+def parse_episode_ids(text: str) -> tuple[str, ...]:
+    """"a.mcap#0-11,b.mcap#3" -> ("a.mcap#0", ..., "a.mcap#11", "b.mcap#3"): episode ids as episode_id names
+    them, a range I-J inclusive; ValueError (what is wrong) for anything else."""
+    out: list[str] = []
+    for item in (s.strip() for s in text.split(",")):
+        name, sep, span = item.rpartition("#")
+        lo, dash, hi = span.partition("-")
+        if not sep or not name or not lo.isdigit() or (dash and not hi.isdigit()):
+            raise ValueError(f"{item!r} is not FILE.mcap#N or FILE.mcap#N-M")
+        if dash and int(hi) < int(lo):
+            raise ValueError(f"{item!r}: the range ends before it starts")
+        out += [f"{name}#{i}" for i in range(int(lo), int(hi if dash else lo) + 1)]
+    return tuple(dict.fromkeys(out))
+
+
 def recorded_next_checkpoints(ep: Episode) -> tuple[NextId, ...]:
     """The NEXT checkpoints the recording's metadata names (calibration.next.ident; () when none)."""
     return parse_ids(ep.recording.info.get("next_checkpoint"))

@@ -94,6 +94,11 @@ def _load(o: RunOptions):
     episodes, arms = load_episodes(o.inputs, lerobot_map=o.lerobot_map or None)
     if o.episodes is not None:
         keep = set(o.episodes)
+        missing = keep - {episode_id(e) for e in episodes}
+        if missing:  # a mistyped id must not train silently on fewer episodes
+            raise UserError(f"{len(missing)} chosen episode(s) not in the recordings, e.g. {min(missing)}",
+                            where=", ".join(map(str, o.inputs)),
+                            fix="name them as `factr2 episodes list` does: FILE.mcap#N (none discarded)")
         episodes = [e for e in episodes if episode_id(e) in keep]
         if not episodes:
             raise UserError("none of the chosen episodes is usable", where=", ".join(map(str, o.inputs)),

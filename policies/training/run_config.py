@@ -86,6 +86,22 @@ class SourceWeightsFlag(ParsedFlag):
                                                              zip(SOURCE_NAMES, value))]
 
 
+class EpisodesFlag(ParsedFlag):
+    """--episodes FILE.mcap#N-M,... -> the ids of the episodes to train on (as policies.data.recordings'
+    episode_id names them); written back one by one."""
+
+    example = "peg-insert-sim-piper-seed1.mcap#0-11"
+
+    @staticmethod
+    def parse(text: str):
+        from policies.data.recordings import parse_episode_ids
+
+        return parse_episode_ids(text)
+
+    def argv(self, value, default) -> list[str]:
+        return [] if value is None else [self.name, ",".join(value)]
+
+
 class ThresholdsFlag(Flag):
     """--thresholds recording|next|LOW:HIGH and --no-tare (policies.labels.label_flags, shared with the label
     commands) -> a LabelChoice."""
@@ -263,7 +279,9 @@ class RunOptions:
         "--perturbed", "a perturbed collection's ticks (factr2 collect --perturb): dart (default) learns the "
         "operator's target, the offset taken off, from the states the perturbation led to; skip masks the "
         "perturbed ticks' actions out of the loss (policies/data/perturbed.py)", choices=PERTURBED_MODES))
-    episodes: tuple | None = option(None, resume="data_hash")  # ids ("FILE.mcap#N"); None: every usable one
+    episodes: tuple | None = option(None, resume="data_hash", flag=EpisodesFlag(  # None: every usable one
+        "--episodes", "train on these episodes only: FILE.mcap#N or FILE.mcap#N-M (inclusive), "
+        "comma-separated (`factr2 episodes list` names them)", metavar="FILE#N-M,..."))
     include_failed: bool = option(False, resume="data_hash", flag=Switch(
         "--include-failed",
         "train on failed demonstrations too (default: they are skipped, counted in one line)"))
