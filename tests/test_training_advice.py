@@ -116,6 +116,10 @@ def test_factr2_train_prints_the_advice_of_its_own_curve(cli_run, tmp_path, caps
         assert main(["train-advice", str(folder)]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and why in err[0] and "fix:" in err[0]
+    # several: each run's lines under its name, a bad one said without stopping the rest, exit 2
+    assert main(["train-advice", str(tmp_path), str(out)]) == 2
+    got_both = capsys.readouterr()
+    assert got_both.out.splitlines() == [f"{out}:", *got] and "not a training run" in got_both.err
 
 
 def test_the_train_screen_shows_the_advice_of_the_run_it_lists_first(cli_run, tmp_path):
