@@ -287,8 +287,8 @@ def _inputs(data) -> str:
     parts = [f"cameras {', '.join(data.names.cameras)}"] if data.names.cameras else []
     if data.objects is not None:
         perceived = data.names.objects_feature == S.PERCEIVED_FEATURE
-        what = "perceived objects (simulated camera detector" if perceived else "PRIVILEGED object state ("
-        parts.append(f"{what}, {data.objects.shape[1]} values, SIMULATED)")
+        what = "perceived objects (simulated camera detector, " if perceived else "PRIVILEGED object state ("
+        parts.append(f"{what}{data.objects.shape[1]} values, SIMULATED)")
     return ", ".join(parts) or "joints and force only"
 
 
