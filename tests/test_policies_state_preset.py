@@ -77,10 +77,14 @@ def test_ema_decay_warms_up_and_averages():
 
 def test_schedule_is_clamped_to_a_short_run_and_says_so():
     cfg, notes = clamp_schedule(TrainConfig(warmup=500, val_every=500, ckpt_every=1000), 400)
-    assert (cfg.warmup, cfg.val_every, cfg.ckpt_every) == (40, 100, 100) and len(notes) == 3
+    assert (cfg.warmup, cfg.val_every, cfg.ckpt_every) == (40, 50, 100) and len(notes) == 3
     assert "400" in notes[0]
     same, none = clamp_schedule(TrainConfig(), 20000)
     assert same == TrainConfig() and none == []
+    # validation 16 times (the advice reads the curve's shape), not shortened below 50 steps, 4 times at least
+    got = [clamp_schedule(TrainConfig(), n)[0].val_every for n in (8000, 2000, 600, 100)]
+    assert got == [500, 125, 50, 25]
+    assert clamp_schedule(TrainConfig(val_every=2), 12)[0].val_every == 2  # a short period asked for stays
 
 
 def test_thread_choice_leaves_busy_cores_alone(monkeypatch):

@@ -76,14 +76,21 @@ def lr_at(step: int, cfg: TrainConfig, total: int) -> float:
     return cfg.lr * 0.5 * (1.0 + math.cos(math.pi * min(1.0, frac)))
 
 
+VAL_POINTS = 16  # evaluations a run's curve gets at least (8000 steps at the default 500 have 16)
+VAL_EVERY_FLOOR = 50  # [steps] the period that rule shortens no further (an evaluation: ~1 step's time)
+
+
 def clamp_schedule(cfg: TrainConfig, total: int) -> tuple[TrainConfig, list[str]]:
     """The warm-up, validation and checkpoint periods fitted to a run of `total` steps, and one note per
     change: warm-up at most a tenth of the run (a 400-step run would otherwise train entirely in the 500-step
-    warm-up), validation and checkpoints at least 4 times per run (one point at the end is no curve)."""
+    warm-up), validation and checkpoints at least 4 times per run (one point at the end is no curve), and
+    validation VAL_POINTS times down to a period of VAL_EVERY_FLOOR steps: the run's advice reads the curve's
+    shape (policies/training/advice.py needs 5 points; 2,000 steps at every 500 gave 4, and no advice)."""
     from dataclasses import replace
 
     quarter = max(1, total // 4)
-    new = replace(cfg, warmup=min(cfg.warmup, max(1, total // 10)), val_every=min(cfg.val_every, quarter),
+    val_every = min(cfg.val_every, quarter, max(total // VAL_POINTS, VAL_EVERY_FLOOR))
+    new = replace(cfg, warmup=min(cfg.warmup, max(1, total // 10)), val_every=val_every,
                   ckpt_every=min(cfg.ckpt_every, quarter))
     notes = [f"{name.replace('_', ' ')} {getattr(cfg, name)} -> {getattr(new, name)} steps (run of {total})"
              for name in ("warmup", "val_every", "ckpt_every") if getattr(new, name) != getattr(cfg, name)]
