@@ -82,6 +82,21 @@ def momentum_observer_step(integral: np.ndarray, r: np.ndarray, p: np.ndarray, p
     return integral, k_o * (p - p0 - integral)
 
 
+def momentum_observer_step_floats(integral: list[float], r: list[float], p: list[float], p0: list[float],
+                                  tau_m: list[float], g: list[float], ctq: list[float], dt_s: float,
+                                  k_o: list[float]) -> tuple[list[float], list[float]]:
+    """momentum_observer_step with beta = g - ctq (ctq = C^T q_dot [N*m]) on plain floats, bit for bit
+    (the same float64 operations in the same order; tests/test_observer_floats.py): the streaming observer
+    runs it at the loop's rate, where seven numpy calls on six values cost more than this loop."""
+    out_i: list[float] = []
+    out_r: list[float] = []
+    for i0, r0, pj, p0j, tm, gj, cj, k in zip(integral, r, p, p0, tau_m, g, ctq, k_o, strict=True):
+        i1 = i0 + dt_s * ((tm - (gj - cj)) + r0)
+        out_i.append(i1)
+        out_r.append(k * ((pj - p0j) - i1))
+    return out_i, out_r
+
+
 def momentum_observer(model: pin.Model, t: np.ndarray, q: np.ndarray, qd: np.ndarray, tau_m: np.ndarray,
                       gain: float | np.ndarray = 50.0) -> np.ndarray:
     """Discrete momentum observer; returns tau_ext = -r_k [N*m] (sign convention above); gain K_o [1/s]

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration.baselines import momentum_observer_step
+from calibration.baselines import momentum_observer_step_floats
 from calibration.estimate import FLAG_OK, FLAG_UNCONVERGED, Estimate
 from hardware.params import PerJoint, per_joint
 from hardware.small_vec import all_finite
@@ -193,10 +193,19 @@ class MomentumObserver(Estimator):
         return cls(dyn.mass_matrix, dyn.coriolis_matrix, dyn.gravity, k_o, dyn.n)
 
     def reset(self) -> None:
-        self._integral = np.zeros(self.n)
-        self._r = np.zeros(self.n)
-        self._p0: np.ndarray | None = None
+        self._integral = [0.0] * self.n  # the observer's state as floats (momentum_observer_step_floats)
+        self._r = [0.0] * self.n
+        self._p0: list[float] | None = None
         self._t_prev = float("nan")
+        self._k_floats = self.k_o.tolist()
+        self._tau_ext = self._negated()
+
+    def _negated(self) -> np.ndarray:
+        """tau_ext = -r [N*m], one read-only array per new sample: the ticks between follower samples hand
+        out the same one (nothing writes an estimate in place; read-only makes sure)."""
+        a = np.array([-x for x in self._r])
+        a.flags.writeable = False
+        return a
 
     def update(self, inp: EstimatorInput) -> Estimate | None:
         st = inp.follower
@@ -204,17 +213,21 @@ class MomentumObserver(Estimator):
         if not (all_finite(q) and all_finite(qd) and all_finite(tau_m)):
             return None
         if self._p0 is None:
-            self._p0, self._t_prev = self.mass(q) @ qd, st.t
-            return Estimate(tau_ext=-self._r, t=st.t, flags=FLAG_UNCONVERGED)  # not converged yet
+            self._p0, self._t_prev = (self.mass(q) @ qd).tolist(), st.t
+            return Estimate(tau_ext=self._tau_ext, t=st.t, flags=FLAG_UNCONVERGED)  # not converged yet
         dt = st.t - self._t_prev
         if dt <= 0:  # no new follower sample: same estimate, same data time (M(q) not needed)
-            return Estimate(tau_ext=-self._r, t=self._t_prev)
+            return Estimate(tau_ext=self._tau_ext, t=self._t_prev)
         self._t_prev = st.t
-        M = self.mass(q)
-        beta = self.gravity(q) - self.coriolis(q, qd).T @ qd
-        self._integral, self._r = momentum_observer_step(self._integral, self._r, M @ qd, self._p0, tau_m,
-                                                         beta, dt, self.k_o)
-        return Estimate(tau_ext=-self._r, t=st.t)
+        # the products through numpy as before (the same BLAS calls on the same layouts: bit for bit), the
+        # observer's element-wise step on floats
+        p = (self.mass(q) @ qd).tolist()
+        ctq = (self.coriolis(q, qd).T @ qd).tolist()
+        self._integral, self._r = momentum_observer_step_floats(
+            self._integral, self._r, p, self._p0, np.asarray(tau_m, dtype=float).tolist(),
+            self.gravity(q).tolist(), ctq, dt, self._k_floats)
+        self._tau_ext = self._negated()
+        return Estimate(tau_ext=self._tau_ext, t=st.t)
 
 
 def make_estimator(mode: str, n: int, *, follower_arm=None, dob_gain: PerJoint = DOB_GAIN_PER_S,

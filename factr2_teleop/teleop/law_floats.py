@@ -11,6 +11,9 @@ tests/test_law_floats.py checks each against the numpy form on any floats (NaN, 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+
+import numpy as np
 
 
 def friction_dither_floats(g: list[float], q_dot: list[float], gain: list[float], min_nm: list[float],
@@ -79,3 +82,30 @@ def sum_cap(terms, cap: list[float]) -> tuple[list[float], list[float], int]:
         out.append(y)
         capped += y != x
     return total, out, capped
+
+
+class LawTerms(Mapping):
+    """The law's named terms [N*m] of one tick, read-only: each given as floats (or an array) and made a
+    float64 array at its first read (np.asarray: an array given passes as it is). Most ticks nobody reads
+    them (the demo and the terminal app read the feedback term), so the 500 Hz loop builds none."""
+
+    __slots__ = ("_raw", "_arrays")
+
+    def __init__(self, raw: dict):
+        self._raw = raw
+        self._arrays: dict = {}
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        a = self._arrays.get(name)
+        if a is None:
+            a = self._arrays[name] = np.asarray(self._raw[name], dtype=float)
+        return a
+
+    def __iter__(self):
+        return iter(self._raw)
+
+    def __len__(self) -> int:
+        return len(self._raw)
+
+    def __repr__(self) -> str:
+        return f"LawTerms({dict(self)!r})"

@@ -15,7 +15,7 @@ All torques in N*m on the leader's joints, q in rad, q_dot in rad/s. Every gain 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,6 +23,7 @@ import numpy as np
 
 from factr2_teleop.teleop.feedback import FeedbackConfig, FeedbackGate
 from factr2_teleop.teleop.law_floats import (
+    LawTerms,
     barrier_floats,
     friction_coulomb_floats,
     friction_dither_floats,
@@ -182,7 +183,7 @@ class LeaderInputs:
 @dataclass
 class LeaderOutput:
     tau: np.ndarray  # N*m, summed and capped
-    terms: dict[str, np.ndarray]  # each term before the cap, for recording and the UI
+    terms: Mapping[str, np.ndarray]  # each term before the cap, for the UI (read-only; law_floats.LawTerms)
     gate: float
     contact: bool
     fresh: bool
@@ -296,15 +297,14 @@ class LeaderLaw:
         fb = self.feedback.step(inp.t, inp.tau_ext_leader if feedback_on else None, inp.contact_score_nm,
                                 inp.est_t, inp.est_fresh, inp.gripper_effort)
         damp = scaled(f["neg_damp"], qdl)
-        terms: dict[str, np.ndarray] = {
-            "gravity": np.array(grav), "friction": np.array(fric),
-            "barrier": np.zeros(n) if barrier is None else np.array(barrier), "null_space": np.array(ns),
-            "damping": np.array(damp), "feedback": fb.tau_fb}
+        raw = {"gravity": grav, "friction": fric, "barrier": zeros if barrier is None else barrier,
+               "null_space": ns, "damping": damp, "feedback": fb.tau_fb}
         if extra:
-            terms.update(extra)
-            lists = [np.asarray(v, dtype=float).tolist() for v in terms.values()]
+            raw.update(extra)
+            lists = [np.asarray(v, dtype=float).tolist() for v in raw.values()]
         else:
-            lists = [grav, fric, zeros if barrier is None else barrier, ns, damp, fb.tau_fb.tolist()]
+            lists = [grav, fric, raw["barrier"], ns, damp, fb.tau_fb.tolist()]
+        terms = LawTerms(raw)  # arrays only when read (law_floats.LawTerms)
         _, tau, capped = sum_cap(lists, f["cap"])
         return LeaderOutput(tau=np.array(tau), terms=terms, gate=fb.gate, contact=fb.contact, fresh=fb.fresh,
                             capped=capped, gripper_tau=fb.gripper_tau, message=fb.message)

@@ -12,13 +12,19 @@ import logging
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import Enum
 
 import numpy as np
 
 from calibration.estimate import FLAG_NONFINITE, Estimate
 from calibration.estimators import Estimator, EstimatorInput
 from factr2_teleop.teleop.feedback import contact_score
+from factr2_teleop.teleop.hold_checks import (  # noqa: F401 -- PairHold, _fresh, status_bits: imported from here
+    PairHold,
+    _complete,
+    _fresh,
+    motor_errors,
+    status_bits,
+)
 from factr2_teleop.teleop.leader_law import LeaderInputs, LeaderLaw, LeaderLawConfig
 from factr2_teleop.teleop.mapping import JointMap, JointMapConfig
 from factr2_teleop.teleop.record import TickRecord
@@ -26,20 +32,11 @@ from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch
 from factr2_teleop.teleop.takeover import TakeoverConfig
 from hardware.clock import Clock
 from hardware.errors import ConfigError, DeviceError
-from hardware.reasons import Reason, messages
+from hardware.reasons import Reason
 from hardware.roles import Follower, Leader, make_safe
 from hardware.safety import SafeFollowerCommand
-from hardware.small_vec import all_finite, bits_or
-from hardware.types import (
-    STATUS_COMM_LOST,
-    STATUS_DRIVER_ERROR,
-    STATUS_MOTOR_ERROR,
-    STATUS_OVERCURRENT,
-    STATUS_OVERTEMP,
-    STATUS_STALE,
-    FollowerCommand,
-    JointState,
-)
+from hardware.small_vec import all_finite
+from hardware.types import FollowerCommand, JointState
 
 log = logging.getLogger("factr2.teleop")
 
@@ -47,41 +44,11 @@ SOFT_START, COUPLED, HOLD, FAULT, STOPPED, IDLE = "soft_start", "coupled", "hold
 LOOP_GAP_SOFT_S = 1.0  # s: a tick this late means the app itself stopped (its motors fell back by themselves
 # meanwhile, docs/safety.md): the pair holds and re-couples through the soft start; shorter holds (a bus-off,
 # a lost read) re-couple directly when close (SoftStartConfig.resume_direct_rad)
-_STALE_BITS = int(STATUS_STALE | STATUS_COMM_LOST)
-_ERROR_BITS = int(STATUS_MOTOR_ERROR)
-_ERROR_NAMES = ((STATUS_OVERCURRENT, "over-current"), (STATUS_OVERTEMP, "over-temperature"),
-                (STATUS_DRIVER_ERROR, "driver/encoder error"))
 DEFAULT_STALE_S = 0.02  # s: a leader/follower sample older than this puts the follower on hold (< 50 ms)
 # reads in a row without a new complete sample before old data holds: a loop that was itself late (a stall on
 # a slow core) and missed one read does not hold while data keeps arriving; silence still holds within
 # DEFAULT_STALE_S (10 reads at 500 Hz)
 STALE_MIN_MISSES = 2
-
-
-class PairHold(Enum):
-    """Why a pair made its arms safe (hardware.reasons)."""
-
-    DATA_STALE = "data stale"  # detail: who ("leader" / "follower"), age_ms
-    MOTOR_ERROR = "motor error"  # detail: who, what ("j2 over-current")
-    NO_DATA_AT_START = "no data at start"
-    START_MISMATCH = "start refused: leader/follower mismatch"
-    LOOP_FAULT = "teleop fault"
-    LOOP_STOPPED = "teleop stopped"
-    LOOP_NOT_ANSWERING = "teleop stop (loop thread not answering)"
-    LOOP_GAP = "loop gap"  # detail: gap_ms (the app itself did not run: SIGSTOP, a sleeping host)
-
-
-messages({
-    PairHold.DATA_STALE: "{who} data stale ({age_ms:.0f} ms old)",
-    PairHold.LOOP_GAP: "the loop did not run for {gap_ms:.0f} ms (the app was stopped); re-coupling "
-                       "through the soft start",
-    PairHold.MOTOR_ERROR: "{who} motor error: {what}",
-    PairHold.NO_DATA_AT_START: "no data at start",
-    PairHold.START_MISMATCH: "start refused: leader/follower mismatch",
-    PairHold.LOOP_FAULT: "teleop fault",
-    PairHold.LOOP_STOPPED: "teleop stopped",
-    PairHold.LOOP_NOT_ANSWERING: "teleop stop (loop thread not answering)",
-})
 
 
 @dataclass
@@ -119,35 +86,6 @@ class PairConfig:
             return cls(**kw, **d)
         except TypeError as e:
             raise ConfigError(f"bad key: {e}", where=where, fix="see docs/teleop.md") from None
-
-
-def _fresh(st: JointState, now: float, max_age: float, since: float = -math.inf) -> bool:
-    """Finite, at most max_age [s] old, and taken at or after `since` [s] (a start wants a new sample)."""
-    return bool(np.isfinite(st.q).all()) and math.isfinite(st.t) and now - st.t <= max_age and st.t >= since
-
-
-def status_bits(st: JointState) -> int:
-    """Every status bit any joint of the sample has (one reduction; the per-tick checks test bits of it)."""
-    status = getattr(st, "status", None)
-    if status is None:
-        return 0
-    if type(status) is np.ndarray and status.ndim == 1 and status.dtype.kind == "u":
-        return bits_or(status)  # the drivers' uint32 vector: no numpy reduction on the hot path
-    return int(np.bitwise_or.reduce(np.asarray(status, dtype=np.uint32)))
-
-
-def motor_errors(st: JointState) -> str:
-    """The motor errors a sample reports ("j2 over-current, j3 over-temperature"), "" when none."""
-    if not status_bits(st) & _ERROR_BITS:
-        return ""
-    return ", ".join(f"j{j + 1} {name}" for j, s in enumerate(np.asarray(st.status).tolist())
-                     for bit, name in _ERROR_NAMES if s & bit)
-
-
-def _complete(st: JointState) -> bool:
-    """A sample in which every joint is new: drivers re-stamp a partial/failed read with the read time and
-    flag the joints that kept old values (STATUS_STALE / STATUS_COMM_LOST), so age alone cannot tell."""
-    return not status_bits(st) & _STALE_BITS
 
 
 class ArmPair:
@@ -449,7 +387,7 @@ class ArmPair:
             action_q=sent.q if sent is not None else np.full(nf, np.nan),
             action_gripper=float("nan") if sent is None or sent.gripper is None else float(sent.gripper),
             action_hold=bool(sent.hold) if sent is not None else self.phase in (HOLD, FAULT, STOPPED),
-            leader_tau_terms=dict(out.terms) if out is not None else {},
+            leader_tau_terms=out.terms if out is not None else {},  # read-only, this tick's
             gate=out.gate if out else 0.0, contact=bool(out.contact) if out else False,
             fresh=bool(out.fresh) if out else False, leader_gripper_tau_fb=out.gripper_tau if out else 0.0,
             perturb_q=self._offset)

@@ -7,6 +7,7 @@ The leader law's torque terms are named by leader_law.TERMS ("gravity", "frictio
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,7 +37,7 @@ class TickRecord:
     action_q: np.ndarray
     action_gripper: float = float("nan")
     action_hold: bool = False
-    leader_tau_terms: dict[str, np.ndarray] = field(default_factory=dict)
+    leader_tau_terms: Mapping[str, np.ndarray] = field(default_factory=dict)  # read-only
     gate: float = 0.0
     contact: bool = False
     fresh: bool = False

@@ -43,6 +43,10 @@ class ArmDynamics:
         self.ee_frame = self.model.getFrameId(self.arm.ee_site)
         self.armature = np.array(self.model.armature, dtype=float)
         self._lower = np.tril_indices(self.n, -1)  # crba fills the upper triangle only
+        # the same entries as flat indices of an (n, n) C-ordered matrix: one gather and one scatter per
+        # mass_matrix (the loop's observer calls it at the follower's rate), the same values
+        self._lower_flat = np.ravel_multi_index(self._lower, (self.n, self.n))
+        self._upper_flat = np.ravel_multi_index(self._lower[::-1], (self.n, self.n))
 
     # -- helpers -----------------------------------------------------------------------------------
     def _vec(self, x, name: str) -> np.ndarray:
@@ -69,8 +73,9 @@ class ArmDynamics:
 
     def mass_matrix(self, q) -> np.ndarray:
         """M(q) [kg*m^2] (n, n), symmetric, armature on the diagonal."""
-        m = pin.crba(self.model, self.data, self._vec(q, "q")).copy()
-        m[self._lower] = m.T[self._lower]
+        m = np.array(pin.crba(self.model, self.data, self._vec(q, "q")), order="C")
+        f = m.reshape(-1)  # a view of m
+        f[self._lower_flat] = f[self._upper_flat]
         return m
 
     def coriolis_matrix(self, q, qd) -> np.ndarray:
