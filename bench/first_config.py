@@ -15,7 +15,6 @@ from pathlib import Path
 from typing import NamedTuple
 
 from policies.labels.phases import LABEL_RULE
-from policies.rollout.runner import SAMPLER_SEEDING
 from policies.rollout.schedule import LIMIT_TOL_FRACTION
 
 DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, session/task_episodes.py)
@@ -46,6 +45,12 @@ CELLS = {
     "first-motion": Cell("first", (1, 5, 1), "motion"),
 }
 CELL_ORDER = tuple(CELLS)
+
+
+def _sampler_seeding() -> str:
+    from policies.rollout.runner import SAMPLER_SEEDING
+
+    return SAMPLER_SEEDING
 
 
 def trained_score(train: dict) -> str:
@@ -96,7 +101,9 @@ class BenchConfig:
     # the rollouts' rule for chunks beyond a joint limit (policies/rollout/schedule.py), recorded: results of
     # the earlier rule (a fixed 0.15 rad refused: results/first_cells_refuse015.json) are not mixed with these
     limit_tol_fraction: float = LIMIT_TOL_FRACTION
-    sampler_seeding: str = SAMPLER_SEEDING  # the flow noise seeded per episode (policies/rollout/runner.py)
+    # the flow noise seeded per episode (policies/rollout/runner.py; read when a config is made: the runner
+    # imports torch, and the cells here are read by the ledger and the reports without it)
+    sampler_seeding: str = field(default_factory=_sampler_seeding)
     # the training's matmuls (factr2 train --precision): auto, as the current ledger's cells were trained
     # (results/first_cells_fp32_hysteresis.json: fp32 and the earlier labels)
     precision: str = "auto"

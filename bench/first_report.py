@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from bench import harness
+from bench.first_config import trained_score
 from bench.portable import portable, portable_text
 
 PHASES = ("F", "PC", "C")
@@ -191,8 +192,9 @@ def _ranges(seeds: dict) -> str:
 
 def _labels(results: dict, task: str) -> tuple[float, float, dict]:
     """The thresholds [N*m] and phase shares the training runs used (their meta), else the collection's."""
-    for r in results.get("train", []):
-        if r.get("task") == task and r.get("phase_shares") and "t_low" in (r.get("phases") or {}):
+    for r in results.get("train", []):  # N*m: the default score's (first-motion's are multiples of its noise)
+        if (r.get("task") == task and r.get("phase_shares") and "t_low" in (r.get("phases") or {})
+                and trained_score(r) == "l1"):
             return r["phases"]["t_low"], r["phases"]["t_high"], r["phase_shares"]
     d = results["demos"].get(task, {})
     lo, hi = d.get("phase_thresholds_nm") or (np.nan, np.nan)

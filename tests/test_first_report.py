@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from bench.bench_first import BenchConfig
-from bench.first_report import mcnemar_p, paired, pooled_stages, raw_results, wilson
+from bench.first_report import _labels, mcnemar_p, paired, pooled_stages, raw_results, wilson
 
 
 def test_wilson_matches_the_textbook_values():
@@ -69,3 +69,12 @@ def test_stages_pool_over_the_episodes_of_every_seed():
     assert list(got) == ["grasp", "align", "seat"]  # the task's order, where episodes stop
     assert got == pytest.approx({"grasp": 13 / 16, "align": 0.5, "seat": 1 / 16})
     assert pooled_stages([]) == {} and pooled_stages([{"episodes": [], "stage_rates": {}}]) == {}
+
+
+def test_the_tables_label_thresholds_in_n_m_are_the_default_scores():
+    motion = {"task": "wipe", "phases": {"t_low": 15.3, "t_high": 28.7, "score": "motion"},
+              "phase_shares": {"free": 0.35}}
+    l1 = {"task": "wipe", "phases": {"t_low": 0.7, "t_high": 1.3}, "phase_shares": {"free": 0.28}}
+    demos = {"wipe": {"phase_thresholds_nm": [0.6, 1.2], "phase_shares": {}}}
+    assert _labels({"train": [motion, l1], "demos": demos}, "wipe") == (0.7, 1.3, {"free": 0.28})
+    assert _labels({"train": [motion], "demos": demos}, "wipe")[:2] == (0.6, 1.2)  # a first-motion-only run
