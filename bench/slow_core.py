@@ -26,11 +26,13 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 V1 = Path("/sys/fs/cgroup/cpu")
 V2 = Path("/sys/fs/cgroup")
 QUOTA_MIN_US = 1000  # the kernel's smallest CFS quota (cfs_quota_us, cpu.max) [us]
+RMDIR_TRIES = 50  # 0.1 s apart: how long the group's last processes get to exit after the command
 
 
 def bandwidth(factor: float, period_us: int, n_cpus: int) -> tuple[int, int]:
@@ -112,10 +114,17 @@ def main() -> int:
             proc.wait()
         return 130
     finally:
-        try:
-            group.rmdir()
-        except OSError:
-            pass  # a process of the command still lives in it; it goes with the next reboot
+        # a process the command killed as it ended (a busy neighbour: `spin & ...; kill $!`) may still be
+        # exiting: a group left behind keeps its real-time budget, and the next run is refused (EINVAL above)
+        for _ in range(RMDIR_TRIES):
+            try:
+                group.rmdir()
+                break
+            except OSError:
+                time.sleep(0.1)
+        else:
+            print(f"slow_core: {group} still holds a process; remove it (rmdir) once that has ended",
+                  file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -152,7 +152,10 @@ class Device(abc.ABC):
         """Go safe if commands or feedback are stale; returns the reason (None when fine)."""
         reason = self.safety.watchdog.stale(self.clock.now())
         if reason is not None and not self.in_safe_state:
-            with self._lock:
+            with self._lock:  # looked at again under the lock: the app may have put it down meanwhile (a
+                # loop ending late on a slowed core disconnected the leader while this thread waited here)
+                if self.in_safe_state or not self.is_connected:
+                    return reason
                 self._go_safe(Reason.of(DeviceHold.WATCHDOG, stale=reason))
                 self.in_safe_state = True
         return reason

@@ -135,3 +135,35 @@ def test_command_observers_see_every_safe_command_once_in_wire_order():
     f2.remove_command_observer(obs)
     f2.command(FollowerCommand(q=np.zeros(N)))
     assert f2._observers == [] and len(f2.sent) == 1
+
+
+def test_watchdog_check_that_waited_for_a_disconnect_leaves_the_device_alone():
+    """The watchdog thread saw stale data and waited for the device's lock while the app disconnected the
+    device (a loop ending late on a slowed core, issue #53): it must not write to the closed bus after."""
+    import threading
+
+    clock, bank = LockstepClock(), IdealMotorBank(N)
+    clock.attach(bank.advance)
+    lead = BankLeader(bank, clock)
+    lead.connect()
+    lead.read()
+    lead.command_torque(np.zeros(N))
+    clock.sleep(0.06)  # no feedback, no command for 60 ms: the watchdog will go safe
+    sends, closed = [], []
+    real_send = lead._send_torque_safe
+
+    def send(safe):
+        (sends if lead.is_connected else closed).append(safe)  # (a real driver raises on a closed bus)
+        real_send(safe)
+
+    lead._send_torque_safe = send
+    lead.in_safe_state = False
+    with lead._lock:  # the app holds the device while it disconnects it
+        t = threading.Thread(target=lead.check_watchdog)
+        t.start()
+        t.join(0.2)  # the watchdog thread now waits for the lock
+        lead._go_safe("disconnect")
+        lead._disconnect_bus()
+        lead.in_safe_state = True
+    t.join(2.0)
+    assert not t.is_alive() and len(sends) == 1 and closed == [], "a write to a disconnected leader"
