@@ -98,6 +98,24 @@ def limit_torque_floats(raw: list[float], tau_prev: list[float], r_dt: float, ra
     out: list[float] = []
     changed = 0
     isfinite = math.isfinite
+    if isfinite(sum(raw) + sum(tau_prev) + sum(rate) + sum(tau_max) + r_dt):
+        # the usual tick: every input finite (a sum with any inf or NaN is not), so no value below is NaN
+        # (a product overflows to inf at worst): the same operations on the same operands, without the NaN
+        # tests (tests/test_safety_floats.py checks both paths against the numpy form)
+        for x, p, rr, m in zip(raw, tau_prev, rate, tau_max, strict=True):
+            r = rr * r_dt
+            a, b = p - r, (p if p < 0.0 else 0.0)
+            lo = a if a < b else b
+            nm = -m
+            lo = lo if lo > nm else nm
+            a, b = p + r, (p if p > 0.0 else 0.0)
+            hi = a if a > b else b
+            hi = hi if hi < m else m
+            y = x if x > lo else lo
+            y = y if y < hi else hi
+            out.append(y)
+            changed += y != x
+        return out, changed
     for x0, p, rr, m in zip(raw, tau_prev, rate, tau_max, strict=True):
         x = x0 if isfinite(x0) else 0.0
         r = rr * r_dt
@@ -124,6 +142,19 @@ def limit_position_floats(raw: list[float], q_prev: list[float], r_dt: float, v_
     out: list[float] = []
     changed = 0
     isfinite = math.isfinite
+    if isfinite(sum(raw) + sum(q_prev) + sum(v_max) + sum(q_min) + sum(q_max) + r_dt):
+        # the usual tick, every input finite: no NaN below (as limit_torque_floats), no NaN tests
+        for x, p, v, qa, qb in zip(raw, q_prev, v_max, q_min, q_max, strict=True):
+            step = v * r_dt
+            lo = p - step
+            lo = lo if lo > qa else qa
+            hi = p + step
+            hi = hi if hi < qb else qb
+            y = x if x > lo else lo
+            y = y if y < hi else hi
+            out.append(y)
+            changed += y != x
+        return out, changed
     for x0, p, v, qa, qb in zip(raw, q_prev, v_max, q_min, q_max, strict=True):
         x = x0 if isfinite(x0) else p
         step = v * r_dt
@@ -220,6 +251,10 @@ class SafetyLayer:
         self.hold_kd = float(hold_kd)
         self._q_prev: np.ndarray | None = None
         self._tau_prev = np.zeros(limits.n)
+        self._prev_floats: tuple = (None, None)  # (_q_prev, its tolist()) and below the same of _tau_prev
+        self._zeros = np.zeros(limits.n)  # the feed-forward of every command without one [N*m], read-only
+        self._zeros.flags.writeable = False
+        self._tau_prev_floats: tuple = (None, None)
         self._t_prev = float("nan")
         self.clipped = 0  # joints changed by a limit, cumulative
         self.rejected = 0  # non-finite values replaced, cumulative
@@ -243,11 +278,13 @@ class SafetyLayer:
         qv = _vec(cmd.q, n)
         raw = qv.tolist()
         lf = self._floats()
-        q, c1 = limit_position_floats(raw, self._q_prev.tolist(), _rate_dt(dt), lf[2], lf[3], lf[4])
-        q = np.array(q)
+        q, c1 = limit_position_floats(raw, _as_floats(self._q_prev, self._prev_floats), _rate_dt(dt), lf[2],
+                                      lf[3], lf[4])
+        self._prev_floats = (q_arr := np.array(q)), q  # the next call's q_prev as floats, without a tolist
+        q = q_arr
         bad = 0 if all(map(math.isfinite, raw)) else _n_bad(qv)
         if cmd.tau_ff is None:  # no feed-forward: zero passes every torque limit unchanged (falling is free)
-            tau, c2 = np.zeros(n), 0
+            tau, c2 = self._zeros, 0
         else:
             tv = _vec(cmd.tau_ff, n, 0.0)
             tau, c2 = limit_torque(tv, self._tau_prev, dt, lim)
@@ -263,7 +300,7 @@ class SafetyLayer:
         self.clipped += c1 + c2 + c3
         self._q_prev, self._tau_prev = q, tau
         self.watchdog.feed_command(now)
-        return SafeFollowerCommand(q=q, tau_ff=tau, kp=kp, kd=kd, gripper=grip, hold=False, _token=_TOKEN)
+        return _made(SafeFollowerCommand, q=q, tau_ff=tau, kp=kp, kd=kd, gripper=grip, hold=False)
 
     def follower_hold(self, now: float, q_meas: np.ndarray, reason: Reason | str) -> SafeFollowerCommand:
         """The safe state: hold the measured position (clipped into the limits), no feed-forward,
@@ -286,11 +323,13 @@ class SafetyLayer:
         if not all(map(math.isfinite, raw)):
             self.rejected += _n_bad(tv)
         lf = self._floats()
-        out, c = limit_torque_floats(raw, self._tau_prev.tolist(), _rate_dt(dt), lf[0], lf[1])
+        out, c = limit_torque_floats(raw, _as_floats(self._tau_prev, self._tau_prev_floats), _rate_dt(dt),
+                                     lf[0], lf[1])
         self.clipped += c
-        self._tau_prev = out = np.array(out)
+        self._tau_prev = arr = np.array(out)
+        self._tau_prev_floats = arr, out
         self.watchdog.feed_command(now)
-        return SafeLeaderTorque(tau=out, _token=_TOKEN)
+        return _made(SafeLeaderTorque, tau=arr)
 
     def _floats(self) -> tuple[list[float], ...]:
         """The limits as lists for the float kernels (tau_rate_max, tau_max, v_max, q_min, q_max), made once
@@ -308,6 +347,19 @@ class SafetyLayer:
         self.holds += 1
         self.last_fault = reason
         return SafeLeaderTorque(tau=np.zeros(self.limits.n), _token=_TOKEN)
+
+
+def _made(cls, **fields):
+    """A Safe* value built here, by the layer (the token set, as __post_init__ demands of anyone else),
+    without the frozen dataclass's per-field object.__setattr__ (the 500 Hz path: a third of the cost)."""
+    v = object.__new__(cls)
+    v.__dict__.update(fields, _token=_TOKEN)
+    return v
+
+
+def _as_floats(a: np.ndarray, cached: tuple) -> list[float]:
+    """a.tolist(), or the list the layer made `a` from (cached = (a, its floats)) when it is that array."""
+    return cached[1] if cached[0] is a else a.tolist()
 
 
 def _vec(x, n: int, fill: float = np.nan) -> np.ndarray:

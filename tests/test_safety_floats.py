@@ -94,3 +94,33 @@ def test_current_units_kernel_is_the_numpy_form(tau, signs, k, amps, limit):
     with np.errstate(all="ignore"):
         ref = torque_to_current_units(tau, signs, k, amps, limit)
     assert torque_to_current_ints(tau, signs, k, amps, limit) == ref.tolist()
+
+
+# every input finite: the kernels' fast path (no NaN tests); signed zeros, ties and values whose products or
+# sums overflow included (an overflowing sum takes the general path, which must agree too)
+FINITE = st.one_of(st.sampled_from([0.0, -0.0, 1.0, -1.0, 1e308, -1e308, 5e-324]),
+                   st.floats(allow_nan=False, allow_infinity=False, width=64))
+FVEC = st.lists(FINITE, min_size=N, max_size=N)
+FDT = st.one_of(st.sampled_from([0.0, -0.0, 0.002, 0.05]), st.floats(0, 1))
+
+
+@settings(max_examples=500, deadline=None)
+@given(FVEC, FVEC, FDT, FVEC, FVEC)
+def test_torque_kernel_fast_path_is_the_numpy_form(raw, prev, dt, rate, tau_max):
+    tau_max = [abs(x) for x in tau_max]
+    rate = [abs(x) for x in rate]
+    out, c = limit_torque_floats(raw, prev, _rate_dt(dt), rate, tau_max)
+    ref, rc = _ref_torque(raw, prev, dt, rate, tau_max)
+    assert _bits(out) == _bits(ref) and c == rc
+
+
+@settings(max_examples=500, deadline=None)
+@given(FVEC, FIN, FDT, FVEC, FIN, FIN)
+def test_position_kernel_fast_path_is_the_numpy_form(raw, prev, dt, v_max, a, b):
+    v_max = [abs(x) for x in v_max]
+    q_min = np.minimum(a, b) - 1.0
+    q_max = np.maximum(a, b) + 1.0
+    prev = np.clip(prev, q_min, q_max)
+    out, c = limit_position_floats(raw, prev.tolist(), _rate_dt(dt), v_max, q_min.tolist(), q_max.tolist())
+    ref, rc = _ref_position(raw, prev, dt, v_max, q_min, q_max)
+    assert _bits(out) == _bits(ref) and c == rc

@@ -81,6 +81,7 @@ class PiperFollower(Follower):
         self._mit_kp = np.asarray(config.mit_kp, float)
         self._mit_kd = np.asarray(config.mit_kd, float)
         self._q_cmd = np.full(6, np.nan)
+        self._flags_of: dict[int, int] = {}  # vendor status byte -> STATUS_* flags (P.low_speed_flags), memo
         self._hold: SafeFollowerCommand | None = None
         self._t_hold_sent = float("nan")
         self._grip_sent, self._t_grip_sent = float("nan"), float("nan")
@@ -196,7 +197,10 @@ class PiperFollower(Follower):
             d = latest.get(i)
             if d is not None:
                 _, _, temp[j], bits, _ = P.decode_low_speed(d)
-                status[j] |= P.low_speed_flags(bits)
+                flags = self._flags_of.get(bits)
+                if flags is None:  # a few distinct bytes in a run: the bit-by-bit mapping once each
+                    flags = self._flags_of[bits] = P.low_speed_flags(bits)
+                status[j] |= flags
         d = latest.get(P.ID_STATUS)
         if d is not None:
             f = P.decode_status(d)
@@ -238,7 +242,7 @@ class PiperFollower(Follower):
                 frames.append((P.ID_GRIPPER_CMD, P.encode_gripper(stroke, effort, P.GRIPPER_ENABLE)))
                 self._grip_sent, self._t_grip_sent = stroke, now
         self.link.send_all(frames)
-        self._q_cmd = np.array(safe.q, dtype=float)
+        self._q_cmd = safe.q  # the safety layer's own new array, never written; a sample gets a copy
         if safe.hold:
             self._hold, self._t_hold_sent = safe, self.clock.now()
         else:
