@@ -51,6 +51,10 @@ def _ref_position(raw, prev, dt, v_max, q_min, q_max):
 @settings(max_examples=400, deadline=None)
 @given(VEC, VEC, DT, POS, POS)
 def test_torque_kernel_is_the_numpy_form_bit_for_bit(raw, prev, dt, rate, tau_max):
+    _check_torque(raw, prev, dt, rate, tau_max)
+
+
+def _check_torque(raw, prev, dt, rate, tau_max):
     out, c = limit_torque_floats(raw, prev, _rate_dt(dt), rate, tau_max)
     ref, rc = _ref_torque(raw, prev, dt, rate, tau_max)
     assert _bits(out) == _bits(ref) and c == rc
@@ -59,6 +63,10 @@ def test_torque_kernel_is_the_numpy_form_bit_for_bit(raw, prev, dt, rate, tau_ma
 @settings(max_examples=400, deadline=None)
 @given(VEC, FIN, DT, POS, FIN, FIN)
 def test_position_kernel_is_the_numpy_form_bit_for_bit(raw, prev, dt, v_max, a, b):
+    _check_position(raw, prev, dt, v_max, a, b)
+
+
+def _check_position(raw, prev, dt, v_max, a, b):
     q_min = np.minimum(a, b) - 1.0
     q_max = np.maximum(a, b) + 1.0
     prev = np.clip(prev, q_min, q_max)  # the layer keeps q_prev inside the limits
@@ -107,20 +115,10 @@ FDT = st.one_of(st.sampled_from([0.0, -0.0, 0.002, 0.05]), st.floats(0, 1))
 @settings(max_examples=500, deadline=None)
 @given(FVEC, FVEC, FDT, FVEC, FVEC)
 def test_torque_kernel_fast_path_is_the_numpy_form(raw, prev, dt, rate, tau_max):
-    tau_max = [abs(x) for x in tau_max]
-    rate = [abs(x) for x in rate]
-    out, c = limit_torque_floats(raw, prev, _rate_dt(dt), rate, tau_max)
-    ref, rc = _ref_torque(raw, prev, dt, rate, tau_max)
-    assert _bits(out) == _bits(ref) and c == rc
+    _check_torque(raw, prev, dt, [abs(x) for x in rate], [abs(x) for x in tau_max])
 
 
 @settings(max_examples=500, deadline=None)
 @given(FVEC, FIN, FDT, FVEC, FIN, FIN)
 def test_position_kernel_fast_path_is_the_numpy_form(raw, prev, dt, v_max, a, b):
-    v_max = [abs(x) for x in v_max]
-    q_min = np.minimum(a, b) - 1.0
-    q_max = np.maximum(a, b) + 1.0
-    prev = np.clip(prev, q_min, q_max)
-    out, c = limit_position_floats(raw, prev.tolist(), _rate_dt(dt), v_max, q_min.tolist(), q_max.tolist())
-    ref, rc = _ref_position(raw, prev, dt, v_max, q_min, q_max)
-    assert _bits(out) == _bits(ref) and c == rc
+    _check_position(raw, prev, dt, [abs(x) for x in v_max], a, b)

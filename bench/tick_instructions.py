@@ -1,0 +1,117 @@
+"""The teleop app's instructions per tick under callgrind (issue #53 item 1): the same session as
+bench/app_cpu_per_tick.py (sim-piper twin, lockstep, dob, leader emulator in process), with callgrind's
+collection on only inside `TeleopLoop._tick_all` and off again inside the emulator's charged blocks
+(hardware/sim_cpu.py `simulated`): the app's own part of a tick, counted, not timed -- deterministic and the
+same on a loaded machine, where thread CPU time moves 1.5-2x between runs. Needs valgrind and a C compiler
+(the two callgrind client requests are built once into a small shared library in a temporary folder).
+SIMULATED.
+
+    python -m bench.tick_instructions BEFORE AFTER [--ticks 300]   # checkouts (roots), one after the other
+
+Each checkout runs under `valgrind --tool=callgrind` (~3 min for 300 ticks on the 2-vCPU dev VM).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import os
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+_C = """#include <valgrind/callgrind.h>
+void cg_start(void) { CALLGRIND_START_INSTRUMENTATION; }
+void cg_toggle(void) { CALLGRIND_TOGGLE_COLLECT; }
+"""
+
+
+def _library(folder: Path) -> Path:
+    src, lib = folder / "cg.c", folder / "cg.so"
+    src.write_text(_C)
+    subprocess.run(["cc", "-O2", "-shared", "-fPIC", "-o", str(lib), str(src)], check=True)
+    return lib
+
+
+def _run_inside(root: str, ticks: int, lib_path: str) -> None:
+    """Under callgrind: 20 ticks to warm up, then `ticks` ticks with collection toggled around the app."""
+    sys.path.insert(0, root)
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("app_cpu", Path(__file__).with_name("app_cpu_per_tick.py"))
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    from hardware import sim_cpu
+
+    lib = ctypes.CDLL(lib_path)
+    on = [False]
+
+    class Simulated:  # the emulator's blocks: collection off while they run (they are the servos' work)
+        __slots__ = ()
+
+        def __enter__(self):
+            if on[0]:
+                lib.cg_toggle()
+            return self
+
+        def __exit__(self, *exc):
+            if on[0]:
+                lib.cg_toggle()
+
+    sim_cpu.simulated = Simulated
+    s, loop = mod._session("inprocess")
+    with s:
+        for _ in range(20):
+            s.clock.sleep(loop.period_s)
+            loop._tick_all(s.clock.now())
+        lib.cg_start()
+        for _ in range(ticks):
+            s.clock.sleep(loop.period_s)
+            now = s.clock.now()
+            on[0] = True
+            lib.cg_toggle()
+            loop._tick_all(now)
+            lib.cg_toggle()
+            on[0] = False
+
+
+def measure(root: str, ticks: int, lib: Path, out: Path) -> float:
+    """Instructions per tick of the app's part on checkout `root`."""
+    cmd = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--collect-atstart=no",
+           f"--callgrind-out-file={out}", sys.executable, __file__, "--inside", root, "--ticks", str(ticks),
+           "--lib", str(lib)]
+    r = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "FACTR2_NO_RT": "1"})
+    m = re.search(r"Collected : ([\d,]+)", r.stderr)
+    if r.returncode != 0 or m is None:
+        raise SystemExit(f"callgrind run on {root} failed ({r.returncode}): {r.stderr.strip()[-400:]}")
+    return int(m.group(1).replace(",", "")) / ticks
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("roots", nargs="*", help="checkouts to count (default: this one)")
+    ap.add_argument("--ticks", type=int, default=300)
+    ap.add_argument("--inside", help=argparse.SUPPRESS)
+    ap.add_argument("--lib", help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.inside:
+        _run_inside(a.inside, a.ticks, a.lib)
+        return 0
+    roots = a.roots or [str(Path(__file__).resolve().parents[1])]
+    with tempfile.TemporaryDirectory() as d:
+        lib = _library(Path(d))
+        got = []
+        for i, root in enumerate(roots):
+            n = measure(root, a.ticks, lib, Path(d) / f"callgrind.{i}.out")
+            got.append(n)
+            print(f"{root}: {n / 1e3:.1f} k instructions per tick (the app's part, {a.ticks} ticks, "
+                  "in process)", flush=True)
+        if len(got) == 2:
+            print(f"after / before: {got[1] / got[0]:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
