@@ -68,6 +68,9 @@ SKIP = {
     "next_official_round_trip": "trains NEXT on an H5 file (20 s budget) and exports it",
     "faults_soak": "real time by design: its shortest run is one minute (--minutes 1)",
     "app_cpu_per_tick": "issue #53's tool, owned there; its small run is --ticks 50",
+    "tick_instructions": "needs valgrind and a C compiler; runs each checkout under callgrind (minutes)",
+    "cap_wrist": "needs a cap-screw recording or a trained policy to trace "
+                 "(tests/test_bench_cap_wrist.py covers its turn counter)",
 }
 # modules of bench/ that are not scripts (used by the ones above)
 LIBRARIES = {"__init__", "harness", "first_config", "first_ledger", "first_report", "first_stages",
@@ -91,7 +94,8 @@ def test_no_script_edits_sys_path():
     for p in sorted((ROOT / "bench").glob("*.py")):
         text = p.read_text()
         if "sys.path.insert" in text:
-            assert p.stem in ("app_cpu_per_tick", "profile_tick", "profile_rollout"), p.name
+            assert p.stem in ("app_cpu_per_tick", "tick_instructions", "profile_tick",
+                              "profile_rollout"), p.name
             assert text.count("sys.path.insert") == 1 and ("args.root" in text or "a.root" in text), p.name
 
 
