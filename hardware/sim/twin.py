@@ -382,15 +382,17 @@ class Twin:
 
     def apply_leader_hand_torque(self, tau: np.ndarray, leader: str | None = None) -> None:
         """A virtual operator's hand on a leader's arm joints [N*m] (held until changed)."""
-        self._start_held.discard(leader or self.rig.leaders[0].name)
-        d = self.devices[leader or self.rig.leaders[0].name]
+        name = leader or self.rig.leaders[0].name
+        self._start_held.discard(name)
+        d = self.devices[name]
         d.bank.set_hand_torque(np.asarray(tau, dtype=float).reshape(d.n_arm), d.n_arm)
 
     def apply_leader_hand_impedance(self, q_ref, qd_ref, k, d, tau_max, leader: str | None = None) -> None:
         """A virtual operator's hand on a leader's arm joints as an impedance toward q_ref [rad], qd_ref
         [rad/s] (MujocoBank.set_hand_impedance: computed at the firmware rate from the true joints)."""
-        self._start_held.discard(leader or self.rig.leaders[0].name)
-        dv = self.devices[leader or self.rig.leaders[0].name]
+        name = leader or self.rig.leaders[0].name
+        self._start_held.discard(name)
+        dv = self.devices[name]
         dv.bank.set_hand_impedance(q_ref, qd_ref, k, d, tau_max, dv.n_arm)
 
     def push(self, link: str, force, duration_s: float, follower: str | None = None) -> None:
