@@ -9,16 +9,15 @@ moved by the 2*pi multiple that brings it closest to its stored offset (the join
 +-pi of zero); afterwards the driver integrates tick deltas (wrapped to +-half a turn), which also works
 when a servo is in single-turn position mode.
 
-The math (decode, unwrap, torque<->current, trigger mapping) is in pure functions below; the class is the
-I/O shell. It never falls back to a fake device: a missing port, id or wrong model is a UserError.
+Files: the math (decode, unwrap, torque<->current, trigger mapping) as pure functions in leader_math.py;
+connect and close in leader_setup.py, the servos' Bus Watchdog in leader_watchdog.py (mixins of the class
+here); this file is the per-tick read and write. It never falls back to a fake device: a missing port, id
+or wrong model is a UserError.
 """
 
 from __future__ import annotations
 
-import functools
 import logging
-import math
-import struct
 
 import numpy as np
 
@@ -28,85 +27,32 @@ from hardware.dynamixel import watchdog as wd
 from hardware.dynamixel.alerts import AlertRebooter
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.config import DynamixelLeaderConfig
-from hardware.dynamixel.fast_sync import choose_fast_sync_read, fast_sync_read_bytes, plain_sync_read_bytes
-from hardware.dynamixel.models import ServoModel, get_model, model_name, resolve_models
-from hardware.errors import ConfigError, DeviceError, DeviceNotFound
+from hardware.dynamixel.leader_math import (  # noqa: F401 -- the pure functions' import path before the split
+    _TICK_MASK,
+    HALF_TURN_TICKS,
+    TWO_PI,
+    _blocks_struct,
+    decode_feedback,
+    servo_to_joint,
+    torque_to_current_ints,
+    torque_to_current_units,
+    trigger_fraction,
+    wrap_to_offset,
+    wrapped_tick_delta,
+)
+from hardware.dynamixel.leader_setup import PING_TRIES, LeaderSetup  # noqa: F401
+from hardware.dynamixel.leader_watchdog import LeaderWatchdog
+from hardware.dynamixel.models import ServoModel, get_model, resolve_models
+from hardware.errors import ConfigError, DeviceError
 from hardware.roles import Leader
 from hardware.safety import DEFAULT_WATCHDOG_S, SafeLeaderTorque
-from hardware.serial_ports import latency_timer_advice
 from hardware.types import STATUS_COMM_LOST, STATUS_DRIVER_ERROR, STATUS_ENABLED, STATUS_STALE, JointState
 
-PING_TRIES = 3  # pings per id at connect before the id counts as missing
-
 log = logging.getLogger("factr2.dynamixel")
-TWO_PI = 2.0 * math.pi
-HALF_TURN_TICKS = p.TICKS_PER_REV // 2
-_TICK_MASK = p.TICKS_PER_REV - 1  # TICKS_PER_REV (4096) is a power of two: x & mask == x % TICKS_PER_REV
-
-
-# -- pure math ---------------------------------------------------------------------------------------
-def decode_feedback(data: bytes, with_current: bool) -> tuple[int, int, int]:
-    """(current units, velocity units, position ticks), signed, from one servo's sync-read block."""
-    cur = p.from_le(data[0:2], True) if with_current else 0
-    k = 2 if with_current else 0
-    return cur, p.from_le(data[k : k + 4], True), p.from_le(data[k + 4 : k + 8], True)
-
-
-@functools.lru_cache(maxsize=8)
-def _blocks_struct(with_current: bool, m: int) -> struct.Struct:
-    """decode_feedback's fields of m servo blocks back to back, flat: (current,) velocity, position each."""
-    return struct.Struct("<" + ("hii" if with_current else "ii") * m)
-
-
-def wrap_to_offset(q_servo_rad: np.ndarray, offset_rad: np.ndarray) -> np.ndarray:
-    """q_servo + 2*pi*k with k chosen so the result is closest to offset (resolves power-on turns)."""
-    q, off = np.asarray(q_servo_rad, float), np.asarray(offset_rad, float)
-    return q + TWO_PI * np.round((off - q) / TWO_PI)
-
-
-def wrapped_tick_delta(ticks_now: np.ndarray, ticks_prev: np.ndarray) -> np.ndarray:
-    """Tick difference wrapped to [-2048, 2048): a servo cannot turn half a revolution in one tick."""
-    d = np.asarray(ticks_now, np.int64) - np.asarray(ticks_prev, np.int64)
-    return (d + HALF_TURN_TICKS) % p.TICKS_PER_REV - HALF_TURN_TICKS
-
-
-def servo_to_joint(q_servo_rad, signs, offsets_rad) -> np.ndarray:
-    return np.asarray(signs, float) * (np.asarray(q_servo_rad, float) - np.asarray(offsets_rad, float))
-
-
-def torque_to_current_units(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units) -> np.ndarray:
-    """Joint torques [N*m] -> servo goal-current units (sign applied, clipped to the Current Limit)."""
-    amps = np.asarray(signs, float) * np.asarray(tau_nm, float) / np.asarray(k_nm_per_a, float)
-    return p.amps_to_current_units(amps, amps_per_unit, limit_units)
-
-
-def torque_to_current_ints(tau_nm: list[float], signs: list[float], k_nm_per_a: list[float],
-                           amps_per_unit: list[float], limit_units: list[float]) -> list[int]:
-    """torque_to_current_units on plain floats, bit for bit (the 500 Hz path): sign * tau / K / amps per
-    unit, a non-finite value 0, clipped to +-limit (numpy's maximum / minimum: a NaN limit wins), rounded
-    half to even (np.rint; Python's round of a float does the same)."""
-    out = []
-    isfinite = math.isfinite
-    for t, s, k, a, lim in zip(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units, strict=True):
-        u = s * t / k / a
-        u = u if isfinite(u) else 0.0
-        lo = -lim
-        u = u if (u > lo or u != u) else lo
-        u = u if (u < lim or u != u) else lim
-        out.append(round(u))
-    return out
-
-
-def trigger_fraction(q_servo_rad: float, open_rad: float, closed_rad: float) -> float:
-    """Trigger servo angle -> 0 (open) .. 1 (closed), clipped."""
-    span = closed_rad - open_rad
-    if span == 0 or not math.isfinite(q_servo_rad):
-        return float("nan")
-    return min(max((float(q_servo_rad) - open_rad) / span, 0.0), 1.0)
 
 
 # -- driver ----------------------------------------------------------------------------------------
-class DynamixelLeader(Leader):
+class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
     """Leader role over a Dynamixel chain. warnings: start-up problems found by connect() (also logged)."""
 
     wrap_period_rad = TWO_PI  # single-turn encoders: the turn is inferred, so a reading can be one off
@@ -204,148 +150,9 @@ class DynamixelLeader(Leader):
         self._offsets = np.array(value, float)
         self._offsets_l = self._offsets.tolist()
 
-    def connect(self) -> None:
-        c = self.config
-        bus = DynamixelBus(c.port, c.baud, where=f"leader {c.name}")
-        bus.open()
-        self.bus = bus
-        try:
-            self._setup(bus)
-        except BaseException:
-            self.bus = None
-            bus.close()
-            raise
 
-    def _setup(self, bus: DynamixelBus) -> None:
-        c = self.config
-        advice = latency_timer_advice(c.port, bus.latency_timer_ms)
-        if advice:
-            self._warn(advice)
-        self._check_ids_and_models(bus)
-        joint_ids = list(c.ids)
-        for i, dxl_id in enumerate(joint_ids):
-            bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 0)  # EEPROM is writable only with torque off
-            self._clear_watchdog(bus, dxl_id)  # a crashed app's latched watchdog refuses the goal below
-            info = self.servo_info[dxl_id]
-            for field, want, key in (
-                (p.ADDR_RETURN_DELAY_TIME, 0, "return_delay"),
-                (p.ADDR_OPERATING_MODE, p.OP_MODE_CURRENT, "operating_mode"),
-            ):
-                have = bus.read(dxl_id, field)
-                if have != want:
-                    log.info("servo %d: %s %d -> %d", dxl_id, key, have, want)
-                    bus.write(dxl_id, field, want)
-                info[key] = want
-            self.limit_units[i] = bus.read(dxl_id, p.ADDR_CURRENT_LIMIT)
-            bus.write(dxl_id, p.ADDR_GOAL_CURRENT, 0)
-        if c.gripper_id is not None:
-            bus.write(c.gripper_id, p.ADDR_TORQUE_ENABLE, 0)  # the trigger is read only, free to move
-            delay = bus.read(c.gripper_id, p.ADDR_RETURN_DELAY_TIME)
-            if delay:
-                bus.write(c.gripper_id, p.ADDR_RETURN_DELAY_TIME, 0)
-        self._read_group = bus.make_sync_read(self.read_ids, self.field)
-        self._write_group = bus.make_sync_write(joint_ids, p.ADDR_GOAL_CURRENT)
-        m, ln = len(self.read_ids), self.field[1]
-        plain_ms, fast_ms = (  # sized for n status packets, or for the one longer fast packet
-            bus.rx_timeout_ms(n_bytes, m) if c.rx_timeout_ms is None else c.rx_timeout_ms
-            for n_bytes in (plain_sync_read_bytes(m, ln), fast_sync_read_bytes(m, ln))
-        )
-        self.rx_timeout_ms, self.fast_read = plain_ms, False
-        self._init_positions(bus)
-        firmware = {i: self.servo_info[i]["firmware"] for i in self.read_ids}
-        fast, why = choose_fast_sync_read(c.fast_sync_read, bus, self._read_group, self.read_ids, fast_ms,
-                                          firmware)
-        if fast:
-            self.rx_timeout_ms, self.fast_read = fast_ms, True
-        elif c.fast_sync_read is True:
-            raise DeviceError(f"fast sync read not supported by {why}", where=f"leader {c.name} {c.port}",
-                              fix='update the firmware (Dynamixel Wizard) or set fast_sync_read = "auto"')
-        elif why:
-            self._warn(f"leader {c.name}: fast sync read not supported by {why}: plain sync read")
-        for dxl_id in joint_ids:
-            bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 1)
-        self._torque_on = True
-        self._arm_watchdog(bus, joint_ids)
-        zero = {i: p.le(0, 2) for i in joint_ids}
-        self.round_trip_s, complete = bus.measure_round_trip(
-            self._read_group, self.read_ids, self.rx_timeout_ms, self._write_group, zero, fast=self.fast_read
-        )
-        hz = 1.0 / self.round_trip_s if self.round_trip_s > 0 else float("inf")
-        if hz < c.loop_hz:
-            self._warn(
-                f"leader {c.name} on {c.port}: one sync read + write takes {1e3 * self.round_trip_s:.2f} ms "
-                f"-> at most {hz:.0f} Hz, below loop_hz {c.loop_hz:.0f} -- fix: baud 4000000 on servos "
-                "and rig, return delay 0, USB latency timer 1 ms"
-            )
-        if complete < 15:
-            self._warn(
-                f"leader {c.name}: only {complete}/20 sync reads were complete at start-up "
-                "(cabling, power or a second program on the port?)"
-            )
-        self.zero_torque("connected")  # known zero start; also starts the safety layer's rate-limit clock
-        if self._wd is not None:  # however late the loop's first tick comes, it reads the servos back
-            self._wd.check_all_next()
 
-    def _check_ids_and_models(self, bus: DynamixelBus) -> None:
-        c = self.config
-        answered: dict[int, tuple[int, int]] = {}
-        for dxl_id in self.read_ids:
-            for _ in range(PING_TRIES):  # a single lost packet must not fail the start-up
-                r = bus.ping(dxl_id)
-                if r is not None:
-                    answered[dxl_id] = r
-                    break
-        missing = [i for i in self.read_ids if i not in answered]
-        if missing:
-            on_bus = bus.broadcast_ping()
-            hint = (
-                "no servo answered: check the servo supply and that the servos' baud matches"
-                if not on_bus
-                else "set the rig's ids to the servos' ids (or change the servo ids with Dynamixel Wizard)"
-            )
-            raise DeviceNotFound(
-                f"servo id(s) {missing} did not answer at {c.baud} bit/s; ids that answered: "
-                f"{on_bus or 'none'}",
-                where=f"leader {c.name} {c.port}",
-                fix=hint,
-            )
-        wrong = []
-        expected = dict(zip(c.ids, self.models))
-        if c.gripper_id is not None:
-            expected[c.gripper_id] = self.gripper_model
-        for dxl_id, (number, fw) in answered.items():
-            self.servo_info[dxl_id] = {"model_number": number, "model": model_name(number), "firmware": fw}
-            if number != expected[dxl_id].model_number:
-                wrong.append(
-                    f"id {dxl_id} is {model_name(number)} (#{number}), config says "
-                    f"{expected[dxl_id].name} (#{expected[dxl_id].model_number})"
-                )
-        if wrong:
-            raise DeviceError(
-                "; ".join(wrong),
-                where=f"leader {c.name} {c.port}",
-                fix="set `model` in the rig file to the servos actually fitted",
-            )
 
-    def _init_positions(self, bus: DynamixelBus) -> None:
-        for _ in range(10):
-            got = bus.sync_read(self._read_group, self.read_ids, max(self.rx_timeout_ms, 20.0))
-            if len(got) == len(self.read_ids):
-                break
-        else:
-            raise DeviceError(
-                "no complete sync read of the servos' positions in 10 tries",
-                where=f"leader {self.config.name} {self.config.port}",
-                fix="check cabling and power; run `factr2 doctor --port ...`",
-            )
-        ticks = np.array([decode_feedback(got[i][0], self.config.read_current)[2] for i in self.read_ids])
-        offsets = (
-            np.append(self.offsets, 0.5 * (self.config.gripper_open_rad + self.config.gripper_closed_rad))
-            if self.config.gripper_id is not None
-            else self.offsets
-        )
-        self._q_servo = wrap_to_offset(p.ticks_to_rad(ticks), offsets)
-        self._ticks_prev = ticks
 
     # -- per tick ------------------------------------------------------------------------------------
     def _read(self) -> JointState | None:
@@ -456,80 +263,3 @@ class DynamixelLeader(Leader):
                                        self.limit_units.tolist())  # the limit is read at connect
         if not self.bus.sync_write_ints(self._write_group, units):
             self.failed_writes += 1
-
-    # -- the servos' own fallback: Bus Watchdog(98) (hardware/dynamixel/watchdog.py) -------------------------
-    def _clear_watchdog(self, bus: DynamixelBus, dxl_id: int) -> None:
-        """Clear a Bus Watchdog Error a previous app left latched (its goals would be refused); a servo
-        without the register is reported by _arm_watchdog."""
-        if wd.supported(self.servo_info[dxl_id]["model"], self.servo_info[dxl_id]["firmware"]):
-            try:
-                bus.write(dxl_id, wd.ADDR, 0)
-            except DeviceError:
-                pass  # refused: said once by _arm_watchdog
-
-    def _arm_watchdog(self, bus: DynamixelBus, joint_ids: list[int]) -> None:
-        """Set every joint servo's Bus Watchdog (wd.LEADER_PERIOD_S), read it back; a servo that refuses
-        gets the one-line warning of what that means for the operator."""
-        res = wd.arm_bus_watchdog(bus, joint_ids, wd.LEADER_PERIOD_S)
-        self.fallback = res
-        if res.refused:
-            self._warn(wd.refusal_line(self.config.name, res))
-        armed = [i for i in joint_ids if i not in res.refused]
-        self._wd = wd.BusWatchdogKeeper(armed, res.units) if armed else None
-        if self._wd is not None:
-            self._wd.traffic(self.clock.now())
-
-    def _keep_watchdog(self) -> None:
-        """Before a goal write: re-arm the servos after a gap long enough for them to have latched (an app
-        freeze, a silent chain), or after a reboot (it turns the watchdog off); and where the register reads
-        back latched (a gap only the servo saw: a slow start before the first tick), said once."""
-        k, now = self._wd, self.clock.now()
-        reboots = sum(self.alerts.counts.values())
-        if reboots != self._wd_reboots and not self.alerts.rebooted:
-            self._wd_reboots = reboots
-            k.mark_due()
-        if k.rearm_if_due(self.bus, now):
-            log.info("leader %s: Bus Watchdog re-armed (%d)", self.config.name, k.rearms)
-        elif found := k.check_if_due(self.bus, now):
-            said = k.found > len(found)  # once in the log as a warning; later ones at info
-            (log.info if said else self._warn)(
-                f"leader {self.config.name}: Bus Watchdog had latched on servo ids {found} (they refused "
-                "every goal current: no force feedback) -- re-armed; a host that stalls over "
-                f"{1e3 * wd.LEADER_PERIOD_S:.0f} ms trips it again")
-
-    def fallback_lines(self) -> list[str]:
-        """The servos' own fallback as read back at connect (doctor, start-up summary)."""
-        res = self.fallback
-        if res is None:
-            return [f"leader {self.config.name}: Bus Watchdog not set (not connected)"]
-        ok = {i: v for i, v in res.read_back.items() if i not in res.refused}
-        out = []
-        if ok:
-            out.append(f"leader {self.config.name}: Bus Watchdog(98) read back on servo ids "
-                       f"{sorted(ok)}: {wd.describe(res.units)} (set {res.units}); the servo stops "
-                       "(0 current) when the app is silent that long")
-        if res.refused:
-            out.append(wd.refusal_line(self.config.name, res))
-        return out
-
-    def _disconnect_bus(self) -> None:
-        bus, self.bus = self.bus, None
-        if bus is None:
-            return
-        try:
-            for dxl_id in self.config.ids:
-                try:
-                    bus.write(dxl_id, p.ADDR_TORQUE_ENABLE, 0)
-                except DeviceError as e:
-                    log.warning("leader %s: torque off failed: %s", self.config.name, e)
-            if self._wd is not None:  # after torque off (first, at once): one latched since the last
-                try:  # read-back refused the stop's 0 A and would keep its last goal in the register
-                    for dxl_id in self._wd.check(bus, self.clock.now()):
-                        bus.write(dxl_id, p.ADDR_GOAL_CURRENT, 0)
-                        log.warning("leader %s: servo %d's Bus Watchdog had latched: re-armed, 0 A written",
-                                    self.config.name, dxl_id)
-                except DeviceError as e:
-                    log.warning("leader %s: Bus Watchdog read-back at close failed: %s", self.config.name, e)
-        finally:
-            self._torque_on = False
-            bus.close()

@@ -1,0 +1,79 @@
+"""The Dynamixel leader's math: pure functions on numbers and arrays (leader.py, the driver, is the shell).
+
+Decoding a servo's feedback block, resolving the power-on turn (wrap_to_offset), unwrapping tick deltas,
+servo angle -> joint angle, joint torque [N*m] -> goal-current units, the trigger's angle -> 0..1.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import struct
+
+import numpy as np
+
+from hardware.dynamixel import protocol as p
+
+TWO_PI = 2.0 * math.pi
+HALF_TURN_TICKS = p.TICKS_PER_REV // 2
+_TICK_MASK = p.TICKS_PER_REV - 1  # TICKS_PER_REV (4096) is a power of two: x & mask == x % TICKS_PER_REV
+
+
+def decode_feedback(data: bytes, with_current: bool) -> tuple[int, int, int]:
+    """(current units, velocity units, position ticks), signed, from one servo's sync-read block."""
+    cur = p.from_le(data[0:2], True) if with_current else 0
+    k = 2 if with_current else 0
+    return cur, p.from_le(data[k : k + 4], True), p.from_le(data[k + 4 : k + 8], True)
+
+
+@functools.lru_cache(maxsize=8)
+def _blocks_struct(with_current: bool, m: int) -> struct.Struct:
+    """decode_feedback's fields of m servo blocks back to back, flat: (current,) velocity, position each."""
+    return struct.Struct("<" + ("hii" if with_current else "ii") * m)
+
+
+def wrap_to_offset(q_servo_rad: np.ndarray, offset_rad: np.ndarray) -> np.ndarray:
+    """q_servo + 2*pi*k with k chosen so the result is closest to offset (resolves power-on turns)."""
+    q, off = np.asarray(q_servo_rad, float), np.asarray(offset_rad, float)
+    return q + TWO_PI * np.round((off - q) / TWO_PI)
+
+
+def wrapped_tick_delta(ticks_now: np.ndarray, ticks_prev: np.ndarray) -> np.ndarray:
+    """Tick difference wrapped to [-2048, 2048): a servo cannot turn half a revolution in one tick."""
+    d = np.asarray(ticks_now, np.int64) - np.asarray(ticks_prev, np.int64)
+    return (d + HALF_TURN_TICKS) % p.TICKS_PER_REV - HALF_TURN_TICKS
+
+
+def servo_to_joint(q_servo_rad, signs, offsets_rad) -> np.ndarray:
+    return np.asarray(signs, float) * (np.asarray(q_servo_rad, float) - np.asarray(offsets_rad, float))
+
+
+def torque_to_current_units(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units) -> np.ndarray:
+    """Joint torques [N*m] -> servo goal-current units (sign applied, clipped to the Current Limit)."""
+    amps = np.asarray(signs, float) * np.asarray(tau_nm, float) / np.asarray(k_nm_per_a, float)
+    return p.amps_to_current_units(amps, amps_per_unit, limit_units)
+
+
+def torque_to_current_ints(tau_nm: list[float], signs: list[float], k_nm_per_a: list[float],
+                           amps_per_unit: list[float], limit_units: list[float]) -> list[int]:
+    """torque_to_current_units on plain floats, bit for bit (the 500 Hz path): sign * tau / K / amps per
+    unit, a non-finite value 0, clipped to +-limit (numpy's maximum / minimum: a NaN limit wins), rounded
+    half to even (np.rint; Python's round of a float does the same)."""
+    out = []
+    isfinite = math.isfinite
+    for t, s, k, a, lim in zip(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units, strict=True):
+        u = s * t / k / a
+        u = u if isfinite(u) else 0.0
+        lo = -lim
+        u = u if (u > lo or u != u) else lo
+        u = u if (u < lim or u != u) else lim
+        out.append(round(u))
+    return out
+
+
+def trigger_fraction(q_servo_rad: float, open_rad: float, closed_rad: float) -> float:
+    """Trigger servo angle -> 0 (open) .. 1 (closed), clipped."""
+    span = closed_rad - open_rad
+    if span == 0 or not math.isfinite(q_servo_rad):
+        return float("nan")
+    return min(max((float(q_servo_rad) - open_rad) / span, 0.0), 1.0)
