@@ -20,6 +20,13 @@ from policies.rollout.schedule import LIMIT_TOL_FRACTION
 DEMO_SEED = 1  # collection seed: range A (episode seeds follow from it, session/task_episodes.py)
 EVAL_SEED = 2  # rollout seed: range B, disjoint from A (checked on the episodes' recorded seeds)
 CURVE_SEED = 4  # rollout seed of the learning curve (bench/first_curve.py): never the evaluation's
+# the data curve's (bench/data_curve.py, issue #56) and used for nothing else: its collection is made in
+# parts, part k from collection seed DATA_CURVE_DEMO_SEED + k (k < DATA_CURVE_PARTS_MAX), and every point's
+# policies are rolled out from DATA_CURVE_EVAL_SEED. Episode k of seed S is S * 100003 + k
+# (session/task_episodes.py), so these meet no seed above, no evaluation seed the results pre-registered (15,
+# 31) and no development seed the pages name (all below 1001): tests/test_data_curve.py checks the first two
+DATA_CURVE_DEMO_SEED, DATA_CURVE_PARTS_MAX = 5601, 40  # collection seeds 5601-5640
+DATA_CURVE_EVAL_SEED = 5600  # rollout seed
 RIG = "sim-piper"
 OBS_LABELS = {"state": " (PRIVILEGED twin object state, no images)",
               "perceived": " (SIMULATED camera pose detector's object poses, no images; docs/perception.md)"}
@@ -138,13 +145,14 @@ SAME_ON_RESUME = ("obs", "demos", "rollouts", "steps", "batch", "policy", "thres
                   "limit_tol_fraction", "sampler_seeding", "precision", "labels")
 
 
-def check_resume(cfg: BenchConfig, out: Path) -> None:
-    """A resumed OUT must have been started with the same settings (its kept results were made with them)."""
+def check_resume(cfg, out: Path, keys: tuple = SAME_ON_RESUME) -> None:
+    """A resumed OUT must have been started with the same settings `keys` of the configuration (a dataclass:
+    BenchConfig, bench/data_curve.py's CurveConfig): its kept results were made with them."""
     old_path = out / "config.json"
     if not old_path.is_file():
         return
     old, new = json.loads(old_path.read_text()), json.loads(json.dumps(asdict(cfg)))
-    diff = [k for k in SAME_ON_RESUME if old.get(k) != new.get(k)]
+    diff = [k for k in keys if old.get(k) != new.get(k)]
     if diff:
         was = ", ".join(f"{k} {old.get(k)}" for k in diff)
         raise SystemExit(f"{out}: its kept results were made with other settings ({was}); "

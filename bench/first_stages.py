@@ -46,15 +46,22 @@ def recorded_summary(task: str, folders: list[Path]) -> dict:
 def collect_demos(cfg: BenchConfig, task: str, checkpoint: str) -> dict:
     """The task's demonstrations (factr2 collect's function), kept in OUT/TASK/demos, or those the run was
     given (--demos-from)."""
-    from factr2_teleop.tasks.run import CollectConfig, collect, output_paths
-
     if task in cfg.demos_from:
         return recorded_summary(task, demo_folders(cfg, task))
-    folder = Path(cfg.out) / task / "demos"
+    return collect_run(task, Path(cfg.out) / task / "demos", cfg.demos, DEMO_SEED, checkpoint,
+                       cameras=cfg.obs == "images")
+
+
+def collect_run(task: str, folder: Path, episodes: int, seed: int, checkpoint: str,
+                cameras: bool = False) -> dict:
+    """One collection of `episodes` scripted demonstrations from collection seed `seed` into `folder`
+    (factr2 collect's function): its summary, kept when it is there (an interrupted one starts again)."""
+    from factr2_teleop.tasks.run import CollectConfig, collect, output_paths
+
     # mode None: the task's demonstrator feedback (Task.operator_feedback), else NEXT from `checkpoint`
-    cc = CollectConfig(rig=RIG, task=task, episodes=cfg.demos, out=str(folder), seed=DEMO_SEED, mode=None,
-                       checkpoint=checkpoint, cameras=cfg.obs == "images")
-    mcap, summary = output_paths(cc, RIG)
+    cc = CollectConfig(rig=RIG, task=task, episodes=episodes, out=str(folder), seed=seed, mode=None,
+                       checkpoint=checkpoint, cameras=cameras)
+    summary = output_paths(cc, RIG)[1]
     if summary.is_file():
         return json.loads(summary.read_text())
     shutil.rmtree(folder, ignore_errors=True)  # an interrupted collection: start it again
@@ -141,19 +148,26 @@ def train_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
 
 def rollout_cell(cfg: BenchConfig, task: str, cell: str, seed: int) -> dict:
     """R rollouts of one trained policy on the evaluation seed (factr2 rollout's function)."""
+    run = Path(cfg.out) / task / cell / f"seed{seed}"
+    return rollout_run(run, task, cfg.rollouts, cfg.eval_seed, {"cell": cell, "seed": seed}, cfg.max_seconds)
+
+
+def rollout_run(run: Path, task: str, episodes: int, eval_seed: int, keys: dict,
+                max_seconds: float | None = None) -> dict:
+    """`episodes` rollouts of the policy trained in `run` from rollout seed `eval_seed` (factr2 rollout's
+    function), kept in RUN/rollout.json (with `keys` beside the results) and skipped when it is there."""
     from factr2_teleop.session.rollout import RolloutOptions, run_rollout
 
-    run = Path(cfg.out) / task / cell / f"seed{seed}"
     done = run / "rollout.json"
     if done.is_file():
         return json.loads(done.read_text())
-    kw = {"rig": RIG, "policy": str(run), "task": task, "episodes": cfg.rollouts, "seed": cfg.eval_seed,
+    kw = {"rig": RIG, "policy": str(run), "task": task, "episodes": episodes, "seed": eval_seed,
           "record": None, "progress": False}
-    if cfg.max_seconds is not None and "max_seconds" in {f.name for f in fields(RolloutOptions)}:
-        kw["max_seconds"] = cfg.max_seconds
+    if max_seconds is not None and "max_seconds" in {f.name for f in fields(RolloutOptions)}:
+        kw["max_seconds"] = max_seconds
     t, c = time.perf_counter(), time.process_time()
     res = run_rollout(RolloutOptions(**kw)).to_dict()
-    out = {"task": task, "cell": cell, "seed": seed, "success_rate": res["success_rate"],
+    out = {"task": task, **keys, "success_rate": res["success_rate"],
            "mean_progress": res["mean_progress"], "stage_rates": res.get("stage_rates"),
            "episodes": res.get("episodes"), "timing": res.get("timing"),
            "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c}

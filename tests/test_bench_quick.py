@@ -69,12 +69,14 @@ SKIP = {
     "faults_soak": "real time by design: its shortest run is one minute (--minutes 1)",
     "app_cpu_per_tick": "issue #53's tool, owned there; its small run is --ticks 50",
     "tick_instructions": "needs valgrind and a C compiler; runs each checkout under callgrind (minutes)",
+    "data_curve": "collects, trains and rolls out: its own --quick takes minutes "
+                  "(tests/test_data_curve.py covers its parts)",
     "cap_wrist": "needs a cap-screw recording or a trained policy to trace "
                  "(tests/test_bench_cap_wrist.py covers its turn counter)",
 }
 # modules of bench/ that are not scripts (used by the ones above)
 LIBRARIES = {"__init__", "harness", "first_config", "first_ledger", "first_report", "first_stages",
-             "crash_trials", "fault_trials"}
+             "crash_trials", "fault_trials", "data_curve_report"}
 
 
 def scripts() -> set[str]:

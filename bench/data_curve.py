@@ -1,0 +1,439 @@
+"""The data curve (SIMULATED, PRIVILEGED state; issue #56 item 1): success and task progress against the
+number of successful demonstrations a policy is trained on, with `factr2 train`'s defaults.
+
+Per task, one collection large enough for the largest point, counted in SUCCESSFUL demonstrations, made in
+parts of --part-episodes (part k from collection seed DATA_CURVE_DEMO_SEED + k, bench/first_config.py) so
+that parts run side by side and the small points train while the rest is collected; a part more is collected
+when the planned ones hold too few successes. A point of n demonstrations trains on the first n successful
+episodes in collection order (part, episode): the nested subsets of a user who records on until they have n
+(the 25 are in the 50, ...). Each point is trained with --seeds training seeds (0, 1, ...) as
+
+    factr2 train PART... --obs state --episodes THE_N --seed S        (+ the flags of --defaults NAME)
+
+through the same code path (policies.training.run_config.from_args, run_training): `--defaults current` adds
+no flag, so the step count, model and schedule are whatever `factr2 train` does at the commit each training
+records (train.json `commit`, `command`, `steps`). Every policy is rolled out --rollouts episodes from
+DATA_CURVE_EVAL_SEED: all points on the same initial conditions, which no demonstration and nothing else
+used; a re-run with other defaults (`--defaults NAME`, or the same name at a later commit, in another OUT)
+collects the same episodes and rolls out on the same seeds: before and after, paired.
+
+    python -m bench.data_curve --out OUT --jobs 2              # the curve: 3 tasks, 10 points, 2 seeds x 24
+    python -m bench.data_curve --out OUT --jobs 16             # the same on a 16-core machine
+    python -m bench.data_curve --quick --out OUT --jobs 1      # a few-minute smoke run (its numbers: nothing)
+    python -m bench.data_curve --out OUT --report --results data_curve_current   # + results/NAME.json
+
+Resumable: every collection part, training run and rollout set leaves its JSON as it finishes and is skipped
+when there (an interrupted training resumes from its last checkpoint); tasks, points and seeds may be added
+to an OUT, the settings that shape a result may not (SAME_ON_RESUME). Writes OUT/data_curve.json (a row per
+task, n and training seed: success, progress, stages reached, steps, wall and CPU time; rewritten after every
+point), OUT/data_curve.md and OUT/data_curve.png (bench/data_curve_report.py). Trainings run on the CPU
+(--device auto: a GPU where there is one) with cores / jobs torch threads each.
+
+Sizing (docs/policies.md, "The data curve"): from the unit costs measured on the 2-vCPU AMD EPYC VM, the
+whole curve is about 2.1 core-hours of collection, 5.3-11 of training and 2.1-4.7 of rollouts, 9.5-18
+core-hours: about 5-9 h wall on 2 free cores, about 1.5 h on 16 (the 200-demonstration trainings, 30-36 k
+steps each, end last); the measured wall time comes with the results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shlex
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from bench import harness
+from bench.data_curve_report import (
+    chart,
+    finished_rows,
+    point_dir,
+    summarize,
+    table,
+    title,
+    write_results,
+)
+from bench.first_config import (
+    DATA_CURVE_DEMO_SEED,
+    DATA_CURVE_EVAL_SEED,
+    DATA_CURVE_PARTS_MAX,
+    RIG,
+    check_resume,
+)
+from bench.first_stages import _json, collect_run, rollout_run
+
+POINTS = {"peg-insert": [25, 50, 100, 200], "press-fit": [25, 50, 100, 200], "wipe": [25, 50]}
+# named sets of `factr2 train` flags beyond DEMOS --obs state: "current" = none, the defaults of the commit
+DEFAULTS = {"current": []}
+# the NEXT checkpoint the demonstrations' feedback uses: the committed one, so a collection is the same on
+# every machine with the same software (docs/first.md, "The headline across machines")
+NEXT_CHECKPOINT = "bench/assets/next_sim_piper_first/next.json"
+QUICK = {"tasks": ["wipe"], "points": {"wipe": [2, 4]}, "seeds": 1, "rollouts": 1, "part_episodes": 3,
+         "train_flags": ["--steps", "30", "--batch", "32"]}
+SAME_ON_RESUME = ("defaults", "train_flags", "rollouts", "part_episodes", "device", "next_checkpoint",
+                  "demo_seed", "eval_seed")
+
+
+@dataclass
+class CurveConfig:
+    out: str = "data_curve"
+    defaults: str = "current"
+    tasks: list = field(default_factory=lambda: list(POINTS))
+    points: dict = field(default_factory=lambda: dict(POINTS))  # task -> successful demonstrations
+    seeds: int = 2  # training seeds per point
+    rollouts: int = 24  # per policy: 2 x 24 = 48 per point
+    part_episodes: int = 25  # episodes per collection part
+    jobs: int = 2
+    threads: int = 0  # torch threads per training (0: cores / jobs)
+    device: str = "cpu"
+    next_checkpoint: str = NEXT_CHECKPOINT
+    train_flags: list = field(default_factory=list)  # beyond the defaults' (--quick: few steps)
+    quick: bool = False
+    demo_seed: int = DATA_CURVE_DEMO_SEED
+    eval_seed: int = DATA_CURVE_EVAL_SEED
+
+    def point_keys(self) -> list[tuple[str, int, int]]:
+        return [(t, n, s) for s in range(self.seeds) for t in self.tasks for n in self.points[t]]
+
+
+# -- pure parts --------------------------------------------------------------------------------------------
+def successful_ids(parts: list[tuple[str, dict]]) -> list[str]:
+    """The episode ids (FILE.mcap#N, as `factr2 train --episodes` names them) of the successful episodes of
+    the collection parts [(mcap file name, collection summary)], in collection order."""
+    return [f"{name}#{r['index']}" for name, summary in parts
+            for r in sorted(summary["results"], key=lambda r: r["index"]) if r.get("outcome") == "success"]
+
+
+def parts_for(successes: list[int], n: int) -> int | None:
+    """How many leading parts (of these success counts, in order) hold n successes; None: not enough."""
+    total = 0
+    for k, s in enumerate(successes):
+        total += s
+        if total >= n:
+            return k + 1
+    return None
+
+
+def episode_ranges(ids: list[str]) -> str:
+    """Episode ids as `--episodes` text, runs of indices joined: a.mcap#0-3,a.mcap#5 (a shorter command)."""
+    out: list[list] = []
+    for i in ids:
+        name, _, idx = i.rpartition("#")
+        if out and out[-1][0] == name and out[-1][2] == int(idx) - 1:
+            out[-1][2] = int(idx)
+        else:
+            out.append([name, int(idx), int(idx)])
+    return ",".join(f"{n}#{a}" if a == b else f"{n}#{a}-{b}" for n, a, b in out)
+
+
+def train_argv(cfg: CurveConfig, folders: list[Path], ids: list[str], seed: int, run: Path) -> list[str]:
+    """The `factr2 train` arguments of a point: the defaults named, the subset, the training seed."""
+    return [*map(str, folders), "--obs", "state", *DEFAULTS[cfg.defaults], *cfg.train_flags,
+            "--seed", str(seed), "--episodes", episode_ranges(ids), "--out", str(run)]
+
+
+# -- the three jobs (each a function of picklable arguments, run in a worker) --------------------------------
+def part_dir(out: str | Path, task: str, k: int) -> Path:
+    return Path(out) / task / "demos" / f"part{k:02d}"
+
+
+def part_paths(cfg: CurveConfig, task: str, k: int) -> tuple[Path, Path]:
+    """(recording, summary) of collection part k."""
+    from factr2_teleop.tasks.run import CollectConfig, output_paths
+
+    return output_paths(CollectConfig(rig=RIG, task=task, out=str(part_dir(cfg.out, task, k)),
+                                      seed=cfg.demo_seed + k), RIG)
+
+
+def collect_part(cfg: CurveConfig, task: str, k: int) -> dict:
+    ck = Path(cfg.next_checkpoint)
+    ck = ck if ck.is_absolute() else harness.ROOT / ck
+    return collect_run(task, part_dir(cfg.out, task, k), cfg.part_episodes, cfg.demo_seed + k, str(ck))
+
+
+def train_point(cfg: CurveConfig, task: str, n: int, seed: int, folders: list[Path], ids: list[str]) -> dict:
+    """One point's training run, as `factr2 train` with the named defaults; resumed when interrupted."""
+    import torch
+
+    from policies.training.advice import run_advice
+    from policies.training.checkpoint import last_checkpoint, read_meta
+    from policies.training.run import run_training
+    from policies.training.run_config import add_arguments, from_args
+    from policies.training.train import Dist
+
+    run = point_dir(cfg.out, task, n, seed)
+    done = run / "train.json"
+    if done.is_file():
+        return json.loads(done.read_text())
+    argv = train_argv(cfg, folders, ids, seed, run)
+    resume = last_checkpoint(run) is not None
+    threads = cfg.threads or max(1, (os.cpu_count() or 1) // cfg.jobs)
+    how = ["--threads", str(threads), "--no-progress"] + (["--resume"] if resume else [])  # not the result's
+    ap = argparse.ArgumentParser(prog="factr2 train")
+    add_arguments(ap)
+    opts = from_args(ap.parse_args(argv + how))
+    device = "cuda" if cfg.device == "auto" and torch.cuda.is_available() else "cpu"
+    t, c = time.perf_counter(), time.process_time()
+    run_training(opts, Dist(device=torch.device(device)))
+    meta = read_meta(run)
+    out = {"task": task, "n_demos": n, "seed": seed, "defaults": cfg.defaults,
+           "command": "factr2 train " + shlex.join(argv), "commit": harness.commit(), "resumed": resume,
+           "steps": meta["step"], "batch": meta["train"]["batch"], "epochs": meta["train"]["epochs"],
+           "samples": meta["samples"], "episodes": len(meta["episodes"]), "val": meta.get("metrics", {}),
+           "advice": run_advice(run), "device": device, "torch_threads": torch.get_num_threads(),
+           "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "run": str(run)}
+    _json(done, out)
+    return out
+
+
+def rollout_point(cfg: CurveConfig, task: str, n: int, seed: int) -> dict:
+    return rollout_run(point_dir(cfg.out, task, n, seed), task, cfg.rollouts, cfg.eval_seed,
+                       {"n_demos": n, "seed": seed})
+
+
+# -- the queue ---------------------------------------------------------------------------------------------
+class State:
+    """What OUT holds (parts collected, points trained and rolled out) and what is planned."""
+
+    def __init__(self, cfg: CurveConfig):
+        self.cfg = cfg
+        self.parts: dict = {t: {} for t in cfg.tasks}  # task -> {k: collection summary}
+        self.planned = {t: math.ceil(max(cfg.points[t]) / cfg.part_episodes) for t in cfg.tasks}
+        self.trained: dict = {}
+        self.rolled: dict = {}
+        for t in cfg.tasks:
+            for k in range(DATA_CURVE_PARTS_MAX):
+                summary = part_paths(cfg, t, k)[1]
+                if summary.is_file():
+                    self.parts[t][k] = json.loads(summary.read_text())
+                    self.planned[t] = max(self.planned[t], k + 1)
+        for key in cfg.point_keys():
+            run = point_dir(cfg.out, *key)
+            for name, kept in (("train", self.trained), ("rollout", self.rolled)):
+                if (run / f"{name}.json").is_file():
+                    kept[key] = json.loads((run / f"{name}.json").read_text())
+
+    def leading(self, task: str) -> list[int]:
+        """The success counts of the parts collected without a gap from part 0."""
+        out, k = [], 0
+        while k in self.parts[task]:
+            out.append(sum(r.get("outcome") == "success" for r in self.parts[task][k]["results"]))
+            k += 1
+        return out
+
+    def subset(self, task: str, n: int) -> tuple[list[Path], list[str]] | None:
+        """(part folders, the first n successful episode ids) once the parts holding them are collected."""
+        k = parts_for(self.leading(task), n)
+        if k is None:
+            return None
+        names = [(part_paths(self.cfg, task, i)[0].name, self.parts[task][i]) for i in range(k)]
+        return [part_dir(self.cfg.out, task, i) for i in range(k)], successful_ids(names)[:n]
+
+    def plan_more(self, task: str) -> None:
+        """Another part when every planned one is in and they hold fewer successes than the largest point."""
+        need = max(self.cfg.points[task]) - sum(self.leading(task))
+        if need > 0 and len(self.leading(task)) >= self.planned[task]:
+            if self.planned[task] >= DATA_CURVE_PARTS_MAX:
+                raise SystemExit(f"{task}: {DATA_CURVE_PARTS_MAX} parts hold fewer than "
+                                 f"{max(self.cfg.points[task])} successful demonstrations; lower --points")
+            self.planned[task] += 1
+
+    def ready(self, running: set) -> list[tuple]:
+        """Every job that can start now, first first: rollouts (they finish a point), then by (training seed,
+        demonstrations): the small points of seed 0 first, a collection part before the point it completes,
+        so a run stopped early leaves whole points."""
+        cfg, jobs = self.cfg, []
+        for ti, t in enumerate(cfg.tasks):
+            self.plan_more(t)
+            for k in range(self.planned[t]):
+                if k not in self.parts[t]:
+                    jobs.append(((0, (k + 1) * cfg.part_episodes, 0, ti), "collect", (t, k)))
+        for key in cfg.point_keys():
+            t, n, s = key
+            if key in self.rolled:
+                continue
+            if key in self.trained:
+                jobs.append(((-1, n, s, 0), "rollout", key))
+            elif (sub := self.subset(t, n)) is not None:
+                jobs.append(((s, n, 1, cfg.tasks.index(t)), "train", (*key, *sub)))
+        return [j for j in sorted(jobs, key=lambda j: j[0]) if (j[1], j[2][:3]) not in running]
+
+
+def run_curve(cfg: CurveConfig, on_point=lambda: None) -> None:
+    """Every job not yet done, cfg.jobs at a time; on_point() after every finished point."""
+    import multiprocessing as mp
+    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+    st, t0 = State(cfg), time.perf_counter()
+    fn = {"collect": collect_part, "train": train_point, "rollout": rollout_point}
+    print(f"{len(st.rolled)} of {len(cfg.point_keys())} point(s) already finished; {cfg.jobs} worker(s)",
+          flush=True)
+    with ProcessPoolExecutor(cfg.jobs, mp_context=mp.get_context("spawn")) as ex:
+        running: dict = {}
+        while True:
+            for _, kind, args in st.ready({(k, a[:3]) for k, a in running.values()}):
+                if len(running) >= cfg.jobs:
+                    break
+                running[ex.submit(fn[kind], cfg, *args)] = (kind, args)
+            if not running:
+                break
+            done, _ = wait(running, return_when=FIRST_COMPLETED)
+            for f in done:
+                kind, args = running.pop(f)
+                res = f.result()
+                if kind == "collect":
+                    st.parts[args[0]][args[1]] = res
+                elif kind == "train":
+                    st.trained[args[:3]] = res
+                else:
+                    st.rolled[args] = res
+                    on_point()
+                print(f"  {kind} {' '.join(map(str, args[:3]))}: done ({time.perf_counter() - t0:.0f} s)",
+                      flush=True)
+    missing = [k for k in cfg.point_keys() if k not in st.rolled]
+    if missing:
+        raise SystemExit(f"points not finished: {missing}")
+
+
+def collection(cfg: CurveConfig) -> dict:
+    """Per task: the parts collected, their episodes and successes, seeds, and cost."""
+    out = {}
+    for t in cfg.tasks:
+        paths = [part_paths(cfg, t, k)[1] for k in range(DATA_CURVE_PARTS_MAX)]
+        parts = [json.loads(p.read_text()) for p in paths if p.is_file()]
+        res = [r for p in parts for r in p["results"]]
+        out[t] = {"parts": len(parts), "episodes": len(res),
+                  "successes": sum(r.get("outcome") == "success" for r in res),
+                  "episode_seeds": sorted(r["seed"] for r in res),
+                  "collection_seeds": [p["seed"] for p in parts],
+                  "wall_s": sum(p.get("wall_s", 0.0) for p in parts),
+                  "cpu_s": sum(p.get("cpu_s", 0.0) for p in parts)}
+    return out
+
+
+def build_results(cfg: CurveConfig, command: str) -> dict:
+    """data_curve.json: the rows, the pooled curve, the collection, the seeds and the machine."""
+    from bench.first_ledger import next_weights_digest
+
+    rows = [r for r in finished_rows(cfg.out)
+            if r["task"] in cfg.tasks and r["n_demos"] in cfg.points[r["task"]]]
+    demos = collection(cfg)
+    rolled = {t: {s for r in rows if r["task"] == t for s in r["episode_seeds"]} for t in demos}
+    overlap = {t: sorted(set(d["episode_seeds"]) & rolled[t]) for t, d in demos.items()}
+    if any(overlap.values()):  # never: the two seed ranges are apart (tests/test_data_curve.py)
+        raise SystemExit(f"rollout seeds overlap demonstration seeds: {overlap}")
+    ck = Path(cfg.next_checkpoint)
+    return {"simulated": True, "observation": "state (PRIVILEGED twin object state, no images)",
+            "command": command, "config": asdict(cfg), "defaults": cfg.defaults,
+            "train_flags": DEFAULTS[cfg.defaults] + cfg.train_flags,
+            "commits": sorted({r["commit"] for r in rows}), "commit": harness.commit(),
+            "next_weights_sha256": next_weights_digest(ck if ck.is_absolute() else harness.ROOT / ck),
+            "seeds": {"collection_seeds": [cfg.demo_seed, cfg.demo_seed + DATA_CURVE_PARTS_MAX - 1],
+                      "rollout_seed": cfg.eval_seed},
+            "machine": harness.machine(), "collection": demos, "rows": rows,
+            "summary": {t: {str(n): s for n, s in pts.items()} for t, pts in summarize(rows).items()}}
+
+
+def write_outputs(cfg: CurveConfig, chart_too: bool = True, command: str = "") -> dict:
+    out = Path(cfg.out)
+    res = build_results(cfg, command or harness.command(module="bench.data_curve"))
+    _json(out / "data_curve.json", res)
+    summary = summarize(res["rows"])
+    (out / "data_curve.md").write_text(table(summary))
+    if chart_too and summary:
+        chart(summary, out / "data_curve.png", title(res["config"]))
+    return res
+
+
+def parse_args(argv=None) -> tuple[CurveConfig, argparse.Namespace]:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", required=True, help="results folder (resumable)")
+    ap.add_argument("--defaults", choices=tuple(DEFAULTS), default="current",
+                    help="the training defaults: current = `factr2 train` with no options at this commit")
+    ap.add_argument("--tasks", default="", help=f"comma-separated (default {','.join(POINTS)})")
+    ap.add_argument("--points", default="", metavar="N[,N...]",
+                    help="successful demonstrations per point, for every task given (default: "
+                    + "; ".join(f"{t} {','.join(map(str, p))}" for t, p in POINTS.items()) + ")")
+    ap.add_argument("--seeds", type=int, default=None, help="training seeds per point (default 2)")
+    ap.add_argument("--rollouts", type=int, default=None, help="rollout episodes per policy (default 24)")
+    ap.add_argument("--part-episodes", type=int, default=None, help="episodes per collection part (25)")
+    ap.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
+    ap.add_argument("--threads", type=int, default=0, help="torch threads per training (cores / jobs)")
+    ap.add_argument("--device", choices=("cpu", "auto"), default="cpu",
+                    help="where the trainings run (auto: a GPU where there is one)")
+    ap.add_argument("--quick", action="store_true", help="a few-minute smoke run: " + json.dumps(QUICK))
+    ap.add_argument("--report", action="store_true", help="run nothing: report OUT's finished points")
+    ap.add_argument("--results", default="", metavar="NAME", help="also write results/NAME.json")
+    a = ap.parse_args(argv)
+    cfg = CurveConfig(out=a.out, defaults=a.defaults, jobs=max(1, a.jobs), threads=max(0, a.threads),
+                      device=a.device)
+    if a.quick:
+        cfg.quick = True
+        for k, v in QUICK.items():
+            setattr(cfg, k, v)
+    for k in ("seeds", "rollouts", "part_episodes"):
+        v = getattr(a, k)
+        if v is not None and v < 1:
+            ap.error(f"--{k.replace('_', '-')} {v}: at least 1")
+        if v is not None:
+            setattr(cfg, k, v)
+    if a.tasks:
+        cfg.tasks = harness.names(a.tasks)
+    if a.points:
+        try:
+            pts = sorted({int(x) for x in harness.names(a.points)})
+        except ValueError:
+            ap.error(f"--points {a.points!r}: comma-separated numbers of demonstrations, e.g. 25,50")
+        if not pts or pts[0] < 1:
+            ap.error(f"--points {a.points!r}: each at least 1")
+        cfg.points = {t: pts for t in cfg.tasks}
+    if any(t not in cfg.points for t in cfg.tasks):
+        lacking = [t for t in cfg.tasks if t not in cfg.points]
+        ap.error(f"--tasks {a.tasks!r}: no default points for {', '.join(lacking)}; give --points")
+    cfg.points = {t: cfg.points[t] for t in cfg.tasks}
+    return cfg, a
+
+
+def main(argv=None) -> int:
+    cfg, a = parse_args(argv)
+    out = Path(cfg.out)
+    if a.report:
+        if not (out / "config.json").is_file():
+            print(f"--out {out}: no config.json (not a data_curve results folder)", file=sys.stderr)
+            return 2
+        cfg = CurveConfig(**{**json.loads((out / "config.json").read_text()), "out": cfg.out})
+    else:
+        from hardware.sim.tasks import get_task
+
+        for task in cfg.tasks:
+            get_task(task)  # an unknown task: one line (ConfigError), before anything runs
+        import signal
+
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+        check_resume(cfg, out, SAME_ON_RESUME)
+        out.mkdir(parents=True, exist_ok=True)
+        old = json.loads((out / "config.json").read_text()) if (out / "config.json").is_file() else {}
+        # tasks and points added on resume are kept in the record of what OUT holds
+        merged = asdict(cfg)
+        merged["points"] = {**old.get("points", {}), **cfg.points}
+        merged["tasks"] = list(dict.fromkeys(old.get("tasks", []) + cfg.tasks))
+        merged["seeds"] = max(old.get("seeds", 0), cfg.seeds)
+        _json(out / "config.json", merged)
+        t, whole = time.perf_counter(), CurveConfig(**merged)
+        run_curve(cfg, on_point=lambda: write_outputs(whole, chart_too=False))  # data_curve.json: OUT's all
+        print(f"wall {time.perf_counter() - t:.0f} s", flush=True)
+        cfg = whole
+    cmd = harness.command(module="bench.data_curve")
+    res = write_outputs(cfg, command=cmd)
+    print((out / "data_curve.md").read_text())
+    if a.results:
+        print(write_results(res, a.results, cmd, out))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,147 @@
+"""bench/data_curve.py's pure parts: the nested subsets, the seeds apart from every other, the queue skipping
+what OUT holds, the report's numbers from fake rows, and bad options in one line (its --quick run collects,
+trains and rolls out: minutes, run by hand; tests/test_bench_quick.py lists it in SKIP)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bench import data_curve as dc
+from bench import first_config
+from bench.data_curve_report import finished_rows, point_dir, summarize, write_results
+from bench.first_report import wilson
+from factr2_teleop.session.task_episodes import episode_seed
+from policies.data.recordings import parse_episode_ids
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _summary(seed: int, outcomes: str) -> dict:
+    return {"seed": seed, "task": "wipe", "wall_s": 1.0, "cpu_s": 1.0,
+            "results": [{"index": i, "seed": episode_seed(seed, i),
+                         "outcome": "success" if o == "s" else "failure",
+                         "progress": 1.0 if o == "s" else 0.5}
+                        for i, o in enumerate(outcomes)]}
+
+
+def test_subsets_are_the_first_successes_in_collection_order_and_nested():
+    parts = [("a.mcap", _summary(1, "sfss")), ("b.mcap", _summary(2, "ssfs"))]
+    ids = dc.successful_ids(parts)
+    assert ids == ["a.mcap#0", "a.mcap#2", "a.mcap#3", "b.mcap#0", "b.mcap#1", "b.mcap#3"]
+    assert ids[:2] == ids[:4][:2]  # the smaller point's episodes are in the larger one's
+    assert dc.parts_for([3, 3], 3) == 1 and dc.parts_for([3, 3], 4) == 2 and dc.parts_for([3, 3], 7) is None
+    assert dc.episode_ranges(ids) == "a.mcap#0,a.mcap#2-3,b.mcap#0-1,b.mcap#3"
+    assert parse_episode_ids(dc.episode_ranges(ids)) == tuple(ids)  # what factr2 train --episodes reads back
+
+
+def _other_seeds() -> set[int]:
+    """Every seed constant of bench/first_config.py besides the data curve's, and every evaluation seed a
+    committed result pre-registered."""
+    own = {n for n in vars(first_config) if n.startswith("DATA_CURVE")}
+    seeds = {v for n, v in vars(first_config).items() if n.endswith("_SEED") and n not in own}
+    for p in (ROOT / "results").glob("*.json"):
+        text = p.read_text()
+        seeds |= {int(x) for x in __import__("re").findall(r'"eval_seed": (\d+)', text)}
+    return seeds
+
+
+def test_data_curve_seeds_are_used_for_nothing_else():
+    demo = range(first_config.DATA_CURVE_DEMO_SEED,
+                 first_config.DATA_CURVE_DEMO_SEED + first_config.DATA_CURVE_PARTS_MAX)
+    others = _other_seeds()
+    assert {2, 15, 31} <= others  # the scan sees the evaluation seeds in use
+    assert not set(demo) & others and first_config.DATA_CURVE_EVAL_SEED not in others
+    assert first_config.DATA_CURVE_EVAL_SEED not in demo
+    # episode seeds (S * stride + k) of the collection parts and the rollouts never meet for k < stride
+    roll = {episode_seed(first_config.DATA_CURVE_EVAL_SEED, k) for k in range(1000)}
+    assert not roll & {episode_seed(s, k) for s in demo for k in range(1000)}
+
+
+def _cfg(tmp_path: Path, **kw) -> dc.CurveConfig:
+    return dc.CurveConfig(**{"out": str(tmp_path), "tasks": ["wipe"], "points": {"wipe": [2, 4]}, "seeds": 1,
+                             "rollouts": 2, "part_episodes": 3, **kw})
+
+
+def _write_part(cfg: dc.CurveConfig, k: int, outcomes: str) -> None:
+    summary = dc.part_paths(cfg, "wipe", k)[1]
+    summary.parent.mkdir(parents=True, exist_ok=True)
+    summary.write_text(json.dumps(_summary(cfg.demo_seed + k, outcomes)))
+
+
+def _finish(cfg: dc.CurveConfig, n: int, seed: int, outcomes: list[int], rollout: bool = True) -> None:
+    run = point_dir(cfg.out, "wipe", n, seed)
+    run.mkdir(parents=True, exist_ok=True)
+    (run / "train.json").write_text(json.dumps({
+        "task": "wipe", "n_demos": n, "seed": seed, "steps": 100, "batch": 256, "epochs": 80.0,
+        "val": {"val/loss": 0.5}, "commit": "abc1234", "defaults": "current", "wall_s": 10.0, "cpu_s": 9.0,
+        "run": str(run)}))
+    if rollout:
+        eps = [{"seed": episode_seed(cfg.eval_seed, i), "outcome": "success" if o else "failure",
+                "progress": 1.0 if o else 0.25} for i, o in enumerate(outcomes)]
+        (run / "rollout.json").write_text(json.dumps({
+            "task": "wipe", "n_demos": n, "seed": seed, "success_rate": sum(outcomes) / len(outcomes),
+            "mean_progress": sum(e["progress"] for e in eps) / len(eps), "episodes": eps,
+            "stage_rates": {"grasp": 1.0, "wipe": sum(outcomes) / len(outcomes)}, "wall_s": 5.0,
+            "cpu_s": 4.0}))
+
+
+def test_the_queue_collects_then_trains_the_points_it_can_and_skips_what_is_finished(tmp_path):
+    cfg = _cfg(tmp_path)
+    st = dc.State(cfg)
+    assert [(k, a) for _, k, a in st.ready(set())] == [("collect", ("wipe", 0)), ("collect", ("wipe", 1))]
+    _write_part(cfg, 0, "sfs")  # 2 successes: the 2-point can train, the 4-point waits for part 1
+    st = dc.State(cfg)
+    jobs = [(k, a[:3]) for _, k, a in st.ready(set())]
+    assert jobs == [("train", ("wipe", 2, 0)), ("collect", ("wipe", 1))]
+    folders, ids = st.subset("wipe", 2)
+    assert ids == ["wipe-sim-piper-seed5601.mcap#0", "wipe-sim-piper-seed5601.mcap#2"]
+    assert folders == [dc.part_dir(cfg.out, "wipe", 0)]
+    _write_part(cfg, 1, "fff")  # both planned parts in, 2 successes: a third part is planned
+    _finish(cfg, 2, 0, [1, 0])  # the 2-point finished: neither trained nor rolled out again
+    st = dc.State(cfg)
+    assert [(k, a[:3]) for _, k, a in st.ready(set())] == [("collect", ("wipe", 2))]
+    _write_part(cfg, 2, "ss")
+    _finish(cfg, 4, 0, [], rollout=False)  # trained, not rolled out (an interrupted run)
+    st = dc.State(cfg)
+    assert [(k, a[:3]) for _, k, a in st.ready(set())] == [("rollout", ("wipe", 4, 0))]
+    assert st.ready({("rollout", ("wipe", 4, 0))}) == []  # running already
+    train = dc.train_argv(cfg, *st.subset("wipe", 4), 0, Path("RUN"))
+    assert train[train.index("--episodes") + 1] == ("wipe-sim-piper-seed5601.mcap#0,wipe-sim-piper-seed5601"
+                                                    ".mcap#2,wipe-sim-piper-seed5603.mcap#0-1")
+    assert "--steps" not in train  # the current defaults: factr2 train with no options
+
+
+def test_the_report_pools_the_seeds_and_writes_a_portable_record(tmp_path):
+    cfg = _cfg(tmp_path, seeds=2)
+    _finish(cfg, 2, 0, [1, 0, 0, 0])
+    _finish(cfg, 2, 1, [1, 1, 0, 0])
+    _finish(cfg, 4, 0, [1, 1, 1, 1])
+    rows = finished_rows(tmp_path)
+    assert [(r["n_demos"], r["seed"]) for r in rows] == [(2, 0), (2, 1), (4, 0)]
+    s = summarize(rows)["wipe"]
+    assert (s[2]["k"], s[2]["episodes"]) == (3, 8) and s[2]["wilson"] == list(wilson(3, 8))
+    assert s[2]["per_seed"] == [0.25, 0.5] and s[2]["progress"] == pytest.approx((3 * 1 + 5 * 0.25) / 8)
+    assert s[2]["stages"]["wipe"] == pytest.approx(3 / 8) and s[4]["success"] == 1.0
+    res = dc.build_results(cfg, f"python -m bench.data_curve --out {tmp_path} --report")
+    assert res["rows"] == rows and res["summary"]["wipe"]["2"]["k"] == 3
+    path = write_results(res, "dc_test", f"python -m bench.data_curve --out {tmp_path} --report", tmp_path,
+                         results_dir=tmp_path / "results")
+    text = path.read_text()
+    assert str(tmp_path) not in text and '"out": "OUT"' in text  # no machine folder in a published result
+    rec = json.loads(text)
+    assert rec["experiment"] == "dc_test" and rec["simulated"]
+    assert rec["payload"]["summary"]["wipe"]["4"]["k"] == 4
+    assert rec["command"] == "python -m bench.data_curve --out OUT --report"
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--points", "25,x"], "--points"), (["--seeds", "0"], "--seeds 0"),
+    (["--tasks", "cap-screw"], "no default points for cap-screw"), (["--defaults", "later"], "--defaults"),
+])
+def test_bad_options_say_one_thing_and_exit_2(tmp_path, capsys, argv, says):
+    with pytest.raises(SystemExit) as e:
+        dc.parse_args(["--out", str(tmp_path), *argv])
+    assert e.value.code == 2 and says in capsys.readouterr().err
