@@ -4,6 +4,7 @@ and inside hardware/ its subpackages and modules import each other without a cyc
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 import pytest
@@ -12,8 +13,15 @@ REPO = Path(__file__).resolve().parents[1]
 LAYERS = ["hardware", "calibration", "policies", "factr2_teleop"]  # lower layers first
 
 
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """A file's syntax tree, parsed once per test session: every check below only reads it (parsing the
+    whole tree once per check was most of this file's time)."""
+    return ast.parse(path.read_text(), filename=str(path))
+
+
 def _imports(path: Path) -> set[str]:
-    tree = ast.parse(path.read_text(), filename=str(path))
+    tree = _tree(path)
     found = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -65,7 +73,7 @@ def _hardware_imports(path: Path) -> set[str]:
         for child in ast.iter_child_nodes(node):
             visit(child)
 
-    visit(ast.parse(path.read_text(), filename=str(path)))
+    visit(_tree(path))
     return found
 
 
@@ -203,16 +211,17 @@ def _module_imports(path: Path, modules: set[str]) -> set[str]:
         for child in ast.iter_child_nodes(node):
             visit(child)
 
-    visit(ast.parse(path.read_text(), filename=str(path)))
+    visit(_tree(path))
     found.discard(me)
     return found
 
 
+@functools.cache
 def module_import_graph() -> dict[str, set[str]]:
     """Every module of hardware/, calibration/, policies/ and factr2_teleop/ -> the tree's modules it imports.
     Importing a.b.c also runs a/__init__.py; that implicit edge is not counted (a package's __init__ that
     re-exports its modules would otherwise close a circle with each of them), an explicit `from a import x`
-    of a name defined in a/__init__.py is."""
+    of a name defined in a/__init__.py is. Built once per test session; the tests only read it."""
     files = [f for layer in LAYERS for f in sorted((REPO / layer).rglob("*.py"))]
     modules = {_module_name(f) for f in files}
     return {_module_name(f): _module_imports(f, modules) for f in files}
@@ -274,7 +283,7 @@ def _environ_reads(path: Path) -> list[str]:
         return isinstance(n, ast.Attribute) and n.attr == "environ"
 
     out = []
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+    for node in ast.walk(_tree(path)):
         key = None
         if isinstance(node, ast.Call) and node.args and isinstance(node.func, ast.Attribute) and (
                 (node.func.attr == "get" and is_environ(node.func.value)) or node.func.attr == "getenv"):
@@ -309,7 +318,7 @@ def test_threads_are_limited_through_one_function():
             rel = str(f.relative_to(REPO))
             if rel in THREAD_CHOOSERS | {THREADS_FILE}:
                 continue
-            for node in ast.walk(ast.parse(f.read_text(), filename=rel)):
+            for node in ast.walk(_tree(f)):
                 name = getattr(node, "attr", None) or getattr(node, "id", None)
                 if name in ("set_num_threads", "threadpool_limits"):
                     bad.append(f"{rel}:{node.lineno} uses {name}")
