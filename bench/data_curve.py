@@ -29,10 +29,12 @@ task, n and training seed: success, progress, stages reached, steps, wall and CP
 point), OUT/data_curve.md and OUT/data_curve.png (bench/data_curve_report.py). Trainings run on the CPU
 (--device auto: a GPU where there is one) with cores / jobs torch threads each.
 
-Sizing (docs/policies.md, "The data curve"): from the unit costs measured on the 2-vCPU AMD EPYC VM, the
-whole curve is about 2.1 core-hours of collection, 5.3-11 of training and 2.1-4.7 of rollouts, 9.5-18
-core-hours: about 5-9 h wall on 2 free cores, about 1.5 h on 16 (the 200-demonstration trainings, 30-36 k
-steps each, end last); the measured wall time comes with the results.
+Sizing (docs/policies.md, "The data curve": estimated from unit costs measured on the 2-vCPU AMD EPYC VM, not
+from a run of the curve): ~525 collection episodes at 15-16 CPU s (2.2-2.4 core-h), ~284 k training steps at
+0.022-0.045 CPU s (1.8-3.6 core-h; the defaults give ~37 k steps to one 200-demonstration press-fit run) and
+480 rollout episodes at 8-38 CPU s (1.1-5.1 core-h): 5.1-11 core-hours, ~2.6-5.6 h wall on 2 free cores,
+~0.6-1 h on 16 (the path: the collection parts in two waves, then the 200-demonstration trainings and their
+rollouts). A shared machine stretches it 1.5-3x; the measured wall time comes with the results.
 """
 
 from __future__ import annotations
@@ -202,7 +204,9 @@ class State:
     def __init__(self, cfg: CurveConfig):
         self.cfg = cfg
         self.parts: dict = {t: {} for t in cfg.tasks}  # task -> {k: collection summary}
-        self.planned = {t: math.ceil(max(cfg.points[t]) / cfg.part_episodes) for t in cfg.tasks}
+        # parts for 10 % more episodes than the largest point: a demonstrator failing up to 1 in 11 needs no
+        # part more, which would start only when the others are in (the last points wait on it)
+        self.planned = {t: math.ceil(max(cfg.points[t]) * 11 / (10 * cfg.part_episodes)) for t in cfg.tasks}
         self.trained: dict = {}
         self.rolled: dict = {}
         for t in cfg.tasks:
