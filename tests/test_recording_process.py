@@ -128,8 +128,10 @@ def test_a_stalled_writer_drops_and_counts_or_lossless_waits(tmp_path, lossless)
     rec = Recorder(tmp_path / "s.mcap", t0=0.0, buffer_bytes=64 << 10, lossless=lossless)
     n = 4000
     deadline = time.monotonic() + budget(10.0)
-    while rec.status().messages_written < 1 and time.monotonic() < deadline:  # the writer has started
-        rec.log_joint_state("follower", 0.0, joint_state(0))
+    # one sample, then wait until the writer has written it (it has started). Logging on every poll filled
+    # the 64 KB ring when the writer took > 3 s to start (load 7), and those refusals were counted as drops.
+    assert rec.log_joint_state("follower", 0.0, joint_state(0))
+    while rec.status().messages_written < 1 and time.monotonic() < deadline:
         time.sleep(0.01)
     first = rec.status().messages_written
     os.kill(rec._proc.pid, signal.SIGSTOP)
