@@ -44,6 +44,7 @@ import json
 import math
 import os
 import shlex
+import shutil
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -173,6 +174,8 @@ def train_point(cfg: CurveConfig, task: str, n: int, seed: int, folders: list[Pa
         return json.loads(done.read_text())
     argv = train_argv(cfg, folders, ids, seed, run)
     resume = last_checkpoint(run) is not None
+    if not resume:  # stopped before its first checkpoint: start it again (factr2 train refuses a used --out)
+        shutil.rmtree(run, ignore_errors=True)
     threads = cfg.threads or max(1, (os.cpu_count() or 1) // cfg.jobs)
     how = ["--threads", str(threads), "--no-progress"] + (["--resume"] if resume else [])  # not the result's
     ap = argparse.ArgumentParser(prog="factr2 train")

@@ -145,3 +145,22 @@ def test_bad_options_say_one_thing_and_exit_2(tmp_path, capsys, argv, says):
     with pytest.raises(SystemExit) as e:
         dc.parse_args(["--out", str(tmp_path), *argv])
     assert e.value.code == 2 and says in capsys.readouterr().err
+
+
+def test_current_defaults_are_factr2_train_with_no_options_but_the_subset_and_seed(tmp_path):
+    """What a point trains with, parsed by factr2 train's own flags: the same options as
+    `factr2 train DEMOS --obs state --out RUN` except the episodes, the training seed and how it runs."""
+    import argparse
+    from dataclasses import asdict
+
+    from policies.training.run_config import add_arguments, from_args
+
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    argv = dc.train_argv(_cfg(tmp_path), [tmp_path / "part00"], ["x.mcap#0", "x.mcap#1"], 1, tmp_path / "run")
+    point = asdict(from_args(ap.parse_args(argv + ["--threads", "1", "--no-progress"])))
+    plain = asdict(from_args(ap.parse_args([str(tmp_path / "part00"), "--obs", "state", "--out", "RUN"])))
+    for d in (point, plain):
+        d["train"].update(seed=None, threads=None)
+    assert {k for k in point if point[k] != plain[k]} == {"out", "episodes", "progress"}
+    assert point["episodes"] == ("x.mcap#0", "x.mcap#1")
