@@ -29,6 +29,7 @@ from hardware.dynamixel.sync_io import (
     SyncReadGroup,
     SyncWriteGroup,
     fast_sync_read,
+    fast_sync_read_reply,
     plain_sync_read,
     write_only,
 )
@@ -302,6 +303,11 @@ class DynamixelBus:
             raise ValueError(f"sync read ids {list(ids)} are not the group's {group.ids}")
         port = self._ready()
         return (fast_sync_read if fast else plain_sync_read)(port, group, timeout_ms)
+
+    def fast_sync_read_reply(self, group: SyncReadGroup, timeout_ms: float) -> tuple[bytearray, bool]:
+        """One Fast Sync Read's raw reply and whether it came whole with its CRC (sync_io.py): the leader
+        decodes it straight from the bytes (leader_math.FastReplyDecoder), split_fast_status otherwise."""
+        return fast_sync_read_reply(self._ready(), group, timeout_ms)
 
     def sync_write(self, group: SyncWriteGroup, values: dict[int, bytes]) -> bool:
         return write_only(self._ready(), group.packet(values))

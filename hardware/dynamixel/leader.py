@@ -27,10 +27,12 @@ from hardware.dynamixel import watchdog as wd
 from hardware.dynamixel.alerts import AlertRebooter
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.config import DynamixelLeaderConfig
+from hardware.dynamixel.fast_sync import split_fast_status
 from hardware.dynamixel.leader_math import (  # noqa: F401 -- the pure functions' import path before the split
     _TICK_MASK,
     HALF_TURN_TICKS,
     TWO_PI,
+    FastReplyDecoder,
     _blocks_struct,
     decode_feedback,
     servo_to_joint,
@@ -107,6 +109,7 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         self.amps_per_unit = np.array([m.amps_per_unit for m in self.models])
         self.limit_units = np.array([m.current_limit_units for m in self.models], float)
         self._amps_l = self.amps_per_unit.tolist()
+        self._limit_l = self.limit_units.tolist()  # again at connect, where the servos' Current Limit is read
         self.read_ids = all_ids
         self.field = (
             (p.FEEDBACK_START, p.FEEDBACK_LEN)
@@ -122,7 +125,8 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         self.lost_reads = 0  # sync reads where at least one servo did not answer
         self.failed_writes = 0
         self._ticks_prev: np.ndarray | None = None
-        self._q_servo: np.ndarray | None = None
+        self._q_servo: np.ndarray | list[float] | None = None  # a list after a tick where all answered
+        self._fast_decoder: FastReplyDecoder | None = None  # made at connect, for the ids and fields read
         self._torque_on = False
         self.alerts = AlertRebooter()  # reboots a servo whose hardware alert lasts (dynamixel/alerts.py)
         self.fallback: wd.ArmResult | None = None  # the servos' Bus Watchdog as set and read back at connect
@@ -156,12 +160,25 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
 
     # -- per tick ------------------------------------------------------------------------------------
     def _read(self) -> JointState | None:
-        if self.bus is None or self._q_servo is None:
+        bus = self.bus
+        if bus is None or self._q_servo is None:
             raise DeviceError(
                 "leader is not connected", where=f"leader {self.config.name}", fix="call connect() first"
             )
         n, rc = self.n_joints, self.config.read_current
-        got = self.bus.sync_read(self._read_group, self.read_ids, self.rx_timeout_ms, self.fast_read)
+        if self.fast_read:
+            buf, intact = bus.fast_sync_read_reply(self._read_group, self.rx_timeout_ms)
+            v = self._fast_decoder.fields(buf) if intact else None
+            if v is not None:  # the usual tick: the fields straight from the reply's bytes
+                t = self.clock.now()
+                if self._wd is not None:
+                    self._wd.traffic(t)  # the servos heard this tick
+                d = self._fast_decoder
+                return self._state_of(t, v[d.pos::d.width], v[d.vel::d.width],
+                                      v[d.cur::d.width] if rc else None, None)
+            got = split_fast_status(bytes(buf), self._read_group.ids, self._read_group.length, intact)
+        else:
+            got = bus.sync_read(self._read_group, self.read_ids, self.rx_timeout_ms)
         if len(got) == len(self.read_ids):
             if self._wd is not None:
                 self._wd.traffic(self.clock.now())  # the servos heard this tick
@@ -182,7 +199,7 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
                 fresh[k], alert[k] = True, bool(err & p.ERR_ALERT_BIT)
         delta = np.where(fresh, wrapped_tick_delta(raw[:, 2], self._ticks_prev), 0)
         self._ticks_prev = np.where(fresh, raw[:, 2], self._ticks_prev)
-        self._q_servo += delta * p.RAD_PER_TICK
+        self._q_servo = np.asarray(self._q_servo, float) + delta * p.RAD_PER_TICK  # a list after a fresh tick
         j = fresh[:n]
         q = servo_to_joint(self._q_servo[:n], self.signs, self.offsets)
         qd = self.signs * p.velocity_units_to_rad_s(raw[:n, 1])
@@ -206,43 +223,56 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         return None
 
     def _state_all_fresh(self, got: dict[int, tuple[bytes, int]]) -> JointState:
-        """The usual tick: every servo answered. Whole new arrays, decoded at once (the loop's hot path:
-        the same values as the general path in _read, bit for bit, with as few small-array operations as
-        it takes: the fields read from one structured view, the tick delta unwrapped inline)."""
-        n, rc, ids, prev = self.n_joints, self.config.read_current, self.read_ids, self._last_state
-        t = self.clock.now()
+        """Every servo answered (a plain sync read, or a fast one with an alert bit): their blocks' fields
+        in one struct unpack, then _state_of."""
+        rc, ids = self.config.read_current, self.read_ids
         blocks = [got[i] for i in ids]
         vals = _blocks_struct(rc, len(ids)).unpack(b"".join([b[0] for b in blocks]))
         w = 3 if rc else 2  # (current,) velocity, position per servo
-        tp = self._ticks_prev if type(self._ticks_prev) is list else self._ticks_prev.tolist()
-        ticks = list(vals[w - 1::w])
-        qs = self._q_servo.tolist()
-        for j, (x, x0) in enumerate(zip(ticks, tp, strict=True)):
-            # wrapped_tick_delta: & (TICKS_PER_REV - 1) is its % (a power-of-two turn, negatives too)
-            qs[j] += (((x - x0 + HALF_TURN_TICKS) & _TICK_MASK) - HALF_TURN_TICKS) * p.RAD_PER_TICK
-        self._q_servo, self._ticks_prev = np.array(qs), ticks
-        signs, vel = self._signs_l, vals[w - 2::w]
-        if rc:
-            cur_l = [s * c * a for s, c, a in zip(signs, vals[0:w * n:w], self._amps_l)]
+        return self._state_of(self.clock.now(), vals[w - 1::w], vals[w - 2::w], vals[0::w] if rc else None,
+                              [b[1] for b in blocks])
+
+    def _state_of(self, t: float, ticks, vel, cur_units, errs) -> JointState:
+        """The sample of a tick where every servo answered, from its raw fields in read_ids order: position
+        ticks, velocity units, current units (None without current), error bytes (None: all 0). Whole new
+        arrays from plain floats (the loop's hot path: the same values as the general path in _read, bit for
+        bit -- the tick delta unwrapped inline, each value the numpy decode's float64 operations in order)."""
+        n, prev = self.n_joints, self._last_state
+        tp = self._ticks_prev.tolist() if isinstance(self._ticks_prev, np.ndarray) else self._ticks_prev
+        qs0 = self._q_servo.tolist() if isinstance(self._q_servo, np.ndarray) else self._q_servo
+        h, mask, rad = HALF_TURN_TICKS, _TICK_MASK, p.RAD_PER_TICK
+        # wrapped_tick_delta: & (TICKS_PER_REV - 1) is its % (a power-of-two turn, negatives too)
+        qs = [q + (((x - x0 + h) & mask) - h) * rad for q, x, x0 in zip(qs0, ticks, tp, strict=True)]
+        self._q_servo, self._ticks_prev = qs, ticks
+        signs = self._signs_l
+        if cur_units is not None:
+            cur_l = [s * c * a for s, c, a in zip(signs, cur_units, self._amps_l)]
             cur, tau = np.array(cur_l), np.array([k * c for k, c in zip(self._k_l, cur_l)])
         else:
             cur, tau = prev.current.copy(), prev.tau_m.copy()
         status = (self._status_enabled if self._torque_on else self._status_zero).copy()
-        alert = p.ERR_ALERT_BIT
-        if self.alerts.pending or any(b[1] & alert for b in blocks):
-            errs = [b[1] for b in blocks]
-            if any(e & alert for e in errs[:n]):
-                status[np.array([bool(e & alert) for e in errs[:n]])] |= np.uint32(STATUS_DRIVER_ERROR)
-            alerting = [i for i, e in zip(ids, errs, strict=True) if e & alert]
-            self.alerts.service(self, alerting, set(ids))
-        grip_pos, grip_effort = self._trigger(vals[w * n] if rc else 0) if len(ids) > n else (
-            prev.gripper_pos, prev.gripper_effort)
+        if errs is not None or self.alerts.pending:
+            self._alert_bits(status, [0] * len(qs) if errs is None else errs)
+        if len(qs) > n:  # the trigger servo: its angle in _q_servo, its current after the joints'
+            grip_pos, grip_effort = self._trigger(cur_units[n] if cur_units is not None else 0)
+        else:
+            grip_pos, grip_effort = prev.gripper_pos, prev.gripper_effort
         nan = self._nan_n
         r = p.RAD_S_PER_VELOCITY_UNIT
         return JointState(t=t, q=np.array([s * (x - o) for s, x, o in zip(signs, qs, self._offsets_l)]),
                           q_dot=np.array([s * (v * r) for s, v in zip(signs, vel)]), tau_m=tau,
                           current=cur, q_cmd=nan.copy(), temperature=nan.copy(), status=status,
                           gripper_pos=grip_pos, gripper_effort=grip_effort)
+
+    def _alert_bits(self, status: np.ndarray, errs) -> None:
+        """A joint servo whose status has the alert bit: STATUS_DRIVER_ERROR; the rebooter told (alerts.py)"""
+        n, ids, alert = self.n_joints, self.read_ids, p.ERR_ALERT_BIT
+        if not (self.alerts.pending or any(e & alert for e in errs)):
+            return
+        if any(e & alert for e in errs[:n]):
+            status[np.array([bool(e & alert) for e in errs[:n]])] |= np.uint32(STATUS_DRIVER_ERROR)
+        alerting = [i for i, e in zip(ids, errs, strict=True) if e & alert]
+        self.alerts.service(self, alerting, set(ids))
 
     def _trigger(self, current_units: int) -> tuple[float, float]:
         """(gripper_pos, gripper_effort [N*m]) of the trigger servo just read (its angle in _q_servo)."""
@@ -260,6 +290,6 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         if self._wd is not None:
             self._keep_watchdog()
         units = torque_to_current_ints(safe.tau.tolist(), self._signs_l, self._k_l, self._amps_l,
-                                       self.limit_units.tolist())  # the limit is read at connect
+                                       self._limit_l)  # the limit is read at connect
         if not self.bus.sync_write_ints(self._write_group, units):
             self.failed_writes += 1

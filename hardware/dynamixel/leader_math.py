@@ -13,6 +13,7 @@ import struct
 import numpy as np
 
 from hardware.dynamixel import protocol as p
+from hardware.dynamixel.fast_sync import _FAST_PREFIX, fast_status_len
 
 TWO_PI = 2.0 * math.pi
 HALF_TURN_TICKS = p.TICKS_PER_REV // 2
@@ -30,6 +31,34 @@ def decode_feedback(data: bytes, with_current: bool) -> tuple[int, int, int]:
 def _blocks_struct(with_current: bool, m: int) -> struct.Struct:
     """decode_feedback's fields of m servo blocks back to back, flat: (current,) velocity, position each."""
     return struct.Struct("<" + ("hii" if with_current else "ii") * m)
+
+
+class FastReplyDecoder:
+    """A whole Fast Sync Read reply whose CRC checked (sync_io.fast_sync_read_reply) -> its fields in ONE
+    struct unpack over the reply's bytes: no per-servo slices, dict or joined bytes (the 500 Hz read).
+
+    fields(buf) is the tuple (prefix, LEN, INST, then per servo: error, id, (current,) velocity, position,
+    CRC), or None unless the reply is exactly the usual one -- the header, LEN and instruction of this id
+    list, every block's id in order and every error byte 0. Anything else (an alert bit, an error number, a
+    reply of another length or for other ids) goes the general way (fast_sync.split_fast_status), so the
+    values out are split_fast_status + decode_feedback's, and what that rejects is rejected here too."""
+
+    def __init__(self, ids: list[int], with_current: bool):
+        m, length = len(ids), p.FEEDBACK_LEN if with_current else p.FEEDBACK_NO_CURRENT_LEN
+        self.width = 6 if with_current else 5  # fields per servo block
+        self.struct = struct.Struct("<5sHB" + ("BBhiiH" if with_current else "BBiiH") * m)
+        self.head = (bytes(_FAST_PREFIX), fast_status_len(m, length), p.INST_STATUS)
+        self.ids, self.zeros = tuple(int(i) for i in ids), (0,) * m
+        # where each field's run starts in the tuple (a slice [start::width] reads it for every servo)
+        self.cur, self.vel, self.pos = (5, 6, 7) if with_current else (None, 5, 6)
+
+    def fields(self, buf) -> tuple | None:
+        if len(buf) != self.struct.size:
+            return None
+        v, w = self.struct.unpack_from(buf), self.width
+        if v[:3] != self.head or v[4::w] != self.ids or v[3::w] != self.zeros:
+            return None
+        return v
 
 
 def wrap_to_offset(q_servo_rad: np.ndarray, offset_rad: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ import numpy as np
 from hardware.dynamixel import protocol as p
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.fast_sync import choose_fast_sync_read, fast_sync_read_bytes, plain_sync_read_bytes
-from hardware.dynamixel.leader_math import decode_feedback, wrap_to_offset
+from hardware.dynamixel.leader_math import FastReplyDecoder, decode_feedback, wrap_to_offset
 from hardware.dynamixel.models import model_name
 from hardware.errors import DeviceError, DeviceNotFound
 from hardware.serial_ports import latency_timer_advice
@@ -68,6 +68,8 @@ class LeaderSetup:
             if delay:
                 bus.write(c.gripper_id, p.ADDR_RETURN_DELAY_TIME, 0)
         self._read_group = bus.make_sync_read(self.read_ids, self.field)
+        self._fast_decoder = FastReplyDecoder(self.read_ids, c.read_current)
+        self._limit_l = self.limit_units.tolist()  # the goal current's clip, per tick (Current Limit(38))
         self._write_group = bus.make_sync_write(joint_ids, p.ADDR_GOAL_CURRENT)
         m, ln = len(self.read_ids), self.field[1]
         plain_ms, fast_ms = (  # sized for n status packets, or for the one longer fast packet

@@ -57,6 +57,8 @@ class SyncWriteGroup:
     ids: list[int]
     address: int
     length: int
+    _int_packet: struct.Struct | None = field(default=None, init=False, repr=False, compare=False)
+    _int_args: list = field(default_factory=list, init=False, repr=False, compare=False)
 
     def packet(self, values: dict[int, bytes]) -> bytes:
         """The instruction for values {id: `length` bytes}; ids outside the group are refused."""
@@ -70,11 +72,22 @@ class SyncWriteGroup:
 
     def packet_ints(self, values) -> bytes:
         """The instruction for one signed integer per servo, in the group's id order (the per-tick goal
-        current: one struct.pack instead of a dict of byte strings). Values must fit `length` bytes."""
-        fmt = _INT_FORMATS[self.length]
-        params = struct.pack(f"<HH{('B' + fmt) * len(self.ids)}", self.address, self.length,
-                             *[x for pair in zip(self.ids, values, strict=True) for x in pair])
-        return p.build_instruction(p.BROADCAST_ID, p.INST_SYNC_WRITE, params)
+        current). Values must fit `length` bytes. The whole packet but its CRC in one struct.pack from a
+        template made once per group (header, LEN, instruction, address, ids); the bytes
+        protocol.build_instruction frames, and framed by it where the body would need byte stuffing."""
+        if self._int_packet is None:
+            n = len(self.ids)
+            body = 1 + 4 + (1 + self.length) * n  # INST, address and length, (id, value) per servo
+            self._int_packet = struct.Struct(f"<4sBHBHH{('B' + _INT_FORMATS[self.length]) * n}")
+            self._int_args = [p.HEADER, p.BROADCAST_ID, body + 2, p.INST_SYNC_WRITE, self.address,
+                              self.length, *[x for i in self.ids for x in (i, 0)]]
+        args = self._int_args.copy()  # a copy: a watchdog's write on another thread must not see these
+        args[7::2] = values  # one per id (a count that differs raises, as the zip(strict) did)
+        pkt = self._int_packet.pack(*args)
+        if pkt.find(b"\xff\xff\xfd", 7) >= 0:  # the body needs stuffing: the general framing
+            return p.build_instruction(p.BROADCAST_ID, p.INST_SYNC_WRITE, pkt[8:])
+        c = p.crc16(pkt)
+        return pkt + bytes((c & 0xFF, c >> 8))
 
 
 _INT_FORMATS = {1: "b", 2: "h", 4: "i"}  # struct codes of a signed field of 1, 2, 4 bytes
@@ -105,9 +118,20 @@ def write_only(port, packet: bytes) -> bool:
 def fast_sync_read(port, group: SyncReadGroup, timeout_ms: float) -> dict[int, tuple[bytes, int]]:
     """{id: (data, error byte)} from one Fast Sync Read; a reply cut short or corrupt gives the intact blocks
     before the damage, garbage gives {} (never raises)."""
+    buf, intact = fast_sync_read_reply(port, group, timeout_ms)
+    if len(buf) < FAST_HEADER_LEN:
+        return {}
+    return split_fast_status(bytes(buf), group.ids, group.length, crc_checked=intact)
+
+
+def fast_sync_read_reply(port, group: SyncReadGroup, timeout_ms: float) -> tuple[bytearray, bool]:
+    """(the reply's bytes, intact) of one Fast Sync Read: intact when it is the whole reply and its last CRC,
+    which runs over every byte before it, checks -- then its layout and ids are still unchecked
+    (split_fast_status, or the leader's decode straight from the bytes: leader_math.FastReplyDecoder).
+    Nothing or garbage gives a short or not-intact buffer (never raises)."""
     # no input flush after a whole reply (BufferedPortHandler.rx_clean: a syscall a tick on a real port)
     if not _begin(port, group.fast_packet, flush=not getattr(port, "rx_clean", False)):
-        return {}
+        return bytearray(), False
     try:
         port.setPacketTimeoutMillis(timeout_ms)
         want, buf = group.fast_reply_len, bytearray()
@@ -120,14 +144,12 @@ def fast_sync_read(port, group: SyncReadGroup, timeout_ms: float) -> dict[int, t
                 break
     finally:
         port.is_using = False
-    if len(buf) < FAST_HEADER_LEN:
-        return {}
     # the last block's CRC runs over every byte before it: one check for the usual intact reply; the block
     # by block walk (intact blocks before a damage) only when it fails
     intact = len(buf) == want and p.crc16(buf[:-2]) == buf[-2] | (buf[-1] << 8)
     if intact and hasattr(port, "mark_clean"):
         port.mark_clean()
-    return split_fast_status(bytes(buf), group.ids, group.length, crc_checked=intact)
+    return buf, intact
 
 
 def plain_sync_read(port, group: SyncReadGroup, timeout_ms: float) -> dict[int, tuple[bytes, int]]:
