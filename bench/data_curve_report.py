@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 from bench import harness
+from bench.first_curve import log_axis, save
 from bench.first_report import pooled_stages, wilson
 from bench.portable import portable, portable_text
 
@@ -100,19 +101,10 @@ def chart(summary: dict, path: Path, title: str) -> None:
                [100 * pts[n]["wilson"][1] - mi for mi, n in zip(m, x)]]
         ax.errorbar(x, m, yerr=err, fmt="o-", capsize=3, label="success (95 % Wilson)")
         ax.plot(x, [100 * (pts[n]["progress"] or 0.0) for n in x], "s--", label="task progress")
-        ax.set_xscale("log")
-        ax.set_xticks(x, [str(n) for n in x])
-        ax.minorticks_off()
         ax.set_ylim(-3, 103)
-        ax.set_xlabel("successful demonstrations")
-        ax.set_ylabel("%")
         ax.set_title(task, fontsize=9)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.suptitle(title, fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+        log_axis(ax, x, "successful demonstrations", "%")
+    save(fig, path, title)
 
 
 def title(config: dict) -> str:

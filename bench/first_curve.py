@@ -92,13 +92,24 @@ def chart(rows: list[dict], path: Path, title: str) -> None:
         bx.plot(x, [sum(p[1]["progress"]) / max(len(p[1]["progress"]), 1) for p in pts], style, label=label)
     steps = sorted({r["step"] for r in rows})
     for a_, yl in ((ax, "success [%] (95 % Wilson)"), (bx, "task progress")):
-        a_.set_xscale("log")
-        a_.set_xticks(steps, [str(x) for x in steps])
-        a_.minorticks_off()
-        a_.set_xlabel("optimiser steps")
-        a_.set_ylabel(yl)
-        a_.grid(alpha=0.3)
-        a_.legend(fontsize=8)
+        log_axis(a_, steps, "optimiser steps", yl)
+    save(fig, path, title)
+
+
+def log_axis(ax, ticks: list, xlabel: str, ylabel: str) -> None:
+    """A log x axis labelled at `ticks` (the points measured), a grid and the legend."""
+    ax.set_xscale("log")
+    ax.set_xticks(ticks, [str(x) for x in ticks])
+    ax.minorticks_off()
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+
+
+def save(fig, path: Path, title: str) -> None:
+    import matplotlib.pyplot as plt
+
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

@@ -11,7 +11,7 @@ import pytest
 
 from bench import data_curve as dc
 from bench import first_config
-from bench.data_curve_report import finished_rows, point_dir, summarize, write_results
+from bench.data_curve_report import chart, finished_rows, point_dir, summarize, write_results
 from bench.first_report import wilson
 from factr2_teleop.session.task_episodes import episode_seed
 from policies.data.recordings import parse_episode_ids
@@ -125,6 +125,8 @@ def test_the_report_pools_the_seeds_and_writes_a_portable_record(tmp_path):
     assert (s[2]["k"], s[2]["episodes"]) == (3, 8) and s[2]["wilson"] == list(wilson(3, 8))
     assert s[2]["per_seed"] == [0.25, 0.5] and s[2]["progress"] == pytest.approx((3 * 1 + 5 * 0.25) / 8)
     assert s[2]["stages"]["wipe"] == pytest.approx(3 / 8) and s[4]["success"] == 1.0
+    chart(summarize(rows), tmp_path / "curve.png", "wipe")
+    assert (tmp_path / "curve.png").stat().st_size > 1000
     res = dc.build_results(cfg, f"python -m bench.data_curve --out {tmp_path} --report")
     assert res["rows"] == rows and res["summary"]["wipe"]["2"]["k"] == 3
     path = write_results(res, "dc_test", f"python -m bench.data_curve --out {tmp_path} --report", tmp_path,
