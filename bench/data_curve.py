@@ -30,9 +30,9 @@ point), OUT/data_curve.md and OUT/data_curve.png (bench/data_curve_report.py). T
 (--device auto: a GPU where there is one) with cores / jobs torch threads each.
 
 Sizing (docs/policies.md, "The data curve": estimated from unit costs measured on the 2-vCPU AMD EPYC VM, not
-from a run of the curve): ~525 collection episodes at 15-16 CPU s (2.2-2.4 core-h), ~284 k training steps at
+from a run of the curve): ~525 collection episodes at 15-19 CPU s (2.2-2.8 core-h), ~284 k training steps at
 0.022-0.045 CPU s (1.8-3.6 core-h; the defaults give ~37 k steps to one 200-demonstration press-fit run) and
-480 rollout episodes at 8-38 CPU s (1.1-5.1 core-h): 5.1-11 core-hours, ~2.6-5.6 h wall on 2 free cores,
+480 rollout episodes at 8-38 CPU s (1.1-5.1 core-h): 5.1-11.5 core-hours, ~2.6-5.8 h wall on 2 free cores,
 ~0.6-1 h on 16 (the path: the collection parts in two waves, then the 200-demonstration trainings and their
 rollouts). A shared machine stretches it 1.5-3x; the measured wall time comes with the results.
 """
