@@ -103,6 +103,8 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         self.signs = np.array(c.signs, float)
         self._signs_l, self._k_l = self.signs.tolist(), self.k.tolist()  # the per-tick float paths' copies
         self._nan_n = np.full(n, np.nan)  # per-tick templates (copied: a copy is 5x cheaper than np.full)
+        self._nan_ro = np.full(n, np.nan)  # a fresh sample's q_cmd and temperature (none: a leader has
+        self._nan_ro.flags.writeable = False  # neither), one read-only array shared, as safety's zeros are
         self._status_zero = np.zeros(n, np.uint32)
         self._status_enabled = np.full(n, STATUS_ENABLED, np.uint32)
         self.offsets = np.array(c.offsets_rad, float)
@@ -257,11 +259,11 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
             grip_pos, grip_effort = self._trigger(cur_units[n] if cur_units is not None else 0)
         else:
             grip_pos, grip_effort = prev.gripper_pos, prev.gripper_effort
-        nan = self._nan_n
+        nan = self._nan_ro
         r = p.RAD_S_PER_VELOCITY_UNIT
         return JointState(t=t, q=np.array([s * (x - o) for s, x, o in zip(signs, qs, self._offsets_l)]),
                           q_dot=np.array([s * (v * r) for s, v in zip(signs, vel)]), tau_m=tau,
-                          current=cur, q_cmd=nan.copy(), temperature=nan.copy(), status=status,
+                          current=cur, q_cmd=nan, temperature=nan, status=status,
                           gripper_pos=grip_pos, gripper_effort=grip_effort)
 
     def _alert_bits(self, status: np.ndarray, errs) -> None:
