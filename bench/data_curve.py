@@ -77,8 +77,8 @@ DEFAULTS = {"current": []}
 NEXT_CHECKPOINT = "bench/assets/next_sim_piper_first/next.json"
 QUICK = {"tasks": ["wipe"], "points": {"wipe": [2, 4]}, "seeds": 1, "rollouts": 1, "part_episodes": 3,
          "train_flags": ["--steps", "30", "--batch", "32"]}
-SAME_ON_RESUME = ("defaults", "train_flags", "rollouts", "part_episodes", "device", "next_checkpoint",
-                  "demo_seed", "eval_seed")
+SAME_ON_RESUME = ("defaults", "defaults_meta", "train_flags", "rollouts", "part_episodes", "device",
+                  "next_checkpoint", "demo_seed", "eval_seed")
 
 
 @dataclass
@@ -98,6 +98,7 @@ class CurveConfig:
     quick: bool = False
     demo_seed: int = DATA_CURVE_DEMO_SEED
     eval_seed: int = DATA_CURVE_EVAL_SEED
+    defaults_meta: dict = field(default_factory=dict)  # what the defaults resolve to here (defaults_meta())
 
     def point_keys(self) -> list[tuple[str, int, int]]:
         return [(t, n, s) for s in range(self.seeds) for t in self.tasks for n in self.points[t]]
@@ -131,6 +132,20 @@ def episode_ranges(ids: list[str]) -> str:
         else:
             out.append([name, int(idx), int(idx)])
     return ",".join(f"{n}#{a}" if a == b else f"{n}#{a}-{b}" for n, a, b in out)
+
+
+def defaults_meta(defaults: str) -> dict:
+    """What `factr2 train DEMOS --obs state` with the named defaults' flags resolves to before it reads data
+    (the checkpoint meta's model, method and schedule; not the seed or threads): kept in OUT/config.json, so
+    an OUT is never resumed under other defaults, a later commit's."""
+    from policies.training.run_config import add_arguments, from_args
+
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    argv = ["DEMOS", "--obs", "state", *DEFAULTS[defaults], "--out", "RUN"]
+    meta = from_args(ap.parse_args(argv)).to_meta()
+    meta["train"] = {k: v for k, v in meta["train"].items() if k not in ("seed", "threads")}
+    return json.loads(json.dumps(meta))
 
 
 def train_argv(cfg: CurveConfig, folders: list[Path], ids: list[str], seed: int, run: Path) -> list[str]:
@@ -421,6 +436,7 @@ def main(argv=None) -> int:
         import signal
 
         signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
+        cfg.defaults_meta = defaults_meta(cfg.defaults)
         check_resume(cfg, out, SAME_ON_RESUME)
         out.mkdir(parents=True, exist_ok=True)
         old = json.loads((out / "config.json").read_text()) if (out / "config.json").is_file() else {}

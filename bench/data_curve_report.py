@@ -6,6 +6,7 @@ reached), the figure, and the published record results/NAME.json (bench/harness.
 from __future__ import annotations
 
 import json
+import textwrap
 from pathlib import Path
 
 from bench import harness
@@ -104,11 +105,11 @@ def chart(summary: dict, path: Path, title: str) -> None:
         ax.set_ylim(-3, 103)
         ax.set_title(task, fontsize=9)
         log_axis(ax, x, "successful demonstrations", "%")
-    save(fig, path, title)
+    save(fig, path, textwrap.fill(title, 55 * len(axes[0])))  # a panel holds ~55 characters of it
 
 
 def title(config: dict) -> str:
-    return (f"data curve, defaults {config['defaults']}: {config['seeds']} training seeds x "
+    return (f"data curve, defaults {config['defaults']}: {config['seeds']} training seed(s) x "
             f"{config['rollouts']} rollouts per point (SIMULATED twin, PRIVILEGED state)")
 
 

@@ -5,6 +5,7 @@ trains and rolls out: minutes, run by hand; tests/test_bench_quick.py lists it i
 from __future__ import annotations
 
 import json
+from dataclasses import asdict
 from pathlib import Path
 
 import pytest
@@ -153,7 +154,6 @@ def test_current_defaults_are_factr2_train_with_no_options_but_the_subset_and_se
     """What a point trains with, parsed by factr2 train's own flags: the same options as
     `factr2 train DEMOS --obs state --out RUN` except the episodes, the training seed and how it runs."""
     import argparse
-    from dataclasses import asdict
 
     from policies.training.run_config import add_arguments, from_args
 
@@ -166,3 +166,15 @@ def test_current_defaults_are_factr2_train_with_no_options_but_the_subset_and_se
         d["train"].update(seed=None, threads=None)
     assert {k for k in point if point[k] != plain[k]} == {"out", "episodes", "progress"}
     assert point["episodes"] == ("x.mcap#0", "x.mcap#1")
+
+
+def test_an_out_is_not_resumed_under_other_defaults(tmp_path):
+    meta = dc.defaults_meta("current")
+    assert (meta["train"]["epochs"], meta["train"]["batch"], meta["observation"]) == (80.0, 256, "state")
+    assert dc.defaults_meta("current") == meta  # no seed, thread count or path in it
+    cfg = _cfg(tmp_path, defaults_meta=meta)
+    (tmp_path / "config.json").write_text(json.dumps(asdict(cfg)))
+    first_config.check_resume(cfg, tmp_path, dc.SAME_ON_RESUME)  # the same: resumes
+    later = _cfg(tmp_path, defaults_meta={**meta, "train": {**meta["train"], "epochs": 40.0}})
+    with pytest.raises(SystemExit, match="defaults_meta"):
+        first_config.check_resume(later, tmp_path, dc.SAME_ON_RESUME)
