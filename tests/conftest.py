@@ -41,3 +41,12 @@ def machine_slowdown() -> float:
     from machine_speed import slowdown
 
     return slowdown()
+
+
+@pytest.fixture(scope="session")
+def wipe_state_runs(tmp_path_factory):
+    """runs[method]: a tiny state policy on one scripted wipe demonstration, collected and trained once per
+    session on first use (tests/rollout_helpers.py WipeStateRuns); the rollout tests only read it."""
+    from tests.rollout_helpers import WipeStateRuns
+
+    return WipeStateRuns(tmp_path_factory.mktemp("wipe_state"))

@@ -64,6 +64,42 @@ def tiny_run_on(tmp_path_factory, name: str, record, policy: str = "act", steps:
     return train_tiny(record(d), d / "run", policy=policy, steps=steps)
 
 
+STATE_TINY = {"hidden": 32, "heads": 2, "dec_layers": 1, "enc_layers": 1, "ff": 64, "chunk": 8,
+              "dropout": 0.0}
+
+
+class WipeStateRuns:
+    """Tiny state policies (the PRIVILEGED object vector, as bench_first trains) on one scripted wipe
+    demonstration (sim-piper, seed 0, dob, no cameras), 3 steps each: runs[method] -> its RUN folder. The
+    demonstration is collected once and each method trained once, on first use (tests/conftest.py shares one
+    across the session: the rollout tests only read it)."""
+
+    def __init__(self, folder: Path):
+        self.folder, self.runs, self.demos = Path(folder), {}, None
+
+    def __getitem__(self, method: str) -> Path:
+        if method not in self.runs:
+            import torch
+
+            from factr2_teleop.tasks.run import CollectConfig, collect
+            from policies.training.run import RunOptions, run_training
+            from policies.training.train import Dist, TrainConfig
+
+            torch.set_num_threads(1)
+            if self.demos is None:
+                collect(CollectConfig(task="wipe", episodes=1, out=str(self.folder / "demos"), seed=0,
+                                      mode="dob", cameras=False), progress=False)
+                self.demos = self.folder / "demos"
+            run = self.folder / method
+            run_training(RunOptions(inputs=[self.demos], out=run, observation="state", method=method,
+                                    thresholds=(0.5, 1.0), val_fraction=0.0, progress=False,
+                                    overrides=dict(STATE_TINY), include_failed=True,
+                                    train=TrainConfig(steps=3, batch=8, warmup=1, val_every=3, ckpt_every=3,
+                                                      threads=1)), Dist())
+            self.runs[method] = run
+        return self.runs[method]
+
+
 def install_smooth_policy(setattr_fn=setattr, call_real: bool = False) -> list:
     """Replace PolicyRunner.infer's chunks by a smooth reference about the first observation's pose: joints
     1-2 on slow sines (<= 0.45 rad/s), as a trained policy moves (the takeover tests and bench time the

@@ -10,32 +10,15 @@ import pytest
 from factr2_teleop.session.rollout import RolloutHooks, RolloutOptions, run_rollout
 
 pytest.importorskip("mujoco")
-TINY = {"hidden": 32, "heads": 2, "dec_layers": 1, "enc_layers": 1, "ff": 64, "chunk": 8, "dropout": 0.0}
 
 
 @pytest.fixture(scope="module")
-def state_runs(tmp_path_factory):
+def state_runs(wipe_state_runs):
     """{method: RUN} for a policy without force input (base) and one with it (base-torque), trained a few
-    steps on one scripted wipe demonstration."""
-    import torch
-
-    from factr2_teleop.tasks.run import CollectConfig, collect
-    from policies.training.run import RunOptions, run_training
-    from policies.training.train import Dist, TrainConfig
-
-    torch.set_num_threads(1)
-    d = tmp_path_factory.mktemp("lean")
-    collect(CollectConfig(task="wipe", episodes=1, out=str(d / "demos"), seed=0, mode="dob", cameras=False),
-            progress=False)
-    runs = {}
+    steps on one scripted wipe demonstration (collected once per session: conftest.py wipe_state_runs)."""
     for method in ("base", "base-torque"):
-        runs[method] = d / method
-        run_training(RunOptions(inputs=[d / "demos"], out=runs[method], observation="state", method=method,
-                                thresholds=(0.5, 1.0), val_fraction=0.0, progress=False, overrides=dict(TINY),
-                                include_failed=True,
-                                train=TrainConfig(steps=3, batch=8, warmup=1, val_every=3, ckpt_every=3,
-                                                  threads=1)), Dist())
-    return runs
+        wipe_state_runs[method]  # trained here, in the fixture's setup
+    return wipe_state_runs
 
 
 def _rollout(run, lean: bool) -> tuple[dict, list, dict]:

@@ -16,29 +16,15 @@ from factr2_teleop.teleop.takeover import OPERATOR, POLICY, TakeoverConfig, lead
 from tests.rollout_helpers import install_smooth_policy
 
 pytest.importorskip("mujoco")
-TINY = {"hidden": 32, "heads": 2, "dec_layers": 1, "enc_layers": 1, "ff": 64, "chunk": 8, "dropout": 0.0}
 TICK_STEP_RAD = SoftStartConfig().rate_limit_rad_s / 500.0  # one teleop tick's motion at most
 TRACKING_P99_RAD = 0.05  # rad: the leader follows the follower within this while the policy drives (p99)
 
 
 @pytest.fixture(scope="module")
-def state_run(tmp_path_factory):
-    import torch
-
-    from factr2_teleop.tasks.run import CollectConfig, collect
-    from policies.training.run import RunOptions, run_training
-    from policies.training.train import Dist, TrainConfig
-
-    torch.set_num_threads(1)
-    d = tmp_path_factory.mktemp("takeover")
-    collect(CollectConfig(task="wipe", episodes=1, out=str(d / "demos"), seed=0, mode="dob", cameras=False),
-            progress=False)
-    run_training(RunOptions(inputs=[d / "demos"], out=d / "run", observation="state", method="base",
-                            thresholds=(0.5, 1.0), val_fraction=0.0, progress=False, overrides=dict(TINY),
-                            include_failed=True,
-                            train=TrainConfig(steps=3, batch=8, warmup=1, val_every=3, ckpt_every=3,
-                                              threads=1)), Dist())
-    return d / "run"
+def state_run(wipe_state_runs):
+    """The base state policy on one scripted wipe demonstration (collected and trained once per session:
+    conftest.py wipe_state_runs)."""
+    return wipe_state_runs["base"]
 
 
 @pytest.fixture()
