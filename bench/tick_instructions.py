@@ -7,6 +7,11 @@ same on a loaded machine, where thread CPU time moves 1.5-2x between runs. Needs
 SIMULATED.
 
     python -m bench.tick_instructions BEFORE AFTER [--ticks 300]   # checkouts (roots), one after the other
+    python -m bench.tick_instructions BEFORE AFTER --part leader.read   # only inside one device method
+
+--part DEVICE.METHOD (leader.read, leader.command_torque, follower.command, ...): collection on only inside
+that method of the first pair's device during the counted ticks (still off inside the emulator's blocks):
+the instructions a tick of one part.
 
 Each checkout runs under `valgrind --tool=callgrind` (~3 min for 300 ticks on the 2-vCPU dev VM).
 """
@@ -35,8 +40,9 @@ def _library(folder: Path) -> Path:
     return lib
 
 
-def _run_inside(root: str, ticks: int, lib_path: str) -> None:
-    """Under callgrind: 20 ticks to warm up, then `ticks` ticks with collection toggled around the app."""
+def _run_inside(root: str, ticks: int, lib_path: str, part: str | None = None) -> None:
+    """Under callgrind: 20 ticks to warm up, then `ticks` ticks with collection toggled around the app (or
+    around one device method: part)."""
     sys.path.insert(0, root)
     import importlib.util
 
@@ -46,7 +52,7 @@ def _run_inside(root: str, ticks: int, lib_path: str) -> None:
     from hardware import sim_cpu
 
     lib = ctypes.CDLL(lib_path)
-    on = [False]
+    on = [False]  # collecting now (outside the emulator's blocks)
 
     class Simulated:  # the emulator's blocks: collection off while they run (they are the servos' work)
         __slots__ = ()
@@ -62,6 +68,23 @@ def _run_inside(root: str, ticks: int, lib_path: str) -> None:
 
     sim_cpu.simulated = Simulated
     s, loop = mod._session("inprocess")
+    counting = [False]  # in the counted ticks (part: collection only inside the method)
+    if part:
+        device, name = part.split(".")
+        method = getattr(getattr(loop.pairs[0], device), name)
+
+        def inside(*a, **k):
+            if not counting[0]:
+                return method(*a, **k)
+            on[0] = True
+            lib.cg_toggle()
+            try:
+                return method(*a, **k)
+            finally:
+                lib.cg_toggle()
+                on[0] = False
+
+        setattr(getattr(loop.pairs[0], device), name, inside)
     with s:
         for _ in range(20):
             s.clock.sleep(loop.period_s)
@@ -70,6 +93,11 @@ def _run_inside(root: str, ticks: int, lib_path: str) -> None:
         for _ in range(ticks):
             s.clock.sleep(loop.period_s)
             now = s.clock.now()
+            if part:
+                counting[0] = True
+                loop._tick_all(now)
+                counting[0] = False
+                continue
             on[0] = True
             lib.cg_toggle()
             loop._tick_all(now)
@@ -77,11 +105,11 @@ def _run_inside(root: str, ticks: int, lib_path: str) -> None:
             on[0] = False
 
 
-def measure(root: str, ticks: int, lib: Path, out: Path) -> float:
-    """Instructions per tick of the app's part on checkout `root`."""
+def measure(root: str, ticks: int, lib: Path, out: Path, part: str | None = None) -> float:
+    """Instructions per tick of the app's part (or of one device method: part) on checkout `root`."""
     cmd = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--collect-atstart=no",
            f"--callgrind-out-file={out}", sys.executable, __file__, "--inside", root, "--ticks", str(ticks),
-           "--lib", str(lib)]
+           "--lib", str(lib)] + (["--part", part] if part else [])
     r = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "FACTR2_NO_RT": "1"})
     m = re.search(r"Collected : ([\d,]+)", r.stderr)
     if r.returncode != 0 or m is None:
@@ -93,21 +121,23 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("roots", nargs="*", help="checkouts to count (default: this one)")
     ap.add_argument("--ticks", type=int, default=300)
+    ap.add_argument("--part", help="one method of the first pair's devices, e.g. leader.read")
     ap.add_argument("--inside", help=argparse.SUPPRESS)
     ap.add_argument("--lib", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.inside:
-        _run_inside(a.inside, a.ticks, a.lib)
+        _run_inside(a.inside, a.ticks, a.lib, a.part)
         return 0
     roots = a.roots or [str(Path(__file__).resolve().parents[1])]
     with tempfile.TemporaryDirectory() as d:
         lib = _library(Path(d))
         got = []
         for i, root in enumerate(roots):
-            n = measure(root, a.ticks, lib, Path(d) / f"callgrind.{i}.out")
+            n = measure(root, a.ticks, lib, Path(d) / f"callgrind.{i}.out", a.part)
             got.append(n)
-            print(f"{root}: {n / 1e3:.1f} k instructions per tick (the app's part, {a.ticks} ticks, "
-                  "in process)", flush=True)
+            what = f"inside {a.part}" if a.part else "the app's part"
+            print(f"{root}: {n / 1e3:.1f} k instructions per tick ({what}, {a.ticks} ticks, in process)",
+                  flush=True)
         if len(got) == 2:
             print(f"after / before: {got[1] / got[0]:.3f}")
     return 0
