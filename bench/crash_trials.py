@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -195,7 +196,10 @@ def crash_policy(rig: str, folder: Path) -> Path:
     """The rollout activity's policy for a rig, trained once into folder/<rig>/run (reused while its "done"
     marker is there): `factr2 teleop --record --no-cameras` for POLICY_RECORD_S against the rig's process twin
     (the scripted hand moves the leader), then `factr2 train --obs joints` (joints and force only, the tiny
-    sizes of tests/rollout_helpers.py) for POLICY_STEPS steps. RuntimeError when a step fails."""
+    sizes of tests/rollout_helpers.py) for POLICY_STEPS steps. RuntimeError when a step fails. A recording
+    whose app could not connect (a motor of the twin that did not answer in time: the twin's emulators share
+    a slow or loaded core with the app) is started again with a fresh twin, START_TRIES times in all, as a
+    trial is (run_crash_trial); any other failure is raised at once."""
     from tests.rollout_helpers import TINY
 
     base = folder / rig
@@ -204,16 +208,12 @@ def crash_policy(rig: str, folder: Path) -> Path:
         return run
     base.mkdir(parents=True, exist_ok=True)
     print(f"training the rollout policy of {rig} (once)...", file=sys.stderr, flush=True)
-    twin, twin_dir = _start_twin(rig, 0, base)
-    try:
-        if not _twin_serves(twin, twin_dir):
-            raise RuntimeError(f"{rig}'s twin did not start: {base / 'twin.log'}")
-        rec = subprocess.run([sys.executable, "-m", "factr2_teleop.cli", "teleop", "--rig",
-                              str(twin_dir / "app_rig.toml"), "--record", str(base / "rec"), "--no-cameras",
-                              "--seconds", f"{POLICY_RECORD_S:g}"], cwd=ROOT, env=_env(),
-                             capture_output=True, text=True, timeout=START_TIMEOUT_S + 60)
-    finally:
-        _stop_twin(twin)
+    for k in range(START_TRIES):
+        rec = _record_policy_data(rig, base / f"twin{k}", base / "rec")
+        if rec.returncode == 0 or not _did_not_connect(rec.stderr) or k == START_TRIES - 1:
+            break
+        print(f"{rig}: the recording's app did not connect, started again: {rec.stderr.strip()[-200:]}",
+              file=sys.stderr, flush=True)
     if rec.returncode != 0:
         raise RuntimeError(f"recording {rig}'s policy data failed: {rec.stderr.strip()[-300:]}")
     sets = [f"{k}={v}" for k, v in TINY.items() if k not in ("backbone", "image_size")]
@@ -227,6 +227,28 @@ def crash_policy(rig: str, folder: Path) -> Path:
         raise RuntimeError(f"training {rig}'s policy failed: {(tr.stderr or tr.stdout).strip()[-300:]}")
     (run / "done").write_text("ok")
     return run
+
+
+def _record_policy_data(rig: str, folder: Path, rec: Path) -> subprocess.CompletedProcess:
+    """`factr2 teleop --record rec --no-cameras` for POLICY_RECORD_S against a fresh process twin of the rig
+    in folder (a failed try's files removed first)."""
+    shutil.rmtree(rec, ignore_errors=True)
+    folder.mkdir(parents=True, exist_ok=True)
+    twin, twin_dir = _start_twin(rig, 0, folder)
+    try:
+        if not _twin_serves(twin, twin_dir):
+            raise RuntimeError(f"{rig}'s twin did not start: {folder / 'twin.log'}")
+        return subprocess.run([sys.executable, "-m", "factr2_teleop.cli", "teleop", "--rig",
+                               str(twin_dir / "app_rig.toml"), "--record", str(rec), "--no-cameras",
+                               "--seconds", f"{POLICY_RECORD_S:g}"], cwd=ROOT, env=_env(),
+                              capture_output=True, text=True, timeout=START_TIMEOUT_S + 60)
+    finally:
+        _stop_twin(twin)
+
+
+def _did_not_connect(stderr: str) -> bool:
+    """The app ended at connect: a device that did not answer (hardware.errors.DeviceNotFound's texts)."""
+    return "does not answer" in stderr or "did not answer" in stderr
 
 
 def _app_command(activity: str, app_rig: Path, folder: Path, policy: Path | None, seed: int) -> list[str]:
