@@ -33,8 +33,20 @@ def _opts(run, **kw):
     return RolloutOptions(**{**base, **kw})
 
 
-def test_tiny_policy_rolls_out_through_the_real_drivers_and_records(tiny_run, tmp_path):
-    out = run_rollout(_opts(tiny_run, episodes=2, record=tmp_path)).to_dict()
+@pytest.fixture(scope="module")
+def recorded_rollout(tiny_run, tmp_path_factory):
+    """Two recorded episodes of the tiny policy (seed 5) and the seeds its sampler was reseeded with: one run,
+    read by the two tests below."""
+    seeds = []
+    real = PolicyRunner.reseed
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(PolicyRunner, "reseed", lambda self, s: (seeds.append(s), real(self, s))[1])
+        out = run_rollout(_opts(tiny_run, episodes=2, record=tmp_path_factory.mktemp("recorded"))).to_dict()
+    return out, seeds
+
+
+def test_tiny_policy_rolls_out_through_the_real_drivers_and_records(recorded_rollout):
+    out, _ = recorded_rollout
     t = out["timing"]
     assert [e["seed"] for e in out["episodes"]] == [episode_seed(5, 0), episode_seed(5, 1)]
     assert all(e["outcome"] in ("success", "failure") for e in out["episodes"])
@@ -55,14 +67,11 @@ def test_tiny_policy_rolls_out_through_the_real_drivers_and_records(tiny_run, tm
     assert stop["seed"] == episode_seed(5, 0)
 
 
-def test_each_episode_draws_the_samplers_noise_from_its_own_seed(tiny_run, monkeypatch):
+def test_each_episode_draws_the_samplers_noise_from_its_own_seed(recorded_rollout):
     """The flow sampler is reseeded with each episode's seed as the policy takes over: an episode's noise does
     not depend on how the episodes before it went (a benchmark's rollout set is repeatable episode by
     episode)."""
-    seeds = []
-    real = PolicyRunner.reseed
-    monkeypatch.setattr(PolicyRunner, "reseed", lambda self, s: (seeds.append(s), real(self, s))[1])
-    out = run_rollout(_opts(tiny_run, episodes=2)).to_dict()
+    out, seeds = recorded_rollout
     assert seeds == [e["seed"] for e in out["episodes"]] == [episode_seed(5, 0), episode_seed(5, 1)]
 
 
