@@ -220,13 +220,14 @@ def test_a_ledger_cell_whose_score_is_not_its_names_is_not_taken(tmp_path):
 @pytest.mark.parametrize("name", [p.name for p in sorted(RESULTS.glob("first_cells*.json"))])
 def test_committed_ledgers_load_their_cells_as_before(tmp_path, name):
     """Every cell of every committed ledger (a copy: the running benchmark writes them) comes back into a
-    new OUT on its own demonstrations, keyed with the default score, and a ledger written back is the same."""
+    new OUT on its own demonstrations, keyed with the score its cell trains with (first-motion: motion, every
+    other: l1), and a ledger written back is the same."""
     ledger = tmp_path / name
     shutil.copy(RESULTS / name, ledger)
     data = json.loads(ledger.read_text())
     groups: dict = {}
     for c in data["cells"]:
-        assert _key(c)[3] == "l1" and c["rollout"]["cell"] in CELLS
+        assert c["rollout"]["cell"] in CELLS and _key(c)[3] == CELLS[c["rollout"]["cell"]].score
         groups.setdefault((c["rollout"]["task"], c["demos_fingerprint"]), []).append(c)
     for i, ((task, fp), cells) in enumerate(sorted(groups.items())):
         out = tmp_path / f"out{i}"
