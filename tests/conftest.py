@@ -16,6 +16,51 @@ _CACHE = tempfile.mkdtemp(prefix="factr2-test-recording-cache-")
 os.environ.setdefault("FACTR2_RECORDING_CACHE", _CACHE)
 atexit.register(shutil.rmtree, _CACHE, True)
 
+# The tests run on two pytest-xdist workers (pyproject.toml). What keeps the workers apart:
+# - the loop's CPU claims (hardware/realtime.py) live under $XDG_RUNTIME_DIR: a folder per worker, so a loop
+#   pinned by one worker's test does not move the other worker's threads off its CPU;
+# - a test marked `exclusive` runs alone: it holds a file lock exclusively that every other test holds
+#   shared while it runs (CPU pinning, and real-time runs whose checks are timing under a fault);
+# - the test's CPU affinity is put back after it (a training that kept off a claimed CPU leaves none behind).
+_WORKER = os.environ.get("PYTEST_XDIST_WORKER")
+if _WORKER:
+    _RUNTIME = tempfile.mkdtemp(prefix=f"factr2-test-runtime-{_WORKER}-")
+    os.environ["XDG_RUNTIME_DIR"] = _RUNTIME
+    atexit.register(shutil.rmtree, _RUNTIME, True)
+EXCLUSIVE_FILES = {
+    "test_loop_cpu_claims.py",  # pins the loop and reads the process's affinity
+    "test_spawn_normal.py",  # needs two CPUs of its own
+    "test_crash_rollout.py",  # a frozen app must come back at the soft start within its budget
+    "test_degrade.py",  # judges the rate a loop holds
+    "test_demo_hold.py",  # the demo's scripted hold and resume, timed by the scenario
+}
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.path.name in EXCLUSIVE_FILES:
+            item.add_marker(pytest.mark.exclusive)
+
+
+@pytest.fixture(autouse=True)
+def _workers_apart(request, tmp_path_factory):
+    affinity = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
+    if not _WORKER:
+        yield
+    else:
+        import fcntl
+
+        exclusive = request.node.get_closest_marker("exclusive") is not None
+        with open(tmp_path_factory.getbasetemp().parent / "exclusive.lock", "a") as f:
+            fcntl.flock(f, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+            try:
+                yield
+            finally:
+                fcntl.flock(f, fcntl.LOCK_UN)
+    if affinity is not None and os.sched_getaffinity(0) != affinity:
+        os.sched_setaffinity(0, affinity)
+
+
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("FACTR2_SHARED", REPO.parent / "shared"))
 UR5_DIR = SHARED / "data" / "ur5_kufieta2014"
