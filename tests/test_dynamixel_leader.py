@@ -11,8 +11,8 @@ import pytest
 from hardware.dynamixel import protocol as p
 from hardware.dynamixel.config import DynamixelLeaderConfig
 from hardware.dynamixel.emulator import DynamixelEmulator
-from hardware.dynamixel.leader import (
-    DynamixelLeader,
+from hardware.dynamixel.leader import DynamixelLeader
+from hardware.dynamixel.leader_math import (
     torque_to_current_units,
     trigger_fraction,
     wrap_to_offset,

@@ -96,7 +96,7 @@ def test_signed_zero_ties_follow_numpy():
 @given(VEC, st.lists(st.sampled_from([1.0, -1.0]), min_size=N, max_size=N), POS, POS,
        st.lists(st.one_of(st.sampled_from([1750.0, 0.0]), st.floats(0, 1e5)), min_size=N, max_size=N))
 def test_current_units_kernel_is_the_numpy_form(tau, signs, k, amps, limit):
-    from hardware.dynamixel.leader import torque_to_current_ints, torque_to_current_units
+    from hardware.dynamixel.leader_math import torque_to_current_ints, torque_to_current_units
 
     amps = [a if np.isfinite(a) else 1.0 for a in amps]
     with np.errstate(all="ignore"):

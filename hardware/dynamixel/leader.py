@@ -28,7 +28,7 @@ from hardware.dynamixel.alerts import AlertRebooter
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.dynamixel.config import DynamixelLeaderConfig
 from hardware.dynamixel.fast_sync import split_fast_status
-from hardware.dynamixel.leader_math import (  # noqa: F401 -- the pure functions' import path before the split
+from hardware.dynamixel.leader_math import (
     _TICK_MASK,
     HALF_TURN_TICKS,
     TWO_PI,
@@ -37,12 +37,10 @@ from hardware.dynamixel.leader_math import (  # noqa: F401 -- the pure functions
     decode_feedback,
     servo_to_joint,
     torque_to_current_ints,
-    torque_to_current_units,
     trigger_fraction,
-    wrap_to_offset,
     wrapped_tick_delta,
 )
-from hardware.dynamixel.leader_setup import PING_TRIES, LeaderSetup  # noqa: F401
+from hardware.dynamixel.leader_setup import LeaderSetup
 from hardware.dynamixel.leader_watchdog import LeaderWatchdog
 from hardware.dynamixel.models import ServoModel, get_model, resolve_models
 from hardware.errors import ConfigError, DeviceError
