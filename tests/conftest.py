@@ -33,6 +33,7 @@ EXCLUSIVE_FILES = {
     "test_crash_rollout.py",  # a frozen app must come back at the soft start within its budget
     "test_degrade.py",  # judges the rate a loop holds
     "test_demo_hold.py",  # the demo's scripted hold and resume, timed by the scenario
+    "test_recording_process.py",  # real-time camera frames counted against the clock, a writer stopped 0.4 s
 }
 
 
