@@ -2,7 +2,7 @@
 benchmarks can be run on this machine as on one whose core is FACTOR times slower.
 
     python -m bench.slow_core [--factor 2.8] [--period-us 1000] -- factr2 demo --headless --json OUT
-    python -m bench.slow_core --factor 2.8 -- python -m pytest tests/test_teleop_twin_cli.py -q
+    python -m bench.slow_core --factor 2.8 -- python -m pytest -n 0 tests/test_teleop_twin_cli.py -q
 
 The command and every process it starts run in a fresh cgroup that may use each CPU for 1 / FACTOR of every
 period: the CFS quota (normal threads) and, on cgroup v1 with RT group scheduling, the real-time budget
