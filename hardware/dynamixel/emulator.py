@@ -51,6 +51,12 @@ if TYPE_CHECKING:  # the contract only: a device folder does not import the twin
 
 SEEN_PACKETS_MAX = 16  # in-process: recent clean writes whose parse is reused (a parse is a pure function)
 PARTIAL_TIMEOUT_S = 0.05  # an incomplete packet older than this is dropped (the servo's rx timeout)
+IDLE_WAKE_S = 0.02  # the thread's longest wait for bytes [s]: partial-packet timeouts are checked this often
+# The thread's shortest wait for a watchdog deadline [s of wall time]. The deadline is on the servos' clock (a
+# twin's sim time), the wait on the wall clock: a clock frozen at or just before the deadline (a paused twin,
+# or its physics thread starved by this one, which runs SCHED_FIFO above it) would otherwise make the wait ~0
+# and the thread spin. A servo then latches at most this late: 5 % of one 20 ms watchdog unit.
+WAKE_MIN_S = 1e-3
 # termios speed constant -> bit/s, to see the rate the client set on the port (baud mismatch = no answer)
 _TERMIOS_RATES = {
     getattr(termios, f"B{r}"): r
@@ -238,9 +244,9 @@ class DynamixelEmulator(EmulatorInstructions, EmulatorWatchdog):
     # -- thread --------------------------------------------------------------------------------------
     def _run(self) -> None:
         while not self._stop.is_set():
-            wait = 0.02
-            if self._wd_armed:  # wake at the next watchdog deadline: the servo stops on time
-                wait = min(wait, max(0.0, self._wd_due - self._tick_clock()))
+            wait = IDLE_WAKE_S
+            if self._wd_armed:  # wake at the next watchdog deadline: the servo stops on time (WAKE_MIN_S)
+                wait = min(wait, max(WAKE_MIN_S, self._wd_due - self._tick_clock()))
             try:
                 ready, _, _ = select.select([self._master], [], [], wait)
             except (OSError, ValueError):
