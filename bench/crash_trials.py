@@ -49,6 +49,7 @@ CRASH_RIGS = ("sim-piper", "sim-yam", "sim-bimanual-piper")  # both arm families
 START_TRIES = 3  # a trial whose app does not start is started again (module doc of run_crash_trial)
 POLICY_RECORD_S = 4.0  # s of teleop recorded against a rig's process twin for its rollout policy
 POLICY_STEPS = 25  # training steps of that policy (it has to run, not succeed)
+MESSAGES_MAX = 20  # the app's hold / coupling lines a trial keeps (the recovery lines are kept past it)
 
 
 def _wait_for(pred, timeout_s: float, step_s: float = 0.05) -> bool:
@@ -139,6 +140,15 @@ def _peak_speed(t, q, t0: float, t1: float) -> float | None:
         return None
     v = np.abs(qs[k:] - qs[:-k]) / (ts[k:] - ts[:-k])[:, None]
     return float(v.max())
+
+
+def trial_messages(log: str) -> list[str]:
+    """The app log's hold / coupling / recovery lines: the first MESSAGES_MAX, and every recovery line (a
+    re-arm, 'comes back') wherever it is -- on a slow core the start says 20+ holds (stale data, a stalled
+    policy) before the freeze, and a plain cut lost the line the trial's checks read."""
+    said, kept = ("hold", "coupled", "re-arm", "comes back"), ("re-arm", "comes back")
+    lines = [ln for ln in log.splitlines() if any(w in ln for w in said)]
+    return [ln for k, ln in enumerate(lines) if k < MESSAGES_MAX or any(w in ln for w in kept)]
 
 
 def run_crash_trial(activity: str, kind: str, rig: str, seed: int, folder: Path,
@@ -318,8 +328,7 @@ def _trial(activity: str, kind: str, rig: str, seed: int, folder: Path, duration
         _stop_twin(twin)
     log = (folder / "app.log").read_text(errors="replace") if (folder / "app.log").exists() else ""
     out["traceback"] = "Traceback" in log
-    said = ("hold", "coupled", "re-arm", "comes back")
-    out["messages"] = [ln for ln in log.splitlines() if any(w in ln for w in said)][:20]
+    out["messages"] = trial_messages(log)
     try:
         w = dict(np.load(twin_dir / "watch.npz"))
         ev = json.loads((twin_dir / "events.json").read_text())

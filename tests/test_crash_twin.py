@@ -8,7 +8,7 @@ from pathlib import Path
 import can
 import numpy as np
 
-from bench.crash_trials import analyse
+from bench.crash_trials import MESSAGES_MAX, analyse, trial_messages
 from hardware.can_bus import open_bus
 from hardware.can_pty import PtyCanBus, decode, encode
 from hardware.process_twin import app_rig_text
@@ -63,3 +63,14 @@ def test_measures_of_a_kill():
     assert abs(m["fallback_ms"] - 100.0) < 1e-6 and abs(m["fallback_deadline_ms"] - 99.0) < 1e-6
     assert m["leader_tau_after_nm"] == 0.0 and m["leader_tau_at_signal_nm"] == 0.3
     assert abs(m["follower_motion_rad"] - 0.015) < 1e-3 and m["fallback_ms_per_device"]["follower"] < 2.1
+
+
+def test_trial_messages_keep_the_recovery_past_many_holds():
+    """A slow core's start says many holds before the freeze: the recovery's lines stay in the trial's
+    messages (the rollout trial checks 'comes back'), the rest is cut at MESSAGES_MAX."""
+    holds = [f"arm: follower on hold: follower data stale ({k})" for k in range(MESSAGES_MAX + 15)]
+    back = "arm: the loop did not run for 2023 ms; the follower comes back at the soft start"
+    log = "\n".join(["leader on /dev/pts/0: one sync read", *holds, "leader: Bus Watchdog re-armed (1)", back,
+                     "arm: follower on hold: follower data stale (late)"])
+    got = trial_messages(log)
+    assert got == [*holds[:MESSAGES_MAX], "leader: Bus Watchdog re-armed (1)", back]
