@@ -59,7 +59,10 @@ def test_bad_values_are_one_line_errors():
                       (["--epochs", "0"], "--epochs must be > 0"), (["--nproc", "0"], "--nproc must be >= 1"),
                       (["--episodes", "a.mcap#3-1"], "--episodes: 'a.mcap#3-1': the range ends before"),
                       (["--episodes", "a.mcap#x"], "not FILE.mcap#N or FILE.mcap#N-M"),
-                      (["--episodes", "#2"], "not FILE.mcap#N")]:
+                      (["--episodes", "#2"], "not FILE.mcap#N"),
+                      (["--obs-noise", "images=0.1"], "--obs-noise: 'images=0.1' is not NAME=SIGMA"),
+                      (["--obs-noise", "state=-1"], "sigma must be finite and >= 0"),
+                      (["--obs-noise", "state=x"], "'x' is not a number")]:
         with pytest.raises(UserError, match=why):
             _parse(["rec", "--out", "run", *argv])
     # one list of what the run fills itself (PolicyConfig's FILLED fields): --set refuses them all
@@ -77,6 +80,7 @@ def test_bad_values_are_one_line_errors():
     "rec --out run --epochs 3.5 --backbone convnet-gn --image-size 32 --dropout 0 --thresholds next "
     "--force current --method base --val-every 7 --nproc 2",
     "rec --out run --episodes a.mcap#0-2,b.mcap#5",
+    "rec --out run --obs state --obs-noise state=0.05,objects=0.05,force=0.1 --keep val-min --no-ema",
 ])
 def test_argv_parses_back_to_the_same_options(argv):
     """The torchrun relaunch: options -> argv -> parse -> the same options (less --nproc, the launcher's)."""
@@ -160,6 +164,8 @@ def test_older_meta_still_reads_and_resumes_check(state_run):
                policy={k: v for k, v in meta["policy"].items() if k != "aux_weight"})
     for key in ("include_failed", "keep_incomplete"):
         old.pop(key)
+    for key in ("ema", "obs_noise", "keep"):  # added since: the values runs before them had
+        old["train"].pop(key)
     back = R.RunOptions.from_meta(old, o.inputs, o.out)
     assert back.train == o.train and back.include_failed and back.keep_incomplete  # before: every outcome
     assert _compare(old, meta) == []

@@ -1,7 +1,9 @@
 """Policy checkpoints: RUN/checkpoints/step-NNNNNNN.safetensors (weights, no pickle) + .json (policy config,
 train config, method, features, preprocess, phase thresholds, NEXT checkpoint id, data hash, rig and arm,
 software version, metrics) + .optim.safetensors (AdamW moments: what `--resume` needs to continue exactly).
-RUN/checkpoints/last names the newest complete one (written last, so a crash never points at half a file).
+RUN/checkpoints/last names the newest complete one (written last, so a crash never points at half a file):
+what --resume continues. A run trained with --keep val-min also keeps valmin-NNNNNNN.* (the weights at its
+lowest validation loss) and RUN/checkpoints/kept naming them: what a RUN folder loads for use.
 """
 
 from __future__ import annotations
@@ -51,21 +53,10 @@ def save(
     moving average (what load_policy gives by default). keep: periodic checkpoints kept, 0 = all."""
     folder.mkdir(parents=True, exist_ok=True)
     stem = folder / f"step-{step:07d}"
-
-    def state(m):
-        return {k: v.detach().float().cpu().contiguous() for k, v in m.state_dict().items()}
-
-    sd = state(model)
-    _write_atomic(stem.with_suffix(".safetensors"), lambda p: save_file(sd, str(p)))
-    extra = {}
-    if ema is not None:
-        sd_ema = state(ema)
-        _write_atomic(Path(f"{stem}.ema.safetensors"), lambda p: save_file(sd_ema, str(p)))
-        extra["weights_ema"] = f"{stem.name}.ema.safetensors"
+    extra = _write_weights(stem, model, ema)
     if opt is not None:
         _write_atomic(Path(f"{stem}.optim.safetensors"), lambda p: save_file(_optim_tensors(opt), str(p)))
-    meta = dict(meta, format=FORMAT, step=step, final=final, weights=stem.with_suffix(".safetensors").name,
-                **extra)
+    meta = dict(meta, format=FORMAT, step=step, final=final, **extra)
     _write_atomic(stem.with_suffix(".json"), lambda p: p.write_text(json.dumps(meta, indent=1)))
     _write_atomic(folder / "last", lambda p: p.write_text(stem.name + "\n"))
     periodic = sorted(p for p in folder.glob("step-*.json") if not json.loads(p.read_text()).get("final"))
@@ -73,6 +64,56 @@ def save(
         for suffix in (".json", ".safetensors", ".optim.safetensors", ".ema.safetensors"):
             Path(str(old.with_suffix("")) + suffix).unlink(missing_ok=True)
     return stem.with_suffix(".json")
+
+
+def _write_weights(stem: Path, model: torch.nn.Module, ema: torch.nn.Module | None) -> dict:
+    """STEM.safetensors (and STEM.ema.safetensors): the meta entries naming them."""
+    def state(m):
+        return {k: v.detach().float().cpu().contiguous() for k, v in m.state_dict().items()}
+
+    sd = state(model)
+    _write_atomic(stem.with_suffix(".safetensors"), lambda p: save_file(sd, str(p)))
+    out = {"weights": stem.with_suffix(".safetensors").name}
+    if ema is not None:
+        sd_ema = state(ema)
+        _write_atomic(Path(f"{stem}.ema.safetensors"), lambda p: save_file(sd_ema, str(p)))
+        out["weights_ema"] = f"{stem.name}.ema.safetensors"
+    return out
+
+
+def save_kept(folder: Path, step: int, model: torch.nn.Module, meta: dict,
+              ema: torch.nn.Module | None = None) -> Path:
+    """The checkpoint a run keeps for use when that is not its last (--keep val-min): valmin-<step>.*
+    (weights, EMA, meta with its metrics; no optimiser: --resume continues from `last`), `kept` pointing at
+    it (written after it), the one it replaces removed after that. Returns the JSON."""
+    folder.mkdir(parents=True, exist_ok=True)
+    stem = folder / f"valmin-{step:07d}"
+    weights = _write_weights(stem, model, ema)
+    meta = dict(meta, format=FORMAT, step=step, final=False, kept="val-min", **weights)
+    _write_atomic(stem.with_suffix(".json"), lambda p: p.write_text(json.dumps(meta, indent=1)))
+    _write_atomic(folder / "kept", lambda p: p.write_text(stem.name + "\n"))
+    for old in folder.glob("valmin-*.json"):
+        if old != stem.with_suffix(".json"):
+            for suffix in (".json", ".safetensors", ".ema.safetensors"):
+                Path(str(old.with_suffix("")) + suffix).unlink(missing_ok=True)
+    return stem.with_suffix(".json")
+
+
+def _valmin(run: Path) -> Path | None:
+    p = Path(run) / "checkpoints" / "kept"
+    j = p.parent / (p.read_text().strip() + ".json") if p.is_file() else None
+    return j if j is not None and j.is_file() else None
+
+
+def kept_checkpoint(run: Path) -> Path | None:
+    """The JSON of the checkpoint RUN keeps for use: the one `kept` names (--keep val-min), else the last."""
+    return _valmin(run) or last_checkpoint(run)
+
+
+def kept_loss(run: Path, key: str = "val/loss") -> float:
+    """The validation loss of RUN's val-min checkpoint (inf without one): what a resumed run must beat."""
+    j = _valmin(run)
+    return float("inf") if j is None else float(json.loads(j.read_text()).get("metrics", {}).get(key, "inf"))
 
 
 def last_checkpoint(run: Path) -> Path | None:
@@ -86,8 +127,8 @@ def last_checkpoint(run: Path) -> Path | None:
 
 def read_meta(path: Path) -> dict:
     p = Path(path)
-    if p.is_dir():
-        p = last_checkpoint(p) or p / "checkpoints" / "last.json"
+    if p.is_dir():  # the checkpoint the run keeps for use (its last unless trained with --keep val-min)
+        p = kept_checkpoint(p) or p / "checkpoints" / "last.json"
     if p.suffix != ".json":
         p = p.with_suffix(".json")
     if not p.is_file():

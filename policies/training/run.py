@@ -32,6 +32,7 @@ from policies.labels.labelling import load_next, phases_identity, resolve_thresh
 from policies.models.config import PolicyConfig
 from policies.training import checkpoint as C
 from policies.training.methods import METHODS
+from policies.training.regularise import run_inputs
 from policies.training.run_config import RESUME_KEYS, RunOptions
 from policies.training.train import Dist, TrainHooks, barrier, train
 
@@ -45,12 +46,16 @@ def data_hash(episodes) -> str:
     return h.hexdigest()[:16]
 
 
+# TrainConfig entries added after runs were made, with the value those runs had
+ADDED_TRAIN = {"train.precision": "auto", "train.ema": True, "train.obs_noise": None, "train.keep": "last"}
+
+
 def _entry(meta: dict, key: str):
     """meta's entry `key` ("train.lr": nested); the model config with the defaults of fields added since."""
     if key == "policy":
         return PolicyConfig.from_dict(meta.get("policy", {})).to_dict()
-    if key == "train.precision":  # runs from before the choice: the default (its precision: precision_used)
-        return (meta.get("train") or {}).get("precision", "auto")
+    if key in ADDED_TRAIN:  # runs from before the choice: its default (precision: precision_used says more)
+        return (meta.get("train") or {}).get(key[len("train."):], ADDED_TRAIN[key])
     if key == "actions":  # runs from before the choice learned absolute targets
         return meta.get("actions", "absolute")
     if key == "perturbed":  # runs from before the choice: the default (their data had no perturbed tick)
@@ -197,6 +202,11 @@ def prepare(o: RunOptions, d: Dist):
     train_idx, _ = data.split()
     if len(train_idx) < 1:
         raise UserError("no training samples", where=str(o.inputs[0]), fix="record more episodes")
+    lacking = sorted(set(tcfg.obs_noise or {}) - run_inputs(data))
+    if lacking:  # noise asked on an input this run does not have would silently do nothing
+        raise UserError(f"--obs-noise names {', '.join(lacking)}, not an input of this run "
+                        f"(it has {', '.join(sorted(run_inputs(data)))})", where="--obs-noise",
+                        fix="name only the run's inputs")
     # the model's input and output sizes: the data's
     pcfg = replace(pcfg, n_cameras=len(data.names.cameras), state_dim=data.state.shape[1],
                    action_dim=data.action.shape[2], force_dim=data.force.shape[1],

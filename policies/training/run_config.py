@@ -21,14 +21,23 @@ from policies.data.dataset import FORCE_SOURCES
 from policies.data.perturbed import DEFAULT_PERTURBED, PERTURBED_MODES
 from policies.data.preprocess import ACTION_FRAMES
 from policies.data.privileged import OBSERVATIONS, low_dimensional
-from policies.data.sampler import DEFAULT_SOURCE_WEIGHTS, parse_ratio, parse_source_weights
-from policies.labels.label_flags import NEXT_HELP, add_threshold_arguments, thresholds_arg
-from policies.labels.labelling import TARE_DEFAULT, LabelChoice, ThresholdSource, source_kind
+from policies.data.sampler import DEFAULT_SOURCE_WEIGHTS
+from policies.labels.label_flags import NEXT_HELP
+from policies.labels.labelling import LabelChoice, ThresholdSource, source_kind
 from policies.models.config import PRESETS, PolicyConfig, default_preset, preset, settable
 from policies.models.policy import policy_names
 from policies.training import flags as F
+from policies.training.flag_kinds import (
+    EpisodesFlag,
+    ObsNoiseFlag,
+    OverridesFlag,
+    RatioFlag,
+    SourceWeightsFlag,
+    ThresholdsFlag,
+)
 from policies.training.flags import Flag, Switch, option
 from policies.training.methods import METHODS
+from policies.training.regularise import KEEP_CHOICES
 
 # the state preset's defaults: the learning curve (docs/first_training.md) still
 # rose at 8000 steps x 256 on 47 peg-insert demonstrations (~82 passes); images keep 20 passes at 128
@@ -38,122 +47,6 @@ STATE_EPOCHS, STATE_BATCH = 80.0, 256
 def default_length(observation: str) -> tuple[float, int]:
     """(epochs, batch) of a run that names neither: from the learning curve for a state observation."""
     return (STATE_EPOCHS, STATE_BATCH) if low_dimensional(observation) else (20.0, 128)
-
-
-class ParsedFlag(Flag):
-    """A flag whose text parse() turns into a value (None when not given); a ValueError becomes one line
-    with `example` as the fix."""
-
-    example = ""
-
-    @staticmethod
-    def parse(text: str):
-        raise NotImplementedError
-
-    def value(self, ns, dest: str):
-        text = getattr(ns, dest)
-        if text is None:
-            return None
-        try:
-            return self.parse(text)
-        except ValueError as e:
-            raise UserError(f"{self.name}: {e}", fix=f"e.g. {self.name} {self.example}") from None
-
-
-class RatioFlag(ParsedFlag):
-    """--ratio F:PC:C or a preset name -> (w_F, w_PC, w_C); written back as F:PC:C. presets: the names offered
-    (the terminal app cycles through them after "default", the method's own)."""
-
-    presets = ("PC", "C", "PC+C", "uniform")
-    example = "1:5:1"
-    parse = staticmethod(parse_ratio)
-
-    def argv(self, value, default) -> list[str]:
-        return [] if value is None else [self.name, ":".join(str(float(w)) for w in value)]
-
-
-class SourceWeightsFlag(ParsedFlag):
-    """--source-weights demo=1,policy=1,pre=0.25,operator=2 (any subset) -> the four weights (rollout
-    recordings with interventions: policies/data/sampler.py); written back in full."""
-
-    example = "pre=0,operator=3"
-    parse = staticmethod(parse_source_weights)
-
-    def argv(self, value, default) -> list[str]:
-        from hardware.recording.interventions import SOURCE_NAMES
-
-        return [] if value is None else [self.name, ",".join(f"{n}={float(w)}" for n, w in
-                                                             zip(SOURCE_NAMES, value))]
-
-
-class EpisodesFlag(ParsedFlag):
-    """--episodes FILE.mcap#N-M,... -> the ids of the episodes to train on (as policies.data.recordings'
-    episode_id names them); written back one by one."""
-
-    example = "peg-insert-sim-piper-seed1.mcap#0-11"
-
-    @staticmethod
-    def parse(text: str):
-        from policies.data.recordings import parse_episode_ids
-
-        return parse_episode_ids(text)
-
-    def argv(self, value, default) -> list[str]:
-        return [] if value is None else [self.name, ",".join(value)]
-
-
-class ThresholdsFlag(Flag):
-    """--thresholds recording|next|LOW:HIGH and --no-tare (policies.labels.label_flags, shared with the label
-    commands) -> a LabelChoice."""
-
-    def names(self) -> list[str]:
-        return ["--thresholds", "--no-tare", "--contact-score"]
-
-    def add(self, p, dest: str, default) -> None:
-        add_threshold_arguments(p)
-
-    def value(self, ns, dest: str):
-        return thresholds_arg(ns)
-
-    def argv(self, value, default) -> list[str]:
-        th, tare, score = ((value.thresholds, value.tare, value.score) if isinstance(value, LabelChoice)
-                           else (value, TARE_DEFAULT, "l1"))
-        # None: resolve_thresholds' "next" (its library default)
-        text = "next" if th is None else th if isinstance(th, str) else ":".join(str(float(x)) for x in th)
-        return (["--thresholds", text] + (["--no-tare"] if tare == "off" else [])
-                + (["--contact-score", score] if score != "l1" else []))
-
-
-class OverridesFlag(Flag):
-    """--set FIELD=VALUE (repeated) -> {field: value} over the preset's policy config (settable fields)."""
-
-    def add(self, p, dest: str, default) -> None:
-        p.add_argument(self.name, action="append", default=None, metavar="FIELD=VALUE", dest=dest,
-                       help=self._help())
-
-    def value(self, ns, dest: str):
-        items = getattr(ns, dest)
-        return None if items is None else parse_overrides(items)
-
-    def argv(self, value, default) -> list[str]:
-        return [a for k, v in (value or {}).items() for a in (self.name, f"{k}={v}")]
-
-
-def parse_overrides(items: list[str]) -> dict:
-    """["hidden=128", ...] -> {"hidden": 128, ...}, typed as PolicyConfig's fields; UserError for a field the
-    run fills itself or a value of the wrong type."""
-    types = settable()
-    out = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or key not in types:
-            raise UserError(f"--set {item!r}: not FIELD=VALUE of a settable policy config field",
-                            fix="see policies/models/config.py, e.g. --set hidden=128")
-        try:
-            out[key] = (value.lower() in ("1", "true", "yes")) if types[key] is bool else types[key](value)
-        except ValueError:
-            raise UserError(f"--set {item!r}: {value!r} is not a {types[key].__name__}") from None
-    return out
 
 
 def _train(name: str, **kw):
@@ -195,7 +88,19 @@ class TrainConfig:
     # torch threads per process (0: chosen from the free cores, policies.training.train_threads.pick_threads)
     threads: int = option(0, flag=Flag("--threads", "torch threads per process (default: cores / nproc)",
                                        type=int))
-    ema: bool = True  # keep an exponential moving average of the weights (ema_decay): rollouts use it
+    # keep an exponential moving average of the weights (ema_power, ema_max): validation and rollouts use it
+    ema: bool = _train("ema", default=True, flag=Switch(
+        "--no-ema", "evaluate and roll out the trained weights, no moving average of them"))
+    # issue #56's levers, off by default (policies/training/regularise.py)
+    obs_noise: dict | None = _train("obs_noise", default=None, flag=ObsNoiseFlag(
+        "--obs-noise", "Gaussian noise added to these low-dimensional inputs in training only (not "
+        "validation, not rollouts), sigma in each input's standard deviations over the training data "
+        "(state: joints and grippers, force, objects: the PRIVILEGED or perceived vector)",
+        metavar="NAME=SIGMA,...", unit="normalised units"))
+    keep: str = _train("keep", default="last", flag=Flag(
+        "--keep", "the checkpoint rollouts load from RUN: last (default), or val-min: the evaluated weights "
+        "at the lowest validation loss (RUN/checkpoints/kept names it; --resume continues from the last)",
+        choices=KEEP_CHOICES))
     ema_power: float = 0.75  # EMA decay at step s: min(ema_max, 1 - (1 + s) ** -ema_power) (Diffusion Policy)
     ema_max: float = 0.9999
     keep_checkpoints: int = 2  # periodic checkpoints kept (the final one always stays); 0: every one

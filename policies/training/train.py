@@ -31,6 +31,7 @@ from policies.models.policy import make_policy
 from policies.training import checkpoint as C
 from policies.training.curves import RunLog
 from policies.training.methods import BLUR_SIGMA0_PX_224, METHODS, blur_sigma
+from policies.training.regularise import Ema, add_obs_noise
 from policies.training.run_config import RunOptions, TrainConfig
 from policies.training.train_threads import TrainCpu
 
@@ -95,29 +96,6 @@ def clamp_schedule(cfg: TrainConfig, total: int) -> tuple[TrainConfig, list[str]
     notes = [f"{name.replace('_', ' ')} {getattr(cfg, name)} -> {getattr(new, name)} steps (run of {total})"
              for name in ("warmup", "val_every", "ckpt_every") if getattr(new, name) != getattr(cfg, name)]
     return new, notes
-
-
-class Ema:
-    """Exponential moving average of a model's weights (buffers copied): the weights that are evaluated and
-    rolled out. Decay at step s: min(ema_max, 1 - (1 + s) ** -power), Diffusion Policy's warm-up, so early
-    steps follow the model closely and the average lengthens as training settles."""
-
-    def __init__(self, model: torch.nn.Module, power: float, max_decay: float):
-        import copy
-
-        self.model = copy.deepcopy(model).eval().requires_grad_(False)
-        self.power, self.max_decay = power, max_decay
-
-    def decay(self, step: int) -> float:
-        return min(self.max_decay, 1.0 - (1.0 + step) ** -self.power)
-
-    @torch.no_grad()
-    def update(self, model: torch.nn.Module, step: int) -> None:
-        d = self.decay(step)
-        ema_p = [p for p in self.model.parameters()]
-        torch._foreach_lerp_(ema_p, [p.detach() for p in model.parameters()], 1.0 - d)
-        for b_ema, b in zip(self.model.buffers(), model.buffers()):
-            b_ema.copy_(b)
 
 
 def _seed(*parts: int) -> int:
@@ -227,6 +205,8 @@ def train(data: PolicyData, pcfg: PolicyConfig, o: RunOptions, meta: dict, d: Di
     sampler = _sampler(data, train_idx, o, d)
     total = total_steps(o.train, sampler)
     cfg, notes = clamp_schedule(o.train, total)
+    if cfg.keep == "val-min" and not len(val_idx):
+        notes.append("--keep val-min: no validation split, the last checkpoint is kept")
     precision, why_precision = pick_precision(cfg.precision, d.device)
     meta["precision_used"] = precision
     if d.main and o.progress:
@@ -247,6 +227,7 @@ def train(data: PolicyData, pcfg: PolicyConfig, o: RunOptions, meta: dict, d: Di
         cpu.watch(start, lambda text: _say(bar, text), cost=o.progress, steps_left=total - start,
                   observation=pcfg.observation, device=d.device.type, batch=cfg.batch)
     t_last, n_last, last_val = time.perf_counter(), 0, {}
+    best = C.kept_loss(run) if start else float("inf")  # --keep val-min: the lowest validation loss so far
 
     def save(step: int, final: bool = False) -> None:  # rank 0: weights, EMA, optimiser, meta
         C.save(run / "checkpoints", step, model, opt, dict(meta, metrics=last_val), final=final,
@@ -294,6 +275,10 @@ def train(data: PolicyData, pcfg: PolicyConfig, o: RunOptions, meta: dict, d: Di
             last_val = _validate(eval_model, model if ema is not None else None, data, val_idx, pcfg, d, cfg)
             if last_val:
                 log.log(done, last_val)
+            if cfg.keep == "val-min" and last_val.get("val/loss", best) < best:  # the evaluated weights
+                best = last_val["val/loss"]
+                C.save_kept(run / "checkpoints", done, model, dict(meta, metrics=last_val),
+                            ema=ema.model if ema is not None else None)
         if d.main and (done % cfg.ckpt_every == 0 or done == total):
             save(done, final=done == total)
         if done % cfg.ckpt_every == 0:
@@ -372,14 +357,18 @@ def _bar(total: int, start: int, desc: str):
 
 def _step_inputs(data: PolicyData, sampler: FirstSampler, train_idx: np.ndarray, model_type,
                  pcfg: PolicyConfig, cfg: TrainConfig, s: int, d: Dist) -> tuple[dict, dict]:
-    """Global step s's batch and noise on this rank: the sampler's global batch, the noise and the crop boxes
-    drawn for the whole global batch from a generator seeded by (seed, s), this rank keeping its positions."""
+    """Global step s's batch and noise on this rank: the sampler's global batch, the noise, the crop boxes and
+    the observation noise drawn for the whole global batch from a generator seeded by (seed, s), this rank
+    keeping its positions."""
     epoch, k = divmod(s, sampler.steps_per_epoch(cfg.batch))
     idx, pos = sampler.batch(epoch, k, cfg.batch)
     gen = torch.Generator().manual_seed(_seed(cfg.seed, s))
     noise = {key: v[torch.from_numpy(pos)] for key, v in model_type.draw_noise(pcfg, cfg.batch, gen).items()}
     crops = data.pre.image.draw_crops(cfg.batch, gen)[torch.from_numpy(pos)]
-    return _to(data.batch(train_idx[idx], crops), d.device), _to(noise, d.device)
+    batch = data.batch(train_idx[idx], crops)
+    if cfg.obs_noise:  # drawn after the rest: a run without it draws what it always did
+        add_obs_noise(batch, cfg.obs_noise, gen, cfg.batch, pos)
+    return _to(batch, d.device), _to(noise, d.device)
 
 
 def _validate(eval_model, raw_model, data: PolicyData, val_idx: np.ndarray, pcfg: PolicyConfig, d: Dist,
