@@ -20,6 +20,8 @@ collects the same episodes and rolls out on the same seeds: before and after, pa
     python -m bench.data_curve --out OUT --jobs 2              # the curve: 3 tasks, 10 points, 2 seeds x 24
     python -m bench.data_curve --out OUT --jobs 16             # the same on a 16-core machine
     python -m bench.data_curve --quick --out OUT --jobs 1      # a few-minute smoke run (its numbers: nothing)
+    python -m bench.data_curve --dev --defaults sized --tasks peg-insert,press-fit --points 50 --out DEV
+                                                               # development seeds: choosing the defaults
     python -m bench.data_curve --out OUT --report --results data_curve_current   # + results/NAME.json
 
 Resumable: every collection part, training run and rollout set leaves its JSON as it finishes and is skipped
@@ -51,6 +53,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from bench import harness
+from bench.data_curve_defaults import DEFAULTS, defaults_flags, defaults_meta
 from bench.data_curve_report import (
     chart,
     finished_rows,
@@ -64,21 +67,24 @@ from bench.first_config import (
     DATA_CURVE_DEMO_SEED,
     DATA_CURVE_EVAL_SEED,
     DATA_CURVE_PARTS_MAX,
+    DEFAULTS_DEV_DEMO_SEED,
+    DEFAULTS_DEV_EVAL_SEED,
     RIG,
     check_resume,
 )
 from bench.first_stages import _json, collect_run, rollout_run
 
 POINTS = {"peg-insert": [25, 50, 100, 200], "press-fit": [25, 50, 100, 200], "wipe": [25, 50]}
-# named sets of `factr2 train` flags beyond DEMOS --obs state: "current" = none, the defaults of the commit
-DEFAULTS = {"current": []}
 # the NEXT checkpoint the demonstrations' feedback uses: the committed one, so a collection is the same on
 # every machine with the same software (docs/first.md, "The headline across machines")
 NEXT_CHECKPOINT = "bench/assets/next_sim_piper_first/next.json"
 QUICK = {"tasks": ["wipe"], "points": {"wipe": [2, 4]}, "seeds": 1, "rollouts": 1, "part_episodes": 3,
          "train_flags": ["--steps", "30", "--batch", "32"]}
 SAME_ON_RESUME = ("defaults", "defaults_meta", "train_flags", "rollouts", "part_episodes", "device",
-                  "next_checkpoint", "demo_seed", "eval_seed")
+                  "next_checkpoint", "demo_seed", "eval_seed")  # the seeds: a --dev OUT is never the curve's
+# the seeds of a run: the curve's (what is reported), or the development ones a rule is chosen on
+SEED_SETS = {"curve": (DATA_CURVE_DEMO_SEED, DATA_CURVE_EVAL_SEED),
+             "dev": (DEFAULTS_DEV_DEMO_SEED, DEFAULTS_DEV_EVAL_SEED)}
 
 
 @dataclass
@@ -96,8 +102,10 @@ class CurveConfig:
     next_checkpoint: str = NEXT_CHECKPOINT
     train_flags: list = field(default_factory=list)  # beyond the defaults' (--quick: few steps)
     quick: bool = False
+    seed_set: str = "curve"  # SEED_SETS
     demo_seed: int = DATA_CURVE_DEMO_SEED
     eval_seed: int = DATA_CURVE_EVAL_SEED
+    demos_from: str = ""  # another OUT whose collection (same seeds, part size) this one trains on
     defaults_meta: dict = field(default_factory=dict)  # what the defaults resolve to here (defaults_meta())
 
     def point_keys(self) -> list[tuple[str, int, int]]:
@@ -134,23 +142,9 @@ def episode_ranges(ids: list[str]) -> str:
     return ",".join(f"{n}#{a}" if a == b else f"{n}#{a}-{b}" for n, a, b in out)
 
 
-def defaults_meta(defaults: str) -> dict:
-    """What `factr2 train DEMOS --obs state` with the named defaults' flags resolves to before it reads data
-    (the checkpoint meta's model, method and schedule; not the seed or threads): kept in OUT/config.json, so
-    an OUT is never resumed under other defaults, a later commit's."""
-    from policies.training.run_config import add_arguments, from_args
-
-    ap = argparse.ArgumentParser()
-    add_arguments(ap)
-    argv = ["DEMOS", "--obs", "state", *DEFAULTS[defaults], "--out", "RUN"]
-    meta = from_args(ap.parse_args(argv)).to_meta()
-    meta["train"] = {k: v for k, v in meta["train"].items() if k not in ("seed", "threads")}
-    return json.loads(json.dumps(meta))
-
-
 def train_argv(cfg: CurveConfig, folders: list[Path], ids: list[str], seed: int, run: Path) -> list[str]:
-    """The `factr2 train` arguments of a point: the defaults named, the subset, the training seed."""
-    return [*map(str, folders), "--obs", "state", *DEFAULTS[cfg.defaults], *cfg.train_flags,
+    """The `factr2 train` arguments of a point: the defaults named (for its size), the subset, the seed."""
+    return [*map(str, folders), "--obs", "state", *defaults_flags(cfg.defaults, len(ids)), *cfg.train_flags,
             "--seed", str(seed), "--episodes", episode_ranges(ids), "--out", str(run)]
 
 
@@ -159,11 +153,16 @@ def part_dir(out: str | Path, task: str, k: int) -> Path:
     return Path(out) / task / "demos" / f"part{k:02d}"
 
 
+def demos_root(cfg: CurveConfig) -> str:
+    """The OUT whose collection this run trains on: its own, or --demos-from's."""
+    return cfg.demos_from or cfg.out
+
+
 def part_paths(cfg: CurveConfig, task: str, k: int) -> tuple[Path, Path]:
     """(recording, summary) of collection part k."""
     from factr2_teleop.tasks.run import CollectConfig, output_paths
 
-    return output_paths(CollectConfig(rig=RIG, task=task, out=str(part_dir(cfg.out, task, k)),
+    return output_paths(CollectConfig(rig=RIG, task=task, out=str(part_dir(demos_root(cfg), task, k)),
                                       seed=cfg.demo_seed + k), RIG)
 
 
@@ -171,6 +170,20 @@ def collect_part(cfg: CurveConfig, task: str, k: int) -> dict:
     ck = Path(cfg.next_checkpoint)
     ck = ck if ck.is_absolute() else harness.ROOT / ck
     return collect_run(task, part_dir(cfg.out, task, k), cfg.part_episodes, cfg.demo_seed + k, str(ck))
+
+
+def check_demos_from(cfg: CurveConfig) -> None:
+    """--demos-from OTHER: OTHER is a data-curve OUT collected on this run's seeds, part size and NEXT
+    checkpoint (its episodes are then the ones this run would collect); SystemExit naming what differs."""
+    other = Path(cfg.demos_from) / "config.json"
+    if not other.is_file():
+        raise SystemExit(f"--demos-from {cfg.demos_from}: no config.json (not a data_curve results folder)")
+    old = json.loads(other.read_text())
+    keys = ("seed_set", "demo_seed", "part_episodes", "next_checkpoint")
+    diff = [k for k in keys if old.get(k, "curve" if k == "seed_set" else None) != getattr(cfg, k)]
+    if diff:
+        raise SystemExit(f"--demos-from {cfg.demos_from}: collected with other " + ", ".join(
+            f"{k} ({old.get(k)} there, {getattr(cfg, k)} here)" for k in diff))
 
 
 def train_point(cfg: CurveConfig, task: str, n: int, seed: int, folders: list[Path], ids: list[str]) -> dict:
@@ -199,10 +212,11 @@ def train_point(cfg: CurveConfig, task: str, n: int, seed: int, folders: list[Pa
     device = "cuda" if cfg.device == "auto" and torch.cuda.is_available() else "cpu"
     t, c = time.perf_counter(), time.process_time()
     run_training(opts, Dist(device=torch.device(device)))
-    meta = read_meta(run)
+    meta, kept = read_meta(last_checkpoint(run)), read_meta(run)  # the end, and what rollouts load (--keep)
     out = {"task": task, "n_demos": n, "seed": seed, "defaults": cfg.defaults,
            "command": "factr2 train " + shlex.join(argv), "commit": harness.commit(), "resumed": resume,
-           "steps": meta["step"], "batch": meta["train"]["batch"], "epochs": meta["train"]["epochs"],
+           "steps": meta["step"], "kept_step": kept["step"], "kept_val": kept.get("metrics", {}),
+           "batch": meta["train"]["batch"], "epochs": meta["train"]["epochs"],
            "samples": meta["samples"], "episodes": len(meta["episodes"]), "val": meta.get("metrics", {}),
            "advice": run_advice(run), "device": device, "torch_threads": torch.get_num_threads(),
            "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "run": str(run)}
@@ -253,7 +267,7 @@ class State:
         if k is None:
             return None
         names = [(part_paths(self.cfg, task, i)[0].name, self.parts[task][i]) for i in range(k)]
-        return [part_dir(self.cfg.out, task, i) for i in range(k)], successful_ids(names)[:n]
+        return [part_dir(demos_root(self.cfg), task, i) for i in range(k)], successful_ids(names)[:n]
 
     def plan_more(self, task: str) -> None:
         """Another part when every planned one is in and they hold fewer successes than the largest point."""
@@ -269,7 +283,7 @@ class State:
         demonstrations): the small points of seed 0 first, a collection part before the point it completes,
         so a run stopped early leaves whole points."""
         cfg, jobs = self.cfg, []
-        for ti, t in enumerate(cfg.tasks):
+        for ti, t in enumerate(cfg.tasks if not cfg.demos_from else ()):  # --demos-from: collects nothing
             self.plan_more(t)
             for k in range(self.planned[t]):
                 if k not in self.parts[t]:
@@ -351,7 +365,9 @@ def build_results(cfg: CurveConfig, command: str) -> dict:
     ck = Path(cfg.next_checkpoint)
     return {"simulated": True, "observation": "state (PRIVILEGED twin object state, no images)",
             "command": command, "config": asdict(cfg), "defaults": cfg.defaults,
-            "train_flags": DEFAULTS[cfg.defaults] + cfg.train_flags,
+            "train_flags": {str(n): defaults_flags(cfg.defaults, n) + cfg.train_flags
+                            for n in sorted({n for t in cfg.tasks for n in cfg.points[t]})},
+            "seed_set": cfg.seed_set,
             "commits": sorted({r["commit"] for r in rows}), "commit": harness.commit(),
             "next_weights_sha256": next_weights_digest(ck if ck.is_absolute() else harness.ROOT / ck),
             "seeds": {"collection_seeds": [cfg.demo_seed, cfg.demo_seed + DATA_CURVE_PARTS_MAX - 1],
@@ -375,7 +391,15 @@ def parse_args(argv=None) -> tuple[CurveConfig, argparse.Namespace]:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, help="results folder (resumable)")
     ap.add_argument("--defaults", choices=tuple(DEFAULTS), default="current",
-                    help="the training defaults: current = `factr2 train` with no options at this commit")
+                    help="the training defaults: current = `factr2 train` with no options at this commit; "
+                    "noise, dropout, val-min, longer: one lever each; sized: the candidate rule from the "
+                    "number of demonstrations (docs/policies.md, 'Choosing the defaults')")
+    ap.add_argument("--dev", action="store_true",
+                    help="development seeds (bench/first_config.py DEFAULTS_DEV_*: collection 5701-5740, "
+                    "rollouts 5700) to choose defaults on; never the curve's, never resumed as the curve")
+    ap.add_argument("--demos-from", default="", metavar="OUT2",
+                    help="train on OUT2's collection (a data_curve OUT on the same seeds and part size): "
+                    "each set of defaults compared on the same demonstrations, collected once")
     ap.add_argument("--tasks", default="", help=f"comma-separated (default {','.join(POINTS)})")
     ap.add_argument("--points", default="", metavar="N[,N...]",
                     help="successful demonstrations per point, for every task given (default: "
@@ -392,7 +416,9 @@ def parse_args(argv=None) -> tuple[CurveConfig, argparse.Namespace]:
     ap.add_argument("--results", default="", metavar="NAME", help="also write results/NAME.json")
     a = ap.parse_args(argv)
     cfg = CurveConfig(out=a.out, defaults=a.defaults, jobs=max(1, a.jobs), threads=max(0, a.threads),
-                      device=a.device)
+                      device=a.device, demos_from=a.demos_from)
+    cfg.seed_set = "dev" if a.dev else "curve"
+    cfg.demo_seed, cfg.eval_seed = SEED_SETS[cfg.seed_set]
     if a.quick:
         cfg.quick = True
         for k, v in QUICK.items():
@@ -438,6 +464,8 @@ def main(argv=None) -> int:
         signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))
         cfg.defaults_meta = defaults_meta(cfg.defaults)
         check_resume(cfg, out, SAME_ON_RESUME)
+        if cfg.demos_from:
+            check_demos_from(cfg)
         out.mkdir(parents=True, exist_ok=True)
         old = json.loads((out / "config.json").read_text()) if (out / "config.json").is_file() else {}
         # tasks and points added on resume are kept in the record of what OUT holds

@@ -109,8 +109,9 @@ def chart(summary: dict, path: Path, title: str) -> None:
 
 
 def title(config: dict) -> str:
+    dev = ", DEVELOPMENT seeds" if config.get("seed_set") == "dev" else ""
     return (f"data curve, defaults {config['defaults']}: {config['seeds']} training seed(s) x "
-            f"{config['rollouts']} rollouts per point (SIMULATED twin, PRIVILEGED state)")
+            f"{config['rollouts']} rollouts per point (SIMULATED twin, PRIVILEGED state{dev})")
 
 
 def write_results(results: dict, name: str, cmd: str, out: Path, results_dir: Path = harness.RESULTS) -> Path:

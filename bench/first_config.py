@@ -27,6 +27,20 @@ CURVE_SEED = 4  # rollout seed of the learning curve (bench/first_curve.py): nev
 # 31) and no development seed the pages name (all below 1001): tests/test_data_curve.py checks the first two
 DATA_CURVE_DEMO_SEED, DATA_CURVE_PARTS_MAX = 5601, 40  # collection seeds 5601-5640
 DATA_CURVE_EVAL_SEED = 5600  # rollout seed
+# development seeds for choosing the training defaults (issue #56 item 2: `bench/data_curve.py --dev`, the
+# data curve's layout on seeds of its own, so a rule is fitted here and checked on the curve's seeds after)
+DEFAULTS_DEV_DEMO_SEED = 5701  # collection part k from 5701 + k: 5701-5740
+DEFAULTS_DEV_EVAL_SEED = 5700  # rollout seed
+# every session seed registered here, by use; no two ranges meet (tests/test_data_curve.py), and disjoint
+# session seeds give disjoint episodes (S * 100003 + k for k < 100003)
+SEED_RANGES = {
+    "demo": range(DEMO_SEED, DEMO_SEED + 1), "eval": range(EVAL_SEED, EVAL_SEED + 1),
+    "curve": range(CURVE_SEED, CURVE_SEED + 1),
+    "data_curve_demo": range(DATA_CURVE_DEMO_SEED, DATA_CURVE_DEMO_SEED + DATA_CURVE_PARTS_MAX),
+    "data_curve_eval": range(DATA_CURVE_EVAL_SEED, DATA_CURVE_EVAL_SEED + 1),
+    "defaults_dev_demo": range(DEFAULTS_DEV_DEMO_SEED, DEFAULTS_DEV_DEMO_SEED + DATA_CURVE_PARTS_MAX),
+    "defaults_dev_eval": range(DEFAULTS_DEV_EVAL_SEED, DEFAULTS_DEV_EVAL_SEED + 1),
+}
 RIG = "sim-piper"
 OBS_LABELS = {"state": " (PRIVILEGED twin object state, no images)",
               "perceived": " (SIMULATED camera pose detector's object poses, no images; docs/perception.md)"}

@@ -178,3 +178,73 @@ def test_an_out_is_not_resumed_under_other_defaults(tmp_path):
     later = _cfg(tmp_path, defaults_meta={**meta, "train": {**meta["train"], "epochs": 40.0}})
     with pytest.raises(SystemExit, match="defaults_meta"):
         first_config.check_resume(later, tmp_path, dc.SAME_ON_RESUME)
+
+
+def test_the_registry_seed_ranges_never_meet_and_cover_every_seed():
+    """Every *_SEED constant of bench/first_config.py lies in its SEED_RANGES entry, no two ranges share a
+    session seed, and so no two share an episode seed (S * stride + k, k below the stride); the development
+    seeds also miss every evaluation seed a committed result pre-registered and every page's (below 1001)."""
+    ranges = first_config.SEED_RANGES
+    for name, value in vars(first_config).items():
+        if name.endswith("_SEED"):
+            assert any(value in r for r in ranges.values()), name
+    names = list(ranges)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            assert not set(ranges[a]) & set(ranges[b]), (a, b)
+    eps = {n: {episode_seed(s, k) for s in r for k in (0, 999)} for n, r in ranges.items()}
+    assert sum(map(len, eps.values())) == len(set().union(*eps.values()))
+    dev = set(ranges["defaults_dev_demo"]) | set(ranges["defaults_dev_eval"])
+    assert not dev & _other_seeds() - dev and min(dev) > 1000
+
+
+def test_dev_mode_uses_its_own_seeds_and_is_never_resumed_as_the_curve(tmp_path):
+    curve, _ = dc.parse_args(["--out", str(tmp_path)])
+    dev, _ = dc.parse_args(["--out", str(tmp_path), "--dev"])
+    assert (curve.demo_seed, curve.eval_seed) == (5601, 5600)
+    assert (dev.demo_seed, dev.eval_seed) == (first_config.DEFAULTS_DEV_DEMO_SEED,
+                                              first_config.DEFAULTS_DEV_EVAL_SEED) and dev.seed_set == "dev"
+    (tmp_path / "config.json").write_text(json.dumps(asdict(curve)))
+    with pytest.raises(SystemExit, match="demo_seed"):
+        first_config.check_resume(dev, tmp_path, dc.SAME_ON_RESUME)
+    assert dc.part_paths(dev, "wipe", 2)[0].name == "wipe-sim-piper-seed5703.mcap"
+
+
+def test_the_sized_rule_maps_demonstrations_to_factr2_train_flags(tmp_path):
+    """Below SIZED_BELOW: noise on the low-dimensional inputs and dropout, parsed by factr2 train's flags;
+    from it on: exactly the current defaults; OUT's record of the rule is its flags at every probed size."""
+    import argparse
+
+    from bench import data_curve_defaults as D
+    from policies.training.run_config import add_arguments, from_args
+
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    cfg = _cfg(tmp_path, defaults="sized")
+    small = from_args(ap.parse_args(dc.train_argv(cfg, [tmp_path], ["x.mcap#0"] * 50, 0, tmp_path / "r")))
+    assert small.train.obs_noise == {"state": 0.05, "objects": 0.05, "force": 0.1} and small.dropout == 0.1
+    big = dc.train_argv(cfg, [tmp_path], ["x.mcap#0"] * D.SIZED_BELOW, 0, tmp_path / "r")
+    assert big == dc.train_argv(_cfg(tmp_path), [tmp_path], ["x.mcap#0"] * D.SIZED_BELOW, 0, tmp_path / "r")
+    meta = dc.defaults_meta("sized")
+    assert set(meta) == {f"n{n}" for n in D.RULE_PROBE}
+    assert meta["n200"] == dc.defaults_meta("current") and meta["n50"]["train"]["obs_noise"]
+    assert "obs_noise" not in dc.defaults_meta("current")["train"]  # an OUT from before the option resumes
+    for name in D.DEFAULTS:  # every named set parses as factr2 train flags at every probed size
+        for n in D.RULE_PROBE:
+            from_args(ap.parse_args(["D", "--out", "R", "--obs", "state", *D.defaults_flags(name, n)]))
+
+
+def test_demos_from_trains_on_another_outs_collection_and_collects_nothing(tmp_path):
+    src = _cfg(tmp_path / "src")
+    _write_part(src, 0, "sss")
+    _write_part(src, 1, "sss")
+    (tmp_path / "src" / "config.json").write_text(json.dumps(asdict(src)))
+    cfg = _cfg(tmp_path / "dst", demos_from=str(tmp_path / "src"), defaults="noise")
+    dc.check_demos_from(cfg)
+    st = dc.State(cfg)
+    jobs = [(k, a[:3]) for _, k, a in st.ready(set())]
+    assert jobs == [("train", ("wipe", 2, 0)), ("train", ("wipe", 4, 0))]
+    assert st.subset("wipe", 4)[0] == [dc.part_dir(tmp_path / "src", "wipe", 0),
+                                       dc.part_dir(tmp_path / "src", "wipe", 1)]
+    with pytest.raises(SystemExit, match="demo_seed"):
+        dc.check_demos_from(_cfg(tmp_path / "dst", demos_from=str(tmp_path / "src"), demo_seed=5701))
