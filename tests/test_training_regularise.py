@@ -150,3 +150,16 @@ def test_keep_last_writes_no_kept_pointer(rec, tmp_path):
     run_training(_opts(rec, tmp_path / "run", steps=4), Dist())
     assert not (tmp_path / "run" / "checkpoints" / "kept").exists()
     assert C.kept_checkpoint(tmp_path / "run") == C.last_checkpoint(tmp_path / "run")
+
+
+def test_factr2_train_says_which_checkpoint_rollouts_load(rec, tmp_path, capsys):
+    from factr2_teleop.cli import main
+
+    argv = ["train", str(rec), "--out", str(tmp_path / "run"), "--obs", "state", "--steps", "8",
+            "--batch", "16", "--val-every", "2", "--thresholds", "1:3", "--threads", "1", "--no-progress",
+            "--set", "hidden=32", "--obs-noise", "state=0.1,objects=0.1", "--keep", "val-min"]
+    assert main(argv) == 0
+    kept = C.kept_checkpoint(tmp_path / "run")
+    assert f"checkpoints ({kept.stem} kept: the lowest validation loss)" in capsys.readouterr().out
+    meta = C.read_meta(tmp_path / "run")
+    assert meta["train"]["obs_noise"] == {"state": 0.1, "objects": 0.1} and meta["train"]["keep"] == "val-min"

@@ -61,9 +61,14 @@ def run(args) -> int:
 
             dist.destroy_process_group()
     if d.main:
+        from policies.training.checkpoint import kept_checkpoint
+
         shown = ", ".join(f"{k} {v:.4g}" for k, v in metrics.items())
+        kept = kept_checkpoint(opts.out)  # --keep val-min: what rollouts load is not the last
+        which = f"{kept.stem} kept: the lowest validation loss" if kept and kept.stem.startswith("valmin") \
+            else "last"
         print(
-            f"done: {opts.out}/checkpoints (last), curves {opts.out}/curves.png, "
+            f"done: {opts.out}/checkpoints ({which}), curves {opts.out}/curves.png, "
             f"TensorBoard {opts.out}/tensorboard"
             + (f"; {shown}" if shown else "")
         )
