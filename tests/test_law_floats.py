@@ -13,6 +13,7 @@ from factr2_teleop.teleop.law_floats import (
     barrier_floats,
     friction_coulomb_floats,
     friction_dither_floats,
+    law_tau_floats,
     scaled,
     sum_cap,
 )
@@ -80,6 +81,31 @@ def test_sum_and_cap_are_the_numpy_sum(terms, cap):
         ref, n = cap_total(total, _a(cap))
     got_total, got, m = sum_cap(terms, cap)
     assert _bits(got_total) == _bits(total) and _bits(got) == _bits(ref) and m == n
+
+
+@settings(max_examples=400, deadline=None)
+@given(VEC, VEC, VEC, VEC, VEC, VEC, NONNEG, NONNEG, NONNEG, NONNEG, SIGN,
+       st.sampled_from(["dither", "coulomb", "off"]), st.booleans(), st.booleans(), st.booleans())
+def test_one_pass_sum_is_the_terms_summed_and_capped(gl, qd, q, ns, fb, gain, dk, thr, cc, cap, sign, mode,
+                                                     grav_on, barrier_on, ns_on):
+    """law_tau_floats against the term kernels summed by sum_cap (each checked against numpy above)."""
+    qd = [v if np.isfinite(v) else 0.0 for v in qd]  # LeaderLaw.step zeroes a non-finite q_dot first
+    cap = [c if c > 0 else 1.0 for c in cap]
+    f = {"dither_gain": dk, "dither_min": thr[::-1], "v_thr": thr, "coulomb": cc,
+         "b_lo": [-1.0, -0.5, 0.0, -2.0, -np.inf, 0.3], "b_hi": [1.0, 0.5, 0.2, 2.0, np.inf, 0.4],
+         "neg_b_kp": (-_a(dk)).tolist(), "b_kd": cc[::-1], "neg_damp": (-_a(cc)).tolist(), "cap": cap}
+    zeros = [0.0] * N
+    g0 = gl if grav_on else zeros
+    fric = (friction_dither_floats(g0, qd, f["dither_gain"], f["dither_min"], f["v_thr"], sign)
+            if mode == "dither" else friction_coulomb_floats(qd, f["coulomb"], f["v_thr"])
+            if mode == "coulomb" else zeros)
+    bar = barrier_floats(q, qd, f["b_lo"], f["b_hi"], f["neg_b_kp"], f["b_kd"]) if barrier_on else None
+    terms = [scaled(gain, gl) if grav_on else zeros, fric, zeros if bar is None else bar,
+             ns if ns_on else zeros, scaled(f["neg_damp"], qd), fb]
+    _, ref, n = sum_cap(terms, cap)
+    got, m = law_tau_floats(gl if grav_on else None, gain, qd, q if barrier_on else None, mode == "dither",
+                            mode == "coulomb", sign, f, ns if ns_on else None, fb)
+    assert _bits(got) == _bits(ref) and m == n
 
 
 @settings(max_examples=300, deadline=None)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hardware.params import PerJoint, clamp, per_joint
-from hardware.small_vec import abs_sum, all_finite
+from hardware.small_vec import abs_sum
 
 
 @dataclass
@@ -124,14 +124,25 @@ def ema(prev: float, x: float, beta: float) -> float:
 
 
 # -- the small state that carries over ticks ----------------------------------------------------------
-@dataclass
 class FeedbackResult:
-    tau_fb: np.ndarray  # N*m on the leader joints
-    gate: float  # 0..1
-    contact: bool
-    fresh: bool
-    message: str | None  # set when feedback was turned off for a reason the operator should see
-    gripper_tau: float  # N*m on the leader trigger
+    """One tick's feedback: tau_fb [N*m] on the leader joints (tau_fb_floats: the same as floats; the array
+    is made at its first read: the law sums the floats), gate 0..1, contact, fresh, message (set when
+    feedback was turned off for a reason the operator should see), gripper_tau [N*m] on the leader trigger."""
+
+    __slots__ = ("tau_fb_floats", "gate", "contact", "fresh", "message", "gripper_tau", "_tau_fb")
+
+    def __init__(self, tau_fb, gate: float, contact: bool, fresh: bool, message: str | None,
+                 gripper_tau: float):
+        self.tau_fb_floats = tau_fb if type(tau_fb) is list else np.asarray(tau_fb, dtype=float).tolist()
+        self.gate, self.contact, self.fresh, self.message = gate, contact, fresh, message
+        self.gripper_tau = gripper_tau
+        self._tau_fb = None
+
+    @property
+    def tau_fb(self) -> np.ndarray:
+        if self._tau_fb is None:
+            self._tau_fb = np.array(self.tau_fb_floats, dtype=float)
+        return self._tau_fb
 
 
 class FeedbackGate:
@@ -149,6 +160,8 @@ class FeedbackGate:
         self.gate = 0.0
         self.contact = False
         self.last_tau = np.zeros(self.n)  # last finite leader-mapped estimate, ramped out when stale
+        self._last_floats = (None, [])  # (last_tau, its floats) when step() set it
+        self._gain_floats = (None, [])  # (gain, its floats)
         self.gripper_effort_ema = float("nan")
         self.nan_events = 0  # ticks with a non-finite estimate
         self._nan_active = False
@@ -167,9 +180,14 @@ class FeedbackGate:
         gripper_tau = min(max(cfg.gripper_gain * g_eff, -cfg.gripper_clip_nm), cfg.gripper_clip_nm)
         if not cfg.enabled or tau_ext_leader is None:
             self.gate, self.contact = 0.0, False
-            return FeedbackResult(np.zeros(self.n), 0.0, False, False, None, gripper_tau)
+            return FeedbackResult([0.0] * self.n, 0.0, False, False, None, gripper_tau)
         tau = np.asarray(tau_ext_leader, dtype=float)
-        if tau.shape != (self.n,) or not all_finite(tau) or not math.isfinite(score_nm):
+        lf = self._last_floats
+        if tau is lf[0]:  # the last read-only estimate again (the pair maps each once): its floats, finite
+            tl = lf[1]
+        else:
+            tl = tau.tolist() if tau.shape == (self.n,) else None
+        if tl is None or not all(map(math.isfinite, tl)) or not math.isfinite(score_nm):
             # No value to ramp out with: drop the feedback at once (falling torque is the safe direction).
             self.nan_events += 1
             if not self._nan_active:  # say it once per episode, not every tick
@@ -178,16 +196,21 @@ class FeedbackGate:
                 message = f"feedback off: estimator returned non-finite torque (leader joints {bad})"
             self._nan_active = True
             self.gate, self.contact, self.last_tau = 0.0, False, np.zeros(self.n)
-            return FeedbackResult(np.zeros(self.n), 0.0, False, False, message, gripper_tau)
+            return FeedbackResult([0.0] * self.n, 0.0, False, False, message, gripper_tau)
         if self._nan_active:
             self._nan_active = False
             message = "feedback estimate finite again (feedback ramps back in on contact)"
         fresh = estimate_fresh(now, t_est, cfg.max_age_s, fresh_flag)
         if fresh:
             self.last_tau = tau
+            if tau is not lf[0]:  # its floats kept for the next ticks when nobody can change it
+                self._last_floats = (None, []) if tau.flags.writeable else (tau, tl)
             self.contact = contact_hysteresis(score_nm, self.contact, cfg.t_high_nm, cfg.t_low_nm)
         target = 1.0 if fresh and (self.contact or not cfg.gate_on_contact) else 0.0
         self.gate = ramp_toward(self.gate, target, dt, cfg.ramp_in_s, cfg.ramp_out_s)
-        tau_fb = np.array(feedback_torque_floats(self.last_tau.tolist(), self.gain.tolist(), self.gate,
-                                                 self._clip_floats))
+        lf = self._last_floats
+        last = lf[1] if lf[0] is self.last_tau else self.last_tau.tolist()  # (set from outside: reset)
+        gain = self._gain_floats if self._gain_floats[0] is self.gain else (self.gain, self.gain.tolist())
+        self._gain_floats = gain  # the floats of the gain array (set from outside: set_rate, the UI's keys)
+        tau_fb = feedback_torque_floats(last, gain[1], self.gate, self._clip_floats)
         return FeedbackResult(tau_fb, self.gate, self.contact, fresh, message, gripper_tau)

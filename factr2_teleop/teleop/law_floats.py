@@ -84,28 +84,77 @@ def sum_cap(terms, cap: list[float]) -> tuple[list[float], list[float], int]:
     return total, out, capped
 
 
+def law_tau_floats(gl, g_gain, qd, q, dither, coulomb, sign, f, ns, fb) -> tuple[list[float], int]:
+    """The capped sum of the law's terms [N*m] in one pass over the joints: per joint the same float64
+    operations, in the same order, as the term kernels above and sum_cap over [gravity, friction, barrier,
+    null_space, damping, feedback] (bit for bit; tests/test_law_floats.py), without the six term lists.
+    gl: g(q) [N*m] (None: gravity off), g_gain; qd [rad/s] (finite), q [rad] (None: barrier off); dither /
+    coulomb: the friction mode (neither: off), sign: the dither's +-1 per joint; f: LeaderLaw's float
+    parameters; ns: the null-space term (None: zero); fb: the feedback term. Returns (tau, joints capped)."""
+    n = len(qd)
+    zeros = [0.0] * n
+    isfinite = math.isfinite
+    out: list[float] = []
+    capped = 0
+    for g, k, v, x, s, dk, dm, thr, cc, lo, hi, nkp, bkd, nsj, nd, fbj, c in zip(
+            zeros if gl is None else gl, g_gain, qd, zeros if q is None else q, sign, f["dither_gain"],
+            f["dither_min"], f["v_thr"], f["coulomb"], f["b_lo"], f["b_hi"], f["neg_b_kp"], f["b_kd"],
+            zeros if ns is None else ns, f["neg_damp"], fb, f["cap"], strict=True):
+        t = 0.0 + (0.0 if gl is None else k * g)  # gravity (zeros when off, as the list was)
+        if dither:
+            if abs(v) < thr:
+                a = dk * abs(g)
+                t = t + s * (a if (a > dm or a != a) else dm)
+            else:
+                t = t + 0.0
+        elif coulomb:
+            t = t + (cc * (1.0 if v > 0.0 else -1.0 if v < 0.0 else v if v != v else 0.0) if abs(v) >= thr
+                     else 0.0)
+        else:
+            t = t + 0.0
+        if q is not None and x < lo:
+            t = t + (nkp * (x - lo) - bkd * v)
+        elif q is not None and x > hi:
+            t = t + (nkp * (x - hi) - bkd * v)
+        else:
+            t = t + 0.0
+        t = ((t + nsj) + nd * v) + fbj
+        if not isfinite(t):
+            t = 0.0
+        lo_c = -c
+        y = t if (t > lo_c or t != t) else lo_c
+        y = y if (y < c or y != y) else c
+        out.append(y)
+        capped += y != t
+    return out, capped
+
+
 class LawTerms(Mapping):
     """The law's named terms [N*m] of one tick, read-only: each given as floats (or an array) and made a
     float64 array at its first read (np.asarray: an array given passes as it is). Most ticks nobody reads
-    them (the demo and the terminal app read the feedback term), so the 500 Hz loop builds none."""
+    them (the demo and the terminal app read the feedback term), so the 500 Hz loop builds none: raw may
+    be a function that makes the {name: floats} dict at the first read (names: their order)."""
 
-    __slots__ = ("_raw", "_arrays")
+    __slots__ = ("_raw", "_arrays", "_names")
 
-    def __init__(self, raw: dict):
+    def __init__(self, raw, names: tuple[str, ...] | None = None):
         self._raw = raw
         self._arrays: dict = {}
+        self._names = tuple(raw) if names is None else names
 
     def __getitem__(self, name: str) -> np.ndarray:
         a = self._arrays.get(name)
         if a is None:
+            if callable(self._raw):
+                self._raw = self._raw()
             a = self._arrays[name] = np.asarray(self._raw[name], dtype=float)
         return a
 
     def __iter__(self):
-        return iter(self._raw)
+        return iter(self._names)
 
     def __len__(self) -> int:
-        return len(self._raw)
+        return len(self._names)
 
     def __repr__(self) -> str:
         return f"LawTerms({dict(self)!r})"

@@ -27,6 +27,7 @@ from factr2_teleop.teleop.law_floats import (
     barrier_floats,
     friction_coulomb_floats,
     friction_dither_floats,
+    law_tau_floats,
     scaled,
     sum_cap,
 )
@@ -37,6 +38,7 @@ from hardware.small_vec import count_changed
 from hardware.types import JointLimits
 
 FRICTION_MODES = ("off", "dither", "coulomb")
+TERM_NAMES = ("gravity", "friction", "barrier", "null_space", "damping", "feedback")  # LeaderOutput.terms
 
 
 @dataclass
@@ -235,7 +237,8 @@ class LeaderLaw:
         self.cap = pj(cap, n, "leader_law.tau_total_max_nm", positive=True)
         self.feedback = FeedbackGate(cfg.feedback, n)
         self.q_ns = None if ns.q_ns is None else pj(ns.q_ns, n, "leader_law.null_space.q_ns")
-        self._dither_sign = [1.0] * n  # +-1 per joint, flipped every tick (friction_dither)
+        self._signs = ([1.0] * n, [-1.0] * n)
+        self._dither_sign = self._signs[0]  # +-1 per joint, flipped every tick (friction_dither)
         # the per-joint parameters as floats for step() (law_floats.py), made once: the arrays above are set
         # here only; b_lo / b_hi / neg_* are the numpy terms' own intermediate values
         self._floats = {k: np.asarray(v, dtype=float).tolist() for k, v in {
@@ -247,7 +250,7 @@ class LeaderLaw:
     def reset(self, q_now: np.ndarray | None = None) -> None:
         """Before coupling: feedback off, dither restarted, null-space posture = q_now if not configured."""
         self.feedback.reset()
-        self._dither_sign = [1.0] * self.n
+        self._dither_sign = self._signs[0]
         if self.cfg.null_space.q_ns is None and q_now is not None:
             self.q_ns = np.asarray(q_now, dtype=float).copy()
 
@@ -273,39 +276,39 @@ class LeaderLaw:
         if not all(map(math.isfinite, qdl)):
             qd = np.where(np.isfinite(qd), qd, 0.0)
             qdl = qd.tolist()
-        # each term as floats (law_floats.py: bit for bit the pure numpy terms above, a tenth of the calls)
-        zeros = [0.0] * n
-        if cfg.gravity.enabled:
-            gl = self.gravity(q).tolist()
-            grav = scaled(f["g_gain"], gl)
-        else:
-            gl = grav = zeros
-        if cfg.friction.mode == "dither":
-            fric = friction_dither_floats(gl, qdl, f["dither_gain"], f["dither_min"], f["v_thr"],
-                                          self._dither_sign)
-            self._dither_sign = [-x for x in self._dither_sign]
-        elif cfg.friction.mode == "coulomb":
-            fric = friction_coulomb_floats(qdl, f["coulomb"], f["v_thr"])
-        else:
-            fric = zeros
-        barrier = (barrier_floats(q.tolist(), qdl, f["b_lo"], f["b_hi"], f["neg_b_kp"], f["b_kd"])
-                   if cfg.barrier.enabled else None)
-        if cfg.null_space.enabled and self.q_ns is not None:
-            ns = null_space_term(q, qd, self.jacobian(q), self.q_ns, self.ns_kp, self.ns_kd).tolist()
-        else:
-            ns = zeros
+        gl = self.gravity(q).tolist() if cfg.gravity.enabled else None
+        mode = cfg.friction.mode
+        sign = self._dither_sign
+        if mode == "dither":  # the sign flips every tick: the two lists made once, swapped
+            pos, neg = self._signs
+            self._dither_sign = neg if sign is pos else pos if sign is neg else [-x for x in sign]
+        ql = q.tolist() if cfg.barrier.enabled else None
+        ns = (null_space_term(q, qd, self.jacobian(q), self.q_ns, self.ns_kp, self.ns_kd).tolist()
+              if cfg.null_space.enabled and self.q_ns is not None else None)
         fb = self.feedback.step(inp.t, inp.tau_ext_leader if feedback_on else None, inp.contact_score_nm,
                                 inp.est_t, inp.est_fresh, inp.gripper_effort)
-        damp = scaled(f["neg_damp"], qdl)
-        raw = {"gravity": grav, "friction": fric, "barrier": zeros if barrier is None else barrier,
-               "null_space": ns, "damping": damp, "feedback": fb.tau_fb}
-        if extra:
-            raw.update(extra)
-            lists = [np.asarray(v, dtype=float).tolist() for v in raw.values()]
-        else:
-            lists = [grav, fric, raw["barrier"], ns, damp, fb.tau_fb.tolist()]
-        terms = LawTerms(raw)  # arrays only when read (law_floats.LawTerms)
-        _, tau, capped = sum_cap(lists, f["cap"])
+
+        def raw() -> dict:  # the terms as the float kernels give them (law_floats.py), made when read
+            zeros = [0.0] * n
+            gl0 = zeros if gl is None else gl
+            fric = (friction_dither_floats(gl0, qdl, f["dither_gain"], f["dither_min"], f["v_thr"], sign)
+                    if mode == "dither" else friction_coulomb_floats(qdl, f["coulomb"], f["v_thr"])
+                    if mode == "coulomb" else zeros)
+            barrier = (None if ql is None else
+                       barrier_floats(ql, qdl, f["b_lo"], f["b_hi"], f["neg_b_kp"], f["b_kd"]))
+            return {"gravity": zeros if gl is None else scaled(f["g_gain"], gl), "friction": fric,
+                    "barrier": zeros if barrier is None else barrier,
+                    "null_space": zeros if ns is None else ns,
+                    "damping": scaled(f["neg_damp"], qdl), "feedback": fb.tau_fb_floats}
+
+        if extra:  # a rollout's further terms: the term lists summed in order (sum_cap)
+            terms = {**raw(), **extra}
+            _, tau, capped = sum_cap([np.asarray(v, dtype=float).tolist() for v in terms.values()], f["cap"])
+            terms = LawTerms(terms)
+        else:  # the usual tick: one pass over the joints, the same operations in the same order
+            tau, capped = law_tau_floats(gl, f["g_gain"], qdl, ql, mode == "dither", mode == "coulomb", sign,
+                                         f, ns, fb.tau_fb_floats)
+            terms = LawTerms(raw, TERM_NAMES)  # arrays only when read (law_floats.LawTerms)
         return LeaderOutput(tau=np.array(tau), terms=terms, gate=fb.gate, contact=fb.contact, fresh=fb.fresh,
                             capped=capped, gripper_tau=fb.gripper_tau, message=fb.message)
 

@@ -19,6 +19,8 @@ from calibration.estimate import FLAG_NONFINITE, Estimate
 from calibration.estimators import Estimator, EstimatorInput
 from factr2_teleop.teleop.feedback import contact_score
 from factr2_teleop.teleop.hold_checks import (  # noqa: F401 -- PairHold, _fresh, status_bits: imported from here
+    _ERROR_BITS,
+    _STALE_BITS,
     PairHold,
     _complete,
     _fresh,
@@ -125,6 +127,8 @@ class ArmPair:
         self.holds, self.hold_s, self.resume_refusals = 0, 0.0, 0
         self._jumps = {"leader": 0, "follower": 0}  # implausible jumps already said (safety.jumps_rejected)
         self._turns = {"leader": 0, "follower": 0}  # turns unwrapped already said (Device.turns_unwrapped)
+        self._facts = {"leader": (None, False, 0), "follower": (None, False, 0)}  # _facts_of
+        self._tau_back: tuple = (None, None, 0.0)  # (estimate array, mapped to the leader, contact score)
 
     # -- helpers -------------------------------------------------------------------------------------
     def _say(self, text: str, level: int = logging.WARNING) -> None:
@@ -304,29 +308,42 @@ class ArmPair:
 
     def _check_samples(self, ls: JointState, fs: JointState) -> dict[str, str]:
         """Say each implausible jump a device held (Device.read); return who reports a motor error and what
-        ({} when none: the usual tick, two array checks)."""
-        for who, dev in (("leader", self.leader), ("follower", self.follower)):
-            n = dev.safety.jumps_rejected
-            if n != self._jumps[who]:
-                self._jumps[who] = n
-                self._say(f"{who} encoder jump rejected (implausible in one sample): previous value held")
-            n = getattr(dev, "turns_unwrapped", 0)
-            if n != self._turns[who]:
-                self._turns[who] = n
-                self._say(f"{who} reading a whole turn off: put back on the joint's turn (hardware/wrap.py)",
-                          logging.INFO)
+        ({} when none: the usual tick, the status bits _ok found)."""
+        ld, fd, jumps, turns = self.leader, self.follower, self._jumps, self._turns
+        if (ld.safety.jumps_rejected != jumps["leader"] or fd.safety.jumps_rejected != jumps["follower"]
+                or getattr(ld, "turns_unwrapped", 0) != turns["leader"]
+                or getattr(fd, "turns_unwrapped", 0) != turns["follower"]):
+            for who, dev in (("leader", ld), ("follower", fd)):
+                n = dev.safety.jumps_rejected
+                if n != jumps[who]:
+                    jumps[who] = n
+                    self._say(f"{who} encoder jump rejected (implausible in one sample): previous value held")
+                n = getattr(dev, "turns_unwrapped", 0)
+                if n != turns[who]:
+                    turns[who] = n
+                    self._say(f"{who} reading a whole turn off: put back on the joint's turn "
+                              "(hardware/wrap.py)", logging.INFO)
         out = {}
         for who, st in (("leader", ls), ("follower", fs)):
-            what = motor_errors(st)
-            if what:
-                out[who] = what
+            if self._facts_of(who, st)[2] & _ERROR_BITS:
+                what = motor_errors(st)
+                if what:
+                    out[who] = what
         return out
+
+    def _facts_of(self, who: str, st: JointState) -> tuple:
+        """(the sample, its q all finite, its status bits), once per sample: a follower's sample is the same
+        object over the ticks between its frames, and _ok and _check_samples both ask."""
+        c = self._facts[who]
+        if c[0] is not st:
+            c = self._facts[who] = (st, all_finite(st.q), status_bits(st))
+        return c
 
     def _ok(self, who: str, st: JointState, now: float, max_age: float) -> bool:
         """Fresh: finite, and a complete sample within max_age (a lost read now and then is tolerated,
         silence is not: it holds the follower within max_age + one tick)."""
-        finite = all_finite(st.q)
-        if finite and math.isfinite(st.t) and now - st.t <= max_age and _complete(st):
+        _, finite, bits = self._facts_of(who, st)
+        if finite and math.isfinite(st.t) and now - st.t <= max_age and not bits & _STALE_BITS:
             self._t_ok[who] = st.t
             self._misses[who] = 0
         else:
@@ -371,12 +388,19 @@ class ArmPair:
         est = self.estimate
         if self.estimator is None or est is None:
             return LeaderInputs(t=now, q=ls.q, q_dot=ls.q_dot, gripper_effort=fs.gripper_effort)
-        tau_f = np.asarray(est.tau_ext, dtype=float)
-        if tau_f.shape != (self.follower.n_joints,):
-            tau_f = np.full(self.follower.n_joints, np.nan)
-        return LeaderInputs(t=now, q=ls.q, q_dot=ls.q_dot, tau_ext_leader=self.map.torque_back(tau_f),
-                            contact_score_nm=contact_score(tau_f), est_t=est.t, est_fresh=est.valid,
-                            gripper_effort=fs.gripper_effort)
+        tau_e, c = est.tau_ext, self._tau_back
+        if c[0] is not tau_e:  # mapped once per estimate array (the observer's is the same one, read-only,
+            # over the ticks between follower samples)
+            tau_f = np.asarray(tau_e, dtype=float)
+            if tau_f.shape != (self.follower.n_joints,):
+                tau_f = np.full(self.follower.n_joints, np.nan)
+            tau_l = self.map.torque_back(tau_f)
+            tau_l.flags.writeable = False  # the feedback gate keeps its floats while it is the same
+            c = (tau_e, tau_l, contact_score(tau_f))
+            if type(tau_e) is np.ndarray and not tau_e.flags.writeable:  # nobody can change it: keep
+                self._tau_back = c
+        return LeaderInputs(t=now, q=ls.q, q_dot=ls.q_dot, tau_ext_leader=c[1], contact_score_nm=c[2],
+                            est_t=est.t, est_fresh=est.valid, gripper_effort=fs.gripper_effort)
 
     def _record(self, now: float, ls: JointState, fs: JointState, tau_sent: np.ndarray, out) -> TickRecord:
         nf = self.follower.n_joints
