@@ -206,6 +206,21 @@ class Leader(Device):
             self._to_wire(self.safety.leader_zero(now, reason), now)
             self.in_safe_state = True
 
+    def rest(self, reason: Reason | str = "resting") -> None:
+        """Zero torque for a leader that will be neither commanded nor read for a while (a lean rollout's
+        passive leader), then stand down what the device would take that silence for: a dead host (the
+        Dynamixel Bus Watchdog latches and its latch reads as lost force feedback). The next command arms
+        it again before its torque lands; the end's zero torque is such a command."""
+        now = self.clock.now()
+        with self._lock:
+            self._to_wire(self.safety.leader_zero(now, reason), now)
+            self.in_safe_state = True
+            self._rest_fallback()
+
+    def _rest_fallback(self) -> None:
+        """rest(), after its zero torque: stand down a fallback that watches for the host's silence (none
+        in general)."""
+
     def _go_safe(self, reason: Reason | str) -> None:
         now = self.clock.now()
         self._to_wire(self.safety.leader_zero(now, reason), now)

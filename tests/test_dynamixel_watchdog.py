@@ -249,3 +249,31 @@ def test_leader_recovers_after_a_freeze():
     finally:
         leader.disconnect()
         emu.close()
+
+
+def test_a_rested_leader_is_not_a_dead_host():
+    """rest(): zero torque, then a silence by design (a lean rollout's passive leader): the servos' watchdog
+    is stood down, so nothing latches and nothing says 'no force feedback'; the next command arms it again
+    before its goal lands."""
+    clock, bank, emu, leader = leader_on()
+    leader.connect()
+    try:
+        for _ in range(5):
+            clock._t += 0.002
+            leader.read()
+            leader.command_torque(np.array([0.2, -0.2]))
+        leader.rest("passive")
+        assert np.all(bank.current_cmd == 0) and all(s.table[98] == 0 for s in emu.servos)
+        clock._t += 2.0  # nothing said to the leader for 2 s
+        emu.poll_watchdogs()
+        assert emu.watchdog_trips == [] and not any(s.watchdog.latched for s in emu.servos)
+        clock._t += 0.002
+        leader.zero_torque("the end")  # the next goal write arms them first (0, then the period)
+        assert all(s.table[98] == 5 and s.torque_on for s in emu.servos) and np.all(bank.current_cmd == 0)
+        assert not [w for w in leader.warnings if "Bus Watchdog" in w]
+        clock._t += 0.2  # armed again: a silence now is a dead host
+        emu.poll_watchdogs()
+        assert [i for i, *_ in emu.watchdog_trips] == [1, 2]
+    finally:
+        leader.disconnect()
+        emu.close()

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from factr2_teleop.session.rollout import RolloutHooks, RolloutOptions, run_rollout
+from hardware.dynamixel import protocol as p
+from hardware.dynamixel import watchdog as wd
 
 pytest.importorskip("mujoco")
 
@@ -75,3 +77,28 @@ def test_lean_is_the_default_only_when_nothing_records_or_watches(state_runs, tm
     assert run_rollout(RolloutOptions(**quick)).lean
     assert not run_rollout(RolloutOptions(**quick, record=tmp_path)).lean
     assert not run_rollout(RolloutOptions(**quick), RolloutHooks(on_start=lambda *a: None)).lean
+
+
+def test_the_rested_leader_ends_at_zero_torque_without_a_latched_watchdog(state_runs, caplog):
+    """The lean rollout says nothing to its passive leader between the start and the end: its servos' Bus
+    Watchdog must not take that for a dead host (a latch, reported at the end as 'no force feedback'). Stood
+    down while the leader rests, armed again for the end: no trip, no such line, and the servos end at 0 A,
+    torque off."""
+    seen = {}
+
+    def attach(ts, target, eps):
+        pair = ts.pairs[0]
+        seen["leader"], seen["emu"] = pair.leader, ts.session.twin.devices[pair.leader.name].emulator
+
+    out = run_rollout(RolloutOptions(rig="sim-piper", policy=state_runs["base"], task="wipe", episodes=1,
+                                     seed=7, max_seconds=0.6, mode="dob", progress=False, lean=True),
+                      RolloutHooks(on_start=attach)).to_dict()
+    emu, leader = seen["emu"], seen["leader"]
+    assert out["lean"] and out["timing"]["end_leader_tau_max_nm"] == 0.0
+    assert emu.watchdog_trips == []
+    said = [m for m in [*leader.warnings, *caplog.messages, *map(str, out["messages"])] if "had latched" in m]
+    assert said == []
+    joints = [s for s in emu.servos if s.id in leader.config.ids]
+    for s in joints:  # the end: 0 A asked, torque off, the watchdog armed again for it
+        assert s.get(p.ADDR_GOAL_CURRENT, signed=True) == 0 and not s.torque_on
+        assert s.table[wd.ADDR[0]] == wd.units_for(wd.LEADER_PERIOD_S)

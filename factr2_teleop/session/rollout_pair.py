@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factr2_teleop.teleop.pair import COUPLED, HOLD, LOOP_GAP_SOFT_S, ArmPair, PairHold, _fresh
+from factr2_teleop.teleop.pair import IDLE as NOT_BEGUN
 from factr2_teleop.teleop.record import TickRecord
 from factr2_teleop.teleop.soft_start import rate_limit
 from hardware.errors import DeviceError
@@ -59,8 +60,12 @@ class RolloutPair(ArmPair):
         return None, None, Reason.of(PolicyHold.NO_POLICY)
 
     def rest_leader(self) -> None:
-        """Stop serving the passive leader after begin() (see the class doc); the twin's leader idles."""
+        """Stop serving the passive leader after begin() (see the class doc); the twin's leader idles. The
+        leader rests (Leader.rest: zero torque, its servos' watchdog stood down for the silence) at begin(),
+        or now when begun."""
         self.serve_leader = False
+        if self.phase != NOT_BEGUN:
+            self.leader.rest("policy rollout: the leader is passive and rested")
 
     def follow(self, target_fn) -> None:
         """Attach the target: target_fn(now [s], follower JointState) -> (q, gripper, why)."""
@@ -86,7 +91,10 @@ class RolloutPair(ArmPair):
             clock.sleep(self.dt_s)
         self._t_ok = {"leader": ls.t, "follower": fs.t}
         self.q_home = np.asarray(fs.q, dtype=float).copy()
-        self.leader.zero_torque("policy rollout: the leader is passive")
+        if self.serve_leader:
+            self.leader.zero_torque("policy rollout: the leader is passive")
+        else:  # told nothing more until the end's zero torque
+            self.leader.rest("policy rollout: the leader is passive and rested")
         self.follower.hold("policy rollout: waiting")
         self.phase = HOLD
         self.holds: Counter = Counter()  # holds by reason key (entries and changes of reason kind)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 
+from hardware.dynamixel import protocol as p
 from hardware.dynamixel import watchdog as wd
 from hardware.dynamixel.bus import DynamixelBus
 from hardware.errors import DeviceError
@@ -57,6 +58,25 @@ class LeaderWatchdog:
                 f"leader {self.config.name}: Bus Watchdog had latched on servo ids {found} (they refused "
                 "every goal current: no force feedback) -- re-armed; a host that stalls over "
                 f"{1e3 * wd.LEADER_PERIOD_S:.0f} ms trips it again")
+
+    def _rest_fallback(self) -> None:
+        """Leader.rest(), after its 0 A: the servos will hear nothing until the next command, which their
+        Bus Watchdog would take for a dead host and latch -- harmless at 0 A, but reported as lost force
+        feedback at the end. Stood down (0: off) here, each servo after a 0 A goal it acknowledged (the
+        sync write has no status: a lost one must not leave a current unwatched); the next goal write arms
+        it again (_keep_watchdog: 0, then the period) before its current lands. A servo that refuses either
+        stays armed, and latches at 0 A."""
+        k, bus = self._wd, self.bus
+        if k is None or bus is None:
+            return
+        for i in k.ids:
+            try:
+                bus.write(i, p.ADDR_GOAL_CURRENT, 0)
+                bus.write(i, wd.ADDR, 0)
+            except DeviceError as e:
+                log.info("leader %s: Bus Watchdog of servo %d not stood down for the rest: %s",
+                         self.config.name, i, e)
+        k.mark_due()
 
     def fallback_lines(self) -> list[str]:
         """The servos' own fallback as read back at connect (doctor, start-up summary)."""
