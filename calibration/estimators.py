@@ -197,6 +197,7 @@ class MomentumObserver(Estimator):
         self._r = [0.0] * self.n
         self._p0: list[float] | None = None
         self._t_prev = float("nan")
+        self._used = None  # the follower sample of the last update that passed its checks
         self._k_floats = self.k_o.tolist()
         self._tau_ext = self._negated()
 
@@ -204,14 +205,18 @@ class MomentumObserver(Estimator):
         """tau_ext = -r [N*m], one read-only array per new sample: the ticks between follower samples hand
         out the same one (nothing writes an estimate in place; read-only makes sure)."""
         a = np.array([-x for x in self._r])
-        a.flags.writeable = False
+        a.setflags(write=False)
         return a
 
     def update(self, inp: EstimatorInput) -> Estimate | None:
         st = inp.follower
+        if st is self._used:  # the sample the last update took (the ticks between follower samples): what
+            # the checks below give it again (finite, dt = 0): the same estimate and data time
+            return Estimate(self._tau_ext, self._t_prev)
         q, qd, tau_m = st.q, st.q_dot, st.tau_m
         if not (all_finite(q) and all_finite(qd) and all_finite(tau_m)):
             return None
+        self._used = st if st.t == st.t else None  # (a NaN stamp goes the whole way, as before)
         if self._p0 is None:
             self._p0, self._t_prev = (self.mass(q) @ qd).tolist(), st.t
             return Estimate(tau_ext=self._tau_ext, t=st.t, flags=FLAG_UNCONVERGED)  # not converged yet

@@ -393,14 +393,14 @@ class CanLink:
         return True
 
     def drain(self, push, push_raw=None) -> int:
-        """Hand every pending frame to push(msg) without blocking; returns how many. push_raw(arb_id, data,
-        is_extended_id, is_remote_or_error): the same without a Message object, used on a FastVirtualBus (a
-        twin's feedback stream: its bursts are never turned into Messages)."""
+        """Hand every pending frame to push(msg) without blocking; returns how many. push_raw(frames): the
+        same without Message objects, the frames as a list of (arb_id, data, is_extended_id,
+        is_remote_or_error), used on a FastVirtualBus (a twin's feedback stream: its bursts are never turned
+        into Messages)."""
         if push_raw is not None and self._take_raw is not None:
             frames = self._take_raw()
             if frames is not None:
-                for f in frames:
-                    push_raw(*f)
+                push_raw(frames)
                 self.rx_frames += len(frames)
                 return len(frames)
         if self._take_pending is not None:  # FastVirtualBus: one call for the lot

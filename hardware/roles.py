@@ -15,6 +15,7 @@ import abc
 import dataclasses
 import math
 import threading
+from operator import sub
 
 import numpy as np
 
@@ -29,7 +30,6 @@ from hardware.safety import (
     SafetyLayer,
     implausible_jump,
 )
-from hardware.small_vec import all_within
 from hardware.types import STATUS_IMPLAUSIBLE, STATUS_STALE, FollowerCommand, JointLimits, JointState
 from hardware.wrap import unwrap_reading
 
@@ -53,6 +53,7 @@ class Device(abc.ABC):
         self._observers: list = []
         self._q_ok: np.ndarray | None = None  # per joint: the last accepted position [rad] and its time [s]
         self._t_q_ok = np.full(limits.n, -math.inf)
+        self._ok_floats: tuple | None = None  # (accepted q as floats, its time [s]) newer than the two above
         self.turns_unwrapped = 0  # joint samples read a whole turn off and put back on theirs, cumulative
 
     def add_command_observer(self, fn) -> None:
@@ -109,14 +110,18 @@ class Device(abc.ABC):
         q = np.asarray(st.q, dtype=float)
         if self._q_ok is None or q.shape != self._q_ok.shape or not math.isfinite(st.t):
             st, q = self._on_turn(st, q, None)  # a (re)start in another turn reads the same pose
-            self._q_ok, self._t_q_ok = q.copy(), np.full(q.shape, st.t)
+            self._q_ok, self._t_q_ok, self._ok_floats = q.copy(), np.full(q.shape, st.t), None
             return st
-        # the common case first, at a third of the CPU: no joint moved more than a glitch-free step can in no
-        # time at all (NaN fails the test and goes the full way, where it is never implausible)
-        if all_within(q - self._q_ok, PLAUSIBLE_JUMP_RAD):
-            np.copyto(self._q_ok, q)
-            self._t_q_ok.fill(st.t)
+        # the common case first, on floats: no joint moved more than a glitch-free step can in no time at all
+        # (NaN fails the test and goes the full way, where it is never implausible); the accepted values kept
+        # as the sample's floats and its time, put into the arrays when the full way needs them
+        ql, ok = q.tolist(), self._ok_floats
+        if all(map(PLAUSIBLE_JUMP_RAD.__ge__, map(abs, map(sub, ql, self._q_ok.tolist() if ok is None
+                                                               else ok[0])))):
+            self._ok_floats = (ql, st.t)
             return st
+        if ok is not None:
+            self._q_ok, self._t_q_ok, self._ok_floats = np.array(ok[0]), np.full(q.shape, ok[1]), None
         st, q = self._on_turn(st, q, self._q_ok)  # a reading a turn off is not a jump (hardware/wrap.py)
         bad = implausible_jump(q, self._q_ok, st.t - self._t_q_ok)
         if not bad.any():

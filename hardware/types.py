@@ -124,3 +124,11 @@ class FollowerCommand:
     kp: np.ndarray | None = None
     kd: np.ndarray | None = None
     gripper: float | None = None
+
+    @classmethod
+    def targets(cls, q: np.ndarray, gripper: float | None = None) -> FollowerCommand:
+        """FollowerCommand(q=q, gripper=gripper): joint targets [rad] alone, built without the frozen
+        dataclass's per-field object.__setattr__ (the 500 Hz loop's command; the same value)."""
+        c = object.__new__(cls)
+        c.__dict__.update(q=q, tau_ff=None, kp=None, kd=None, gripper=gripper)
+        return c

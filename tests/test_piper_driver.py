@@ -187,7 +187,13 @@ def test_stale_flag_per_joint(rig):
     def push(arb_id, data, t, is_ext=False, is_special=False):
         return False if arb_id == P.ID_JOINT_FB[2] else orig(arb_id, data, t, is_ext, is_special)
 
+    orig_frames = rig.f.decoder.push_frames  # a twin's feedback stream: one drain's frames at once
+
+    def push_frames(frames, t):
+        orig_frames([f for f in frames if f[0] != P.ID_JOINT_FB[2]], t)
+
     rig.f.decoder.push = push
+    rig.f.decoder.push_frames = push_frames
     st = rig.run(FollowerCommand(q=Q0), 0.06)
     stale = (st.status & STATUS_STALE) != 0
     assert stale.tolist() == [False, False, False, False, True, True]

@@ -130,6 +130,22 @@ def test_decoders_never_raise_on_garbage(arb_id, data, ext, special):
     assert cmd.counters.ok + cmd.counters.rejected == 1
 
 
+_FRAME = st.tuples(st.one_of(st.sampled_from(sorted(P.FEEDBACK_IDS)), st.integers(0, 0x7FF)),
+                   st.binary(min_size=0, max_size=9), st.booleans(), st.booleans())
+
+
+@settings(max_examples=300)
+@given(st.lists(_FRAME, max_size=12))
+def test_push_frames_is_push_of_each(frames):
+    """One drain's frames at once (the twin's feedback stream) keep, count and reject as push() per frame."""
+    one, many = P.PiperFeedbackDecoder(), P.PiperFeedbackDecoder()
+    for arb_id, data, ext, special in frames:
+        one.push(arb_id, data, 0.25, ext, special)
+    many.push_frames(frames, 0.25)
+    assert many.latest == one.latest and many.t_rx == one.t_rx and many.firmware_buf == one.firmware_buf
+    assert many.counters.as_dict() == one.counters.as_dict()
+
+
 @given(st.binary(min_size=8, max_size=8))
 def test_every_8_byte_payload_decodes(d):
     P.decode_status(d), P.decode_joint_pair(d), P.decode_gripper_fb(d), P.decode_high_speed(d)

@@ -4,6 +4,7 @@ of a JointState (teleop/pair.py runs them every tick on both arms' samples)."""
 
 from __future__ import annotations
 
+import logging
 import math
 from enum import Enum
 
@@ -80,3 +81,22 @@ def _complete(st: JointState) -> bool:
     """A sample in which every joint is new: drivers re-stamp a partial/failed read with the read time and
     flag the joints that kept old values (STATUS_STALE / STATUS_COMM_LOST), so age alone cannot tell."""
     return not status_bits(st) & _STALE_BITS
+
+
+def device_notes(devices: dict, jumps: dict, turns: dict) -> list[tuple[str, int]]:
+    """(text, log level) for each count a device moved since the last call -- implausible jumps held
+    (safety.jumps_rejected), readings put back on their turn (turns_unwrapped) -- the counts seen kept in
+    jumps / turns ({who: count}). devices: {who: Device}. [] on the usual tick (four numbers compared)."""
+    out = []
+    for who, dev in devices.items():
+        n = dev.safety.jumps_rejected
+        if n != jumps[who]:
+            jumps[who] = n
+            out.append((f"{who} encoder jump rejected (implausible in one sample): previous value held",
+                        logging.WARNING))
+        n = getattr(dev, "turns_unwrapped", 0)
+        if n != turns[who]:
+            turns[who] = n
+            out.append((f"{who} reading a whole turn off: put back on the joint's turn (hardware/wrap.py)",
+                        logging.INFO))
+    return out

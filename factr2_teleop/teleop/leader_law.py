@@ -309,8 +309,9 @@ class LeaderLaw:
             tau, capped = law_tau_floats(gl, f["g_gain"], qdl, ql, mode == "dither", mode == "coulomb", sign,
                                          f, ns, fb.tau_fb_floats)
             terms = LawTerms(raw, TERM_NAMES)  # arrays only when read (law_floats.LawTerms)
-        return LeaderOutput(tau=np.array(tau), terms=terms, gate=fb.gate, contact=fb.contact, fresh=fb.fresh,
-                            capped=capped, gripper_tau=fb.gripper_tau, message=fb.message)
+        # positional, in the field order (tau, terms, gate, contact, fresh, capped, gripper_tau, message)
+        return LeaderOutput(np.array(tau), terms, fb.gate, fb.contact, fb.fresh, capped, fb.gripper_tau,
+                            fb.message)
 
 
 def pinocchio_gravity(model) -> Callable[[np.ndarray], np.ndarray]:

@@ -24,6 +24,7 @@ from factr2_teleop.teleop.hold_checks import (  # noqa: F401 -- PairHold, _fresh
     PairHold,
     _complete,
     _fresh,
+    device_notes,
     motor_errors,
     status_bits,
 )
@@ -128,6 +129,7 @@ class ArmPair:
         self._jumps = {"leader": 0, "follower": 0}  # implausible jumps already said (safety.jumps_rejected)
         self._turns = {"leader": 0, "follower": 0}  # turns unwrapped already said (Device.turns_unwrapped)
         self._facts = {"leader": (None, False, 0), "follower": (None, False, 0)}  # _facts_of
+        self._devices = {"leader": leader, "follower": follower}
         self._tau_back: tuple = (None, None, 0.0)  # (estimate array, mapped to the leader, contact score)
 
     # -- helpers -------------------------------------------------------------------------------------
@@ -272,7 +274,7 @@ class ArmPair:
         offset = None if self.perturb is None else np.zeros(self.follower.n_joints)
         if self.phase == SOFT_START:
             self.q_target, done = self.soft.step(q_leader_f)
-            self.sent = self.follower.command(FollowerCommand(q=self.q_target))
+            self.sent = self.follower.command(FollowerCommand.targets(self.q_target))
             if done:
                 self.phase = COUPLED
                 self._say("coupled: follower tracks the leader", logging.INFO)
@@ -284,7 +286,7 @@ class ArmPair:
             if offset is not None:
                 offset = np.asarray(self.perturb(now), dtype=float)
                 q_cmd = q_cmd + offset
-            self.sent = self.follower.command(FollowerCommand(q=q_cmd, gripper=grip))  # the safety layer
+            self.sent = self.follower.command(FollowerCommand.targets(q_cmd, grip))  # the safety layer
         self._offset = offset
         self.last = self._record(now, ls, fs, tau_sent, out)
         return self.last
@@ -309,20 +311,8 @@ class ArmPair:
     def _check_samples(self, ls: JointState, fs: JointState) -> dict[str, str]:
         """Say each implausible jump a device held (Device.read); return who reports a motor error and what
         ({} when none: the usual tick, the status bits _ok found)."""
-        ld, fd, jumps, turns = self.leader, self.follower, self._jumps, self._turns
-        if (ld.safety.jumps_rejected != jumps["leader"] or fd.safety.jumps_rejected != jumps["follower"]
-                or getattr(ld, "turns_unwrapped", 0) != turns["leader"]
-                or getattr(fd, "turns_unwrapped", 0) != turns["follower"]):
-            for who, dev in (("leader", ld), ("follower", fd)):
-                n = dev.safety.jumps_rejected
-                if n != jumps[who]:
-                    jumps[who] = n
-                    self._say(f"{who} encoder jump rejected (implausible in one sample): previous value held")
-                n = getattr(dev, "turns_unwrapped", 0)
-                if n != turns[who]:
-                    turns[who] = n
-                    self._say(f"{who} reading a whole turn off: put back on the joint's turn "
-                              "(hardware/wrap.py)", logging.INFO)
+        for text, level in device_notes(self._devices, self._jumps, self._turns):
+            self._say(text, level)
         out = {}
         for who, st in (("leader", ls), ("follower", fs)):
             if self._facts_of(who, st)[2] & _ERROR_BITS:
@@ -399,8 +389,9 @@ class ArmPair:
             c = (tau_e, tau_l, contact_score(tau_f))
             if type(tau_e) is np.ndarray and not tau_e.flags.writeable:  # nobody can change it: keep
                 self._tau_back = c
-        return LeaderInputs(t=now, q=ls.q, q_dot=ls.q_dot, tau_ext_leader=c[1], contact_score_nm=c[2],
-                            est_t=est.t, est_fresh=est.valid, gripper_effort=fs.gripper_effort)
+        # positional, in the field order (t, q, q_dot, tau_ext_leader, contact_score_nm, est_t, est_fresh,
+        # gripper_effort): 500 Hz
+        return LeaderInputs(now, ls.q, ls.q_dot, c[1], c[2], est.t, est.valid, fs.gripper_effort)
 
     def _record(self, now: float, ls: JointState, fs: JointState, tau_sent: np.ndarray, out) -> TickRecord:
         nf = self.follower.n_joints

@@ -132,7 +132,10 @@ def encode_mode(move_mode: int = MOVE_J, speed_pct: int = 100, mit_mode: int = M
 
 def encode_joint_targets(q_rad) -> tuple[bytes, bytes, bytes]:
     """Six joint targets [rad] -> the three frames for ID_JOINT_TARGET (int32 pairs, 0.001 deg)."""
-    m = [_i32(float(x) * MDEG_PER_RAD) for x in q_rad]
+    m = []  # _i32 written out over plain floats (an array's tolist(): the same values), the 500 Hz command
+    for x in (q_rad.tolist() if hasattr(q_rad, "tolist") else q_rad):
+        v = round(float(x) * MDEG_PER_RAD)
+        m.append(INT32_MIN if v < INT32_MIN else INT32_MAX if v > INT32_MAX else v)
     return _S_II.pack(m[0], m[1]), _S_II.pack(m[2], m[3]), _S_II.pack(m[4], m[5])
 
 
@@ -390,6 +393,18 @@ class PiperFeedbackDecoder:
         self.latest[arb_id] = data
         self.t_rx[arb_id] = t
         return True
+
+    def push_frames(self, frames, t: float) -> None:
+        """push() of each (arb_id, data, is_ext, is_special) of one drain, received by t [s]: the usual
+        frame (a known feedback id, standard, 8 bytes) kept inline, any other through push()."""
+        latest, t_rx, ids, counters = self.latest, self.t_rx, FEEDBACK_IDS, self.counters
+        for arb_id, data, is_ext, is_special in frames:
+            if is_ext or is_special or arb_id not in ids or len(data) != FRAME_DLC or arb_id == ID_FIRMWARE:
+                self.push(arb_id, data, t, is_ext, is_special)
+                continue
+            counters.ok += 1
+            latest[arb_id] = data
+            t_rx[arb_id] = t
 
     def push_msg(self, msg, t: float) -> bool:
         return self.push(msg.arbitration_id, msg.data, t, msg.is_extended_id,
