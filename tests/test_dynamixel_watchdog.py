@@ -192,6 +192,14 @@ def leader_on(emu_kw=None, model="XL330-M288"):
     return clock, bank, emu, DynamixelLeader(cfg, lim, clock=clock)
 
 
+def drive(clock, leader, ticks=5):
+    """The loop's ticks at 500 Hz: a read and a torque, which the servos obey."""
+    for _ in range(ticks):
+        clock._t += 0.002
+        leader.read()
+        leader.command_torque(np.array([0.2, -0.2]))
+
+
 def test_leader_sets_and_reads_back_the_watchdog():
     clock, bank, emu, leader = leader_on()
     leader.connect()
@@ -233,10 +241,7 @@ def test_leader_recovers_after_a_freeze():
     clock, bank, emu, leader = leader_on()
     leader.connect()
     try:
-        for _ in range(5):
-            clock._t += 0.002
-            leader.read()
-            leader.command_torque(np.array([0.2, -0.2]))
+        drive(clock, leader)
         assert np.all(bank.current_cmd != 0)
         clock._t += 2.0  # the app is stopped (SIGSTOP) for 2 s: the servos stop by themselves
         emu.poll_watchdogs()
@@ -258,10 +263,7 @@ def test_a_rested_leader_is_not_a_dead_host():
     clock, bank, emu, leader = leader_on()
     leader.connect()
     try:
-        for _ in range(5):
-            clock._t += 0.002
-            leader.read()
-            leader.command_torque(np.array([0.2, -0.2]))
+        drive(clock, leader)
         leader.rest("passive")
         assert np.all(bank.current_cmd == 0) and all(s.table[98] == 0 for s in emu.servos)
         clock._t += 2.0  # nothing said to the leader for 2 s
