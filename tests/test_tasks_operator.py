@@ -49,3 +49,47 @@ def test_hand_lean_and_trigger_are_bounded():
     assert np.allclose(b, SERVO_MAX_RAD)
     assert trigger_torque(0.0, 1.0) > 0 > trigger_torque(1.0, 0.0)
     assert trigger_torque(float("nan"), 0.0) == 0.0
+
+
+class _ReachedTouchDown(Exception):
+    pass
+
+
+class _Blind:
+    """A percept stub: the wipe script reads what it sees first at its touch-down, where the replay stops."""
+
+    @property
+    def obs(self):
+        raise _ReachedTouchDown
+
+
+def test_wipe_approach_of_seed_5603_reaches_the_mark_not_a_wrong_ik_branch():
+    """Collection seed 5603's episode 0 (episode seed 560316809): the warm-started IK slid onto a wrong
+    branch (base -2.3 rad, shoulder pinned at its limit, 0.4 m from the mark) and the collection scored
+    0 / 25. The approach is replayed on the description with the follower tracking q_des exactly."""
+    from hardware.arms import load_arm
+    from hardware.arms.dynamics import ArmDynamics
+    from hardware.sim.tasks import wipe as W
+
+    from factr2_teleop.tasks import wipe as WS
+    from factr2_teleop.tasks.operator import Operator
+
+    arm = load_arm("piper")
+    dyn, lim = ArmDynamics(arm), arm.limits
+    for seed in (560316809, 560116803, 560216806):
+        rng = np.random.default_rng(seed)  # the task's reset draws first (hardware/sim/tasks/wipe.py)
+        params = {"area_pos": np.array([rng.uniform(*W.AREA_X), rng.uniform(*W.AREA_Y), 0.0]),
+                  "area_yaw": rng.uniform(*W.AREA_YAW)}
+        op = Operator(dyn.fk, dyn.jacobian, lim.q_min, lim.q_max, lambda q: q, 0.002,
+                      q_start=[0, 0, 0, 0, 0.033, 0])
+        op.p = _Blind()
+        script = WS.wipe(op, params, rng)
+        try:
+            while True:
+                next(script)
+        except _ReachedTouchDown:
+            pass
+        tip = dyn.fk(op.q_des)[:3, 3]
+        mark = np.asarray(params["area_pos"])
+        assert np.linalg.norm(tip[:2] - mark[:2]) < 0.06, (seed, tip, op.q_des)  # over the mark (+-34 mm)
+        assert 0.03 < tip[2] < 0.08, (seed, tip)  # 4 cm above it, ready to touch down

@@ -34,6 +34,8 @@ SERVO_KI = 0.5  # 1/s: how fast the operator removes the follower's joint error
 SERVO_MAX_RAD = 0.15  # rad: the most it leans into the leader beyond the reference
 DECIDE_EVERY = 5  # ticks: the script decides (IK, vision) at 100 Hz on a 500 Hz loop
 AIM_STEP_RAD = 0.03  # rad per joint and decision: the reference never jumps (no IK branch flips)
+AIM_BRANCH_M = 0.03  # m: a warm-started IK this far from its target has slid onto a wrong branch (a joint
+# pinned at its limit, the base turned away: wipe seed 5603); the aim then re-solves from the joints' middle
 
 
 def hand_torque(q, qd, q_ref, qd_ref, k=HAND_K, d=HAND_D, tau_max=HAND_TAU_MAX) -> np.ndarray:
@@ -70,6 +72,22 @@ def interp_pose(T0: np.ndarray, T1: np.ndarray, s: float, bump=None) -> np.ndarr
         p = p + np.sin(np.pi * float(np.clip(s, 0, 1))) * np.asarray(bump)
     R = rodrigues(a * K.rotation_error(T0[:3, :3], T1[:3, :3])) @ T0[:3, :3]
     return K.pose(R, p)
+
+
+def aim_joints(fk, jac, q_from, T_des, q_min, q_max, iters: int = 4) -> np.ndarray:
+    """Joints [rad] toward T_des: `iters` IK steps warm-started at q_from; when that is still over
+    AIM_BRANCH_M from the target (a wrong branch: the damped steps, clipped at a limit, settle in a local
+    minimum they never leave), a full solve from the middle of the joint ranges, if it lands nearer (the
+    caller walks q_des there at AIM_STEP_RAD per decision, so the reference still never jumps)."""
+    q = np.asarray(q_from, float)
+    for _ in range(iters):
+        q = K.ik_step(fk, jac, q, T_des, q_min, q_max)
+    res = float(np.linalg.norm(K.pose_error(fk(q), T_des)[:3]))
+    if res > AIM_BRANCH_M:
+        q_mid, e = K.solve_ik(fk, jac, (np.asarray(q_min) + np.asarray(q_max)) / 2, T_des, q_min, q_max)
+        if np.linalg.norm(e[:3]) < res:
+            return q_mid
+    return q
 
 
 @dataclass
@@ -145,9 +163,7 @@ class Operator:
     def aim(self, T_ee_des: np.ndarray, iters: int = 4) -> float:
         """Set q_des by IK toward a gripper pose (warm start: the current q_des); returns the position
         residual [m]."""
-        q = self.q_des
-        for _ in range(iters):
-            q = K.ik_step(self.fk, self.jac, q, T_ee_des, self.q_min, self.q_max)
+        q = aim_joints(self.fk, self.jac, self.q_des, T_ee_des, self.q_min, self.q_max, iters)
         self.q_des = self.q_des + np.clip(q - self.q_des, -AIM_STEP_RAD, AIM_STEP_RAD)
         return float(np.linalg.norm(K.pose_error(self.fk(q), T_ee_des)[:3]))
 
