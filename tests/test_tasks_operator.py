@@ -67,12 +67,11 @@ def test_wipe_approach_of_seed_5603_reaches_the_mark_not_a_wrong_ik_branch():
     """Collection seed 5603's episode 0 (episode seed 560316809): the warm-started IK slid onto a wrong
     branch (base -2.3 rad, shoulder pinned at its limit, 0.4 m from the mark) and the collection scored
     0 / 25. The approach is replayed on the description with the follower tracking q_des exactly."""
+    from factr2_teleop.tasks import wipe as WS
+    from factr2_teleop.tasks.operator import Operator
     from hardware.arms import load_arm
     from hardware.arms.dynamics import ArmDynamics
     from hardware.sim.tasks import wipe as W
-
-    from factr2_teleop.tasks import wipe as WS
-    from factr2_teleop.tasks.operator import Operator
 
     arm = load_arm("piper")
     dyn, lim = ArmDynamics(arm), arm.limits
