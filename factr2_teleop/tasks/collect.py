@@ -13,7 +13,9 @@ The hook runs on the loop's thread: it applies the operator's hand to the twin's
 lets the script decide every DECIDE_EVERY ticks from what it sees (the twin's state) and feels (the leader's
 feedback torque), updates the task's stage detectors, marks stages in the recording (progress events) and
 ends each episode with its outcome (success / failure: failed demonstrations are kept, labelled). Between
-episodes the objects are put back for the next seed, as an assistant would (the arm is clear above them).
+episodes the objects are put back for the next seed, as an assistant would (the arm is clear above them);
+after a failed episode the operator first brings the arm back to where the collection started (state "home",
+through the leader and the safety layer, outside any recorded episode), as a person re-homes it.
 The bookkeeping (placing, detecting, recording, outcome) is TaskEpisodes (factr2_teleop/session/
 task_episodes.py), shared with the policy rollout (session/rollout_episodes.py): the scripted operator and a
 policy are two drivers of it.
@@ -26,10 +28,13 @@ import numpy as np
 from factr2_teleop.session.task_episodes import SETTLE_S, TaskEpisodes
 from factr2_teleop.tasks import script_for
 from factr2_teleop.tasks.operator import DECIDE_EVERY, Operator, Percept, percept
+from factr2_teleop.tasks.scripts import go_joints, wait
 from factr2_teleop.tasks.seen import OperatorView
 from factr2_teleop.teleop.virtual_operator import felt_joints
 from hardware import sim_cpu
 from hardware.sim.tasks import Task
+
+HOME_S = 3.0  # s: the least a re-homing move takes (joint speed capped: scripts.joint_move_s)
 
 
 class EpisodeDriver(TaskEpisodes):
@@ -53,6 +58,8 @@ class EpisodeDriver(TaskEpisodes):
         self._op_args = (dyn.fk, dyn.jacobian, lim.q_min, lim.q_max, self.pair.map.backward,
                          self.pair.dt_s)
         self.op: Operator | None = None
+        self._q_home: np.ndarray | None = None  # follower joints [rad] the first episode started from
+        self._homing = None
         self.perturb = perturb
 
     # -- the hook ----------------------------------------------------------------------------------------
@@ -71,6 +78,16 @@ class EpisodeDriver(TaskEpisodes):
                 self._hold(r)
             return
         op = self.op
+        if self._state == "home":
+            if self._k % DECIDE_EVERY == 0:
+                try:
+                    next(self._homing)
+                except StopIteration:
+                    self._start_episode(r)
+                    return
+                op.decide(self._percept(r), DECIDE_EVERY * self.pair.dt_s)
+            self._apply_hand(r)
+            return
         if self._k % DECIDE_EVERY == 0:
             self.perceive(r.t)
             p = self._percept(r)
@@ -135,10 +152,22 @@ class EpisodeDriver(TaskEpisodes):
         return p
 
     def _begin_episode(self, r) -> None:
+        """After a failed episode the arm may be anywhere (pressed into the table, on a wrong branch): the
+        operator brings it home first (open hand, no lean), then the next episode's scene is set."""
+        if self.results and self.results[-1].outcome != "success" and self.op is not None:
+            self.op.grip, self.op.servo_on, self.op.b = 0.0, True, np.zeros_like(self.op.b)
+            self.op.nudge = np.zeros(2)
+            self._homing = _chain(go_joints(self.op, self._q_home, HOME_S), wait(self.op, SETTLE_S))
+            self._state = "home"
+            return
+        self._start_episode(r)
+
+    def _start_episode(self, r) -> None:
         rng = self._reset_episode()
         q0 = self.pair.map.forward(r.leader.q)
         if self.op is None:
             self.op = Operator(*self._op_args, q_start=q0)
+            self._q_home = np.asarray(q0, float).copy()
         self.op.grip, self.op.servo_on, self.op.log = 0.0, True, {}
         self.view.reset()
         self.params_seen.clear()
@@ -150,3 +179,8 @@ class EpisodeDriver(TaskEpisodes):
 
     def _detect(self, t: float, p: Percept) -> None:
         self._detect_obs(t, self._obs_true)  # stages are judged from the twin's truth, never from the view
+
+
+def _chain(*gens):
+    for g in gens:
+        yield from g
