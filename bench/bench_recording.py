@@ -111,7 +111,7 @@ def run(seconds: float, out_dir: Path, workdir: Path, n_frames: int = 15) -> dic
     for th in threads:
         th.join()
     c0 = time.monotonic()
-    st = rec.close(timeout_s=120)
+    st = rec.close(stall_s=120)
     close_s = time.monotonic() - c0
     ru1, wall = resource.getrusage(resource.RUSAGE_SELF), time.monotonic() - w0
     cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)

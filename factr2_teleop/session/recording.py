@@ -21,6 +21,7 @@ from hardware import sim_cpu
 from hardware.errors import UserError
 from hardware.features import arm_prefix, features_json, rig_features
 from hardware.recording.arm_tick import record_arm_tick
+from hardware.recording.writer import CLOSE_POLL_S, CLOSE_STALL_S
 
 TRUTH_EVERY = 5  # ticks between ground-truth samples (each the mean over those ticks): 100 Hz at 500 Hz
 TIMING_EVERY = 50  # ticks between loop-timing samples (10 Hz at 500 Hz)
@@ -200,5 +201,16 @@ class SessionRecording:
             self.stop_episode(None)
         self.hand_over()
         self._pending.put(None)  # the packer writes what it holds, then ends
-        self._packer.join(30.0)
+        self._join_packer(CLOSE_STALL_S)
         return self.recorder.close()
+
+    def _join_packer(self, stall_s: float) -> None:
+        """Wait for the packer while its backlog shrinks (a busy machine: slow, not lost); stop waiting after
+        stall_s [s] without progress (the recorder's close then says what was kept)."""
+        last, t_last = self._backlog, time.monotonic()
+        while self._packer.is_alive():
+            self._packer.join(CLOSE_POLL_S)
+            if self._backlog != last:
+                last, t_last = self._backlog, time.monotonic()
+            elif time.monotonic() - t_last >= stall_s:
+                return

@@ -43,6 +43,9 @@ SAMPLES_BUFFER_BYTES = 32 << 20  # ~50 s of a bimanual 500 Hz run if the writer 
 JPEG_QUALITY = 85  # camera frames' JPEG quality (PIL, 4:2:0); policies read the settings back from the frames
 LOSSLESS_WAIT_S = 10.0  # s: a lossless recorder's longest wait for room in a ring (then: dropped, counted)
 LOSSLESS_POLL_S = 0.0005  # s: how often it looks
+CLOSE_STALL_S = 30.0  # s: close() gives up on the writer only after this long without progress (a busy
+# machine makes it slow, never lost: a fixed wall-time limit cut recordings' ends at load 12-14)
+CLOSE_POLL_S = 0.5  # s: how often close() looks for progress
 FRAMES_BUFFER_BYTES = 64 << 20  # ~9 s of one 320x240 camera at 30 Hz, ~1.2 s of four 640x480 ones
 
 
@@ -111,7 +114,7 @@ class Recorder:
                  buffer_bytes: int = SAMPLES_BUFFER_BYTES, frame_buffer_bytes: int = FRAMES_BUFFER_BYTES,
                  encoder_threads: int = 2, flush_interval_s: float = 0.25, chunk_size: int = 256 * 1024,
                  compression: str = "zstd", fsync_interval_s: float = 5.0, overwrite: bool = False,
-                 max_file_bytes: int | None = None, lossless: bool = False):
+                 max_file_bytes: int | None = None, lossless: bool = False, writer_delay_s: float = 0.0):
         if compression not in ("zstd", "lz4", ""):
             raise ValueError(f"compression {compression!r}: use zstd, lz4 or an empty string")
         self.path = Path(path)
@@ -149,7 +152,8 @@ class Recorder:
             compression=compression, chunk_size=int(chunk_size), jpeg_quality=int(jpeg_quality),
             encoder_threads=int(encoder_threads), flush_interval_s=float(flush_interval_s),
             fsync_interval_s=float(fsync_interval_s), samples_bytes=int(buffer_bytes),
-            frames_bytes=int(frame_buffer_bytes), max_file_bytes=max_file_bytes, parent_pid=os.getpid()))
+            frames_bytes=int(frame_buffer_bytes), max_file_bytes=max_file_bytes, parent_pid=os.getpid(),
+            handle_delay_s=float(writer_delay_s)))
 
     def _start_writer(self, cfg: dict) -> None:
         import mmap
@@ -380,8 +384,39 @@ class Recorder:
             self._dropped_frames + st.get(W.W_DROP_FRAMES), max(0, self._put_count - st.get(W.W_CONSUMED)),
             (time.monotonic_ns() - flush_ns) / 1e9 if flush_ns else float("nan"))
 
-    def close(self, timeout_s: float = 30.0) -> RecorderStatus:
-        """Let the writer drain the rings, write the summary and close the file. Safe to call twice."""
+    def _progress_mark(self) -> tuple:
+        """What changes while the writer works: its counters, flush time, state and the file's size."""
+        st = self._status
+        try:
+            size = os.fstat(self._f.fileno()).st_size
+        except (OSError, ValueError):
+            size = -1
+        return (st.get(W.W_CONSUMED), st.get(W.W_WRITTEN), st.get(W.W_FRAMES), st.get(W.W_FLUSH_NS),
+                st.get(W.W_STATE), size)
+
+    def _wait_writer(self, stall_s: float) -> bool:
+        """Wait for the writer process to end while it makes progress; False when it made none for
+        stall_s [s] (it is then killed)."""
+        mark, t_mark = self._progress_mark(), time.monotonic()
+        while True:
+            try:
+                self._proc.wait(min(CLOSE_POLL_S, stall_s))
+                return True
+            except subprocess.TimeoutExpired:
+                pass
+            now_mark = self._progress_mark()
+            if now_mark != mark:
+                mark, t_mark = now_mark, time.monotonic()
+            elif time.monotonic() - t_mark >= stall_s:
+                self._proc.kill()
+                self._proc.wait()
+                return False
+
+    def close(self, stall_s: float = CLOSE_STALL_S) -> RecorderStatus:
+        """Let the writer drain the rings, write the summary and close the file: waits as long as the writer
+        makes progress (a busy machine), gives up after stall_s [s] without any, then recovers the file
+        (hardware/recording/recover.py, as `factr2 recover`) so it reads to its last complete record.
+        Safe to call twice."""
         if self._closed:
             return self._final
         self._closed = True
@@ -389,15 +424,10 @@ class Recorder:
         st.set(W.W_PARENT_DROP_SAMPLES, self._dropped)
         st.set(W.W_PARENT_DROP_FRAMES, self._dropped_frames)
         st.set(W.W_CLOSING, 1)
-        try:
-            self._proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            self._proc.kill()
-            self._proc.wait()
-            if st.text("error") is None:
-                st.set_text("error", "recording stopped: the writer did not finish within "
-                                     f"{timeout_s:.0f} s; "
-                                     f"run `factr2 recover {self.path}`")
+        stalled = not self._wait_writer(stall_s)
+        if stalled and st.text("error") is None:
+            st.set_text("error", f"recording stopped: the writer made no progress for {stall_s:.0f} s; "
+                                 f"run `factr2 recover {self.path}`")
         if st.get(W.W_STATE) not in (W.FINISHED, W.FAILED) and st.text("error") is None:
             st.set_text("error", f"recording stopped: the writer process ended ({self._proc.returncode}); "
                                  f"run `factr2 recover {self.path}`")
@@ -406,7 +436,21 @@ class Recorder:
             self._final = self._read_status()
             self._final.recording = False
             self._release()
+        if stalled:
+            self._final.error = self._recover_after_stall(stall_s)
         return self._final
+
+    def _recover_after_stall(self, stall_s: float) -> str:
+        """The killed writer's file rewritten in place to its last complete record; the one-line error."""
+        from hardware.recording.recover import recover
+
+        try:
+            rep = recover(self.path, in_place=True)
+        except Exception as e:  # noqa: BLE001 -- said in the one line; the file is left as it was
+            return (f"recording stopped: the writer made no progress for {stall_s:.0f} s and recovering "
+                    f"the file failed ({e}); run `factr2 recover {self.path}`")
+        return (f"recording stopped: the writer made no progress for {stall_s:.0f} s; the file was recovered "
+                f"in place ({rep.messages} messages kept, {rep.dropped} damaged dropped)")
 
     def _release(self) -> None:
         if self._mm is not None:

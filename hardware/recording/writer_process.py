@@ -41,6 +41,8 @@ ERROR_AT, WARNING_AT, TEXT_MAX = 128, 1152, 1024
 _U64 = struct.Struct("<Q")
 IDLE_SLEEP_S = 0.002
 FRAMES_PER_PASS = 8
+PUBLISH_EVERY = 64  # records: the counters are published this often within a pass (a pass of 4000 records
+# on a starved writer can take seconds; the parent's close() waits on this progress)
 DISK_FULL_GRACE_S = 0.5  # s: after the disk is found full, the producer is refused at once (W_STATE FULL)
 # and everything already in the rings is written from the space reserve (hardware/recording/space.py), however
 # far behind the writer was (a lockstep loop runs ahead of it); then, at least this long after, the file is
@@ -148,6 +150,7 @@ class _Writer:
                     self.warn(f"camera {camera}: frame not encodable, skipped ({e})")
                     continue
             self.sink.image(camera, t, jpeg)
+            self.publish()
 
     def publish(self) -> None:
         st = self.status
@@ -180,8 +183,12 @@ class _Writer:
                     st.set(W_STATE, FULL)  # the producer stops handing over: what is in the rings is older
                     st.set_text("warning", "the disk is full: writing what was handed over, then stopping")
             self.consumed += len(recs) + len(frames)
-            for r in recs + frames:
+            for i, r in enumerate(recs + frames, 1):
                 self.handle(r)
+                if cfg.get("handle_delay_s"):  # tests: a writer slowed (a busy machine, a slow disk)
+                    time.sleep(cfg["handle_delay_s"])
+                if i % PUBLISH_EVERY == 0:  # progress the closing parent sees (writer.Recorder.close)
+                    self.publish()
             self.write_encoded(wait=False)
             now = time.monotonic()
             drained = not recs and not frames and not self.samples.used() and not self.frames.used()
