@@ -23,6 +23,13 @@ collects the same episodes and rolls out on the same seeds: before and after, pa
     python -m bench.data_curve --dev --defaults sized --tasks peg-insert,press-fit --points 50 --out DEV
                                                                # development seeds: choosing the defaults
     python -m bench.data_curve --out OUT --report --results data_curve_current   # + results/NAME.json
+    python -m bench.data_curve --perturb --tasks peg-insert,press-fit --points 50 --out OUT_PERTURB
+                                                               # collection that teaches recovery (DART)
+    python -m bench.data_curve --out OUT_PERTURB --report --against OUT   # paired with the curve's points
+
+--perturb [SPEC] collects every part with `factr2 collect --perturb SPEC` (teleop/perturb.py; empty: its
+defaults) on the same collection seeds, and trains with `--perturbed dart`: the same initial conditions of
+the demonstrations and of the rollouts as the unperturbed curve, so each point pairs with the curve's.
 
 Resumable: every collection part, training run and rollout set leaves its JSON as it finishes and is skipped
 when there (an interrupted training resumes from its last checkpoint); tasks, points and seeds may be added
@@ -67,6 +74,8 @@ from bench.data_curve_defaults import defaults_flags, defaults_meta
 from bench.data_curve_report import (
     chart,
     finished_rows,
+    paired_points,
+    paired_table,
     point_dir,
     summarize,
     table,
@@ -98,7 +107,17 @@ def part_paths(cfg: CurveConfig, task: str, k: int) -> tuple[Path, Path]:
 def collect_part(cfg: CurveConfig, task: str, k: int) -> dict:
     ck = Path(cfg.next_checkpoint)
     ck = ck if ck.is_absolute() else harness.ROOT / ck
-    return collect_run(task, part_dir(cfg.out, task, k), cfg.part_episodes, cfg.demo_seed + k, str(ck))
+    return collect_run(task, part_dir(cfg.out, task, k), cfg.part_episodes, cfg.demo_seed + k, str(ck),
+                       perturb=perturb_config(cfg.perturb))
+
+
+def perturb_config(perturb: dict | None):
+    """CurveConfig.perturb (PerturbConfig.to_dict(), JSON-safe) as factr2 collect's PerturbConfig, or None."""
+    if perturb is None:
+        return None
+    from factr2_teleop.teleop.perturb import PerturbConfig
+
+    return PerturbConfig(**{**perturb, "joints": tuple(perturb.get("joints") or ())})
 
 
 def train_point(cfg: CurveConfig, task: str, n: int, seed: int, folders: list[Path], ids: list[str]) -> dict:
@@ -291,12 +310,20 @@ def build_results(cfg: CurveConfig, command: str) -> dict:
             "summary": {t: {str(n): s for n, s in pts.items()} for t, pts in summarize(rows).items()}}
 
 
-def write_outputs(cfg: CurveConfig, chart_too: bool = True, command: str = "") -> dict:
+def write_outputs(cfg: CurveConfig, chart_too: bool = True, command: str = "", against: str = "") -> dict:
+    """OUT/data_curve.json, .md and .png; against: another OUT, each point paired with its same point."""
     out = Path(cfg.out)
     res = build_results(cfg, command or harness.command(module="bench.data_curve"))
+    md = table(summarize(res["rows"]))
+    if against:
+        paired = paired_points(res["rows"], finished_rows(against))
+        res["against"] = {"out": str(against), "paired": {t: {str(n): p for n, p in pts.items()}
+                                                         for t, pts in paired.items()}}
+        md += "\n" + (paired_table(paired, "this OUT", str(against)) if paired else
+                      f"No point of {against} shares training seeds and rollout episodes with this OUT.\n")
     _json(out / "data_curve.json", res)
     summary = summarize(res["rows"])
-    (out / "data_curve.md").write_text(table(summary))
+    (out / "data_curve.md").write_text(md)
     if chart_too and summary:
         chart(summary, out / "data_curve.png", title(res["config"]))
     return res
@@ -305,6 +332,9 @@ def write_outputs(cfg: CurveConfig, chart_too: bool = True, command: str = "") -
 def main(argv=None) -> int:
     cfg, a = parse_args(argv, __doc__.splitlines()[0])
     out = Path(cfg.out)
+    if a.against and not (Path(a.against) / "config.json").is_file():
+        print(f"--against {a.against}: no config.json (not a data_curve results folder)", file=sys.stderr)
+        return 2
     if a.report:
         if not (out / "config.json").is_file():
             print(f"--out {out}: no config.json (not a data_curve results folder)", file=sys.stderr)
@@ -335,7 +365,7 @@ def main(argv=None) -> int:
         print(f"wall {time.perf_counter() - t:.0f} s", flush=True)
         cfg = whole
     cmd = harness.command(module="bench.data_curve")
-    res = write_outputs(cfg, command=cmd)
+    res = write_outputs(cfg, command=cmd, against=a.against)
     print((out / "data_curve.md").read_text())
     if a.results:
         print(write_results(res, a.results, cmd, out))

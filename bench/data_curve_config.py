@@ -25,7 +25,11 @@ NEXT_CHECKPOINT = "bench/assets/next_sim_piper_first/next.json"
 QUICK = {"tasks": ["wipe"], "points": {"wipe": [2, 4]}, "seeds": 1, "rollouts": 1, "part_episodes": 3,
          "train_flags": ["--steps", "30", "--batch", "32"]}
 SAME_ON_RESUME = ("defaults", "defaults_meta", "train_flags", "rollouts", "part_episodes", "device",
-                  "next_checkpoint", "demo_seed", "eval_seed")  # the seeds: a --dev OUT is never the curve's
+                  "next_checkpoint", "demo_seed", "eval_seed",  # the seeds: a --dev OUT is never the curve's
+                  "perturb")  # a perturbed collection is never resumed as an unperturbed one, nor back
+# how a perturbed collection's ticks are trained on (factr2 train --perturbed; dart is its default, named
+# so that the recorded train flags say it)
+PERTURBED_TRAIN = ["--perturbed", "dart"]
 # the seeds of a run: the curve's (what is reported), or the development ones a rule is chosen on
 SEED_SETS = {"curve": (DATA_CURVE_DEMO_SEED, DATA_CURVE_EVAL_SEED),
              "dev": (DEFAULTS_DEV_DEMO_SEED, DEFAULTS_DEV_EVAL_SEED)}
@@ -50,6 +54,9 @@ class CurveConfig:
     demo_seed: int = DATA_CURVE_DEMO_SEED
     eval_seed: int = DATA_CURVE_EVAL_SEED
     demos_from: str = ""  # another OUT whose collection (same seeds, part size) this one trains on
+    # factr2 collect --perturb's settings (teleop.perturb.PerturbConfig.to_dict()) every part is collected
+    # with; None: no perturbation (what an OUT from before the option holds)
+    perturb: dict | None = None
     defaults_meta: dict = field(default_factory=dict)  # what the defaults resolve to here (defaults_meta())
 
     def point_keys(self) -> list[tuple[str, int, int]]:
@@ -99,7 +106,7 @@ def check_demos_from(cfg: CurveConfig) -> None:
     if not other.is_file():
         raise SystemExit(f"--demos-from {cfg.demos_from}: no config.json (not a data_curve results folder)")
     old = json.loads(other.read_text())
-    keys = ("seed_set", "demo_seed", "part_episodes", "next_checkpoint")
+    keys = ("seed_set", "demo_seed", "part_episodes", "next_checkpoint", "perturb")
     diff = [k for k in keys if old.get(k, "curve" if k == "seed_set" else None) != getattr(cfg, k)]
     if diff:
         raise SystemExit(f"--demos-from {cfg.demos_from}: collected with other " + ", ".join(
@@ -119,6 +126,13 @@ def parse_args(argv=None, description: str = "") -> tuple[CurveConfig, argparse.
     ap.add_argument("--demos-from", default="", metavar="OUT2",
                     help="train on OUT2's collection (a data_curve OUT on the same seeds and part size): "
                     "each set of defaults compared on the same demonstrations, collected once")
+    ap.add_argument("--perturb", nargs="?", const="", default=None, metavar="KEY=VALUE,...",
+                    help="collect every part with factr2 collect --perturb SPEC (empty: its defaults; "
+                    "docs/tasks.md) and train with --perturbed dart: on the same collection and rollout "
+                    "seeds as the curve, paired with its points (--report --against CURVE_OUT)")
+    ap.add_argument("--against", default="", metavar="OUT2",
+                    help="also report each point paired with OUT2's same point (same training seeds and "
+                    "rollout episodes: exact McNemar on the paired rollouts)")
     ap.add_argument("--tasks", default="", help=f"comma-separated (default {','.join(POINTS)})")
     ap.add_argument("--points", default="", metavar="N[,N...]",
                     help="successful demonstrations per point, for every task given (default: "
@@ -162,4 +176,13 @@ def parse_args(argv=None, description: str = "") -> tuple[CurveConfig, argparse.
         lacking = [t for t in cfg.tasks if t not in cfg.points]
         ap.error(f"--tasks {a.tasks!r}: no default points for {', '.join(lacking)}; give --points")
     cfg.points = {t: cfg.points[t] for t in cfg.tasks}
+    if a.perturb is not None:
+        from factr2_teleop.teleop.perturb import parse_perturb
+        from hardware.errors import UserError
+
+        try:
+            cfg.perturb = parse_perturb(a.perturb).to_dict()
+        except UserError as e:
+            ap.error(str(e))
+        cfg.train_flags = [*cfg.train_flags, *PERTURBED_TRAIN]  # a new list: never QUICK's
     return cfg, a

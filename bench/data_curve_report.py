@@ -11,7 +11,7 @@ from pathlib import Path
 
 from bench import harness
 from bench.first_curve import log_axis, save
-from bench.first_report import pooled_stages, wilson
+from bench.first_report import mcnemar_p, pooled_stages, wilson
 from bench.portable import portable, portable_text
 
 
@@ -69,6 +69,46 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
+def paired_points(rows: list[dict], other: list[dict]) -> dict:
+    """{task: {n: ...}}: each point of `rows` against the same point of `other` (another OUT, e.g. the
+    unperturbed curve against a perturbed collection), episode by episode where both have the same training
+    seed and rollout episode seed (the same initial conditions): both succeed, only this one, only the other,
+    neither, the exact McNemar p, and each side's pooled success with its Wilson interval over those pairs."""
+    def outcomes(rs: list[dict]) -> dict:
+        return {(r["task"], r["n_demos"], r["seed"], sd): ok
+                for r in rs for sd, ok in zip(r["episode_seeds"], r["successes"])}
+
+    a, b = outcomes(rows), outcomes(other)
+    name = {(1, 1): "both", (1, 0): "only_this", (0, 1): "only_other", (0, 0): "neither"}
+    out: dict = {}
+    for key in sorted(set(a) & set(b)):
+        p = out.setdefault(key[0], {}).setdefault(key[1], {"both": 0, "only_this": 0, "only_other": 0,
+                                                             "neither": 0, "seeds": set()})
+        p["seeds"].add(key[2])
+        p[name[(int(a[key]), int(b[key]))]] += 1
+    for points in out.values():
+        for p in points.values():
+            m = sum(p[k] for k in ("both", "only_this", "only_other", "neither"))
+            ka, kb = p["both"] + p["only_this"], p["both"] + p["only_other"]
+            p.update(seeds=sorted(p["seeds"]), pairs=m, this=[ka, m, *wilson(ka, m)],
+                     other=[kb, m, *wilson(kb, m)], mcnemar_p=mcnemar_p(p["only_this"], p["only_other"]))
+    return out
+
+
+def paired_table(paired: dict, this: str, other: str) -> str:
+    """paired_points as a markdown table: this OUT's point against the other's on the same episodes."""
+    lines = [f"Paired on the same training seeds and rollout episodes: {this} against {other}.", "",
+             f"| task | successful demonstrations | pairs | {this} [95 % Wilson] | {other} [95 % Wilson] | "
+             "both / only this / only other / neither | exact McNemar p |", "|---|---|---|---|---|---|---|"]
+    for task, points in paired.items():
+        for n, p in points.items():
+            side = [f"{k} / {m} = {100 * k / m:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
+                    for k, m, lo, hi in (p["this"], p["other"])]
+            lines.append(f"| {task} | {n} | {p['pairs']} | {side[0]} | {side[1]} | {p['both']} / "
+                         f"{p['only_this']} / {p['only_other']} / {p['neither']} | {p['mcnemar_p']:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
 def table(summary: dict) -> str:
     """The curve as a markdown table (the numbers the figure plots)."""
     lines = ["| task | successful demonstrations | success [95 % Wilson] | per seed [%] | task progress | "
@@ -110,6 +150,7 @@ def chart(summary: dict, path: Path, title: str) -> None:
 
 def title(config: dict) -> str:
     dev = ", DEVELOPMENT seeds" if config.get("seed_set") == "dev" else ""
+    dev += ", PERTURBED collection (--perturbed dart)" if config.get("perturb") is not None else ""
     return (f"data curve, defaults {config['defaults']}: {config['seeds']} training seed(s) x "
             f"{config['rollouts']} rollouts per point (SIMULATED twin, PRIVILEGED state{dev})")
 

@@ -53,14 +53,15 @@ def collect_demos(cfg: BenchConfig, task: str, checkpoint: str) -> dict:
 
 
 def collect_run(task: str, folder: Path, episodes: int, seed: int, checkpoint: str,
-                cameras: bool = False) -> dict:
+                cameras: bool = False, perturb=None) -> dict:
     """One collection of `episodes` scripted demonstrations from collection seed `seed` into `folder`
-    (factr2 collect's function): its summary, kept when it is there (an interrupted one starts again)."""
+    (factr2 collect's function; perturb: its --perturb, a teleop.perturb.PerturbConfig or None): its
+    summary, kept when it is there (an interrupted one starts again)."""
     from factr2_teleop.tasks.run import CollectConfig, collect, output_paths
 
     # mode None: the task's demonstrator feedback (Task.operator_feedback), else NEXT from `checkpoint`
     cc = CollectConfig(rig=RIG, task=task, episodes=episodes, out=str(folder), seed=seed, mode=None,
-                       checkpoint=checkpoint, cameras=cameras)
+                       checkpoint=checkpoint, cameras=cameras, perturb=perturb)
     summary = output_paths(cc, RIG)[1]
     if summary.is_file():
         return json.loads(summary.read_text())

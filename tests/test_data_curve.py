@@ -143,6 +143,7 @@ def test_the_report_pools_the_seeds_and_writes_a_portable_record(tmp_path):
 @pytest.mark.parametrize("argv, says", [
     (["--points", "25,x"], "--points"), (["--seeds", "0"], "--seeds 0"),
     (["--tasks", "cap-screw"], "no default points for cap-screw"), (["--defaults", "later"], "--defaults"),
+    (["--perturb", "amplitude=0.1"], "--perturb"),
 ])
 def test_bad_options_say_one_thing_and_exit_2(tmp_path, capsys, argv, says):
     with pytest.raises(SystemExit) as e:
@@ -248,3 +249,79 @@ def test_demos_from_trains_on_another_outs_collection_and_collects_nothing(tmp_p
                                        dc.part_dir(tmp_path / "src", "wipe", 1)]
     with pytest.raises(SystemExit, match="demo_seed"):
         dc.check_demos_from(_cfg(tmp_path / "dst", demos_from=str(tmp_path / "src"), demo_seed=5701))
+
+
+def test_perturb_collects_every_part_perturbed_and_trains_with_perturbed_dart(tmp_path, monkeypatch):
+    """--perturb SPEC: factr2 collect's PerturbConfig reaches every part's collection, on the curve's seeds
+    (paired with its points), and `--perturbed dart` is in the recorded train flags and factr2 train's
+    options."""
+    import argparse
+
+    import factr2_teleop.tasks.run as task_run
+    from bench.data_curve_config import QUICK
+    from factr2_teleop.teleop.perturb import PerturbConfig
+    from policies.training.run_config import add_arguments, from_args
+
+    cfg, _ = dc.parse_args(["--out", str(tmp_path), "--tasks", "wipe", "--points", "2",
+                            "--perturb", "amplitude_rad=0.03,joints=0+1"])
+    assert cfg.perturb == PerturbConfig(amplitude_rad=0.03, joints=(0, 1)).to_dict()
+    assert (cfg.demo_seed, cfg.eval_seed) == (first_config.DATA_CURVE_DEMO_SEED,
+                                              first_config.DATA_CURVE_EVAL_SEED)
+    assert cfg.train_flags == ["--perturbed", "dart"]
+    assert dc.parse_args(["--out", str(tmp_path), "--perturb"])[0].perturb == PerturbConfig().to_dict()
+    quick, _ = dc.parse_args(["--out", str(tmp_path), "--quick", "--perturb"])
+    assert quick.train_flags == [*QUICK["train_flags"], "--perturbed", "dart"]
+    assert "--perturbed" not in QUICK["train_flags"]  # QUICK's own list is left alone
+    seen = []
+    monkeypatch.setattr(task_run, "collect", lambda cc, progress=False: seen.append(cc) or {"results": []})
+    dc.collect_part(cfg, "wipe", 1)
+    assert seen[0].perturb == PerturbConfig(amplitude_rad=0.03, joints=(0, 1))
+    assert seen[0].seed == first_config.DATA_CURVE_DEMO_SEED + 1 and seen[0].task == "wipe"
+    dc.collect_part(dc.parse_args(["--out", str(tmp_path / "plain"), "--tasks", "wipe", "--points", "2"])[0],
+                    "wipe", 1)
+    assert seen[1].perturb is None
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    argv = dc.train_argv(cfg, [tmp_path], ["x.mcap#0"], 0, tmp_path / "run")
+    assert argv[argv.index("--perturbed") + 1] == "dart"
+    assert from_args(ap.parse_args(argv)).perturbed == "dart"
+    assert dc.build_results(cfg, "CMD")["train_flags"]["2"] == ["--perturbed", "dart"]
+
+
+def test_a_perturbed_out_is_never_resumed_as_an_unperturbed_one_nor_back(tmp_path):
+    plain, _ = dc.parse_args(["--out", str(tmp_path)])
+    pert, _ = dc.parse_args(["--out", str(tmp_path), "--perturb"])
+    (tmp_path / "config.json").write_text(json.dumps(asdict(plain)))
+    with pytest.raises(SystemExit, match="perturb"):
+        first_config.check_resume(pert, tmp_path, dc.SAME_ON_RESUME)
+    (tmp_path / "config.json").write_text(json.dumps(asdict(pert)))
+    with pytest.raises(SystemExit, match="perturb"):
+        first_config.check_resume(plain, tmp_path, dc.SAME_ON_RESUME)
+    first_config.check_resume(pert, tmp_path, dc.SAME_ON_RESUME)  # the same: resumes
+    old = {k: v for k, v in asdict(plain).items() if k != "perturb"}  # an OUT from before the option
+    (tmp_path / "config.json").write_text(json.dumps(old))
+    first_config.check_resume(plain, tmp_path, dc.SAME_ON_RESUME)
+    src = _cfg(tmp_path / "src")
+    (tmp_path / "src").mkdir()
+    (tmp_path / "src" / "config.json").write_text(json.dumps(asdict(src)))
+    with pytest.raises(SystemExit, match="perturb"):  # nor trained on an unperturbed collection
+        dc.check_demos_from(_cfg(tmp_path / "dst", demos_from=str(tmp_path / "src"), perturb={"x": 1}))
+
+
+def test_against_pairs_each_point_with_the_other_outs_on_the_same_episodes(tmp_path):
+    from bench.data_curve_report import paired_points
+
+    a, b = _cfg(tmp_path / "a", perturb={}), _cfg(tmp_path / "b")
+    _finish(a, 2, 0, [1, 1, 0, 1])
+    _finish(b, 2, 0, [1, 0, 0, 0])
+    _finish(b, 4, 0, [1, 1, 1, 1])  # no such point in a: not paired
+    p = paired_points(finished_rows(a.out), finished_rows(b.out))
+    assert list(p) == ["wipe"] and list(p["wipe"]) == [2]
+    q = p["wipe"][2]
+    assert (q["both"], q["only_this"], q["only_other"], q["neither"], q["pairs"]) == (1, 2, 0, 1, 4)
+    assert q["this"] == [3, 4, *wilson(3, 4)] and q["other"] == [1, 4, *wilson(1, 4)]
+    assert q["mcnemar_p"] == pytest.approx(0.5)  # 2 discordant pairs, both one way: 2 * (1/2)^2
+    res = dc.write_outputs(a, chart_too=False, command="CMD", against=b.out)
+    assert res["against"]["paired"]["wipe"]["2"]["only_this"] == 2
+    md = (Path(a.out) / "data_curve.md").read_text()
+    assert "exact McNemar p" in md and "| wipe | 2 | 4 |" in md
