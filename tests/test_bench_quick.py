@@ -71,12 +71,13 @@ SKIP = {
     "tick_instructions": "needs valgrind and a C compiler; runs each checkout under callgrind (minutes)",
     "data_curve": "collects, trains and rolls out: its own --quick takes minutes "
                   "(tests/test_data_curve.py covers its parts)",
+    "val_vs_success": "needs training run folders (and their rollouts) to tabulate",
     "cap_wrist": "needs a cap-screw recording or a trained policy to trace "
                  "(tests/test_bench_cap_wrist.py covers its turn counter)",
 }
 # modules of bench/ that are not scripts (used by the ones above)
 LIBRARIES = {"__init__", "harness", "first_config", "first_ledger", "first_report", "first_stages",
-             "crash_trials", "fault_trials", "data_curve_report"}
+             "crash_trials", "fault_trials", "data_curve_report", "data_curve_config", "data_curve_defaults"}
 
 
 def scripts() -> set[str]:
