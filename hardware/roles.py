@@ -216,10 +216,8 @@ class Leader(Device):
         passive leader), then stand down what the device would take that silence for: a dead host (the
         Dynamixel Bus Watchdog latches and its latch reads as lost force feedback). The next command arms
         it again before its torque lands; the end's zero torque is such a command."""
-        now = self.clock.now()
-        with self._lock:
-            self._to_wire(self.safety.leader_zero(now, reason), now)
-            self.in_safe_state = True
+        with self._lock:  # one transaction: no command lands between the zero torque and the stand-down
+            self.zero_torque(reason)
             self._rest_fallback()
 
     def _rest_fallback(self) -> None:

@@ -21,7 +21,7 @@ from hardware import sim_cpu
 from hardware.errors import UserError
 from hardware.features import arm_prefix, features_json, rig_features
 from hardware.recording.arm_tick import record_arm_tick
-from hardware.recording.writer import CLOSE_POLL_S, CLOSE_STALL_S
+from hardware.recording.writer import CLOSE_STALL_S, wait_while_progress
 
 TRUTH_EVERY = 5  # ticks between ground-truth samples (each the mean over those ticks): 100 Hz at 500 Hz
 TIMING_EVERY = 50  # ticks between loop-timing samples (10 Hz at 500 Hz)
@@ -207,10 +207,8 @@ class SessionRecording:
     def _join_packer(self, stall_s: float) -> None:
         """Wait for the packer while its backlog shrinks (a busy machine: slow, not lost); stop waiting after
         stall_s [s] without progress (the recorder's close then says what was kept)."""
-        last, t_last = self._backlog, time.monotonic()
-        while self._packer.is_alive():
-            self._packer.join(CLOSE_POLL_S)
-            if self._backlog != last:
-                last, t_last = self._backlog, time.monotonic()
-            elif time.monotonic() - t_last >= stall_s:
-                return
+        def ended(timeout_s: float) -> bool:
+            self._packer.join(timeout_s)
+            return not self._packer.is_alive()
+
+        wait_while_progress(ended, lambda: self._backlog, stall_s)

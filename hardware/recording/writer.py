@@ -92,6 +92,20 @@ def _shared_file(size: int) -> int:
     return fd
 
 
+def wait_while_progress(ended, mark, stall_s: float, poll_s: float = CLOSE_POLL_S) -> bool:
+    """Wait for something to end while it makes progress: ended(timeout_s) -> True once it has ended (waiting
+    up to timeout_s [s]), mark() -> a value that changes while it works. False after stall_s [s] without a
+    change (the caller decides what giving up means)."""
+    last, t_last = mark(), time.monotonic()
+    while not ended(min(poll_s, stall_s)):
+        now = mark()
+        if now != last:
+            last, t_last = now, time.monotonic()
+        elif time.monotonic() - t_last >= stall_s:
+            return False
+    return True
+
+
 class Recorder:
     """Record one run to `path` (.mcap). Arguments:
 
@@ -397,20 +411,18 @@ class Recorder:
     def _wait_writer(self, stall_s: float) -> bool:
         """Wait for the writer process to end while it makes progress; False when it made none for
         stall_s [s] (it is then killed)."""
-        mark, t_mark = self._progress_mark(), time.monotonic()
-        while True:
+        def ended(timeout_s: float) -> bool:
             try:
-                self._proc.wait(min(CLOSE_POLL_S, stall_s))
+                self._proc.wait(timeout_s)
                 return True
             except subprocess.TimeoutExpired:
-                pass
-            now_mark = self._progress_mark()
-            if now_mark != mark:
-                mark, t_mark = now_mark, time.monotonic()
-            elif time.monotonic() - t_mark >= stall_s:
-                self._proc.kill()
-                self._proc.wait()
                 return False
+
+        if wait_while_progress(ended, self._progress_mark, stall_s):
+            return True
+        self._proc.kill()
+        self._proc.wait()
+        return False
 
     def close(self, stall_s: float = CLOSE_STALL_S) -> RecorderStatus:
         """Let the writer drain the rings, write the summary and close the file: waits as long as the writer
