@@ -25,6 +25,23 @@ def joint_state(k: int, dt: float = 1e-3, phase: float = 0.0) -> JointState:
     return s
 
 
+def flushed_recorder(path, n: int = 200) -> Recorder:
+    """A recorder holding n joint samples that its writer has written and flushed to the file (the state a
+    test then stops or kills the writer in)."""
+    import time
+
+    from machine_speed import budget
+
+    rec = Recorder(path, t0=0.0, flush_interval_s=0.02)
+    for k in range(n):
+        assert rec.log_joint_state("follower", k * 1e-3, joint_state(k))
+    deadline = time.monotonic() + budget(10.0)
+    while rec.status().messages_written < n and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.2)  # ten flush intervals: the chunk holding them reached the file
+    return rec
+
+
 def gradient_frame(h: int = 48, w: int = 64, shift: int = 0) -> np.ndarray:
     y, x = np.mgrid[0:h, 0:w]
     return np.stack([(x * 4 + shift) % 256, y * 5 % 256, np.full_like(x, 128)], axis=-1).astype(np.uint8)

@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 from machine_speed import budget
-from recording_helpers import joint_state
+from recording_helpers import flushed_recorder, joint_state
 
 from hardware.recording import Recorder, Recording
 
@@ -41,13 +41,7 @@ def test_a_slow_writer_is_waited_for_and_the_file_is_complete(tmp_path):
 def test_a_stalled_writer_is_given_up_on_and_the_file_recovered(tmp_path):
     """A writer that makes no progress at all (stopped): close() gives up after the stall limit, says so in
     one line, and the file is recovered in place (valid, indexed, what was flushed kept)."""
-    rec = Recorder(tmp_path / "stuck.mcap", t0=0.0, flush_interval_s=0.02)
-    for k in range(200):
-        assert rec.log_joint_state("follower", k * 1e-3, joint_state(k))
-    deadline = time.monotonic() + budget(10.0)
-    while rec.status().messages_written < 200 and time.monotonic() < deadline:
-        time.sleep(0.01)
-    time.sleep(0.2)  # ten flush intervals: the chunk holding them reached the file
+    rec = flushed_recorder(tmp_path / "stuck.mcap")
     os.kill(rec._proc.pid, signal.SIGSTOP)
     t = time.monotonic()
     st = rec.close(0.5)

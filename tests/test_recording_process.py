@@ -10,20 +10,14 @@ import time
 import numpy as np
 import pytest
 from machine_speed import budget
-from recording_helpers import joint_state
+from recording_helpers import flushed_recorder, joint_state
 
 from factr2_teleop.session.recording import TIMING_EVERY
 from hardware.recording import Recorder, Recording
 
 
 def test_a_dead_writer_is_said_and_counted_never_blocks(tmp_path):
-    rec = Recorder(tmp_path / "w.mcap", t0=0.0, flush_interval_s=0.02)
-    for k in range(200):
-        assert rec.log_joint_state("follower", k * 1e-3, joint_state(k))
-    deadline = time.monotonic() + budget(10.0)
-    while rec.status().messages_written < 200 and time.monotonic() < deadline:
-        time.sleep(0.01)
-    time.sleep(0.2)  # ten flush intervals: the chunk holding them reached the file
+    rec = flushed_recorder(tmp_path / "w.mcap")
     os.kill(rec._proc.pid, signal.SIGKILL)
     rec._proc.wait()
     st = rec.status()
