@@ -242,6 +242,12 @@ def force_table(name: str) -> str:
     return render(_payload(name))
 
 
+def data_curve_table(name: str) -> str:
+    from bench.data_curve_report import table
+
+    return table(_payload(name)["summary"])
+
+
 def history_table(name: str) -> str:
     from bench.force_history import table
 
@@ -264,6 +270,7 @@ TABLES = {
     ("force.md", "force_perceived"): (("force_perceived",), lambda: force_table("force_perceived")),
     ("force.md", "force_history"): (("force_history_perceived",),
                                     lambda: history_table("force_history_perceived")),
+    ("policies.md", "data_curve"): (("data_curve_current",), lambda: data_curve_table("data_curve_current")),
 }
 
 
