@@ -92,3 +92,38 @@ def test_wipe_approach_of_seed_5603_reaches_the_mark_not_a_wrong_ik_branch():
         mark = np.asarray(params["area_pos"])
         assert np.linalg.norm(tip[:2] - mark[:2]) < 0.06, (seed, tip, op.q_des)  # over the mark (+-34 mm)
         assert 0.03 < tip[2] < 0.08, (seed, tip)  # 4 cm above it, ready to touch down
+
+
+def test_aim_computes_each_forward_kinematics_once_and_returns_the_residual_of_its_joints():
+    """Operator.aim takes the residual [m] from aim_joints (the FK of the joints it chose), not a second FK;
+    the residual is exactly that of the joints returned, on the warm-started and the re-solved branch."""
+    from factr2_teleop.tasks.operator import AIM_BRANCH_M, Operator, aim_joints
+    from hardware.arms import load_arm
+    from hardware.arms.dynamics import ArmDynamics
+
+    arm = load_arm("piper")
+    dyn, lim = ArmDynamics(arm), arm.limits
+    calls = []
+
+    def fk(q):
+        calls.append(1)
+        return dyn.fk(q)
+
+    T = K.pose(K.down_rotation(0.3), (0.27, -0.12, 0.05))
+    rng = np.random.default_rng(0)
+    branches = set()
+    for q_from in [np.array(arm.q_home, float), lim.q_min + 0.02, *rng.uniform(lim.q_min, lim.q_max, (4, 6))]:
+        for iters in (1, 4):
+            q, res = aim_joints(dyn.fk, dyn.jacobian, q_from, T, lim.q_min, lim.q_max, iters)
+            assert res == float(np.linalg.norm(K.pose_error(dyn.fk(q), T)[:3]))
+            warm = np.asarray(q_from, float)
+            for _ in range(iters):
+                warm = K.ik_step(dyn.fk, dyn.jacobian, warm, T, lim.q_min, lim.q_max)
+            branches.add(bool(np.any(q != warm)))
+            op = Operator(fk, dyn.jacobian, lim.q_min, lim.q_max, lambda x: x, 0.002, q_start=q_from)
+            calls.clear()
+            assert op.aim(T, iters) == res
+            resolved = float(np.linalg.norm(K.pose_error(dyn.fk(warm), T)[:3])) > AIM_BRANCH_M
+            if not resolved:
+                assert len(calls) == iters + 1  # one FK per IK step and one for the residual
+    assert branches == {False, True}  # both branches were exercised

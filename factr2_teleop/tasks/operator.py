@@ -74,20 +74,22 @@ def interp_pose(T0: np.ndarray, T1: np.ndarray, s: float, bump=None) -> np.ndarr
     return K.pose(R, p)
 
 
-def aim_joints(fk, jac, q_from, T_des, q_min, q_max, iters: int = 4) -> np.ndarray:
-    """Joints [rad] toward T_des: `iters` IK steps warm-started at q_from; when that is still over
-    AIM_BRANCH_M from the target (a wrong branch: the damped steps, clipped at a limit, settle in a local
-    minimum they never leave), a full solve from the middle of the joint ranges, if it lands nearer (the
-    caller walks q_des there at AIM_STEP_RAD per decision, so the reference still never jumps)."""
+def aim_joints(fk, jac, q_from, T_des, q_min, q_max, iters: int = 4) -> tuple[np.ndarray, float]:
+    """(joints [rad] toward T_des, their position residual [m]): `iters` IK steps warm-started at q_from;
+    when that is still over AIM_BRANCH_M from the target (a wrong branch: the damped steps, clipped at a
+    limit, settle in a local minimum they never leave), a full solve from the middle of the joint ranges, if
+    it lands nearer (the caller walks q_des there at AIM_STEP_RAD per decision, so the reference still never
+    jumps). The residual is that of the joints returned (one FK each: solve_ik's is of its last q)."""
     q = np.asarray(q_from, float)
     for _ in range(iters):
         q = K.ik_step(fk, jac, q, T_des, q_min, q_max)
     res = float(np.linalg.norm(K.pose_error(fk(q), T_des)[:3]))
     if res > AIM_BRANCH_M:
         q_mid, e = K.solve_ik(fk, jac, (np.asarray(q_min) + np.asarray(q_max)) / 2, T_des, q_min, q_max)
-        if np.linalg.norm(e[:3]) < res:
-            return q_mid
-    return q
+        res_mid = float(np.linalg.norm(e[:3]))
+        if res_mid < res:
+            return q_mid, res_mid
+    return q, res
 
 
 @dataclass
@@ -163,9 +165,9 @@ class Operator:
     def aim(self, T_ee_des: np.ndarray, iters: int = 4) -> float:
         """Set q_des by IK toward a gripper pose (warm start: the current q_des); returns the position
         residual [m]."""
-        q = aim_joints(self.fk, self.jac, self.q_des, T_ee_des, self.q_min, self.q_max, iters)
+        q, res = aim_joints(self.fk, self.jac, self.q_des, T_ee_des, self.q_min, self.q_max, iters)
         self.q_des = self.q_des + np.clip(q - self.q_des, -AIM_STEP_RAD, AIM_STEP_RAD)
-        return float(np.linalg.norm(K.pose_error(self.fk(q), T_ee_des)[:3]))
+        return res
 
     def ee_pose_des(self) -> np.ndarray:
         return self.fk(self.q_des)
