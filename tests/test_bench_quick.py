@@ -32,6 +32,7 @@ QUICK = {
     "bench_demo": ["--out", "{tmp}/demo"],
     "results_index": ["--check"],
     "docs_tables": ["--check"],
+    "data_curve_advice": ["--check"],
 }
 # files each quick run writes as a bench/harness.py record
 WRITES = {"bench_twin": "twin.json", "bench_state_preset": "state_preset.json", "bench_recording":

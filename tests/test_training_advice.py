@@ -5,6 +5,7 @@ Train screen showing it after a tiny run and for a run it lists."""
 from __future__ import annotations
 
 import asyncio
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,14 +28,73 @@ def _rows(values, every=500, noise=0.0, seed=0, train_rows=True):
     return rows
 
 
-def test_a_curve_that_turned_up_says_the_data_limits_and_when():
+def test_a_curve_that_turned_up_says_the_data_limits_and_not_to_train_shorter():
     v = np.r_[np.linspace(1.0, 0.3, 6), np.linspace(0.31, 0.45, 11)]  # bottom at the 6th evaluation
-    lines = A.training_advice(_rows(v, noise=0.01), 47, ["press-fit"])
+    lines = A.training_advice(_rows(v, noise=0.01), 47, ["cap-screw"], rig="sim-piper")
     assert "turned up after 3.0 k of 8.5 k steps at 47 demonstrations" in lines[0]
-    assert "the data, not the training length" in lines[0] and "--steps 3000" in lines[0]
-    assert lines[1].startswith("no measured data curve for press-fit: no basis")
-    peg = A.training_advice(_rows(v), 47, ["peg-insert"])[1]
-    assert "45 -> 115 demonstrations" in peg and "docs/first_training.md" in peg
+    assert "the data, not the training length" in lines[0] and "record more demonstrations" in lines[0]
+    # shorter training was measured not to raise success: the advice never suggests it
+    assert "--steps" not in lines[0] and "train shorter" not in lines[0]
+    sh = A.measured()["shorter_training"]
+    assert (f"training shorter did not raise success on the twin (peg-insert + press-fit: {sh['k_short']} / "
+            f"{sh['n_short']} at") in lines[0] and "'Choosing the defaults')" in lines[0]
+    assert lines[1] == ("no measured data curve for cap-screw on sim-piper: no basis to say how many "
+                        "demonstrations would be enough")
+
+
+FIXTURE = Path(__file__).parent / "data" / "data_curve"  # results-shaped files: 2 seeds pooled, 1 alone
+
+
+@pytest.fixture(scope="module")
+def fixture_curve():
+    from bench.data_curve_advice import build
+
+    return build(FIXTURE)
+
+
+def test_the_measured_curve_pools_the_seeds_present(fixture_curve):
+    pf = fixture_curve["tasks"]["press-fit"]
+    assert [(p["n"], p["seeds"], p["rollouts"], p["k"], p["episodes"]) for p in pf] == [
+        (25, [0, 1], [24], 14, 48), (50, [0, 1], [24], 22, 48), (100, [0], [24], 18, 24)]
+    assert pf[0]["wilson"] == [0.1824, 0.4318]  # 14 / 48, 95 % Wilson
+    sh = fixture_curve["shorter_training"]  # the steps both curves share, EMA rows only, pooled
+    got = [sh[k] for k in ("short_steps", "long_steps", "k_short", "n_short", "k_long", "n_long")]
+    assert got == [2000, 8000, 1, 40, 5, 40]
+    assert sh["p_one_sided"] == 0.1004  # scipy.stats.fisher_exact([[1, 39], [5, 35]], "less"): 0.10036
+
+
+def test_the_measured_line_says_the_curve_its_basis_and_where_the_run_lies(fixture_curve):
+    m = fixture_curve
+    line = A.data_line({"press-fit": 47}, "sim-piper", m)
+    assert line == ("measured on the twin's press-fit (SIMULATED, PRIVILEGED state): 25 -> 50 -> 100 "
+                    "demonstrations gave 29 -> 46 -> 75 % success (95 % intervals 18-43, 33-60, 55-88 %), "
+                    "training seeds x rollouts 2 x 24, 2 x 24, 1 x 24; this run's 47 lie between the "
+                    "measured 25 and 50; the next above is 50 (46 %) (docs/policies.md, 'The data curve')")
+    lines = {n: A.data_line({"press-fit": n}, "sim-piper", m) for n in (12, 50, 100, 250)}
+    where = {n: line[line.index("this run's"):] for n, line in lines.items()}
+    assert where[12].startswith("this run's 12 lie below the measured range; its first point is 25 (29 %)")
+    assert where[50].startswith("this run's 50 is a measured point; the next above is 100 (75 %)")
+    assert where[100].startswith("this run's 100 is the largest point measured, nothing above it")
+    assert where[250].startswith("this run's 250 lie above the measured range (up to 100): no basis beyond")
+    wipe = A.data_line({"wipe": 30}, "sim-piper", m)
+    assert "1 training seed x 4 rollouts each" in wipe and "75 -> 100 % success" in wipe
+    # another task, another rig (a real one), or no rig named: no basis, said so
+    for tasks, rig in (({"cap-screw": 50}, "sim-piper"), ({"press-fit": 50}, "piper"), ({"wipe": 5}, "")):
+        assert A.data_line(tasks, rig, m).startswith(f"no measured data curve for {next(iter(tasks))} on "
+                                                     f"{rig or 'this rig'}: no basis")
+    flat = A.training_advice(_rows(np.r_[np.linspace(1.0, 0.3, 5), np.full(10, 0.3)]), 47, ["press-fit"],
+                             rig="sim-piper", m=m)
+    assert flat[1] == line
+
+
+def test_the_package_copy_is_what_results_hold():
+    """The installed app reads policies/training/data_curve_points.json (results/ is not in the wheel):
+    regenerated from results/ by `python -m bench.data_curve_advice`, never edited by hand."""
+    from bench.data_curve_advice import PACKAGE_COPY, build, main, text
+
+    assert PACKAGE_COPY.read_text() == text(build()), "run `python -m bench.data_curve_advice` and commit it"
+    assert A.measured() == build()
+    assert main(["--check"]) == 0
 
 
 def test_a_curve_still_falling_says_train_longer():

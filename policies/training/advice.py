@@ -15,9 +15,13 @@ The rule, on the validation loss of the evaluated (EMA) weights, "val/loss" in R
 - **flat** otherwise: longer training buys nothing this curve can show;
 - no advice (and the line says why) without a validation split or with fewer than MIN_POINTS evaluations.
 
-What more demonstrations bought is cited only where it was measured (DATA_CURVE: the twin's tasks, from
-docs); elsewhere the line says there is no measured basis. The validation loss says which lever (data or
-length), not how much success a given number of demonstrations would give.
+What more demonstrations bought is cited only where it was measured: the data curve's points for the run's
+task on the twin (data_curve_points.json beside this file, written from results/ by `python -m
+bench.data_curve_advice`, never by hand), within the measured range only; elsewhere (another task, a real
+rig) the line says there is no measured basis. Training shorter is not advised: on the twin it did not raise
+success (the same file's shorter_training). The validation loss says which lever, not how much success a
+given number of demonstrations would give, nor how many would reach a given loss (each run validates on
+other episodes: docs/policies.md, "What the run advises").
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass
+from functools import cache
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -36,11 +42,7 @@ RISE_MIN = 0.05  # relative rise of the smoothed curve above its minimum that co
 FALL_MIN = 0.02  # relative fall over the last third that counts as still falling
 NOISE_TIMES = 3.0  # a change must also exceed this many noise spreads
 
-# Measured: what more demonstrations bought on a twin task (SIMULATED), as docs state it, with the page.
-DATA_CURVE = {
-    "peg-insert": "on the twin's peg-insert, 45 -> 115 demonstrations took success 18 -> 27 of 40 rollouts "
-                  "(docs/first_training.md, 'What moved peg-insert')",
-}
+MEASURED = "data_curve_points.json"  # the package copy of the measured curve (bench/data_curve_advice.py)
 
 
 @dataclass(frozen=True)
@@ -99,40 +101,101 @@ def _k(step: int) -> str:
     return f"{step / 1000:.1f} k" if step >= 1000 else str(step)
 
 
-def data_line(tasks) -> str:
-    """What more demonstrations bought where it was measured, or that nothing was for these tasks."""
-    known = [DATA_CURVE[t] for t in tasks if t in DATA_CURVE]
+@cache
+def measured() -> dict:
+    """The measured data curve and shorter-training result the advice cites (the package copy)."""
+    return json.loads(resources.files(__package__).joinpath(MEASURED).read_text())
+
+
+def _pct(k: int, n: int) -> int:
+    return math.floor(100.0 * k / n + 0.5) if n else 0
+
+
+def _where(n: int, points: list[dict]) -> str:
+    """Where a run's number of demonstrations lies on the measured points; nothing beyond them."""
+    ns = [p["n"] for p in points]
+    above = [p for p in points if p["n"] > n]
+    if not above:
+        return (f"this run's {n} is the largest point measured, nothing above it" if n == ns[-1] else
+                f"this run's {n} lie above the measured range (up to {ns[-1]}): no basis beyond it")
+    nxt = f"{above[0]['n']} ({_pct(above[0]['k'], above[0]['episodes'])} %)"
+    if n < ns[0]:
+        return f"this run's {n} lie below the measured range; its first point is {nxt}"
+    if n in ns:
+        return f"this run's {n} is a measured point; the next above is {nxt}"
+    below = max(m for m in ns if m < n)
+    return f"this run's {n} lie between the measured {below} and {above[0]['n']}; the next above is {nxt}"
+
+
+def curve_line(task: str, n: int, m: dict) -> str:
+    """The measured curve of one twin task: success per number of demonstrations with 95 % Wilson
+    intervals, the training seeds and rollouts behind each point, and where the run's n lies."""
+    pts = m["tasks"][task]
+    per = [f"{len(p['seeds'])} x {p['rollouts'][0]}" if len(p["rollouts"]) == 1 else
+           f"{len(p['seeds'])} seeds, {p['episodes']} rollouts" for p in pts]
+    if len(set(per)) == 1 and len(pts[0]["rollouts"]) == 1:
+        s = len(pts[0]["seeds"])
+        behind = f"{s} training seed{'s' if s > 1 else ''} x {pts[0]['rollouts'][0]} rollouts each"
+    else:
+        behind = "training seeds x rollouts " + ", ".join(per)
+    labels = ["SIMULATED"] * bool(m["simulated"]) + ["PRIVILEGED state"] * ("PRIVILEGED" in m["observation"])
+    return (f"on the twin's {task} ({', '.join(labels)}): "
+            f"{' -> '.join(str(p['n']) for p in pts)} demonstrations gave "
+            f"{' -> '.join(str(_pct(p['k'], p['episodes'])) for p in pts)} % success (95 % intervals "
+            + ", ".join(f"{_pct(p['wilson'][0], 1)}-{_pct(p['wilson'][1], 1)}" for p in pts)
+            + f" %), {behind}; {_where(n, pts)}")
+
+
+def data_line(tasks: dict, rig: str = "", m: dict | None = None) -> str:
+    """What more demonstrations bought where it was measured (the run's task on the curve's twin rig), or
+    that nothing was. tasks: name -> the run's number of demonstrations of it."""
+    m = m or measured()
+    known = [curve_line(t, n, m) for t, n in sorted(tasks.items()) if rig == m["rig"] and t in m["tasks"]]
     if known:
-        return "measured: " + "; ".join(known)
-    named = ", ".join(tasks) or "this data"
-    return f"no measured data curve for {named}: no basis to say how many demonstrations would be enough"
+        return "measured " + "; ".join(known) + f" ({m['docs']})"
+    named = ", ".join(sorted(tasks)) or "this data"
+    return (f"no measured data curve for {named} on {rig or 'this rig'}: no basis to say how many "
+            "demonstrations would be enough")
 
 
-def training_advice(rows: list[dict], n_episodes: int, tasks=(), key: str = KEY) -> list[str]:
+def shorter_fact(m: dict | None = None) -> str:
+    """What training shorter did to success where it was measured (docs/policies.md, "Choosing the
+    defaults")."""
+    sh = (m or measured())["shorter_training"]
+    return (f"training shorter did not raise success on the twin ({' + '.join(sh['tasks'])}: "
+            f"{sh['k_short']} / {sh['n_short']} at {_k(sh['short_steps'])} steps, {sh['k_long']} / "
+            f"{sh['n_long']} at {_k(sh['long_steps'])}, one-sided p = {sh['p_one_sided']:.2f}; {sh['docs']})")
+
+
+def training_advice(rows: list[dict], n_episodes: int, tasks=(), key: str = KEY, rig: str = "",
+                    m: dict | None = None) -> list[str]:
     """One or two lines of advice from a run's metrics rows (RUN/metrics.jsonl), its number of
-    demonstrations (training and validation episodes) and its task names."""
+    demonstrations (training and validation episodes), its tasks (names, or name -> demonstrations of it)
+    and its rig's name (the measured curve is cited only for the twin rig it was measured on)."""
     c = read_curve(rows, key)
     at = f"at {n_episodes} demonstrations"
     if c.kind == "none":
         return [f"advice: {c.why}: no basis for advice"
                 + (" (validation holds out whole episodes: record at least 2)" if not c.step_end else "")]
     spread = f"noise {100 * c.noise:.0f} %"
+    per_task = dict(tasks) if isinstance(tasks, dict) else {t: n_episodes for t in tasks}
     if c.kind == "up":
         return [f"advice: validation loss turned up after {_k(c.step_min)} of {_k(c.step_end)} steps {at} "
                 f"(+{100 * c.change:.0f} % by the end, {spread}): the data, not the training length, limits "
-                f"this policy; record more demonstrations, or train shorter (--steps {c.step_min})",
-                data_line(tasks)]
+                f"this policy: record more demonstrations; {shorter_fact(m)}",
+                data_line(per_task, rig, m)]
     if c.kind == "falling":
         return [f"advice: validation loss still falling at the end ({_k(c.step_end)} steps, "
                 f"-{100 * c.change:.0f} % over the last third, {spread}) {at}: train longer before recording "
                 "more"]
     return [f"advice: validation loss flat at the end ({_k(c.step_end)} steps, {spread}) {at}: longer "
-            "training buys nothing this curve shows; more demonstrations are the lever", data_line(tasks)]
+            "training buys nothing this curve shows; more demonstrations are the lever",
+            data_line(per_task, rig, m)]
 
 
 def run_advice(run) -> list[str]:
-    """training_advice for a finished run folder: its metrics.jsonl and its last checkpoint's episodes and
-    tasks ([] when the folder holds no run)."""
+    """training_advice for a finished run folder: its metrics.jsonl and its last checkpoint's episodes,
+    tasks and rig ([] when the folder holds no run)."""
     from policies.training import checkpoint as C
     from policies.training.curves import RunLog
 
@@ -141,4 +204,7 @@ def run_advice(run) -> list[str]:
     if last is None:
         return []
     meta = json.loads(last.read_text())
-    return training_advice(RunLog.read(run), len(meta.get("episodes", [])), sorted(meta.get("tasks", {})))
+    rig = meta.get("rig") or {}
+    name = Path(rig.get("rig_file", "")).stem if isinstance(rig, dict) else ""
+    return training_advice(RunLog.read(run), len(meta.get("episodes", [])), meta.get("tasks") or {},
+                           rig=name)
