@@ -46,6 +46,9 @@ LOSSLESS_POLL_S = 0.0005  # s: how often it looks
 CLOSE_STALL_S = 30.0  # s: close() gives up on the writer only after this long without progress (a busy
 # machine makes it slow, never lost: a fixed wall-time limit cut recordings' ends at load 12-14)
 CLOSE_POLL_S = 0.5  # s: how often close() looks for progress
+WRITER_START_S = 120.0  # s: close() waits this long for a writer still starting (a new interpreter and its
+# imports: ~0.2 s idle, seconds on a loaded machine) before its stall clock runs; one that never starts is
+# given up on then
 FRAMES_BUFFER_BYTES = 64 << 20  # ~9 s of one 320x240 camera at 30 Hz, ~1.2 s of four 640x480 ones
 
 
@@ -63,6 +66,8 @@ class RecorderStatus:
     dropped_frames: int
     queue_depth: int  # records handed over and not yet written
     last_flush_age_s: float
+    recovered: bool = False  # close() gave up on a stalled writer and rewrote the file to its last record
+    # (what the file holds may then end short of what was logged: an episode without its stop)
 
 
 def _never_raises(fn):
@@ -92,16 +97,23 @@ def _shared_file(size: int) -> int:
     return fd
 
 
-def wait_while_progress(ended, mark, stall_s: float, poll_s: float = CLOSE_POLL_S) -> bool:
+def wait_while_progress(ended, mark, stall_s: float, poll_s: float = CLOSE_POLL_S, started=None,
+                        start_s: float = float("inf")) -> bool:
     """Wait for something to end while it makes progress: ended(timeout_s) -> True once it has ended (waiting
     up to timeout_s [s]), mark() -> a value that changes while it works. False after stall_s [s] without a
-    change (the caller decides what giving up means)."""
-    last, t_last = mark(), time.monotonic()
+    change (the caller decides what giving up means). started() -> True once it has started: until then the
+    stall clock does not run (a start-up is no stall), and the wait for the start ends after start_s [s]."""
+    t0 = time.monotonic()
+    last, t_last = mark(), t0
     while not ended(min(poll_s, stall_s)):
-        now = mark()
-        if now != last:
-            last, t_last = now, time.monotonic()
-        elif time.monotonic() - t_last >= stall_s:
+        now, t = mark(), time.monotonic()
+        if started is not None and not started():
+            if t - t0 >= start_s:
+                return False
+            last, t_last = now, t
+        elif now != last:
+            last, t_last = now, t
+        elif t - t_last >= stall_s:
             return False
     return True
 
@@ -408,9 +420,10 @@ class Recorder:
         return (st.get(W.W_CONSUMED), st.get(W.W_WRITTEN), st.get(W.W_FRAMES), st.get(W.W_FLUSH_NS),
                 st.get(W.W_STATE), size)
 
-    def _wait_writer(self, stall_s: float) -> bool:
-        """Wait for the writer process to end while it makes progress; False when it made none for
-        stall_s [s] (it is then killed)."""
+    def _wait_writer(self, stall_s: float, start_s: float) -> bool:
+        """Wait for the writer process to end while it makes progress, its stall clock running once it has
+        started; False when it made none for stall_s [s] or did not start in start_s [s] (it is then
+        killed)."""
         def ended(timeout_s: float) -> bool:
             try:
                 self._proc.wait(timeout_s)
@@ -418,17 +431,22 @@ class Recorder:
             except subprocess.TimeoutExpired:
                 return False
 
-        if wait_while_progress(ended, self._progress_mark, stall_s):
+        if wait_while_progress(ended, self._progress_mark, stall_s, started=self._writer_started,
+                               start_s=start_s):
             return True
         self._proc.kill()
         self._proc.wait()
         return False
 
-    def close(self, stall_s: float = CLOSE_STALL_S) -> RecorderStatus:
+    def _writer_started(self) -> bool:
+        return self._status.get(W.W_STATE) != W.STARTING
+
+    def close(self, stall_s: float = CLOSE_STALL_S, start_s: float = WRITER_START_S) -> RecorderStatus:
         """Let the writer drain the rings, write the summary and close the file: waits as long as the writer
         makes progress (a busy machine), gives up after stall_s [s] without any, then recovers the file
         (hardware/recording/recover.py, as `factr2 recover`) so it reads to its last complete record.
-        Safe to call twice."""
+        The stall clock starts when the writer has started (a writer still starting waits up to start_s [s]:
+        its start-up is no stall). Safe to call twice."""
         if self._closed:
             return self._final
         self._closed = True
@@ -436,10 +454,11 @@ class Recorder:
         st.set(W.W_PARENT_DROP_SAMPLES, self._dropped)
         st.set(W.W_PARENT_DROP_FRAMES, self._dropped_frames)
         st.set(W.W_CLOSING, 1)
-        stalled = not self._wait_writer(stall_s)
+        stalled = not self._wait_writer(stall_s, start_s)
+        why = (f"the writer made no progress for {stall_s:.0f} s" if self._writer_started() else
+               f"the writer did not start in {start_s:.0f} s")
         if stalled and st.text("error") is None:
-            st.set_text("error", f"recording stopped: the writer made no progress for {stall_s:.0f} s; "
-                                 f"run `factr2 recover {self.path}`")
+            st.set_text("error", f"recording stopped: {why}; run `factr2 recover {self.path}`")
         if st.get(W.W_STATE) not in (W.FINISHED, W.FAILED) and st.text("error") is None:
             st.set_text("error", f"recording stopped: the writer process ended ({self._proc.returncode}); "
                                  f"run `factr2 recover {self.path}`")
@@ -449,20 +468,21 @@ class Recorder:
             self._final.recording = False
             self._release()
         if stalled:
-            self._final.error = self._recover_after_stall(stall_s)
+            self._final.error, self._final.recovered = self._recover_after_stall(why)
         return self._final
 
-    def _recover_after_stall(self, stall_s: float) -> str:
-        """The killed writer's file rewritten in place to its last complete record; the one-line error."""
+    def _recover_after_stall(self, why: str) -> tuple[str, bool]:
+        """The killed writer's file rewritten in place to its last complete record: (the one-line error,
+        whether it was recovered)."""
         from hardware.recording.recover import recover
 
         try:
             rep = recover(self.path, in_place=True)
         except Exception as e:  # noqa: BLE001 -- said in the one line; the file is left as it was
-            return (f"recording stopped: the writer made no progress for {stall_s:.0f} s and recovering "
-                    f"the file failed ({e}); run `factr2 recover {self.path}`")
-        return (f"recording stopped: the writer made no progress for {stall_s:.0f} s; the file was recovered "
-                f"in place ({rep.messages} messages kept, {rep.dropped} damaged dropped)")
+            return (f"recording stopped: {why} and recovering the file failed ({e}); "
+                    f"run `factr2 recover {self.path}`"), False
+        return (f"recording stopped: {why}; the file was recovered in place ({rep.messages} messages kept, "
+                f"{rep.dropped} damaged dropped)"), True
 
     def _release(self) -> None:
         if self._mm is not None:
