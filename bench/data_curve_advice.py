@@ -75,9 +75,9 @@ def shorter_training(payloads: list[dict]) -> dict:
 
 def build(results: Path = harness.RESULTS) -> dict:
     """The package copy's content from the result files under `results`."""
-    rec = json.loads((results / f"{CURVE}.json").read_text())
+    rec = harness.load(results / f"{CURVE}.json")
     p = rec["payload"]
-    shorter = [json.loads((results / f"{name}.json").read_text())["payload"] for name in SHORTER]
+    shorter = [harness.load(results / f"{name}.json")["payload"] for name in SHORTER]
     return {"written_by": "python -m bench.data_curve_advice",
             "source": f"results/{CURVE}.json", "source_command": rec["command"],
             "simulated": bool(p["simulated"]), "observation": p["observation"], "defaults": p["defaults"],
@@ -94,19 +94,7 @@ def main(argv=None) -> int:
     ap.add_argument("--check", action="store_true", help="exit 1 when the package copy differs from results/")
     ap.add_argument("--quick", action="store_true", help="the same (it takes a second)")
     a = ap.parse_args(argv)
-    want = text(build())
-    if a.check:
-        have = PACKAGE_COPY.read_text() if PACKAGE_COPY.exists() else ""
-        if have != want:
-            print(f"{PACKAGE_COPY.relative_to(harness.ROOT)} differs from results/: run "
-                  "`python -m bench.data_curve_advice` and commit it", file=sys.stderr)
-            return 1
-        print(f"{PACKAGE_COPY.relative_to(harness.ROOT)} matches results/")
-        return 0
-    PACKAGE_COPY.write_text(want)
-    print(f"wrote {PACKAGE_COPY.relative_to(harness.ROOT)}")
-    return 0
-
+    return harness.write_or_check(PACKAGE_COPY, text(build()), a.check, "python -m bench.data_curve_advice")
 
 if __name__ == "__main__":
     sys.exit(main())

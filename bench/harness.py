@@ -136,6 +136,20 @@ def write(path: str | Path, rec: dict) -> Path:
     return path
 
 
+def write_or_check(path: Path, text: str, check: bool, remake: str) -> int:
+    """A file made from results/: written, or with check only compared (exit code 1 and one line saying
+    the command that remakes it when it differs, 0 when it is current)."""
+    if check:
+        if not path.is_file() or path.read_text() != text:
+            print(f"{path} is stale: run `{remake}`", file=sys.stderr)
+            return 1
+        print(f"{path}: current")
+        return 0
+    path.write_text(text)
+    print(f"wrote {path}")
+    return 0
+
+
 def add_quick(ap: argparse.ArgumentParser, what: str) -> None:
     """--quick: the smallest run that goes through the whole script (CI runs it: tests/test_bench_quick.py).
     what: what the quick run does, for --help."""

@@ -87,16 +87,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="only check that results/README.md is current")
     a = ap.parse_args(argv)
-    text = render()
-    if a.check:
-        if not INDEX.is_file() or INDEX.read_text() != text:
-            print(f"{INDEX} is stale: run `python -m bench.results_index`", file=sys.stderr)
-            return 1
-        print(f"{INDEX}: current")
-        return 0
-    INDEX.write_text(text)
-    print(f"wrote {INDEX}")
-    return 0
+    return harness.write_or_check(INDEX, render(), a.check, "python -m bench.results_index")
 
 
 if __name__ == "__main__":
