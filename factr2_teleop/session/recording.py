@@ -21,7 +21,7 @@ from hardware import sim_cpu
 from hardware.errors import UserError
 from hardware.features import arm_prefix, features_json, rig_features
 from hardware.recording.arm_tick import record_arm_tick
-from hardware.recording.writer import CLOSE_STALL_S, wait_while_progress
+from hardware.recording.writer_link import CLOSE_STALL_S, wait_while_progress
 
 TRUTH_EVERY = 5  # ticks between ground-truth samples (each the mean over those ticks): 100 Hz at 500 Hz
 TIMING_EVERY = 50  # ticks between loop-timing samples (10 Hz at 500 Hz)
