@@ -98,13 +98,10 @@ def test_a_writer_that_never_starts_is_given_up_on_after_the_start_limit(tmp_pat
     assert st.error and "\n" not in st.error and "did not start in 1 s" in st.error and not st.recovered
 
 
-def test_the_collection_summary_says_what_the_recovered_file_holds(tmp_path):
-    """The writer stalls after episode 1's start reached the file and before its stop did: the file is
-    recovered in place and its episode 1 reads "incomplete"; the collection summary's outcome for it says
-    so (the live verdict kept as outcome_judged), and the summary's lines say it."""
-    from factr2_teleop.tasks.run import agree_with_file, file_outcomes, summary_lines
-
-    path = tmp_path / "two.mcap"
+def _stalled_two_episodes(path):
+    """A two-episode file whose writer stalls after episode 1's start reached the file and before its stop
+    did (both judged success live): the file is recovered in place, its episode 1 "incomplete". Returns the
+    RecorderStatus."""
     rec = Recorder(path, t0=0.0, flush_interval_s=0.02)
     for e in range(2):
         rec.start_episode(e * 0.5)
@@ -119,6 +116,18 @@ def test_the_collection_summary_says_what_the_recovered_file_holds(tmp_path):
     rec.stop_episode(0.7, "success")  # handed over, never written
     st = rec.close(0.5)
     assert st.recovered and "recovered" in st.error
+    return st
+
+
+def test_the_collection_summary_says_what_the_recovered_file_holds(tmp_path):
+    """The writer stalls before episode 1's stop reached the file: the file's episode 1 reads "incomplete";
+    the collection summary's outcome for it says so (the live verdict kept as outcome_judged), and the
+    summary's lines say it."""
+    from factr2_teleop.session.recording import agree_with_file, file_outcomes
+    from factr2_teleop.tasks.run import summary_lines
+
+    path = tmp_path / "two.mcap"
+    st = _stalled_two_episodes(path)
     results = [{"index": 0, "outcome": "success"}, {"index": 1, "outcome": "success"}]
     recorded = file_outcomes(path)
     assert recorded == {0: "success", 1: "incomplete"}
@@ -132,3 +141,35 @@ def test_the_collection_summary_says_what_the_recovered_file_holds(tmp_path):
            "recording": str(path), "frames_written": 0, "samples_dropped": 0, "recording_error": st.error,
            "results": results, "episodes_not_as_judged": [1]}
     assert any("episode 1 incomplete (judged success)" in ln for ln in summary_lines(out))
+
+
+def test_the_rollout_summary_says_what_the_recovered_file_holds(tmp_path):
+    """The same stalled file under a policy rollout: the rollout's episodes, success rate (over what the file
+    holds), takeover count and printed summary say episode 1 is "incomplete", judged success live."""
+    from factr2_teleop.commands.rollout import summary_lines
+    from factr2_teleop.session.rollout_report import RolloutResult, episode_summary, timing_summary
+    from factr2_teleop.session.task_episodes import EpisodeResult
+
+    path = tmp_path / "two.mcap"
+    st = _stalled_two_episodes(path)
+    live = [EpisodeResult(index=e, seed=e, outcome="success", progress=1.0, stages={"reach": 0.1},
+                          duration_s=0.2, retries=0, felt=0, gave_up=False, t_start=0.5 * e,
+                          t_end=0.5 * e + 0.2) for e in range(2)]
+    eps = episode_summary(live, ("reach",), str(path), st)
+    assert [r.outcome for r in eps.pop("as_recorded")] == ["success", "incomplete"]
+    assert eps["success_rate"] == 0.5 and eps["stage_rates"] == {"reach": 1.0}
+    assert eps["episodes_not_as_judged"] == [1] and eps["recording_recovered"]
+    assert eps["recording_unread"] is None and "recovered" in eps["recording_error"]
+    assert [(e["outcome"], e.get("outcome_judged")) for e in eps["episodes"]] == [("success", None),
+                                                                                  ("incomplete", "success")]
+    assert episode_summary(live, (), None, None)["success_rate"] == 1.0  # nothing recorded: as judged
+    timing = timing_summary([0.002], [], [], False, 500.0)
+    timing.update(commands_sent=0, command_violations=0, refused_nonfinite=0, refused_outside_limits=0,
+                  holds={})
+    out = RolloutResult(simulated=True, rig="sim-piper", task="wipe", policy="RUN", policy_kind="act",
+                        method=None, schedule="receding", k_exec=10, ensemble_m=None, seed=0,
+                        feedback_mode="next", next=None, note="", lean=False, interrupted=False, wall_s=1.0,
+                        recording=str(path), timing=timing, **eps)
+    lines = summary_lines(out)
+    assert any("1 / 2 = 50.0 %" in ln for ln in lines)
+    assert any("episode 1 incomplete (judged success): counted as the file holds them" in ln for ln in lines)

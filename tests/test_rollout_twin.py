@@ -59,6 +59,7 @@ def test_tiny_policy_rolls_out_through_the_real_drivers_and_records(recorded_rol
     rec = Recording(out["recording"])
     eps = rec.episodes
     assert [e.outcome for e in eps] == [e["outcome"] for e in out["episodes"]] and eps[0].task == "peg-insert"
+    assert out["episodes_not_as_judged"] == [] and not out["recording_recovered"]  # the file agrees
     ep = eps[0]
     for topic in (S.command_topic("follower"), S.tau_ext_topic("follower"), S.TOPIC_TASK_OBJECTS):
         assert len(ep.topic(topic)) > 10, topic

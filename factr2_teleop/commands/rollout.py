@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from factr2_teleop.commands._twin_fault import add_twin_fault_argument, twin_faults
+from factr2_teleop.session.recording import read_back_lines
 from factr2_teleop.session.teleop import message_lines
 
 if TYPE_CHECKING:
@@ -103,6 +104,7 @@ def summary_lines(out: RolloutResult) -> list[str]:
                          f"rad, max {err['max']:.4f} rad")
     if out.recording:
         lines.append(f"{'recording':>26s}  {out.recording}")
+    lines += read_back_lines(out.episodes, out.episodes_not_as_judged, out.recording_unread, 26)
     return lines + message_lines(out.messages)
 
 

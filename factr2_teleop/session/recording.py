@@ -212,3 +212,60 @@ class SessionRecording:
             return not self._packer.is_alive()
 
         wait_while_progress(ended, lambda: self._backlog, stall_s)
+
+
+# -- what the written file holds (`factr2 collect` and `factr2 rollout` summaries) ---------------------------
+def file_outcomes(mcap: Path) -> dict[int, str] | str:
+    """Episode index -> outcome as the written file holds it (hardware.recording.reader.Episode.outcome:
+    "success", "failure", "unlabelled", "incomplete"), or one line saying why the file could not be read."""
+    import warnings
+
+    from hardware.recording.reader import Recording
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a truncated file warns; what it holds is what is asked
+            return {e.index: e.outcome for e in Recording(mcap).episodes}
+    except Exception as e:  # noqa: BLE001 -- said in the summary: the file is what failed, not the run
+        return f"{type(e).__name__}: {e}"
+
+
+def agree_with_file(results: list[dict], recorded: dict[int, str]) -> list[int]:
+    """Set each result's outcome (EpisodeResult as a dict) to the file's for its episode index ("missing":
+    the episode's start never reached the file), keeping the live verdict as outcome_judged where they
+    differ; returns the indices that differ."""
+    differ = []
+    for r in results:
+        got = recorded.get(r["index"], "missing")
+        if got != r["outcome"]:
+            r["outcome_judged"], r["outcome"] = r["outcome"], got
+            differ.append(r["index"])
+    return differ
+
+
+def read_back(results: list[dict], mcap: Path, status) -> dict:
+    """The results (EpisodeResult dicts) made to say what the closed recording `mcap` holds (agree_with_file:
+    a writer that stalled leaves a file recovered in place, its last episode without its stop, "incomplete")
+    and the summary's keys saying so: recording_error and recording_recovered (the RecorderStatus `status`),
+    episodes_not_as_judged (indices), recording_unread (why the file could not be read, else None)."""
+    recorded = file_outcomes(mcap)
+    differ = agree_with_file(results, recorded) if isinstance(recorded, dict) else []
+    return {"recording_error": getattr(status, "error", None),
+            "recording_recovered": bool(getattr(status, "recovered", False)),
+            "episodes_not_as_judged": differ,
+            "recording_unread": recorded if isinstance(recorded, str) else None}
+
+
+def read_back_lines(results: list[dict], not_as_judged: list[int] | None, unread: str | None,
+                    width: int) -> list[str]:
+    """The summary lines of read_back (none when the file holds what was judged), labels right-aligned in
+    `width` characters."""
+    by_index = {r["index"]: r for r in results}
+    lines = []
+    if not_as_judged:
+        eps = ", ".join(f"{i} {by_index[i]['outcome']} (judged {by_index[i].get('outcome_judged')})"
+                        for i in not_as_judged)
+        lines.append(f"{'in the file':>{width}s}  episode {eps}: counted as the file holds them")
+    if unread:
+        lines.append(f"{'in the file':>{width}s}  not read back ({unread}): outcomes as judged")
+    return lines

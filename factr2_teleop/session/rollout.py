@@ -26,7 +26,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -46,7 +46,13 @@ from factr2_teleop.session.rollout_plan import (
     resolve_switches,
     rig_follower_arms,
 )
-from factr2_teleop.session.rollout_report import RolloutResult, WireCheck, timing_summary, wire_summary
+from factr2_teleop.session.rollout_report import (
+    RolloutResult,
+    WireCheck,
+    episode_summary,
+    timing_summary,
+    wire_summary,
+)
 from factr2_teleop.session.rollout_takeover import Takeover, TakeoverPair, attach_takeover, takeover_summary
 from factr2_teleop.session.teleop import TeleopSession
 from hardware.errors import UserError
@@ -61,7 +67,6 @@ __all__ = ["K_EXEC_SHARE", "NextNote", "RolloutHooks", "RolloutOptions", "Rollou
 
 FRAME_WAIT_S = 5.0  # s (wall): lockstep waits this long at most for a camera's frame of now
 FRAME_POLL_S = 0.02  # s (wall): while waiting, look this often whether the renders answered without a frame
-EPISODE_KEYS = ("index", "seed", "outcome", "progress", "stages", "duration_s")  # of each EpisodeResult
 MARK_TIME_LIMIT_S = 60.0  # s: an operator-marked episode without --max-seconds ends unlabelled after this
 
 
@@ -171,6 +176,7 @@ class Built:
     periods: list[float]  # s: the loop's periods while the policy runs
     wires: list[WireCheck]
     rec_path: str | None = None
+    rec_status: object = None  # the recording's RecorderStatus once closed
     interrupted: bool = False
 
 
@@ -277,7 +283,7 @@ def _run(s, b: Built, opts: RolloutOptions, hooks: RolloutHooks, runner, rig, pl
         # the arms put down at once (a leader at zero torque, a follower held or disabled as its driver
         # does), before the recording's slower close: else their own timeouts fall back meanwhile
         s.disconnect_arms()
-        ts.close_recording("rollout interrupted" if b.interrupted else "")
+        b.rec_status = ts.close_recording("rollout interrupted" if b.interrupted else "")
 
 
 def _ends(s, ts) -> dict:
@@ -291,8 +297,10 @@ def _ends(s, ts) -> dict:
 
 def _report(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan, b: Built, ends: dict,
             t_wall: float) -> RolloutResult:
-    """The RolloutResult: the episodes, the rates, the timing and the wire's checks."""
-    res = b.eps.results
+    """The RolloutResult: the episodes and the rates (as the recording's file holds them), the timing and
+    the wire's checks."""
+    eps = episode_summary(b.eps.results, b.stages, b.rec_path, b.rec_status)
+    as_recorded = eps.pop("as_recorded")
     out = RolloutResult(
         simulated=rig.simulated, rig=rig.name, task=task.name if task else None, policy=str(runner.path),
         policy_kind=runner.policy, method=runner.meta.get("method"), schedule=plan.schedule,
@@ -300,14 +308,9 @@ def _report(opts: RolloutOptions, runner, rig, task, plan: RolloutPlan, b: Built
         ensemble_m=opts.ensemble_m if plan.schedule == ENSEMBLE else None, seed=opts.seed,
         feedback_mode=ends["feedback"], force_input=opts.force_input,
         next=str(plan.next_path) if plan.next_path else None, note=render(plan.note),
-        lean=plan.lean, interrupted=b.interrupted, wall_s=time.perf_counter() - t_wall,
-        episodes=[{k: v for k, v in asdict(r).items() if k in EPISODE_KEYS} for r in res],
-        success_rate=float(np.mean([r.outcome == "success" for r in res])) if res else 0.0,
-        mean_progress=float(np.mean([r.progress for r in res])) if res else 0.0,
-        stage_rates={st: float(np.mean([r.stages.get(st) is not None for r in res])) if res else 0.0
-                     for st in b.stages},
+        lean=plan.lean, interrupted=b.interrupted, wall_s=time.perf_counter() - t_wall, **eps,
         recording=b.rec_path, arms=[a.arm for a in b.arms], messages=ends["messages"], faults=ends["faults"],
-        takeover=takeover_summary(b.tk, b.ts.pairs, res) if b.tk is not None else {})
+        takeover=takeover_summary(b.tk, b.ts.pairs, as_recorded) if b.tk is not None else {})
     wire = wire_summary(b.wires)
     out.timing = timing_summary(b.periods, runner.latencies_s, b.target.ages_s, plan.realtime, b.ts.rate_hz)
     out.timing.update({"commands_sent": wire["commands_sent"],

@@ -7,9 +7,14 @@ loop's timing, and the typed result the CLI, the terminal app and the benchmarks
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
+
+from factr2_teleop.session.recording import read_back
+
+EPISODE_KEYS = ("index", "seed", "outcome", "progress", "stages", "duration_s")  # of each EpisodeResult
 
 
 class WireCheck:
@@ -70,6 +75,23 @@ def wire_summary(checks: list[WireCheck]) -> dict:
             "hold_times_s": sorted(t for w in checks for t in w.hold_times)[:100]}
 
 
+def episode_summary(results, stages: tuple, recording: str | None, status) -> dict:
+    """The RolloutResult's episode fields from the episodes' EpisodeResults: episodes (EPISODE_KEYS of
+    each), success_rate, mean_progress, stage_rates, and with a recording what its closed file holds
+    (session/recording.py read_back, `status` its RecorderStatus): outcomes and the success rate count each
+    episode as the file holds it (a writer that stalled leaves the last one "incomplete"), the live verdict
+    kept as outcome_judged. as_recorded: the EpisodeResults with those outcomes (the takeover summary's)."""
+    episodes = [{k: v for k, v in asdict(r).items() if k in EPISODE_KEYS} for r in results]
+    in_file = read_back(episodes, Path(recording), status) if recording else {}
+    out = {"episodes": episodes,
+           "success_rate": float(np.mean([e["outcome"] == "success" for e in episodes])) if episodes else 0.0,
+           "mean_progress": float(np.mean([r.progress for r in results])) if results else 0.0,
+           "stage_rates": {st: float(np.mean([r.stages.get(st) is not None for r in results])) if results
+                           else 0.0 for st in stages}, **in_file}
+    out["as_recorded"] = [replace(r, outcome=e["outcome"]) for r, e in zip(results, episodes)]
+    return out
+
+
 @dataclass
 class RolloutResult:
     """A rollout's summary. episodes: per episode index, seed, outcome, progress, stages, duration_s;
@@ -103,6 +125,11 @@ class RolloutResult:
     messages: list = field(default_factory=list)  # the loop's (t [s], who, text): holds, faults, recoveries
     faults: list = field(default_factory=list)  # the twin's log of what it injected (sim/faults.py)
     force_input: str = "live"  # the policy's force input: live or an ablation (policies/rollout/runner.py)
+    # what the recording's file holds where it differs from the live verdicts (episode_summary)
+    recording_error: str | None = None  # the recorder's one line (a stall: "... recovered in place ...")
+    recording_recovered: bool = False  # the writer stalled and the file was recovered in place
+    episodes_not_as_judged: list = field(default_factory=list)  # indices whose outcome is the file's
+    recording_unread: str | None = None  # why the file could not be read back (outcomes as judged)
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -58,6 +58,7 @@ def _mode_and_checkpoint(cfg: CollectConfig, rig_name: str, task) -> tuple[str, 
 
 def collect(cfg: CollectConfig, progress: bool = True) -> dict:
     from factr2_teleop.session.pairs import TeleopOptions
+    from factr2_teleop.session.recording import read_back
     from factr2_teleop.session.task_episodes import task_rig
     from factr2_teleop.session.teleop import TeleopSession
     from factr2_teleop.tasks.collect import EpisodeDriver
@@ -122,8 +123,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
     res = [asdict(r) for r in ep.results]
     # the summary says what the file holds: a writer that stalled can leave the last episode without its stop
     # (the file recovered in place: "incomplete"); training and `--episodes` go by the file
-    recorded = file_outcomes(mcap)
-    differ = agree_with_file(res, recorded) if isinstance(recorded, dict) else []
+    in_file = read_back(res, mcap, status)
     ok = [r["outcome"] == "success" for r in res]
     lengths = [r["duration_s"] for r in res]
     out = {"simulated": True, "task": task.name, "rig": rig.name, "seed": cfg.seed, "mode": mode,
@@ -142,10 +142,7 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
            "frames_written": getattr(status, "frames_written", 0),
            "samples_dropped": status.dropped_samples if status else 0,
            "frames_dropped": status.dropped_frames if status else 0, "cameras": cams,
-           "recording": str(mcap), "recording_error": getattr(status, "error", None),
-           "recording_recovered": bool(getattr(status, "recovered", False)),
-           "episodes_not_as_judged": differ,
-           "recording_unread": recorded if isinstance(recorded, str) else None, "results": res,
+           "recording": str(mcap), **in_file, "results": res,
            "messages": messages, "faults": faults}
     summary_path.write_text(json.dumps(out, indent=1, default=float))
     return out
@@ -160,34 +157,6 @@ class FirstTick:
     def add(self, r, ep) -> None:
         if ep._state == "run" and not np.isfinite(self.t0):
             self.t0 = r.t
-
-
-def file_outcomes(mcap: Path) -> dict[int, str] | str:
-    """Episode index -> outcome as the written file holds it (hardware.recording.reader.Episode.outcome:
-    "success", "failure", "unlabelled", "incomplete"), or one line saying why the file could not be read."""
-    import warnings
-
-    from hardware.recording.reader import Recording
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # a truncated file warns; what it holds is what is asked
-            return {e.index: e.outcome for e in Recording(mcap).episodes}
-    except Exception as e:  # noqa: BLE001 -- said in the summary: the file is what failed, not the run
-        return f"{type(e).__name__}: {e}"
-
-
-def agree_with_file(results: list[dict], recorded: dict[int, str]) -> list[int]:
-    """Set each result's outcome (EpisodeResult as a dict) to the file's for its episode index ("missing":
-    the episode's start never reached the file), keeping the live verdict as outcome_judged where they
-    differ; returns the indices that differ."""
-    differ = []
-    for r in results:
-        got = recorded.get(r["index"], "missing")
-        if got != r["outcome"]:
-            r["outcome_judged"], r["outcome"] = r["outcome"], got
-            differ.append(r["index"])
-    return differ
 
 
 def recorded_phase_shares(mcap: Path) -> tuple[dict | None, list | None, str]:
@@ -248,13 +217,9 @@ def summary_lines(out: dict) -> list[str]:
                      "factr2 train --perturbed)")
     if out.get("recording_error"):
         lines.append(f"{'recording stopped':>22s}  {out['recording_error']}")
-    by_index = {r["index"]: r for r in out.get("results", [])}
-    if out.get("episodes_not_as_judged"):
-        eps = ", ".join(f"{i} {by_index[i]['outcome']} (judged {by_index[i].get('outcome_judged')})"
-                        for i in out["episodes_not_as_judged"])
-        lines.append(f"{'in the file':>22s}  episode {eps}: counted as the file holds them")
-    if out.get("recording_unread"):
-        lines.append(f"{'in the file':>22s}  not read back ({out['recording_unread']}): outcomes as judged")
+    from factr2_teleop.session.recording import read_back_lines
     from factr2_teleop.session.teleop import message_lines
 
+    lines += read_back_lines(out.get("results", []), out.get("episodes_not_as_judged"),
+                             out.get("recording_unread"), 22)
     return lines + message_lines(out.get("messages", []))
