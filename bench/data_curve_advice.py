@@ -17,23 +17,15 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from math import comb
 from pathlib import Path
 
 from bench import harness
 from bench.first_config import RIG
-from bench.first_report import wilson
+from bench.first_report import fisher_less, wilson
 
 PACKAGE_COPY = harness.ROOT / "policies" / "training" / "data_curve_points.json"
 CURVE = "data_curve_current"  # results/NAME.json
 SHORTER = ("first_curve_peg-insert", "first_curve_press-fit")  # success against training steps
-
-
-def fisher_less(k1: int, n1: int, k2: int, n2: int) -> float:
-    """One-sided Fisher exact p that k1 / n1 is below k2 / n2 by chance: P(X <= k1), X hypergeometric
-    (k1 + k2 successes drawn into n1 of n1 + n2)."""
-    k, n = k1 + k2, n1 + n2
-    return float(sum(comb(k, i) * comb(n - k, n1 - i) for i in range(0, k1 + 1)) / comb(n, n1))
 
 
 def curve_points(payload: dict) -> dict:

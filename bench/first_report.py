@@ -107,6 +107,15 @@ def _roots(results: dict) -> dict:
     return {"OUT": Path(out).resolve()} if out else {}
 
 
+def fisher_less(k1: int, n1: int, k2: int, n2: int) -> float:
+    """One-sided Fisher exact p that k1 / n1 is below k2 / n2 by chance: P(X <= k1), X hypergeometric
+    (k1 + k2 successes drawn into n1 of n1 + n2)."""
+    from math import comb
+
+    k, n = k1 + k2, n1 + n2
+    return float(sum(comb(k, i) * comb(n - k, n1 - i) for i in range(0, k1 + 1)) / comb(n, n1))
+
+
 def mcnemar_p(b: int, c: int) -> float:
     """Exact two-sided McNemar p-value for b vs c discordant pairs (binomial, p = 1/2)."""
     from math import comb

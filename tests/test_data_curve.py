@@ -45,7 +45,7 @@ def _other_seeds() -> set[int]:
     seeds = {v for n, v in vars(first_config).items() if n.endswith("_SEED") and n not in own}
     for p in (ROOT / "results").glob("*.json"):
         text = p.read_text()
-        if '"seed_set": "curve"' in text:  # the data curve's own results (any defaults) use its seeds
+        if json.loads(text).get("payload", {}).get("seed_set") == "curve":  # the data curve's own results
             continue
         seeds |= {int(x) for x in __import__("re").findall(r'"eval_seed": (\d+)', text)}
     return seeds
