@@ -42,6 +42,39 @@ def flushed_recorder(path, n: int = 200) -> Recorder:
     return rec
 
 
+def stalled_two_episodes(path, copy_to=None):
+    """A two-episode file whose writer stalls after episode 1's start and its progress mark (0.5, "reach")
+    reached the file and before its stop did (both judged success live): the file is recovered in place, its
+    episode 1 "incomplete". copy_to: where to copy the file as it stands while the writer is stopped (a
+    truncated file, as a killed session leaves it). Returns the RecorderStatus."""
+    import os
+    import shutil
+    import signal
+    import time
+
+    from machine_speed import budget
+
+    rec = Recorder(path, t0=0.0, flush_interval_s=0.02)
+    for e in range(2):
+        rec.start_episode(e * 0.5)
+        if e == 1:
+            rec.mark_progress(0.55, 0.5, "reach")
+        assert all(rec.log_joint_state("follower", e * 0.5 + k * 1e-3, joint_state(k)) for k in range(100))
+        if e == 0:
+            rec.stop_episode(0.2, "success")
+    deadline = time.monotonic() + budget(10.0)
+    while rec.status().messages_written < 200 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.2)  # ten flush intervals: the chunk holding them reached the file
+    os.kill(rec._proc.pid, signal.SIGSTOP)
+    if copy_to is not None:
+        shutil.copyfile(path, copy_to)
+    rec.stop_episode(0.7, "success")  # handed over, never written
+    st = rec.close(0.5)
+    assert st.recovered and "recovered" in st.error
+    return st
+
+
 def gradient_frame(h: int = 48, w: int = 64, shift: int = 0) -> np.ndarray:
     y, x = np.mgrid[0:h, 0:w]
     return np.stack([(x * 4 + shift) % 256, y * 5 % 256, np.full_like(x, 128)], axis=-1).astype(np.uint8)

@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 from machine_speed import budget
-from recording_helpers import flushed_recorder, joint_state
+from recording_helpers import flushed_recorder, joint_state, stalled_two_episodes
 
 from hardware.recording import Recorder, Recording
 
@@ -98,39 +98,18 @@ def test_a_writer_that_never_starts_is_given_up_on_after_the_start_limit(tmp_pat
     assert st.error and "\n" not in st.error and "did not start in 1 s" in st.error and not st.recovered
 
 
-def _stalled_two_episodes(path):
-    """A two-episode file whose writer stalls after episode 1's start reached the file and before its stop
-    did (both judged success live): the file is recovered in place, its episode 1 "incomplete". Returns the
-    RecorderStatus."""
-    rec = Recorder(path, t0=0.0, flush_interval_s=0.02)
-    for e in range(2):
-        rec.start_episode(e * 0.5)
-        assert all(rec.log_joint_state("follower", e * 0.5 + k * 1e-3, joint_state(k)) for k in range(100))
-        if e == 0:
-            rec.stop_episode(0.2, "success")
-    deadline = time.monotonic() + budget(10.0)
-    while rec.status().messages_written < 200 and time.monotonic() < deadline:
-        time.sleep(0.01)
-    time.sleep(0.2)  # ten flush intervals: the chunk holding them reached the file
-    os.kill(rec._proc.pid, signal.SIGSTOP)
-    rec.stop_episode(0.7, "success")  # handed over, never written
-    st = rec.close(0.5)
-    assert st.recovered and "recovered" in st.error
-    return st
-
-
 def test_the_collection_summary_says_what_the_recovered_file_holds(tmp_path):
     """The writer stalls before episode 1's stop reached the file: the file's episode 1 reads "incomplete";
     the collection summary's outcome for it says so (the live verdict kept as outcome_judged), and the
     summary's lines say it."""
-    from factr2_teleop.session.recording import agree_with_file, file_outcomes
+    from factr2_teleop.session.read_back import agree_with_file, file_episodes
     from factr2_teleop.tasks.run import summary_lines
 
     path = tmp_path / "two.mcap"
-    st = _stalled_two_episodes(path)
+    st = stalled_two_episodes(path)
     results = [{"index": 0, "outcome": "success"}, {"index": 1, "outcome": "success"}]
-    recorded = file_outcomes(path)
-    assert recorded == {0: "success", 1: "incomplete"}
+    recorded = file_episodes(path)
+    assert {i: e.outcome for i, e in recorded.items()} == {0: "success", 1: "incomplete"}
     assert agree_with_file(results, recorded) == [1]
     assert results == [{"index": 0, "outcome": "success"},
                        {"index": 1, "outcome": "incomplete", "outcome_judged": "success"}]
@@ -151,7 +130,7 @@ def test_the_rollout_summary_says_what_the_recovered_file_holds(tmp_path):
     from factr2_teleop.session.task_episodes import EpisodeResult
 
     path = tmp_path / "two.mcap"
-    st = _stalled_two_episodes(path)
+    st = stalled_two_episodes(path)
     live = [EpisodeResult(index=e, seed=e, outcome="success", progress=1.0, stages={"reach": 0.1},
                           duration_s=0.2, retries=0, felt=0, gave_up=False, t_start=0.5 * e,
                           t_end=0.5 * e + 0.2) for e in range(2)]
@@ -173,3 +152,46 @@ def test_the_rollout_summary_says_what_the_recovered_file_holds(tmp_path):
     lines = summary_lines(out)
     assert any("1 / 2 = 50.0 %" in ln for ln in lines)
     assert any("episode 1 incomplete (judged success): counted as the file holds them" in ln for ln in lines)
+
+
+def test_the_summary_rates_are_over_what_the_recovered_file_holds(tmp_path):
+    """Three episodes judged success live, each through both stages (progress 1): the stalled file holds
+    episode 0 whole, episode 1 to its "reach" mark (progress 0.5, "incomplete") and not episode 2 ("missing").
+    The rollout summary's success rate, mean progress and stage rates are over the two episodes the file
+    holds, each as the file holds it (what `factr2 episodes` shows), the live verdict kept beside it; the
+    collection's rates come from the same function."""
+    from factr2_teleop.commands.rollout import summary_lines
+    from factr2_teleop.session.read_back import episode_rates
+    from factr2_teleop.session.rollout_report import RolloutResult, episode_summary, timing_summary
+    from factr2_teleop.session.task_episodes import EpisodeResult
+
+    path = tmp_path / "two.mcap"
+    st = stalled_two_episodes(path)
+    live = [EpisodeResult(index=e, seed=e, outcome="success", progress=1.0,
+                          stages={"reach": 0.1, "grasp": 0.15}, duration_s=0.2, retries=0, felt=0,
+                          gave_up=False, t_start=0.5 * e, t_end=0.5 * e + 0.2) for e in range(3)]
+    eps = episode_summary(live, ("reach", "grasp"), str(path), st)
+    eps.pop("as_recorded")
+    assert eps["success_rate"] == 0.5 and eps["mean_progress"] == 0.75
+    assert eps["stage_rates"] == {"reach": 1.0, "grasp": 0.5} and eps["episodes_in_file"] == 2
+    assert eps["episodes_not_as_judged"] == [1, 2]
+    got = [(e["outcome"], e["progress"], e["stages"]) for e in eps["episodes"]]
+    assert got == [("success", 1.0, {"reach": 0.1, "grasp": 0.15}),
+                   ("incomplete", 0.5, {"reach": 0.05, "grasp": None}),
+                   ("missing", 0.0, {"reach": None, "grasp": None})]
+    assert [(e.get("progress_judged"), e.get("stages_judged")) for e in eps["episodes"]][1:] == \
+        [(1.0, {"reach": 0.1, "grasp": 0.15})] * 2
+    assert episode_rates(eps["episodes"])["mean_progress"] == 0.75  # collect's progress_mean
+    nothing = episode_summary(live, ("reach", "grasp"), None, None)  # nothing recorded: as judged
+    assert (nothing["success_rate"], nothing["mean_progress"], nothing["stage_rates"]) == \
+        (1.0, 1.0, {"reach": 1.0, "grasp": 1.0})
+    timing = timing_summary([0.002], [], [], False, 500.0)
+    timing.update(commands_sent=0, command_violations=0, refused_nonfinite=0, refused_outside_limits=0,
+                  holds={})
+    out = RolloutResult(simulated=True, rig="sim-piper", task="wipe", policy="RUN", policy_kind="act",
+                        method=None, schedule="receding", k_exec=10, ensemble_m=None, seed=0,
+                        feedback_mode="next", next=None, note="", lean=False, interrupted=False, wall_s=1.0,
+                        recording=str(path), timing=timing, **eps)
+    lines = summary_lines(out)
+    assert any("3  (2 in the file: the rates are over those)" in ln for ln in lines)
+    assert any("1 / 2 = 50.0 %" in ln for ln in lines) and any("0.75" in ln for ln in lines)

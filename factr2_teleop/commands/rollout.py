@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from factr2_teleop.commands._twin_fault import add_twin_fault_argument, twin_faults
-from factr2_teleop.session.recording import read_back_lines
+from factr2_teleop.session.read_back import read_back_lines
 from factr2_teleop.session.teleop import message_lines
 
 if TYPE_CHECKING:
@@ -75,9 +75,11 @@ def summary_lines(out: RolloutResult) -> list[str]:
     if out.note:
         lines.append(f"note: {out.note}")
     n = len(out.episodes)
+    held = n if out.episodes_in_file is None else out.episodes_in_file  # the rates' denominator
     ok = sum(e["outcome"] == "success" for e in out.episodes)
-    lines += [f"{'episodes':>26s}  {n}" + ("  (interrupted)" if out.interrupted else ""),
-              f"{'success rate':>26s}  {ok} / {n} = {100 * out.success_rate:.1f} %",
+    lines += [f"{'episodes':>26s}  {n}" + ("  (interrupted)" if out.interrupted else "")
+              + (f"  ({held} in the file: the rates are over those)" if held != n else ""),
+              f"{'success rate':>26s}  {ok} / {held} = {100 * out.success_rate:.1f} %",
               f"{'mean task progress':>26s}  {out.mean_progress:.2f}"]
     for s, r in out.stage_rates.items():
         lines.append(f"{'stage ' + s:>26s}  {100 * r:.0f} % reached")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from factr2_teleop.session.recording import read_back
+from factr2_teleop.session.read_back import episode_rates, read_back
 
 EPISODE_KEYS = ("index", "seed", "outcome", "progress", "stages", "duration_s")  # of each EpisodeResult
 
@@ -78,16 +78,13 @@ def wire_summary(checks: list[WireCheck]) -> dict:
 def episode_summary(results, stages: tuple, recording: str | None, status) -> dict:
     """The RolloutResult's episode fields from the episodes' EpisodeResults: episodes (EPISODE_KEYS of
     each), success_rate, mean_progress, stage_rates, and with a recording what its closed file holds
-    (session/recording.py read_back, `status` its RecorderStatus): outcomes and the success rate count each
-    episode as the file holds it (a writer that stalled leaves the last one "incomplete"), the live verdict
-    kept as outcome_judged. as_recorded: the EpisodeResults with those outcomes (the takeover summary's)."""
+    (session/read_back.py read_back, `status` its RecorderStatus): each episode's outcome, progress and stages
+    as the file holds them (a writer that stalled leaves the last one "incomplete", later ones "missing"), the
+    live verdict kept as outcome_judged (progress_judged, stages_judged), the rates over the episodes the file
+    holds (episode_rates). as_recorded: the EpisodeResults with those outcomes (the takeover summary's)."""
     episodes = [{k: v for k, v in asdict(r).items() if k in EPISODE_KEYS} for r in results]
     in_file = read_back(episodes, Path(recording), status) if recording else {}
-    out = {"episodes": episodes,
-           "success_rate": float(np.mean([e["outcome"] == "success" for e in episodes])) if episodes else 0.0,
-           "mean_progress": float(np.mean([r.progress for r in results])) if results else 0.0,
-           "stage_rates": {st: float(np.mean([r.stages.get(st) is not None for r in results])) if results
-                           else 0.0 for st in stages}, **in_file}
+    out = {"episodes": episodes, **episode_rates(episodes, stages), **in_file}
     out["as_recorded"] = [replace(r, outcome=e["outcome"]) for r, e in zip(results, episodes)]
     return out
 
@@ -95,8 +92,9 @@ def episode_summary(results, stages: tuple, recording: str | None, status) -> di
 @dataclass
 class RolloutResult:
     """A rollout's summary. episodes: per episode index, seed, outcome, progress, stages, duration_s;
-    stage_rates: share of episodes reaching each stage; timing: timing_summary plus the wire check, refused
-    chunks, holds by reason, clamped targets and the safe end (docs/rollout.md)."""
+    stage_rates: share of episodes reaching each stage (with a recording: of those its file holds); timing:
+    timing_summary plus the wire check, refused chunks, holds by reason, clamped targets and the safe end
+    (docs/rollout.md)."""
 
     simulated: bool
     rig: str
@@ -129,6 +127,7 @@ class RolloutResult:
     recording_error: str | None = None  # the recorder's one line (a stall: "... recovered in place ...")
     recording_recovered: bool = False  # the writer stalled and the file was recovered in place
     episodes_not_as_judged: list = field(default_factory=list)  # indices whose outcome is the file's
+    episodes_in_file: int | None = None  # episodes the file holds, the rates' denominator (None: not read)
     recording_unread: str | None = None  # why the file could not be read back (outcomes as judged)
 
     def to_dict(self) -> dict:

@@ -26,6 +26,7 @@ import queue
 
 import numpy as np
 
+from factr2_teleop.session.read_back import autonomous_successes
 from factr2_teleop.session.rollout_pair import RUN, PolicyTarget, RolloutPair
 from factr2_teleop.teleop.pair import COUPLED, HOLD, PairHold
 from factr2_teleop.teleop.record import TickRecord
@@ -428,7 +429,7 @@ def takeover_summary(tk: Takeover, pairs, episodes) -> dict:
     out = tk.summary()
     per = [sum(1 for m in tk.marks if e.t_start <= m["t_takeover"] <= e.t_end) for e in episodes]
     out["per_episode"] = per
-    out["autonomous_successes"] = sum(1 for e, n in zip(episodes, per) if e.outcome == "success" and n == 0)
+    out["autonomous_successes"] = autonomous_successes([e.outcome for e in episodes], per)
     err = np.concatenate([np.asarray(p.tracking_err_rad, float) for p in pairs
                           if getattr(p, "tracking_err_rad", None)] or [np.zeros(0)])
     if err.size:

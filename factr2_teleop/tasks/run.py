@@ -58,7 +58,7 @@ def _mode_and_checkpoint(cfg: CollectConfig, rig_name: str, task) -> tuple[str, 
 
 def collect(cfg: CollectConfig, progress: bool = True) -> dict:
     from factr2_teleop.session.pairs import TeleopOptions
-    from factr2_teleop.session.recording import read_back
+    from factr2_teleop.session.read_back import episode_rates, read_back
     from factr2_teleop.session.task_episodes import task_rig
     from factr2_teleop.session.teleop import TeleopSession
     from factr2_teleop.tasks.collect import EpisodeDriver
@@ -122,15 +122,16 @@ def collect(cfg: CollectConfig, progress: bool = True) -> dict:
                                       else (None, None, "no tau_ext estimate recorded"))
     res = [asdict(r) for r in ep.results]
     # the summary says what the file holds: a writer that stalled can leave the last episode without its stop
-    # (the file recovered in place: "incomplete"); training and `--episodes` go by the file
+    # (the file recovered in place: "incomplete"), the later ones out of it; training and `--episodes` go by
+    # the file, and the rates are over the episodes it holds
     in_file = read_back(res, mcap, status)
-    ok = [r["outcome"] == "success" for r in res]
+    rates = episode_rates(res)
     lengths = [r["duration_s"] for r in res]
     out = {"simulated": True, "task": task.name, "rig": rig.name, "seed": cfg.seed, "mode": mode,
            "checkpoint": ck, "operator_sees": "perceived" if sees else "truth",
            "perturb": cfg.perturb.to_dict() if cfg.perturb is not None else None,
-           "episodes": len(res), "success_rate": float(np.mean(ok)) if ok else 0.0,
-           "progress_mean": float(np.mean([r["progress"] for r in res])) if res else 0.0,
+           "episodes": len(res), "success_rate": rates["success_rate"],
+           "progress_mean": rates["mean_progress"],
            "episode_s_mean": float(np.mean(lengths)) if lengths else 0.0,
            "episode_s_min": float(np.min(lengths)) if lengths else 0.0,
            "episode_s_max": float(np.max(lengths)) if lengths else 0.0,
@@ -187,7 +188,9 @@ def recorded_phase_shares(mcap: Path) -> tuple[dict | None, list | None, str]:
 def summary_lines(out: dict) -> list[str]:
     lines = [f"{out['task']} on {out['rig']} (SIMULATED), feedback {out['mode']}, seed {out['seed']}, "
              f"the operator sees {out.get('operator_sees', 'truth')}",
-             f"{'episodes':>22s}  {out['episodes']}",
+             f"{'episodes':>22s}  {out['episodes']}" + (f"  ({held} in the file: the rates are over those)"
+                                                         if (held := out.get("episodes_in_file")) is not None
+                                                         and held != out["episodes"] else ""),
              f"{'success rate':>22s}  {out['success_rate'] * 100:.1f} %  "
              f"(task progress {out['progress_mean']:.2f})",
              f"{'episode length [s]':>22s}  mean {out['episode_s_mean']:.1f}  "
@@ -217,7 +220,7 @@ def summary_lines(out: dict) -> list[str]:
                      "factr2 train --perturbed)")
     if out.get("recording_error"):
         lines.append(f"{'recording stopped':>22s}  {out['recording_error']}")
-    from factr2_teleop.session.recording import read_back_lines
+    from factr2_teleop.session.read_back import read_back_lines
     from factr2_teleop.session.teleop import message_lines
 
     lines += read_back_lines(out.get("results", []), out.get("episodes_not_as_judged"),
