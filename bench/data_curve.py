@@ -18,7 +18,6 @@ used; a re-run with other defaults (`--defaults NAME`, or the same name at a lat
 collects the same episodes and rolls out on the same seeds: before and after, paired.
 
     python -m bench.data_curve --out OUT --jobs 2              # the curve: 3 tasks, 10 points, 2 seeds x 24
-    python -m bench.data_curve --out OUT --jobs 16             # the same on a 16-core machine
     python -m bench.data_curve --quick --out OUT --jobs 1      # a few-minute smoke run (its numbers: nothing)
     python -m bench.data_curve --dev --defaults sized --tasks peg-insert,press-fit --points 50 --out DEV
                                                                # development seeds: choosing the defaults
@@ -26,6 +25,9 @@ collects the same episodes and rolls out on the same seeds: before and after, pa
     python -m bench.data_curve --perturb --tasks peg-insert,press-fit --points 50 --out OUT_PERTURB
                                                                # collection that teaches recovery (DART)
     python -m bench.data_curve --out OUT_PERTURB --report --against OUT   # paired with the curve's points
+                                           # (OUT: a folder, or a results file: data_curve_current)
+    python -m bench.data_curve --out OUT --tasks peg-insert,press-fit --points 25,50,100,200 \
+        --import-results data_curve_current    # a new OUT: the committed points are not trained again
 
 --perturb [SPEC] collects every part with `factr2 collect --perturb SPEC` (teleop/perturb.py; empty: its
 defaults) on the same collection seeds, and trains with `--perturbed dart`: the same initial conditions of
@@ -33,17 +35,13 @@ the demonstrations and of the rollouts as the unperturbed curve, so each point p
 
 Resumable: every collection part, training run and rollout set leaves its JSON as it finishes and is skipped
 when there (an interrupted training resumes from its last checkpoint); tasks, points and seeds may be added
-to an OUT, the settings that shape a result may not (SAME_ON_RESUME). Writes OUT/data_curve.json (a row per
+to an OUT, the settings that shape a result may not (SAME_ON_RESUME). Across machines, only the repository
+lasts: `--import-results NAME` seeds a new OUT with the finished points of results/NAME.json, checked against
+the collection it collects again (bench/data_curve_ledger.py). Writes OUT/data_curve.json (a row per
 task, n and training seed: success, progress, stages reached, steps, wall and CPU time; rewritten after every
 point), OUT/data_curve.md and OUT/data_curve.png (bench/data_curve_report.py). Trainings run on the CPU
-(--device auto: a GPU where there is one) with cores / jobs torch threads each.
-
-Sizing (docs/policies.md, "The data curve": estimated from unit costs measured on the 2-vCPU AMD EPYC VM, not
-from a run of the curve): ~525 collection episodes at 15-19 CPU s (2.2-2.8 core-h), ~284 k training steps at
-0.022-0.045 CPU s (1.8-3.6 core-h; the defaults give ~37 k steps to one 200-demonstration press-fit run) and
-480 rollout episodes at 8-38 CPU s (1.1-5.1 core-h): 5.1-11.5 core-hours, ~2.6-5.8 h wall on 2 free cores,
-~0.6-1 h on 16 (the path: the collection parts in two waves, then the 200-demonstration trainings and their
-rollouts). A shared machine stretches it 1.5-3x; the measured wall time comes with the results.
+(--device auto: a GPU where there is one) with cores / jobs torch threads each. Sizing (docs/policies.md,
+"The data curve"): 5.1-11.5 core-hours, ~2.6-5.8 h wall on 2 free cores, ~0.6-1 h on 16.
 """
 
 from __future__ import annotations
@@ -59,6 +57,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+from bench import data_curve_ledger as ledger
 from bench import harness
 from bench.data_curve_config import (  # noqa: F401 (the pure parts, used by tests through this module)
     SAME_ON_RESUME,
@@ -175,6 +174,8 @@ class State:
         self.planned = {t: math.ceil(max(cfg.points[t]) * 11 / (10 * cfg.part_episodes)) for t in cfg.tasks}
         self.trained: dict = {}
         self.rolled: dict = {}
+        self.imported = ledger.read_imported(cfg.out)  # what the collection must match (--import-results)
+        self.digest = ledger.next_digest(cfg) if self.imported else ""
         for t in cfg.tasks:
             for k in range(DATA_CURVE_PARTS_MAX):
                 summary = part_paths(cfg, t, k)[1]
@@ -195,13 +196,17 @@ class State:
             k += 1
         return out
 
+    def named(self, task: str, k: int) -> list[tuple[str, dict]]:
+        """(recording file name, collection summary) of the first k parts."""
+        return [(part_paths(self.cfg, task, i)[0].name, self.parts[task][i]) for i in range(k)]
+
     def subset(self, task: str, n: int) -> tuple[list[Path], list[str]] | None:
         """(part folders, the first n successful episode ids) once the parts holding them are collected."""
         k = parts_for(self.leading(task), n)
         if k is None:
             return None
-        names = [(part_paths(self.cfg, task, i)[0].name, self.parts[task][i]) for i in range(k)]
-        return [part_dir(demos_root(self.cfg), task, i) for i in range(k)], successful_ids(names)[:n]
+        ids = successful_ids(self.named(task, k))[:n]
+        return [part_dir(demos_root(self.cfg), task, i) for i in range(k)], ids
 
     def plan_more(self, task: str) -> None:
         """Another part when every planned one is in and they hold fewer successes than the largest point."""
@@ -217,6 +222,8 @@ class State:
         demonstrations): the small points of seed 0 first, a collection part before the point it completes,
         so a run stopped early leaves whole points."""
         cfg, jobs = self.cfg, []
+        for t in cfg.tasks:  # the points imported were trained on the collection OUT holds, or it stops
+            ledger.check_collection(t, self.imported, self.named(t, len(self.leading(t))), self.digest)
         for ti, t in enumerate(cfg.tasks if not cfg.demos_from else ()):  # --demos-from: collects nothing
             self.plan_more(t)
             for k in range(self.planned[t]):
@@ -239,6 +246,8 @@ def run_curve(cfg: CurveConfig, on_point=lambda: None) -> None:
     from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
     st, t0 = State(cfg), time.perf_counter()
+    if st.imported:  # points imported for a queue at another commit are not trained beside here unasked
+        ledger.check_imported(st.imported, harness.commit())
     fn = {"collect": collect_part, "train": train_point, "rollout": rollout_point}
     print(f"{len(st.rolled)} of {len(cfg.point_keys())} point(s) already finished; {cfg.jobs} worker(s)",
           flush=True)
@@ -270,13 +279,17 @@ def run_curve(cfg: CurveConfig, on_point=lambda: None) -> None:
 
 
 def collection(cfg: CurveConfig) -> dict:
-    """Per task: the parts collected, their episodes and successes, seeds, and cost."""
-    out = {}
+    """Per task: the parts collected, their episodes and successes, seeds, fingerprints and cost; stops
+    when the points OUT imported were trained on another collection (data_curve_ledger.check_collection)."""
+    out, imported, digest = {}, ledger.read_imported(cfg.out), ledger.next_digest(cfg)
     for t in cfg.tasks:
-        paths = [part_paths(cfg, t, k)[1] for k in range(DATA_CURVE_PARTS_MAX)]
-        parts = [json.loads(p.read_text()) for p in paths if p.is_file()]
+        paths = [part_paths(cfg, t, k) for k in range(DATA_CURVE_PARTS_MAX)]
+        parts = [json.loads(p.read_text()) for _, p in paths if p.is_file()]
         res = [r for p in parts for r in p["results"]]
-        out[t] = {"parts": len(parts), "episodes": len(res),
+        gap = next((k for k, (_, p) in enumerate(paths) if not p.is_file()), len(paths))
+        ledger.check_collection(t, imported, [(paths[k][0].name, parts[k]) for k in range(gap)], digest)
+        out[t] = {"parts": len(parts), "episodes": len(res), "part_fingerprints":  # of parts 0 .. gap - 1
+                  ledger.part_fingerprints(parts[:gap], digest),
                   "successes": sum(r.get("outcome") == "success" for r in res),
                   "episode_seeds": sorted(r["seed"] for r in res),
                   "collection_seeds": [p["seed"] for p in parts],
@@ -287,8 +300,6 @@ def collection(cfg: CurveConfig) -> dict:
 
 def build_results(cfg: CurveConfig, command: str) -> dict:
     """data_curve.json: the rows, the pooled curve, the collection, the seeds and the machine."""
-    from bench.first_ledger import next_weights_digest
-
     rows = [r for r in finished_rows(cfg.out)
             if r["task"] in cfg.tasks and r["n_demos"] in cfg.points[r["task"]]]
     demos = collection(cfg)
@@ -296,14 +307,13 @@ def build_results(cfg: CurveConfig, command: str) -> dict:
     overlap = {t: sorted(set(d["episode_seeds"]) & rolled[t]) for t, d in demos.items()}
     if any(overlap.values()):  # never: the two seed ranges are apart (tests/test_data_curve.py)
         raise SystemExit(f"rollout seeds overlap demonstration seeds: {overlap}")
-    ck = Path(cfg.next_checkpoint)
     return {"simulated": True, "observation": "state (PRIVILEGED twin object state, no images)",
             "command": command, "config": asdict(cfg), "defaults": cfg.defaults,
             "train_flags": {str(n): defaults_flags(cfg.defaults, n) + cfg.train_flags
                             for n in sorted({n for t in cfg.tasks for n in cfg.points[t]})},
             "seed_set": cfg.seed_set,
             "commits": sorted({r["commit"] for r in rows}), "commit": harness.commit(),
-            "next_weights_sha256": next_weights_digest(ck if ck.is_absolute() else harness.ROOT / ck),
+            "next_weights_sha256": ledger.next_digest(cfg), "imported": ledger.read_imported(cfg.out) or None,
             "seeds": {"collection_seeds": [cfg.demo_seed, cfg.demo_seed + DATA_CURVE_PARTS_MAX - 1],
                       "rollout_seed": cfg.eval_seed},
             "machine": harness.machine(), "collection": demos, "rows": rows,
@@ -311,16 +321,21 @@ def build_results(cfg: CurveConfig, command: str) -> dict:
 
 
 def write_outputs(cfg: CurveConfig, chart_too: bool = True, command: str = "", against: str = "") -> dict:
-    """OUT/data_curve.json, .md and .png; against: another OUT, each point paired with its same point."""
+    """OUT/data_curve.json, .md and .png; against: another OUT or a results file (path or name), each point
+    paired with its same point there, with the commits each side was made at."""
     out = Path(cfg.out)
     res = build_results(cfg, command or harness.command(module="bench.data_curve"))
     md = table(summarize(res["rows"]))
     if against:
-        paired = paired_points(res["rows"], finished_rows(against))
-        res["against"] = {"out": str(against), "paired": {t: {str(n): p for n, p in pts.items()}
-                                                         for t, pts in paired.items()}}
-        md += "\n" + (paired_table(paired, "this OUT", str(against)) if paired else
-                      f"No point of {against} shares training seeds and rollout episodes with this OUT.\n")
+        side = ledger.against_side(against)
+        ledger.check_same_episodes(res["rows"], side["rows"], side["source"])
+        paired = paired_points(res["rows"], side["rows"])
+        res["against"] = {**{k: side[k] for k in ("source", "kind", "written_at")},
+                          "across_commits": any(p["trained_at"][0] != p["trained_at"][1]
+                                                for pts in paired.values() for p in pts.values()),
+                          "paired": {t: {str(n): p for n, p in pts.items()} for t, pts in paired.items()}}
+        md += "\n" + (paired_table(paired, "this OUT", side["source"]) if paired else f"No point of "
+                      f"{side['source']} shares training seeds and rollout episodes with this OUT.\n")
     _json(out / "data_curve.json", res)
     summary = summarize(res["rows"])
     (out / "data_curve.md").write_text(md)
@@ -332,9 +347,8 @@ def write_outputs(cfg: CurveConfig, chart_too: bool = True, command: str = "", a
 def main(argv=None) -> int:
     cfg, a = parse_args(argv, __doc__.splitlines()[0])
     out = Path(cfg.out)
-    if a.against and not (Path(a.against) / "config.json").is_file():
-        print(f"--against {a.against}: no config.json (not a data_curve results folder)", file=sys.stderr)
-        return 2
+    if a.against:
+        ledger.against_side(a.against)  # not a results folder nor file: one line, before anything runs
     if a.report:
         if not (out / "config.json").is_file():
             print(f"--out {out}: no config.json (not a data_curve results folder)", file=sys.stderr)
@@ -352,6 +366,9 @@ def main(argv=None) -> int:
         check_resume(cfg, out, SAME_ON_RESUME)
         if cfg.demos_from:
             check_demos_from(cfg)
+        if a.import_results:
+            at = a.import_for_commit or None  # None: this tree's commit
+            print("\n".join(ledger.import_points(cfg, a.import_results, a.any_commit, at)), flush=True)
         out.mkdir(parents=True, exist_ok=True)
         old = json.loads((out / "config.json").read_text()) if (out / "config.json").is_file() else {}
         # tasks and points added on resume are kept in the record of what OUT holds
@@ -360,6 +377,9 @@ def main(argv=None) -> int:
         merged["tasks"] = list(dict.fromkeys(old.get("tasks", []) + cfg.tasks))
         merged["seeds"] = max(old.get("seeds", 0), cfg.seeds)
         _json(out / "config.json", merged)
+        if a.import_for_commit:  # the queue runs in another checkout
+            print(f"imported; run the same command without --import-results at {a.import_for_commit}")
+            return 0
         t, whole = time.perf_counter(), CurveConfig(**merged)
         run_curve(cfg, on_point=lambda: write_outputs(whole, chart_too=False))  # data_curve.json: OUT's all
         print(f"wall {time.perf_counter() - t:.0f} s", flush=True)

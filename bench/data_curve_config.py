@@ -131,8 +131,18 @@ def parse_args(argv=None, description: str = "") -> tuple[CurveConfig, argparse.
                     "docs/tasks.md) and train with --perturbed dart: on the same collection and rollout "
                     "seeds as the curve, paired with its points (--report --against CURVE_OUT)")
     ap.add_argument("--against", default="", metavar="OUT2",
-                    help="also report each point paired with OUT2's same point (same training seeds and "
-                    "rollout episodes: exact McNemar on the paired rollouts)")
+                    help="also report each point paired with OUT2's same point (another OUT, or a results "
+                    "file: results/NAME.json, its path or NAME; same training seeds and rollout episodes: "
+                    "exact McNemar on the paired rollouts)")
+    ap.add_argument("--import-results", default="", metavar="NAME",
+                    help="seed OUT with the finished points of results/NAME.json (or a file) that this run "
+                    "plans: the queue skips them and collects again what it still needs, checked against "
+                    "what they were trained on (bench/data_curve_ledger.py)")
+    ap.add_argument("--any-commit", action="store_true",
+                    help="with --import-results: take points trained at another commit (fingerprinted only)")
+    ap.add_argument("--import-for-commit", default="", metavar="COMMIT",
+                    help="with --import-results: import, write OUT/config.json and stop; the queue runs at "
+                    "COMMIT (another checkout, e.g. the tree the points were trained in)")
     ap.add_argument("--tasks", default="", help=f"comma-separated (default {','.join(POINTS)})")
     ap.add_argument("--points", default="", metavar="N[,N...]",
                     help="successful demonstrations per point, for every task given (default: "
@@ -148,6 +158,10 @@ def parse_args(argv=None, description: str = "") -> tuple[CurveConfig, argparse.
     ap.add_argument("--report", action="store_true", help="run nothing: report OUT's finished points")
     ap.add_argument("--results", default="", metavar="NAME", help="also write results/NAME.json")
     a = ap.parse_args(argv)
+    if a.import_results and a.report:
+        ap.error("--import-results with --report: a report runs nothing; import into a run")
+    if (a.any_commit or a.import_for_commit) and not a.import_results:
+        ap.error("--any-commit and --import-for-commit go with --import-results")
     cfg = CurveConfig(out=a.out, defaults=a.defaults, jobs=max(1, a.jobs), threads=max(0, a.threads),
                       device=a.device, demos_from=a.demos_from)
     cfg.seed_set = "dev" if a.dev else "curve"

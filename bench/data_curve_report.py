@@ -73,12 +73,14 @@ def paired_points(rows: list[dict], other: list[dict]) -> dict:
     """{task: {n: ...}}: each point of `rows` against the same point of `other` (another OUT, e.g. the
     unperturbed curve against a perturbed collection), episode by episode where both have the same training
     seed and rollout episode seed (the same initial conditions): both succeed, only this one, only the other,
-    neither, the exact McNemar p, and each side's pooled success with its Wilson interval over those pairs."""
+    neither, the exact McNemar p, each side's pooled success with its Wilson interval over those pairs, and
+    the commits each side's trainings were made at (trained_at: [this, other])."""
     def outcomes(rs: list[dict]) -> dict:
         return {(r["task"], r["n_demos"], r["seed"], sd): ok
                 for r in rs for sd, ok in zip(r["episode_seeds"], r["successes"])}
 
     a, b = outcomes(rows), outcomes(other)
+    commit = [{(r["task"], r["n_demos"], r["seed"]): r.get("commit", "") for r in rs} for rs in (rows, other)]
     name = {(1, 1): "both", (1, 0): "only_this", (0, 1): "only_other", (0, 0): "neither"}
     out: dict = {}
     for key in sorted(set(a) & set(b)):
@@ -86,8 +88,9 @@ def paired_points(rows: list[dict], other: list[dict]) -> dict:
                                                              "neither": 0, "seeds": set()})
         p["seeds"].add(key[2])
         p[name[(int(a[key]), int(b[key]))]] += 1
-    for points in out.values():
-        for p in points.values():
+    for task, points in out.items():
+        for n, p in points.items():
+            p["trained_at"] = [sorted({c[(task, n, s)] for s in p["seeds"]}) for c in commit]  # this, other
             m = sum(p[k] for k in ("both", "only_this", "only_other", "neither"))
             ka, kb = p["both"] + p["only_this"], p["both"] + p["only_other"]
             p.update(seeds=sorted(p["seeds"]), pairs=m, this=[ka, m, *wilson(ka, m)],
@@ -99,13 +102,16 @@ def paired_table(paired: dict, this: str, other: str) -> str:
     """paired_points as a markdown table: this OUT's point against the other's on the same episodes."""
     lines = [f"Paired on the same training seeds and rollout episodes: {this} against {other}.", "",
              f"| task | successful demonstrations | pairs | {this} [95 % Wilson] | {other} [95 % Wilson] | "
-             "both / only this / only other / neither | exact McNemar p |", "|---|---|---|---|---|---|---|"]
+             "both / only this / only other / neither | exact McNemar p | trained at (this; other) |",
+             "|---|---|---|---|---|---|---|---|"]
     for task, points in paired.items():
         for n, p in points.items():
             side = [f"{k} / {m} = {100 * k / m:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
                     for k, m, lo, hi in (p["this"], p["other"])]
             lines.append(f"| {task} | {n} | {p['pairs']} | {side[0]} | {side[1]} | {p['both']} / "
-                         f"{p['only_this']} / {p['only_other']} / {p['neither']} | {p['mcnemar_p']:.3f} |")
+                         f"{p['only_this']} / {p['only_other']} / {p['neither']} | {p['mcnemar_p']:.3f} | "
+                         f"{'; '.join(', '.join(c) or '?' for c in p['trained_at'])}"
+                         f"{'' if p['trained_at'][0] == p['trained_at'][1] else ' (ACROSS COMMITS)'} |")
     return "\n".join(lines) + "\n"
 
 

@@ -78,7 +78,8 @@ SKIP = {
 }
 # modules of bench/ that are not scripts (used by the ones above)
 LIBRARIES = {"__init__", "harness", "first_config", "first_ledger", "first_report", "first_stages",
-             "crash_trials", "fault_trials", "data_curve_report", "data_curve_config", "data_curve_defaults"}
+             "crash_trials", "fault_trials", "data_curve_report", "data_curve_config", "data_curve_defaults",
+             "data_curve_ledger"}
 
 
 def scripts() -> set[str]:

@@ -317,6 +317,7 @@ def test_against_pairs_each_point_with_the_other_outs_on_the_same_episodes(tmp_p
     _finish(a, 2, 0, [1, 1, 0, 1])
     _finish(b, 2, 0, [1, 0, 0, 0])
     _finish(b, 4, 0, [1, 1, 1, 1])  # no such point in a: not paired
+    (Path(b.out) / "config.json").write_text(json.dumps(asdict(b)))  # a data_curve OUT
     p = paired_points(finished_rows(a.out), finished_rows(b.out))
     assert list(p) == ["wipe"] and list(p["wipe"]) == [2]
     q = p["wipe"][2]
