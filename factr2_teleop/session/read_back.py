@@ -1,4 +1,5 @@
-"""What a session's closed recording holds, for its summary (`factr2 collect`, `factr2 rollout --record`). A
+"""What a session's closed recording holds, for its summary (`factr2 collect`, `factr2 rollout --record`, and
+`factr2 recover FILE` later for a summary beside the file it rewrote). A
 writer that stalled leaves a file recovered in place: its last episode without its stop ("incomplete"), the
 episodes after it never started in it ("missing"). The summary then says each episode's outcome, task
 progress and stages reached as the file holds them (the live verdict kept beside them as outcome_judged,
@@ -7,16 +8,22 @@ reproduced from the file.
 
     in_file = read_back(results, mcap, status)   # results: EpisodeResult dicts, changed in place
     rates = episode_rates(results, stages)        # success_rate, mean_progress, stage_rates
+    line = reread_summary(summary, mcap)          # a summary JSON's dict, after `factr2 recover FILE`
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
+from hardware.errors import UserError
+
 JUDGED = ("outcome", "progress", "stages")  # what the file can say otherwise than the live judgement
 MISSING = "missing"  # the outcome of an episode whose start never reached the file
+# a summary's list of EpisodeResult dicts and its task-progress key: collect's JSON, rollout's JSON
+SUMMARY_KINDS = (("results", "progress_mean"), ("episodes", "mean_progress"))
 
 
 def file_episodes(mcap: Path) -> dict:
@@ -114,3 +121,54 @@ def read_back_lines(results: list[dict], not_as_judged: list[int] | None, unread
     if unread:
         lines.append(f"{'in the file':>{width}s}  not read back ({unread}): outcomes as judged")
     return lines
+
+
+# -- a summary JSON read back again (`factr2 recover FILE` by hand) -----------------------------------------
+def summary_episodes(summary, where: str) -> tuple[list[dict], str]:
+    """A session summary's (collect's or rollout's JSON) list of episodes and its task-progress key;
+    UserError (one line) when it is neither."""
+    if isinstance(summary, dict):
+        for key, progress in SUMMARY_KINDS:
+            eps = summary.get(key)
+            if isinstance(eps, list) and all(isinstance(r, dict) and isinstance(r.get("index"), int)
+                                             and isinstance(r.get("outcome"), str) for r in eps):
+                return eps, progress
+    raise UserError("not a session summary (no results or episodes with index and outcome)", where=where,
+                    fix="name the summary of `factr2 collect` or `factr2 rollout --json` with --summary, "
+                        "or pass --no-summary")
+
+
+def reread_summary(summary: dict, mcap: Path) -> str:
+    """Make a session summary (the dict of collect's or rollout's JSON) say what the recording `mcap` holds,
+    as the session's own read-back does (read_back, episode_rates, the takeover's autonomous successes), the
+    recording marked recovered; returns one line saying what changed. UserError when the file cannot be read
+    back (the summary is then left as it was)."""
+    results, progress_key = summary_episodes(summary, str(mcap))
+    work = [dict(r) for r in results]  # the summary changes only once the file was read
+    was = {"success rate": summary.get("success_rate"), "task progress": summary.get(progress_key)}
+    status = SimpleNamespace(error=summary.get("recording_error"), recovered=True)
+    in_file = read_back(work, mcap, status)
+    if in_file["recording_unread"]:
+        raise UserError(f"cannot read it back ({in_file['recording_unread']}): summary left as it was",
+                        where=str(mcap), fix="run `factr2 episodes show` on it")
+    stage_rates = summary.get("stage_rates")
+    rates = episode_rates(work, tuple(stage_rates) if isinstance(stage_rates, dict) else ())
+    said = {r["index"]: r["outcome"] for r in results}  # before: the episodes whose outcome this read changes
+    results[:] = work
+    summary.update(in_file, success_rate=rates["success_rate"], **{progress_key: rates["mean_progress"]})
+    if isinstance(stage_rates, dict):
+        summary["stage_rates"] = rates["stage_rates"]
+    tk = summary.get("takeover")
+    if isinstance(tk, dict) and isinstance(tk.get("per_episode"), list):
+        tk["autonomous_successes"] = autonomous_successes([r["outcome"] for r in work], tk["per_episode"])
+    now = {"success rate": summary["success_rate"], "task progress": summary[progress_key]}
+    by_index = {r["index"]: r for r in work}
+    differ = [i for i in in_file["episodes_not_as_judged"] if said.get(i) != by_index[i]["outcome"]]
+    parts = [("episode " + ", ".join(f"{i} {by_index[i]['outcome']} (judged {by_index[i]['outcome_judged']})"
+                                     for i in differ))] if differ else []
+    parts += [f"{k} {_num(was[k])} -> {_num(now[k])}" for k in now if was[k] != now[k]]
+    return "; ".join(parts) if parts else "already said what the file holds"
+
+
+def _num(x) -> str:
+    return f"{x:.2f}" if isinstance(x, (int, float)) else str(x)
