@@ -11,7 +11,6 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -28,13 +27,13 @@ from factr2_teleop.teleop.hold_checks import (  # noqa: F401 -- PairHold, _fresh
     motor_errors,
     status_bits,
 )
-from factr2_teleop.teleop.leader_law import LeaderInputs, LeaderLaw, LeaderLawConfig
-from factr2_teleop.teleop.mapping import JointMap, JointMapConfig
+from factr2_teleop.teleop.leader_law import LeaderInputs, LeaderLaw
+from factr2_teleop.teleop.mapping import JointMap
+from factr2_teleop.teleop.pair_config import PairConfig
 from factr2_teleop.teleop.record import TickRecord
-from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, mismatch_error, rate_limit
-from factr2_teleop.teleop.takeover import TakeoverConfig
+from factr2_teleop.teleop.soft_start import SoftStart, mismatch_error, rate_limit
 from hardware.clock import Clock
-from hardware.errors import ConfigError, DeviceError
+from hardware.errors import DeviceError
 from hardware.reasons import Reason
 from hardware.roles import Follower, Leader, make_safe
 from hardware.safety import SafeFollowerCommand
@@ -47,48 +46,10 @@ SOFT_START, COUPLED, HOLD, FAULT, STOPPED, IDLE = "soft_start", "coupled", "hold
 LOOP_GAP_SOFT_S = 1.0  # s: a tick this late means the app itself stopped (its motors fell back by themselves
 # meanwhile, docs/safety.md): the pair holds and re-couples through the soft start; shorter holds (a bus-off,
 # a lost read) re-couple directly when close (SoftStartConfig.resume_direct_rad)
-DEFAULT_STALE_S = 0.02  # s: a leader/follower sample older than this puts the follower on hold (< 50 ms)
 # reads in a row without a new complete sample before old data holds: a loop that was itself late (a stall on
 # a slow core) and missed one read does not hold while data keeps arriving; silence still holds within
-# DEFAULT_STALE_S (10 reads at 500 Hz)
+# leader_stale_s / follower_stale_s (pair_config.DEFAULT_STALE_S: 10 reads at 500 Hz)
 STALE_MIN_MISSES = 2
-
-
-@dataclass
-class PairConfig:
-    """name: prefix in records ("left"/"right" for bimanual). leader_stale_s / follower_stale_s: data older
-    than this holds the follower [s]. estimator_period_s: run the estimator at most this often [s] (0: every
-    tick; the paper ran NEXT at 100 Hz). start_timeout_s: wait this long for first data from both arms [s].
-    takeover: the leader's following and the hand's takeover during a policy rollout (teleop/takeover.py)."""
-
-    name: str = "arm"
-    law: LeaderLawConfig = field(default_factory=LeaderLawConfig)
-    mapping: JointMapConfig = field(default_factory=JointMapConfig)
-    soft_start: SoftStartConfig = field(default_factory=SoftStartConfig)
-    leader_stale_s: float = DEFAULT_STALE_S
-    follower_stale_s: float = DEFAULT_STALE_S
-    estimator_period_s: float = 0.0
-    start_timeout_s: float = 0.5
-    takeover: TakeoverConfig = field(default_factory=TakeoverConfig)
-
-    @classmethod
-    def from_dict(cls, d: dict, where: str = "pairs") -> PairConfig:
-        """From a rig-file table: {name, law: {...}, mapping: {...}, soft_start: {...}, leader_stale_s..}."""
-        d = dict(d or {})
-        kw: dict = {}
-        try:
-            if "law" in d:
-                kw["law"] = LeaderLawConfig.from_dict(d.pop("law"), where=f"{where}.law")
-            if "mapping" in d:
-                kw["mapping"] = JointMapConfig(**d.pop("mapping"))
-            if "soft_start" in d:
-                kw["soft_start"] = SoftStartConfig(**d.pop("soft_start"))
-            if "takeover" in d:
-                kw["takeover"] = TakeoverConfig(**d.pop("takeover"))
-                kw["takeover"].validate(where=f"{where}.takeover")
-            return cls(**kw, **d)
-        except TypeError as e:
-            raise ConfigError(f"bad key: {e}", where=where, fix="see docs/teleop.md") from None
 
 
 class ArmPair:
