@@ -122,18 +122,37 @@ def test_the_collection_summary_says_what_the_recovered_file_holds(tmp_path):
     assert any("episode 1 incomplete (judged success)" in ln for ln in summary_lines(out))
 
 
+def _live(n: int, stages: dict) -> list:
+    """n episodes judged success live (progress 1), each reaching `stages` (stage -> s from its start)."""
+    from factr2_teleop.session.task_episodes import EpisodeResult
+
+    return [EpisodeResult(index=e, seed=e, outcome="success", progress=1.0, stages=dict(stages),
+                          duration_s=0.2, retries=0, felt=0, gave_up=False, t_start=0.5 * e,
+                          t_end=0.5 * e + 0.2) for e in range(n)]
+
+
+def _rollout_lines(path, eps: dict) -> list[str]:
+    """The printed summary of a rollout whose episode fields are `eps` (episode_summary), recorded in path."""
+    from factr2_teleop.commands.rollout import summary_lines
+    from factr2_teleop.session.rollout_report import RolloutResult, timing_summary
+
+    timing = timing_summary([0.002], [], [], False, 500.0)
+    timing.update(commands_sent=0, command_violations=0, refused_nonfinite=0, refused_outside_limits=0,
+                  holds={})
+    return summary_lines(RolloutResult(
+        simulated=True, rig="sim-piper", task="wipe", policy="RUN", policy_kind="act", method=None,
+        schedule="receding", k_exec=10, ensemble_m=None, seed=0, feedback_mode="next", next=None, note="",
+        lean=False, interrupted=False, wall_s=1.0, recording=str(path), timing=timing, **eps))
+
+
 def test_the_rollout_summary_says_what_the_recovered_file_holds(tmp_path):
     """The same stalled file under a policy rollout: the rollout's episodes, success rate (over what the file
     holds), takeover count and printed summary say episode 1 is "incomplete", judged success live."""
-    from factr2_teleop.commands.rollout import summary_lines
-    from factr2_teleop.session.rollout_report import RolloutResult, episode_summary, timing_summary
-    from factr2_teleop.session.task_episodes import EpisodeResult
+    from factr2_teleop.session.rollout_report import episode_summary
 
     path = tmp_path / "two.mcap"
     st = stalled_two_episodes(path)
-    live = [EpisodeResult(index=e, seed=e, outcome="success", progress=1.0, stages={"reach": 0.1},
-                          duration_s=0.2, retries=0, felt=0, gave_up=False, t_start=0.5 * e,
-                          t_end=0.5 * e + 0.2) for e in range(2)]
+    live = _live(2, {"reach": 0.1})
     eps = episode_summary(live, ("reach",), str(path), st)
     assert [r.outcome for r in eps.pop("as_recorded")] == ["success", "incomplete"]
     assert eps["success_rate"] == 0.5 and eps["stage_rates"] == {"reach": 1.0}
@@ -142,14 +161,7 @@ def test_the_rollout_summary_says_what_the_recovered_file_holds(tmp_path):
     assert [(e["outcome"], e.get("outcome_judged")) for e in eps["episodes"]] == [("success", None),
                                                                                   ("incomplete", "success")]
     assert episode_summary(live, (), None, None)["success_rate"] == 1.0  # nothing recorded: as judged
-    timing = timing_summary([0.002], [], [], False, 500.0)
-    timing.update(commands_sent=0, command_violations=0, refused_nonfinite=0, refused_outside_limits=0,
-                  holds={})
-    out = RolloutResult(simulated=True, rig="sim-piper", task="wipe", policy="RUN", policy_kind="act",
-                        method=None, schedule="receding", k_exec=10, ensemble_m=None, seed=0,
-                        feedback_mode="next", next=None, note="", lean=False, interrupted=False, wall_s=1.0,
-                        recording=str(path), timing=timing, **eps)
-    lines = summary_lines(out)
+    lines = _rollout_lines(path, eps)
     assert any("1 / 2 = 50.0 %" in ln for ln in lines)
     assert any("episode 1 incomplete (judged success): counted as the file holds them" in ln for ln in lines)
 
@@ -160,16 +172,12 @@ def test_the_summary_rates_are_over_what_the_recovered_file_holds(tmp_path):
     The rollout summary's success rate, mean progress and stage rates are over the two episodes the file
     holds, each as the file holds it (what `factr2 episodes` shows), the live verdict kept beside it; the
     collection's rates come from the same function."""
-    from factr2_teleop.commands.rollout import summary_lines
     from factr2_teleop.session.read_back import episode_rates
-    from factr2_teleop.session.rollout_report import RolloutResult, episode_summary, timing_summary
-    from factr2_teleop.session.task_episodes import EpisodeResult
+    from factr2_teleop.session.rollout_report import episode_summary
 
     path = tmp_path / "two.mcap"
     st = stalled_two_episodes(path)
-    live = [EpisodeResult(index=e, seed=e, outcome="success", progress=1.0,
-                          stages={"reach": 0.1, "grasp": 0.15}, duration_s=0.2, retries=0, felt=0,
-                          gave_up=False, t_start=0.5 * e, t_end=0.5 * e + 0.2) for e in range(3)]
+    live = _live(3, {"reach": 0.1, "grasp": 0.15})
     eps = episode_summary(live, ("reach", "grasp"), str(path), st)
     eps.pop("as_recorded")
     assert eps["success_rate"] == 0.5 and eps["mean_progress"] == 0.75
@@ -185,13 +193,6 @@ def test_the_summary_rates_are_over_what_the_recovered_file_holds(tmp_path):
     nothing = episode_summary(live, ("reach", "grasp"), None, None)  # nothing recorded: as judged
     assert (nothing["success_rate"], nothing["mean_progress"], nothing["stage_rates"]) == \
         (1.0, 1.0, {"reach": 1.0, "grasp": 1.0})
-    timing = timing_summary([0.002], [], [], False, 500.0)
-    timing.update(commands_sent=0, command_violations=0, refused_nonfinite=0, refused_outside_limits=0,
-                  holds={})
-    out = RolloutResult(simulated=True, rig="sim-piper", task="wipe", policy="RUN", policy_kind="act",
-                        method=None, schedule="receding", k_exec=10, ensemble_m=None, seed=0,
-                        feedback_mode="next", next=None, note="", lean=False, interrupted=False, wall_s=1.0,
-                        recording=str(path), timing=timing, **eps)
-    lines = summary_lines(out)
+    lines = _rollout_lines(path, eps)
     assert any("3  (2 in the file: the rates are over those)" in ln for ln in lines)
     assert any("1 / 2 = 50.0 %" in ln for ln in lines) and any("0.75" in ln for ln in lines)
