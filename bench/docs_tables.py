@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 
-from bench import harness
+from bench import docs_tables_pages, harness
 from bench.first_report import DOCS_BEGIN, DOCS_END, mcnemar_p, wilson
 
 DOCS = harness.ROOT / "docs"
@@ -271,6 +271,7 @@ TABLES = {
     ("force.md", "force_history"): (("force_history_perceived",),
                                     lambda: history_table("force_history_perceived")),
     ("policies.md", "data_curve"): (("data_curve_current",), lambda: data_curve_table("data_curve_current")),
+    **docs_tables_pages.TABLES,
 }
 
 
@@ -289,7 +290,9 @@ def render_page(text: str, page: str) -> str:
             raise SystemExit(f"docs/{page}: the markers of table {name} are missing ({begin})")
         head, rest = text.split(begin, 1)
         _, tail = rest.split(end, 1)
-        text = f"{head}{begin}\n{fn()}\n{end}{tail}"
+        pad = head[len(head.rstrip(" ")):]  # a table inside a list item keeps the item's indent
+        body = "\n".join(pad + line if line else line for line in fn().split("\n"))
+        text = f"{head}{begin}\n{body}\n{pad}{end}{tail}"
     return text
 
 

@@ -1,0 +1,105 @@
+"""More of docs/'s generated tables: the renderers bench/docs_tables.py imports (TABLES here is merged into
+its own), kept apart so that each file stays short. Each renderer reads one committed results file and returns
+the Markdown table its page holds between `<!-- table NAME: ... -->` and `<!-- /table NAME -->`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bench import harness
+
+HELD = ("Movement_No7_Acc_slow_Verify_Model_short", "TEST")  # the UR5's held-out pair (next_real_arms.md)
+
+
+def _payload(name: str):
+    return harness.payload(harness.load(harness.RESULTS / f"{name}.json"))
+
+
+def _heldout_runs(runs: list[dict], variant: str) -> list[dict]:
+    """A variant's held-out runs, by training seed."""
+    held = [r for r in runs if r["variant"] == variant and r["fold"] == "heldout"]
+    return sorted(held, key=lambda r: r["seed"])
+
+
+def _range(xs, fmt: str = ".3f") -> str:
+    lo, hi = min(xs), max(xs)
+    return f"{lo:{fmt}}" if format(lo, fmt) == format(hi, fmt) else f"{lo:{fmt}}-{hi:{fmt}}"
+
+
+# -- docs/next_real_arms.md: NEXT's variants on the UR5 (L1 in A) --------------------------------------------
+UR5_VARIANTS = (  # (key in results/next_ur5_experiments.json, the page's label)
+    ("q-qd-inputs (no q_cmd - q)", "inputs q, q_dot (no q_cmd - q)"),
+    ("input noise 0.1 (augmentation)", "input noise 0.1 normalised units (augmentation)"),
+    ("short (3 epochs)", "3 epochs only"),
+    ("long (150 s budget, 20 epochs)", "150 s budget, 20 epochs"),
+    ("hidden 128", "hidden 128"),
+    ("robust normaliser", "robust normaliser (median / IQR)"),
+    ("history 25", "history 25"),
+    ("weight decay 1e-2", "weight decay 1e-2"),
+    ("plain (--prior none)", "plain NEXT (no prior)"))
+
+
+def _per_file(per_file: dict, method: str = "next") -> str:
+    return " / ".join(f"{per_file[f][method]:.3f}" for f in HELD)
+
+
+def ur5_variants() -> str:
+    """Each variant of the default NEXT: CV over the six training runs, once on the held-out pair (seed 0)."""
+    d = _payload("next_ur5_experiments")
+    s, runs = d["summary"], d["runs"]
+    best = min(s[k]["cv_next"] for k, _ in UR5_VARIANTS)
+    seeds = [r for r in _heldout_runs(runs, "default") if r["seed"] != 0]
+    others = ", ".join(f"{r['l1']['next']:.3f}" for r in seeds)
+    default = s["default"]
+    rows = ["| variant | CV NEXT | held-out NEXT (No7_short / TEST) |", "|---|---|---|",
+            f"| default before item 6 (block validation, no gate; seed 0; seeds "
+            f"{', '.join(str(r['seed']) for r in seeds)}: held-out {others}) | {default['cv_next']:.3f} | "
+            f"{default['heldout_next']:.3f} ({_per_file(default['heldout_per_file'])}) |",
+            f"| ensemble of the default's {len(default['heldout_next_seeds'])} seeds (estimates averaged) | "
+            f"{default['cv_ensemble']:.3f} | {default['heldout_ensemble']:.3f} |"]
+    for key, label in UR5_VARIANTS:
+        v = s[key]
+        cv = f"{v['cv_next']:.3f}"
+        rows.append(f"| {label} | {f'**{cv}**' if v['cv_next'] == best else cv} | {v['heldout_next']:.3f} "
+                    f"({_per_file(v['heldout_per_file'])}) |")
+    return "\n".join(rows)
+
+
+UR5_GATE = (  # (key in results/next_ur5_gate_experiments.json, the page's label, bold)
+    ("blocks (before: block validation, no gate)", "before: block validation, no gate (`--variants blocks`)",
+     False),
+    ("runs-nogate (whole-run validation, no gate)",
+     "(a) one whole run held out as validation (`runs-nogate`)", False),
+    ("runs-gate (whole-run validation, gate fitted on that run)",
+     "(a) + (b) gate fitted on that run (`runs-gate`)", False),
+    ("default", "the default: gate cross-fitted over 3 groups of runs", True))
+
+
+def ur5_gate() -> str:
+    """The gate's variants, three training seeds each: CV and held out per seed, ranges, training time [s]."""
+    d = _payload("next_ur5_gate_experiments")
+    s, runs = d["summary"], d["runs"]
+    prior = s["default"]
+    rows = ["| variant | CV NEXT, seeds 0 / 1 / 2 (mean) | held-out NEXT, seeds 0, 1, 2 | "
+            "No7_short / TEST, range | train s |", "|---|---|---|---|---|",
+            f"| grey box alone | {prior['cv_prior']:.4f} | {prior['heldout_prior']:.4f} | "
+            f"{_per_file(prior['heldout_per_file'], 'prior')} | fit |"]
+    for key, label, bold in UR5_GATE:
+        held = _heldout_runs(runs, key)
+        cv = s[key]["cv_next_seeds"]
+        b = (lambda x: f"**{x}**") if bold else (lambda x: x)
+        ranges = " / ".join(_range([r["per_file"][f]["next"] for r in held]) for f in HELD)
+        train = _range([r["train_seconds"] for r in runs if r["variant"] == key], ".0f")
+        held_next = ", ".join(f"{r['l1']['next']:.3f}" for r in held)
+        cv_seeds = " / ".join(f"{x:.3f}" for x in cv)
+        rows.append(f"| {b(label)} | {cv_seeds} ({b(f'{np.mean(cv):.3f}')}) | {b(held_next)} | {ranges} | "
+                    f"{train} |")
+    return "\n".join(rows)
+
+
+# page, name -> (results files it reads, renderer); merged into bench.docs_tables.TABLES
+TABLES = {
+    ("next_real_arms.md", "ur5_variants"): (("next_ur5_experiments",), ur5_variants),
+    ("next_real_arms.md", "ur5_gate"): (("next_ur5_gate_experiments",), ur5_gate),
+}
