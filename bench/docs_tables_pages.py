@@ -98,8 +98,31 @@ def ur5_gate() -> str:
     return "\n".join(rows)
 
 
+# -- docs/force.md: cap-screw's contact labels tried on development episodes ---------------------------------
+LABEL_DEV = (("first", "first, labels `l1` (the benchmark's)"), ("first-motion", "first, labels `motion`"),
+             ("base-torque", "base-torque (the benchmark's)"))
+
+
+def label_dev() -> str:
+    """Each policy's success [95 % Wilson], mean progress and stage shares on the development episodes."""
+    d = _payload("first_label_dev_cap_screw")
+    cells, cfg = d["cells"], d["config"]
+    stages = list(cells["first"]["stages"])
+    seeds = ", ".join(str(s) for s in cfg["seeds"])
+    rows = [f"| policy (training seed {seeds}), development seed {cfg['rollout_seed']} | "
+            f"success [95 % Wilson] | progress | {' / '.join(stages)} reached |", "|---|---|---|---|"]
+    for key, label in LABEL_DEV:
+        c = cells[key]
+        lo, hi = c["wilson"]
+        reached = " / ".join(f"{100 * c['stages'][s]:.0f}" for s in stages)
+        rate = f"{c['k']} / {c['n']} = {100 * c['success']:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}]"
+        rows.append(f"| {label} | {rate} | {c['progress']:.2f} | {reached} % |")
+    return "\n".join(rows)
+
+
 # page, name -> (results files it reads, renderer); merged into bench.docs_tables.TABLES
 TABLES = {
+    ("force.md", "label_dev_cap_screw"): (("first_label_dev_cap_screw",), label_dev),
     ("next_real_arms.md", "ur5_variants"): (("next_ur5_experiments",), ur5_variants),
     ("next_real_arms.md", "ur5_gate"): (("next_ur5_gate_experiments",), ur5_gate),
 }
