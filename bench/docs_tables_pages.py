@@ -120,8 +120,34 @@ def label_dev() -> str:
     return "\n".join(rows)
 
 
+# -- docs/takeover.md: the DAgger round with the carry-on operator (round 5) ---------------------------------
+def _episodes_row(label: str, eps: list[dict]) -> str:
+    """Success [95 % Wilson], the share of episodes that reached each stage [%], mean progress."""
+    from bench.first_report import wilson
+
+    k, n = sum(e["outcome"] == "success" for e in eps), len(eps)
+    lo, hi = wilson(k, n)
+    reached = " / ".join(f"{round(100 * np.mean([e['stages'][s] is not None for e in eps]), 1):g}"
+                         for s in eps[0]["stages"])
+    return (f"| {label} | {k} / {n} = {100 * k / n:.0f} % [{100 * lo:.0f}, {100 * hi:.0f}] | {reached} % | "
+            f"{np.mean([e['progress'] for e in eps]):.2f} |")
+
+
+def dagger_round5() -> str:
+    """run0 (shared by rounds 4 and 5: its evaluation is round 4's), run1 and run1b of round 5."""
+    d = _payload("peg_dagger_rounds4_5")
+    r5 = d["round5"]
+    stages = " / ".join(d["round4"]["eval"]["run0"]["episodes"][0]["stages"])
+    return "\n".join([
+        f"| policy | success [95 % Wilson] | {stages} | progress |", "|---|---|---|---|",
+        _episodes_row("run0 (45 demos)", d["round4"]["eval"]["run0"]["episodes"]),
+        _episodes_row("run1 (DAgger, carry-on operator)", r5["eval"]["run1"]["episodes"]),
+        _episodes_row(f"run1b (equal operator time, {r5['K']} demos)", r5["eval"]["run1b"]["episodes"])])
+
+
 # page, name -> (results files it reads, renderer); merged into bench.docs_tables.TABLES
 TABLES = {
+    ("takeover.md", "dagger_round5"): (("peg_dagger_rounds4_5",), dagger_round5),
     ("force.md", "label_dev_cap_screw"): (("first_label_dev_cap_screw",), label_dev),
     ("next_real_arms.md", "ur5_variants"): (("next_ur5_experiments",), ur5_variants),
     ("next_real_arms.md", "ur5_gate"): (("next_ur5_gate_experiments",), ur5_gate),
