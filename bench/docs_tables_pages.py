@@ -145,8 +145,44 @@ def dagger_round5() -> str:
         _episodes_row(f"run1b (equal operator time, {r5['K']} demos)", r5["eval"]["run1b"]["episodes"])])
 
 
+# -- docs/first_runs.md: FIRST on images (wipe, one training seed), each initial condition counted once ------
+FIRST_BLOCK = 16  # the first episodes (one block per process): their seeds right and shared by both policies
+
+
+def first_images() -> str:
+    """Success over distinct initial conditions (each seed's first episode) [95 % Wilson], all episodes, the
+    first FIRST_BLOCK, mean progress, and the validation loss per phase (F / PC / C) of each policy."""
+    from bench.first_report import wilson
+
+    d = _payload("first_images")
+    val = {t["cell"]: t for t in d["train"]}
+    rollouts = d["rollout"]
+    n_all = len(rollouts[0]["episodes"])
+    seeds = [e["seed"] for e in sorted(rollouts[0]["episodes"], key=lambda e: e["index"])[:FIRST_BLOCK]]
+    rows = [f"| method | success, distinct initial conditions [95 % Wilson] | all {n_all} episodes | "
+            f"first {FIRST_BLOCK} ({seeds[0]}-{seeds[-1]}) | progress ({n_all}) | val loss F / PC / C |",
+            "|---|---|---|---|---|---|"]
+    for r in rollouts:
+        eps = sorted(r["episodes"], key=lambda e: e["index"])
+        first: dict[int, dict] = {}
+        for e in eps:
+            first.setdefault(e["seed"], e)
+        k, n = sum(e["outcome"] == "success" for e in first.values()), len(first)
+        lo, hi = wilson(k, n)
+        ok = [e["outcome"] == "success" for e in eps]
+        cell = r["cell"]
+        ratio = val[cell]["ratio"]
+        label = cell if all(x == 1 for x in ratio) else f"{cell} ({':'.join(f'{x:g}' for x in ratio)})"
+        loss = " / ".join(f"{val[cell]['val'][f'val/loss_{p}']:.3f}" for p in ("F", "PC", "C"))
+        rows.append(f"| {label} | **{k} / {n} = {100 * k / n:.0f} %** [{100 * lo:.0f}, {100 * hi:.0f}] | "
+                    f"{sum(ok)} / {len(ok)} | {sum(ok[:FIRST_BLOCK])} / {FIRST_BLOCK} | "
+                    f"{np.mean([e['progress'] for e in eps]):.2f} | {loss} |")
+    return "\n".join(rows)
+
+
 # page, name -> (results files it reads, renderer); merged into bench.docs_tables.TABLES
 TABLES = {
+    ("first_runs.md", "first_images"): (("first_images",), first_images),
     ("takeover.md", "dagger_round5"): (("peg_dagger_rounds4_5",), dagger_round5),
     ("force.md", "label_dev_cap_screw"): (("first_label_dev_cap_screw",), label_dev),
     ("next_real_arms.md", "ur5_variants"): (("next_ur5_experiments",), ur5_variants),
