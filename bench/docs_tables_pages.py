@@ -180,8 +180,71 @@ def first_images() -> str:
     return "\n".join(rows)
 
 
+# -- docs/faults_crash.md: the app killed or frozen beside a twin in its own process -------------------------
+def _three(p: dict, fmt: str) -> str:
+    return " / ".join(format(p[k], fmt) for k in ("p50", "p99", "max"))
+
+
+def _crash_row(kind: str, activity: str, r: dict) -> str:
+    """One row: an activity's trials, or (activity "all") the kind's, with its headline cells in bold."""
+    b = (lambda x: f"**{x}**") if activity == "all" else (lambda x: x)
+    recovered = f"{r['recoveries']}/{r['recovery_owed']}" if r["recovery_owed"] else "-"
+    if r["recovery_owed"] and activity == "all":
+        recovered = f"{b(recovered)}, {r['jumps']} jumps"
+    after, before = r.get("follower_speed_after_resume_rad_s"), r.get("follower_speed_before_rad_s")
+    speed = (f"{after['p50']:.2f} / {after['max']:.2f} ({before['p50']:.2f} / {before['max']:.2f})"
+             if after else "-")
+    safe = f"{r['trials_safe']}/{r['trials']}"
+    tau = f"{r['leader_tau_after_nm_max']:.1f}"
+    return (f"| {b(kind)} | {activity} | {b(r['injected'])} | {b(safe)} | "
+            f"{b(_three(r['fallback_ms'], '.0f'))} | {_three(r['fallback_deadline_ms'], '.0f')} | "
+            f"{b(tau)} | {_three(r['follower_motion_rad'], '.3f')} | "
+            f"{recovered} | {speed} | {r['twin_overruns']} | {r['errors']} |")
+
+
+def crash_kinds() -> str:
+    kinds = _payload("faults_crash")["kinds"]
+    rows = ["| kind | activity | injected | trials safe | fallback_ms p50 / p99 / max | "
+            "from the motors' deadlines | leader torque after [N*m], max | "
+            "follower motion [rad] p50 / p99 / max | recovered | "
+            "follower peak speed [rad/s] after SIGCONT p50 / max (before the freeze) | twin overruns | "
+            "errors |",
+            "|---" * 12 + "|"]
+    for kind, r in kinds.items():
+        rows += [_crash_row(kind, a, r["activities"][a]) for a in ("teleop", "collect", "rollout")]
+        rows.append(_crash_row(kind, "all", r))
+    return "\n".join(rows)
+
+
+def crash_rigs() -> str:
+    """Per rig and kind, the max over its trials of each device's time to fallback [ms], the follower's
+    motion [rad] p50 / max, and after a freeze the follower's peak speed [rad/s] after SIGCONT / before."""
+    trials = _payload("faults_crash")["trials"]
+    rows = ["| rig | kind | fallback_ms per device (max) | follower motion [rad] p50 / max | "
+            "follower peak speed [rad/s] after SIGCONT / before the freeze (max) |", "|---|---|---|---|---|"]
+    for kind in dict.fromkeys(x["kind"] for x in trials):
+        for rig in dict.fromkeys(x["rig"] for x in trials):
+            ts = [x for x in trials if x["kind"] == kind and x["rig"] == rig]
+            devs: dict[str, float] = {}
+            for x in ts:
+                for dev, ms in x["fallback_ms_per_device"].items():
+                    devs[dev] = max(devs.get(dev, 0.0), ms)
+            order = sorted(devs, key=lambda d: ("follower" in d, d))  # leaders first
+            fallback = ", ".join(f"{d} {devs[d]:.0f}" for d in order)
+            motion = [x["follower_motion_rad"] for x in ts]
+            speed = "-"
+            if ts[0].get("follower_speed_after_resume_rad_s") is not None:
+                speed = " / ".join(f"{max(x[k] for x in ts):.2f}" for k in
+                                   ("follower_speed_after_resume_rad_s", "follower_speed_before_rad_s"))
+            rows.append(f"| {rig} | {kind} | {fallback} | {np.percentile(motion, 50):.3f} / "
+                        f"{max(motion):.3f} | {speed} |")
+    return "\n".join(rows)
+
+
 # page, name -> (results files it reads, renderer); merged into bench.docs_tables.TABLES
 TABLES = {
+    ("faults_crash.md", "crash_kinds"): (("faults_crash",), crash_kinds),
+    ("faults_crash.md", "crash_rigs"): (("faults_crash",), crash_rigs),
     ("first_runs.md", "first_images"): (("first_images",), first_images),
     ("takeover.md", "dagger_round5"): (("peg_dagger_rounds4_5",), dagger_round5),
     ("force.md", "label_dev_cap_screw"): (("first_label_dev_cap_screw",), label_dev),
