@@ -66,6 +66,16 @@ def ur5_variants() -> str:
     return "\n".join(rows)
 
 
+def ur5_load_friction() -> str:
+    """The identified-current prior with and without a load-dependent friction column, held out (L1 [A])."""
+    res = _payload("next_ur5_load_friction")["results"]
+    rows = ["| identified-current prior | prior alone | No7_short / TEST | NEXT on it |", "|---|---|---|---|"]
+    for key, label in (("base", "as shipped"), ("load", "+ friction growing with the transmitted load")):
+        h = res[key]["heldout"]
+        rows.append(f"| {label} | {h['prior']:.3f} | {_per_file(h['per_file'], 'prior')} | {h['next']:.3f} |")
+    return "\n".join(rows)
+
+
 UR5_GATE = (  # (key in results/next_ur5_gate_experiments.json, the page's label, bold)
     ("blocks (before: block validation, no gate)", "before: block validation, no gate (`--variants blocks`)",
      False),
@@ -250,4 +260,5 @@ TABLES = {
     ("force.md", "label_dev_cap_screw"): (("first_label_dev_cap_screw",), label_dev),
     ("next_real_arms.md", "ur5_variants"): (("next_ur5_experiments",), ur5_variants),
     ("next_real_arms.md", "ur5_gate"): (("next_ur5_gate_experiments",), ur5_gate),
+    ("next_real_arms.md", "ur5_load_friction"): (("next_ur5_load_friction",), ur5_load_friction),
 }
