@@ -53,7 +53,7 @@ def ur5_variants() -> str:
     others = ", ".join(f"{r['l1']['next']:.3f}" for r in seeds)
     default = s["default"]
     rows = ["| variant | CV NEXT | held-out NEXT (No7_short / TEST) |", "|---|---|---|",
-            f"| default before item 6 (block validation, no gate; seed 0; seeds "
+            f"| the default without item 6's gate (block validation; seed 0; seeds "
             f"{', '.join(str(r['seed']) for r in seeds)}: held-out {others}) | {default['cv_next']:.3f} | "
             f"{default['heldout_next']:.3f} ({_per_file(default['heldout_per_file'])}) |",
             f"| ensemble of the default's {len(default['heldout_next_seeds'])} seeds (estimates averaged) | "
@@ -77,7 +77,7 @@ def ur5_load_friction() -> str:
 
 
 UR5_GATE = (  # (key in results/next_ur5_gate_experiments.json, the page's label, bold)
-    ("blocks (before: block validation, no gate)", "before: block validation, no gate (`--variants blocks`)",
+    ("blocks (before: block validation, no gate)", "block validation, no gate (`--variants blocks`)",
      False),
     ("runs-nogate (whole-run validation, no gate)",
      "(a) one whole run held out as validation (`runs-nogate`)", False),
