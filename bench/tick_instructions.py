@@ -8,10 +8,12 @@ SIMULATED.
 
     python -m bench.tick_instructions BEFORE AFTER [--ticks 300]   # checkouts (roots), one after the other
     python -m bench.tick_instructions BEFORE AFTER --part leader.read   # only inside one device method
+    python -m bench.tick_instructions ROOT --part leader.read,law.step   # several, one after the other
 
 --part DEVICE.METHOD (leader.read, leader.command_torque, follower.command, ...): collection on only inside
 that method of the first pair's device during the counted ticks (still off inside the emulator's blocks):
-the instructions a tick of one part.
+the instructions a tick of one part. Several parts, comma-separated: counted one after the other in the
+same run (`ticks` ticks each, callgrind's counts dumped after each: CALLGRIND_DUMP_STATS_AT).
 
 Each checkout runs under `valgrind --tool=callgrind` (~3 min for 300 ticks on the 2-vCPU dev VM).
 """
@@ -30,6 +32,8 @@ from pathlib import Path
 _C = """#include <valgrind/callgrind.h>
 void cg_start(void) { CALLGRIND_START_INSTRUMENTATION; }
 void cg_toggle(void) { CALLGRIND_TOGGLE_COLLECT; }
+void cg_zero(void) { CALLGRIND_ZERO_STATS; }
+void cg_dump(const char *what) { CALLGRIND_DUMP_STATS_AT(what); }
 """
 
 
@@ -69,8 +73,9 @@ def _run_inside(root: str, ticks: int, lib_path: str, part: str | None = None) -
     sim_cpu.simulated = Simulated
     s, loop = mod._session("inprocess")
     counting = [False]  # in the counted ticks (part: collection only inside the method)
-    if part:
-        device, name = part.split(".")
+
+    def wrap(p: str):
+        device, name = p.split(".")
         method = getattr(getattr(loop.pairs[0], device), name)
 
         def inside(*a, **k):
@@ -85,36 +90,52 @@ def _run_inside(root: str, ticks: int, lib_path: str, part: str | None = None) -
                 on[0] = False
 
         setattr(getattr(loop.pairs[0], device), name, inside)
+        return lambda: delattr(getattr(loop.pairs[0], device), name)  # the method as it was
+
     with s:
         for _ in range(20):
             s.clock.sleep(loop.period_s)
             loop._tick_all(s.clock.now())
         lib.cg_start()
-        for _ in range(ticks):
-            s.clock.sleep(loop.period_s)
-            now = s.clock.now()
-            if part:
-                counting[0] = True
+        for p in part.split(",") if part else [None]:
+            unwrap = wrap(p) if p else None
+            lib.cg_zero()
+            for _ in range(ticks):
+                s.clock.sleep(loop.period_s)
+                now = s.clock.now()
+                if p:
+                    counting[0] = True
+                    loop._tick_all(now)
+                    counting[0] = False
+                    continue
+                on[0] = True
+                lib.cg_toggle()
                 loop._tick_all(now)
-                counting[0] = False
-                continue
-            on[0] = True
-            lib.cg_toggle()
-            loop._tick_all(now)
-            lib.cg_toggle()
-            on[0] = False
+                lib.cg_toggle()
+                on[0] = False
+            lib.cg_dump((p or "tick").encode())
+            if unwrap is not None:
+                unwrap()
 
 
-def measure(root: str, ticks: int, lib: Path, out: Path, part: str | None = None) -> float:
-    """Instructions per tick of the app's part (or of one device method: part) on checkout `root`."""
+def measure(root: str, ticks: int, lib: Path, out: Path, part: str | None = None) -> dict[str, float]:
+    """Instructions per tick of the app's part (or of each device method of part: "leader.read,...") on
+    checkout `root`, by what was counted ("tick" or the method)."""
     cmd = ["valgrind", "--tool=callgrind", "--instr-atstart=no", "--collect-atstart=no",
            f"--callgrind-out-file={out}", sys.executable, __file__, "--inside", root, "--ticks", str(ticks),
            "--lib", str(lib)] + (["--part", part] if part else [])
     r = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "FACTR2_NO_RT": "1"})
-    m = re.search(r"Collected : ([\d,]+)", r.stderr)
-    if r.returncode != 0 or m is None:
+    if r.returncode != 0 or "Collected :" not in r.stderr:
         raise SystemExit(f"callgrind run on {root} failed ({r.returncode}): {r.stderr.strip()[-400:]}")
-    return int(m.group(1).replace(",", "")) / ticks
+    got = {}
+    for f in out.parent.glob(f"{out.name}.*"):  # one file per dump: its trigger names what it counted
+        text = f.read_text(errors="replace")
+        what = re.search(r"^desc: Trigger: Client Request: (.*)$", text, re.M)
+        total = re.search(r"^(?:totals|summary): (\d+)", text, re.M)
+        if what and total:
+            got[what.group(1)] = int(total.group(1)) / ticks
+        f.unlink()
+    return got
 
 
 def main() -> int:
@@ -133,13 +154,17 @@ def main() -> int:
         lib = _library(Path(d))
         got = []
         for i, root in enumerate(roots):
-            n = measure(root, a.ticks, lib, Path(d) / f"callgrind.{i}.out", a.part)
-            got.append(n)
-            what = f"inside {a.part}" if a.part else "the app's part"
-            print(f"{root}: {n / 1e3:.1f} k instructions per tick ({what}, {a.ticks} ticks, in process)",
-                  flush=True)
+            counts = measure(root, a.ticks, lib, Path(d) / f"callgrind.{i}.out", a.part)
+            got.append(counts)
+            for what in a.part.split(",") if a.part else ["tick"]:
+                n = counts[what]
+                where = f"inside {what}" if a.part else "the app's part"
+                print(f"{root}: {n / 1e3:.1f} k instructions per tick ({where}, {a.ticks} ticks, in process)",
+                      flush=True)
         if len(got) == 2:
-            print(f"after / before: {got[1] / got[0]:.3f}")
+            for what in got[0]:
+                print(f"after / before{'' if what == 'tick' else ' (' + what + ')'}: "
+                      f"{got[1][what] / got[0][what]:.3f}")
     return 0
 
 

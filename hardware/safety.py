@@ -96,29 +96,16 @@ def limit_torque_floats(raw: list[float], tau_prev: list[float], r_dt: float, ra
     rate: tau_rate_max [N*m/s], tau_max [N*m].
     Returns (safe torque, number of joints changed)."""
     out: list[float] = []
+    append = out.append
     changed = 0
-    isfinite = math.isfinite
-    if isfinite(sum(raw) + sum(tau_prev) + sum(rate) + sum(tau_max) + r_dt):
-        # the usual tick: every input finite (a sum with any inf or NaN is not), so no value below is NaN
-        # (a product overflows to inf at worst): the same operations on the same operands, without the NaN
-        # tests (tests/test_safety_floats.py checks both paths against the numpy form)
-        for x, p, rr, m in zip(raw, tau_prev, rate, tau_max, strict=True):
-            r = rr * r_dt
-            a, b = p - r, (p if p < 0.0 else 0.0)
-            lo = a if a < b else b
-            nm = -m
-            lo = lo if lo > nm else nm
-            a, b = p + r, (p if p > 0.0 else 0.0)
-            hi = a if a > b else b
-            hi = hi if hi < m else m
-            y = x if x > lo else lo
-            y = y if y < hi else hi
-            out.append(y)
-            changed += y != x
-        return out, changed
     for x0, p, rr, m in zip(raw, tau_prev, rate, tau_max, strict=True):
-        x = x0 if isfinite(x0) else 0.0
         r = rr * r_dt
+        if p - r < x0 < p + r and -m < x0 < m:
+            # the usual joint: strictly inside its slew and its +-tau_max (so every value here is finite):
+            # lo below and hi above it by numpy's maximum / minimum too, the torque passes unchanged
+            append(x0)
+            continue
+        x = x0 if math.isfinite(x0) else 0.0
         a, b = p - r, (p if (p < 0.0 or p != p) else 0.0)
         lo = a if (a < b or a != a) else b
         nm = -m
@@ -128,7 +115,7 @@ def limit_torque_floats(raw: list[float], tau_prev: list[float], r_dt: float, ra
         hi = hi if (hi < m or hi != hi) else m
         y = x if (x > lo or x != x) else lo
         y = y if (y < hi or y != y) else hi
-        out.append(y)
+        append(y)
         changed += y != x0
     return out, changed
 
@@ -140,31 +127,20 @@ def limit_position_floats(raw: list[float], q_prev: list[float], r_dt: float, v_
     keeps q_prev [rad] (q_prev is inside the limits, so lo <= hi); r_dt: _rate_dt(dt) [s]; v_max [rad/s].
     Returns (safe target, joints changed)."""
     out: list[float] = []
+    append = out.append
     changed = 0
-    isfinite = math.isfinite
-    if isfinite(sum(raw) + sum(q_prev) + sum(v_max) + sum(q_min) + sum(q_max) + r_dt):
-        # the usual tick, every input finite: no NaN below (as limit_torque_floats), no NaN tests
-        for x, p, v, qa, qb in zip(raw, q_prev, v_max, q_min, q_max, strict=True):
-            step = v * r_dt
-            lo = p - step
-            lo = lo if lo > qa else qa
-            hi = p + step
-            hi = hi if hi < qb else qb
-            y = x if x > lo else lo
-            y = y if y < hi else hi
-            out.append(y)
-            changed += y != x
-        return out, changed
     for x0, p, v, qa, qb in zip(raw, q_prev, v_max, q_min, q_max, strict=True):
-        x = x0 if isfinite(x0) else p
         step = v * r_dt
-        lo = p - step
+        lo, hi = p - step, p + step
+        if lo < x0 < hi and qa < x0 < qb:  # the usual joint: strictly inside its step and its limits
+            append(x0)
+            continue
+        x = x0 if math.isfinite(x0) else p
         lo = lo if (lo > qa or lo != lo) else qa
-        hi = p + step
         hi = hi if (hi < qb or hi != hi) else qb
         y = x if (x > lo or x != x) else lo
         y = y if (y < hi or y != y) else hi
-        out.append(y)
+        append(y)
         changed += y != x0
     return out, changed
 
@@ -231,6 +207,8 @@ class Watchdog:
     def stale(self, now: float) -> Reason | None:
         """Why the device must go safe now (DeviceHold.NO_COMMAND / NO_FEEDBACK, with its age in ms), or
         None. Nothing fed yet is not stale (not started)."""
+        if now - self.last_command_t <= self.timeout_s and now - self.last_feedback_t <= self.timeout_s:
+            return None  # the usual tick: both fed and fresh (NaN, or a time never fed, goes the way below)
         if math.isfinite(self.last_command_t) and now - self.last_command_t > self.timeout_s:
             return Reason.of(DeviceHold.NO_COMMAND, ms=1e3 * (now - self.last_command_t))
         if math.isfinite(self.last_feedback_t) and now - self.last_feedback_t > self.timeout_s:
@@ -282,7 +260,8 @@ class SafetyLayer:
                                       lf[3], lf[4])
         self._prev_floats = (q_arr := np.array(q)), q  # the next call's q_prev as floats, without a tolist
         q = q_arr
-        bad = 0 if all(map(math.isfinite, raw)) else _n_bad(qv)
+        bad = 0 if math.isfinite(sum(raw)) or all(map(math.isfinite, raw)) else _n_bad(qv)  # (a finite sum:
+        # no NaN or inf in it; an overflowing one is looked at value by value)
         if cmd.tau_ff is None:  # no feed-forward: zero passes every torque limit unchanged (falling is free)
             tau, c2 = self._zeros, 0
         else:
@@ -300,7 +279,11 @@ class SafetyLayer:
         self.clipped += c1 + c2 + c3
         self._q_prev, self._tau_prev = q, tau
         self.watchdog.feed_command(now)
-        return _made(SafeFollowerCommand, q=q, tau_ff=tau, kp=kp, kd=kd, gripper=grip, hold=False)
+        v = _new(SafeFollowerCommand)  # built by the layer (_new)
+        d = v.__dict__
+        d["q"], d["tau_ff"], d["kp"], d["kd"], d["gripper"] = q, tau, kp, kd, grip
+        d["hold"], d["_token"] = False, _TOKEN
+        return v
 
     def follower_hold(self, now: float, q_meas: np.ndarray, reason: Reason | str) -> SafeFollowerCommand:
         """The safe state: hold the measured position (clipped into the limits), no feed-forward,
@@ -320,7 +303,7 @@ class SafetyLayer:
         dt = self._dt(now)
         tv = _vec(tau, self.limits.n, 0.0)
         raw = tv.tolist()
-        if not all(map(math.isfinite, raw)):
+        if not (math.isfinite(sum(raw)) or all(map(math.isfinite, raw))):  # (as in follower())
             self.rejected += _n_bad(tv)
         lf = self._floats()
         out, c = limit_torque_floats(raw, _as_floats(self._tau_prev, self._tau_prev_floats), _rate_dt(dt),
@@ -329,7 +312,10 @@ class SafetyLayer:
         self._tau_prev = arr = np.array(out)
         self._tau_prev_floats = arr, out
         self.watchdog.feed_command(now)
-        return _made(SafeLeaderTorque, tau=arr)
+        v = _new(SafeLeaderTorque)  # built by the layer (_new)
+        d = v.__dict__
+        d["tau"], d["_token"] = arr, _TOKEN
+        return v
 
     def _floats(self) -> tuple[list[float], ...]:
         """The limits as lists for the float kernels (tau_rate_max, tau_max, v_max, q_min, q_max), made once
@@ -349,12 +335,8 @@ class SafetyLayer:
         return SafeLeaderTorque(tau=np.zeros(self.limits.n), _token=_TOKEN)
 
 
-def _made(cls, **fields):
-    """A Safe* value built here, by the layer (the token set, as __post_init__ demands of anyone else),
-    without the frozen dataclass's per-field object.__setattr__ (the 500 Hz path: a third of the cost)."""
-    v = object.__new__(cls)
-    v.__dict__.update(fields, _token=_TOKEN)
-    return v
+_new = object.__new__  # the layer builds its Safe* values with this and their __dict__ (the token set, as
+# __post_init__ demands of anyone else), without the frozen dataclass's per-field object.__setattr__ (500 Hz)
 
 
 def _as_floats(a: np.ndarray, cached: tuple) -> list[float]:

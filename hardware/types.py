@@ -130,5 +130,6 @@ class FollowerCommand:
         """FollowerCommand(q=q, gripper=gripper): joint targets [rad] alone, built without the frozen
         dataclass's per-field object.__setattr__ (the 500 Hz loop's command; the same value)."""
         c = object.__new__(cls)
-        c.__dict__.update(q=q, tau_ff=None, kp=None, kd=None, gripper=gripper)
+        d = c.__dict__
+        d["q"], d["tau_ff"], d["kp"], d["kd"], d["gripper"] = q, None, None, None, gripper
         return c

@@ -105,13 +105,16 @@ def feedback_torque_floats(tau_ext_leader: list[float], gain: list[float], gate:
     """feedback_torque on plain floats, bit for bit (the 500 Hz path; numpy's maximum / minimum written
     out as in hardware.small_vec.np_max)."""
     m = -gate
-    out = []
-    for t, k, c in zip(tau_ext_leader, gain, clip_nm, strict=True):
-        x = m * k * t
-        lo = -c
-        x = x if (x > lo or x != x) else lo
-        out.append(x if (x < c or x != x) else c)
-    return out
+    # a value strictly inside +-clip is unclipped by numpy's maximum / minimum too; any other the whole way
+    return [x if -c < (x := m * k * t) < c else _clip_one(x, c)
+            for t, k, c in zip(tau_ext_leader, gain, clip_nm, strict=True)]
+
+
+def _clip_one(x: float, c: float) -> float:
+    """min(max(x, -c), c) as numpy's maximum / minimum give it (NaN wins, a tie gives the second operand)."""
+    lo = -c
+    x = x if (x > lo or x != x) else lo
+    return x if (x < c or x != x) else c
 
 
 def ema(prev: float, x: float, beta: float) -> float:
@@ -187,7 +190,8 @@ class FeedbackGate:
             tl = lf[1]
         else:
             tl = tau.tolist() if tau.shape == (self.n,) else None
-        if tl is None or not all(map(math.isfinite, tl)) or not math.isfinite(score_nm):
+        if (tl is None or not (math.isfinite(sum(tl)) or all(map(math.isfinite, tl)))
+                or not math.isfinite(score_nm)):  # (a finite sum: every value finite)
             # No value to ramp out with: drop the feedback at once (falling torque is the safe direction).
             self.nan_events += 1
             if not self._nan_active:  # say it once per episode, not every tick

@@ -84,47 +84,59 @@ def sum_cap(terms, cap: list[float]) -> tuple[list[float], list[float], int]:
     return total, out, capped
 
 
+_JOINT_KEYS = ("dither_gain", "dither_min", "v_thr", "coulomb", "b_lo", "b_hi", "neg_b_kp", "b_kd",
+               "neg_damp", "cap")
+
+
+def law_joint_params(f) -> list[tuple[float, ...]]:
+    """The law's per-joint float parameters (LeaderLaw's f) as one tuple per joint, in _JOINT_KEYS order:
+    law_tau_floats' loop reads them from f["joints"] when LeaderLaw made it once (else from here)."""
+    return list(zip(*(f[k] for k in _JOINT_KEYS), strict=True))
+
+
 def law_tau_floats(gl, g_gain, qd, q, dither, coulomb, sign, f, ns, fb) -> tuple[list[float], int]:
     """The capped sum of the law's terms [N*m] in one pass over the joints: per joint the same float64
     operations, in the same order, as the term kernels above and sum_cap over [gravity, friction, barrier,
     null_space, damping, feedback] (bit for bit; tests/test_law_floats.py), without the six term lists.
     gl: g(q) [N*m] (None: gravity off), g_gain; qd [rad/s] (finite), q [rad] (None: barrier off); dither /
     coulomb: the friction mode (neither: off), sign: the dither's +-1 per joint; f: LeaderLaw's float
-    parameters; ns: the null-space term (None: zero); fb: the feedback term. Returns (tau, joints capped)."""
+    parameters (f["joints"]: law_joint_params(f), made once); ns: the null-space term (None: zero); fb: the
+    feedback term. Returns (tau, joints capped).
+    The running sum t starts as 0.0 + (gravity), which is never -0.0, so adding a term that is 0.0 (a joint
+    the term leaves alone) gives t itself: those additions are left out (a NaN sum becomes 0 at the end)."""
     n = len(qd)
     zeros = [0.0] * n
+    grav, bar = gl is not None, q is not None
+    jp = f.get("joints") or law_joint_params(f)
     isfinite = math.isfinite
     out: list[float] = []
+    append = out.append
     capped = 0
-    for g, k, v, x, s, dk, dm, thr, cc, lo, hi, nkp, bkd, nsj, nd, fbj, c in zip(
-            zeros if gl is None else gl, g_gain, qd, zeros if q is None else q, sign, f["dither_gain"],
-            f["dither_min"], f["v_thr"], f["coulomb"], f["b_lo"], f["b_hi"], f["neg_b_kp"], f["b_kd"],
-            zeros if ns is None else ns, f["neg_damp"], fb, f["cap"], strict=True):
-        t = 0.0 + (0.0 if gl is None else k * g)  # gravity (zeros when off, as the list was)
+    for g, k, v, x, s, nsj, fbj, (dk, dm, thr, cc, lo, hi, nkp, bkd, nd, c) in zip(
+            gl if grav else zeros, g_gain, qd, q if bar else zeros, sign, zeros if ns is None else ns, fb, jp,
+            strict=True):
+        t = 0.0 + k * g if grav else 0.0  # gravity (0.0 + 0.0 when off, as the zeros list was)
         if dither:
             if abs(v) < thr:
                 a = dk * abs(g)
                 t = t + s * (a if (a > dm or a != a) else dm)
-            else:
-                t = t + 0.0
-        elif coulomb:
-            t = t + (cc * (1.0 if v > 0.0 else -1.0 if v < 0.0 else v if v != v else 0.0) if abs(v) >= thr
-                     else 0.0)
-        else:
-            t = t + 0.0
-        if q is not None and x < lo:
-            t = t + (nkp * (x - lo) - bkd * v)
-        elif q is not None and x > hi:
-            t = t + (nkp * (x - hi) - bkd * v)
-        else:
-            t = t + 0.0
+        elif coulomb and abs(v) >= thr:
+            t = t + cc * (1.0 if v > 0.0 else -1.0 if v < 0.0 else v if v != v else 0.0)
+        if bar:
+            if x < lo:
+                t = t + (nkp * (x - lo) - bkd * v)
+            elif x > hi:
+                t = t + (nkp * (x - hi) - bkd * v)
         t = ((t + nsj) + nd * v) + fbj
+        if -c < t < c:  # finite and inside the cap: unchanged (as the clip below gives it)
+            append(t)
+            continue
         if not isfinite(t):
             t = 0.0
         lo_c = -c
         y = t if (t > lo_c or t != t) else lo_c
         y = y if (y < c or y != y) else c
-        out.append(y)
+        append(y)
         capped += y != t
     return out, capped
 

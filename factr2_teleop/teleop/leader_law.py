@@ -27,6 +27,7 @@ from factr2_teleop.teleop.law_floats import (
     barrier_floats,
     friction_coulomb_floats,
     friction_dither_floats,
+    law_joint_params,
     law_tau_floats,
     scaled,
     sum_cap,
@@ -246,6 +247,7 @@ class LeaderLaw:
             "v_thr": self.v_thr, "coulomb": self.coulomb, "b_lo": limits.q_min + self.b_margin,
             "b_hi": limits.q_max - self.b_margin, "neg_b_kp": -self.b_kp, "b_kd": self.b_kd,
             "neg_damp": -self.damp, "cap": self.cap}.items()}
+        self._floats["joints"] = law_joint_params(self._floats)  # one tuple per joint (law_tau_floats)
 
     def reset(self, q_now: np.ndarray | None = None) -> None:
         """Before coupling: feedback off, dither restarted, null-space posture = q_now if not configured."""
@@ -273,7 +275,7 @@ class LeaderLaw:
         q = np.asarray(inp.q, dtype=float)
         qd = np.asarray(inp.q_dot, dtype=float)
         qdl = qd.tolist()
-        if not all(map(math.isfinite, qdl)):
+        if not (math.isfinite(sum(qdl)) or all(map(math.isfinite, qdl))):  # (a finite sum: all finite)
             qd = np.where(np.isfinite(qd), qd, 0.0)
             qdl = qd.tolist()
         gl = self.gravity(q).tolist() if cfg.gravity.enabled else None

@@ -281,15 +281,18 @@ class TeleopLoop:
         self._note_messages()
 
     def _note_messages(self) -> None:
-        now = self.clock.now()
+        now = None  # the clock read only when there is something to stamp (most ticks: nothing)
         for p in self.pairs:
-            for m in p.messages:
-                self._message(now, p.cfg.name, m)
-            p.messages.clear()
+            if p.messages:
+                now = self.clock.now()
+                for m in p.messages:
+                    self._message(now, p.cfg.name, m)
+                p.messages.clear()
             for dev in (p.leader, p.follower):  # what a driver did by itself (a servo rebooted), said once
                 notes = getattr(dev, "warnings", None)
                 seen = self._notes_seen.get(dev.name, 0)
                 if notes is not None and len(notes) > seen:
+                    now = self.clock.now() if now is None else now
                     for m in notes[seen:]:
                         self._message(now, dev.name, m)
                     self._notes_seen[dev.name] = len(notes)

@@ -31,7 +31,7 @@ from factr2_teleop.teleop.leader_law import LeaderInputs, LeaderLaw
 from factr2_teleop.teleop.mapping import JointMap
 from factr2_teleop.teleop.pair_config import PairConfig
 from factr2_teleop.teleop.record import TickRecord
-from factr2_teleop.teleop.soft_start import SoftStart, mismatch_error, rate_limit
+from factr2_teleop.teleop.soft_start import SoftStart, mismatch_error
 from hardware.clock import Clock
 from hardware.errors import DeviceError
 from hardware.reasons import Reason
@@ -125,7 +125,7 @@ class ArmPair:
         direct = self.cfg.soft_start.resume_direct_rad
         after_gap, self._after_gap = self._after_gap, False
         if resume and direct > 0 and not after_gap and bool(np.all(np.abs(goal - fs.q) <= direct)):
-            self.q_target = np.asarray(fs.q, dtype=float).copy()  # rate_limit() closes the gap from here
+            self.q_target = np.asarray(fs.q, dtype=float).copy()  # coupled_step() closes the gap from here
             self.phase = COUPLED
             self._say("re-coupled after hold", logging.INFO)
             return True
@@ -241,7 +241,7 @@ class ArmPair:
                 self._say("coupled: follower tracks the leader", logging.INFO)
         elif self.phase == COUPLED:
             prev = self.q_target if self.q_target is not None else fs.q
-            self.q_target = rate_limit(q_leader_f, prev, self.soft.rate, dt)
+            self.q_target = self.soft.coupled_step(q_leader_f, prev, dt)
             grip = self.map.gripper_forward(ls.gripper_pos)
             q_cmd = self.q_target  # the operator's target; a perturbation offsets what is sent, not it
             if offset is not None:

@@ -69,6 +69,12 @@ def rate_limit_floats(q: list[float], q_prev: list[float], v_max: list[float], d
     """rate_limit's math on plain floats [rad, rad/s, s], bit for bit its numpy form
     clip(where(isfinite(q), q, q_prev), q_prev - v_max dt, q_prev + v_max dt) (numpy's maximum / minimum
     written out as in hardware.small_vec.np_max; tests/test_law_floats.py). dt_s >= 0 (or NaN)."""
+    for x, p, v in zip(q, q_prev, v_max, strict=True):
+        step = v * dt_s
+        if not p - step < x < p + step:
+            break
+    else:  # the usual tick: every target strictly inside its step (so finite): q itself, bit for bit
+        return list(q)
     out = []
     isfinite = math.isfinite
     for x, p, v in zip(q, q_prev, v_max, strict=True):
@@ -94,6 +100,16 @@ class SoftStart:
         self._inp = ruckig.InputParameter(n)
         self._out = ruckig.OutputParameter(n)
         self.q = np.full(n, np.nan)
+        self._rate_floats: tuple = (None, [])  # (rate, its floats): coupled_step's
+
+    def coupled_step(self, q_goal: np.ndarray, q_prev: np.ndarray, dt_s: float) -> np.ndarray:
+        """rate_limit(q_goal, q_prev, self.rate, dt_s) [rad], the same values: the coupled pair's target every
+        tick, with the rate's floats kept while self.rate is the same array."""
+        c = self._rate_floats
+        if c[0] is not self.rate:  # (n,) per joint, as q_goal
+            c = self._rate_floats = (self.rate, np.asarray(self.rate, dtype=float).tolist())
+        q, p = np.asarray(q_goal, dtype=float).tolist(), np.asarray(q_prev, dtype=float).tolist()
+        return np.array(rate_limit_floats(q, p, c[1], max(float(dt_s), 0.0)))
 
     def reset(self, q_now: np.ndarray) -> None:
         """Start from the follower's measured position, at rest."""

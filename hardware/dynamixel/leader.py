@@ -103,8 +103,9 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         self._nan_n = np.full(n, np.nan)  # per-tick templates (copied: a copy is 5x cheaper than np.full)
         self._nan_ro = np.full(n, np.nan)  # a fresh sample's q_cmd and temperature (none: a leader has
         self._nan_ro.flags.writeable = False  # neither), one read-only array shared, as safety's zeros are
-        self._status_zero = np.zeros(n, np.uint32)
-        self._status_enabled = np.full(n, STATUS_ENABLED, np.uint32)
+        self._status_zero = np.zeros(n, np.uint32)  # a fresh sample's status without an alert: one of these
+        self._status_enabled = np.full(n, STATUS_ENABLED, np.uint32)  # two, shared read-only (copied to mark)
+        self._status_zero.flags.writeable = self._status_enabled.flags.writeable = False
         self.offsets = np.array(c.offsets_rad, float)
         self.amps_per_unit = np.array([m.amps_per_unit for m in self.models])
         self.limit_units = np.array([m.current_limit_units for m in self.models], float)
@@ -247,11 +248,13 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         signs = self._signs_l
         if cur_units is not None:
             cur_l = [s * c * a for s, c, a in zip(signs, cur_units, self._amps_l)]
-            cur, tau = np.array(cur_l), np.array([k * c for k, c in zip(self._k_l, cur_l)])
+            cur = np.array(cur_l)
+            tau = self.k * cur  # the same float64 products as k * c value by value
         else:
             cur, tau = prev.current.copy(), prev.tau_m.copy()
-        status = (self._status_enabled if self._torque_on else self._status_zero).copy()
+        status = self._status_enabled if self._torque_on else self._status_zero
         if errs is not None or self.alerts.pending:
+            status = status.copy()
             self._alert_bits(status, [0] * len(qs) if errs is None else errs)
         if len(qs) > n:  # the trigger servo: its angle in _q_servo, its current after the joints'
             grip_pos, grip_effort = self._trigger(cur_units[n] if cur_units is not None else 0)

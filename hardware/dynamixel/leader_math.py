@@ -88,16 +88,20 @@ def torque_to_current_ints(tau_nm: list[float], signs: list[float], k_nm_per_a: 
     """torque_to_current_units on plain floats, bit for bit (the 500 Hz path): sign * tau / K / amps per
     unit, a non-finite value 0, clipped to +-limit (numpy's maximum / minimum: a NaN limit wins), rounded
     half to even (np.rint; Python's round of a float does the same)."""
-    out = []
-    isfinite = math.isfinite
-    for t, s, k, a, lim in zip(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units, strict=True):
-        u = s * t / k / a
-        u = u if isfinite(u) else 0.0
-        lo = -lim
-        u = u if (u > lo or u != u) else lo
-        u = u if (u < lim or u != u) else lim
-        out.append(round(u))
-    return out
+    # a value strictly inside +-limit is finite and unclipped (what numpy's maximum / minimum give it too);
+    # any other (NaN, inf, at or past the limit) goes the whole way
+    return [round(u) if -lim < (u := s * t / k / a) < lim else _units_clipped(u, lim)
+            for t, s, k, a, lim in zip(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units, strict=True)]
+
+
+def _units_clipped(u: float, lim: float) -> int:
+    """torque_to_current_ints for one value u not strictly inside +-lim: a non-finite u 0, then clipped as
+    numpy's maximum / minimum do (a NaN limit wins), rounded half to even."""
+    u = u if math.isfinite(u) else 0.0
+    lo = -lim
+    u = u if (u > lo or u != u) else lo
+    u = u if (u < lim or u != u) else lim
+    return round(u)
 
 
 def trigger_fraction(q_servo_rad: float, open_rad: float, closed_rad: float) -> float:

@@ -88,6 +88,8 @@ class PiperFollower(Follower):
         self._mode_pos = P.encode_mode(P.MOVE_J, config.speed_pct, P.MIT_MODE_POSVEL)
         self._mode_mit = P.encode_mode(P.MOVE_MIT, config.speed_pct, P.MIT_MODE_MIT)
         self.status_info: dict[str, int] = {}  # last 0x2A1 fields (ctrl_mode, arm_status, ...)
+        self._status_frame: bytes | None = None  # the 0x2A1 bytes status_info and _status_flags are from
+        self._status_flags: list[int] = []  # P.status_flags of them, per joint
 
     # -- connection --------------------------------------------------------------------------------------
     @property
@@ -181,31 +183,40 @@ class PiperFollower(Follower):
         stale_before = now - self.safety.watchdog.timeout_s
         q: list[float] = []
         status = [STATUS_HOLD if self.in_safe_state else 0] * 6
+        # the frames' unpacks written out (decode_joint_pair, decode_high_speed, decode_low_speed: the same
+        # operations on the same fields), a sample's ~15 decode calls fewer
+        pair, mdeg, milli = P.S_JOINT_PAIR.unpack, P.MDEG_PER_RAD, P.MILLI
         for k, i in enumerate(P.ID_JOINT_FB):
-            q += P.decode_joint_pair(latest[i])
+            a, b = pair(latest[i])
+            q += (a / mdeg, b / mdeg)
             if t_rx[i] < stale_before:
                 status[2 * k] |= STATUS_STALE
                 status[2 * k + 1] |= STATUS_STALE
         v, cur, temp = [nan] * 6, [nan] * 6, [nan] * 6
+        high = P.S_HIGH_SPEED.unpack
         for j, i in enumerate(P.ID_HIGH_SPEED):
             d = latest.get(i)
             if d is None or t_rx[i] < stale_before:
                 status[j] |= STATUS_STALE
             if d is not None:
-                v[j], cur[j], _ = P.decode_high_speed(d)
+                x, c, _ = high(d)
+                v[j], cur[j] = x * milli, c * milli
+        low, flags_of = P.S_LOW_SPEED.unpack, self._flags_of
         for j, i in enumerate(P.ID_LOW_SPEED):
             d = latest.get(i)
             if d is not None:
-                _, _, temp[j], bits, _ = P.decode_low_speed(d)
-                flags = self._flags_of.get(bits)
+                _, _, temp[j], bits, _ = low(d)
+                flags = flags_of.get(bits)
                 if flags is None:  # a few distinct bytes in a run: the bit-by-bit mapping once each
-                    flags = self._flags_of[bits] = P.low_speed_flags(bits)
+                    flags = flags_of[bits] = P.low_speed_flags(bits)
                 status[j] |= flags
         d = latest.get(P.ID_STATUS)
         if d is not None:
-            f = P.decode_status(d)
-            self.status_info = dict(zip(STATUS_FIELDS, f, strict=True))
-            for j, flags in enumerate(P.status_flags(f[1], f[6], f[7])):
+            if d != self._status_frame:  # the arm's status changes rarely: decoded when its bytes do
+                f = P.decode_status(d)
+                self.status_info = dict(zip(STATUS_FIELDS, f, strict=True))
+                self._status_frame, self._status_flags = bytes(d), P.status_flags(f[1], f[6], f[7])
+            for j, flags in enumerate(self._status_flags):
                 status[j] |= flags
         current = np.array(cur)
         g_pos = g_eff = nan

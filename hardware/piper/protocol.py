@@ -102,12 +102,16 @@ ARM_STATUS_FLAGS = {ARM_STATUS_ESTOP: STATUS_DRIVER_ERROR, ARM_STATUS_COMM_ERROR
 
 _S_MODE = struct.Struct(">BBBBBBxx")
 _S_II = struct.Struct(">ii")
+_S_6I = struct.Struct(">6i")  # the three joint-target frames' pairs back to back
 _S_GRIP_CMD = struct.Struct(">iHBB")
 _S_ENABLE = struct.Struct(">BBxxxxxx")
 _S_STATUS = struct.Struct(">BBBBBBBB")
 _S_GRIP_FB = struct.Struct(">ihBx")
 _S_HIGH = struct.Struct(">hhi")
 _S_LOW = struct.Struct(">HhbBH")
+# the feedback frames' layouts, for a driver's decode of a whole sample in one pass (piper/follower.py):
+# decode_joint_pair, decode_high_speed and decode_low_speed's unpacks
+S_JOINT_PAIR, S_HIGH_SPEED, S_LOW_SPEED = _S_II, _S_HIGH, _S_LOW
 _S_QUERY = struct.Struct(">BBxxxxxx")
 _S_LIMITS = struct.Struct(">BhhHx")
 _S_ACC = struct.Struct(">BHxxxxx")
@@ -132,11 +136,12 @@ def encode_mode(move_mode: int = MOVE_J, speed_pct: int = 100, mit_mode: int = M
 
 def encode_joint_targets(q_rad) -> tuple[bytes, bytes, bytes]:
     """Six joint targets [rad] -> the three frames for ID_JOINT_TARGET (int32 pairs, 0.001 deg)."""
-    m = []  # _i32 written out over plain floats (an array's tolist(): the same values), the 500 Hz command
-    for x in (q_rad.tolist() if hasattr(q_rad, "tolist") else q_rad):
-        v = round(float(x) * MDEG_PER_RAD)
-        m.append(INT32_MIN if v < INT32_MIN else INT32_MAX if v > INT32_MAX else v)
-    return _S_II.pack(m[0], m[1]), _S_II.pack(m[2], m[3]), _S_II.pack(m[4], m[5])
+    # _i32 written out over plain floats (an array's tolist(): the same values), the 500 Hz command; the six
+    # int32 in one pack, cut into the three frames' pairs (the same bytes as one ">ii" pack per frame)
+    xs = q_rad.tolist() if hasattr(q_rad, "tolist") else [float(x) for x in q_rad]
+    b = _S_6I.pack(*[v if INT32_MIN <= (v := round(x * MDEG_PER_RAD)) <= INT32_MAX
+                     else INT32_MIN if v < INT32_MIN else INT32_MAX for x in xs])
+    return b[:8], b[8:16], b[16:]
 
 
 def encode_gripper(stroke_m: float, effort_nm: float = 1.0, code: int = GRIPPER_ENABLE,
