@@ -151,6 +151,7 @@ def train_point(cfg: CurveConfig, task: str, n: int, seed: int, folders: list[Pa
            "steps": meta["step"], "kept_step": kept["step"], "kept_val": kept.get("metrics", {}),
            "batch": meta["train"]["batch"], "epochs": meta["train"]["epochs"],
            "samples": meta["samples"], "episodes": len(meta["episodes"]), "val": meta.get("metrics", {}),
+           "phases": meta.get("phases"), "phase_shares": meta.get("phase_shares"),  # FIRST's labels
            "advice": run_advice(run), "device": device, "torch_threads": torch.get_num_threads(),
            "wall_s": time.perf_counter() - t, "cpu_s": time.process_time() - c, "run": str(run)}
     _json(done, out)

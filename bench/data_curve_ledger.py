@@ -118,7 +118,8 @@ def point_files(r: dict, run: Path, source: str) -> tuple[dict, dict]:
     train = {**key, "defaults": r["defaults"], "command": r["command"], "commit": r["commit"],
              "steps": r["steps"], "batch": r["batch"], "epochs": r["epochs"], "samples": r["samples"],
              "val": {"val/loss": r["val_loss"]}, "advice": r["advice"], "wall_s": r["train_wall_s"],
-             "cpu_s": r["train_cpu_s"], "run": str(run)}
+             "cpu_s": r["train_cpu_s"], "run": str(run),
+             **{k: r[k] for k in ("phases", "phase_shares") if k in r}}
     eps = [{"seed": sd, "outcome": "success" if ok else "failure", "progress": p}
            for sd, ok, p in zip(r["episode_seeds"], r["successes"], r["progress_episodes"])]
     roll = {**key, "success_rate": r["success"], "mean_progress": r["progress"],

@@ -20,10 +20,24 @@ def point_dir(out: str | Path, task: str, n: int, seed: int) -> Path:
     return Path(out) / task / f"n{n:03d}" / f"seed{seed}"
 
 
+def _labels(train: dict) -> tuple[dict | None, dict | None]:
+    """The training's phase thresholds and shares (free / pre-contact / contact of its training split): from
+    train.json, or for one written before it recorded them, from the run's last checkpoint while it exists."""
+    if train.get("phase_shares") is not None or not train.get("run"):
+        return train.get("phases"), train.get("phase_shares")
+    from policies.training.checkpoint import last_checkpoint
+
+    last = last_checkpoint(Path(train["run"]))
+    meta = json.loads(last.read_text()) if last is not None else {}
+    return meta.get("phases"), meta.get("phase_shares")
+
+
 def row(train: dict, roll: dict) -> dict:
     """One finished point (its train.json and rollout.json) as a row of data_curve.json: every episode's
     outcome and progress, so the curve can be re-pooled and re-plotted from the results alone."""
     eps = [e for e in roll.get("episodes") or [] if isinstance(e, dict)]
+    phases, shares = _labels(train)
+    labels = {k: v for k, v in (("phases", phases), ("phase_shares", shares)) if v is not None}
     return {"task": train["task"], "n_demos": int(train["n_demos"]), "seed": int(train["seed"]),
             "success": float(roll["success_rate"]), "progress": float(roll["mean_progress"]),
             "successes": [int(e.get("outcome") == "success") for e in eps],
@@ -34,7 +48,7 @@ def row(train: dict, roll: dict) -> dict:
             "advice": train.get("advice", []), "commit": train.get("commit", ""),
             "defaults": train.get("defaults"), "command": train.get("command"),
             "train_wall_s": train.get("wall_s"), "train_cpu_s": train.get("cpu_s"),
-            "rollout_wall_s": roll.get("wall_s"), "rollout_cpu_s": roll.get("cpu_s")}
+            "rollout_wall_s": roll.get("wall_s"), "rollout_cpu_s": roll.get("cpu_s"), **labels}
 
 
 def finished_rows(out: str | Path) -> list[dict]:
