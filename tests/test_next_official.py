@@ -72,7 +72,7 @@ def test_h5_not_the_schema_is_one_line_error(tmp_path, capsys, make, words):
 
 def test_h5_calibrate_official_layout_round_trip(tmp_path, capsys):
     """H5 -> calibrate -> our checkpoint -> official layout -> loaded back: the same estimates (1e-6 N*m),
-    also with a gate (folded into the official head)."""
+    also with a gate (folded into the official head: 1e-5 relative)."""
     p = write_next_h5(tmp_path / "free.h5", lengths=(1500, 1200, 900), arms=("left", "right"))
     rc, out, err = _cli(capsys, "calibrate", "--from-logs", f"{p}::left", "--out", tmp_path / "cal",
                         "--prior", "none", "--rate-hz", "50", "--max-seconds", "4", "--hidden", "32",
@@ -95,7 +95,10 @@ def test_h5_calibrate_official_layout_round_trip(tmp_path, capsys):
     write_official(ours, tmp_path / "off_gate")
     g = batch_tau_f(ours, log.q, log.qd, log.q_cmd, tau=log.tau)
     h = batch_tau_f(load_checkpoint(tmp_path / "off_gate"), log.q, log.qd, log.q_cmd, tau=log.tau)
-    assert np.abs(g[ok] - h[ok]).max() <= 1e-6
+    # the folded head diag(g) W is rounded to float32 once more than g * (W h): a few float32 ulps of a
+    # ~1 N*m output, and the CPU's summation order decides how many (1.3e-6 seen on one machine), so the
+    # bound is relative; a wrong fold is off by ~0.1 N*m
+    np.testing.assert_allclose(h[ok], g[ok], rtol=1e-5, atol=1e-6)
     # a checkpoint with a physics prior has no official layout: one line
     rc, _, err = _cli(capsys, "calibrate", "--from-logs", f"{p}::left", "--out", tmp_path / "cal2",
                       "--prior", "data-only", "--rate-hz", "50", "--max-seconds", "2", "--hidden", "16",
