@@ -6,7 +6,8 @@ import can
 import pytest
 from can.interfaces.virtual import VirtualBus
 
-from hardware.can_bus import CanLink, FastVirtualBus, float_to_uint, open_bus, uint_to_float
+from hardware.can_bus import CanLink, float_to_uint, open_bus, uint_to_float
+from hardware.can_virtual_bus import FastVirtualBus
 from hardware.clock import LockstepClock
 from hardware.errors import DeviceNotFound
 
