@@ -113,6 +113,28 @@ def check_demos_from(cfg: CurveConfig) -> None:
             f"{k} ({old.get(k)} there, {getattr(cfg, k)} here)" for k in diff))
 
 
+def _train_args(ap: argparse.ArgumentParser, text: str) -> list[str]:
+    """--train-args' words, checked by `factr2 train`'s own parser (a bad one stops here, not hours in)."""
+    import shlex
+
+    from policies.training.run_config import add_arguments
+
+    class _Refuse(argparse.ArgumentParser):
+        def error(self, message):  # one line from the caller's parser, not factr2 train's usage
+            raise ValueError(message)
+
+    words = shlex.split(text)
+    train = _Refuse(prog="factr2 train")
+    add_arguments(train)
+    try:
+        _, unknown = train.parse_known_args(["FOLDER", "--out", "RUN", *words])
+    except ValueError as e:
+        ap.error(f"--train-args {text!r}: {e}")
+    if unknown:
+        ap.error(f"--train-args {text!r}: factr2 train has no {' '.join(unknown)}")
+    return words
+
+
 def parse_args(argv=None, description: str = "") -> tuple[CurveConfig, argparse.Namespace]:
     ap = argparse.ArgumentParser(prog="python -m bench.data_curve", description=description)
     ap.add_argument("--out", required=True, help="results folder (resumable)")
@@ -143,6 +165,10 @@ def parse_args(argv=None, description: str = "") -> tuple[CurveConfig, argparse.
     ap.add_argument("--import-for-commit", default="", metavar="COMMIT",
                     help="with --import-results: import, write OUT/config.json and stop; the queue runs at "
                     "COMMIT (another checkout, e.g. the tree the points were trained in)")
+    ap.add_argument("--train-args", default="", metavar="'ARGS'",
+                    help="more `factr2 train` options for every point (one quoted string, e.g. "
+                    "'--thresholds 0.6:1.1'): recorded in the train flags, so an OUT is never resumed "
+                    "with others; pair it with the same collection by --demos-from")
     ap.add_argument("--tasks", default="", help=f"comma-separated (default {','.join(POINTS)})")
     ap.add_argument("--points", default="", metavar="N[,N...]",
                     help="successful demonstrations per point, for every task given (default: "
@@ -190,6 +216,8 @@ def parse_args(argv=None, description: str = "") -> tuple[CurveConfig, argparse.
         lacking = [t for t in cfg.tasks if t not in cfg.points]
         ap.error(f"--tasks {a.tasks!r}: no default points for {', '.join(lacking)}; give --points")
     cfg.points = {t: cfg.points[t] for t in cfg.tasks}
+    if a.train_args:
+        cfg.train_flags = [*cfg.train_flags, *_train_args(ap, a.train_args)]
     if a.perturb is not None:
         from factr2_teleop.teleop.perturb import parse_perturb
         from hardware.errors import UserError

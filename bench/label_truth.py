@@ -1,7 +1,7 @@
 """FIRST's contact labels against the twin's truth, with and without the held-load tare (SIMULATED).
 
     python -m bench.label_truth DIR [DIR...] [--tare off,bias,payload] [--score l1,motion] [--add-payload KG]
-                                [--json OUT]
+                                [--split otsu,min-error] [--band LOW:HIGH,...] [--json OUT] [--results NAME]
 
 Each DIR is one episode set (a task's recordings, as `factr2 collect` writes them). Per set and tare method:
 the recording thresholds (Otsu on the set's own, tared, scores: ||tau_ext||_1, or with --score motion the
@@ -19,6 +19,11 @@ external torque's ||tau_ext_true||_1 passes TRUE_ON_NM, until it falls to TRUE_O
     FP@0.5s  share of the false positives in the first 0.5 s of their episode (the estimate's start)
     carry95  95th percentile of the (tared) score while a gripper holds an object and the truth is free
              [N*m]: what is left of the load (compare T_low)
+
+--split and --band (l1 score, no added payload): where the valley o is placed (policies.labels.phases.SPLITS:
+Otsu's, the library's default, or the minimum-error split) and the band (T_low, T_high) = (LOW o, HIGH o)
+(default the library's OTSU_LOW_X:OTSU_HIGH_X); every combination is a row. The labels are then the
+library's (policies.labels.labelling.label_episode) with those thresholds.
 
 --add-payload KG (semi-synthetic): the twins' objects are light (a 30 g peg, a 20 g block: ~0.17 N*m, below
 NEXT's free-motion noise), so the recordings barely show the held load tare is for. This adds to the
@@ -38,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench import harness
 from bench.harness import names
 from hardware.reasons import Reason
 from hardware.recording import schemas as S
@@ -96,15 +102,33 @@ def _with_payload(episodes, arms, tare: str, kg: float) -> tuple[object, list]:
     return th, [(t, P.label_phases(t, P.contact_runs(s, lo, hi)), h, s) for t, s, h in per]
 
 
-def measure(directory: Path, tare: str, add_kg: float = 0.0, score_kind: str = "l1") -> dict:
+DEFAULT_BAND = (P.OTSU_LOW_X, P.OTSU_HIGH_X)
+
+
+def _split_thresholds(episodes, arms, tare: str, split: str, band: tuple[float, float]) -> L.Thresholds:
+    """The recording source's steps with another valley placement or band (--split, --band)."""
+    score = np.concatenate([L.episode_scores(ep, arms, tare)[0] for ep in episodes])
+    o = P.valley(score, split)
+    return L.Thresholds.given(band[0] * o, band[1] * o, tare)
+
+
+def measure(directory: Path, tare: str, add_kg: float = 0.0, score_kind: str = "l1", split: str = "otsu",
+            band: tuple[float, float] = DEFAULT_BAND) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         episodes, arms = load_episodes([directory])
     t0 = time.perf_counter()
+    custom = split != "otsu" or tuple(band) != DEFAULT_BAND
+    if (add_kg > 0 or custom) and score_kind != "l1":
+        raise SystemExit("--add-payload, --split and --band are measured with the l1 score only")
     if add_kg > 0:
-        if score_kind != "l1":
-            raise SystemExit("--add-payload is measured with the l1 score only")
+        if custom:
+            raise SystemExit("--add-payload is measured with the library's split and band only")
         th, labelled = _with_payload(episodes, arms, tare, add_kg)
+    elif custom:
+        th = _split_thresholds(episodes, arms, tare, split, band)
+        labs = [L.label_episode(ep, arms, th) for ep in episodes]
+        labelled = [(lab.t, lab.phases, lab.held, lab.score) for lab in labs]
     else:  # exactly what `factr2 episodes phases` does
         th = L.resolve_thresholds(L.LabelChoice("recording", tare, score_kind), None, episodes, arms)
         labs = [L.label_episode(ep, arms, th) for ep in episodes]
@@ -123,7 +147,7 @@ def measure(directory: Path, tare: str, add_kg: float = 0.0, score_kind: str = "
     n = tot["pos"] + tot["neg"]
     return {
         "set": episodes[0].task or directory.name, "dir": str(directory), "tare": tare, "score": score_kind,
-        "added_kg": add_kg,
+        "added_kg": add_kg, "split": split, "band": list(band),
         "episodes": len(episodes), "samples": n, "t_low": th.t_low, "t_high": th.t_high,
         "truth_contact": tot["pos"] / max(n, 1),
         "recall": tot["tp"] / max(tot["pos"], 1), "fp": tot["fp"] / max(tot["neg"], 1),
@@ -140,7 +164,7 @@ def measure(directory: Path, tare: str, add_kg: float = 0.0, score_kind: str = "
 def table(rows: list[dict]) -> str:
     head = (f"{'set':<14} {'+kg':>4} {'eps':>4} {'truth C':>8} {'tare':<8} {'score':<6} {'T_low:T_high':>13} "
             f"{'recall':>7} {'FP':>6} {'free':>6} {'pre':>6} {'contact':>7} {'held':>6} {'floor':>6} "
-            f"{'FP@0.5s':>7} {'carry95':>7} {'onsets (true, found)':>21}")
+            f"{'FP@0.5s':>7} {'carry95':>7} {'onsets (true, found)':>21} {'split':<9} {'band':<9}")
     out = [head, "-" * len(head)]
     for r in rows:
         sh = r["shares"]
@@ -150,7 +174,8 @@ def table(rows: list[dict]) -> str:
             f"{r['recall']:7.1%} {r['fp']:6.1%} "
             f"{sh[0]:6.1%} {sh[1]:6.1%} {sh[2]:7.1%} {r['held']:6.1%} {r['floor']:6.1%} "
             f"{r['fp_at_start']:7.0%} {r['carry_p95']:7.3g} "
-            f"{r['onsets_labelled']:>6} ({r['onsets_true']}, {r['onsets_found']})")
+            f"{r['onsets_labelled']:>6} ({r['onsets_true']}, {r['onsets_found']}) "
+            f"{r.get('split', 'otsu'):<9} {':'.join(f'{x:.3g}' for x in r.get('band', DEFAULT_BAND))}")
     return "\n".join(out)
 
 
@@ -161,19 +186,36 @@ def main(argv=None) -> int:
     ap.add_argument("--score", default="l1", help="comma-separated contact scores to compare: l1, motion")
     ap.add_argument("--add-payload", type=float, default=0.0, metavar="KG",
                     help="semi-synthetic: add a held KG point mass to the recorded tau_ext (module doc)")
+    ap.add_argument("--split", default="otsu",
+                    help=f"comma-separated valley placements: {', '.join(P.SPLITS)}")
+    ap.add_argument("--band", default=f"{P.OTSU_LOW_X}:{P.OTSU_HIGH_X}",
+                    help="comma-separated LOW:HIGH multiples of the valley (T_low, T_high)")
     ap.add_argument("--json", type=Path, default=None, help="write the rows here")
+    ap.add_argument("--results", default="", metavar="NAME",
+                    help="also write the rows as results/NAME.json (bench/harness.py's record): docs tables")
     args = ap.parse_args(argv)
-    methods, scores = names(args.tare), names(args.score)
-    known = set(methods) <= set(T.TARE_METHODS) and set(scores) <= set(M.CONTACT_SCORES)
+    methods, scores, splits = names(args.tare), names(args.score), names(args.split)
+    try:
+        bands = [P.parse_thresholds(b) for b in names(args.band)]
+    except ValueError as e:
+        ap.error(f"--band: {e}")
+    known = (set(methods) <= set(T.TARE_METHODS) and set(scores) <= set(M.CONTACT_SCORES)
+             and set(splits) <= set(P.SPLITS))
     if not known or args.add_payload < 0:
         ap.error(f"--tare takes {', '.join(T.TARE_METHODS)}; --score {', '.join(M.CONTACT_SCORES)}; "
-                 "--add-payload a mass >= 0 kg")
-    rows = [measure(d, m, args.add_payload, sc) for d in args.dirs for m in methods for sc in scores]
+                 f"--split {', '.join(P.SPLITS)}; --add-payload a mass >= 0 kg")
+    rows = [measure(d, m, args.add_payload, sc, sp, b) for d in args.dirs for m in methods for sc in scores
+            for sp in splits for b in bands]
     print(table(rows))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"date": time.strftime("%Y-%m-%d"), "simulated": True,
                                          "truth_nm": [TRUE_OFF_NM, TRUE_ON_NM], "rows": rows}, indent=1))
+    if args.results:
+        cmd = harness.command(None if argv is None else ["label_truth", *argv], "bench.label_truth")
+        rec = harness.record(f"label_truth_{args.results}", {"truth_nm": [TRUE_OFF_NM, TRUE_ON_NM],
+                                                             "rows": rows}, simulated=True, cmd=cmd)
+        print(f"wrote {harness.write(harness.RESULTS / f'{args.results}.json', rec)}")
     return 0
 
 

@@ -146,6 +146,8 @@ def test_the_report_pools_the_seeds_and_writes_a_portable_record(tmp_path):
     (["--points", "25,x"], "--points"), (["--seeds", "0"], "--seeds 0"),
     (["--tasks", "cap-screw"], "no default points for cap-screw"), (["--defaults", "later"], "--defaults"),
     (["--perturb", "amplitude=0.1"], "--perturb"),
+    (["--train-args", "--bogus 3"], "factr2 train has no --bogus"),
+    (["--train-args", "--steps abc"], "--steps: invalid int value"),
 ])
 def test_bad_options_say_one_thing_and_exit_2(tmp_path, capsys, argv, says):
     with pytest.raises(SystemExit) as e:
@@ -169,6 +171,14 @@ def test_current_defaults_are_factr2_train_with_no_options_but_the_subset_and_se
         d["train"].update(seed=None, threads=None)
     assert {k for k in point if point[k] != plain[k]} == {"out", "episodes", "progress"}
     assert point["episodes"] == ("x.mcap#0", "x.mcap#1")
+
+
+def test_train_args_reach_every_point_and_its_recorded_flags(tmp_path):
+    cfg, _ = dc.parse_args(["--out", str(tmp_path), "--train-args", "--thresholds 0.6:1.1 --no-tare"])
+    assert cfg.train_flags == ["--thresholds", "0.6:1.1", "--no-tare"]
+    argv = dc.train_argv(cfg, [tmp_path / "part00"], ["x.mcap#0"], 0, tmp_path / "run")
+    assert argv[argv.index("--thresholds") + 1] == "0.6:1.1" and "--no-tare" in argv
+    assert "train_flags" in dc.SAME_ON_RESUME  # an OUT is never resumed with other train args
 
 
 def test_an_out_is_not_resumed_under_other_defaults(tmp_path):

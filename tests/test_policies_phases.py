@@ -128,6 +128,32 @@ def test_otsu_splits_noise_from_contact_in_log_space():
         P.otsu_log_threshold(np.full(10, 0.5))
 
 
+def _skewed_noise_and_contact(rng, n: int, contact_share: float) -> tuple[np.ndarray, np.ndarray]:
+    """Free-motion scores as the twin's peg-insert recordings show them (median ~0.35 N*m, a wider tail
+    below), and a contact class (median 1.5 N*m) holding contact_share of n samples."""
+    nc = int(contact_share * n)
+    nf = n - nc
+    free = np.r_[np.exp(rng.normal(np.log(0.36), 0.3, int(0.85 * nf))),
+                 np.exp(rng.normal(np.log(0.2), 0.6, nf - int(0.85 * nf)))]
+    return free, np.exp(rng.normal(np.log(1.5), 0.6, nc))
+
+
+@pytest.mark.parametrize("share", [0.05, 0.08, 0.2])
+def test_min_error_split_stays_above_the_noise_when_contact_is_a_small_share(share):
+    rng = np.random.default_rng(1)
+    free, contact = _skewed_noise_and_contact(rng, 20000, share)
+    s = np.r_[free, contact, np.nan, 0.0]  # NaN and 0 are ignored
+    t = P.min_error_log_threshold(s)
+    assert np.mean(free > t) < 0.01 and np.mean(contact > t) > 0.5, t
+    assert P.valley(s, "min-error") == t and P.min_error_log_threshold(10 * s) == pytest.approx(10 * t, 0.05)
+    if share == 0.05:  # where Otsu's split falls inside the free motion (docs/first_labels.md)
+        assert np.mean(free > P.otsu_log_threshold(s)) > 0.3
+    with pytest.raises(ValueError):
+        P.min_error_log_threshold(np.full(10, 0.5))
+    with pytest.raises(ValueError):
+        P.recording_thresholds(s, split="median")
+
+
 def test_phases_cli_default_thresholds_come_from_the_recording(tmp_path, capsys):
     from factr2_teleop.cli import main
 

@@ -35,6 +35,8 @@ LOW_X, HIGH_X = 2.0, 3.0  # checkpoint source: thresholds as multiples of the me
 OTSU_LOW_X, OTSU_HIGH_X = 2.0 / 3.0, 1.25
 LABEL_RULE = "runs; recording band 2/3:5/4 of Otsu"  # what a run's meta and the benchmark's ledger compare
 OTSU_BINS = 256  # histogram of log f for Otsu's threshold
+MIN_ERROR_SHARE = 0.005  # min_error_log_threshold: the least share of the samples either class may hold
+SPLITS = ("otsu", "min-error")  # how the recording source places its valley o (the default: otsu)
 
 
 def contact_score(tau_ext: np.ndarray) -> np.ndarray:
@@ -110,11 +112,10 @@ def default_thresholds(val_l1) -> tuple[float, float]:
     return LOW_X * s, HIGH_X * s
 
 
-def otsu_log_threshold(score: np.ndarray, bins: int = OTSU_BINS) -> float:
-    """Otsu's threshold of log(score) [same unit as score]: the split of the finite positive samples into a
-    low and a high class with the largest between-class variance, computed on a histogram of log(score)
-    between its 0.1 and 99.9 percentiles (outliers go to the end bins). Where several splits tie (an empty
-    gap between the classes), the middle of the tied ones. ValueError with fewer than 2 distinct values."""
+def _log_histogram(score: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """(p (bins,) probabilities, edges (bins + 1,)) of log(score) over its finite positive samples,
+    between the 0.1 and 99.9 percentiles (outliers go to the end bins). ValueError with fewer than 2
+    distinct values."""
     s = np.asarray(score, dtype=float).ravel()
     x = np.log(s[np.isfinite(s) & (s > 0)])
     if len(x) < 2 or np.ptp(x) == 0:
@@ -123,7 +124,15 @@ def otsu_log_threshold(score: np.ndarray, bins: int = OTSU_BINS) -> float:
     if hi <= lo:
         lo, hi = x.min(), x.max()
     h, edges = np.histogram(np.clip(x, lo, hi), bins=bins, range=(lo, hi))
-    p = h / h.sum()
+    return h / h.sum(), edges
+
+
+def otsu_log_threshold(score: np.ndarray, bins: int = OTSU_BINS) -> float:
+    """Otsu's threshold of log(score) [same unit as score]: the split of the finite positive samples into a
+    low and a high class with the largest between-class variance, computed on a histogram of log(score)
+    between its 0.1 and 99.9 percentiles (outliers go to the end bins). Where several splits tie (an empty
+    gap between the classes), the middle of the tied ones. ValueError with fewer than 2 distinct values."""
+    p, edges = _log_histogram(score, bins)
     centre = 0.5 * (edges[1:] + edges[:-1])
     w0, m0 = np.cumsum(p)[:-1], np.cumsum(p * centre)[:-1]  # split after bin k, k = 0 .. bins - 2
     mt = float(np.sum(p * centre))
@@ -134,10 +143,46 @@ def otsu_log_threshold(score: np.ndarray, bins: int = OTSU_BINS) -> float:
     return float(np.exp(edges[k + 1]))
 
 
-def recording_thresholds(score: np.ndarray) -> tuple[float, float]:
+def min_error_log_threshold(score: np.ndarray, bins: int = OTSU_BINS, min_share: float = MIN_ERROR_SHARE
+                            ) -> float:
+    """Kittler and Illingworth's minimum-error threshold of log(score) [same unit as score], on the same
+    histogram as `otsu_log_threshold`: the split whose two classes, each fitted with its own normal
+    distribution (own share, mean and variance), best explain the histogram, i.e. the minimum of
+    J = w0 ln var0 + w1 ln var1 - 2 (w0 ln w0 + w1 ln w1). Unlike Otsu's (equal variances, and a pull towards
+    equal shares) it holds where contact is a small share of the samples and spreads wider than the
+    free-motion noise (docs/first_labels.md, "Otsu with a small contact share"). Splits leaving a class under
+    `min_share` of the samples or with less variance than one bin's are not considered (J runs to -inf
+    there). ValueError with fewer than 2 distinct values or no admissible split."""
+    p, edges = _log_histogram(score, bins)
+    centre = 0.5 * (edges[1:] + edges[:-1])
+    w0 = np.cumsum(p)[:-1]
+    m0, s0 = np.cumsum(p * centre)[:-1], np.cumsum(p * centre**2)[:-1]
+    mt, st = float(np.sum(p * centre)), float(np.sum(p * centre**2))
+    w1 = 1.0 - w0
+    floor = (edges[1] - edges[0]) ** 2 / 12.0  # a uniform bin's variance
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var0 = s0 / w0 - (m0 / w0) ** 2
+        var1 = (st - s0) / w1 - ((mt - m0) / w1) ** 2
+        j = w0 * np.log(var0) + w1 * np.log(var1) - 2.0 * (w0 * np.log(w0) + w1 * np.log(w1))
+    ok = (w0 >= min_share) & (w1 >= min_share) & (var0 > floor) & (var1 > floor) & np.isfinite(j)
+    if not ok.any():
+        raise ValueError("no split leaves both classes a share and a spread")
+    k = int(np.flatnonzero(ok)[np.argmin(j[ok])])
+    return float(np.exp(edges[k + 1]))
+
+
+def valley(score: np.ndarray, split: str = "otsu") -> float:
+    """The valley o [score's unit] between free motion and contact in log f, placed by `split` (SPLITS)."""
+    if split not in SPLITS:
+        raise ValueError(f"unknown split {split!r}: one of {', '.join(SPLITS)}")
+    return otsu_log_threshold(score) if split == "otsu" else min_error_log_threshold(score)
+
+
+def recording_thresholds(score: np.ndarray, split: str = "otsu") -> tuple[float, float]:
     """(T_low, T_high) from the scores of a whole episode set (see module doc): OTSU_LOW_X and OTSU_HIGH_X
-    times Otsu's threshold of log f."""
-    o = otsu_log_threshold(score)
+    times the valley o of log f, placed by `split` (SPLITS: Otsu's, the default, or the minimum-error one,
+    measured beside it by bench/label_truth.py --split)."""
+    o = valley(score, split)
     return OTSU_LOW_X * o, OTSU_HIGH_X * o
 
 
