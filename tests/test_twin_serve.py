@@ -133,7 +133,8 @@ def test_twin_driven_clock_steps_the_twin_to_wall_time_and_skips_a_stall():
     """TwinDrivenClock on a twin, with the wall clock advanced by hand (the outcome must not depend on the
     machine's speed): each sleep steps the twin to now; a stall beyond max_lag_s skips ahead, counted."""
     from hardware.rigs import load_rig
-    from hardware.sim.twin import Twin, TwinDrivenClock
+    from hardware.sim.twin import Twin
+    from hardware.sim.twin_driven_clock import TwinDrivenClock
 
     class HandWall(TwinDrivenClock):
         wall = 50.0  # s

@@ -31,7 +31,7 @@ from factr2_teleop.teleop.virtual_operator import (
     make_task_script,
 )
 from hardware import sim_cpu
-from hardware.sim.twin import TwinDrivenClock
+from hardware.sim.twin_driven_clock import TwinDrivenClock
 from hardware.threads import limit_threads
 
 # Task on the sim-piper table scene, leader joints [rad]: above the table, and a press target beyond the

@@ -199,7 +199,7 @@ def _rollout(opts: RolloutOptions, hooks: RolloutHooks, runner, rig, task,
 def _build(s, opts: RolloutOptions, hooks: RolloutHooks, runner, rig, task, plan: RolloutPlan) -> Built:
     """The session of RolloutPairs on the open rig `s`, the policy's target and schedule, the episodes, the
     takeover, the per-tick hooks, the wire checks and the recording, in the order the loop sees them."""
-    from hardware.sim.twin import TwinDrivenClock
+    from hardware.sim.twin_driven_clock import TwinDrivenClock
 
     clock = s.clock
     if plan.realtime and s.twin is not None:  # the loop's thread steps the twin (as the demo does)
@@ -257,7 +257,7 @@ def _build(s, opts: RolloutOptions, hooks: RolloutHooks, runner, rig, task, plan
 def _run(s, b: Built, opts: RolloutOptions, hooks: RolloutHooks, runner, rig, plan: RolloutPlan) -> None:
     """The policy started, the cameras it looks through, the loop run to the last episode (or Ctrl-C:
     b.interrupted); the arms put down and the recording closed however it ended."""
-    from hardware.sim.twin import TwinDrivenClock
+    from hardware.sim.twin_driven_clock import TwinDrivenClock
 
     ts = b.ts
     runner.start(plan.threaded)

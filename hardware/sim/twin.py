@@ -25,7 +25,8 @@ description_error is false; the drivers, the app and its models only see the des
 Time: sim time t starts at 0; the rig clock reads t + offset (rig_time()). Emulators stamp frames and
 servo ticks with rig_time(), never with the wall clock, so a lockstep run is the same on any machine.
 Three ways to drive it: attach(lockstep_clock); start_realtime() (a thread); or the caller's own thread
-through TwinDrivenClock (rebase(), then catch_up(now) after each sleep).
+through TwinDrivenClock (twin_driven_clock.py: rebase(), then catch_up(now) after each sleep). A device's
+parameters and MuJoCo model: twin_devices.py.
 """
 
 from __future__ import annotations
@@ -34,23 +35,18 @@ import itertools
 import os
 import threading
 import time
-from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
-from hardware.arms.true_body import BodyError, description_errors, true_body
-from hardware.clock import Clock
 from hardware.errors import ConfigError
 from hardware.realtime import EMULATOR_PRIORITY, TWIN_PRIORITY, set_fifo
 from hardware.registry import EmulatorContext, device_kind
-from hardware.sim.actuators import ActuatorParams, Effects
 from hardware.sim.effects_hook import load_hook
 from hardware.sim.fault_injector import FaultInjector
 from hardware.sim.mujoco_bank import MujocoBank
-from hardware.sim.presets import arm_params, motor_params
-from hardware.sim.tasks.base import scene_model
+from hardware.sim.twin_devices import TwinDevice, device_model, device_params, twin_effects
 from hardware.sim.world import GroundTruth, MujocoWorld
 
 if TYPE_CHECKING:  # the rig loader uses this package (actuator names); the twin only reads a Rig
@@ -68,49 +64,7 @@ REALTIME_MAX_LAG_S = 0.1  # s: a real-time twin further behind than this skips a
 START_HAND_K_NM_RAD = 3.0
 START_HAND_D_NMS_RAD = 0.1
 START_HAND_TAU_MAX_NM = 2.0
-# s: a twin driven by the caller's thread (TwinDrivenClock) further behind wall time than this skips ahead
-# (a stall: swap, suspend) rather than spiral (counted in .overruns)
-DRIVEN_MAX_LAG_S = 0.05
 _SERIAL = itertools.count()
-
-
-@dataclass
-class TwinDevice:
-    """One simulated device: its world, bank, emulator and wire endpoint (pty path or CAN channel)."""
-
-    spec: DeviceSpec
-    world: MujocoWorld
-    bank: MujocoBank
-    n_arm: int  # arm joints (the bank may add the gripper after them)
-    wire: str | None = None  # the kind's wire: "serial" | "can" | None
-    emulator: object | None = None
-    bus: object | None = None
-    endpoint: str | None = None
-    body_error: BodyError | None = None  # how the simulated arm differs from its description (None: exact)
-
-
-def _effects(spec: dict[str, bool]) -> Effects:
-    return replace(Effects(), **spec)
-
-
-def _device_params(dev: DeviceSpec, drive, arm, with_gripper: bool, effects: Effects) -> ActuatorParams:
-    """Motor parameters of a device's bank: the rig's [twin] motors, else its kind's (drive: TwinDrive),
-    else the arm's presets; then the gripper motor and the rig's parameter overrides."""
-    motors, gripper = dev.twin_motors or drive.motors, drive.gripper_motor
-    p = arm_params(dev.arm, effects=effects, n=arm.n_joints, motors=motors)
-    if with_gripper:
-        g = motor_params([gripper], where=f"twin gripper of {dev.name}")
-        kw = {f: np.concatenate([getattr(p, f), getattr(g, f)]) for f in ActuatorParams.ARRAY_FIELDS}
-        p = replace(p, **kw)
-    n = arm.n_joints + int(with_gripper)
-    p = p.sized(n)
-    for k, v in dev.twin_params.items():
-        a = np.asarray(v, dtype=float).reshape(-1)
-        if a.size not in (1, arm.n_joints, n):
-            raise ConfigError(f"{k} has {a.size} values", where=f"rig {dev.name}.twin.params.{k}",
-                              fix=f"give 1 or {arm.n_joints} values")
-        getattr(p, k)[: a.size if a.size > 1 else n] = a
-    return p
 
 
 class Twin:
@@ -123,7 +77,7 @@ class Twin:
 
         self.rig = rig
         self.seed = rig.twin.seed if seed is None else int(seed)
-        self.effects = _effects(rig.twin.effects)
+        self.effects = twin_effects(rig.twin.effects)
         self.description_error = bool(getattr(rig.twin, "description_error", True))
         hook_spec = effect if effect is not None else rig.twin.effect
         self.hook = None
@@ -177,20 +131,8 @@ class Twin:
 
     # -- construction ----------------------------------------------------------------------------------
     def _add(self, dev: DeviceSpec, arm, follower: bool, seed: int, body_seed: int) -> None:
-        if follower:
-            model = scene_model(arm, self.rig.twin.scene, self.task)
-            # resting free objects sleep (no contact work until something touches them); the arm's tree is
-            # actuated, so MuJoCo never puts it to sleep
-            model.opt.enableflags |= int(mujoco.mjtEnableBit.mjENBL_SLEEP)
-        else:
-            model = mujoco.MjModel.from_xml_path(str(arm.mjcf_path))  # the leader: its own world, no contacts
-            model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
-        body_error = None
-        # the twin's physics runs on the true body; the app keeps the description. The body comes from the
-        # rig's seed, not the run's: a calibration, its held-out runs and later runs with other noise
-        # seeds all meet the same unit, as on a real arm
-        if self.description_error:
-            model, body_error = true_body(model, arm, body_seed, description_errors(arm.name, arm.role))
+        model, body_error = device_model(arm, follower, self.rig.twin.scene, self.task,
+                                         body_seed if self.description_error else None)
         model.opt.timestep = self.dt / self.substeps
         world = MujocoWorld(model, name=dev.name)
         kind = device_kind(dev.driver, where=f"rig {dev.name}")
@@ -198,7 +140,7 @@ class Twin:
         # the gripper motor is the bank's last one when the arm has a gripper joint and the device drives it
         with_gripper = bool(arm.gripper_joints) and drive.gripper
         joints = list(arm.joint_names) + ([arm.gripper_joints[0]] if with_gripper else [])
-        params = _device_params(dev, drive, arm, with_gripper, self.effects)
+        params = device_params(dev, drive, arm, with_gripper, self.effects)
         bank = world.add_bank(joints, params, name=dev.name, seed=seed)
         every = 1 if follower else self.leader_every
         world.set_substeps(self.substeps * every)
@@ -427,40 +369,3 @@ class Twin:
     def __exit__(self, *exc):
         self.close()
         return False
-
-
-class TwinDrivenClock(Clock):
-    """Real time, but the caller's thread steps the twin: after each sleep the physics catches up to wall
-    time (Twin.catch_up), so physics, emulators and the loop run in ONE thread in a fixed order, with no
-    GIL hand-offs between a stepping thread and the loop (the jitter source of an in-process real-time
-    twin). Same time base as hardware.clock.Clock (the drivers' clock). The twin's own thread must not run.
-
-        clock = TwinDrivenClock(twin)   # twin.stop_realtime() first if it was started
-        clock.start()                   # set-up time is not simulated; one step so fresh samples exist
-        loop.run(clock)                 # each clock.sleep() steps the twin to now
-    """
-
-    def __init__(self, twin: Twin, max_lag_s: float = DRIVEN_MAX_LAG_S):
-        self.twin, self.max_lag_s = twin, float(max_lag_s)
-
-    @property
-    def overruns(self) -> int:
-        """Times the twin skipped ahead (the thread stalled for more than max_lag_s)."""
-        return self.twin.overruns
-
-    def start(self) -> None:
-        """Sim time continues from now (set-up time is not simulated: the leader would fall meanwhile),
-        then one step so that fresh samples exist, rebased again so the loop starts level with the twin."""
-        if self.twin._rt_thread is not None:
-            raise RuntimeError("TwinDrivenClock: the twin's own thread runs (call twin.stop_realtime())")
-        self.twin.rebase(self.now())
-        self.twin.advance(self.now() + self.twin.dt)
-        self.twin.rebase(self.now())
-
-    def sleep(self, dt_s: float) -> None:
-        super().sleep(dt_s)
-        self.twin.catch_up(self.now(), self.max_lag_s)
-
-    def sleep_until(self, t: float) -> None:
-        super().sleep_until(t)
-        self.twin.catch_up(self.now(), self.max_lag_s)
