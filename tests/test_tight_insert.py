@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from factr2_teleop.tasks import tight as S
+from factr2_teleop.tasks import tight_pecks as P
 from hardware.arms import load_arm
 from hardware.sim.perception import Seen
 from hardware.sim.tasks import get_task, scene_model
@@ -94,15 +95,15 @@ def test_pin_slid_across_the_mouth_drops_in():
 
 
 def test_peck_grid_covers_its_disc_nearest_first():
-    g = S.peck_grid(S.PECK_SPACING_M, S.PECK_R_M)
+    g = P.peck_grid(P.PECK_SPACING_M, P.PECK_R_M)
     assert np.allclose(g[0], 0.0) and np.all(np.diff(np.hypot(*g.T)) >= -1e-12)  # the seen centre first
-    assert np.all(np.hypot(*g.T) <= S.PECK_R_M + 1e-12)
+    assert np.all(np.hypot(*g.T) <= P.PECK_R_M + 1e-12)
     rng = np.random.default_rng(0)
-    r = (S.PECK_R_M - S.PECK_SPACING_M) * np.sqrt(rng.random(2000))
+    r = (P.PECK_R_M - P.PECK_SPACING_M) * np.sqrt(rng.random(2000))
     a = rng.uniform(0, 2 * np.pi, 2000)
     targets = np.column_stack([r * np.cos(a), r * np.sin(a)])
     gaps = np.min(np.linalg.norm(targets[:, None, :] - g[None], axis=2), axis=1)
-    assert gaps.max() <= S.PECK_SPACING_M / np.sqrt(3) + 1e-9 < TI.CAPTURE_M  # every bore centre is caught
+    assert gaps.max() <= P.PECK_SPACING_M / np.sqrt(3) + 1e-9 < TI.CAPTURE_M  # every bore centre is caught
 
 
 def test_sight_counts_each_frame_once_and_skips_stale():
@@ -127,28 +128,28 @@ class _Truth(dict):
 
 
 def test_aim_correction_takes_up_the_arms_error_bounded():
-    c = S.aim_correction(np.zeros(3), [0.01, 0.0, 0.0], [0.009, 0.0, 0.0], 0.01, 2.0, 0.006)
+    c = P.aim_correction(np.zeros(3), [0.01, 0.0, 0.0], [0.009, 0.0, 0.0], 0.01, 2.0, 0.006)
     assert np.allclose(c, [2e-5, 0.0, 0.0])  # aimed 1 mm beyond where it got: aim further, at ki
-    c = S.aim_correction(np.full(3, 0.0059), [0.1, -1.0, 0.0], np.zeros(3), 0.01, 2.0, 0.006)
+    c = P.aim_correction(np.full(3, 0.0059), [0.1, -1.0, 0.0], np.zeros(3), 0.01, 2.0, 0.006)
     assert np.allclose(c, [0.006, -0.006, 0.0059])  # bounded
 
 
 def test_next_peck_pecks_where_the_disc_is_left_unsearched():
-    grid = S.peck_grid(S.PECK_SPACING_M, S.PECK_R_M)
-    cand = S.disc_points(S.PECK_R_M)
+    grid = P.peck_grid(P.PECK_SPACING_M, P.PECK_R_M)
+    cand = P.disc_points(P.PECK_R_M)
     tried = np.zeros(len(grid), int)
-    assert S.next_peck(grid, cand, [], tried) == 0
+    assert P.next_peck(grid, cand, [], tried) == 0
     tried[0] = 1
-    assert S.next_peck(grid, cand, [grid[0] + [0.0015, 0.0]], tried) == 0  # landed 1.5 mm off: again
-    assert S.next_peck(grid, cand, [grid[0] + [0.0003, 0.0]], tried) == 1  # landed on it: searched
-    tried[0] = S.PECK_TRIES
-    assert S.next_peck(grid, cand, [grid[0] + [0.0015, 0.0]], tried) == 1  # tried out
+    assert P.next_peck(grid, cand, [grid[0] + [0.0015, 0.0]], tried) == 0  # landed 1.5 mm off: again
+    assert P.next_peck(grid, cand, [grid[0] + [0.0003, 0.0]], tried) == 1  # landed on it: searched
+    tried[0] = P.PECK_TRIES
+    assert P.next_peck(grid, cand, [grid[0] + [0.0015, 0.0]], tried) == 1  # tried out
     # a peck aimed at point 1 that landed on point 2 searched point 2: point 1 next, then point 3
     tried[1] = 1
     landed = [grid[0], grid[2]]
-    assert S.next_peck(grid, cand, landed, tried) == 1
-    assert S.next_peck(grid, cand, landed + [grid[1]], tried) == 3
-    assert S.next_peck(grid, cand, list(grid), np.zeros(len(grid), int)) is None  # all landed on: searched
+    assert P.next_peck(grid, cand, landed, tried) == 1
+    assert P.next_peck(grid, cand, landed + [grid[1]], tried) == 3
+    assert P.next_peck(grid, cand, list(grid), np.zeros(len(grid), int)) is None  # all landed on: searched
 
 
 class _Truth(dict):
