@@ -127,7 +127,7 @@ def _key_reader(marks, takeover_keys=None) -> threading.Thread | None:
     import termios
     import tty
 
-    from factr2_teleop.session.rollout_takeover import TOGGLE_KEY
+    from factr2_teleop.session.takeover_switch import TOGGLE_KEY
 
     fd = sys.stdin.fileno()
     old = termios.tcgetattr(fd)
@@ -153,7 +153,7 @@ def run(args) -> int:
     import queue
 
     from factr2_teleop.session.rollout import RolloutHooks, RolloutOptions, run_rollout
-    from factr2_teleop.session.rollout_takeover import TOGGLE_KEY
+    from factr2_teleop.session.takeover_switch import TOGGLE_KEY
 
     hooks = RolloutHooks(marks=queue.SimpleQueue())
     opts = RolloutOptions(rig=args.rig, policy=args.policy, task=args.task, episodes=args.episodes,

@@ -53,7 +53,8 @@ from factr2_teleop.session.rollout_report import (
     timing_summary,
     wire_summary,
 )
-from factr2_teleop.session.rollout_takeover import Takeover, TakeoverPair, attach_takeover, takeover_summary
+from factr2_teleop.session.rollout_takeover import TakeoverPair, attach_takeover
+from factr2_teleop.session.takeover_switch import Takeover, takeover_summary
 from factr2_teleop.session.teleop import TeleopSession
 from hardware.errors import UserError
 from hardware.features import rig_arm_names, rig_features

@@ -226,7 +226,7 @@ class PolicyTarget:
         self._q_min = np.concatenate([np.asarray(lim.q_min) for lim in lims])
         self._q_max = np.concatenate([np.asarray(lim.q_max) for lim in lims])
         self.clamped = 0  # run ticks whose target lay outside the joint limits (the safety layer clamped it)
-        self.takeover = None  # session/rollout_takeover.Takeover when the operator may take over
+        self.takeover = None  # session/takeover_switch.Takeover when the operator may take over
 
     def for_pair(self, i: int):
         """The target function of pair i: (now [s], its follower JointState) -> (q [rad] or None, gripper

@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from factr2_teleop.session.rollout import RolloutSession
     from factr2_teleop.session.rollout_episodes import MarkedRollout, TwinRollout
     from factr2_teleop.session.rollout_pair import PolicyTarget
-    from factr2_teleop.session.rollout_takeover import Takeover
+    from factr2_teleop.session.takeover_switch import Takeover
     from hardware.sim.faults import FaultSpec
 
     Episodes = TwinRollout | MarkedRollout  # the episode bookkeeping a hook is handed

@@ -119,7 +119,7 @@ class RolloutResult:
     recording: str | None
     arms: list[str] = field(default_factory=list)  # the follower arms the policy drove
     timing: dict = field(default_factory=dict)
-    takeover: dict = field(default_factory=dict)  # session/rollout_takeover.py takeover_summary ({}: off)
+    takeover: dict = field(default_factory=dict)  # session/takeover_switch.py takeover_summary ({}: off)
     messages: list = field(default_factory=list)  # the loop's (t [s], who, text): holds, faults, recoveries
     faults: list = field(default_factory=list)  # the twin's log of what it injected (sim/faults.py)
     force_input: str = "live"  # the policy's force input: live or an ablation (policies/rollout/runner.py)

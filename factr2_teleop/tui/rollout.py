@@ -13,7 +13,7 @@ from textual.binding import Binding
 from textual.containers import VerticalScroll
 from textual.widgets import Static
 
-from factr2_teleop.session.rollout_takeover import TOGGLE_KEY
+from factr2_teleop.session.takeover_switch import TOGGLE_KEY
 from factr2_teleop.tui import rollout_ctl as R
 from factr2_teleop.tui.base import BaseScreen
 from factr2_teleop.tui.stops import OperatorStop, operator_stop

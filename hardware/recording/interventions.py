@@ -2,7 +2,7 @@
 takeover and hand-back marks, and each tick's training source (demonstration, policy, pre-intervention,
 operator).
 
-Written by factr2_teleop/session/rollout_takeover.py: /rollout/driver on a change (so the driver at any time
+Written by factr2_teleop/session/takeover_switch.py: /rollout/driver on a change (so the driver at any time
 is the latest value at or before it: previous-value hold, exact per tick) and "takeover" / "handback" events
 (text: JSON with "by" and "pre_window_s"). docs/recording.md names them.
 """
