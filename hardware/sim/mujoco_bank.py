@@ -18,6 +18,7 @@ import mujoco
 import numpy as np
 
 from hardware.sim import actuators as act
+from hardware.sim.bank_joints import as_slice, bind_joints
 from hardware.sim.effects_hook import HookFn, call_hook
 from hardware.sim.motors import MODE_CURRENT, MODE_DISABLED, MODE_MIT, MODE_POSITION, MotorReading
 from hardware.sim.targets import TargetPath
@@ -26,16 +27,6 @@ BRAKE_KP = 2000.0  # N*m/rad: holding brake of a disabled joint (arms with brake
 BRAKE_KD = 50.0  # N*m*s/rad
 NOISE_BLOCK = 1024  # physics steps per block of pre-drawn sensor noise
 THERMAL_EVERY = 10  # physics steps between winding-temperature updates
-
-_ONE_DOF_JOINTS = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
-
-
-def _as_slice(idx: np.ndarray):
-    """A slice when the indices are consecutive (cheap numpy views), else the index array."""
-    if idx.size and np.all(np.diff(idx) == 1):
-        return slice(int(idx[0]), int(idx[-1]) + 1)
-    return idx
-
 
 class BankWorld(Protocol):
     """What a bank reads of the world that steps it (world.py's MujocoWorld). A contract here, so that the
@@ -53,38 +44,10 @@ class MujocoBank:
 
     def __init__(self, world: BankWorld, joints: list[str], params: act.ActuatorParams, *,
                  name: str = "bank", seed: int = 0, hook: HookFn | None = None):
-        m = world.model
         self.world, self.name, self.n = world, name, len(joints)
-        ids = []
-        for j in joints:
-            jid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, j)
-            if jid < 0:
-                raise ValueError(f"bank {name}: no joint {j!r} in the MuJoCo model")
-            if int(m.jnt_type[jid]) not in _ONE_DOF_JOINTS:
-                raise ValueError(f"bank {name}: joint {j!r} is not a hinge or slide joint")
-            ids.append(jid)
         self.joint_names = list(joints)
-        self.qadr = np.array([m.jnt_qposadr[j] for j in ids])
-        self.dadr = np.array([m.jnt_dofadr[j] for j in ids])
-        self.p = params.sized(self.n)
+        self.p, self.qadr, self.dadr = bind_joints(world.model, joints, params, name)
         self.torque_constant = self.p.kt.copy()
-        # The arm's MJCF gives armature / Coulomb / viscous unless the params override them; from here on the
-        # bank's friction model is the only friction on these joints, and MJCF actuators on them are inert.
-        from_model = (("armature", m.dof_armature), ("coulomb", m.dof_frictionloss),
-                      ("viscous", m.dof_damping))
-        for fld, src in from_model:
-            v = getattr(self.p, fld)
-            v[:] = np.where(np.isnan(v), src[self.dadr], v)
-        m.dof_armature[self.dadr] = self.p.armature
-        # Drive current limit: NaN -> the joint's actuatorfrcrange (the arm's tau_max) / kt.
-        frc = np.where(m.jnt_actfrclimited[ids] > 0, np.abs(m.jnt_actfrcrange[ids]).max(axis=1), 1e3)
-        self.p.i_max[:] = np.where(np.isnan(self.p.i_max), frc / self.p.kt, self.p.i_max)
-        m.dof_frictionloss[self.dadr] = 0.0
-        m.dof_damping[self.dadr] = 0.0
-        for a in range(m.nu):
-            if int(m.actuator_trntype[a]) == int(mujoco.mjtTrn.mjTRN_JOINT) and m.actuator_trnid[a, 0] in ids:
-                m.actuator_gainprm[a, :] = 0.0
-                m.actuator_biasprm[a, :] = 0.0
         self.seed = int(seed)
         self.hook = hook
         self.hook_n = self.n  # the hook sees and loads the first hook_n joints (the arm, not the gripper)
@@ -111,10 +74,10 @@ class MujocoBank:
         self._hand_imp: tuple | None = None  # the hand as an impedance (set_hand_impedance), else None
         self.vel_scale = np.ones(self.n)  # firmware speed setting (0..1] scaling pos_vel_max
         # per-step constants (the hot loop avoids fancy indexing and recomputation)
-        self.qsl, self.dsl = _as_slice(self.qadr), _as_slice(self.dadr)
+        self.qsl, self.dsl = as_slice(self.qadr), as_slice(self.dadr)
         contiguous = isinstance(self.qsl, slice) and isinstance(self.dsl, slice)
         self._views = (d.qpos[self.qsl], d.qvel[self.dsl], d.qfrc_applied[self.dsl],
-                       m.dof_damping[self.dsl]) if contiguous else None  # see _joint_state
+                       world.model.dof_damping[self.dsl]) if contiguous else None  # see _joint_state
         self._zeros = np.zeros(self.n)
         self._half_play = 0.5 * self.p.backlash
         self._has_play = bool(np.any(self.p.backlash > 0))
