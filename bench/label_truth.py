@@ -213,7 +213,7 @@ def main(argv=None) -> int:
                                          "truth_nm": [TRUE_OFF_NM, TRUE_ON_NM], "rows": rows}, indent=1))
     if args.results:
         cmd = harness.command(None if argv is None else ["label_truth", *argv], "bench.label_truth")
-        rec = harness.record(f"label_truth_{args.results}", {"truth_nm": [TRUE_OFF_NM, TRUE_ON_NM],
+        rec = harness.record(args.results, {"truth_nm": [TRUE_OFF_NM, TRUE_ON_NM],
                                                              "rows": rows}, simulated=True, cmd=cmd)
         print(f"wrote {harness.write(harness.RESULTS / f'{args.results}.json', rec)}")
     return 0
