@@ -6,6 +6,7 @@ from factr2_teleop.cli import main
 from factr2_teleop.commands.doctor import parse_ids
 from hardware import doctor as dr
 from hardware.dynamixel.emulator import DynamixelEmulator
+from hardware.dynamixel_probe import probe_dynamixel
 from hardware.serial_ports import latency_timer_advice, list_serial_ports
 from hardware.sim.motors import IdealMotorBank
 
@@ -16,7 +17,7 @@ def test_probe_reports_servos_and_round_trip():
     with DynamixelEmulator(
         bank, [1, 2, 3], ["XL330-M288", "XL330-M288", "XM430-W350"], return_delay=0
     ) as emu:
-        rep = dr.probe_dynamixel(emu.port_path, 4_000_000, [1, 2, 3], loop_hz=1.0, rounds=10)
+        rep = probe_dynamixel(emu.port_path, 4_000_000, [1, 2, 3], loop_hz=1.0, rounds=10)
         assert [s.model for s in rep.servos] == ["XL330-M288", "XL330-M288", "XM430-W350"]
         assert all(s.return_delay_us == 0 and s.temperature_c == 30 and not s.torque_on for s in rep.servos)
         assert rep.round_trip_s > 0
@@ -28,10 +29,10 @@ def test_probe_reports_servos_and_round_trip():
 def test_wrong_ids_and_wrong_baud_are_named():
     bank = IdealMotorBank(2)
     with DynamixelEmulator(bank, [1, 2], baud=57600) as emu:
-        rep = dr.probe_dynamixel(emu.port_path, 57600, [1, 5], rounds=5)
+        rep = probe_dynamixel(emu.port_path, 57600, [1, 5], rounds=5)
         err = [f for f in rep.findings if f.level == "error"]
         assert len(err) == 1 and "[5]" in err[0].message and "[1, 2]" in err[0].message
-        rep = dr.probe_dynamixel(emu.port_path, 4_000_000, [1, 2], rounds=5)
+        rep = probe_dynamixel(emu.port_path, 4_000_000, [1, 2], rounds=5)
         err = [f for f in rep.findings if f.level == "error"]
         assert len(err) == 1 and "57600" in err[0].message and "baud = 57600" in err[0].fix
 

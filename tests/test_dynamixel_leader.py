@@ -216,7 +216,7 @@ def test_without_current_and_latency_timer_warning(monkeypatch):
 
 
 def test_hardware_error_flags_driver_error_and_doctor_names_it():
-    from hardware.doctor import probe_dynamixel
+    from hardware.dynamixel_probe import probe_dynamixel
     from hardware.types import STATUS_DRIVER_ERROR
 
     bank, emu, leader = make()

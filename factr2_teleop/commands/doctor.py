@@ -11,6 +11,7 @@ import argparse
 import sys
 
 from hardware import doctor as dr
+from hardware.dynamixel_probe import dynamixel_check
 from hardware.errors import ConfigError
 
 HELP = "list serial ports and CAN interfaces; ping Dynamixel servos and say what is wrong"
@@ -80,7 +81,7 @@ def run(args) -> int:
         print(f"  {c.name}: {'up' if c.up else 'DOWN'} ({c.operstate})")
     if not ifaces:
         print("  none found")
-    checks = [dr.dynamixel_check(p, args.baud, ids, args.loop_hz, args.model) for p in args.port]
+    checks = [dynamixel_check(p, args.baud, ids, args.loop_hz, args.model) for p in args.port]
     notes: list[str] = []
     if rig is not None:
         rig_checks, notes = dr.rig_checks(rig, args.loop_hz)
