@@ -33,6 +33,7 @@ import numpy as np
 
 from hardware.errors import ConfigError
 from hardware.registry import device_kind
+from hardware.rigs.toml_checks import as_array, as_table, check_type, need_key, typed_value, unknown_keys
 from hardware.sim.actuators import EFFECT_NAMES, ActuatorParams
 from hardware.sim.faults import parse_fault
 from hardware.sim.perception import perception_params
@@ -196,15 +197,15 @@ def load_rig(name_or_path: str | os.PathLike = DEFAULT_RIG) -> Rig:
 
 def parse_rig(doc: dict, path: Path) -> Rig:
     f = str(path)
-    _unknown(doc, TOP_KEYS, f, "")
-    head = _table(doc.get("rig", {}), f, "rig")
-    _unknown(head, RIG_KEYS, f, "rig")
-    name = _typed(head.get("name", path.stem), str, f, "rig.name")
-    simulated = _typed(head.get("simulated", False), bool, f, "rig.simulated")
+    unknown_keys(doc, TOP_KEYS, f, "")
+    head = as_table(doc.get("rig", {}), f, "rig")
+    unknown_keys(head, RIG_KEYS, f, "rig")
+    name = typed_value(head.get("name", path.stem), str, f, "rig.name")
+    simulated = typed_value(head.get("simulated", False), bool, f, "rig.simulated")
     leaders = [_device(d, "leader", i, f, path)
-               for i, d in enumerate(_array(doc.get("leaders", []), f, "leaders"))]
+               for i, d in enumerate(as_array(doc.get("leaders", []), f, "leaders"))]
     followers = [_device(d, "follower", i, f, path)
-                 for i, d in enumerate(_array(doc.get("followers", []), f, "followers"))]
+                 for i, d in enumerate(as_array(doc.get("followers", []), f, "followers"))]
     if not followers:
         raise ConfigError("no [[followers]] table", where=f, fix="add at least one follower")
     names = [d.name for d in leaders + followers]
@@ -212,7 +213,7 @@ def parse_rig(doc: dict, path: Path) -> Rig:
     if dup:
         raise ConfigError(f"device names repeat: {', '.join(sorted(dup))}", where=f,
                           fix="give every device its own name")
-    cams = [_camera(c, i, f) for i, c in enumerate(_array(doc.get("cameras", []), f, "cameras"))]
+    cams = [_camera(c, i, f) for i, c in enumerate(as_array(doc.get("cameras", []), f, "cameras"))]
     twin = _twin(doc.get("twin", {}), f)
     if not simulated:
         for d in leaders + followers:
@@ -222,29 +223,30 @@ def parse_rig(doc: dict, path: Path) -> Rig:
                                   where=f"{f}: {d.role}s.{d.name}.driver",
                                   fix="set [rig] simulated = true or use a driver with hardware behind it")
     pairs = _pairs(doc.get("pairs"), leaders, followers, f)
-    desc = _typed(head.get("description", ""), str, f, "rig.description")
-    teleop = _table(doc.get("teleop", {}), f, "teleop")
+    desc = typed_value(head.get("description", ""), str, f, "rig.description")
+    teleop = as_table(doc.get("teleop", {}), f, "teleop")
     return Rig(name=name, path=path, description=desc, simulated=simulated, leaders=leaders,
                followers=followers, cameras=cams, twin=twin, pairs=pairs, teleop=teleop)
 
 
 def _device(d, role: str, i: int, f: str, path: Path) -> DeviceSpec:
     where = f"{role}s[{i}]"
-    d = _table(d, f, where)
-    driver = _typed(_need(d, "driver", f, where, f"a {role} driver"), str, f, f"{where}.driver")
+    d = as_table(d, f, where)
+    driver = typed_value(need_key(d, "driver", f, where, f"a {role} driver"), str, f, f"{where}.driver")
     kind = device_kind(driver, role, where=f"{f}: {where}.driver")
-    arm = _typed(_need(d, "arm", f, where, "the arm description name, e.g. piper"), str, f, f"{where}.arm")
-    name = _typed(d.get("name", role if i == 0 else f"{role}{i}"), str, f, f"{where}.name")
+    arm = typed_value(need_key(d, "arm", f, where, "the arm description name, e.g. piper"), str, f,
+                      f"{where}.arm")
+    name = typed_value(d.get("name", role if i == 0 else f"{role}{i}"), str, f, f"{where}.name")
     cls = kind.config
     cfg_fields = {x.name: x for x in dataclasses.fields(cls)} if cls else {}
-    _unknown(d, DEVICE_KEYS | set(cfg_fields), f, where)
+    unknown_keys(d, DEVICE_KEYS | set(cfg_fields), f, where)
     config = None
     if cls is not None:
         hints = typing.get_type_hints(cls)
         kw = {"arm": arm, "name": name}
         for k, v in d.items():
             if k in cfg_fields and k not in ("arm", "name"):
-                kw[k] = _check_type(v, hints[k], f, f"{where}.{k}")
+                kw[k] = check_type(v, hints[k], f, f"{where}.{k}")
         missing = [k for k, x in cfg_fields.items() if k not in kw and x.default is dataclasses.MISSING
                    and x.default_factory is dataclasses.MISSING]
         if missing:
@@ -252,24 +254,24 @@ def _device(d, role: str, i: int, f: str, path: Path) -> DeviceSpec:
                               fix=f"add {missing[0]} = ... ({hints[missing[0]]}) to the table")
         config = cls(**kw)
     limits = {}
-    for k, v in _table(d.get("limits", {}), f, f"{where}.limits").items():
+    for k, v in as_table(d.get("limits", {}), f, f"{where}.limits").items():
         if k not in LIMIT_FIELDS:
             raise ConfigError(f"unknown limit {k!r}", where=f"{f}: {where}.limits",
                               fix=f"use one of {', '.join(LIMIT_FIELDS)}")
-        limits[k] = np.asarray(_check_type(v, "float | list[float]", f, f"{where}.limits.{k}"), dtype=float)
-    tw = _table(d.get("twin", {}), f, f"{where}.twin")
-    _unknown(tw, DEVICE_TWIN_KEYS, f, f"{where}.twin")
-    motors = _check_type(tw["motors"], "list[str]", f, f"{where}.twin.motors") if "motors" in tw else None
-    start = _check_type(tw["start_q"], "list[float]", f, f"{where}.twin.start_q") if "start_q" in tw else None
-    params = _table(tw.get("params", {}), f, f"{where}.twin.params")
+        limits[k] = np.asarray(check_type(v, "float | list[float]", f, f"{where}.limits.{k}"), dtype=float)
+    tw = as_table(d.get("twin", {}), f, f"{where}.twin")
+    unknown_keys(tw, DEVICE_TWIN_KEYS, f, f"{where}.twin")
+    motors = check_type(tw["motors"], "list[str]", f, f"{where}.twin.motors") if "motors" in tw else None
+    start = check_type(tw["start_q"], "list[float]", f, f"{where}.twin.start_q") if "start_q" in tw else None
+    params = as_table(tw.get("params", {}), f, f"{where}.twin.params")
     for k, v in params.items():
         if k not in ActuatorParams.ARRAY_FIELDS:
             raise ConfigError(f"unknown actuator parameter {k!r}", where=f"{f}: {where}.twin.params",
                               fix=f"use one of {', '.join(ActuatorParams.ARRAY_FIELDS)}")
-        _check_type(v, "float | list[float]", f, f"{where}.twin.params.{k}")
+        check_type(v, "float | list[float]", f, f"{where}.twin.params.{k}")
     ckpt = d.get("next_checkpoint")
     if ckpt is not None:
-        ckpt = _typed(ckpt, str, f, f"{where}.next_checkpoint")
+        ckpt = typed_value(ckpt, str, f, f"{where}.next_checkpoint")
         p = Path(ckpt).expanduser()
         ckpt = str(p if p.is_absolute() else (path.parent / p))
     return DeviceSpec(name=name, role=role, driver=driver, arm=arm, config=config, limits_override=limits,
@@ -278,45 +280,45 @@ def _device(d, role: str, i: int, f: str, path: Path) -> DeviceSpec:
 
 def _camera(c, i: int, f: str) -> CameraSpec:
     where = f"cameras[{i}]"
-    c = _table(c, f, where)
-    _unknown(c, set(CAMERA_KEYS), f, where)
-    kw = {k: _check_type(v, CAMERA_KEYS[k].__name__, f, f"{where}.{k}") for k, v in c.items()}
+    c = as_table(c, f, where)
+    unknown_keys(c, set(CAMERA_KEYS), f, where)
+    kw = {k: check_type(v, CAMERA_KEYS[k].__name__, f, f"{where}.{k}") for k, v in c.items()}
     for k in ("name", "source"):
-        _need(c, k, f, where, "a string")
+        need_key(c, k, f, where, "a string")
     return CameraSpec(**kw)
 
 
 def _twin(t, f: str) -> TwinSpec:
-    t = _table(t, f, "twin")
-    _unknown(t, TWIN_KEYS, f, "twin")
-    effects = _table(t.get("effects", {}), f, "twin.effects")
+    t = as_table(t, f, "twin")
+    unknown_keys(t, TWIN_KEYS, f, "twin")
+    effects = as_table(t.get("effects", {}), f, "twin.effects")
     for k, v in effects.items():
         if k not in EFFECT_NAMES:
             raise ConfigError(f"unknown effect {k!r}", where=f"{f}: twin.effects",
                               fix=f"use one of {', '.join(EFFECT_NAMES)}")
-        _typed(v, bool, f, f"twin.effects.{k}")
-    hz = float(_check_type(t.get("physics_hz", 1000.0), "float", f, "twin.physics_hz"))
+        typed_value(v, bool, f, f"twin.effects.{k}")
+    hz = float(check_type(t.get("physics_hz", 1000.0), "float", f, "twin.physics_hz"))
     if hz < 1000.0:
         raise ConfigError(f"physics_hz {hz:g} is below 1000", where=f"{f}: twin.physics_hz",
                           fix="use 1000 or more (control_hz sets the firmware laws' rate)")
-    chz = float(_check_type(t.get("control_hz", CONTROL_HZ_DEFAULT), "float", f, "twin.control_hz"))
+    chz = float(check_type(t.get("control_hz", CONTROL_HZ_DEFAULT), "float", f, "twin.control_hz"))
     k = hz / chz if chz > 0 else 0.0
     if chz <= 0 or chz > hz or abs(k - round(k)) > 1e-9:
         raise ConfigError(f"control_hz {chz:g} does not divide physics_hz {hz:g}",
                           where=f"{f}: twin.control_hz",
                           fix="use physics_hz / k for a whole k >= 1, e.g. 1000 or 500")
     eff = t.get("effect")
-    perception = _table(t.get("perception", {}), f, "twin.perception")
+    perception = as_table(t.get("perception", {}), f, "twin.perception")
     perception_params(perception, where=f"{f}: twin.perception")  # ConfigError (one line) when bad
-    return TwinSpec(perception=dict(perception), seed=_typed(t.get("seed", 0), int, f, "twin.seed"),
-                    effect=None if eff is None else _typed(eff, str, f, "twin.effect"),
+    return TwinSpec(perception=dict(perception), seed=typed_value(t.get("seed", 0), int, f, "twin.seed"),
+                    effect=None if eff is None else typed_value(eff, str, f, "twin.effect"),
                     effects=dict(effects), physics_hz=hz, control_hz=chz,
-                    scene=_typed(t.get("scene", "table"), str, f, "twin.scene"),
-                    task=_typed(t["task"], str, f, "twin.task") if "task" in t else None,
-                    description_error=_typed(t.get("description_error", True), bool, f,
+                    scene=typed_value(t.get("scene", "table"), str, f, "twin.scene"),
+                    task=typed_value(t["task"], str, f, "twin.task") if "task" in t else None,
+                    description_error=typed_value(t.get("description_error", True), bool, f,
                                              "twin.description_error"),
                     faults=tuple(parse_fault(x, where=f"{f}: twin.faults[{i}]") for i, x in
-                                 enumerate(_check_type(t.get("faults", []), "list[str]", f, "twin.faults"))))
+                                 enumerate(check_type(t.get("faults", []), "list[str]", f, "twin.faults"))))
 
 
 def _pairs(raw, leaders, followers, f: str) -> list[tuple[str, str]]:
@@ -324,9 +326,9 @@ def _pairs(raw, leaders, followers, f: str) -> list[tuple[str, str]]:
         return [(a.name, b.name) for a, b in zip(leaders, followers)]
     out = []
     names_l, names_f = {d.name for d in leaders}, {d.name for d in followers}
-    for i, p in enumerate(_array(raw, f, "pairs")):
-        p = _table(p, f, f"pairs[{i}]")
-        _unknown(p, {"leader", "follower"}, f, f"pairs[{i}]")
+    for i, p in enumerate(as_array(raw, f, "pairs")):
+        p = as_table(p, f, f"pairs[{i}]")
+        unknown_keys(p, {"leader", "follower"}, f, f"pairs[{i}]")
         a, b = p.get("leader"), p.get("follower")
         if a not in names_l or b not in names_f:
             raise ConfigError(f"pair {a!r} -> {b!r} names an unknown device", where=f"{f}: pairs[{i}]",
@@ -334,81 +336,3 @@ def _pairs(raw, leaders, followers, f: str) -> list[tuple[str, str]]:
                                   f"followers: {', '.join(sorted(names_f))}")
         out.append((a, b))
     return out
-
-
-# -- small validators --------------------------------------------------------------------------------------
-def _unknown(d: dict, allowed: set, f: str, where: str) -> None:
-    for k in d:
-        if k not in allowed:
-            raise ConfigError(f"unknown key {k!r}", where=f"{f}: {where or 'top level'}",
-                              fix=f"remove it or use one of {', '.join(sorted(allowed))}")
-
-
-def _need(d: dict, key: str, f: str, where: str, what: str):
-    if key not in d:
-        raise ConfigError(f"missing field {key!r}", where=f"{f}: {where}", fix=f"add {key} = ... ({what})")
-    return d[key]
-
-
-def _table(v, f: str, where: str) -> dict:
-    if not isinstance(v, dict):
-        raise ConfigError(f"expected a table, got {type(v).__name__}", where=f"{f}: {where}",
-                          fix=f"write it as [{where}] or {{ key = value }}")
-    return v
-
-
-def _array(v, f: str, where: str) -> list:
-    if not isinstance(v, list):
-        raise ConfigError(f"expected an array of tables, got {type(v).__name__}", where=f"{f}: {where}",
-                          fix=f"write each entry as [[{where}]]")
-    return v
-
-
-def _typed(v, typ: type, f: str, where: str):
-    ok = isinstance(v, typ) and not (typ is int and isinstance(v, bool))
-    if typ is float and isinstance(v, int) and not isinstance(v, bool):
-        return float(v)
-    if not ok:
-        raise ConfigError(f"expected {typ.__name__}, got {type(v).__name__} {v!r}", where=f"{f}: {where}",
-                          fix=f"write a {typ.__name__}")
-    return v
-
-
-def _matches(v, t: str) -> bool:
-    t = t.strip()
-    if "|" in t and not t.startswith("list["):
-        return any(_matches(v, part) for part in t.split("|"))
-    if t == "None":
-        return v is None
-    if t.startswith("list[") and t.endswith("]"):
-        return isinstance(v, list) and all(_matches(x, t[5:-1]) for x in v)
-    if t == "dict":
-        return isinstance(v, dict)
-    scalar = {"str": str, "int": int, "float": (int, float), "bool": bool}.get(t)
-    if scalar is None:
-        return True
-    return isinstance(v, scalar) and (t == "bool" or not isinstance(v, bool))
-
-
-def _check_type(v, hint, f: str, where: str):
-    """Check a TOML value against a config field's annotation (str, int, float, bool, list[...], unions)."""
-    t = hint if isinstance(hint, str) else _hint_str(hint)
-    if not _matches(v, t):
-        raise ConfigError(f"expected {t}, got {type(v).__name__} {v!r}", where=f"{f}: {where}",
-                          fix=f"write a value of type {t}")
-    if t == "float" and isinstance(v, int):
-        return float(v)
-    return v
-
-
-def _hint_str(h) -> str:
-    origin, args = typing.get_origin(h), typing.get_args(h)
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-        return " | ".join(_hint_str(a) for a in args)
-    if origin is list:
-        return f"list[{_hint_str(args[0])}]" if args else "list[str]"
-    if origin is dict or h is dict:
-        return "dict"
-    if h is type(None):
-        return "None"
-    return getattr(h, "__name__", str(h))
