@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from bench import data_curve as dc
+from bench import data_curve_queue as Q
 from bench import first_config
 from bench.data_curve_report import chart, finished_rows, point_dir, summarize, write_results
 from bench.first_report import wilson
@@ -69,7 +70,7 @@ def _cfg(tmp_path: Path, **kw) -> dc.CurveConfig:
 
 
 def _write_part(cfg: dc.CurveConfig, k: int, outcomes: str) -> None:
-    summary = dc.part_paths(cfg, "wipe", k)[1]
+    summary = Q.part_paths(cfg, "wipe", k)[1]
     summary.parent.mkdir(parents=True, exist_ok=True)
     summary.write_text(json.dumps(_summary(cfg.demo_seed + k, outcomes)))
 
@@ -93,22 +94,22 @@ def _finish(cfg: dc.CurveConfig, n: int, seed: int, outcomes: list[int], rollout
 
 def test_the_queue_collects_then_trains_the_points_it_can_and_skips_what_is_finished(tmp_path):
     cfg = _cfg(tmp_path)
-    st = dc.State(cfg)
+    st = Q.State(cfg)
     assert [(k, a) for _, k, a in st.ready(set())] == [("collect", ("wipe", 0)), ("collect", ("wipe", 1))]
     _write_part(cfg, 0, "sfs")  # 2 successes: the 2-point can train, the 4-point waits for part 1
-    st = dc.State(cfg)
+    st = Q.State(cfg)
     jobs = [(k, a[:3]) for _, k, a in st.ready(set())]
     assert jobs == [("train", ("wipe", 2, 0)), ("collect", ("wipe", 1))]
     folders, ids = st.subset("wipe", 2)
     assert ids == ["wipe-sim-piper-seed5601.mcap#0", "wipe-sim-piper-seed5601.mcap#2"]
-    assert folders == [dc.part_dir(cfg.out, "wipe", 0)]
+    assert folders == [Q.part_dir(cfg.out, "wipe", 0)]
     _write_part(cfg, 1, "fff")  # both planned parts in, 2 successes: a third part is planned
     _finish(cfg, 2, 0, [1, 0])  # the 2-point finished: neither trained nor rolled out again
-    st = dc.State(cfg)
+    st = Q.State(cfg)
     assert [(k, a[:3]) for _, k, a in st.ready(set())] == [("collect", ("wipe", 2))]
     _write_part(cfg, 2, "ss")
     _finish(cfg, 4, 0, [], rollout=False)  # trained, not rolled out (an interrupted run)
-    st = dc.State(cfg)
+    st = Q.State(cfg)
     assert [(k, a[:3]) for _, k, a in st.ready(set())] == [("rollout", ("wipe", 4, 0))]
     assert st.ready({("rollout", ("wipe", 4, 0))}) == []  # running already
     train = dc.train_argv(cfg, *st.subset("wipe", 4), 0, Path("RUN"))
@@ -220,7 +221,7 @@ def test_dev_mode_uses_its_own_seeds_and_is_never_resumed_as_the_curve(tmp_path)
     (tmp_path / "config.json").write_text(json.dumps(asdict(curve)))
     with pytest.raises(SystemExit, match="demo_seed"):
         first_config.check_resume(dev, tmp_path, dc.SAME_ON_RESUME)
-    assert dc.part_paths(dev, "wipe", 2)[0].name == "wipe-sim-piper-seed5703.mcap"
+    assert Q.part_paths(dev, "wipe", 2)[0].name == "wipe-sim-piper-seed5703.mcap"
 
 
 def test_the_sized_rule_maps_demonstrations_to_factr2_train_flags(tmp_path):
@@ -254,11 +255,11 @@ def test_demos_from_trains_on_another_outs_collection_and_collects_nothing(tmp_p
     (tmp_path / "src" / "config.json").write_text(json.dumps(asdict(src)))
     cfg = _cfg(tmp_path / "dst", demos_from=str(tmp_path / "src"), defaults="noise")
     dc.check_demos_from(cfg)
-    st = dc.State(cfg)
+    st = Q.State(cfg)
     jobs = [(k, a[:3]) for _, k, a in st.ready(set())]
     assert jobs == [("train", ("wipe", 2, 0)), ("train", ("wipe", 4, 0))]
-    assert st.subset("wipe", 4)[0] == [dc.part_dir(tmp_path / "src", "wipe", 0),
-                                       dc.part_dir(tmp_path / "src", "wipe", 1)]
+    assert st.subset("wipe", 4)[0] == [Q.part_dir(tmp_path / "src", "wipe", 0),
+                                       Q.part_dir(tmp_path / "src", "wipe", 1)]
     with pytest.raises(SystemExit, match="demo_seed"):
         dc.check_demos_from(_cfg(tmp_path / "dst", demos_from=str(tmp_path / "src"), demo_seed=5701))
 

@@ -12,6 +12,7 @@ import pytest
 
 from bench import data_curve as dc
 from bench import data_curve_ledger as L
+from bench import data_curve_queue as Q
 from bench import harness
 from bench.data_curve_defaults import defaults_meta
 from bench.data_curve_report import finished_rows, point_dir, row, write_results
@@ -39,7 +40,7 @@ def _cfg(out: Path, **kw) -> dc.CurveConfig:
 
 
 def _part(cfg: dc.CurveConfig, k: int, outcomes: str, duration: float = 10.0) -> None:
-    p = dc.part_paths(cfg, "wipe", k)[1]
+    p = Q.part_paths(cfg, "wipe", k)[1]
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text(json.dumps(_summary(cfg.demo_seed + k, outcomes, duration)))
 
@@ -139,7 +140,7 @@ def _exported_curve(tmp_path: Path, commit: str = "abc1234") -> tuple[dc.CurveCo
     src = _cfg(tmp_path / "src")
     _part(src, 0, "sfs")
     _part(src, 1, "sss")
-    st = dc.State(src)
+    st = Q.State(src)
     _point(src, 2, [1, 0, 1, 1], commit=commit, episodes=dc.episode_ranges(st.subset("wipe", 2)[1]))
     return src, _export(src, tmp_path)
 
@@ -150,15 +151,15 @@ def test_import_seeds_a_new_out_and_the_queue_checks_the_recollection(tmp_path):
     lines = L.import_points(cfg, str(path), here="abc1234")
     assert lines[0].startswith("imported 1 finished point(s)") and "wipe n=2 seed 0" in lines[0]
     assert finished_rows(cfg.out) == finished_rows(src.out)  # the same row, trained nothing
-    st = dc.State(cfg)
+    st = Q.State(cfg)
     assert [(k, a[:3]) for _, k, a in st.ready(set())] == [("collect", ("wipe", 0)), ("collect", ("wipe", 1))]
     _part(cfg, 0, "sfs")  # re-collected the same: the queue goes on to the 4-point
     _part(cfg, 1, "sss")
-    assert [(k, a[:3]) for _, k, a in dc.State(cfg).ready(set())] == [("train", ("wipe", 4, 0))]
+    assert [(k, a[:3]) for _, k, a in Q.State(cfg).ready(set())] == [("train", ("wipe", 4, 0))]
     assert dc.build_results(cfg, "CMD")["imported"]["points"] == [["wipe", 2, 0, "abc1234"]]
     _part(cfg, 1, "sss", duration=10.5)  # the same outcomes, other demonstrations: refused with the reason
     with pytest.raises(SystemExit, match=r"wipe part 01 \(wipe-sim-piper-seed5602.mcap\): re-collected with"):
-        dc.State(cfg).ready(set())
+        Q.State(cfg).ready(set())
     with pytest.raises(SystemExit, match="wipe part 01"):  # nor reported: the points are not this curve's
         dc.build_results(cfg, "CMD")
     assert L.import_points(cfg, str(path), here="abc1234")[0].startswith("imported 0")  # already there
@@ -204,11 +205,11 @@ def test_results_without_fingerprints_come_in_only_at_their_commit_with_a_warnin
     assert lines[0].startswith("imported 1") and any(x.startswith("WARNING wipe: ") for x in lines)
     _part(cfg, 0, "sfs")
     _part(cfg, 1, "sss", duration=10.5)  # no fingerprint to see this by
-    dc.State(cfg).ready(set())
+    Q.State(cfg).ready(set())
     _part(cfg, 0, "ssf")  # its first 2 successful episodes are others: refused
     with pytest.raises(SystemExit, match=r"wipe n=2: this collection's first 2 successful episodes are "
                                          r"wipe-sim-piper-seed5601.mcap#0-1, the point trained on "):
-        dc.State(cfg).ready(set())
+        Q.State(cfg).ready(set())
     with pytest.raises(SystemExit, match="wipe n=2"):
         dc.build_results(cfg, "CMD")
     with pytest.raises(SystemExit, match="no fingerprint"):  # nor run on at another commit
@@ -224,7 +225,7 @@ def test_the_committed_curve_imports_at_its_commit_and_the_queue_trains_only_the
     cfg.defaults_meta = defaults_meta("current")
     lines = L.import_points(cfg, "data_curve_current", here=rec["rows"][0]["commit"])
     assert lines[0].startswith("imported 12 finished point(s) from results/data_curve_current.json")
-    st = dc.State(cfg)
+    st = Q.State(cfg)
     assert sorted(st.rolled) == sorted((t, n, s) for t in cfg.tasks for n in (25, 50, 100) for s in (0, 1))
     assert {k for _, k, _ in st.ready(set())} == {"collect"}  # the 200 points wait on their collection
 
