@@ -45,6 +45,7 @@ import numpy as np
 
 from bench import harness
 from bench.harness import names
+from bench.portable import portable
 from hardware.reasons import Reason
 from hardware.recording import schemas as S
 from hardware.recording.reader import interp_linear
@@ -215,7 +216,7 @@ def main(argv=None) -> int:
         cmd = harness.command(None if argv is None else ["label_truth", *argv], "bench.label_truth")
         rec = harness.record(args.results, {"truth_nm": [TRUE_OFF_NM, TRUE_ON_NM],
                                                              "rows": rows}, simulated=True, cmd=cmd)
-        print(f"wrote {harness.write(harness.RESULTS / f'{args.results}.json', rec)}")
+        print(f"wrote {harness.write(harness.RESULTS / f'{args.results}.json', portable(rec))}")
     return 0
 
 

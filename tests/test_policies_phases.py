@@ -154,6 +154,20 @@ def test_min_error_split_stays_above_the_noise_when_contact_is_a_small_share(sha
         P.recording_thresholds(s, split="median")
 
 
+@pytest.mark.parametrize("shares, warned", [
+    ((0.13, 0.59, 0.28), True),  # the collapsed peg-insert training (docs/first_labels.md)
+    ((0.10, 0.60, 0.30), True),
+    ((0.55, 0.32, 0.13), False),  # the same collection's sound parts, press-fit, wipe, tight-insert
+    ((0.67, 0.13, 0.20), False), ((0.29, 0.08, 0.63), False), ((0.45, 0.30, 0.25), False),
+    ((1.0, 0.0, 0.0), False), ((0.0, 0.0, 0.0), False),  # no force labels: nothing to say
+])
+def test_labels_warning_flags_onsets_denser_than_the_pre_contact_window(shares, warned):
+    w = P.labels_warning(np.array(shares))
+    assert bool(w) == warned
+    if warned:
+        assert w.startswith("warning:") and "--thresholds" in w and "\n" not in w
+
+
 def test_phases_cli_default_thresholds_come_from_the_recording(tmp_path, capsys):
     from factr2_teleop.cli import main
 

@@ -204,6 +204,11 @@ def summary_lines(out: dict) -> list[str]:
                      f"{sh['contact'] * 100:.1f} %  (FIRST labels as `factr2 train` makes them: "
                      f"{out['phase_thresholds_nm'][0]:.2f} : {out['phase_thresholds_nm'][1]:.2f} N*m, "
                      f"{out.get('phase_labels', '')})")
+        from policies.labels.phases import labels_warning
+
+        warn = labels_warning([sh["free"], sh["pre_contact"], sh["contact"]])
+        if warn:
+            lines.append(f"{'labels':>22s}  {warn}")
     lines += [f"{'wall time':>22s}  {out['wall_s']:.0f} s for {out['sim_s']:.0f} s simulated "
               f"({out['x_realtime']:.2f}x real time)",
               f"{'recording':>22s}  {out['recording']} ({out['frames_written']} frames, "

@@ -104,6 +104,21 @@ def phase_shares(phases: np.ndarray) -> np.ndarray:
     return np.bincount(p.astype(np.int64), minlength=3)[:3] / len(p)
 
 
+def labels_warning(shares) -> str:
+    """One line when a set's labelled shares (free, pre-contact, contact) [fractions] look like a contact
+    threshold inside the free-motion noise, else "". The sign: more pre-contact than free motion. Pre-contact
+    is the PRE_CONTACT_S before each onset, so it outweighs free motion only when onsets come more often than
+    about one every 2 s across the whole set, as the noise crossing a threshold does; no measured set with
+    sound labels came near it (docs/first_labels.md, 'Otsu with a small contact share')."""
+    free, pre = float(shares[FREE]), float(shares[PRE_CONTACT])
+    if not pre > free:
+        return ""
+    return (f"warning: FIRST's labels put more samples in pre-contact ({pre:.0%}) than in free motion "
+            f"({free:.0%}): contact onsets come faster than one every ~2 s, as when the contact threshold "
+            "sits inside the free-motion noise (docs/first_labels.md, 'Otsu with a small contact share'); "
+            "check `factr2 episodes phases` and its figures, or pass --thresholds LOW:HIGH [N*m]")
+
+
 def default_thresholds(val_l1) -> tuple[float, float]:
     """(T_low, T_high) from a NEXT checkpoint's free-motion validation L1 per joint (see module doc)."""
     s = float(np.sum(np.abs(np.asarray(val_l1, dtype=float))))

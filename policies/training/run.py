@@ -29,6 +29,7 @@ from policies.data.recordings import (
 )
 from policies.data.sampler import format_ratio
 from policies.labels.labelling import load_next, phases_identity, resolve_thresholds
+from policies.labels.phases import labels_warning
 from policies.models.config import PolicyConfig
 from policies.training import checkpoint as C
 from policies.training.methods import METHODS
@@ -271,6 +272,9 @@ def run_training(o: RunOptions, d: Dist, stop_at: int | None = None, on_progress
                + ("the operator's target learned" if o.perturbed == "dart" else "their actions masked") + ")"
                if meta["samples"]["perturbed"] else "")
         )
+        warn = labels_warning(_shares(data))
+        if warn:
+            print(warn)
     with data:  # the data's crop threads end with the run
         return train(data, pcfg, o, meta, d, resume_from, TrainHooks(stop_at, on_progress, stop))
 
