@@ -79,3 +79,29 @@ def connected():
     yield bank, emu, leader
     leader.disconnect()
     emu.close()
+
+
+@pytest.fixture(scope="module")
+def trigger_leader():
+    _, emu, leader = make(gripper=True)
+    yield leader
+    emu.close()
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.floats(width=64), st.integers(-2**15, 2**15 - 1),
+       st.sampled_from([(0.2, 1.2), (1.2, 0.2), (0.5, 0.5), (-2.0, 5.5), (0.0, -0.0)]), st.booleans())
+def test_the_decodes_trigger_is_trigger(trigger_leader, q_trigger, units, open_closed, read_current):
+    """_state_of's trigger written out (the usual tick) gives _trigger's values, bit for bit: any angle
+    (NaN, +-inf, -0.0, past either end), any current, either direction, a zero span, with and without
+    current."""
+    leader, n = trigger_leader, trigger_leader.n_joints
+    leader.config.gripper_open_rad, leader.config.gripper_closed_rad = open_closed
+    leader.config.read_current = read_current
+    ticks = tuple(range(100, 100 + n + 1))
+    leader._q_servo, leader._ticks_prev = [0.0] * n + [q_trigger], ticks  # delta 0: the angle as given
+    cur = tuple(range(n)) + (units,) if read_current else None
+    st_ = leader._state_of(0.0, ticks, ticks, cur, None)
+    pos, effort = leader._trigger(units)
+    assert np.float64(st_.gripper_pos).tobytes() == np.float64(pos).tobytes()
+    assert np.float64(st_.gripper_effort).tobytes() == np.float64(effort).tobytes()

@@ -35,10 +35,13 @@ def replies(draw, errors=True):
 
 def _check_against_reference(dec: FastReplyDecoder, ids, rc, buf) -> bool:
     """fields(buf) is None, or every servo's (error, id, fields) as split_fast_status + decode_feedback give
-    them for a CRC-checked reply (all of them present, error 0). True when fields took the reply."""
-    v = dec.fields(buf)
+    them for a CRC-checked reply (all of them present, error 0), and runs(buf) (the leader's tick) is None
+    with it or its position, velocity and current runs. True when fields took the reply."""
+    v, r = dec.fields(buf), dec.runs(buf)
     if v is None:
+        assert r is None
         return False
+    assert r == (v[dec.pos::dec.width], v[dec.vel::dec.width], v[dec.cur::dec.width] if rc else None)
     length = p.FEEDBACK_LEN if rc else p.FEEDBACK_NO_CURRENT_LEN
     ref = split_fast_status(bytes(buf), ids, length, crc_checked=True)
     assert sorted(ref) == sorted(ids)
@@ -155,6 +158,8 @@ def test_the_fast_path_sample_is_the_general_paths():
             @staticmethod
             def fields(buf):
                 return None
+
+            runs = fields
 
         for k in range(20):
             bank.q[: leader.n_joints] += 0.41 * (k % 3 - 1)  # a third of a turn, both ways: the unwrap

@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hardware.piper import protocol as P
+from hardware.piper.command_decoder import PiperCommandDecoder, decode_mode
 from hardware.types import STATUS_COLLISION, STATUS_COMM_LOST, STATUS_ENABLED, STATUS_LIMIT, STATUS_OVERTEMP
 
 
@@ -123,7 +124,7 @@ def test_high_speed_roundtrip(v, c, p):
 @settings(max_examples=300)
 @given(st.integers(0, 0x7FF), st.binary(min_size=0, max_size=8), st.booleans(), st.booleans())
 def test_decoders_never_raise_on_garbage(arb_id, data, ext, special):
-    fb, cmd = P.PiperFeedbackDecoder(), P.PiperCommandDecoder()
+    fb, cmd = P.PiperFeedbackDecoder(), PiperCommandDecoder()
     fb.push(arb_id, data, 0.0, ext, special)
     cmd.decode(arb_id, data, ext, special)
     assert fb.counters.ok + fb.counters.rejected == 1
@@ -149,11 +150,11 @@ def test_push_frames_is_push_of_each(frames):
 @given(st.binary(min_size=8, max_size=8))
 def test_every_8_byte_payload_decodes(d):
     P.decode_status(d), P.decode_joint_pair(d), P.decode_gripper_fb(d), P.decode_high_speed(d)
-    P.decode_low_speed(d), P.decode_mit(d), P.decode_mode(d), P.decode_param_limits(d), P.decode_param_acc(d)
+    P.decode_low_speed(d), P.decode_mit(d), decode_mode(d), P.decode_param_limits(d), P.decode_param_acc(d)
 
 
 def test_command_decoder_counts_rejections():
-    dec = P.PiperCommandDecoder()
+    dec = PiperCommandDecoder()
     good = P.encode_mit(0.1, 0, 10, 1, 0.5)
     bad = good[:7] + bytes(((good[7] & 0xF0) | ((good[7] + 1) & 0xF),))
     assert dec.decode(P.ID_MIT[2], good)[0] == "mit"

@@ -18,6 +18,7 @@ or wrong model is a UserError.
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 
@@ -110,6 +111,11 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         self.amps_per_unit = np.array([m.amps_per_unit for m in self.models])
         self.limit_units = np.array([m.current_limit_units for m in self.models], float)
         self._amps_l = self.amps_per_unit.tolist()
+        # sign * unit scale per joint (a sign is +-1: the product is exact, and sign * (x * r) is x * (sign *
+        # r) bit for bit, IEEE rounding being symmetric): velocity and current arrays in one numpy product
+        self._sign_rad_s = np.array([s * p.RAD_S_PER_VELOCITY_UNIT for s in self._signs_l])
+        self._sign_amps = np.array([s * a for s, a in zip(self._signs_l, self._amps_l, strict=True)])
+        self._grip_k_a = (self.gripper_model.torque_constant, self.gripper_model.amps_per_unit)
         self._limit_l = self.limit_units.tolist()  # again at connect, where the servos' Current Limit is read
         self.read_ids = all_ids
         self.field = (
@@ -169,14 +175,12 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         n, rc = self.n_joints, self.config.read_current
         if self.fast_read:
             buf, intact = bus.fast_sync_read_reply(self._read_group, self.rx_timeout_ms)
-            v = self._fast_decoder.fields(buf) if intact else None
-            if v is not None:  # the usual tick: the fields straight from the reply's bytes
+            r = self._fast_decoder.runs(buf) if intact else None
+            if r is not None:  # the usual tick: the fields straight from the reply's bytes
                 t = self.clock.now()
                 if self._wd is not None:
                     self._wd.traffic(t)  # the servos heard this tick
-                d = self._fast_decoder
-                return self._state_of(t, v[d.pos::d.width], v[d.vel::d.width],
-                                      v[d.cur::d.width] if rc else None, None)
+                return self._state_of(t, r[0], r[1], r[2], None)
             got = split_fast_status(bytes(buf), self._read_group.ids, self._read_group.length, intact)
         else:
             got = bus.sync_read(self._read_group, self.read_ids, self.rx_timeout_ms)
@@ -241,32 +245,43 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         n, prev = self.n_joints, self._last_state
         tp = self._ticks_prev.tolist() if isinstance(self._ticks_prev, np.ndarray) else self._ticks_prev
         qs0 = self._q_servo.tolist() if isinstance(self._q_servo, np.ndarray) else self._q_servo
-        h, mask, rad = HALF_TURN_TICKS, _TICK_MASK, p.RAD_PER_TICK
-        # wrapped_tick_delta: & (TICKS_PER_REV - 1) is its % (a power-of-two turn, negatives too)
-        qs = [q + (((x - x0 + h) & mask) - h) * rad for q, x, x0 in zip(qs0, ticks, tp, strict=True)]
+        h, nh, mask, rad = HALF_TURN_TICKS, -HALF_TURN_TICKS, _TICK_MASK, p.RAD_PER_TICK
+        # wrapped_tick_delta: & (TICKS_PER_REV - 1) is its % (a power-of-two turn, negatives too), and a delta
+        # already in [-h, h) is its own wrap. One value per servo read in each (zip without strict=: its
+        # keyword costs the tick more than the rest of a servo's delta)
+        qs = [q + (d if nh <= (d := x - x0) < h else ((d + h) & mask) - h) * rad
+              for q, x, x0 in zip(qs0, ticks, tp)]
         self._q_servo, self._ticks_prev = qs, ticks
         signs = self._signs_l
         if cur_units is not None:
-            cur_l = [s * c * a for s, c, a in zip(signs, cur_units, self._amps_l)]
-            cur = np.array(cur_l)
-            tau = self.k * cur  # the same float64 products as k * c value by value
+            cur = self._sign_amps * np.array(cur_units[:n])  # (sign * c) * a of the numpy decode, bit for bit
+            tau = self.k * cur
         else:
             cur, tau = prev.current.copy(), prev.tau_m.copy()
         status = self._status_enabled if self._torque_on else self._status_zero
         if errs is not None or self.alerts.pending:
             status = status.copy()
             self._alert_bits(status, [0] * len(qs) if errs is None else errs)
-        if len(qs) > n:  # the trigger servo: its angle in _q_servo, its current after the joints'
-            grip_pos, grip_effort = self._trigger(cur_units[n] if cur_units is not None else 0)
+        if len(qs) > n:  # the trigger servo: its angle in _q_servo, its current after the joints' -- _trigger
+            # written out (trigger_fraction's operations on the float angle, then K * units * amps per unit)
+            c, qt = self.config, qs[n]
+            lo, span = c.gripper_open_rad, c.gripper_closed_rad - c.gripper_open_rad
+            if span == 0 or not math.isfinite(qt):
+                grip_pos = math.nan
+            else:  # a fraction strictly inside 0..1 is what min(max(f, 0.0), 1.0) gives it
+                f = (qt - lo) / span
+                grip_pos = f if 0.0 < f < 1.0 else min(max(f, 0.0), 1.0)
+            k_a = self._grip_k_a
+            grip_effort = math.nan if cur_units is None else k_a[0] * cur_units[n] * k_a[1]
         else:
             grip_pos, grip_effort = prev.gripper_pos, prev.gripper_effort
         nan = self._nan_ro
-        r = p.RAD_S_PER_VELOCITY_UNIT
         # positional: in JointState's field order (t, q, q_dot, tau_m, current, q_cmd, temperature, status,
-        # gripper_pos, gripper_effort), a third cheaper than by keyword at 500 Hz
+        # gripper_pos, gripper_effort), a third cheaper than by keyword at 500 Hz; velocity and current as one
+        # numpy product each: cheaper than 6 float products and the array made of them
         return JointState(t, np.array([s * (x - o) for s, x, o in zip(signs, qs, self._offsets_l)]),
-                          np.array([s * (v * r) for s, v in zip(signs, vel)]), tau, cur, nan, nan, status,
-                          grip_pos, grip_effort)
+                          self._sign_rad_s * np.array(vel[:n]), tau, cur, nan, nan, status, grip_pos,
+                          grip_effort)
 
     def _alert_bits(self, status: np.ndarray, errs) -> None:
         """A joint servo whose status has the alert bit: STATUS_DRIVER_ERROR; the rebooter told (alerts.py)"""
@@ -280,11 +295,12 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
 
     def _trigger(self, current_units: int) -> tuple[float, float]:
         """(gripper_pos, gripper_effort [N*m]) of the trigger servo just read (its angle in _q_servo)."""
-        c, g = self.config, self.gripper_model
+        c = self.config
         pos = trigger_fraction(float(self._q_servo[self.n_joints]), c.gripper_open_rad, c.gripper_closed_rad)
         if not c.read_current:
             return pos, float("nan")
-        return pos, g.torque_constant * float(current_units) * g.amps_per_unit
+        k, a = self._grip_k_a  # the model's K made once (K * units: the same product as K * float(units))
+        return pos, k * current_units * a
 
     def _send_torque_safe(self, safe: SafeLeaderTorque) -> None:
         if self.bus is None:

@@ -60,6 +60,16 @@ class FastReplyDecoder:
             return None
         return v
 
+    def runs(self, buf) -> tuple | None:
+        """fields(buf) as the leader's tick takes it: (position ticks, velocity units, current units or
+        None), each a tuple in id order; None where fields() gives None (its checks written out)."""
+        if len(buf) != self.struct.size:
+            return None
+        v, w = self.struct.unpack_from(buf), self.width
+        if v[:3] != self.head or v[4::w] != self.ids or v[3::w] != self.zeros:
+            return None
+        return v[self.pos::w], v[self.vel::w], None if self.cur is None else v[self.cur::w]
+
 
 def wrap_to_offset(q_servo_rad: np.ndarray, offset_rad: np.ndarray) -> np.ndarray:
     """q_servo + 2*pi*k with k chosen so the result is closest to offset (resolves power-on turns)."""
@@ -89,9 +99,13 @@ def torque_to_current_ints(tau_nm: list[float], signs: list[float], k_nm_per_a: 
     unit, a non-finite value 0, clipped to +-limit (numpy's maximum / minimum: a NaN limit wins), rounded
     half to even (np.rint; Python's round of a float does the same)."""
     # a value strictly inside +-limit is finite and unclipped (what numpy's maximum / minimum give it too);
-    # any other (NaN, inf, at or past the limit) goes the whole way
-    return [round(u) if -lim < (u := s * t / k / a) < lim else _units_clipped(u, lim)
-            for t, s, k, a, lim in zip(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units, strict=True)]
+    # any other (NaN, inf, at or past the limit) goes the whole way. u is a float (a true division):
+    # float.__round__ is round()'s own method, called without round()'s lookup of it. The lengths checked
+    # apart: zip's strict= keyword costs more than the check
+    if not len(tau_nm) == len(signs) == len(k_nm_per_a) == len(amps_per_unit) == len(limit_units):
+        raise ValueError(f"torque_to_current_ints: {len(tau_nm)} torques for {len(signs)} joints")
+    return [float.__round__(u) if -lim < (u := s * t / k / a) < lim else _units_clipped(u, lim)
+            for t, s, k, a, lim in zip(tau_nm, signs, k_nm_per_a, amps_per_unit, limit_units)]
 
 
 def _units_clipped(u: float, lim: float) -> int:

@@ -33,21 +33,18 @@ class SyncReadGroup:
     length: int
     plain_packet: bytes = field(init=False, repr=False)
     fast_packet: bytes = field(init=False, repr=False)
+    fast_reply_len: int = field(init=False, repr=False)  # bytes of the fast reply (header + LEN; not stuffed)
 
     def __post_init__(self) -> None:
         self.ids = [int(i) for i in self.ids]
         params = p.sync_read_params(self.address, self.length, self.ids)
         self.plain_packet = p.build_instruction(p.BROADCAST_ID, p.INST_SYNC_READ, params)
         self.fast_packet = p.build_instruction(p.BROADCAST_ID, p.INST_FAST_SYNC_READ, params)
+        self.fast_reply_len = 7 + fast_status_len(len(self.ids), self.length)  # made once: read every tick
 
     @property
     def data_length(self) -> int:  # the sdk group's name (fast_sync.py and older callers use it)
         return self.length
-
-    @property
-    def fast_reply_len(self) -> int:
-        """Bytes of the fast reply on the wire (header + LEN; the reply is not stuffed)."""
-        return 7 + fast_status_len(len(self.ids), self.length)
 
 
 @dataclass

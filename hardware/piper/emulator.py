@@ -28,6 +28,7 @@ import numpy as np
 
 from hardware.can_bus import CanEmulatorIO
 from hardware.piper import protocol as P
+from hardware.piper.command_decoder import PiperCommandDecoder
 
 FAST_HZ = 200.0  # Hz per feedback id: status, joint angles, gripper, high-speed, end pose
 SLOW_HZ = 40.0  # Hz per low-speed id
@@ -60,7 +61,7 @@ class PiperEmulator(CanEmulatorIO):
         self.has_gripper = bank.n > 6
         self.mit_torque_gain = float(mit_torque_gain)
         self.firmware = firmware or (SIM_FIRMWARE_OLD if old_firmware_effort else SIM_FIRMWARE)
-        self.decoder = P.PiperCommandDecoder()
+        self.decoder = PiperCommandDecoder()
         scale = np.ones(6)
         if old_firmware_effort:
             scale = 1.0 / np.array(P.OLD_FIRMWARE_EFFORT_X4)

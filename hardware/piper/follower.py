@@ -19,6 +19,9 @@ The arm is NOT disabled on disconnect: a disabled Piper drops under gravity; it 
 
 from __future__ import annotations
 
+import struct
+from operator import itemgetter
+
 import numpy as np
 
 from hardware.can_bus import CanLink, bus_load, open_bus
@@ -50,6 +53,17 @@ ENABLE_RETRY_S = 0.1  # s: 0x471 is repeated this often until every joint report
 HOLD_RESEND_S = 0.02  # s: hold targets are repeated this often while on hold
 GRIPPER_RESEND_S = 0.05  # s: an unchanged gripper command is repeated this often
 _FIRST_FEEDBACK_IDS = (*P.ID_JOINT_FB, *P.ID_HIGH_SPEED)
+# a sample's frames back to back, for one unpack each (P.S_JOINT_PAIR, P.S_HIGH_SPEED per frame); the getters
+# raise KeyError for a frame not yet received
+_S_JOINT_ALL = struct.Struct(">" + "ii" * len(P.ID_JOINT_FB))
+_S_HIGH_ALL = struct.Struct(">" + "hhi" * len(P.ID_HIGH_SPEED))
+_joint_of, _high_of = itemgetter(*P.ID_JOINT_FB), itemgetter(*P.ID_HIGH_SPEED)
+_ID_J12, _ID_J34, _ID_J56 = P.ID_JOINT_TARGET
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False  # shared by the samples until the frames it is from change
+    return a
 
 
 def default_limits() -> JointLimits:
@@ -90,6 +104,7 @@ class PiperFollower(Follower):
         self.status_info: dict[str, int] = {}  # last 0x2A1 fields (ctrl_mode, arm_status, ...)
         self._status_frame: bytes | None = None  # the 0x2A1 bytes status_info and _status_flags are from
         self._status_flags: list[int] = []  # P.status_flags of them, per joint
+        self._slow_part: tuple | None = None  # (frames and hold, temperature, status) of the last sample
 
     # -- connection --------------------------------------------------------------------------------------
     @property
@@ -176,7 +191,62 @@ class PiperFollower(Follower):
         return self._build_state(now)
 
     def _build_state(self, now: float) -> JointState | None:
+        """The sample from the newest frames. The usual one (every joint-angle and high-speed frame there,
+        none stale) in one unpack per kind of frame, its low-speed and status part (temperature, flags: what
+        changes at 40 Hz or rarely) decoded when those frames' bytes change; anything else the general way
+        (_build_state_general): the same values, bit for bit (tests/test_piper_fast_state.py)."""
         latest, t_rx = self.decoder.latest, self.decoder.t_rx
+        try:
+            joint, high = _joint_of(latest), _high_of(latest)
+            t, t_high = min(_joint_of(t_rx)), min(_high_of(t_rx))
+        except KeyError:
+            return self._build_state_general(now)
+        stale_before = now - self.safety.watchdog.timeout_s
+        # a min that is NaN (its first time NaN) or stale: the general way sees each time as it is
+        if not (t >= stale_before and t_high >= stale_before):
+            return self._build_state_general(now)
+        hold = self.in_safe_state
+        key = (tuple(map(latest.get, P.ID_LOW_SPEED)), latest.get(P.ID_STATUS), hold)
+        memo = self._slow_part
+        if memo is None or memo[0] != key:
+            status, temp = [STATUS_HOLD if hold else 0] * 6, [float("nan")] * 6
+            self._low_speed_and_status(latest, status, temp)
+            memo = self._slow_part = (key, _read_only(np.array(temp, dtype=float)),
+                                      _read_only(np.array(status, dtype=np.uint32)))
+        mdeg, milli = P.MDEG_PER_RAD, P.MILLI
+        h = _S_HIGH_ALL.unpack(b"".join(high))
+        current = np.array([c * milli for c in h[1::3]])
+        g_pos = g_eff = float("nan")
+        d = latest.get(P.ID_GRIPPER_FB)
+        if d is not None:
+            g_pos, g_eff, _ = P.decode_gripper_fb(d)
+        return JointState(t, np.array([a / mdeg for a in _S_JOINT_ALL.unpack(b"".join(joint))]),
+                          np.array([x * milli for x in h[0::3]]), current * self._k_effort, current,
+                          self._q_cmd.copy(), memo[1], memo[2], g_pos, g_eff)
+
+    def _low_speed_and_status(self, latest: dict, status: list[int], temp: list[float]) -> None:
+        """The low-speed frames' temperatures into temp, their flags and the arm status's into status."""
+        low, flags_of = P.S_LOW_SPEED.unpack, self._flags_of
+        for j, i in enumerate(P.ID_LOW_SPEED):
+            d = latest.get(i)
+            if d is not None:
+                _, _, temp[j], bits, _ = low(d)
+                flags = flags_of.get(bits)
+                if flags is None:  # a few distinct bytes in a run: the bit-by-bit mapping once each
+                    flags = flags_of[bits] = P.low_speed_flags(bits)
+                status[j] |= flags
+        d = latest.get(P.ID_STATUS)
+        if d is not None:
+            if d != self._status_frame:  # the arm's status changes rarely: decoded when its bytes do
+                f = P.decode_status(d)
+                self.status_info = dict(zip(STATUS_FIELDS, f, strict=True))
+                self._status_frame, self._status_flags = bytes(d), P.status_flags(f[1], f[6], f[7])
+            for j, flags in enumerate(self._status_flags):
+                status[j] |= flags
+
+    def _build_state_general(self, now: float) -> JointState | None:
+        latest, t_rx = self.decoder.latest, self.decoder.t_rx
+        self._slow_part = None  # status_info may change here: the usual path decodes its part again
         if not all(map(latest.__contains__, P.ID_JOINT_FB)):
             return None
         nan = float("nan")
@@ -201,23 +271,7 @@ class PiperFollower(Follower):
             if d is not None:
                 x, c, _ = high(d)
                 v[j], cur[j] = x * milli, c * milli
-        low, flags_of = P.S_LOW_SPEED.unpack, self._flags_of
-        for j, i in enumerate(P.ID_LOW_SPEED):
-            d = latest.get(i)
-            if d is not None:
-                _, _, temp[j], bits, _ = low(d)
-                flags = flags_of.get(bits)
-                if flags is None:  # a few distinct bytes in a run: the bit-by-bit mapping once each
-                    flags = flags_of[bits] = P.low_speed_flags(bits)
-                status[j] |= flags
-        d = latest.get(P.ID_STATUS)
-        if d is not None:
-            if d != self._status_frame:  # the arm's status changes rarely: decoded when its bytes do
-                f = P.decode_status(d)
-                self.status_info = dict(zip(STATUS_FIELDS, f, strict=True))
-                self._status_frame, self._status_flags = bytes(d), P.status_flags(f[1], f[6], f[7])
-            for j, flags in enumerate(self._status_flags):
-                status[j] |= flags
+        self._low_speed_and_status(latest, status, temp)
         current = np.array(cur)
         g_pos = g_eff = nan
         d = latest.get(P.ID_GRIPPER_FB)
@@ -236,8 +290,8 @@ class PiperFollower(Follower):
                               fix="call connect() first")
         # the command's frames in order, handed to the link at once (CanLink.send_all)
         if safe.hold or self.config.mode == "position":
-            frames = [(P.ID_MODE, self._mode_pos),
-                      *zip(P.ID_JOINT_TARGET, P.encode_joint_targets(safe.q), strict=True)]
+            j12, j34, j56 = P.encode_joint_targets(safe.q)
+            frames = [(P.ID_MODE, self._mode_pos), (_ID_J12, j12), (_ID_J34, j34), (_ID_J56, j56)]
         else:
             frames = [(P.ID_MODE, self._mode_mit)]
             kp = self._mit_kp if safe.kp is None else safe.kp

@@ -2,8 +2,8 @@
 
 Classic CAN, 11-bit ids, DLC 8, multi-byte fields big-endian (source: shared/reference/hardware-protocols.md).
 Encoders return 8 bytes. Decoders take 8 bytes and return plain Python numbers in SI units (rad, rad/s, A,
-N*m, m, V, degC). PiperFeedbackDecoder / PiperCommandDecoder are the stateful front ends for a driver and an
-emulator: they validate (DLC, known id, MIT crc), count what they reject and never raise.
+N*m, m, V, degC). PiperFeedbackDecoder, the driver's stateful front end, validates (DLC, known id), counts
+what it rejects, never raises (the emulators' is command_decoder.py, with the arm side's decoders).
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ ID_HIGH_SPEED = tuple(range(0x251, 0x257))  # per motor 1..6
 ID_LOW_SPEED = tuple(range(0x261, 0x267))  # per motor 1..6
 FEEDBACK_IDS = frozenset((ID_STATUS, *ID_END_POSE, *ID_JOINT_FB, ID_GRIPPER_FB, *ID_HIGH_SPEED, *ID_LOW_SPEED,
                           ID_PARAM_REPLY_LIMITS, ID_PARAM_REPLY_ACC, ID_FIRMWARE))
+_PLAIN_FEEDBACK_IDS = FEEDBACK_IDS - {ID_FIRMWARE}  # kept as they come (the firmware reply is accumulated)
 COMMAND_IDS = frozenset((ID_MODE, *ID_JOINT_TARGET, ID_GRIPPER_CMD, *ID_MIT, ID_ENABLE, ID_PARAM_QUERY,
                          ID_FIRMWARE))
 
@@ -136,10 +137,10 @@ def encode_mode(move_mode: int = MOVE_J, speed_pct: int = 100, mit_mode: int = M
 
 def encode_joint_targets(q_rad) -> tuple[bytes, bytes, bytes]:
     """Six joint targets [rad] -> the three frames for ID_JOINT_TARGET (int32 pairs, 0.001 deg)."""
-    # _i32 written out over plain floats (an array's tolist(): the same values), the 500 Hz command; the six
-    # int32 in one pack, cut into the three frames' pairs (the same bytes as one ">ii" pack per frame)
+    # _i32 over plain floats (tolist(): the same values; round() as float.__round__, not looked up per call):
+    # the 500 Hz command; the six int32 in one pack, cut into the three frames' pairs (one ">ii" each's bytes)
     xs = q_rad.tolist() if hasattr(q_rad, "tolist") else [float(x) for x in q_rad]
-    b = _S_6I.pack(*[v if INT32_MIN <= (v := round(x * MDEG_PER_RAD)) <= INT32_MAX
+    b = _S_6I.pack(*[v if INT32_MIN <= (v := float.__round__(x * MDEG_PER_RAD)) <= INT32_MAX
                      else INT32_MIN if v < INT32_MIN else INT32_MAX for x in xs])
     return b[:8], b[8:16], b[16:]
 
@@ -193,27 +194,10 @@ def decode_mit(d: bytes) -> tuple[float, float, float, float, float]:
             uint_to_float(tu, MIT_T_MIN, MIT_T_MAX, 8))
 
 
-def decode_mode(d: bytes) -> tuple[int, int, int, int, int, int]:
-    """(ctrl_mode, move_mode, speed_pct, mit_mode, residence_s, install)."""
-    return _S_MODE.unpack(d)
-
-
 def decode_joint_pair(d: bytes) -> tuple[float, float]:
     """Int32 pair in 0.001 deg (0x155-0x157 targets and 0x2A5-0x2A7 feedback) -> rad."""
     a, b = _S_II.unpack(d)
     return a / MDEG_PER_RAD, b / MDEG_PER_RAD
-
-
-def decode_gripper_cmd(d: bytes) -> tuple[float, float, int, int]:
-    """(stroke m, effort N*m, code, set_zero)."""
-    s, e, code, zero = _S_GRIP_CMD.unpack(d)
-    return s / UM_PER_M, e * MILLI, code, zero
-
-
-def decode_enable(d: bytes) -> tuple[int, bool | None]:
-    """(motor 1-6 or 7=all, True enable / False disable / None unknown code)."""
-    motor, code = d[0], d[1]
-    return motor, (True if code == ENABLE_CODE else False if code == DISABLE_CODE else None)
 
 
 # ---- arm -> host -----------------------------------------------------------------------------------------
@@ -402,54 +386,16 @@ class PiperFeedbackDecoder:
     def push_frames(self, frames, t: float) -> None:
         """push() of each (arb_id, data, is_ext, is_special) of one drain, received by t [s]: the usual
         frame (a known feedback id, standard, 8 bytes) kept inline, any other through push()."""
-        latest, t_rx, ids, counters = self.latest, self.t_rx, FEEDBACK_IDS, self.counters
+        latest, t_rx, ids, ok = self.latest, self.t_rx, _PLAIN_FEEDBACK_IDS, 0
         for arb_id, data, is_ext, is_special in frames:
-            if is_ext or is_special or arb_id not in ids or len(data) != FRAME_DLC or arb_id == ID_FIRMWARE:
+            if is_ext or is_special or arb_id not in ids or len(data) != FRAME_DLC:
                 self.push(arb_id, data, t, is_ext, is_special)
                 continue
-            counters.ok += 1
+            ok += 1
             latest[arb_id] = data
             t_rx[arb_id] = t
+        self.counters.ok += ok  # once: push() counts its own frames, so the total is the same
 
     def push_msg(self, msg, t: float) -> bool:
         return self.push(msg.arbitration_id, msg.data, t, msg.is_extended_id,
                          msg.is_remote_frame or msg.is_error_frame)
-
-
-class PiperCommandDecoder:
-    """Arm side (emulators): validates command frames (DLC, id, MIT crc) and decodes them.
-
-    decode() returns (kind, payload) with kind in "mode", "joint", "gripper", "mit", "enable", "query",
-    "firmware", or None for a rejected frame (counted)."""
-
-    def __init__(self):
-        self.counters = RejectCounters()
-
-    def decode(self, arb_id: int, data, is_ext: bool = False, is_special: bool = False):
-        if arb_id in _TARGET_INDEX and not (is_ext or is_special) and len(data) == FRAME_DLC:
-            # the frames of every command tick (3 of ~5): validated and decoded here in one go
-            self.counters.ok += 1
-            return "joint", (_TARGET_INDEX[arb_id], decode_joint_pair(bytes(data)))
-        if not frame_ok(self.counters, COMMAND_IDS, arb_id, data, is_ext, is_special):
-            return None
-        d = bytes(data)
-        if arb_id in _MIT_INDEX:
-            if not mit_crc_ok(d):
-                self.counters.bad_crc += 1
-                return None
-            self.counters.ok += 1
-            return "mit", (_MIT_INDEX[arb_id], decode_mit(d))
-        self.counters.ok += 1
-        if arb_id == ID_MODE:
-            return "mode", decode_mode(d)
-        if arb_id == ID_GRIPPER_CMD:
-            return "gripper", decode_gripper_cmd(d)
-        if arb_id == ID_ENABLE:
-            return "enable", decode_enable(d)
-        if arb_id == ID_PARAM_QUERY:
-            return "query", (d[0], d[1])
-        return "firmware", d
-
-
-_MIT_INDEX = {i: j for j, i in enumerate(ID_MIT)}
-_TARGET_INDEX = {i: j for j, i in enumerate(ID_JOINT_TARGET)}
