@@ -169,11 +169,3 @@ def run_can_checks(interface: str) -> list[Finding]:
         except Exception as e:  # noqa: BLE001 -- a broken probe must not stop the other checks
             out.append(Finding("error", f"{interface} {name}", f"probe failed: {type(e).__name__}: {e}"))
     return out
-
-
-def dynamixel_checks(config, loop_hz: float) -> list[DeviceCheck]:
-    """A rig's Dynamixel leader (hardware/dynamixel_probe.py); here because the Dynamixel kind's probe_ref
-    names hardware.doctor:dynamixel_checks (hardware/dynamixel/__init__.py)."""
-    from hardware.dynamixel_probe import dynamixel_checks as checks
-
-    return checks(config, loop_hz)

@@ -51,4 +51,4 @@ KIND = DeviceKind(driver="dynamixel", role="leader", config=DynamixelLeaderConfi
                   driver_ref="hardware.dynamixel:make_driver", twin_drive=_twin_drive, wire="serial",
                   protocol="Dynamixel Protocol 2.0",
                   emulator_ref="hardware.dynamixel:make_twin_emulator",
-                  probe_ref="hardware.doctor:dynamixel_checks")
+                  probe_ref="hardware.dynamixel_probe:dynamixel_checks")
