@@ -40,7 +40,7 @@ lasts: `--import-results NAME` seeds a new OUT with the finished points of resul
 the collection it collects again (bench/data_curve_ledger.py). Writes OUT/data_curve.json (a row per
 task, n and training seed: success, progress, stages reached, steps, wall and CPU time; rewritten after every
 point), OUT/data_curve.md and OUT/data_curve.png (bench/data_curve_report.py). Trainings run on the CPU
-(--device auto: a GPU where there is one) with cores / jobs torch threads each. Sizing (docs/policies.md,
+(--device auto: a GPU where there is one) with cores / jobs torch threads each. Sizing (docs/data_curve.md,
 "The data curve"): 5.1-11.5 core-hours, ~2.6-5.8 h wall on 2 free cores, ~0.6-1 h on 16.
 """
 

@@ -141,7 +141,7 @@ def parse_args(argv=None, description: str = "") -> tuple[CurveConfig, argparse.
     ap.add_argument("--defaults", choices=tuple(DEFAULTS), default="current",
                     help="the training defaults: current = `factr2 train` with no options at this commit; "
                     "noise, dropout, val-min, longer: one lever each; sized: the candidate rule from the "
-                    "number of demonstrations (docs/policies.md, 'Choosing the defaults')")
+                    "number of demonstrations (docs/data_curve.md, 'Choosing the defaults')")
     ap.add_argument("--dev", action="store_true",
                     help="development seeds (bench/first_config.py DEFAULTS_DEV_*: collection 5701-5740, "
                     "rollouts 5700) to choose defaults on; never the curve's, never resumed as the curve")

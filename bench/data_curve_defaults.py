@@ -1,7 +1,7 @@
 """The data curve's named sets of training defaults (bench/data_curve.py --defaults NAME, issue #56 item 2):
 `current` (factr2 train with no option: the defaults of the commit), one lever each, and `sized`, the
 candidate rule from the number of successful demonstrations. In one place: the curve, the development runs
-and the record of what an OUT was trained with all read it here. Not validated yet: docs/policies.md,
+and the record of what an OUT was trained with all read it here. Not validated yet: docs/data_curve.md,
 "Choosing the defaults", says how it is to be fitted on development seeds and checked on the curve's.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 
-# the candidate rule's levers (issue #56 item 2; not validated yet: docs/policies.md "Choosing the defaults")
+# the candidate rule's levers (issue #56 item 2; not validated yet: docs/data_curve.md "Choosing the defaults")
 OBS_NOISE = "state=0.05,objects=0.05,force=0.1"  # [normalised units: each input's std over the training data]
 SIZED_BELOW = 100  # successful demonstrations from which `sized` adds nothing to the current defaults
 

@@ -1,4 +1,4 @@
-"""docs/policies.md's tables of the data curve's paired experiments at 50 demonstrations (SIMULATED,
+"""docs/data_curve.md's tables of the data curve's paired experiments at 50 demonstrations (SIMULATED,
 PRIVILEGED state): perturbed collection (issue #56 item 4) and the relabelled peg-insert point, each
 against the unperturbed baseline, rollout by rollout. Merged into bench.docs_tables.TABLES
 through bench.docs_tables_pages."""
@@ -42,7 +42,7 @@ def _label_shares(rows: list[dict]) -> str:
 
 
 def perturb50() -> str:
-    """docs/policies.md: collection that teaches recovery (issue #56 item 4) at 50 demonstrations, the
+    """docs/data_curve.md: collection that teaches recovery (issue #56 item 4) at 50 demonstrations, the
     perturbed run against the unperturbed one at the same commit, episode by episode, per task and pooled."""
     from bench.data_curve_report import paired_points
     from bench.first_report import mcnemar_p, wilson
@@ -84,7 +84,7 @@ def perturb50() -> str:
 
 
 def relabel50() -> str:
-    """docs/policies.md: the unperturbed peg-insert point at 50 trained again on the same demonstrations with
+    """docs/data_curve.md: the unperturbed peg-insert point at 50 trained again on the same demonstrations with
     sound FIRST labels (given thresholds), paired with the collapsed-label training on the same episodes."""
     from bench.data_curve_report import paired_points
 
@@ -113,6 +113,6 @@ def relabel50() -> str:
 
 # page, name -> (results files it reads, renderer)
 TABLES = {
-    ("policies.md", "perturb50"): (("data_curve_perturb50", "data_curve_base50"), perturb50),
-    ("policies.md", "relabel50"): (("data_curve_relabel50", "data_curve_base50"), relabel50),
+    ("data_curve.md", "perturb50"): (("data_curve_perturb50", "data_curve_base50"), perturb50),
+    ("data_curve.md", "relabel50"): (("data_curve_relabel50", "data_curve_base50"), relabel50),
 }

@@ -2,7 +2,7 @@
 Gaussian noise on the low-dimensional inputs during training, and which checkpoint the run keeps for use.
 
 The noise and the val-min checkpoint are off by default: today's defaults stay until a rule using them is
-measured on rollouts (docs/policies.md, "Choosing the defaults"; the validation loss alone is not a safe
+measured on rollouts (docs/data_curve.md, "Choosing the defaults"; the validation loss alone is not a safe
 signal: on peg-insert success rose with steps while it rose too, docs/first_training.md).
 """
 
