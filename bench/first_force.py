@@ -97,6 +97,27 @@ def against_runs(out: Path, other: Path) -> tuple[str, dict]:
     return obs, load_runs(other, live_as=obs)
 
 
+def kept_runs(payload: dict, have: set) -> dict:
+    """The rollout sets of an earlier force results file (its payload: summarize()'s data) for every
+    (task, cell, seed, how) that `have` lacks: a task, cell or training seed whose run folder is gone comes
+    back from the results file's raw rows (episode seed, success, progress). A set's stage reach is its
+    cell's pooled one (the file keeps no per-set reach): the kept sets of a cell, of equal size, add up to
+    the reach they had, so the pooled stages stay exact."""
+    runs = {}
+    for task, d in (payload.get("tasks") or {}).items():
+        for key, sets in (d.get("raw") or {}).items():
+            cell, _, how = key.partition("/")
+            summary = d.get("cells", {}).get(_cell_name(cell, how, payload.get("observation"))) or {}
+            for seed, rows in sets.items():
+                if (task, cell, int(seed), how) in have:
+                    continue
+                eps = [{"seed": int(k), "outcome": "success" if ok else "failure", "progress": float(prog)}
+                       for k, ok, prog in rows]
+                runs[(task, cell, int(seed), how)] = {"episodes": eps, "kept_from_results": True,
+                                                      "stage_rates": summary.get("stages", {})}
+    return runs
+
+
 def cell_summary(runs: dict, task: str, cell: str, how: str = "live") -> dict | None:
     """Pooled success (k / n, Wilson), progress, per-seed success and stage reach of one cell."""
     sets = {s: r for (t, c, s, h), r in runs.items() if (t, c, h) == (task, cell, how)}
@@ -149,17 +170,23 @@ def paired(runs: dict, task: str, a: tuple[str, str], b: tuple[str, str]) -> dic
             "progress_diff": float(d.mean()), "progress_ci": (float(d.mean() - half), float(d.mean() + half))}
 
 
-def summarize(out: Path, against: Path | None = None) -> dict:
+def summarize(out: Path, against: Path | None = None, keep: dict | None = None) -> dict:
     """The force table's data from every finished rollout set in OUT: per task, each cell's summary
     (cell_summary), each comparison (paired), and every rollout (raw: episode seed, success, progress), so
     that the table can be re-made and re-tested from the results file alone. `against`: a run with another
-    observation on the same demonstrations (its cells as "CELL, OBS observation", paired with OUT's)."""
+    observation on the same demonstrations (its cells as "CELL, OBS observation", paired with OUT's).
+    `keep`: an earlier results file's payload whose cells OUT and AGAINST lack are taken (kept_runs)."""
     runs = load_runs(out)
-    other = None
     if against is not None:
-        other, more = against_runs(out, against)
-        runs.update(more)
+        runs.update(against_runs(out, against)[1])
     cfg = json.loads((out / "config.json").read_text()) if (out / "config.json").is_file() else {}
+    if keep is not None:
+        if keep.get("observation") != cfg.get("obs") or keep.get("eval_seed") != cfg.get("eval_seed"):
+            raise SystemExit(f"--keep: observation / evaluation seed {keep.get('observation')} / "
+                             f"{keep.get('eval_seed')} differ from OUT's {cfg.get('obs')} / "
+                             f"{cfg.get('eval_seed')}: its episodes would not pair")
+        runs.update(kept_runs(keep, set(runs)))
+    others = sorted({h for *_, h in runs if h != "live" and h not in ABLATIONS})  # other observations
     data: dict = {"simulated": True, "observation": cfg.get("obs"), "eval_seed": cfg.get("eval_seed"),
                   "bench": {k: cfg.get(k) for k in ("tasks", "demos", "seeds", "rollouts", "steps", "batch",
                                                     "policy", "precision", "next_checkpoint", "table")},
@@ -167,13 +194,13 @@ def summarize(out: Path, against: Path | None = None) -> dict:
     for task in sorted({k[0] for k in runs}):
         d = data["tasks"][task] = {"cells": {}, "pairs": {}, "raw": {}}
         for cell in CELLS:
-            for how in ("live",) + (ABLATIONS if cell in FORCE_CELLS else ()) + ((other,) if other else ()):
+            for how in ("live",) + (ABLATIONS if cell in FORCE_CELLS else ()) + tuple(others):
                 s = cell_summary(runs, task, cell, how)
                 if s is not None:
                     d["cells"][_cell_name(cell, how)] = s
         pairs = [((a, "live"), (b, "live")) for a, b in PAIRS]
         pairs += [((c, "live"), (c, h)) for c in FORCE_CELLS for h in ABLATIONS]
-        pairs += [((c, "live"), (c, other)) for c in CELLS if other]
+        pairs += [((c, "live"), (c, o)) for o in others for c in CELLS]
         for a, b in pairs:
             p = paired(runs, task, a, b)
             if p is not None:
@@ -185,8 +212,8 @@ def summarize(out: Path, against: Path | None = None) -> dict:
     return data
 
 
-def _cell_name(cell: str, how: str) -> str:
-    if how == "live":
+def _cell_name(cell: str, how: str, obs: str | None = None) -> str:
+    if how in ("live", obs):  # a results file's raw keys its own observation's sets "live"
         return cell
     return f"{cell}, force {how}" if how in ABLATIONS else f"{cell}, {_obs_name(how)} observation"
 
@@ -228,9 +255,10 @@ def render(data: dict) -> str:
     return "\n".join(lines + comps)
 
 
-def report(out: Path, against: Path | None = None) -> tuple[str, dict]:
-    """The force table (markdown) and its data from every finished rollout set in OUT (and AGAINST)."""
-    data = summarize(out, against)
+def report(out: Path, against: Path | None = None, keep: dict | None = None) -> tuple[str, dict]:
+    """The force table (markdown) and its data from every finished rollout set in OUT (and AGAINST, and
+    the cells of KEEP that neither holds)."""
+    data = summarize(out, against, keep)
     return render(data) + "\n", data
 
 
@@ -264,6 +292,10 @@ def main(argv=None) -> int:
     ap.add_argument("--against", default="", metavar="DIR",
                     help="with --report: a bench_first run with another observation (e.g. state) on the same "
                     "demonstrations and evaluation episodes (--demos-from OUT's), paired cell by cell")
+    ap.add_argument("--keep", default="", metavar="NAME",
+                    help="with --report: take from results/NAME.json every rollout set (task, method, "
+                    "training seed, ablation or observation) that OUT and --against do not hold, from its "
+                    "raw rows: a run folder since gone stays in the table")
     ap.add_argument("--results", default="", metavar="NAME",
                     help="with --report: also publish the data as results/NAME.json (a harness record; "
                     "docs/force.md's table is written from it by python -m bench.docs_tables)")
@@ -280,7 +312,13 @@ def main(argv=None) -> int:
         against = Path(a.against) if a.against else None
         if against is not None and not (against / "config.json").is_file():
             ap.error(f"--against {against}: no config.json (not a bench_first results folder)")
-        md, data = report(out, against)
+        keep = None
+        if a.keep:
+            path = harness.RESULTS / f"{a.keep}.json"
+            if not path.is_file():
+                ap.error(f"--keep {a.keep}: no {path} (a results name, e.g. force_perceived)")
+            keep = json.loads(path.read_text()).get("payload") or {}
+        md, data = report(out, against, keep)
         (out / "force_table.md").write_text(md)
         (out / "force_results.json").write_text(json.dumps(data, indent=1, default=float))
         if a.results:  # OUT and OUT_STATE are scratch folders: named, not the machine's paths

@@ -105,3 +105,47 @@ def test_first_motion_is_its_own_row_paired_against_base_torque_and_first(tmp_pa
     assert {k: v for k, v in d["pairs"].items() if "first-motion" not in k} == before["pairs"]
     assert "| cap-screw | first-motion | 2 | 4 / 8 = 50 %" in md
     assert "| cap-screw | first-motion vs first | 8 (seeds 0,1) | 0 / 4 |" in md
+
+
+def test_keep_rebuilds_the_committed_table_from_its_raw_rows_alone(tmp_path):
+    """An empty run folder with --keep force_perceived gives back every cell and comparison the committed
+    results file holds: nothing of the table lives only in a run folder."""
+    from bench import harness
+
+    path = harness.RESULTS / "force_perceived.json"
+    payload = json.loads(path.read_text())["payload"]
+    (tmp_path / "config.json").write_text(json.dumps({"obs": payload["observation"],
+                                                      "eval_seed": payload["eval_seed"], "rollouts": 32}))
+    _, data = report(tmp_path, keep=payload)
+    for task, d in payload["tasks"].items():
+        got = data["tasks"][task]
+        assert set(got["cells"]) == set(d["cells"]) and set(got["pairs"]) == set(d["pairs"]), task
+        for name, cell in d["cells"].items():
+            for key in ("k", "n", "seeds", "per_seed", "failing_stage"):
+                assert got["cells"][name][key] == cell[key], (task, name, key)
+            assert got["cells"][name]["progress"] == pytest.approx(cell["progress"])
+            assert got["cells"][name]["stages"] == pytest.approx(cell["stages"])
+        for name, pair in d["pairs"].items():
+            for key in ("pairs", "only_a", "only_b", "seeds"):
+                assert got["pairs"][name][key] == pair[key], (task, name, key)
+            assert got["pairs"][name]["progress_ci"] == pytest.approx(pair["progress_ci"])
+        assert got["raw"] == d["raw"]
+
+
+def test_keep_takes_only_what_the_run_lacks_and_refuses_other_episodes(tmp_path):
+    out = _folder(tmp_path)
+    _, first = report(out)
+    st = {"grasp": 1.0, "engage": 0.5, "seat": 0.5, "tight": 0.5}  # a kept cell that OUT lacks
+    first["tasks"]["cap-screw"]["raw"]["base/state"] = {"0": [[3100093, 1, 1.0], [3100094, 0, 0.5]]}
+    first["tasks"]["cap-screw"]["cells"]["base, PRIVILEGED state observation"] = {"stages": st}
+    first["tasks"]["cap-screw"]["raw"]["first/live"]["0"] = [[3100093, 0, 0.0]]  # OUT has it: not taken
+    first["tasks"]["cap-screw"]["raw"]["first/live"]["2"] = [[3100093, 0, 0.0]]  # a seed OUT lacks: taken
+    _, data = report(out, keep=first)
+    d = data["tasks"]["cap-screw"]
+    first_cell = d["cells"]["first"]
+    assert (first_cell["k"], first_cell["n"], first_cell["seeds"]) == (8, 9, [0, 1, 2])
+    kept = d["cells"]["base, PRIVILEGED state observation"]
+    assert (kept["k"], kept["n"], kept["stages"]) == (1, 2, st)
+    assert d["pairs"]["base: perceived vs PRIVILEGED state observation"]["pairs"] == 2
+    with pytest.raises(SystemExit, match="would not pair"):
+        report(out, keep={**first, "eval_seed": 32})
