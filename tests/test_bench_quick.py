@@ -79,7 +79,8 @@ SKIP = {
 # modules of bench/ that are not scripts (used by the ones above)
 LIBRARIES = {"__init__", "harness", "first_config", "first_ledger", "first_report", "first_stages",
              "crash_trials", "fault_trials", "data_curve_report", "data_curve_config", "data_curve_defaults",
-             "data_curve_ledger", "data_curve_queue", "docs_tables_pages", "docs_tables_curve"}
+             "data_curve_ledger", "data_curve_queue", "docs_tables_pages", "docs_tables_curve",
+             "first_images_workers"}
 
 
 def scripts() -> set[str]:

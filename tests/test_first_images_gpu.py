@@ -1,4 +1,4 @@
-"""bench/first_images_gpu.py's pure parts: rollout blocks and their episode seeds (issue #31 item 5)."""
+"""bench/first_images_workers.py's pure parts: rollout blocks and their episode seeds (issue #31 item 5)."""
 
 import sys
 from pathlib import Path
@@ -6,7 +6,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import factr2_teleop.session.task_episodes as tc  # noqa: E402
-from bench.first_images_gpu import blocks, merge_rollouts, parse_args, shift_episode_seeds  # noqa: E402
+from bench.first_images_gpu import parse_args  # noqa: E402
+from bench.first_images_workers import blocks, merge_rollouts, shift_episode_seeds  # noqa: E402
 
 
 def test_blocks_cover_every_episode_once():
