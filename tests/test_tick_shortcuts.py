@@ -213,3 +213,62 @@ def test_watchdog_fresh_shortcut_is_the_whole_check(now, t_cmd, t_fb):
         want = DeviceHold.NO_FEEDBACK
     got = w.stale(now)
     assert (got is None) == (want is None) and (got is None or got.kind is want)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.tuples(st.one_of(ANY, FIN), FIN), min_size=N, max_size=N),
+       st.lists(st.one_of(EDGE, st.floats(-0.01, 0.01)), min_size=3, max_size=3), RATES)
+def test_coupled_step_from_its_own_last_target_is_rate_limit(qp, moves, rate):
+    """coupled_step's q_prev its own last target (the coupled tick: the floats it kept with it) and the
+    usual tick's copy of q_goal give rate_limit's values, bit for bit, tick after tick."""
+    from factr2_teleop.teleop.soft_start import SoftStart, SoftStartConfig, rate_limit
+
+    soft = SoftStart(SoftStartConfig(rate_limit_rad_s=rate), N, 0.002)
+    q, prev = np.asarray([a for a, _ in qp]), np.asarray([b for _, b in qp])
+    for m in moves:
+        want = rate_limit(q, prev, soft.rate, 0.002)
+        got = soft.coupled_step(q, prev, 0.002)
+        assert _bits(got) == _bits(want) and got is not q and not got.flags.writeable
+        prev, q = got, q + m  # the next tick starts from this target
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.sampled_from(["coupled", "hold", "soft_start", "fault"]), st.booleans(), st.booleans(),
+       st.booleans(), st.booleans(), st.sampled_from([None, 0.01, np.nan]), st.booleans())
+def test_tick_record_by_position_is_the_keyword_record(phase, est_on, est_list, sent_on, out_on, grip, off):
+    """ArmPair._record's positional TickRecord has the fields the keyword form gave, value for value."""
+    import dataclasses
+    from types import SimpleNamespace as NS
+
+    from factr2_teleop.teleop.pair import FAULT, HOLD, STOPPED, ArmPair
+    from factr2_teleop.teleop.record import TickRecord
+
+    tau_e = [0.5] * N if est_list else np.arange(N, dtype=float)
+    me = NS(follower=NS(n_joints=N), estimate=NS(tau_ext=tau_e) if est_on else None, phase=phase,
+            sent=NS(q=np.ones(N), gripper=grip, hold=np.bool_(True)) if sent_on else None,
+            cfg=NS(name="arm"), _offset=np.zeros(N) if off else None)
+    out = NS(terms={"gravity": np.ones(N)}, gate=0.25, contact=np.bool_(True), fresh=1, gripper_tau=0.5)
+    out = out if out_on else None
+    ls, fs, tau = object(), object(), np.zeros(N)
+    got = ArmPair._record(me, 1.5, ls, fs, tau, out)
+    est, sent, nf = me.estimate, me.sent, N
+    want = TickRecord(  # the keyword form
+        t=1.5, pair="arm", phase=phase, leader=ls, follower=fs, leader_tau_cmd=tau,
+        tau_ext=np.asarray(est.tau_ext, dtype=float) if est is not None else np.full(nf, np.nan),
+        action_q=sent.q if sent is not None else np.full(nf, np.nan),
+        action_gripper=float("nan") if sent is None or sent.gripper is None else float(sent.gripper),
+        action_hold=bool(sent.hold) if sent is not None else phase in (HOLD, FAULT, STOPPED),
+        leader_tau_terms=out.terms if out is not None else {}, gate=out.gate if out else 0.0,
+        contact=bool(out.contact) if out else False, fresh=bool(out.fresh) if out else False,
+        leader_gripper_tau_fb=out.gripper_tau if out else 0.0, perturb_q=me._offset)
+    for f in dataclasses.fields(TickRecord):
+        a, b = getattr(got, f.name), getattr(want, f.name)
+        assert type(a) is type(b), f.name
+        if isinstance(a, np.ndarray):
+            assert a.dtype == b.dtype and a.tobytes() == b.tobytes(), f.name
+        elif isinstance(a, float) and math.isnan(a):
+            assert math.isnan(b), f.name
+        else:
+            assert a is b or a == b, f.name
+    if est_on and not est_list:
+        assert got.tau_ext is est.tau_ext  # a float64 array as it is, as np.asarray gives it

@@ -50,6 +50,7 @@ LOOP_GAP_SOFT_S = 1.0  # s: a tick this late means the app itself stopped (its m
 # a slow core) and missed one read does not hold while data keeps arriving; silence still holds within
 # leader_stale_s / follower_stale_s (pair_config.DEFAULT_STALE_S: 10 reads at 500 Hz)
 STALE_MIN_MISSES = 2
+_NAN = float("nan")
 
 
 class ArmPair:
@@ -333,7 +334,7 @@ class ArmPair:
         sent = self.q_target
         if self._offset is not None and sent is not None:  # what was sent: the perturbed target
             sent = sent + self._offset
-        return EstimatorInput(t=now, follower=fs, q_leader_f=q_leader_f, q_target_f=sent)
+        return EstimatorInput(now, fs, q_leader_f, sent)  # positional (t, follower, q_leader_f, q_target_f)
 
     def _leader_inputs(self, now: float, ls: JointState, fs: JointState) -> LeaderInputs:
         est = self.estimate
@@ -357,13 +358,22 @@ class ArmPair:
     def _record(self, now: float, ls: JointState, fs: JointState, tau_sent: np.ndarray, out) -> TickRecord:
         nf = self.follower.n_joints
         est, sent = self.estimate, self.sent
-        return TickRecord(
-            t=now, pair=self.cfg.name, phase=self.phase, leader=ls, follower=fs, leader_tau_cmd=tau_sent,
-            tau_ext=np.asarray(est.tau_ext, dtype=float) if est is not None else np.full(nf, np.nan),
-            action_q=sent.q if sent is not None else np.full(nf, np.nan),
-            action_gripper=float("nan") if sent is None or sent.gripper is None else float(sent.gripper),
-            action_hold=bool(sent.hold) if sent is not None else self.phase in (HOLD, FAULT, STOPPED),
-            leader_tau_terms=out.terms if out is not None else {},  # read-only, this tick's
-            gate=out.gate if out else 0.0, contact=bool(out.contact) if out else False,
-            fresh=bool(out.fresh) if out else False, leader_gripper_tau_fb=out.gripper_tau if out else 0.0,
-            perturb_q=self._offset)
+        tau_ext = est.tau_ext if est is not None else np.full(nf, np.nan)
+        if type(tau_ext) is not np.ndarray or tau_ext.dtype != np.float64:  # (np.asarray: the same array
+            tau_ext = np.asarray(tau_ext, dtype=float)  # when it is one of float64, a new one otherwise)
+        if sent is None:
+            action_q, grip, hold = np.full(nf, np.nan), _NAN, self.phase in (HOLD, FAULT, STOPPED)
+        else:
+            action_q, hold = sent.q, bool(sent.hold)
+            grip = _NAN if sent.gripper is None else float(sent.gripper)
+        if out is None:
+            terms, gate, contact, fresh, grip_fb = {}, 0.0, False, False, 0.0
+        else:  # the terms read-only, this tick's
+            terms, gate, contact, fresh, grip_fb = (out.terms, out.gate, bool(out.contact), bool(out.fresh),
+                                                    out.gripper_tau)
+        # positional, in the field order (t, pair, phase, leader, follower, leader_tau_cmd, tau_ext, action_q,
+        # action_gripper, action_hold, leader_tau_terms, gate, contact, fresh, leader_gripper_tau_fb, then
+        # the loop's four at their defaults -- the loop sets them -- and perturb_q): 500 Hz, a dataclass of
+        # 20 fields by keyword costs about twice the same call by position
+        return TickRecord(now, self.cfg.name, self.phase, ls, fs, tau_sent, tau_ext, action_q, grip, hold,
+                          terms, gate, contact, fresh, grip_fb, _NAN, 0, _NAN, _NAN, self._offset)

@@ -101,6 +101,7 @@ class SoftStart:
         self._out = ruckig.OutputParameter(n)
         self.q = np.full(n, np.nan)
         self._rate_floats: tuple = (None, [])  # (rate, its floats): coupled_step's
+        self._last_step: tuple = (None, [])  # (coupled_step's last target, its floats)
 
     def coupled_step(self, q_goal: np.ndarray, q_prev: np.ndarray, dt_s: float) -> np.ndarray:
         """rate_limit(q_goal, q_prev, self.rate, dt_s) [rad], the same values: the coupled pair's target every
@@ -108,8 +109,23 @@ class SoftStart:
         c = self._rate_floats
         if c[0] is not self.rate:  # (n,) per joint, as q_goal
             c = self._rate_floats = (self.rate, np.asarray(self.rate, dtype=float).tolist())
-        q, p = np.asarray(q_goal, dtype=float).tolist(), np.asarray(q_prev, dtype=float).tolist()
-        return np.array(rate_limit_floats(q, p, c[1], max(float(dt_s), 0.0)))
+        qa = np.asarray(q_goal, dtype=float)
+        q, last = qa.tolist(), self._last_step
+        # q_prev is usually the target this returned last tick (read-only): its floats kept with it
+        p = last[1] if q_prev is last[0] else np.asarray(q_prev, dtype=float).tolist()
+        dt = max(float(dt_s), 0.0)
+        for x, pj, v in zip(q, p, c[1], strict=True):  # rate_limit_floats' usual tick written out
+            step = v * dt
+            if not pj - step < x < pj + step:
+                fl = rate_limit_floats(q, p, c[1], dt)
+                break
+        else:  # every target strictly inside its step: q_goal's floats as they are
+            fl = q
+        # q_goal copied: the same float64 values np.array(list(q)) gave, bit for bit
+        out = qa.copy() if fl is q and qa.ndim == 1 else np.array(fl)
+        out.flags.writeable = False  # its floats are kept for the next tick
+        self._last_step = (out, fl)
+        return out
 
     def reset(self, q_now: np.ndarray) -> None:
         """Start from the follower's measured position, at rest."""
