@@ -232,6 +232,29 @@ def test_coupled_step_from_its_own_last_target_is_rate_limit(qp, moves, rate):
         prev, q = got, q + m  # the next tick starts from this target
 
 
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.one_of(st.floats(-7, 7), st.sampled_from([0.0, -0.0, 3.14159])), min_size=N, max_size=N))
+def test_law_gravity_floats_are_gravity_tolist(q):
+    """LeaderLaw.gravity_floats (pinocchio's result's floats, no copies) is gravity(q).tolist(), bit for bit,
+    with the description's ArmDynamics.gravity; any other g(q) takes gravity() itself."""
+    from factr2_teleop.teleop.leader_law import LeaderLaw, LeaderLawConfig, arm_model_fns
+
+    grav, jac = arm_model_fns("gello_piper")
+    law = LeaderLaw(LeaderLawConfig(), _limits(), grav, jac)
+    qa = np.asarray(q)
+    assert _bits(law.gravity_floats(qa)) == _bits(law.gravity(qa).tolist())
+    assert law._g_floats[1] is not None  # the fast form was taken
+    law.gravity_fn = lambda x: grav(x) * 2.0  # set again: its own result
+    assert _bits(law.gravity_floats(qa)) == _bits((grav(qa) * 2.0).tolist())
+
+
+def _limits():
+    from hardware.types import JointLimits
+
+    return JointLimits(q_min=np.full(N, -3.0), q_max=np.full(N, 3.0), v_max=np.full(N, 3.0),
+                       tau_max=np.full(N, 1.0), tau_rate_max=np.full(N, 50.0))
+
+
 @settings(max_examples=150, deadline=None)
 @given(st.sampled_from(["coupled", "hold", "soft_start", "fault"]), st.booleans(), st.booleans(),
        st.booleans(), st.booleans(), st.sampled_from([None, 0.01, np.nan]), st.booleans())

@@ -221,6 +221,7 @@ class LeaderLaw:
                               fix=f"use one of {', '.join(FRICTION_MODES)}")
         self.gravity_fn, self.jacobian_fn = gravity_fn, jacobian_fn
         self.model_map = model_map or JointMap.identity(n)
+        self._g_floats: tuple = (None, None)  # (gravity_fn, its floats form or None): gravity_floats
         g, f, b, ns = cfg.gravity, cfg.friction, cfg.barrier, cfg.null_space
         pj = per_joint
         self.g_gain = pj(g.gain, n, "leader_law.gravity.gain")
@@ -260,6 +261,17 @@ class LeaderLaw:
         """g(q) on the leader joints [N*m] (model frame mapped back)."""
         return self.model_map.torque_back(self.gravity_fn(self.model_map.forward(q)))
 
+    def gravity_floats(self, q: np.ndarray) -> list[float]:
+        """gravity(q).tolist(); with a unit map (torque_back: a copy) and an ArmDynamics' own gravity (the
+        usual rig), the floats of pinocchio's result itself: the same values, two copies fewer."""
+        fn, c = self.gravity_fn, self._g_floats
+        if c[0] is not fn:  # (gravity_fn set again: looked at again)
+            owner = getattr(fn, "__self__", None)
+            fast = (self.model_map._unit and callable(getattr(owner, "gravity_floats", None))
+                    and getattr(fn, "__func__", None) is getattr(type(owner), "gravity", None))
+            c = self._g_floats = (fn, owner.gravity_floats if fast else None)
+        return self.gravity(q).tolist() if c[1] is None else c[1](self.model_map.forward(q))
+
     def jacobian(self, q: np.ndarray) -> np.ndarray:
         """J on the leader joints: J_model @ dq_model/dq_leader."""
         J = np.asarray(self.jacobian_fn(self.model_map.forward(q)), dtype=float)
@@ -278,7 +290,7 @@ class LeaderLaw:
         if not (math.isfinite(sum(qdl)) or all(map(math.isfinite, qdl))):  # (a finite sum: all finite)
             qd = np.where(np.isfinite(qd), qd, 0.0)
             qdl = qd.tolist()
-        gl = self.gravity(q).tolist() if cfg.gravity.enabled else None
+        gl = self.gravity_floats(q) if cfg.gravity.enabled else None
         mode = cfg.friction.mode
         sign = self._dither_sign
         if mode == "dither":  # the sign flips every tick: the two lists made once, swapped

@@ -66,6 +66,10 @@ class ArmDynamics:
         """g(q) [N*m]: joint torques that hold the arm still against gravity."""
         return pin.computeGeneralizedGravity(self.model, self.data, self._vec(q, "q")).copy()
 
+    def gravity_floats(self, q) -> list[float]:
+        """gravity(q).tolist() without the copy (the leader law's 500 Hz term, LeaderLaw.gravity_floats)."""
+        return pin.computeGeneralizedGravity(self.model, self.data, self._vec(q, "q")).tolist()
+
     def rnea(self, q, qd, qdd) -> np.ndarray:
         """Inverse dynamics tau = M(q) qdd + C(q, qd) qd + g(q) [N*m] (M includes armature)."""
         return pin.rnea(self.model, self.data, self._vec(q, "q"), self._vec(qd, "qd"),

@@ -115,6 +115,7 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         # r) bit for bit, IEEE rounding being symmetric): velocity and current arrays in one numpy product
         self._sign_rad_s = np.array([s * p.RAD_S_PER_VELOCITY_UNIT for s in self._signs_l])
         self._sign_amps = np.array([s * a for s, a in zip(self._signs_l, self._amps_l, strict=True)])
+        self._vel_cur_scale = np.concatenate([self._sign_rad_s, self._sign_amps])  # both in one product
         self._grip_k_a = (self.gripper_model.torque_constant, self.gripper_model.amps_per_unit)
         self._limit_l = self.limit_units.tolist()  # again at connect, where the servos' Current Limit is read
         self.read_ids = all_ids
@@ -253,10 +254,14 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
               for q, x, x0 in zip(qs0, ticks, tp)]
         self._q_servo, self._ticks_prev = qs, ticks
         signs = self._signs_l
-        if cur_units is not None:
-            cur = self._sign_amps * np.array(cur_units[:n])  # (sign * c) * a of the numpy decode, bit for bit
+        if cur_units is not None:  # velocity and current: one array of the units (ints, exact as floats)
+            # times one of the scales, the sample's two arrays views of it: (sign * c) * r and (sign * c) * a
+            # of the numpy decode, bit for bit (a third fewer instructions than an array and a product each)
+            vc = self._vel_cur_scale * np.array(vel[:n] + cur_units[:n], float)
+            qd, cur = vc[:n], vc[n:]
             tau = self.k * cur
         else:
+            qd = self._sign_rad_s * np.array(vel[:n], float)
             cur, tau = prev.current.copy(), prev.tau_m.copy()
         status = self._status_enabled if self._torque_on else self._status_zero
         if errs is not None or self.alerts.pending:
@@ -278,10 +283,9 @@ class DynamixelLeader(LeaderSetup, LeaderWatchdog, Leader):
         nan = self._nan_ro
         # positional: in JointState's field order (t, q, q_dot, tau_m, current, q_cmd, temperature, status,
         # gripper_pos, gripper_effort), a third cheaper than by keyword at 500 Hz; velocity and current as one
-        # numpy product each: cheaper than 6 float products and the array made of them
-        return JointState(t, np.array([s * (x - o) for s, x, o in zip(signs, qs, self._offsets_l)]),
-                          self._sign_rad_s * np.array(vel[:n]), tau, cur, nan, nan, status, grip_pos,
-                          grip_effort)
+        # numpy product (above): cheaper than 6 float products and the array made of them
+        return JointState(t, np.array([s * (x - o) for s, x, o in zip(signs, qs, self._offsets_l)]), qd, tau,
+                          cur, nan, nan, status, grip_pos, grip_effort)
 
     def _alert_bits(self, status: np.ndarray, errs) -> None:
         """A joint servo whose status has the alert bit: STATUS_DRIVER_ERROR; the rebooter told (alerts.py)"""
