@@ -98,6 +98,11 @@ class InProcessPortHandler(sdk.PortHandler):
             self._rx += emu.serve(bytes(packet), self.baudrate)
         return len(packet)
 
+    def setPacketTimeoutMillis(self, msec):  # noqa: N802 -- sdk name
+        # no start time: isPacketTimeout below never waits (the sdk's reads the wall clock, a time.time and a
+        # round, every tick's sync read)
+        self.packet_timeout = msec
+
     def isPacketTimeout(self):  # noqa: N802 -- sdk name
         self.packet_timeout = 0
         return True
