@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 import json
 
-# the candidate rule's levers (issue #56 item 2; not validated yet: docs/data_curve.md "Choosing the defaults")
+# the candidate rule's levers (issue #56 item 2; not validated yet:
+# docs/data_curve.md "Choosing the defaults")
 OBS_NOISE = "state=0.05,objects=0.05,force=0.1"  # [normalised units: each input's std over the training data]
 SIZED_BELOW = 100  # successful demonstrations from which `sized` adds nothing to the current defaults
 

@@ -270,7 +270,8 @@ TABLES = {
     ("force.md", "force_perceived"): (("force_perceived",), lambda: force_table("force_perceived")),
     ("force.md", "force_history"): (("force_history_perceived",),
                                     lambda: history_table("force_history_perceived")),
-    ("data_curve.md", "data_curve"): (("data_curve_current",), lambda: data_curve_table("data_curve_current")),
+    ("data_curve.md", "data_curve"): (("data_curve_current",),
+                                      lambda: data_curve_table("data_curve_current")),
     **docs_tables_pages.TABLES,
 }
 

@@ -84,8 +84,9 @@ def perturb50() -> str:
 
 
 def relabel50() -> str:
-    """docs/data_curve.md: the unperturbed peg-insert point at 50 trained again on the same demonstrations with
-    sound FIRST labels (given thresholds), paired with the collapsed-label training on the same episodes."""
+    """docs/data_curve.md: the unperturbed peg-insert point at 50 trained again on the same demonstrations
+    with sound FIRST labels (given thresholds), paired with the collapsed-label training on the same
+    episodes."""
     from bench.data_curve_report import paired_points
 
     new, base = _payload("data_curve_relabel50"), _payload("data_curve_base50")
