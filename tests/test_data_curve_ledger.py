@@ -216,13 +216,31 @@ def test_results_without_fingerprints_come_in_only_at_their_commit_with_a_warnin
         L.check_imported(L.read_imported(cfg.out), "fff0000")
 
 
-def test_the_committed_curve_imports_at_its_commit_and_the_queue_trains_only_the_200_points(tmp_path):
+def _curve_mujoco(monkeypatch) -> str:
+    """The MuJoCo version the committed curve was collected under, made this process's: the import refuses
+    any other (a new MuJoCo may step the twin differently), and the machine's install is not the test."""
+    import mujoco
+
+    was = json.loads(CURVE.read_text())["machine"]["mujoco"]
+    monkeypatch.setattr(mujoco, "__version__", was)
+    return was
+
+
+def test_the_committed_curve_imports_at_its_commit_and_the_queue_trains_only_the_200_points(tmp_path,
+                                                                                          monkeypatch):
     """The aim: at the curve's commit, the 200-demonstration points of peg-insert and press-fit run without
-    training the 25/50/100 ones again."""
+    training the 25/50/100 ones again; under another MuJoCo nothing is imported."""
+    import mujoco
+
     rec = json.loads(CURVE.read_text())["payload"]
     cfg, _ = dc.parse_args(["--out", str(tmp_path), "--tasks", "peg-insert,press-fit",
                             "--points", "25,50,100,200"])
     cfg.defaults_meta = defaults_meta("current")
+    was = _curve_mujoco(monkeypatch)
+    monkeypatch.setattr(mujoco, "__version__", was + ".other")
+    with pytest.raises(SystemExit, match=f"collected under MuJoCo {was}, this is {was}.other"):
+        L.import_points(cfg, "data_curve_current", here=rec["rows"][0]["commit"])
+    _curve_mujoco(monkeypatch)
     lines = L.import_points(cfg, "data_curve_current", here=rec["rows"][0]["commit"])
     assert lines[0].startswith("imported 12 finished point(s) from results/data_curve_current.json")
     st = Q.State(cfg)
@@ -236,6 +254,7 @@ def test_import_for_another_checkouts_queue_writes_the_out_and_stops(tmp_path, c
     import signal
 
     monkeypatch.setattr(signal, "signal", lambda *a: None)  # main's SIGTERM handler: not in pytest's process
+    _curve_mujoco(monkeypatch)
     at = json.loads(CURVE.read_text())["payload"]["rows"][0]["commit"]
     argv = ["--out", str(tmp_path), "--tasks", "wipe", "--points", "25,50", "--import-results",
             "data_curve_current"]
